@@ -1,0 +1,5 @@
+"""VDNIF core: the pipeline capture -> voxels -> traverse -> dataset -> network -> train -> render.
+
+Modules at this level use numpy/torch only and never import bpy; everything that reads or
+writes a Blender scene lives in the ``blender`` subpackage.
+"""
