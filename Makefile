@@ -1,0 +1,28 @@
+# Two commands do all the set-up: `make demo` (the main job) and `make test` (the suite).
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.requirements-installed
+
+.PHONY: demo test package venv clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt
+	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found (bpy 4.5 needs Python 3.11)"; exit 1; }
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements.txt
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) vdnif_addon/batch.py -- capture --scene arm --resolution 32 --poses 32 --json out/demo/capture.json
+
+test: $(STAMP)
+	$(PY) -m pytest
+
+package: $(STAMP)
+	$(PY) tools/package.py --out build
+
+clean:
+	rm -rf build out .pytest_cache

@@ -1,0 +1,51 @@
+"""Test harness: pure-core tests run without bpy; Blender tests load the package as a real
+extension (``bl_ext.dev.vdnif``) with user resources in a temporary folder and an empty scene
+per test (BLENDER_NOTES.md)."""
+
+import importlib
+import os
+import pathlib
+import tempfile
+
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+MESHES = REPO.parent / "shared" / "meshes"
+EXTENSION_MODULE = "bl_ext.dev.vdnif"
+
+# Must be set before bpy is first imported, so user preferences never touch the real home.
+os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="vdnif-user-")
+
+
+@pytest.fixture(scope="session")
+def extension():
+    """The extension enabled the way Blender enables it, from this source tree."""
+    import bpy
+    import addon_utils
+
+    repo_dir = tempfile.mkdtemp(prefix="vdnif-repo-")
+    os.symlink(REPO, os.path.join(repo_dir, "vdnif"))
+    bpy.context.preferences.extensions.repos.new(
+        name="dev", module="dev", custom_directory=repo_dir, source="USER")
+    addon_utils.enable(EXTENSION_MODULE, default_set=True, handle_error=_raise)
+    yield importlib.import_module(EXTENSION_MODULE)
+    addon_utils.disable(EXTENSION_MODULE, default_set=True)
+
+
+def _raise(exc):
+    raise exc
+
+
+@pytest.fixture
+def core(extension):
+    """Imports a core module as the extension sees it: ``core("blender.capture")``."""
+    return lambda name: importlib.import_module(f"{EXTENSION_MODULE}.vdnif_addon.{name}")
+
+
+@pytest.fixture
+def empty_scene(extension):
+    """An empty scene with the extension still enabled."""
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return bpy.context.scene
