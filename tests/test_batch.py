@@ -1,0 +1,74 @@
+"""The batch script as users run it: a subprocess with arguments after ``--``."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from conftest import REPO
+
+BATCH = REPO / "vdnif_addon" / "batch.py"
+
+
+def run_batch(*args, timeout=120):
+    result = subprocess.run([sys.executable, str(BATCH), "--", *map(str, args)],
+                            capture_output=True, text=True, timeout=timeout, cwd=REPO)
+    return result.returncode, result.stdout, result.stderr
+
+
+def error_lines(stderr):
+    return [line for line in stderr.splitlines() if line.startswith("vdnif: error:")]
+
+
+def test_capture_writes_the_summary_json(tmp_path):
+    target = tmp_path / "capture.json"
+    code, out, err = run_batch("capture", "--scene", "arm", "--resolution", 16, "--poses", 4,
+                               "--json", target)
+    assert code == 0, err
+    summary = json.loads(target.read_text())
+    for key in ("grid_dims", "voxel_size", "occupied_voxels", "corners", "poses",
+                "inverted_cells", "heads", "capture_s"):
+        assert key in summary, key
+    assert summary["poses"] == 4 and len(summary["inverted_cells"]) == 4
+    assert summary["grid_dims"][2] == 18 and summary["voxel_size"] == pytest.approx(3 / 16)
+    assert summary["occupied_voxels"] > 0 and summary["mode"] == "armature"
+    assert "captured 'Arm'" in out and "ETA" in err
+
+
+def test_static_mesh_file_is_reported_as_static(tmp_path):
+    mesh = tmp_path / "tri.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    blend = tmp_path / "static.blend"
+    script = (f"import bpy; bpy.ops.wm.read_homefile(use_empty=True); "
+              f"bpy.ops.wm.obj_import(filepath={str(mesh)!r}); "
+              f"bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})")
+    subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
+    code, out, err = run_batch("capture", "--blend", blend, "--object", "tri",
+                               "--resolution", 8, "--json", tmp_path / "s.json")
+    assert code == 0, err
+    assert "static" in out and "no deform modifier, one pose" in out
+    assert json.loads((tmp_path / "s.json").read_text())["poses"] == 1
+
+
+@pytest.mark.parametrize("args, message", [
+    (["capture", "--scene", "arm", "--resolution", 300], "resolution 300 is outside 4..256"),
+    (["capture", "--mesh", "nowhere.obj"], "mesh file 'nowhere.obj' does not exist"),
+    (["capture", "--blend", "nowhere.blend"], "blend file 'nowhere.blend' does not exist"),
+    (["capture", "--scene", "moon"], "invalid choice: 'moon'"),
+    (["render"], "invalid choice: 'render'"),
+])
+def test_failures_print_one_line_and_exit_non_zero(args, message):
+    code, out, err = run_batch(*args)
+    assert code != 0
+    lines = error_lines(err)
+    assert len(lines) == 1 and message in lines[0], err
+
+
+def test_help_documents_every_command():
+    code, out, _ = run_batch("--help")
+    assert code == 0 and "capture" in out
+    code, out, _ = run_batch("capture", "--help")
+    for option in ("--scene", "--mesh", "--rig", "--blend", "--object", "--resolution",
+                   "--poses", "--seed", "--json"):
+        assert option in out

@@ -1,0 +1,183 @@
+"""Reads an object's rest mesh and material albedo sources from Blender."""
+
+import contextlib
+
+import bpy
+import numpy as np
+
+from ..errors import VDNIFError
+from ..restmesh import Albedo, RestMesh
+
+DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
+DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+
+
+def check_mesh_object(obj):
+    """Raises a VDNIFError unless ``obj`` is a mesh object with faces."""
+    if obj is None:
+        raise VDNIFError("no object given")
+    if obj.type != "MESH":
+        raise VDNIFError(f"object '{obj.name}' is a {obj.type.lower()}, not a mesh")
+    if len(obj.data.polygons) == 0:
+        raise VDNIFError(f"mesh object '{obj.name}' is empty: it has no faces")
+
+
+def deform_modifiers(obj):
+    """The enabled modifiers that deform ``obj`` with a pose (armature, lattice)."""
+    return [m for m in obj.modifiers if m.type in DEFORM_MODIFIER_TYPES and m.show_viewport]
+
+
+@contextlib.contextmanager
+def deformers_disabled(obj):
+    """Evaluates ``obj`` in rest space while inside: deform modifiers switched off."""
+    modifiers = deform_modifiers(obj)
+    for modifier in modifiers:
+        modifier.show_viewport = False
+    bpy.context.view_layer.update()
+    try:
+        yield bpy.context.evaluated_depsgraph_get()
+    finally:
+        for modifier in modifiers:
+            modifier.show_viewport = True
+        bpy.context.view_layer.update()
+
+
+def evaluated_triangles(obj, depsgraph):
+    """(vertices (V,3) float64, triangles (T,3) int32) of the evaluated mesh, local space."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        mesh.calc_loop_triangles()
+        return _vertices(mesh), _loop_triangle_array(mesh, "vertices", 3, np.int32)
+    finally:
+        evaluated.to_mesh_clear()
+
+
+def read_rest_mesh(obj):
+    """The rest mesh of ``obj``: evaluated with its deform modifiers disabled."""
+    check_mesh_object(obj)
+    with deformers_disabled(obj) as depsgraph:
+        evaluated = obj.evaluated_get(depsgraph)
+        mesh = evaluated.to_mesh()
+        try:
+            return _rest_mesh_from(obj, mesh)
+        finally:
+            evaluated.to_mesh_clear()
+
+
+def _rest_mesh_from(obj, mesh):
+    mesh.calc_loop_triangles()
+    if len(mesh.loop_triangles) == 0:
+        raise VDNIFError(f"mesh object '{obj.name}' is empty: it has no faces")
+    loops = _loop_triangle_array(mesh, "loops", 3, np.int64)
+    vertices = _vertices(mesh)
+    if not np.isfinite(vertices).all():
+        raise VDNIFError(f"mesh object '{obj.name}' has vertices at infinite or NaN positions")
+    rest = RestMesh(
+        name=obj.name,
+        vertices=vertices,
+        triangles=_loop_triangle_array(mesh, "vertices", 3, np.int32),
+        corner_normals=_loop_triangle_array(mesh, "split_normals", 9, np.float32)
+        .reshape(-1, 3, 3),
+        material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel(),
+    )
+    if mesh.uv_layers.active is not None:
+        uv = np.empty(len(mesh.loops) * 2, np.float32)
+        mesh.uv_layers.active.uv.foreach_get("vector", uv)
+        rest.uvs = uv.reshape(-1, 2)[loops]
+    rest.albedo = [_albedo(slot.material, obj, rest) for slot in obj.material_slots] or [
+        Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="no material")]
+    slots = len(rest.albedo)
+    rest.material_index = np.clip(rest.material_index, 0, slots - 1)
+    attribute = next((a.source for a in rest.albedo if a.kind == "attribute"), None)
+    if attribute is not None:
+        rest.corner_colors = _corner_colors(obj, mesh, attribute, loops)
+    return rest
+
+
+def _vertices(mesh):
+    co = np.empty(len(mesh.vertices) * 3, np.float64)
+    mesh.vertices.foreach_get("co", co)
+    return co.reshape(-1, 3)
+
+
+def _loop_triangle_array(mesh, attribute, width, dtype):
+    values = np.empty(len(mesh.loop_triangles) * width, dtype)
+    mesh.loop_triangles.foreach_get(attribute, values)
+    return values.reshape(-1, width)
+
+
+def _albedo(material, obj, rest):
+    """The albedo source of one material slot (Principled BSDF Base Color)."""
+    if material is None:
+        return Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="empty slot")
+    principled = _principled_node(material)
+    if principled is None:
+        return Albedo("constant", np.array(material.diffuse_color[:3], np.float32),
+                      source=material.name)
+    base = principled.inputs["Base Color"]
+    constant = np.array(base.default_value[:3], np.float32)
+    if not base.is_linked:
+        return Albedo("constant", constant, source=material.name)
+    node = base.links[0].from_node
+    if node.type == "TEX_IMAGE" and node.image is not None:
+        return Albedo("texture", constant, texture=_image_pixels(node.image, material),
+                      extension=node.extension, source=node.image.name)
+    if node.type == "VERTEX_COLOR" or (node.type == "ATTRIBUTE" and node.attribute_type == "GEOMETRY"):
+        name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
+        name = name or (obj.data.color_attributes.active_color_name or "")
+        if name in obj.data.color_attributes:
+            return Albedo("attribute", constant, source=name)
+    rest.warnings.append(f"material '{material.name}': Base Color is driven by a "
+                         f"'{node.bl_label}' node, which is not supported; its constant is used")
+    return Albedo("constant", constant, source=material.name)
+
+
+def _principled_node(material):
+    if not material.use_nodes or material.node_tree is None:
+        return None
+    nodes = material.node_tree.nodes
+    output = next((n for n in nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output), None)
+    if output is not None and output.inputs["Surface"].is_linked:
+        node = output.inputs["Surface"].links[0].from_node
+        if node.type == "BSDF_PRINCIPLED":
+            return node
+    return next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
+
+
+def _image_pixels(image, material):
+    """(H, W, 3) float32 linear RGB of an image, bottom row first as Blender stores it."""
+    if not image.has_data:
+        _try_load(image)
+    width, height = image.size
+    if width == 0 or height == 0 or not image.has_data:
+        raise VDNIFError(f"image '{image.name}' of material '{material.name}' cannot be read "
+                         f"(missing file '{image.filepath}'?)")
+    pixels = np.empty(width * height * image.channels, np.float32)
+    image.pixels.foreach_get(pixels)
+    rgb = pixels.reshape(height, width, image.channels)[..., :3]
+    if not image.is_float and image.colorspace_settings.name == "sRGB":
+        rgb = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    return np.ascontiguousarray(rgb, dtype=np.float32)
+
+
+def _try_load(image):
+    try:
+        image.reload()
+    except RuntimeError:
+        pass
+
+
+def _corner_colors(obj, mesh, name, loops):
+    """(T, 3, 3) linear colors of the color attribute ``name`` at each triangle corner."""
+    attribute = mesh.color_attributes.get(name)
+    if attribute is None:
+        raise VDNIFError(f"color attribute '{name}' of '{obj.name}' is missing after evaluation")
+    colors = np.empty(len(attribute.data) * 4, np.float32)
+    attribute.data.foreach_get("color", colors)
+    colors = colors.reshape(-1, 4)[:, :3]
+    if attribute.domain == "POINT":
+        loop_vertex = np.empty(len(mesh.loops), np.int64)
+        mesh.loops.foreach_get("vertex_index", loop_vertex)
+        return colors[loop_vertex[loops]]
+    return colors[loops]

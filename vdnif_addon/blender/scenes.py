@@ -1,0 +1,299 @@
+"""Scene sources: the embedded demo scenes, meshes from files with a procedural rig, and
+objects from .blend files.
+
+Every source returns the mesh object to capture. The procedural rigs are the same for the
+demo scenes and for any mesh a user gives: an armature chain along the longest axis with
+automatic weights, or a 3x3x3 lattice around the mesh, each animated over frames 1..48.
+"""
+
+import math
+import pathlib
+
+import bpy
+import numpy as np
+
+from ..errors import VDNIFError
+
+DEMO_SCENES = ("arm", "lattice", "spot", "bunny")
+RIGS = ("armature", "lattice")
+FRAME_START, FRAME_END = 1, 48
+MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
+MESH_IMPORTERS = {
+    ".obj": lambda path: bpy.ops.wm.obj_import(filepath=path),
+    ".ply": lambda path: bpy.ops.wm.ply_import(filepath=path),
+    ".gltf": lambda path: _import_gltf(path),
+    ".glb": lambda path: _import_gltf(path),
+}
+
+
+def demo_scene(name, rig=None, meshes_dir=MESHES):
+    """Builds the embedded demo scene ``name`` in the current (emptied) file."""
+    if name not in DEMO_SCENES:
+        raise VDNIFError(f"unknown scene '{name}': choose one of {', '.join(DEMO_SCENES)}")
+    _reset_file()
+    if name == "arm":
+        obj = _segmented_cylinder("Arm")
+        rig = rig or "armature"
+    elif name == "lattice":
+        obj = _subdivided_suzanne("Suzanne")
+        rig = rig or "lattice"
+    elif name == "spot":
+        obj = import_mesh(meshes_dir / "spot.obj", name="Spot")
+        _texture_material(obj, meshes_dir / "spot_texture.png")
+        rig = rig or "armature"
+    else:
+        obj = import_mesh(meshes_dir / "stanford-bunny.obj", name="Bunny")
+        _two_materials_split_by_plane(obj)
+        rig = rig or "lattice"
+    return add_rig(obj, rig)
+
+
+def mesh_scene(path, rig):
+    """Imports a mesh file (OBJ, PLY, glTF) into an emptied file and rigs it."""
+    _reset_file()
+    return add_rig(import_mesh(path), rig)
+
+
+def blend_scene(path, object_name):
+    """Opens a .blend file and returns the named object (checked later by capture)."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise VDNIFError(f"blend file '{path}' does not exist")
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+    except RuntimeError as exc:
+        raise VDNIFError(f"cannot open blend file '{path}': {_first_line(exc)}") from None
+    return find_object(object_name)
+
+
+def find_object(name=None):
+    """The named object, or the active one when ``name`` is None."""
+    if name is None:
+        obj = bpy.context.view_layer.objects.active
+        if obj is None:
+            raise VDNIFError("no active object: select the mesh to capture or name it")
+        return obj
+    obj = bpy.data.objects.get(name)
+    if obj is None:
+        raise VDNIFError(f"no object named '{name}' in the scene")
+    return obj
+
+
+def import_mesh(path, name=None):
+    """Imports a mesh file and returns one mesh object (several are joined)."""
+    path = pathlib.Path(path)
+    importer = MESH_IMPORTERS.get(path.suffix.lower())
+    if importer is None:
+        raise VDNIFError(f"cannot read mesh file '{path}': use one of "
+                         f"{', '.join(sorted(MESH_IMPORTERS))}")
+    if not path.is_file():
+        raise VDNIFError(f"mesh file '{path}' does not exist")
+    before = set(bpy.data.objects)
+    try:
+        importer(str(path))
+    except RuntimeError as exc:
+        raise VDNIFError(f"cannot read mesh file '{path}': {_first_line(exc)}") from None
+    meshes = [o for o in bpy.data.objects if o not in before and o.type == "MESH"]
+    if not meshes or not any(len(o.data.polygons) for o in meshes):
+        raise VDNIFError(f"mesh file '{path}' holds no faces")
+    obj = _join(meshes)
+    obj.name = name or path.stem
+    return obj
+
+
+def add_rig(obj, rig):
+    """Adds the procedural armature or lattice rig with its animation to ``obj``."""
+    if rig not in RIGS:
+        raise VDNIFError(f"unknown rig '{rig}': choose one of {', '.join(RIGS)}")
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = FRAME_START, FRAME_END
+    if rig == "armature":
+        _armature_chain(obj)
+    else:
+        _bend_twist_lattice(obj)
+    scene.frame_set(FRAME_START)
+    bpy.context.view_layer.objects.active = obj
+    return obj
+
+
+def _reset_file():
+    bpy.ops.wm.read_homefile(use_empty=True)
+
+
+def _first_line(exc):
+    return str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+
+
+def _import_gltf(path):
+    import addon_utils
+
+    addon_utils.enable("io_scene_gltf2", default_set=False)
+    bpy.ops.import_scene.gltf(filepath=path)
+
+
+def _join(meshes):
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj in meshes)
+    bpy.context.view_layer.objects.active = meshes[0]
+    if len(meshes) > 1:
+        bpy.ops.object.join()
+    obj = bpy.context.view_layer.objects.active
+    for other in list(bpy.data.objects):
+        if other is not obj and other.type != "MESH" and other.users_collection:
+            bpy.data.objects.remove(other)
+    return obj
+
+
+def _mesh_object(name, vertices, faces):
+    mesh = bpy.data.meshes.new(name)
+    mesh.from_pydata(vertices.tolist(), [], faces)
+    mesh.validate()
+    obj = bpy.data.objects.new(name, mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def _segmented_cylinder(name, radius=0.25, length=3.0, rings=25, sides=16):
+    """A capped cylinder along z with many rings, so it bends smoothly."""
+    angles = np.linspace(0, 2 * math.pi, sides, endpoint=False)
+    heights = np.linspace(-length / 2, length / 2, rings)
+    ring = np.stack([radius * np.cos(angles), radius * np.sin(angles)], axis=1)
+    vertices = np.concatenate([np.column_stack([ring, np.full(sides, z)]) for z in heights])
+    faces = [(r * sides + s, r * sides + (s + 1) % sides,
+              (r + 1) * sides + (s + 1) % sides, (r + 1) * sides + s)
+             for r in range(rings - 1) for s in range(sides)]
+    faces.append(tuple(reversed(range(sides))))
+    faces.append(tuple((rings - 1) * sides + s for s in range(sides)))
+    obj = _mesh_object(name, vertices, faces)
+    for polygon in obj.data.polygons:
+        polygon.use_smooth = len(polygon.vertices) == 4
+    return obj
+
+
+def _subdivided_suzanne(name):
+    bpy.ops.mesh.primitive_monkey_add()
+    obj = bpy.context.active_object
+    obj.name = name
+    subdivision = obj.modifiers.new("Subdivision", "SUBSURF")
+    subdivision.levels = 1
+    bpy.ops.object.modifier_apply(modifier=subdivision.name)
+    obj.data.shade_smooth()
+    return obj
+
+
+def _texture_material(obj, image_path):
+    material = bpy.data.materials.new(f"{obj.name} texture")
+    material.use_nodes = True
+    nodes = material.node_tree.nodes
+    principled = nodes["Principled BSDF"]
+    texture = nodes.new("ShaderNodeTexImage")
+    texture.image = bpy.data.images.load(str(image_path), check_existing=True)
+    material.node_tree.links.new(texture.outputs["Color"], principled.inputs["Base Color"])
+    obj.data.materials.clear()
+    obj.data.materials.append(material)
+
+
+def _constant_material(name, rgb):
+    material = bpy.data.materials.new(name)
+    material.use_nodes = True
+    material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (*rgb, 1)
+    return material
+
+
+def _two_materials_split_by_plane(obj):
+    """Two constant materials, split by the plane through the centre across the longest
+    axis, so material prediction has something to predict."""
+    mesh = obj.data
+    mesh.materials.clear()
+    mesh.materials.append(_constant_material("Bunny clay", (0.8, 0.55, 0.35)))
+    mesh.materials.append(_constant_material("Bunny glaze", (0.2, 0.45, 0.85)))
+    centres = np.empty(len(mesh.polygons) * 3)
+    mesh.polygons.foreach_get("center", centres)
+    centres = centres.reshape(-1, 3)
+    axis = int(np.argmax(np.ptp(centres, axis=0)))
+    split = 0.5 * (centres[:, axis].min() + centres[:, axis].max())
+    mesh.polygons.foreach_set("material_index", (centres[:, axis] > split).astype(np.int32))
+
+
+def _local_bounds(obj):
+    co = np.empty(len(obj.data.vertices) * 3)
+    obj.data.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    return co.min(axis=0), co.max(axis=0)
+
+
+def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
+    """A chain of ``bones`` along the longest local axis, automatic weights, and an action
+    that bends the chain by ``total_bend_degrees`` over the frame range."""
+    lo, hi = _local_bounds(obj)
+    axis = int(np.argmax(hi - lo))
+    centre = 0.5 * (lo + hi)
+    start, end = centre.copy(), centre.copy()
+    start[axis], end[axis] = lo[axis], hi[axis]
+    data = bpy.data.armatures.new(f"{obj.name} rig")
+    armature = bpy.data.objects.new(f"{obj.name} rig", data)
+    bpy.context.scene.collection.objects.link(armature)
+    armature.matrix_world = obj.matrix_world.copy()
+    bpy.context.view_layer.objects.active = armature
+    bpy.ops.object.mode_set(mode="EDIT")
+    parent = None
+    for index in range(bones):
+        bone = data.edit_bones.new(f"Bone.{index}")
+        bone.head = start + (end - start) * index / bones
+        bone.tail = start + (end - start) * (index + 1) / bones
+        bone.parent, bone.use_connect = parent, parent is not None
+        parent = bone
+    bpy.ops.object.mode_set(mode="OBJECT")
+    for other in bpy.context.view_layer.objects:
+        other.select_set(other in (obj, armature))
+    bpy.context.view_layer.objects.active = armature
+    bpy.ops.object.parent_set(type="ARMATURE_AUTO")
+    if not any(group.name.startswith("Bone.") for group in obj.vertex_groups):
+        raise VDNIFError(f"automatic weights failed on '{obj.name}'")
+    bend = math.radians(total_bend_degrees / bones)
+    for pose_bone in armature.pose.bones:
+        pose_bone.rotation_mode = "XYZ"
+        for frame, angle in ((FRAME_START, 0.0), (FRAME_END, bend)):
+            pose_bone.rotation_euler = (angle, 0.0, 0.0)
+            pose_bone.keyframe_insert("rotation_euler", frame=frame)
+        pose_bone.rotation_euler = (0.0, 0.0, 0.0)
+    return armature
+
+
+def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
+    """A 3x3x3 lattice around ``obj`` with a shape key that bends and twists it along the
+    longest axis, animated from 0 to 1 over the frame range."""
+    lo, hi = _local_bounds(obj)
+    axis = int(np.argmax(hi - lo))
+    data = bpy.data.lattices.new(f"{obj.name} lattice")
+    data.points_u = data.points_v = data.points_w = 3
+    lattice = bpy.data.objects.new(f"{obj.name} lattice", data)
+    bpy.context.scene.collection.objects.link(lattice)
+    lattice.parent = obj
+    rest = np.array([p.co for p in data.points])
+    lattice.location = 0.5 * (lo + hi)
+    lattice.scale = 1.1 * np.maximum(hi - lo, 1e-3 * (hi - lo).max()) / np.ptp(rest, axis=0)
+    modifier = obj.modifiers.new("Lattice", "LATTICE")
+    modifier.object = lattice
+    lattice.shape_key_add(name="Basis")
+    key = lattice.shape_key_add(name="Bend and twist")
+    unit = rest / np.ptp(rest, axis=0)
+    bent = _bend_twist(unit, axis, math.radians(bend_degrees), math.radians(twist_degrees))
+    bent *= np.ptp(rest, axis=0)
+    key.data.foreach_set("co", bent.astype(np.float32).ravel())
+    for frame, value in ((FRAME_START, 0.0), (FRAME_END, 1.0)):
+        key.value = value
+        key.keyframe_insert("value", frame=frame)
+    return lattice
+
+
+def _bend_twist(points, axis, bend, twist):
+    """Lattice-space (unit cube) points twisted about ``axis`` and bent across it."""
+    u, v = (axis + 1) % 3, (axis + 2) % 3
+    along = points[:, axis] + 0.5
+    out = points.copy()
+    angle = twist * along
+    out[:, u] = np.cos(angle) * points[:, u] - np.sin(angle) * points[:, v]
+    out[:, v] = np.sin(angle) * points[:, u] + np.cos(angle) * points[:, v]
+    out[:, u] += 0.5 * bend * along ** 2
+    return out

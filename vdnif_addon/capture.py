@@ -1,0 +1,51 @@
+"""What scene capture produces: rest mesh, voxel grid and per-pose deformed corners."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .restmesh import RestMesh
+from .voxels import VoxelGrid, inverted_cells
+
+
+@dataclass
+class Capture:
+    """A captured deforming object (DESIGN sections 2-4, 7).
+
+    ``corners[p]`` holds the deformed position of every used voxel corner of
+    ``grid.corners`` for ``poses[p]``, in the object's local deformed space.
+    """
+
+    mesh: RestMesh
+    grid: VoxelGrid
+    mode: str                          # "armature", "lattice", "armature+lattice" or "static"
+    poses: list                        # JSON-ready pose descriptions
+    corners: np.ndarray                # (P, C, 3) float64
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def inverted_cells(self):
+        """(P,) int: cells whose deformed trilinear map is inverted, per pose."""
+        return np.array([int(inverted_cells(c, self.grid.cell_corners).sum())
+                         for c in self.corners])
+
+    def summary(self):
+        """JSON-ready figures of the capture, as written by ``batch.py capture --json``."""
+        heads = self.mesh.heads()
+        return {
+            "object": self.mesh.name,
+            "mode": self.mode,
+            "triangles": int(len(self.mesh.triangles)),
+            "object_size": self.mesh.size,
+            "resolution": self.grid.resolution,
+            "grid_dims": self.grid.dims.tolist(),
+            "voxel_size": self.grid.voxel_size,
+            "occupied_voxels": int(len(self.grid.cells)),
+            "corners": int(len(self.grid.corners)),
+            "poses": len(self.poses),
+            "inverted_cells": self.inverted_cells.tolist(),
+            "heads": heads,
+            "capture_s": self.timings.get("total_s"),
+            "timings": self.timings,
+            "warnings": list(self.mesh.warnings),
+        }

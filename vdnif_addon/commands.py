@@ -1,0 +1,153 @@
+"""The batch commands behind ``batch.py``: argument parsing and one function per command.
+
+Each command prints its summary to stdout, progress to stderr, and a failure as one line
+``vdnif: error: ...`` with a non-zero exit code.
+"""
+
+import argparse
+import json
+import pathlib
+import sys
+
+from .errors import VDNIFError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage mistake on one line, like every other failure."""
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message} (see --help)")
+
+
+class _UsageError(Exception):
+    pass
+
+
+def add_scene_options(parser):
+    """``--scene NAME | --mesh FILE --rig R | --blend FILE --object NAME``."""
+    from .blender.scenes import DEMO_SCENES, RIGS
+
+    group = parser.add_argument_group("scene (one of)")
+    source = group.add_mutually_exclusive_group()
+    source.add_argument("--scene", choices=DEMO_SCENES,
+                        help="an embedded demo scene (default: arm)")
+    source.add_argument("--mesh", type=pathlib.Path, metavar="FILE",
+                        help="an OBJ, PLY or glTF file, rigged procedurally (see --rig)")
+    source.add_argument("--blend", type=pathlib.Path, metavar="FILE",
+                        help="a .blend file; the object is --object or the active one")
+    group.add_argument("--rig", choices=RIGS,
+                       help="procedural rig for --mesh (default armature) or a demo scene")
+    group.add_argument("--object", metavar="NAME", help="the mesh object in --blend")
+
+
+def load_scene(args):
+    """Builds or opens the scene the options name and returns the mesh object."""
+    from .blender import scenes
+
+    if args.mesh is not None:
+        return scenes.mesh_scene(args.mesh, args.rig or "armature")
+    if args.blend is not None:
+        return scenes.blend_scene(args.blend, args.object)
+    return scenes.demo_scene(args.scene or "arm", rig=args.rig)
+
+
+def add_pose_options(parser, default_poses=8):
+    group = parser.add_argument_group("poses")
+    group.add_argument("--poses", type=int, default=default_poses, metavar="N",
+                       help=f"number of poses (default {default_poses})")
+    group.add_argument("--pose-source", choices=("random", "frames"), default="random",
+                       help="random bone rotations / lattice offsets, or timeline frames")
+    group.add_argument("--seed", type=int, default=0, help="random pose seed (default 0)")
+    group.add_argument("--max-angle", type=float, default=45.0, metavar="DEG",
+                       help="largest random bone rotation per axis where the bone has no "
+                            "rotation limits (default 45)")
+
+
+def pose_spec(args):
+    from .blender.poses import PoseSpec
+
+    return PoseSpec(source=args.pose_source, count=args.poses, seed=args.seed,
+                    max_angle_deg=args.max_angle)
+
+
+def write_json(path, data):
+    """Writes ``data`` as JSON to ``path`` atomically (no half-written file on failure)."""
+    if path is None:
+        return
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def check_resolution(value):
+    from .voxels import MAX_RESOLUTION, MIN_RESOLUTION
+
+    if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
+        raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")
+
+
+def cmd_capture(args):
+    """Capture a scene: rest mesh, voxels, deformed corners per pose."""
+    from .blender.capture import capture
+    from .progress import Progress
+
+    check_resolution(args.resolution)
+    spec = pose_spec(args)
+    obj = load_scene(args)
+    progress = Progress(f"capture '{obj.name}'", spec.count, "poses")
+    result = capture(obj, args.resolution, spec, progress=lambda done, _: progress.update(done))
+    summary = result.summary()
+    summary["pose_source"] = "static" if result.mode == "static" else spec.source
+    write_json(args.json, summary)
+    inverted = summary["inverted_cells"]
+    print(f"captured '{summary['object']}' ({summary['mode']}"
+          + (": no deform modifier, one pose" if result.mode == "static" else "") + ")")
+    print(f"  triangles {summary['triangles']}, object size {summary['object_size']:.4g}")
+    print(f"  grid {'x'.join(map(str, summary['grid_dims']))}, voxel size "
+          f"{summary['voxel_size']:.4g}, occupied voxels {summary['occupied_voxels']}, "
+          f"corners {summary['corners']}")
+    print(f"  poses {summary['poses']}, inverted cells per pose: max {max(inverted)}, "
+          f"total {sum(inverted)}")
+    print(f"  heads {', '.join(k for k, v in summary['heads'].items() if v is True)}"
+          f", materials {summary['heads']['material_count']}")
+    for warning in summary["warnings"]:
+        print(f"  warning: {warning}")
+    print(f"  capture {summary['capture_s']:.2f} s")
+    return 0
+
+
+def build_parser():
+    parser = _Parser(prog="batch.py", description=(
+        "VDNIF batch commands. Run as: blender --background --python vdnif_addon/batch.py "
+        "-- <command> [options], or python vdnif_addon/batch.py -- <command> [options]."))
+    commands = parser.add_subparsers(dest="command", metavar="<command>", parser_class=_Parser)
+    capture = commands.add_parser("capture", help=cmd_capture.__doc__, description=(
+        cmd_capture.__doc__ + " Writes --json with grid_dims, voxel_size, occupied_voxels, "
+        "corners, poses, inverted_cells (per pose), heads and capture_s."))
+    add_scene_options(capture)
+    capture.add_argument("--resolution", type=int, default=32, metavar="R",
+                         help="voxels along the longest side, 4..256 (default 32)")
+    add_pose_options(capture, default_poses=8)
+    capture.add_argument("--json", type=pathlib.Path, metavar="PATH",
+                         help="write the summary as JSON")
+    capture.set_defaults(run=cmd_capture)
+    return parser
+
+
+def main(argv):
+    """Runs one batch command; returns the process exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return 2
+        return args.run(args)
+    except _UsageError as exc:
+        print(f"vdnif: error: {exc}", file=sys.stderr)
+        return 2
+    except VDNIFError as exc:
+        print(f"vdnif: error: {exc}", file=sys.stderr)
+        return 1

@@ -1,0 +1,67 @@
+"""The rest mesh: triangles in the object's local rest space with everything the ground
+truth needs (shading normals, UVs, colors, material slots and their albedo sources)."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ALBEDO_KINDS = ("constant", "texture", "attribute")
+TEXTURE_EXTENSIONS = ("REPEAT", "EXTEND", "CLIP", "MIRROR")
+
+
+@dataclass
+class Albedo:
+    """Where a material's albedo comes from (Principled Base Color, linear RGB)."""
+
+    kind: str
+    color: np.ndarray                    # (3,) float32: the constant, or the fallback
+    texture: np.ndarray | None = None    # (H, W, 3) float32 linear, row 0 at the bottom (v=0)
+    extension: str = "REPEAT"            # the Image Texture node's extension mode
+    source: str = ""                     # material / image / attribute name, for messages
+
+    def __post_init__(self):
+        assert self.kind in ALBEDO_KINDS and self.extension in TEXTURE_EXTENSIONS
+
+
+@dataclass
+class RestMesh:
+    """A triangulated mesh in local rest space (every deform modifier disabled)."""
+
+    name: str
+    vertices: np.ndarray                      # (V, 3) float64
+    triangles: np.ndarray                     # (T, 3) int32
+    corner_normals: np.ndarray                # (T, 3, 3) float32 shading normal per corner
+    material_index: np.ndarray                # (T,) int32 material slot per triangle
+    albedo: list = field(default_factory=list)   # one Albedo per material slot (>= 1)
+    uvs: np.ndarray | None = None             # (T, 3, 2) float32
+    corner_colors: np.ndarray | None = None   # (T, 3, 3) float32 linear
+    warnings: list = field(default_factory=list)
+
+    @property
+    def size(self):
+        """Longest side of the AABB: one object unit (DESIGN section 2)."""
+        return float(np.ptp(self.vertices, axis=0).max())
+
+    @property
+    def material_count(self):
+        return len(self.albedo)
+
+    @property
+    def albedo_varies(self):
+        """True when albedo varies within a material, so the network needs an albedo head."""
+        return any(a.kind != "constant" for a in self.albedo)
+
+    def heads(self):
+        """Which attributes the scene needs the network to predict (DESIGN section 7)."""
+        return {
+            "occlusion": True,
+            "distance": True,
+            "normal": True,
+            "albedo": self.albedo_varies,
+            "material": self.material_count > 1,
+            "material_count": self.material_count,
+        }
+
+    def albedo_table(self):
+        """(M, 3) constant albedo per material: the lookup table used without albedo head."""
+        return np.array([a.color for a in self.albedo], dtype=np.float32)
