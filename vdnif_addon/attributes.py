@@ -1,0 +1,235 @@
+"""Surface attributes at hit points: barycentric weights, shading normals, albedo, material,
+and the trilinear cell map whose Jacobian carries rest normals into deformed space.
+
+Pure numpy, vectorized over all points (DESIGN sections 6 and 7). Degenerate input (zero-area
+triangles, singular Jacobians, zero vectors) gives documented finite fallbacks, never NaN.
+"""
+
+import numpy as np
+
+from .errors import VDNIFError
+from .restmesh import TEXTURE_EXTENSIONS, RestMesh
+from .voxels import CORNER_OFFSETS
+
+# A triangle is treated as degenerate (a segment or a point) when sin^2 of its angle at
+# corner 0 is below this: the plane solve would then amplify rounding noise.
+DEGENERATE_SIN2 = 1e-12
+
+# Cofactor normals shorter than this, after J is scaled to unit max entry, are rounding noise
+# of a rank <= 1 Jacobian (its cofactor is exactly 0); the rest normal is kept then.
+SINGULAR_COFACTOR = 1e-12
+
+# Returned where no normal can be defined (zero interpolated normal on a zero-area triangle).
+FALLBACK_NORMAL = np.array([0.0, 0.0, 1.0])
+
+
+def normalize(vectors, fallback) -> np.ndarray:
+    """(N, 3) unit vectors; rows of zero (or non-finite) length become ``fallback`` (3,) or
+    (N, 3), so the result never holds NaN."""
+    vectors = np.asarray(vectors, dtype=np.float64)
+    length = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    ok = np.isfinite(length) & (length > 0)
+    unit = vectors / np.where(ok, length, 1.0)
+    return np.where(ok, unit, np.broadcast_to(fallback, vectors.shape))
+
+
+def barycentric(points, corners) -> np.ndarray:
+    """(N, 3) float64 weights of each point (N, 3) w.r.t. its triangle corners (N, 3, 3).
+
+    The point is projected onto the triangle's plane (weights are not clamped, so a point
+    outside the triangle gets negative weights). A degenerate triangle (collinear corners)
+    has no plane: the point is projected onto its longest edge, clamped to that segment, which
+    for collinear corners is the whole triangle; if all corners coincide the weights are 1/3
+    each. Weights always sum to 1 and are finite.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    corners = np.asarray(corners, dtype=np.float64)
+    e1 = corners[:, 1] - corners[:, 0]
+    e2 = corners[:, 2] - corners[:, 0]
+    d = points - corners[:, 0]
+    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    denom = d11 * d22 - d12 * d12
+    planar = denom > DEGENERATE_SIN2 * d11 * d22
+    safe = np.where(planar, denom, 1.0)
+    w1 = (d22 * _dot(d, e1) - d12 * _dot(d, e2)) / safe
+    w2 = (d11 * _dot(d, e2) - d12 * _dot(d, e1)) / safe
+    weights = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+    return np.where(planar[:, None], weights, _segment_weights(points, corners))
+
+
+def _segment_weights(points, corners) -> np.ndarray:
+    """(N, 3) weights of the nearest point on each triangle's longest edge (degenerate case)."""
+    start = np.array([0, 1, 2])
+    end = np.array([1, 2, 0])
+    edges = corners[:, end] - corners[:, start]                     # (N, 3 edges, 3)
+    longest = np.argmax(_dot(edges, edges), axis=1)                 # (N,)
+    rows = np.arange(len(points))
+    edge = edges[rows, longest]
+    length2 = _dot(edge, edge)
+    t = np.clip(_dot(points - corners[rows, start[longest]], edge)
+                / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    weights = np.zeros((len(points), 3))
+    weights[rows, start[longest]] = 1.0 - t
+    weights[rows, end[longest]] = t
+    return np.where(length2[:, None] > 0, weights, 1.0 / 3.0)
+
+
+def interpolate(values, weights) -> np.ndarray:
+    """(N, K): per-corner values (N, 3, K) blended with barycentric weights (N, 3)."""
+    return np.einsum("nck,nc->nk", values, weights)
+
+
+def sample_texture(texture, uv, extension: str) -> np.ndarray:
+    """(N, C) float32 bilinear lookup of ``texture`` (H, W, C), row 0 at v = 0, at uv (N, 2).
+
+    Matches Cycles' Image Texture node with Linear interpolation (kernel ``interp_linear``):
+    texel (i, j) is centred at ((i + 0.5) / W, (j + 0.5) / H); the four texels around
+    (u W - 0.5, v H - 0.5) are blended, with indices out of range resolved per extension:
+    REPEAT wraps, EXTEND clamps to the edge texel, MIRROR reflects (period 2W, edge texels
+    repeated), CLIP reads them as black. Like Cycles (and EEVEE's ``tex_clip_linear``), CLIP
+    therefore fades to black over the half texel just outside [0, 1] and is exactly black
+    beyond it; it is not cut off sharply at the unit square. Computed in float64 where
+    Blender uses float32.
+    """
+    texture = np.asarray(texture)
+    if texture.ndim != 3 or texture.shape[0] == 0 or texture.shape[1] == 0:
+        raise VDNIFError(f"texture must be an (H, W, C) image, got shape {texture.shape}")
+    if extension not in TEXTURE_EXTENSIONS:
+        raise VDNIFError(f"unknown texture extension {extension!r}, "
+                         f"expected one of {', '.join(TEXTURE_EXTENSIONS)}")
+    height, width = texture.shape[:2]
+    uv = np.asarray(uv, dtype=np.float64)
+    x, x_weight = _texel_pairs(uv[:, 0], width, extension)
+    y, y_weight = _texel_pairs(uv[:, 1], height, extension)
+    footprint = texture[y[:, :, None], x[:, None, :]]                  # (N, 2, 2, C)
+    blend = y_weight[:, :, None] * x_weight[:, None, :]                 # (N, 2, 2)
+    return np.einsum("nab,nabc->nc", blend, footprint).astype(np.float32)
+
+
+def _texel_pairs(coordinate, size: int, extension: str):
+    """Indices (N, 2) of the two texels around each coordinate (N,) along one axis, resolved
+    per extension mode, and their linear weights (N, 2); CLIP weights texels outside the
+    image by 0 (their index is clamped only to stay valid)."""
+    position = coordinate * size - 0.5
+    low = np.floor(position)
+    fraction = (position - low)[:, None]
+    index = low.astype(np.int64)[:, None] + np.array([0, 1])
+    weight = np.concatenate([1.0 - fraction, fraction], axis=1)
+    if extension == "REPEAT":
+        return index % size, weight
+    if extension == "MIRROR":
+        index = index % (2 * size)
+        return np.where(index >= size, 2 * size - 1 - index, index), weight
+    if extension == "CLIP":
+        weight = np.where((index >= 0) & (index < size), weight, 0.0)
+    return np.clip(index, 0, size - 1), weight
+
+
+def surface_attributes(mesh: RestMesh, triangle, weights, normals=None, vertices=None) -> dict:
+    """Shading attributes at surface points given by triangle (N,) int and weights (N, 3).
+
+    ``normals`` (T, 3, 3) and ``vertices`` (V, 3) replace ``mesh.corner_normals`` and
+    ``mesh.vertices``, so the same code serves a deformed mesh of the same topology. Returns
+    ``normal`` (N, 3) float64 unit: interpolated corner normals renormalized, else the
+    geometric face normal, else +Z (zero-area triangle with cancelling normals); ``albedo``
+    (N, 3) float32 from the triangle's material (DESIGN section 7: constant; texture at the
+    interpolated UV; interpolated color attribute; a texture without UVs or an attribute
+    without colors falls back to the constant color); ``material`` (N,) int32.
+    """
+    triangle = np.asarray(triangle, dtype=np.int64)
+    weights = np.asarray(weights, dtype=np.float64)
+    normals = mesh.corner_normals if normals is None else normals
+    vertices = mesh.vertices if vertices is None else vertices
+    corners = np.asarray(vertices, dtype=np.float64)[mesh.triangles[triangle]]
+    face_normal = normalize(np.cross(corners[:, 1] - corners[:, 0],
+                                     corners[:, 2] - corners[:, 0]), FALLBACK_NORMAL)
+    normal = normalize(interpolate(np.asarray(normals, dtype=np.float64)[triangle], weights),
+                       face_normal)
+    material = np.asarray(mesh.material_index, dtype=np.int32)[triangle]
+    if len(material) and (material.min() < 0 or material.max() >= mesh.material_count):
+        raise VDNIFError(f"mesh {mesh.name!r}: material index out of range of its "
+                         f"{mesh.material_count} material slot(s)")
+    albedo = np.zeros((len(triangle), 3), dtype=np.float32)
+    for slot in np.unique(material):
+        mask = material == slot
+        albedo[mask] = _albedo(mesh, mesh.albedo[slot], triangle[mask], weights[mask])
+    return {"normal": normal, "albedo": albedo, "material": material}
+
+
+def _albedo(mesh: RestMesh, source, triangle, weights) -> np.ndarray:
+    """(n, 3) albedo of points on triangles of one material ``source`` (an Albedo)."""
+    if source.kind == "texture" and mesh.uvs is not None and source.texture is not None:
+        uv = interpolate(np.asarray(mesh.uvs, dtype=np.float64)[triangle], weights)
+        return sample_texture(source.texture, uv, source.extension)
+    if source.kind == "attribute" and mesh.corner_colors is not None:
+        return interpolate(np.asarray(mesh.corner_colors, dtype=np.float64)[triangle], weights)
+    return source.color
+
+
+def _trilinear_factors(local):
+    """(N, 8, 3) per-axis linear factors of each corner's weight: u or 1 - u by the corner's
+    offset along that axis."""
+    local = np.asarray(local, dtype=np.float64)[:, None, :]
+    return np.where(CORNER_OFFSETS == 1, local, 1.0 - local)
+
+
+def trilinear_map(cell_corners, local) -> np.ndarray:
+    """(N, 3) point x(u) = sum_c w_c(u) X_c of cells with corners (N, 8, 3) (corner
+    c = dx + 2 dy + 4 dz) at local coordinates u (N, 3) in [0, 1]^3."""
+    return np.einsum("nc,nci->ni", _trilinear_factors(local).prod(axis=2), cell_corners)
+
+
+def trilinear_jacobian(cell_corners, local) -> np.ndarray:
+    """(N, 3, 3) Jacobian dx/du of ``trilinear_map``; column j is the derivative along u_j."""
+    factors = _trilinear_factors(local)
+    others = factors[:, :, [[1, 2], [0, 2], [0, 1]]].prod(axis=3)      # (N, 8, 3)
+    derivative = np.where(CORNER_OFFSETS == 1, others, -others)         # dw_c / du_j
+    return np.einsum("nci,ncj->nij", np.asarray(cell_corners, dtype=np.float64), derivative)
+
+
+def deformed_normals(rest_normals, jacobian) -> np.ndarray:
+    """(N, 3) unit normals normalize(J^-T n) of rest normals (N, 3) under Jacobians (N, 3, 3).
+
+    Computed as sign(det J) cof(J) n, with cof(J) = det(J) J^-T built from cross products of
+    J's columns: finite for every J, and equal to J^-T n up to a positive factor. J is first
+    scaled to unit max entry (a uniform scale leaves the result unchanged), so nothing
+    overflows. A singular J counts as det >= 0; where the cofactor normal vanishes (J of rank
+    <= 1, or n in its null space) the rest normal is returned.
+    """
+    rest = normalize(rest_normals, FALLBACK_NORMAL)
+    jacobian = np.asarray(jacobian, dtype=np.float64)
+    scale = np.abs(jacobian).max(axis=(1, 2), initial=0.0)[:, None, None]
+    j = jacobian / np.where(scale > 0, scale, 1.0)
+    a, b, c = j[:, :, 0], j[:, :, 1], j[:, :, 2]
+    cofactor = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=2)
+    sign = np.where(_dot(a, cofactor[:, :, 0]) < 0, -1.0, 1.0)[:, None]
+    deformed = sign * np.einsum("nij,nj->ni", cofactor, rest)
+    tiny = np.linalg.norm(deformed, axis=1, keepdims=True) <= SINGULAR_COFACTOR
+    return normalize(np.where(tiny, 0.0, deformed), rest)
+
+
+def sample_surface(vertices, triangles, count: int, rng):
+    """Area-weighted uniform samples on a triangle mesh.
+
+    Returns points (count, 3) float64, triangle (count,) intp and barycentric weights
+    (count, 3). Zero-area triangles have probability 0; a mesh of zero total area raises
+    VDNIFError.
+    """
+    if count < 0:
+        raise VDNIFError(f"sample count must be >= 0, got {count}")
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(triangles)]
+    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
+                                          corners[:, 2] - corners[:, 0]), axis=1)
+    total = areas.sum()
+    if not (np.isfinite(total) and total > 0):
+        raise VDNIFError("cannot sample the surface: the mesh has zero (or invalid) area")
+    triangle = rng.choice(len(areas), size=count, p=areas / total)
+    root = np.sqrt(rng.random(count))
+    second = rng.random(count)
+    weights = np.stack([1.0 - root, root * (1.0 - second), root * second], axis=1)
+    return interpolate(corners[triangle], weights), triangle, weights
+
+
+def _dot(a, b) -> np.ndarray:
+    """Row-wise dot product over the last axis."""
+    return np.einsum("...i,...i->...", a, b)

@@ -1,0 +1,162 @@
+"""Rays for reference renders and training, in the object's local (deformed) space.
+
+Pinhole cameras (a look-at camera, a Blender camera matrix, orbits around the bounds), the
+affine change of space with its distance scale (DESIGN section 2) and the training ray
+distribution. Pure numpy; every direction returned is unit length.
+"""
+
+import numpy as np
+
+from .attributes import normalize
+from .errors import VDNIFError
+
+# Orbit cameras keep this up vector unless it is parallel to the view direction.
+DEFAULT_UP = np.array([0.0, 0.0, 1.0])
+
+# Training ray origins lie on a sphere of this many half bounding-box diagonals.
+TRAINING_RADIUS = 1.5
+
+# Golden angle in radians: the azimuth step of the Fibonacci sphere.
+GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+def look_at_rays(eye, target, up, fov_deg: float, width: int, height: int):
+    """Pinhole camera rays through pixel centres: origins (H*W, 3), unit directions (H*W, 3).
+
+    Row-major with row 0 at the top of the image and x to the right; ``fov_deg`` is the
+    horizontal field of view (the vertical one follows the aspect ratio). An ``up`` parallel
+    to the view direction is replaced by the world axis least aligned with it.
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - eye
+    length = np.linalg.norm(forward)
+    if not length > 0:
+        raise VDNIFError("camera target coincides with the camera position")
+    forward = forward / length
+    right = np.cross(forward, np.asarray(up, dtype=np.float64))
+    if not np.linalg.norm(right) > 1e-9 * np.linalg.norm(up):
+        right = np.cross(forward, np.eye(3)[np.argmin(np.abs(forward))])
+    right = right / np.linalg.norm(right)
+    return _pinhole(eye, right, np.cross(right, forward), forward, fov_deg, width, height)
+
+
+def camera_rays(camera_to_world, fov_deg: float, width: int, height: int):
+    """Rays (origins, unit directions), (H*W, 3) each, of a camera looking down its local -Z
+    with +Y up (Blender's convention); layout as ``look_at_rays``. The matrix's axes are
+    normalized first, so a scaled camera object renders as Blender does (it ignores scale)."""
+    matrix = np.asarray(camera_to_world, dtype=np.float64)
+    axes = matrix[:3, :3]
+    lengths = np.linalg.norm(axes, axis=0)
+    if not np.all(lengths > 0):
+        raise VDNIFError("camera matrix has a zero-length axis")
+    axes = axes / lengths
+    return _pinhole(matrix[:3, 3], axes[:, 0], axes[:, 1], -axes[:, 2], fov_deg, width, height)
+
+
+def _pinhole(eye, right, up, forward, fov_deg, width, height):
+    """Rays through the pixel centres of an image plane at distance 1 along ``forward``."""
+    if width < 1 or height < 1:
+        raise VDNIFError(f"image size must be at least 1x1, got {width}x{height}")
+    half = _half_tan(fov_deg)
+    x = ((np.arange(width) + 0.5) / width * 2 - 1) * half
+    y = (1 - (np.arange(height) + 0.5) / height * 2) * half * height / width
+    directions = (forward + x[None, :, None] * right + y[:, None, None] * up).reshape(-1, 3)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    return np.broadcast_to(eye, directions.shape).copy(), directions
+
+
+def orbit_viewpoints(count: int, seed=None) -> np.ndarray:
+    """(count, 3) unit directions: a deterministic Fibonacci sphere when ``seed`` is None,
+    else uniform random on the sphere from ``np.random.default_rng(seed)``."""
+    if count < 0:
+        raise VDNIFError(f"viewpoint count must be >= 0, got {count}")
+    if seed is None:
+        index = np.arange(count)
+        return _sphere_points(1 - (2 * index + 1) / count, index * GOLDEN_ANGLE)
+    return _uniform_sphere(count, np.random.default_rng(seed))
+
+
+def orbit_rays(bounds_lo, bounds_hi, direction, width: int, height: int, fov_deg: float = 40):
+    """Rays (origins, unit directions) of a camera on ``direction`` (3,) from the bounds
+    centre, looking at it, just far enough that the bounding sphere fills the view cone
+    inscribed in the image (half angle of the narrower of the horizontal/vertical fov)."""
+    _, _, centre, radius = _bounds(bounds_lo, bounds_hi)
+    direction = np.asarray(direction, dtype=np.float64)
+    if not np.linalg.norm(direction) > 0:
+        raise VDNIFError("orbit direction has zero length")
+    half = _half_tan(fov_deg) * min(1.0, height / width)
+    distance = radius / np.sin(np.arctan(half))
+    eye = centre + distance * direction / np.linalg.norm(direction)
+    return look_at_rays(eye, centre, DEFAULT_UP, fov_deg, width, height)
+
+
+def transform_rays(origins, directions, matrix):
+    """Rays (N, 3) through the affine 4x4 ``matrix`` (e.g. the inverse world matrix).
+
+    Returns origins', unit directions' and scale (N,) = |M_3x3 d| / |d|: a distance t' along
+    the transformed ray is t' / scale along the original one (world distance = local distance
+    / scale). A zero direction, or one the matrix maps to zero, gives direction 0 and scale 0.
+    """
+    matrix = np.asarray(matrix, dtype=np.float64)
+    linear = matrix[:3, :3]
+    directions = np.asarray(directions, dtype=np.float64)
+    mapped = directions @ linear.T
+    length = np.linalg.norm(directions, axis=1)
+    mapped_length = np.linalg.norm(mapped, axis=1)
+    valid = (length > 0) & (mapped_length > 0)
+    scale = np.where(valid, mapped_length / np.where(valid, length, 1.0), 0.0)
+    origins = np.asarray(origins, dtype=np.float64) @ linear.T + matrix[:3, 3]
+    return origins, normalize(mapped, 0.0), scale
+
+
+def training_rays(bounds_lo, bounds_hi, surface_points, count: int, surface_fraction: float, rng):
+    """Training rays (origins, unit directions), (count, 3) each.
+
+    Origins are uniform on the sphere of radius 1.5 half bounding-box diagonals around the box
+    centre; round(count * surface_fraction) rays (at random positions in the batch) aim at a
+    random point of ``surface_points`` (S, 3), the rest at a uniform random point in the box.
+    """
+    if not 0 <= surface_fraction <= 1:
+        raise VDNIFError(f"surface_fraction must be in [0, 1], got {surface_fraction}")
+    if count < 0:
+        raise VDNIFError(f"ray count must be >= 0, got {count}")
+    lo, hi, centre, radius = _bounds(bounds_lo, bounds_hi)
+    surface_points = np.asarray(surface_points, dtype=np.float64).reshape(-1, 3)
+    on_surface = rng.permutation(count) < round(count * surface_fraction)
+    if on_surface.any() and len(surface_points) == 0:
+        raise VDNIFError("surface rays requested but no surface points were given")
+    origins = centre + TRAINING_RADIUS * radius * _uniform_sphere(count, rng)
+    targets = lo + rng.random((count, 3)) * (hi - lo)
+    targets[on_surface] = surface_points[rng.integers(len(surface_points),
+                                                      size=on_surface.sum())]
+    # A target on an origin (possible only for a surface point outside the sphere) aims inward.
+    return origins, normalize(targets - origins, normalize(centre - origins, 0.0))
+
+
+def _half_tan(fov_deg: float) -> float:
+    """tan(fov / 2) of a field of view in degrees, which must lie in (0, 180)."""
+    if not 0 < fov_deg < 180:
+        raise VDNIFError(f"field of view must be between 0 and 180 degrees, got {fov_deg}")
+    return float(np.tan(np.radians(fov_deg) / 2))
+
+
+def _bounds(bounds_lo, bounds_hi):
+    """lo (3,), hi (3,), centre (3,) and radius (half the diagonal) of a box; raises for an
+    inverted or zero-size box."""
+    lo, hi = np.asarray(bounds_lo, dtype=np.float64), np.asarray(bounds_hi, dtype=np.float64)
+    radius = np.linalg.norm(hi - lo) / 2
+    if not (np.all(hi >= lo) and np.isfinite(radius) and radius > 0):
+        raise VDNIFError(f"invalid bounds {lo.tolist()} .. {hi.tolist()}: need lo <= hi and "
+                         "a nonzero extent")
+    return lo, hi, (lo + hi) / 2, radius
+
+
+def _uniform_sphere(count: int, rng) -> np.ndarray:
+    """(count, 3) unit vectors uniform on the sphere (uniform z and azimuth: Archimedes)."""
+    return _sphere_points(rng.uniform(-1.0, 1.0, count), rng.uniform(0.0, 2 * np.pi, count))
+
+
+def _sphere_points(z, azimuth) -> np.ndarray:
+    """(N, 3) unit vectors from heights z (N,) in [-1, 1] and azimuths (N,)."""
+    ring = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    return np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z], axis=1)
