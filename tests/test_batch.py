@@ -51,12 +51,40 @@ def test_static_mesh_file_is_reported_as_static(tmp_path):
     assert json.loads((tmp_path / "s.json").read_text())["poses"] == 1
 
 
+def test_dataset_then_references(tmp_path):
+    out = tmp_path / "data"
+    for pose_range in ("0:1", "1:3"):
+        code, printed, err = run_batch("dataset", "--scene", "arm", "--resolution", 16,
+                                       "--poses", 3, "--rays-per-pose", 128, "--out", out,
+                                       "--pose-range", pose_range)
+        assert code == 0, err
+        assert "segments/s" in printed and "ETA" in err
+    headers = sorted(out.glob("*.json"))
+    assert [h.stem for h in headers] == ["shard-000000-000001", "shard-000001-000003"]
+    header = json.loads(headers[1].read_text())
+    assert header["pose_range"] == [1, 3] and len(header["poses"]) == 2
+    assert header["counts"]["rays"] == 256 and header["counts"]["segments"] > 256
+    report = tmp_path / "refs.json"
+    code, printed, err = run_batch("references", "--scene", "arm", "--resolution", 16,
+                                   "--poses", 2, "--width", 32, "--height", 24, "--json", report)
+    assert code == 0, err
+    data = json.loads(report.read_text())
+    for key in ("distance_mae", "normal_error_deg", "hit_iou"):
+        assert data["embedded_vs_true"][key] is not None
+    assert data["rays_per_s"] > 0 and data["segments_per_s"] > 0
+    assert data["width"] == 32 and data["height"] == 24 and len(data["per_pose"]) == 2
+
+
 @pytest.mark.parametrize("args, message", [
     (["capture", "--scene", "arm", "--resolution", 300], "resolution 300 is outside 4..256"),
     (["capture", "--mesh", "nowhere.obj"], "mesh file 'nowhere.obj' does not exist"),
     (["capture", "--blend", "nowhere.blend"], "blend file 'nowhere.blend' does not exist"),
     (["capture", "--scene", "moon"], "invalid choice: 'moon'"),
     (["render"], "invalid choice: 'render'"),
+    (["dataset", "--scene", "arm", "--poses", 4, "--out", "x", "--pose-range", "3:9"],
+     "pose range 3:9 is outside 0:4"),
+    (["dataset", "--scene", "arm", "--out", "x", "--rays-per-pose", 0],
+     "rays per pose 0 must be at least 1"),
 ])
 def test_failures_print_one_line_and_exit_non_zero(args, message):
     code, out, err = run_batch(*args)
@@ -67,7 +95,7 @@ def test_failures_print_one_line_and_exit_non_zero(args, message):
 
 def test_help_documents_every_command():
     code, out, _ = run_batch("--help")
-    assert code == 0 and "capture" in out
+    assert code == 0 and all(c in out for c in ("capture", "dataset", "references"))
     code, out, _ = run_batch("capture", "--help")
     for option in ("--scene", "--mesh", "--rig", "--blend", "--object", "--resolution",
                    "--poses", "--seed", "--json"):

@@ -3,3 +3,5 @@
 Modules at this level use numpy/torch only and never import bpy; everything that reads or
 writes a Blender scene lives in the ``blender`` subpackage.
 """
+
+__version__ = "0.1.0"   # kept equal to blender_manifest.toml's version (tested)

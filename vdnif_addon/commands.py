@@ -118,6 +118,77 @@ def cmd_capture(args):
     return 0
 
 
+def cmd_dataset(args):
+    """Generate a training dataset shard: walked segments with their ground truth."""
+    from .blender.capture import capture
+    from .blender.generate import generate_dataset
+    from .progress import Progress
+
+    check_resolution(args.resolution)
+    if args.rays_per_pose < 1:
+        raise VDNIFError(f"rays per pose {args.rays_per_pose} must be at least 1")
+    spec = pose_spec(args)
+    obj = load_scene(args)
+    result = capture(obj, args.resolution, spec, deform_corners=False)
+    pose_range = parse_range(args.pose_range, len(result.poses))
+    progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
+    header = generate_dataset(obj, result, args.out, args.rays_per_pose,
+                              args.surface_fraction, args.seed, pose_range,
+                              progress=lambda done, _: progress.update(done))
+    counts, timings = header["counts"], header["timings"]
+    walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
+    print(f"dataset '{header['object']}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
+    print(f"  rays {counts['rays']}, segments {counts['segments']}, hits {counts['hits']}")
+    print(f"  {counts['segments'] / walk_and_truth:,.0f} segments/s, "
+          f"{counts['rays'] / walk_and_truth:,.0f} rays/s (walk {timings['walk_s']:.2f} s, "
+          f"ground truth {timings['ground_truth_s']:.2f} s, pose preparation "
+          f"{timings['prepare_s']:.2f} s)")
+    return 0
+
+
+def parse_range(text, count):
+    """``A:B`` -> (A, B) within 0..count; None -> the whole range."""
+    if text is None:
+        return 0, count
+    try:
+        start, stop = (int(part) for part in text.split(":"))
+    except ValueError:
+        raise VDNIFError(f"pose range '{text}' is not of the form A:B") from None
+    if not 0 <= start < stop <= count:
+        raise VDNIFError(f"pose range {start}:{stop} is outside 0:{count}")
+    return start, stop
+
+
+def cmd_references(args):
+    """Render the true and embedded references on unseen poses; report the embedding error."""
+    from .blender.capture import capture
+    from .blender.generate import reference_run
+    from .blender.poses import evaluation_spec
+    from .progress import Progress
+
+    check_resolution(args.resolution)
+    obj = load_scene(args)
+    result = capture(obj, args.resolution, evaluation_spec(pose_spec(args)),
+                     deform_corners=False)
+    progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
+    report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
+                           progress=lambda done, _: progress.update(done))
+    write_json(args.json, report)
+    error = report["embedded_vs_true"]
+    print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
+          f"{'rest' if args.rest_pose else 'unseen'} poses, {args.width}x{args.height}")
+    print(f"  embedded vs true: distance MAE {error['distance_mae']:.3g} object units, "
+          f"normal error {error['normal_error_deg']:.3g} deg, hit IoU {error['hit_iou']:.4f}")
+    print(f"  {report['rays_per_s']:,.0f} rays/s, {report['segments_per_s']:,.0f} segments/s")
+    return 0
+
+
+def add_capture_options(parser, default_poses):
+    parser.add_argument("--resolution", type=int, default=32, metavar="R",
+                        help="voxels along the longest side, 4..256 (default 32)")
+    add_pose_options(parser, default_poses)
+
+
 def build_parser():
     parser = _Parser(prog="batch.py", description=(
         "VDNIF batch commands. Run as: blender --background --python vdnif_addon/batch.py "
@@ -127,12 +198,36 @@ def build_parser():
         cmd_capture.__doc__ + " Writes --json with grid_dims, voxel_size, occupied_voxels, "
         "corners, poses, inverted_cells (per pose), heads and capture_s."))
     add_scene_options(capture)
-    capture.add_argument("--resolution", type=int, default=32, metavar="R",
-                         help="voxels along the longest side, 4..256 (default 32)")
-    add_pose_options(capture, default_poses=8)
+    add_capture_options(capture, default_poses=8)
     capture.add_argument("--json", type=pathlib.Path, metavar="PATH",
                          help="write the summary as JSON")
     capture.set_defaults(run=cmd_capture)
+
+    data = commands.add_parser("dataset", help=cmd_dataset.__doc__, description=(
+        cmd_dataset.__doc__ + " Several processes may each write the shard of their "
+        "--pose-range into one folder; training reads them all."))
+    add_scene_options(data)
+    add_capture_options(data, default_poses=32)
+    data.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
+                      help="training rays per pose (default 4096)")
+    data.add_argument("--surface-fraction", type=float, default=0.6, metavar="F",
+                      help="share of rays aimed at the surface, the rest at random points "
+                           "in the bounds (default 0.6)")
+    data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
+    data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                      help="dataset folder (shards are added to it)")
+    data.set_defaults(run=cmd_dataset)
+
+    refs = commands.add_parser("references", help=cmd_references.__doc__, description=(
+        cmd_references.__doc__ + " Writes --json with embedded_vs_true (distance_mae in "
+        "object units, normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
+    add_scene_options(refs)
+    add_capture_options(refs, default_poses=4)
+    refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
+    refs.add_argument("--width", type=int, default=128, metavar="W")
+    refs.add_argument("--height", type=int, default=128, metavar="H")
+    refs.add_argument("--json", type=pathlib.Path, metavar="PATH", help="write the report")
+    refs.set_defaults(run=cmd_references)
     return parser
 
 

@@ -13,11 +13,13 @@ from .poses import PoseSpec, make_poses, posed
 from .read_mesh import check_mesh_object, deform_modifiers, read_rest_mesh
 
 
-def capture(obj, resolution=32, spec=PoseSpec(), progress=None):
+def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=True):
     """Captures mesh object ``obj`` for the poses chosen by ``spec``.
 
     A mesh without deform modifiers is static mode: one pose, corners at rest.
-    ``progress(done, total)`` is called after each pose.
+    ``progress(done, total)`` is called after each pose. With ``deform_corners`` False the
+    poses are chosen but their corners are left to the caller (``corners`` is None), for
+    work that deforms one pose at a time anyway.
     """
     start = time.perf_counter()
     check_mesh_object(obj)
@@ -33,14 +35,8 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None):
     rest = grid.corner_positions()
     if modifiers:
         poses = make_poses(obj, modifiers, spec)
-        corners = np.empty((len(poses), len(rest), 3))
-        with CornerDeformer(obj, rest) as deformer:
-            for index, pose in enumerate(poses):
-                with posed(pose):
-                    corners[index] = deformer.deformed()
-                if progress is not None:
-                    progress(index + 1, len(poses))
         mode = "+".join(sorted({m.type.lower() for m in modifiers}))
+        corners = _deformed_corners(obj, rest, poses, progress) if deform_corners else None
     else:
         poses = [{"frame": float(bpy.context.scene.frame_current)}]
         corners = rest[None]
@@ -50,3 +46,15 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None):
                "deform_s": end - voxel_s, "total_s": end - start}
     return Capture(mesh=mesh, grid=grid, mode=mode, poses=poses, corners=corners,
                    timings=timings)
+
+
+def _deformed_corners(obj, rest, poses, progress):
+    """(P, C, 3) the ``rest`` corners deformed by Blender for every pose."""
+    corners = np.empty((len(poses), len(rest), 3))
+    with CornerDeformer(obj, rest) as deformer:
+        for index, pose in enumerate(poses):
+            with posed(pose):
+                corners[index] = deformer.deformed()
+            if progress is not None:
+                progress(index + 1, len(poses))
+    return corners

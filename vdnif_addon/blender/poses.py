@@ -9,7 +9,7 @@ A pose is a JSON-ready dict: ``{"frame": F}`` plus, for random poses,
 
 import contextlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import bpy
 import numpy as np
@@ -18,6 +18,7 @@ from mathutils import Euler
 from ..errors import VDNIFError
 
 POSE_SOURCES = ("random", "frames")
+EVALUATION_SEED_OFFSET = 1_000_003
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,13 @@ class PoseSpec:
             raise VDNIFError(f"maximum angle {self.max_angle_deg} degrees is outside (0, 180]")
         if not 0 < self.lattice_fraction <= 1:
             raise VDNIFError(f"lattice offset fraction {self.lattice_fraction} is outside (0, 1]")
+
+
+def evaluation_spec(spec, count=None):
+    """The pose spec for evaluation: other random seed, or frames half a step apart from
+    the training frames, so every reported figure is on poses never trained on."""
+    return replace(spec, count=count or spec.count, seed=spec.seed + EVALUATION_SEED_OFFSET,
+                   frame_offset=0.5)
 
 
 def make_poses(obj, modifiers, spec):

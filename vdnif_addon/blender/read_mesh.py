@@ -42,13 +42,23 @@ def deformers_disabled(obj):
         bpy.context.view_layer.update()
 
 
-def evaluated_triangles(obj, depsgraph):
-    """(vertices (V,3) float64, triangles (T,3) int32) of the evaluated mesh, local space."""
-    evaluated = obj.evaluated_get(depsgraph)
+def evaluated_surface(obj, rest):
+    """The evaluated (deformed) mesh of the current pose in local space, on the rest mesh's
+    triangulation: vertices (V,3) float64 and corner normals (T,3,3) float32.
+
+    Blender re-triangulates quads by their deformed shape, so its own loop triangles may
+    pick the other diagonal of a non-planar quad; keeping the rest triangles (same loops)
+    makes the deformed mesh exactly the rest mesh with moved vertices.
+    """
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     mesh = evaluated.to_mesh()
     try:
-        mesh.calc_loop_triangles()
-        return _vertices(mesh), _loop_triangle_array(mesh, "vertices", 3, np.int32)
+        if len(mesh.vertices) != len(rest.vertices) or len(mesh.loops) <= rest.triangle_loops.max():
+            raise VDNIFError(f"'{obj.name}': a modifier changes the mesh topology between rest "
+                             f"and pose; only deform modifiers are supported")
+        normals = np.empty(len(mesh.loops) * 3, np.float32)
+        mesh.corner_normals.foreach_get("vector", normals)
+        return _vertices(mesh), normals.reshape(-1, 3)[rest.triangle_loops]
     finally:
         evaluated.to_mesh_clear()
 
@@ -80,6 +90,7 @@ def _rest_mesh_from(obj, mesh):
         corner_normals=_loop_triangle_array(mesh, "split_normals", 9, np.float32)
         .reshape(-1, 3, 3),
         material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel(),
+        triangle_loops=loops,
     )
     if mesh.uv_layers.active is not None:
         uv = np.empty(len(mesh.loops) * 2, np.float32)

@@ -1,0 +1,178 @@
+"""The deformed-space walk against independent references (no bpy: brute-force caster)."""
+
+import numpy as np
+import pytest
+
+from vdnif_addon import traverse as tv
+from vdnif_addon import voxels
+
+
+@pytest.fixture(scope="module")
+def blob():
+    """A random closed-ish triangle soup around the unit sphere, voxelized at R=12."""
+    rng = np.random.default_rng(7)
+    vertices = rng.normal(size=(120, 3))
+    vertices /= np.linalg.norm(vertices, axis=1, keepdims=True)
+    triangles = rng.integers(0, 120, size=(240, 3))
+    return voxels.build_grid(vertices, triangles, 12)
+
+
+def walk(grid, corners, origins, directions, **kw):
+    cells = tv.DeformedCells.build(grid, corners)
+    caster = tv.BruteForceCaster(cells.boundary_triangles())
+    return cells, tv.traverse(cells, caster, origins, directions, **kw)
+
+
+def slab_intervals(grid, origin, direction):
+    """Reference: (t_near, t_far) of every occupied box the ray's line crosses, t_far > 0."""
+    lo = grid.origin + grid.cells * grid.voxel_size
+    hi = lo + grid.voxel_size
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - origin) / direction, (hi - origin) / direction
+    near = np.nanmax(np.minimum(t1, t2), axis=1)
+    far = np.nanmin(np.maximum(t1, t2), axis=1)
+    inside = (far > near) & (far > 0)
+    return np.maximum(near[inside], 0), far[inside], np.flatnonzero(inside)
+
+
+def union_length(near, far):
+    """Length of the union of intervals (boxes sharing an edge give overlapping ones)."""
+    total, reach = 0.0, -np.inf
+    for start, stop in sorted(zip(near, far)):
+        total += max(0.0, stop - max(start, reach))
+        reach = max(reach, stop)
+    return total
+
+
+def random_rays(rng, count, radius=3.0, spread=0.3):
+    origins = rng.normal(size=(count, 3))
+    origins *= radius / np.linalg.norm(origins, axis=1, keepdims=True)
+    directions = rng.normal(size=(count, 3)) * spread - origins
+    return origins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+def test_undeformed_walk_visits_exactly_the_boxes_the_line_crosses(blob):
+    rng = np.random.default_rng(1)
+    origins, directions = random_rays(rng, 300)
+    _, segments = walk(blob, blob.corner_positions(), origins, directions)
+    minimum = 1e-4 * blob.voxel_size            # corner grazes shorter than this may be skipped
+    for ray in range(len(origins)):
+        near, far, cells = slab_intervals(blob, origins[ray], directions[ray])
+        mine = segments.ray == ray
+        long_enough = far - near > minimum
+        assert set(cells[long_enough]) <= set(segments.cell[mine])
+        np.testing.assert_allclose(segments.length[mine].sum(), union_length(near, far),
+                                   atol=10 * minimum)
+    # rest points lie on the ray (the pose is the rest pose) and segments are contiguous
+    x0 = origins[segments.ray] + segments.t0[:, None] * directions[segments.ray]
+    np.testing.assert_allclose(segments.p0, x0, atol=1e-9)
+    assert np.all(segments.length > 0) and np.all(segments.gap >= -1e-9)
+
+
+def test_segment_rest_points_follow_a_deformation_exactly(blob):
+    """Under an affine deformation every rest point maps to its deformed point exactly."""
+    linear = np.array([[1.3, 0.2, 0.0], [-0.3, 0.8, 0.1], [0.1, 0.0, 1.1]])
+    shift = np.array([0.2, -0.1, 0.3])
+    deformed = blob.corner_positions() @ linear.T + shift
+    origins, directions = random_rays(np.random.default_rng(2), 200, radius=4.0)
+    _, segments = walk(blob, deformed, origins, directions)
+    for p, t in ((segments.p0, segments.t0), (segments.p1, segments.t1)):
+        x = origins[segments.ray] + t[:, None] * directions[segments.ray]
+        np.testing.assert_allclose(p @ linear.T + shift, x, atol=1e-9)
+    assert len(segments) > 1000
+
+
+def test_gap_and_length_accumulate_to_the_exit_distance(blob):
+    origins, directions = random_rays(np.random.default_rng(3), 100)
+    _, segments = walk(blob, blob.corner_positions(), origins, directions)
+    total = np.zeros(len(origins))
+    np.add.at(total, segments.ray, segments.gap + segments.length)
+    last_exit = np.zeros(len(origins))
+    np.maximum.at(last_exit, segments.ray, segments.t1)
+    np.testing.assert_allclose(total, last_exit, atol=1e-12)
+
+
+def axis_grid():
+    """A solid 4x4x4 block of cells (a cube voxelized at R=4): corners on integer planes."""
+    box = np.array([[x, y, z] for x in (0, 4) for y in (0, 4) for z in (0, 4)], float)
+    faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+             [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+    return voxels.build_grid(box, np.array(faces), 4)
+
+
+@pytest.mark.parametrize("name, origin, direction", [
+    ("parallel to x through cell centres", (-3, 0.5, 0.5), (1, 0, 0)),
+    ("along a cell edge line", (-3, 1.0, 2.0), (1, 0, 0)),
+    ("through grid corners diagonally", (-3, -3, -3), (1, 1, 1)),
+    ("across an edge line", (-3, -3, 0.5), (1, 1, 0)),
+    ("in a face plane", (-3, 1.0, -2.5), (1, 0, 1)),
+    ("grazing the outer face", (-3, -1.0, 0.5), (1, 0, 0)),
+    ("missing everything", (-3, 10, 10), (1, 0, 0)),
+    ("starting inside", (1.3, 2.2, 0.7), (0.3, -1, 0.2)),
+    ("pointing away", (-3, 0.5, 0.5), (-1, 0, 0)),
+])
+def test_special_rays_terminate_without_nan(name, origin, direction):
+    grid = axis_grid()
+    origin, direction = np.array([origin], float), np.array([direction], float)
+    direction /= np.linalg.norm(direction)
+    _, segments = walk(grid, grid.corner_positions(), origin, direction)
+    assert segments.truncated == 0
+    for array in (segments.t0, segments.t1, segments.p0, segments.p1):
+        assert np.isfinite(array).all()
+    near, far, _ = slab_intervals(grid, origin[0], direction[0])
+    np.testing.assert_allclose(segments.length.sum(), union_length(near, far), atol=1e-6)
+    if name == "starting inside":
+        assert segments.t0[0] == 0 and np.allclose(segments.p0[0], origin[0])
+
+
+def test_inverted_and_collapsed_cells_never_hang_or_produce_nan(blob):
+    rng = np.random.default_rng(4)
+    deformed = blob.corner_positions().copy()
+    deformed[rng.random(len(deformed)) < 0.2] *= -0.5          # folds many cells inside out
+    deformed[rng.random(len(deformed)) < 0.05] = 0.0           # collapses some corners
+    assert voxels.inverted_cells(deformed, blob.cell_corners).sum() > 10
+    origins, directions = random_rays(rng, 200)
+    _, segments = walk(blob, deformed, origins, directions, max_steps=4000)
+    assert segments.truncated == 0
+    assert all(np.isfinite(a).all() for a in (segments.t0, segments.t1, segments.p0,
+                                               segments.p1))
+    assert np.all(segments.length >= 0)
+
+
+def test_zero_direction_and_limited_distance():
+    grid = axis_grid()
+    origins = np.array([[-3, 0.5, 0.5], [-3, 0.5, 0.5]])
+    directions = np.array([[0, 0, 0], [1, 0, 0]], float)
+    _, segments = walk(grid, grid.corner_positions(), origins, directions,
+                       max_distance=np.array([10.0, 5.0]))
+    assert set(segments.ray) == {1}
+    assert segments.t1.max() <= 5.0 + 1e-12
+
+
+def test_first_per_ray():
+    segments = tv.Segments(ray=np.array([0, 0, 1, 1, 1]), cell=np.zeros(5, int),
+                           t0=np.arange(5.0), t1=np.arange(5.0) + 1,
+                           p0=np.zeros((5, 3)), p1=np.zeros((5, 3)))
+    mask = np.array([False, True, False, True, True])
+    np.testing.assert_array_equal(segments.first_per_ray(mask, 3), [1, 3, -1])
+
+
+def test_face_triangles_cover_each_face_and_point_outward():
+    rest = voxels.CORNER_OFFSETS.astype(float)
+    for face in range(6):
+        tri = rest[tv.FACE_TRIANGLES[face]]                       # (2, 3, 3)
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        outward = np.zeros(3)
+        outward[tv.FACE_AXIS[face]] = 1 if tv.FACE_SIDE[face] else -1
+        assert np.allclose(normal, outward[None])     # |normal| = 2 x area 1/2, outward
+        corners = set(tv.FACE_TRIANGLES[face].ravel())
+        assert len(corners) == 4 and all(rest[c][tv.FACE_AXIS[face]] ==
+                                         tv.FACE_SIDE[face] for c in corners)
+    # a shared face is split along the same diagonal from both cells (watertight)
+    for minus, plus in ((0, 1), (2, 3), (4, 5)):
+        axis = tv.FACE_AXIS[minus]
+        from_plus = rest[tv.FACE_TRIANGLES[plus]].copy()
+        from_minus = rest[tv.FACE_TRIANGLES[minus]].copy()
+        from_minus[..., axis] += 1                               # the neighbour's -face
+        assert {frozenset(map(tuple, t)) for t in from_plus} == \
+            {frozenset(map(tuple, t)) for t in from_minus}

@@ -1,0 +1,39 @@
+"""Ray casts against triangles with Blender's BVHTree (mathutils): the entry caster over the
+boundary faces of deformed cells, the rest mesh for segment ground truth, and the deformed
+mesh for the true reference. BVHTree has no batch API, so this is the one Python loop over
+rays (measured in the throughput figures)."""
+
+import bpy  # noqa: F401  (mathutils must be imported after bpy)
+import numpy as np
+from mathutils import Vector
+from mathutils.bvhtree import BVHTree
+
+
+class BVHCaster:
+    """First hits of rays against a triangle mesh; same interface as
+    ``traverse.BruteForceCaster``."""
+
+    def __init__(self, vertices, triangles):
+        """``vertices`` (V, 3), ``triangles`` (T, 3) vertex indices; hit indices are rows
+        of ``triangles``."""
+        self.tree = BVHTree.FromPolygons(np.asarray(vertices, np.float64).tolist(),
+                                         np.asarray(triangles).tolist(), all_triangles=True)
+
+    @classmethod
+    def from_soup(cls, triangles):
+        """From (K, 3, 3) corner positions (no shared vertices needed)."""
+        triangles = np.asarray(triangles, np.float64)
+        return cls(triangles.reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3))
+
+    def cast(self, origins, directions, max_distance):
+        """(index (N,) int64, -1 on a miss; t (N,) inf on a miss)."""
+        index = np.full(len(origins), -1, np.int64)
+        t = np.full(len(origins), np.inf)
+        ray_cast = self.tree.ray_cast
+        limits = np.minimum(np.asarray(max_distance, np.float64), 1e30).tolist()
+        for row, (origin, direction, limit) in enumerate(
+                zip(origins.tolist(), directions.tolist(), limits)):
+            _, _, hit, distance = ray_cast(Vector(origin), Vector(direction), limit)
+            if hit is not None:
+                index[row], t[row] = hit, distance
+        return index, t

@@ -1,0 +1,124 @@
+"""Per-pose work over a captured object: training datasets and the two references."""
+
+import platform
+import time
+
+import bpy
+import numpy as np
+
+from .. import dataset
+from ..attributes import sample_surface
+from ..groundtruth import segment_targets
+from ..metrics import Passes, compare
+from ..rays import orbit_rays, orbit_viewpoints, training_rays
+from ..references import embedded_reference, true_reference
+from ..traverse import traverse
+from ..voxels import inverted_cells
+from .posed import PosedObject
+
+
+def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6, seed=0,
+                     pose_range=None, progress=None):
+    """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
+    ``pose_range`` = (start, stop)) and writes one shard; returns its header."""
+    start, stop = pose_range or (0, len(capture.poses))
+    timings = dict(prepare_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0)
+    records, counts = [], dict(rays=0, segments=0, hits=0)
+    inverted = []
+    with PosedObject(obj, capture) as posed_object:
+        for done, index in enumerate(range(start, stop), 1):
+            geometry = posed_object.geometry(capture.poses[index])
+            timings["prepare_s"] += geometry.prepare_s
+            clock = time.perf_counter()
+            rng = np.random.default_rng([seed, index])
+            surface, _, _ = sample_surface(geometry.vertices, capture.mesh.triangles,
+                                           rays_per_pose, rng)
+            origins, directions = training_rays(geometry.vertices.min(0),
+                                                geometry.vertices.max(0), surface,
+                                                rays_per_pose, surface_fraction, rng)
+            timings["rays_s"] += time.perf_counter() - clock
+            clock = time.perf_counter()
+            segments = traverse(geometry.cells, geometry.entry_caster, origins, directions)
+            timings["walk_s"] += time.perf_counter() - clock
+            clock = time.perf_counter()
+            targets = segment_targets(capture.mesh, posed_object.rest_caster, segments)
+            timings["ground_truth_s"] += time.perf_counter() - clock
+            records.append(dataset.segment_records(capture.grid, segments, targets, index))
+            inverted.append(int(_inverted(capture, geometry).sum()))
+            counts["rays"] += rays_per_pose
+            counts["segments"] += len(segments)
+            counts["hits"] += int(targets.hit.sum())
+            if progress is not None:
+                progress(done, stop - start)
+    merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
+    timings["total_s"] = sum(timings.values())
+    header = {
+        "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
+        "grid": dataset.grid_header(capture.grid), "voxel_size": capture.grid.voxel_size,
+        "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
+        "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
+        "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
+        "inverted_cells": inverted, "counts": counts, "timings": timings,
+        "versions": _versions(),
+    }
+    dataset.write_shard(out_dir, f"shard-{start:06d}-{stop:06d}", merged, header)
+    return header
+
+
+def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
+    """Renders the true and embedded references of every pose in ``capture`` from an orbit
+    camera each, and returns the embedding error and throughput as a JSON-ready dict."""
+    mesh = capture.mesh
+    directions = orbit_viewpoints(len(capture.poses))
+    truth, embedded, per_pose = [], [], []
+    clock = dict(prepare_s=0.0, walk_s=0.0, ground_truth_s=0.0, true_reference_s=0.0)
+    segment_count = 0
+    with PosedObject(obj, capture) as posed_object:
+        for index, pose in enumerate(capture.poses):
+            geometry = (posed_object.rest_geometry() if rest_pose
+                        else posed_object.geometry(pose))
+            clock["prepare_s"] += geometry.prepare_s
+            origins, rays = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
+                                       directions[index], width, height)
+            start = time.perf_counter()
+            segments = traverse(geometry.cells, geometry.entry_caster, origins, rays)
+            walked = time.perf_counter()
+            targets = segment_targets(mesh, posed_object.rest_caster, segments)
+            grounded = time.perf_counter()
+            embedded.append(embedded_reference(geometry.cells, segments, targets, len(rays)))
+            clock["walk_s"] += walked - start
+            clock["ground_truth_s"] += grounded - walked
+            segment_count += len(segments)
+            start = time.perf_counter()
+            truth.append(true_reference(mesh, geometry.mesh_caster(mesh.triangles),
+                                        geometry.vertices, geometry.normals, origins, rays))
+            clock["true_reference_s"] += time.perf_counter() - start
+            per_pose.append(dict(compare(embedded[-1], truth[-1], mesh.size, mesh.heads()),
+                                 inverted_cells=int(_inverted(capture, geometry).sum())))
+            if progress is not None:
+                progress(index + 1, len(capture.poses))
+    rays_total = len(capture.poses) * width * height
+    neural_path_s = clock["walk_s"] + clock["ground_truth_s"]
+    return {
+        "object": mesh.name, "mode": capture.mode, "resolution": capture.grid.resolution,
+        "poses": len(capture.poses), "rest_pose": rest_pose, "width": width, "height": height,
+        "embedded_vs_true": compare(Passes.concatenate(embedded), Passes.concatenate(truth),
+                                    mesh.size, mesh.heads()),
+        "per_pose": per_pose,
+        "rays_per_s": rays_total / neural_path_s,
+        "segments_per_s": segment_count / neural_path_s,
+        "segments_per_ray": segment_count / rays_total,
+        "timings": clock, "versions": _versions(),
+    }
+
+
+def _inverted(capture, geometry):
+    return inverted_cells(geometry.cells.corners.reshape(-1, 3),
+                          np.arange(8 * len(geometry.cells.corners)).reshape(-1, 8))
+
+
+def _versions():
+    from .. import __version__
+
+    return {"vdnif": __version__, "blender": bpy.app.version_string,
+            "numpy": np.__version__, "python": platform.python_version()}

@@ -1,0 +1,53 @@
+"""The two references of DESIGN section 9 for rays in the object's local deformed space.
+
+- true reference: the rays cast against the Blender-evaluated deformed mesh;
+- embedded reference: the walk through the deformed cells plus the exact rest-space ground
+  truth of each segment: what the network is trained to reproduce.
+"""
+
+import numpy as np
+
+from .attributes import deformed_normals, trilinear_jacobian
+from .groundtruth import cast_surface, segment_targets
+from .metrics import Passes
+from .traverse import traverse
+
+
+def true_reference(mesh, deformed_caster, vertices, normals, origins, directions):
+    """Passes of rays against the deformed mesh: ``vertices`` (V, 3) and corner ``normals``
+    (T, 3, 3) of the evaluated mesh, which has the rest mesh's topology."""
+    hits = cast_surface(mesh, deformed_caster, origins, directions,
+                        np.full(len(origins), np.inf), vertices=vertices, normals=normals)
+    return Passes(hit=hits.hit, distance=hits.distance, normal=hits.normal,
+                  albedo=hits.albedo, material=hits.material)
+
+
+def embedded_reference(cells, segments, targets, rays):
+    """Passes from segments and their rest ground truth: per ray the first segment with a
+    hit, ``D = t0_k + s_k l_k`` (which equals the sum of gaps and lengths before it), the
+    rest normal carried to deformed space by the inverse transpose Jacobian."""
+    passes = Passes.empty(rays)
+    first = segments.first_per_ray(targets.hit, rays)
+    ray = np.flatnonzero(first >= 0)
+    k = first[ray]
+    rest_length = np.linalg.norm(segments.p1[k] - segments.p0[k], axis=1)
+    fraction = np.where(rest_length > 0, targets.distance[k] / np.where(
+        rest_length > 0, rest_length, 1.0), 0.0)
+    passes.hit[ray] = True
+    passes.distance[ray] = segments.t0[k] + fraction * segments.length[k]
+    point = segments.p0[k] + fraction[:, None] * (segments.p1[k] - segments.p0[k])
+    cell = segments.cell[k]
+    low, high = cells.rest_corners[cell, 0], cells.rest_corners[cell, 7]
+    local = np.clip((point - low) / (high - low), 0.0, 1.0)
+    jacobian = trilinear_jacobian(cells.corners[cell], local)
+    passes.normal[ray] = deformed_normals(targets.normal[k], jacobian)
+    passes.albedo[ray] = targets.albedo[k]
+    passes.material[ray] = targets.material[k]
+    return passes
+
+
+def embedded_passes(cells, entry_caster, mesh, rest_caster, origins, directions):
+    """Walk + ground truth + embedded reference in one call: (Passes, Segments, targets)."""
+    segments = traverse(cells, entry_caster, origins, directions)
+    targets = segment_targets(mesh, rest_caster, segments)
+    return embedded_reference(cells, segments, targets, len(origins)), segments, targets
