@@ -9,6 +9,7 @@ lies on a face triangle; its barycentric coordinates on the same rest-space tria
 exact rest-space point, so each walked cell yields a rest-space segment ``(p0, p1)``.
 """
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,16 +91,18 @@ def ray_triangle(origins, directions, a, b, c):
     """Möller-Trumbore for matching (broadcast) rows: origins/directions (..., 3), triangle
     corners (..., 3). Returns (t, u, v, hit, outward): distance, barycentric weights of b and
     c, whether the ray's line crosses the triangle (edges inclusive; parallel rays never
-    hit), and whether it crosses along the triangle's normal ``(b - a) x (c - a)``.
-
-    Works on the x, y, z components separately: several times faster than ``np.cross``
-    and ``sum(-1)`` on small trailing axes, which matters since the walk lives here.
-    """
+    hit), and whether it crosses along the triangle's normal ``(b - a) x (c - a)``."""
     o, d, a, b, c = (np.moveaxis(x, -1, 0) for x in (origins, directions, a, b, c))
-    e1, e2 = b - a, c - a
+    return _crossings(o, d, a, b - a, c - a)
+
+
+def _crossings(o, d, a, e1, e2, scale=None):
+    """Möller-Trumbore on x, y, z components held apart (leading axis of length 3): several
+    times faster than ``np.cross`` and ``sum(-1)`` on small trailing axes, which matters
+    since the walk lives here. ``scale`` = |e1| |e2| may be given precomputed."""
     p = _cross(d, e2)
     det = _dot(e1, p)
-    scale = np.sqrt(_dot(e1, e1) * _dot(e2, e2))
+    scale = np.sqrt(_dot(e1, e1) * _dot(e2, e2)) if scale is None else scale
     usable = np.abs(det) > 1e-12 * np.maximum(scale, 1e-300)
     inv = np.where(usable, 1.0 / np.where(usable, det, 1.0), 0.0)
     s = o - a
@@ -142,6 +145,19 @@ class BruteForceCaster:
         return index, np.where(index >= 0, best, np.inf)
 
 
+class TimedCaster:
+    """Wraps a caster and adds up the seconds spent in it, for throughput reports."""
+
+    def __init__(self, caster):
+        self.caster, self.seconds = caster, 0.0
+
+    def cast(self, origins, directions, max_distance):
+        start = time.perf_counter()
+        result = self.caster.cast(origins, directions, max_distance)
+        self.seconds += time.perf_counter() - start
+        return result
+
+
 @dataclass
 class DeformedCells:
     """The occupied cells of one pose: rest and deformed corners plus the boundary triangles
@@ -152,17 +168,22 @@ class DeformedCells:
     neighbours: np.ndarray         # (N, 6) int64, -1 where empty
     boundary_cell: np.ndarray      # (K,) int64
     boundary_triangle: np.ndarray  # (K,) int64 in 0..11
+    triangles: np.ndarray = None   # (N, 10, 12): a, e1, e2 (x, y, z rows each), |e1| |e2|
 
     @classmethod
     def build(cls, grid, deformed_corners):
         """From a VoxelGrid and (C, 3) deformed corner positions of one pose."""
         rest = grid.corner_positions()[grid.cell_corners]
+        corners = np.asarray(deformed_corners, np.float64)[grid.cell_corners]
         cell, face = np.nonzero(grid.neighbours < 0)
-        return cls(rest_corners=rest,
-                   corners=np.asarray(deformed_corners, np.float64)[grid.cell_corners],
+        a, b, c = (np.moveaxis(corners[:, CELL_TRIANGLES[:, k]], -1, 0) for k in range(3))
+        e1, e2 = b - a, c - a
+        return cls(rest_corners=rest, corners=corners,
                    neighbours=grid.neighbours.astype(np.int64),
                    boundary_cell=np.repeat(cell, 2),
-                   boundary_triangle=(2 * face[:, None] + np.arange(2)).ravel())
+                   boundary_triangle=(2 * face[:, None] + np.arange(2)).ravel(),
+                   triangles=np.concatenate([a, e1, e2, np.sqrt(_dot(e1, e1) * _dot(e2, e2))[None]])
+                   .transpose(1, 0, 2).copy())
 
     def boundary_triangles(self, index=slice(None)):
         """(K, 3, 3) deformed corners of the boundary triangles, for the entry caster."""
@@ -310,10 +331,11 @@ class _Walk:
                                 p_in[rows], zero_passes[rows])
 
     def _advance_chunk(self, ray, cell, entry_face, t_in, p_in, zero_passes):
-        corners = self.cells.corners[cell]                                 # (W, 8, 3)
-        a, b, c = (corners[:, CELL_TRIANGLES[:, k]] for k in range(3))      # (W, 12, 3)
-        t, u, v, hit, outward = ray_triangle(self.origins[ray, None], self.directions[ray, None],
-                                             a, b, c)
+        triangles = np.take(self.cells.triangles, cell, axis=0).transpose(1, 0, 2)
+        o = self.origins[ray].T[:, :, None]                                # (3, W, 1)
+        d = self.directions[ray].T[:, :, None]
+        t, u, v, hit, outward = _crossings(o, d, triangles[0:3], triangles[3:6],
+                                           triangles[6:9], triangles[9])    # (W, 12)
         # An exit crosses a face outward: at a corner or edge this picks, among the faces
         # touched there, one that leads on rather than back.
         hit &= outward & ((np.arange(12) // 2)[None] != entry_face[:, None])

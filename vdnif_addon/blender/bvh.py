@@ -5,7 +5,6 @@ rays (measured in the throughput figures)."""
 
 import bpy  # noqa: F401  (mathutils must be imported after bpy)
 import numpy as np
-from mathutils import Vector
 from mathutils.bvhtree import BVHTree
 
 
@@ -27,13 +26,11 @@ class BVHCaster:
 
     def cast(self, origins, directions, max_distance):
         """(index (N,) int64, -1 on a miss; t (N,) inf on a miss)."""
-        index = np.full(len(origins), -1, np.int64)
-        t = np.full(len(origins), np.inf)
-        ray_cast = self.tree.ray_cast
         limits = np.minimum(np.asarray(max_distance, np.float64), 1e30).tolist()
-        for row, (origin, direction, limit) in enumerate(
-                zip(origins.tolist(), directions.tolist(), limits)):
-            _, _, hit, distance = ray_cast(Vector(origin), Vector(direction), limit)
-            if hit is not None:
-                index[row], t[row] = hit, distance
+        results = list(map(self.tree.ray_cast, np.asarray(origins).tolist(),
+                           np.asarray(directions).tolist(), limits))
+        index = np.fromiter((-1 if r[2] is None else r[2] for r in results), np.int64,
+                            len(results))
+        t = np.fromiter((np.inf if r[3] is None else r[3] for r in results), np.float64,
+                        len(results))
         return index, t

@@ -12,7 +12,7 @@ from ..groundtruth import segment_targets
 from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
 from ..references import embedded_reference, true_reference
-from ..traverse import traverse
+from ..traverse import TimedCaster, traverse
 from ..voxels import inverted_cells
 from .posed import PosedObject
 
@@ -24,8 +24,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0)
     records, counts = [], dict(rays=0, segments=0, hits=0)
-    inverted = []
+    inverted, entry_casts = [], []
     with PosedObject(obj, capture) as posed_object:
+        rest_caster = posed_object.rest_caster = TimedCaster(posed_object.rest_caster)
         for done, index in enumerate(range(start, stop), 1):
             geometry = posed_object.geometry(capture.poses[index])
             timings["prepare_s"] += geometry.prepare_s
@@ -38,10 +39,11 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                                                 rays_per_pose, surface_fraction, rng)
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
-            segments = traverse(geometry.cells, geometry.entry_caster, origins, directions)
+            entry_casts.append(TimedCaster(geometry.entry_caster))
+            segments = traverse(geometry.cells, entry_casts[-1], origins, directions)
             timings["walk_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
-            targets = segment_targets(capture.mesh, posed_object.rest_caster, segments)
+            targets = segment_targets(capture.mesh, rest_caster, segments)
             timings["ground_truth_s"] += time.perf_counter() - clock
             records.append(dataset.segment_records(capture.grid, segments, targets, index))
             inverted.append(int(_inverted(capture, geometry).sum()))
@@ -52,6 +54,8 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                 progress(done, stop - start)
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
     timings["total_s"] = sum(timings.values())
+    timings["walk_entry_bvh_s"] = sum(c.seconds for c in entry_casts)
+    timings["ground_truth_bvh_s"] = rest_caster.seconds
     header = {
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
         "grid": dataset.grid_header(capture.grid), "voxel_size": capture.grid.voxel_size,
