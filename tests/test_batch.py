@@ -42,6 +42,8 @@ def test_static_mesh_file_is_reported_as_static(tmp_path):
     blend = tmp_path / "static.blend"
     script = (f"import bpy; bpy.ops.wm.read_homefile(use_empty=True); "
               f"bpy.ops.wm.obj_import(filepath={str(mesh)!r}); "
+              f"cam = bpy.data.objects.new('Cam', bpy.data.cameras.new('Cam')); "
+              f"bpy.context.scene.collection.objects.link(cam); "
               f"bpy.ops.wm.save_as_mainfile(filepath={str(blend)!r})")
     subprocess.run([sys.executable, "-c", script], check=True, capture_output=True)
     code, out, err = run_batch("capture", "--blend", blend, "--object", "tri",
@@ -49,6 +51,9 @@ def test_static_mesh_file_is_reported_as_static(tmp_path):
     assert code == 0, err
     assert "static" in out and "no deform modifier, one pose" in out
     assert json.loads((tmp_path / "s.json").read_text())["poses"] == 1
+    code, out, err = run_batch("capture", "--blend", blend, "--object", "Cam")
+    assert code == 1 and error_lines(err) == [
+        "vdnif: error: object 'Cam' is a camera, not a mesh"], err
 
 
 def test_dataset_then_references(tmp_path):

@@ -25,8 +25,12 @@ def test_zip_holds_the_extension_and_no_dev_files(tmp_path):
         assert "__pycache__" not in name and not name.endswith(".pyc")
 
 
-def test_manifest_is_valid():
-    package.validate_manifest(tomllib.loads((REPO / "blender_manifest.toml").read_text()))
+def test_manifest_is_valid_and_versions_agree():
+    import vdnif_addon
+
+    manifest = tomllib.loads((REPO / "blender_manifest.toml").read_text())
+    package.validate_manifest(manifest)
+    assert manifest["version"] == vdnif_addon.__version__
 
 
 @pytest.mark.parametrize("change, message", [
