@@ -33,6 +33,15 @@ def embedded_reference(cells, segments, targets, rays):
     rest_length = np.linalg.norm(segments.p1[k] - segments.p0[k], axis=1)
     fraction = np.where(rest_length > 0, targets.distance[k] / np.where(
         rest_length > 0, rest_length, 1.0), 0.0)
+    set_hits(passes, ray, cells, segments, k, fraction, targets.normal[k],
+             targets.albedo[k], targets.material[k])
+    return passes
+
+
+def set_hits(passes, ray, cells, segments, k, fraction, rest_normal, albedo, material):
+    """Writes hits into ``passes`` for ``ray`` from their hit segment ``k`` and the hit
+    ``fraction`` along it: deformed distance ``t0 + fraction * l`` and the rest normal
+    carried to deformed space by ``J^-T`` of the cell's trilinear map at the rest hit."""
     passes.hit[ray] = True
     passes.distance[ray] = segments.t0[k] + fraction * segments.length[k]
     point = segments.p0[k] + fraction[:, None] * (segments.p1[k] - segments.p0[k])
@@ -40,10 +49,9 @@ def embedded_reference(cells, segments, targets, rays):
     low, high = cells.rest_corners[cell, 0], cells.rest_corners[cell, 7]
     local = np.clip((point - low) / (high - low), 0.0, 1.0)
     jacobian = trilinear_jacobian(cells.corners[cell], local)
-    passes.normal[ray] = deformed_normals(targets.normal[k], jacobian)
-    passes.albedo[ray] = targets.albedo[k]
-    passes.material[ray] = targets.material[k]
-    return passes
+    passes.normal[ray] = deformed_normals(rest_normal, jacobian)
+    passes.albedo[ray] = albedo
+    passes.material[ray] = material
 
 
 def embedded_passes(cells, entry_caster, mesh, rest_caster, origins, directions):

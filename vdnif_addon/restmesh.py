@@ -32,10 +32,10 @@ class RestMesh:
     triangles: np.ndarray                     # (T, 3) int32
     corner_normals: np.ndarray                # (T, 3, 3) float32 shading normal per corner
     material_index: np.ndarray                # (T,) int32 material slot per triangle
-    triangle_loops: np.ndarray | None = None  # (T, 3) int64 face-corner (loop) index per corner
     albedo: list = field(default_factory=list)   # one Albedo per material slot (>= 1)
     uvs: np.ndarray | None = None             # (T, 3, 2) float32
     corner_colors: np.ndarray | None = None   # (T, 3, 3) float32 linear
+    triangle_loops: np.ndarray | None = None  # (T, 3) int64 face-corner (loop) of each corner
     warnings: list = field(default_factory=list)
 
     @property

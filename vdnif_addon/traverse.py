@@ -200,47 +200,64 @@ class DeformedCells:
 
 
 def traverse(cells, entry_caster, origins, directions, max_distance=None, max_steps=None):
-    """Walks rays through the deformed cells and returns their rest-space Segments.
+    """Walks rays through the deformed cells and returns all their rest-space Segments.
 
     ``entry_caster.cast(origins, directions, max_distance)`` finds the first boundary
     triangle (index into ``cells.boundary_triangles()``) along each ray. ``directions`` are
     normalized here; ``t`` is measured in the units of ``origins``.
     """
-    origins = np.asarray(origins, np.float64)
-    directions = np.asarray(directions, np.float64)
-    norms = np.linalg.norm(directions, axis=1)
-    directions = directions / np.where(norms > 0, norms, 1.0)[:, None]
-    rays = len(origins)
-    far = np.full(rays, np.inf) if max_distance is None else np.broadcast_to(
-        np.asarray(max_distance, np.float64), (rays,)).copy()
-    far[norms == 0] = -1.0                                 # no direction: never hits
-    cell_size = float(np.linalg.norm(cells.rest_corners[0, 7] - cells.rest_corners[0, 0]))
-    scene_size = float(np.ptp(cells.corners.reshape(-1, 3), axis=0).max()) or 1.0
-    step = 1e-6 * max(scene_size, cell_size)
-    max_steps = max_steps or 4 * len(cells.corners) + 64
-    walk = _Walk(cells, entry_caster, origins, directions, far, step)
-    walk.seek(np.arange(rays), np.zeros(rays), first=True)
-    for _ in range(max_steps):
-        if not walk.active():
-            break
-        walk.advance()
-    return walk.segments(truncated=walk.active())
+    walk = Walk(cells, entry_caster, origins, directions, max_distance)
+    walk.run(max_steps)
+    return walk.segments()
 
 
-class _Walk:
-    """The state of the wavefront: rays walking through cells, and their segments."""
+class Walk:
+    """The wavefront: every active ray walks one cell per ``advance()``.
 
-    def __init__(self, cells, caster, origins, directions, far, step):
-        self.cells, self.caster = cells, caster
-        self.origins, self.directions, self.far, self.step = origins, directions, far, step
+    ``traverse`` runs it to the end; the neural renderer steps it, reads each step's new
+    segments (at most one per ray) with ``take_new()`` and ``stop``s the rays it resolved,
+    so a ray is walked and evaluated only up to its hit.
+    """
+
+    def __init__(self, cells, caster, origins, directions, max_distance=None):
+        origins = np.asarray(origins, np.float64)
+        directions = np.asarray(directions, np.float64)
+        norms = np.linalg.norm(directions, axis=1)
+        self.directions = directions / np.where(norms > 0, norms, 1.0)[:, None]
+        rays = len(origins)
+        self.far = np.full(rays, np.inf) if max_distance is None else np.broadcast_to(
+            np.asarray(max_distance, np.float64), (rays,)).copy()
+        self.far[norms == 0] = -1.0                                 # no direction: no hit
+        cell_size = float(np.linalg.norm(cells.rest_corners[0, 7] - cells.rest_corners[0, 0]))
+        scene_size = float(np.ptp(cells.corners.reshape(-1, 3), axis=0).max()) or 1.0
+        self.step = 1e-6 * max(scene_size, cell_size)
+        self.default_steps = 4 * len(cells.corners) + 64
+        self.cells, self.caster, self.origins = cells, caster, origins
         empty_i, empty_f = np.empty(0, np.int64), np.empty(0)
         self.ray, self.cell, self.entry_face = empty_i, empty_i, empty_i
         self.t_in, self.p_in, self.zero_passes = empty_f, np.empty((0, 3)), empty_i
-        self.clip_from = np.zeros(len(origins))           # < 0 for rays starting inside
-        self.pieces = []
+        self.clip_from = np.zeros(rays)                   # < 0 for rays starting inside
+        self.pieces, self.taken, self.steps = [], 0, 0
+        self.seek(np.arange(rays), np.zeros(rays), first=True)
 
     def active(self):
         return len(self.ray)
+
+    def run(self, max_steps=None):
+        """Advances until no ray is active or ``max_steps`` steps were made."""
+        while self.active() and self.steps < (max_steps or self.default_steps):
+            self.advance()
+
+    def take_new(self):
+        """Segments recorded since the last call (at most one per ray and step)."""
+        pieces, self.taken = self.pieces[self.taken:], len(self.pieces)
+        return _segments(pieces)
+
+    def stop(self, rays):
+        """Ends the walk of ``rays`` (e.g. resolved by the network)."""
+        keep = ~np.isin(self.ray, rays)
+        for name in ("ray", "cell", "entry_face", "t_in", "p_in", "zero_passes"):
+            setattr(self, name, getattr(self, name)[keep])
 
     def seek(self, rays, t_from, first=False):
         """Finds where ``rays`` (re-)enter the occupied set at or after ``t_from``.
@@ -321,6 +338,7 @@ class _Walk:
 
     def advance(self):
         """One step for every walker: find its exit, record the segment, move on."""
+        self.steps += 1
         ray, cell, entry_face = self.ray, self.cell, self.entry_face
         t_in, p_in, zero_passes = self.t_in, self.p_in, self.zero_passes
         self.ray = self.cell = self.entry_face = self.zero_passes = np.empty(0, np.int64)
@@ -373,13 +391,18 @@ class _Walk:
             t0 = np.maximum(t0, 0.0)
         self.pieces.append((ray, cell, t0, t1, p0, p1))
 
-    def segments(self, truncated=0):
-        if self.pieces:
-            ray, cell, t0, t1, p0, p1 = (np.concatenate(x) for x in zip(*self.pieces))
-        else:
-            ray = cell = np.empty(0, np.int64)
-            t0 = t1 = np.empty(0)
-            p0 = p1 = np.empty((0, 3))
-        order = np.lexsort((t0, ray))
-        return Segments(ray=ray[order], cell=cell[order], t0=t0[order], t1=t1[order],
-                        p0=p0[order], p1=p1[order], truncated=int(truncated))
+    def segments(self):
+        """All Segments walked so far, ordered by ray then distance."""
+        return _segments(self.pieces, truncated=self.active())
+
+
+def _segments(pieces, truncated=0):
+    if pieces:
+        ray, cell, t0, t1, p0, p1 = (np.concatenate(x) for x in zip(*pieces))
+    else:
+        ray = cell = np.empty(0, np.int64)
+        t0 = t1 = np.empty(0)
+        p0 = p1 = np.empty((0, 3))
+    order = np.lexsort((t0, ray))
+    return Segments(ray=ray[order], cell=cell[order], t0=t0[order], t1=t1[order],
+                    p0=p0[order], p1=p1[order], truncated=int(truncated))

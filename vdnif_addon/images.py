@@ -1,0 +1,105 @@
+"""Images of per-ray passes for looking (display-ready RGB in [0, 1]) and for use (raw data),
+error heat maps, and the reference | predicted | error comparison figure.
+
+Every image is (H, W, C) float32 with row 0 at the top, as the camera rays are ordered.
+"""
+
+import numpy as np
+
+MISS_COLOR = np.array([0.05, 0.05, 0.06], np.float32)
+# Anchors of a perceptual dark-to-bright heat map (magma-like), sampled evenly on [0, 1].
+_HEAT = np.array([[0.001, 0.000, 0.014], [0.232, 0.060, 0.437], [0.550, 0.161, 0.506],
+                  [0.868, 0.288, 0.409], [0.994, 0.624, 0.427], [0.987, 0.991, 0.750]],
+                 np.float32)
+_MATERIAL_PALETTE = np.array([[0.90, 0.60, 0.20], [0.20, 0.55, 0.90], [0.35, 0.80, 0.35],
+                              [0.85, 0.30, 0.45], [0.65, 0.45, 0.85], [0.95, 0.85, 0.30],
+                              [0.30, 0.80, 0.80], [0.60, 0.60, 0.60]], np.float32)
+PASSES = ("normal", "albedo", "distance", "material")
+
+
+def heat(values, vmax):
+    """(...,) values -> (..., 3) heat-map colors, 0 dark, ``vmax`` and above bright."""
+    x = np.clip(np.nan_to_num(values / vmax if vmax > 0 else values * 0), 0, 1)
+    position = x * (len(_HEAT) - 1)
+    low = np.minimum(position.astype(int), len(_HEAT) - 2)
+    weight = (position - low)[..., None]
+    return ((1 - weight) * _HEAT[low] + weight * _HEAT[low + 1]).astype(np.float32)
+
+
+def srgb(linear):
+    """Linear RGB -> sRGB-encoded display values."""
+    linear = np.clip(linear, 0, 1)
+    return np.where(linear <= 0.0031308, 12.92 * linear,
+                    1.055 * linear ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+def display(passes, height, width, distance_range):
+    """{pass name: (H, W, 3) display image} of Passes; misses are dark grey.
+
+    Normals as (n + 1) / 2; albedo sRGB-encoded; distance nearer-is-brighter over
+    ``distance_range`` = (near, far); material index by palette.
+    """
+    near, far = distance_range
+    closeness = 1 - (passes.distance - near) / max(far - near, 1e-12)
+    colors = {
+        "normal": 0.5 * (passes.normal + 1),
+        "albedo": srgb(passes.albedo),
+        "distance": np.repeat(np.clip(0.15 + 0.85 * closeness, 0, 1)[:, None], 3, axis=1),
+        "material": _MATERIAL_PALETTE[passes.material % len(_MATERIAL_PALETTE)],
+    }
+    return {name: _image(np.where(passes.hit[:, None], rgb, MISS_COLOR), height, width)
+            for name, rgb in colors.items()}
+
+
+def raw(passes, height, width):
+    """{pass name: (H, W, C) float32 data}: hit mask, distance (NaN on a miss), normal,
+    albedo, material index; for EXR files and further use."""
+    miss = ~passes.hit
+    return {
+        "hit": _image(passes.hit.astype(np.float32)[:, None], height, width),
+        "distance": _image(np.where(miss, np.nan, passes.distance)[:, None], height, width),
+        "normal": _image(passes.normal, height, width),
+        "albedo": _image(passes.albedo, height, width),
+        "material": _image(passes.material.astype(np.float32)[:, None], height, width),
+    }
+
+
+def error_images(predicted, reference, height, width, object_size, distance_scale=0.05,
+                 angle_scale=45.0):
+    """Heat maps of the errors where both hit: distance error (bright at ``distance_scale``
+    object units) and normal angle (bright at ``angle_scale`` degrees); pixels where only
+    one of them hits are white, where neither hits dark."""
+    both = predicted.hit & reference.hit
+    only_one = predicted.hit ^ reference.hit
+    distance = np.abs(predicted.distance - reference.distance) / object_size
+    cosine = np.clip((predicted.normal * reference.normal).sum(1), -1, 1)
+    angle = np.degrees(np.arccos(cosine))
+    images = {}
+    for name, values, scale in (("distance", distance, distance_scale),
+                                ("normal", angle, angle_scale)):
+        rgb = np.where(both[:, None], heat(values, scale), MISS_COLOR)
+        images[name] = _image(np.where(only_one[:, None], 1.0, rgb), height, width)
+    material = np.where((predicted.material != reference.material)[:, None], 1.0, 0.0) * \
+        np.array([1.0, 0.2, 0.2], np.float32)
+    images["material"] = _image(np.where(both[:, None], material, MISS_COLOR), height, width)
+    albedo = np.abs(predicted.albedo - reference.albedo).max(1)
+    images["albedo"] = _image(np.where(both[:, None], heat(albedo, 0.25), MISS_COLOR),
+                              height, width)
+    return images
+
+
+def comparison_figure(rows, gap=4):
+    """One image from rows of equally sized images (reference | predicted | error per pass),
+    separated by ``gap`` white pixels."""
+    height, width = rows[0][0].shape[:2]
+    figure = np.ones((len(rows) * (height + gap) - gap,
+                      len(rows[0]) * (width + gap) - gap, 3), np.float32)
+    for r, row in enumerate(rows):
+        for c, image in enumerate(row):
+            top, left = r * (height + gap), c * (width + gap)
+            figure[top:top + height, left:left + width] = image[..., :3]
+    return figure
+
+
+def _image(values, height, width):
+    return np.asarray(values, np.float32).reshape(height, width, -1)
