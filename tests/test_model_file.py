@@ -1,0 +1,134 @@
+import io
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from vdnif_addon import model_file
+from vdnif_addon.errors import VDNIFError
+from vdnif_addon.model_file import load_model, model_bytes, save_model
+from vdnif_addon.network import Heads, IntersectionNetwork, NetworkConfig
+
+CONFIG = NetworkConfig(
+    levels=2,
+    base_resolution=8,
+    log2_table_size=10,
+    width=16,
+    depth=2,
+    heads=Heads(albedo=False, material_count=3),
+)
+EXTRA = {
+    "grid": {"min": np.array([-1.0, -2.0, 0.5]), "voxel_size": 0.125, "resolution": (8, 8, 4)},
+    "albedo_table": np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.7, 0.8, 0.9]], dtype=np.float32),
+    "materials": ["skin", "cloth", "metal"],
+    "occupied": np.array([True, False, True]),
+}
+
+
+@pytest.fixture
+def network():
+    torch.manual_seed(0)
+    return IntersectionNetwork(CONFIG)
+
+
+@pytest.fixture
+def saved(tmp_path, network):
+    path = tmp_path / "model.vdnif"
+    save_model(
+        path, network, CONFIG, {"steps": 12, "loss": np.float32(0.5), "val_poses": [1, 4]}, EXTRA
+    )
+    return path
+
+
+def test_round_trip_gives_identical_outputs_and_metadata(saved, network):
+    loaded, meta = load_model(saved)
+    assert not loaded.training and meta["network_config"] == CONFIG
+    assert meta["format"] == "vdnif-model" and meta["version"] == model_file.FORMAT_VERSION
+    p0, p1 = torch.rand(2, 50, 3)
+    with torch.no_grad():
+        expected, actual = network(p0, p1), loaded(p0, p1)
+    assert expected.keys() == actual.keys()
+    assert all(torch.equal(expected[key], actual[key]) for key in expected)
+    assert meta["train_info"] == {"steps": 12, "loss": 0.5, "val_poses": [1, 4]}
+    extra = meta["extra"]
+    np.testing.assert_array_equal(extra["grid"]["min"], EXTRA["grid"]["min"])
+    np.testing.assert_array_equal(extra["albedo_table"], EXTRA["albedo_table"])
+    np.testing.assert_array_equal(extra["occupied"], EXTRA["occupied"])
+    assert extra["grid"]["resolution"] == (8, 8, 4) and extra["materials"] == EXTRA["materials"]
+    assert model_bytes(saved) == os.path.getsize(saved) > 0
+
+
+def test_write_is_atomic_and_leaves_no_temporary_files(tmp_path, saved, network, monkeypatch):
+    assert os.listdir(tmp_path) == ["model.vdnif"]
+    good = saved.read_bytes()
+    real_save = torch.save
+
+    def failing_save(obj, target, *args, **kwargs):
+        if isinstance(target, io.BytesIO):
+            return real_save(obj, target, *args, **kwargs)
+        target.write(b"partial model bytes")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(model_file.torch, "save", failing_save)
+    with pytest.raises(VDNIFError, match="model.vdnif.*disk full"):
+        save_model(saved, network, CONFIG, {}, {})
+    assert saved.read_bytes() == good
+    assert os.listdir(tmp_path) == ["model.vdnif"]
+
+
+def test_save_rejects_mismatched_config_and_unstorable_metadata(tmp_path, network):
+    with pytest.raises(VDNIFError, match="different config"):
+        save_model(tmp_path / "a.vdnif", network, NetworkConfig(), {}, {})
+    with pytest.raises(VDNIFError, match="extra.mesh"):
+        save_model(tmp_path / "a.vdnif", network, CONFIG, {}, {"mesh": object()})
+    with pytest.raises(VDNIFError, match="a.vdnif"):
+        save_model(tmp_path / "missing" / "a.vdnif", network, CONFIG, {}, {})
+    assert os.listdir(tmp_path) == []
+
+
+def _corrupt(data):
+    data = bytearray(data)
+    middle = len(data) // 2
+    data[middle : middle + 64] = bytes(255 - b for b in data[middle : middle + 64])
+    return bytes(data)
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda good: _corrupt(good), "model.vdnif"),
+        (lambda good: good[: len(good) // 2], "model.vdnif"),
+        (lambda good: good[:100], "model.vdnif"),
+        (lambda good: np.random.default_rng(0).bytes(4096), "model.vdnif"),
+        (lambda good: b"", "model.vdnif"),
+    ],
+    ids=["corrupt", "truncated", "truncated-header", "random-bytes", "empty"],
+)
+def test_damaged_files_raise_naming_the_file(saved, make, message):
+    saved.write_bytes(make(saved.read_bytes()))
+    with pytest.raises(VDNIFError, match=message):
+        load_model(saved)
+
+
+def test_foreign_checkpoints_are_not_models(tmp_path, network):
+    plain = tmp_path / "checkpoint.pt"
+    torch.save({"state_dict": network.state_dict(), "epoch": 3}, plain)
+    with pytest.raises(VDNIFError, match="checkpoint.pt is not a VDNIF model"):
+        load_model(plain)
+    pickled_module = tmp_path / "module.pt"
+    torch.save(torch.nn.Linear(2, 2), pickled_module)  # unpickling it would need code execution
+    with pytest.raises(VDNIFError, match="module.pt"):
+        load_model(pickled_module)
+    with pytest.raises(VDNIFError, match="nothing.vdnif does not exist"):
+        load_model(tmp_path / "nothing.vdnif")
+    with pytest.raises(VDNIFError, match="nothing.vdnif"):
+        model_bytes(tmp_path / "nothing.vdnif")
+
+
+def test_newer_format_version_is_refused(saved):
+    archive = torch.load(saved, weights_only=True)
+    archive["version"] = model_file.FORMAT_VERSION + 1
+    torch.save(archive, saved)
+    with pytest.raises(VDNIFError, match="model.vdnif has format version 2.*update"):
+        load_model(saved)

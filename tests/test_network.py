@@ -1,0 +1,170 @@
+import math
+
+import pytest
+import torch
+
+from vdnif_addon.errors import VDNIFError
+from vdnif_addon.network import Heads, IntersectionNetwork, NetworkConfig, readout
+
+SMALL = {"levels": 2, "base_resolution": 8, "log2_table_size": 10, "width": 16, "depth": 2}
+
+
+@pytest.mark.parametrize(
+    "heads, expected",
+    [
+        (Heads(), {"occlusion": 1, "distance": 1, "normal": 3, "albedo": 3}),
+        (Heads(albedo=False, material_count=1), {"occlusion": 1, "distance": 1, "normal": 3}),
+        (
+            Heads(albedo=True, material_count=5),
+            {"occlusion": 1, "distance": 1, "normal": 3, "albedo": 3, "material": 5},
+        ),
+        (
+            Heads(albedo=False, material_count=2),
+            {"occlusion": 1, "distance": 1, "normal": 3, "material": 2},
+        ),
+    ],
+)
+def test_heads_present_only_when_the_scene_needs_them(heads, expected):
+    assert heads.sizes() == expected
+    network = IntersectionNetwork(NetworkConfig(**SMALL, heads=heads))
+    outputs = network(*torch.rand(2, 13, 3))
+    assert {key: value.shape for key, value in outputs.items()} == {
+        key: (13,) if width == 1 else (13, width) for key, width in expected.items()
+    }
+    assert network.mlp[-1].out_features == sum(expected.values())
+
+
+def test_paper_architecture():
+    network = IntersectionNetwork(NetworkConfig())
+    linears = [layer for layer in network.mlp if isinstance(layer, torch.nn.Linear)]
+    assert [(layer.in_features, layer.out_features) for layer in linears] == [
+        (84, 64),
+        (64, 64),
+        (64, 64),
+        (64, 8),
+    ]
+    assert sum(isinstance(layer, torch.nn.ReLU) for layer in network.mlp) == 3
+
+
+@pytest.mark.parametrize("mode", ["fraction", "log1p"])
+def test_distance_activation(mode):
+    torch.manual_seed(0)
+    network = IntersectionNetwork(NetworkConfig(**SMALL, distance_mode=mode))
+    with torch.no_grad():
+        network.mlp[-1].bias[1] = -5.0  # push the distance pre-activation negative
+    distance = network(*torch.rand(2, 50, 3))["distance"]
+    if mode == "fraction":
+        assert ((distance > 0) & (distance < 1)).all()
+    else:
+        assert (distance == 0).all()
+
+
+def test_readout_fraction_mode():
+    outputs = {
+        "occlusion": torch.tensor([2.0, -1.0]),
+        "distance": torch.tensor([0.25, 1.0]),
+        "normal": torch.tensor([[0.0, 3.0, 4.0], [0.0, 0.0, 0.0]]),
+        "albedo": torch.tensor([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6]]),
+        "material": torch.tensor([[0.1, 2.0, -1.0], [3.0, 0.0, 0.0]]),
+    }
+    p = readout(outputs, "fraction", 0.5, torch.tensor([2.0, 4.0]))
+    torch.testing.assert_close(p["hit_probability"], torch.sigmoid(outputs["occlusion"]))
+    assert p["hit"].tolist() == [True, False]
+    torch.testing.assert_close(p["distance"], torch.tensor([0.5, 4.0]))
+    torch.testing.assert_close(p["fraction"], torch.tensor([0.25, 1.0]))
+    torch.testing.assert_close(p["normal"], torch.tensor([[0.0, 0.6, 0.8], [0.0, 0.0, 0.0]]))
+    assert torch.equal(p["albedo"], outputs["albedo"])
+    assert p["material"].tolist() == [1, 0]
+
+
+def test_readout_log1p_mode_gives_rest_units():
+    h = 1e-3
+    y = torch.tensor([0.0, math.log1p(0.5), 3.0])
+    rest_len = torch.tensor([1e-3, 1e-3, 1e-3])
+    p = readout(
+        {"occlusion": torch.zeros(3), "distance": y, "normal": torch.ones(3, 3)},
+        "log1p",
+        h,
+        rest_len,
+    )
+    torch.testing.assert_close(p["distance"], h * torch.expm1(y))
+    torch.testing.assert_close(
+        p["fraction"], torch.tensor([0.0, 0.5, 1.0])
+    )  # clamped to the segment
+    assert p["material"].tolist() == [0, 0, 0] and "albedo" not in p
+    torch.testing.assert_close(p["normal"].norm(dim=1), torch.ones(3))
+    zero_length = readout(
+        {"occlusion": torch.zeros(1), "distance": torch.ones(1), "normal": torch.ones(1, 3)},
+        "log1p",
+        h,
+        torch.zeros(1),
+    )
+    assert torch.isfinite(zero_length["fraction"]).all()
+    with pytest.raises(VDNIFError, match="voxel size"):
+        readout(
+            {"occlusion": torch.zeros(1), "distance": torch.ones(1), "normal": torch.ones(1, 3)},
+            "log1p",
+            0.0,
+            torch.ones(1),
+        )
+
+
+def test_predict_is_readout_of_forward_in_batches():
+    torch.manual_seed(3)
+    network = IntersectionNetwork(
+        NetworkConfig(**SMALL, heads=Heads(albedo=True, material_count=3))
+    )
+    p0, p1 = torch.rand(2, 100, 3)
+    rest_len = torch.rand(100) * 0.1
+    batched = network.predict(p0, p1, rest_len, 0.05, batch=7)
+    with torch.no_grad():
+        whole = readout(network(p0, p1), "log1p", 0.05, rest_len)
+    assert batched.keys() == whole.keys()
+    for key in whole:
+        torch.testing.assert_close(batched[key], whole[key], rtol=1e-5, atol=1e-6)
+
+
+def test_config_round_trip_and_validation():
+    config = NetworkConfig(**SMALL, pe_form="pi", heads=Heads(albedo=False, material_count=4))
+    assert NetworkConfig.from_dict(config.to_dict()) == config
+    with pytest.raises(VDNIFError, match="unknown"):
+        NetworkConfig.from_dict({**config.to_dict(), "dropout": 0.1})
+    with pytest.raises(VDNIFError, match="distance_mode"):
+        NetworkConfig(distance_mode="sigmoid")
+    with pytest.raises(VDNIFError, match="width"):
+        NetworkConfig(width=0)
+    with pytest.raises(VDNIFError, match="material_count"):
+        Heads(material_count=0)
+    with pytest.raises(VDNIFError, match="heads"):
+        Heads.from_header({"albedo": True})
+    assert Heads.from_header({"albedo": False, "material_count": 3, "occlusion": True}) == Heads(
+        False, 3
+    )
+    with pytest.raises(VDNIFError, match="heads"):
+        Heads.from_header({"material_count": 3})
+
+
+def test_benchmark_runs_on_tiny_sizes():
+    from vdnif_addon.network_bench import benchmark_network
+
+    result = benchmark_network("cpu", segments=256, train_batch=128, repeats=1)
+    assert result["infer_segments_per_s"] > 0 and result["train_samples_per_s"] > 0
+    assert 0 < result["encode_fraction"] < 1 and result["encode_fraction"] + result[
+        "mlp_fraction"
+    ] == pytest.approx(1)
+    assert (
+        result["device"] == "cpu" and result["threads"] >= 1 and result["config"]["pe_bands"] == 3
+    )
+
+
+def test_empty_batches_and_non_finite_coordinates_are_safe():
+    network = IntersectionNetwork(
+        NetworkConfig(**SMALL, heads=Heads(albedo=True, material_count=2))
+    )
+    empty = network(torch.zeros(0, 3), torch.zeros(0, 3))
+    assert empty["normal"].shape == (0, 3) and empty["material"].shape == (0, 2)
+    assert network.predict(torch.zeros(0, 3), torch.zeros(0, 3), torch.zeros(0), 0.1)[
+        "material"
+    ].shape == (0,)
+    odd = torch.tensor([[float("nan"), 0.5, float("inf")], [-float("inf"), 2.0, -3.0]])
+    assert all(torch.isfinite(value).all() for value in network(odd, torch.rand(2, 3)).values())

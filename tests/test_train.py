@@ -1,0 +1,370 @@
+import math
+import os
+import socket
+import threading
+
+import numpy as np
+import pytest
+import torch
+import torch.multiprocessing as mp
+
+from vdnif_addon import train as training
+from vdnif_addon.errors import VDNIFError
+from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
+from vdnif_addon.network import NetworkConfig
+from vdnif_addon.train import TrainConfig, evaluate, load_segments, train
+from vdnif_addon.variants import variant_config
+
+SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
+
+
+def sphere_shards(n=256, shards=2, poses=4, voxel_size=0.125, resolution=8, seed=0, radius=0.25):
+    """Segments of about one voxel near a sphere (normalized center 0.5), with analytic targets.
+
+    Rest units are normalized units times ``voxel_size * resolution``; albedo is the hit
+    position, material 1 on the upper half.
+    """
+    rng = np.random.default_rng(seed)
+    center = np.full(3, 0.5)
+    start = rng.normal(size=(n, 3))
+    p0 = center + start / np.linalg.norm(start, axis=1, keepdims=True) * (
+        radius + rng.uniform(-0.08, 0.08, (n, 1))
+    )
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    length = rng.uniform(0.3, 1.0, n) / resolution
+    oc = p0 - center
+    b, c = (oc * d).sum(1), (oc**2).sum(1) - radius**2
+    disc = b * b - c
+    root = np.sqrt(np.maximum(disc, 0.0))
+    t = np.where(-b - root >= 0, -b - root, -b + root)
+    hit = (disc >= 0) & (t >= 0) & (t <= length)
+    point = p0 + d * t[:, None]
+    rest_len = length * voxel_size * resolution
+    data = {
+        "p0": p0,
+        "p1": p0 + d * length[:, None],
+        "seg_len": rest_len * rng.uniform(0.8, 1.2, n),
+        "rest_len": rest_len,
+        "hit": hit.astype(np.uint8),
+        "hit_frac": np.where(hit, t / length, 0.0),
+        "normal": np.where(hit[:, None], (point - center) / radius, 0.0),
+        "albedo": np.where(hit[:, None], np.clip(point, 0.0, 1.0), 0.0),
+        "material": np.where(hit & (point[:, 2] > 0.5), 1, 0).astype(np.int16),
+        "pose": rng.integers(0, poses, n).astype(np.int32),
+    }
+    data = {
+        key: value.astype(np.float32) if value.dtype == np.float64 else value
+        for key, value in data.items()
+    }
+    return [{key: value[i::shards] for key, value in data.items()} for i in range(shards)]
+
+
+def header(voxel_size=0.125, albedo=True, materials=2):
+    return {"voxel_size": voxel_size, "heads": {"albedo": albedo, "material_count": materials}}
+
+
+def finite_module(module):
+    return all(torch.isfinite(p).all() for p in module.parameters())
+
+
+# --------------------------------------------------------------------------- losses
+
+
+def test_all_miss_batch_gives_zero_hit_losses_and_finite_gradients():
+    n = 32
+    outputs = {
+        "occlusion": torch.randn(n, requires_grad=True),
+        "distance": torch.rand(n, requires_grad=True),
+        "normal": torch.zeros(n, 3, requires_grad=True),  # degenerate prediction as well
+        "albedo": torch.rand(n, 3, requires_grad=True),
+        "material": torch.randn(n, 4, requires_grad=True),
+    }
+    batch = {
+        "hit": torch.zeros(n, dtype=torch.bool),
+        "hit_frac": torch.zeros(n),
+        "rest_len": torch.zeros(n),
+        "normal": torch.zeros(n, 3),
+        "albedo": torch.zeros(n, 3),
+        "material": torch.full((n,), -1),
+    }
+    losses = task_losses(outputs, batch, "log1p", 1e-3)
+    assert losses["occlusion"] > 0
+    assert all(losses[task] == 0 for task in ("distance", "normal", "albedo", "material"))
+    UncertaintyWeighting(list(losses))(losses).backward()
+    assert all(torch.isfinite(value.grad).all() for value in outputs.values())
+
+
+def test_distance_targets_follow_the_mode():
+    batch = {
+        "hit": torch.tensor([True, True, False]),
+        "hit_frac": torch.tensor([0.5, 0.0, 0.0]),
+        "rest_len": torch.tensor([4.0, 4.0, 4.0]),
+        "normal": torch.tensor([[0.0, 0.0, 1.0]] * 3),
+    }
+    log_target = torch.log1p(torch.tensor([2.0, 0.0]) / 2.0)  # d = 0.5 * 4, h = 2
+    outputs = {
+        "occlusion": torch.zeros(3),
+        "distance": torch.tensor([0.0, 0.0, 9.0]),
+        "normal": torch.tensor([[0.0, 0.0, 1.0]] * 3),
+    }
+    torch.testing.assert_close(
+        task_losses(outputs, batch, "log1p", 2.0)["distance"], (log_target**2).mean()
+    )
+    torch.testing.assert_close(
+        task_losses(outputs, batch, "fraction", 2.0)["distance"], torch.tensor(0.125)
+    )
+    assert task_losses(outputs, batch, "fraction", 2.0)["normal"] == 0
+
+
+def test_uncertainty_weighting_formula_and_bounds():
+    losses = {
+        "occlusion": torch.tensor(0.7),
+        "distance": torch.tensor(0.2),
+        "material": torch.tensor(1.5),
+    }
+    weighting = UncertaintyWeighting(list(losses))
+    assert weighting.log_variances() == {"occlusion": 0.0, "distance": 0.0, "material": 0.0}
+    torch.testing.assert_close(weighting(losses), torch.tensor(0.7 + 0.5 * 0.2 + 1.5))
+    with torch.no_grad():
+        weighting.raw.copy_(torch.tensor([1.0, -2.0, 1e6]))
+    s = torch.tensor(list(weighting.log_variances().values()))
+    assert s.abs().max() <= 6 and s[2] > 5.9
+    expected = (
+        math.exp(-s[0]) * 0.7
+        + 0.5 * s[0]
+        + 0.5 * math.exp(-s[1]) * 0.2
+        + 0.5 * s[1]
+        + math.exp(-s[2]) * 1.5
+        + 0.5 * s[2]
+    )
+    torch.testing.assert_close(weighting(losses), torch.tensor(float(expected)))
+    torch.testing.assert_close(FixedWeighting(list(losses))(losses), torch.tensor(2.4))
+    with pytest.raises(VDNIFError, match="weighting"):
+        make_weighting("learned", ["occlusion"])
+
+
+# --------------------------------------------------------------------------- training
+
+
+def test_overfits_every_head():
+    shards = sphere_shards(n=256, poses=1)
+    config = TrainConfig(steps=500, batch_size=256, val_fraction=0.0, log_interval=50, device="cpu")
+    result = train(shards, header(), config, NetworkConfig(**SMALL))
+    first, last = result.history[0]["losses"], result.history[-1]["losses"]
+    assert set(first) == {"occlusion", "distance", "normal", "albedo", "material"}
+    for task in first:
+        assert last[task] < 0.1 * first[task], task
+    metrics = evaluate(result.network, load_segments(shards, result.network_config.heads), 0.125)
+    assert metrics["hits"] > 30
+    assert metrics["occlusion_accuracy"] >= 0.99
+    assert metrics["distance_mae_voxels"] < 0.05
+    assert metrics["normal_error_deg"] < 5
+    assert metrics["loss/albedo"] < 0.02
+    assert metrics["material_accuracy"] >= 0.99
+    assert result.status == "completed" and result.steps == 500 and result.validation is None
+
+
+def _all_miss(shards):
+    for shard in shards:
+        shard["hit"][:] = 0
+        for key in ("hit_frac", "normal", "albedo"):
+            shard[key][:] = 0
+    return shards
+
+
+def _zero_distances(shards):
+    for shard in shards:
+        shard["hit_frac"][: len(shard["hit_frac"]) // 2] = 0.0
+    return shards
+
+
+@pytest.mark.parametrize(
+    "voxel_size, variant, heads, prepare",
+    [
+        (
+            1e-3,
+            "proposed",
+            (False, 1),
+            _zero_distances,
+        ),  # tiny object, zero distances, one material
+        (1e3, "lsnif", (True, 3), _zero_distances),  # huge object, sigmoid distance, fixed weights
+        (1.0, "proposed", (True, 2), _all_miss),  # every batch without a hit
+    ],
+)
+def test_500_steps_stay_finite(voxel_size, variant, heads, prepare):
+    shards = prepare(sphere_shards(n=256, voxel_size=voxel_size, seed=4))
+    settings = variant_config(
+        variant, **SMALL, steps=500, batch_size=64, log_interval=100, device="cpu", lr_mlp=1e-2
+    )
+    result = train(shards, header(voxel_size, *heads), settings.train, settings.network)
+    assert result.status == "completed" and result.steps == 500
+    assert finite_module(result.network)
+    for record in result.history:
+        assert math.isfinite(record["total"]) and all(
+            math.isfinite(v) for v in record["losses"].values()
+        )
+        assert all(abs(s) < 6 for s in record["log_variances"].values())
+    assert ("material" in result.history[-1]["losses"]) == (heads[1] > 1)
+    assert all(math.isfinite(v) for v in result.validation.values())
+
+
+def test_progress_reports_and_held_out_poses():
+    records = []
+    config = TrainConfig(steps=40, batch_size=64, val_fraction=0.25, log_interval=20, device="cpu")
+    result = train(
+        sphere_shards(n=256, poses=8),
+        header(),
+        config,
+        NetworkConfig(**SMALL),
+        progress=records.append,
+    )
+    assert [r["step"] for r in records] == [20, 40]
+    record = records[-1]
+    assert record["steps"] == 40 and record["samples_per_s"] > 0 and record["eta_s"] == 0
+    assert set(record["log_variances"]) == set(record["losses"])
+    assert len(result.val_poses) == 2 and record["validation"]["segments"] > 0
+    assert result.validation["segments"] == sum(
+        np.isin(s["pose"], result.val_poses).sum() for s in sphere_shards(n=256, poses=8)
+    )
+    assert result.info()["status"] == "completed" and result.is_main
+
+
+def test_cancel_stops_before_the_next_update():
+    cancel = threading.Event()
+    config = TrainConfig(steps=1000, batch_size=32, log_interval=10, device="cpu")
+    result = train(
+        sphere_shards(),
+        header(),
+        config,
+        NetworkConfig(**SMALL),
+        progress=lambda _: cancel.set(),
+        cancel=cancel,
+    )
+    assert result.status == "cancelled" and result.steps == 10 and len(result.history) == 1
+    assert finite_module(result.network) and not result.network.training
+
+
+def test_same_seed_gives_identical_weights():
+    def weights(seed):
+        config = TrainConfig(steps=30, batch_size=64, seed=seed, log_interval=30, device="cpu")
+        return train(sphere_shards(), header(), config, NetworkConfig(**SMALL)).network.state_dict()
+
+    first, second, other = weights(7), weights(7), weights(8)
+    assert all(torch.equal(first[key], second[key]) for key in first)
+    assert not all(torch.equal(first[key], other[key]) for key in first)
+
+
+def test_non_finite_loss_raises_naming_the_step(monkeypatch):
+    calls = []
+
+    def poisoned(*args, **kwargs):
+        losses = task_losses(*args, **kwargs)
+        calls.append(1)
+        if len(calls) == 4:
+            losses["distance"] = losses["distance"] * float("nan")
+        return losses
+
+    monkeypatch.setattr(training, "task_losses", poisoned)
+    config = TrainConfig(steps=10, batch_size=32, log_interval=100, device="cpu", val_fraction=0.0)
+    with pytest.raises(VDNIFError, match="step 4"):
+        train(sphere_shards(), header(), config, NetworkConfig(**SMALL))
+
+
+def test_bad_datasets_are_reported():
+    config = TrainConfig(steps=1, batch_size=8, device="cpu")
+    shards = sphere_shards()
+    del shards[1]["normal"]
+    with pytest.raises(VDNIFError, match="shard 1 lacks 'normal'"):
+        train(shards, header(), config, NetworkConfig(**SMALL))
+    shards = sphere_shards()
+    shards[0]["p1"][3, 1] = np.nan
+    with pytest.raises(VDNIFError, match="'p1' has non-finite"):
+        train(shards, header(), config, NetworkConfig(**SMALL))
+    shards = sphere_shards()
+    shards[0]["material"][shards[0]["hit"] == 1] = 5
+    with pytest.raises(VDNIFError, match="material"):
+        train(shards, header(), config, NetworkConfig(**SMALL))
+    with pytest.raises(VDNIFError, match="voxel_size"):
+        train(sphere_shards(), header(voxel_size=0.0), config, NetworkConfig(**SMALL))
+    merged = {
+        "grid": {"voxel_size": 0.125},
+        "heads": header()["heads"],
+    }  # as dataset.read_dataset merges it
+    assert train(sphere_shards(), merged, config, NetworkConfig(**SMALL)).steps == 1
+    with pytest.raises(VDNIFError, match="no training segments"):
+        train([], header(), config, NetworkConfig(**SMALL))
+    with pytest.raises(VDNIFError, match="batch_size"):
+        TrainConfig(batch_size=0)
+
+
+def test_variants():
+    lsnif, deformed, proposed = (variant_config(name) for name in ("lsnif", "deformed", "proposed"))
+    assert (lsnif.network.pe_bands, lsnif.network.distance_mode, lsnif.train.weighting) == (
+        0,
+        "fraction",
+        "fixed",
+    )
+    assert deformed.network == lsnif.network and deformed.train == lsnif.train
+    assert (lsnif.deformed_data, deformed.deformed_data, proposed.deformed_data) == (
+        False,
+        True,
+        True,
+    )
+    assert (
+        proposed.network.pe_bands,
+        proposed.network.distance_mode,
+        proposed.train.weighting,
+    ) == (3, "log1p", "uncertainty")
+    tuned = variant_config("proposed", pe_form="pi", steps=10)
+    assert tuned.network.pe_form == "pi" and tuned.train.steps == 10
+    with pytest.raises(VDNIFError, match="lsnif, deformed, proposed"):
+        variant_config("nerf")
+    with pytest.raises(VDNIFError, match="learning_rate"):
+        variant_config("lsnif", learning_rate=1.0)
+
+
+# --------------------------------------------------------------------------- two processes
+
+
+def _ddp_worker(rank, port, folder):
+    os.environ.update(
+        RANK=str(rank),
+        LOCAL_RANK=str(rank),
+        WORLD_SIZE="2",
+        MASTER_ADDR="127.0.0.1",
+        MASTER_PORT=str(port),
+    )
+    torch.set_num_threads(1)
+    calls = []
+    config = TrainConfig(steps=20, batch_size=64, log_interval=10, val_fraction=0.25, device="cpu")
+    result = train(
+        sphere_shards(n=512, shards=4, poses=8),
+        header(),
+        config,
+        NetworkConfig(**SMALL),
+        progress=calls.append,
+    )
+    torch.save(
+        {
+            "state": result.network.state_dict(),
+            "calls": len(calls),
+            "rank": result.rank,
+            "steps": result.steps,
+            "validation": result.validation,
+        },
+        os.path.join(folder, f"rank{rank}.pt"),
+    )
+
+
+@pytest.mark.slow
+def test_two_cpu_processes_train_to_identical_weights(tmp_path):
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    mp.spawn(_ddp_worker, args=(port, str(tmp_path)), nprocs=2, join=True)
+    first, second = (torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in (0, 1))
+    assert (first["rank"], second["rank"]) == (0, 1) and first["steps"] == second["steps"] == 20
+    assert (first["calls"], second["calls"]) == (2, 0)  # only the main process reports
+    assert all(torch.equal(first["state"][key], second["state"][key]) for key in first["state"])
+    assert first["validation"] == second["validation"] and first["validation"]["segments"] > 0

@@ -1,0 +1,249 @@
+"""Input encoding psi(x) = phi(gamma(x)): sinusoidal points looked up in a multi-level hash grid.
+
+DESIGN.md section 8 and the paper's Eq. (1). ``positional_points`` (gamma) expands a rest-space
+point into ``1 + 2F`` points in [0,1]^3, ``HashGrid`` (phi) interpolates learned features at
+each, and ``SegmentEncoder`` encodes both end points of a segment with one shared grid.
+
+Layout, for CPU speed: points are processed coordinate-major, ``(3, P)``, and the table is
+feature-major, ``(Fd, rows)``, so every elementwise step runs along the long point axis (a
+point-major layout spends most of its time in small-inner-dimension kernels and transposes).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from .errors import VDNIFError
+
+HASH_PRIMES = (1, 2654435761, 805459861)
+"""instant-ngp's per-axis hash primes (x, y, z)."""
+
+MAX_LOG2_TABLE_SIZE = 24
+"""Largest table exponent (2**24 rows of Fd floats per level is already 200 MB at Fd=3)."""
+
+PE_SCALES = {"paper": 1.0, "pi": math.pi}
+"""``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
+
+
+def check_int(name: str, value: int, low: int, high: int) -> None:
+    """Raise a VDNIFError naming the setting unless ``value`` is an int in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise VDNIFError(f"setting {name} must be an integer in [{low}, {high}], got {value!r}")
+
+
+def check_grid_settings(
+    levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int
+) -> None:
+    """Validate hash grid settings with messages that name the setting."""
+    check_int("levels", levels, 1, 64)
+    check_int("base_resolution", base_resolution, 1, 2**16)
+    check_int("log2_table_size", log2_table_size, 1, MAX_LOG2_TABLE_SIZE)
+    check_int("feature_dim", feature_dim, 1, 64)
+    if (
+        isinstance(growth, bool)
+        or not isinstance(growth, (int, float))
+        or not 1.0 <= growth <= 16.0
+    ):
+        raise VDNIFError(f"setting growth must be a number in [1, 16], got {growth!r}")
+    finest = math.floor(base_resolution * growth ** (levels - 1))
+    if finest > 2**16:
+        raise VDNIFError(f"hash grid finest resolution {finest} exceeds 65536 cells per axis")
+
+
+def check_encoding_settings(pe_bands: int, pe_form: str) -> None:
+    """Validate positional-encoding settings with messages that name the setting."""
+    check_int("pe_bands", pe_bands, 0, 16)
+    if pe_form not in PE_SCALES:
+        raise VDNIFError(f"setting pe_form must be one of {sorted(PE_SCALES)}, got {pe_form!r}")
+
+
+class _Interpolate(torch.autograd.Function):
+    """``sum_c weights[c] * table[:, rows[c]]``: table (Fd, R), rows and weights (8, M) -> (Fd, M).
+
+    Written out so the backward is one product and one scatter-add; autograd's generic
+    backward of the gather-multiply-sum chain costs about three times as much on CPU.
+    """
+
+    @staticmethod
+    def forward(
+        ctx, table: torch.Tensor, rows: torch.Tensor, weights: torch.Tensor
+    ) -> torch.Tensor:
+        index = rows.view(1, -1).expand(table.shape[0], -1)  # one gather serves every channel
+        ctx.save_for_backward(index, weights)
+        ctx.table_rows = table.shape[1]
+        return table.gather(1, index).view((table.shape[0],) + weights.shape).mul_(weights).sum(1)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor, None, None]:
+        index, weights = ctx.saved_tensors
+        contribution = (grad[:, None] * weights).view(grad.shape[0], -1)
+        return (
+            grad.new_zeros(grad.shape[0], ctx.table_rows).scatter_add_(1, index, contribution),
+            None,
+            None,
+        )
+
+
+class HashGrid(nn.Module):
+    """Multi-resolution hash grid (instant-ngp) with trilinear interpolation: (N,3) -> (N, L*Fd).
+
+    Level ``l`` has ``floor(N_min * b**l)`` cells per axis. A level whose ``(res+1)**3``
+    vertices fit in the ``2**T`` table is indexed densely (``x + y*(res+1) + z*(res+1)**2``),
+    otherwise through the spatial hash ``(x*1 ^ y*2654435761 ^ z*805459861) mod 2**T``. The
+    hash products are taken in int64 (coordinates < 2**17, so no overflow) and masked to T
+    bits, which equals instant-ngp's wrapping uint32 product reduced mod 2**T (T <= 32).
+    """
+
+    chunk_points = 2**15
+    """Points per block in ``features``: keeps the (8, L, block) temporaries in cache."""
+
+    def __init__(
+        self,
+        levels: int = 2,
+        base_resolution: int = 64,
+        growth: float = 2.0,
+        log2_table_size: int = 16,
+        feature_dim: int = 3,
+    ) -> None:
+        super().__init__()
+        check_grid_settings(levels, base_resolution, growth, log2_table_size, feature_dim)
+        self.levels = levels
+        self.feature_dim = feature_dim
+        self.resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
+        table_size = 2**log2_table_size
+        hashed = [(res + 1) ** 3 > table_size for res in self.resolutions]
+        self.dense_levels = hashed.count(
+            False
+        )  # resolutions grow, so the dense levels are a prefix
+
+        # Hashed levels come first in the table, at multiples of 2**T: adding such an offset
+        # commutes with XOR-ing T-bit terms, so each level's offset is added to its x terms only.
+        order = sorted(range(levels), key=lambda level: not hashed[level])
+        sizes = [
+            table_size if hashed[level] else (self.resolutions[level] + 1) ** 3 for level in order
+        ]
+        starts = [sum(sizes[:i]) for i in range(levels)]
+        self.level_offsets = [starts[order.index(level)] for level in range(levels)]
+        multipliers = [
+            HASH_PRIMES if hashed[level] else (1, res + 1, (res + 1) ** 2)
+            for level, res in enumerate(self.resolutions)
+        ]
+
+        self.table = nn.Parameter(torch.empty(feature_dim, sum(sizes)).uniform_(-1e-4, 1e-4))
+        res = torch.tensor(self.resolutions, dtype=torch.float32).view(1, levels, 1)
+        self.register_buffer("_res", res, persistent=False)
+        self.register_buffer("_last_cell", res - 1, persistent=False)
+        self.register_buffer(
+            "_mult", torch.tensor(multipliers).t().reshape(3, levels, 1), persistent=False
+        )
+        self.register_buffer("_mask", torch.tensor(table_size - 1), persistent=False)
+        self.register_buffer(
+            "_offsets", torch.tensor(self.level_offsets).view(levels, 1), persistent=False
+        )
+
+    @property
+    def output_dim(self) -> int:
+        return self.levels * self.feature_dim
+
+    def corners(self, coords: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Table rows and trilinear weights of each point's 8 cell corners at every level.
+
+        coords: (3, P) float32, coordinate-major, in [0,1] (clamped, NaN read as 0: 0, 1 and
+        points outside are safe; a point at exactly 1 lies in the last cell, weight 1 on its
+        far vertex).
+        Returns rows (8, L, P) int64 into ``table`` and weights (8, L, P) float32; corner
+        ``4i + 2j + k`` is vertex ``cell + (i, j, k)``.
+        """
+        pos = torch.nan_to_num(coords).clamp_(0.0, 1.0)[:, None, :] * self._res  # (3, L, P)
+        cell = torch.minimum(pos.floor(), self._last_cell)
+        frac = pos - cell
+        low = cell.long() * self._mult
+        terms = torch.stack((low, low + self._mult), 1).bitwise_and_(
+            self._mask
+        )  # (3, 2, L, P) per-axis terms
+        terms[0] += self._offsets
+
+        tx, ty, tz = terms[0, :, None, None], terms[1, None, :, None], terms[2, None, None, :]
+        rows = torch.empty((2, 2, 2) + pos.shape[1:], dtype=torch.int64, device=coords.device)
+        d = self.dense_levels
+        torch.add(tx[..., :d, :] + ty[..., :d, :], tz[..., :d, :], out=rows[..., :d, :])
+        torch.bitwise_xor(tx[..., d:, :] ^ ty[..., d:, :], tz[..., d:, :], out=rows[..., d:, :])
+
+        w = torch.stack((1.0 - frac, frac), 1)  # (3, 2, L, P)
+        weights = w[0, :, None, None] * w[1, None, :, None] * w[2, None, None, :]
+        return rows.view(8, *pos.shape[1:]), weights.view(8, *pos.shape[1:])
+
+    def features(self, coords: torch.Tensor) -> torch.Tensor:
+        """coords: (3, P) float32 in [0,1] -> interpolated features (Fd, L, P).
+
+        Works through the points in blocks of ``chunk_points``: on CPU, cache-sized
+        temporaries are worth several times the speed of one pass over a large batch.
+        """
+        blocks = [self._interpolate(block) for block in coords.split(self.chunk_points, 1)]
+        return blocks[0] if len(blocks) == 1 else torch.cat(blocks, 2)
+
+    def _interpolate(self, coords: torch.Tensor) -> torch.Tensor:
+        rows, weights = self.corners(coords)
+        values = _Interpolate.apply(self.table, rows.view(8, -1), weights.view(8, -1))
+        return values.view(self.feature_dim, self.levels, coords.shape[1])
+
+    def forward(self, points: torch.Tensor) -> torch.Tensor:
+        """points: (N, 3) in [0,1] -> features (N, L*Fd), level-major."""
+        coords = points.t().to(torch.float32).contiguous()
+        return self.features(coords).transpose(0, 1).reshape(self.output_dim, points.shape[0]).t()
+
+
+def _gamma(x: torch.Tensor, bands: int, scale: float, dim: int) -> torch.Tensor:
+    """Elementwise gamma: the 1+2F variants of x stacked along a new axis ``dim``."""
+    dim = dim % (x.dim() + 1)
+    x = x.unsqueeze(dim)
+    if bands == 0:
+        return x
+    shape = [1] * x.dim()
+    shape[dim] = bands
+    freqs = scale * 2.0 ** torch.arange(bands, dtype=x.dtype, device=x.device)
+    angles = x * freqs.view(shape)
+    waves = torch.stack((angles.sin(), angles.cos()), dim + 1).flatten(dim, dim + 1)
+    return torch.cat((x, waves.add_(1.0).mul_(0.5)), dim)
+
+
+def positional_points(x: torch.Tensor, bands: int, scale: float = 1.0) -> torch.Tensor:
+    """gamma(x) as points: x (..., 3) -> (..., 1+2F, 3).
+
+    Point 0 is x itself; points 1+2k and 2+2k are ``sin(2^k s x)`` and ``cos(2^k s x)``,
+    remapped into [0,1]^3 by ``(v+1)/2``. ``scale`` s is 1 for the paper's form, pi for PEPS.
+    """
+    return _gamma(x, bands, scale, -2)
+
+
+class SegmentEncoder(nn.Module):
+    """psi of both segment end points through one shared hash grid, concatenated."""
+
+    def __init__(self, grid: HashGrid, pe_bands: int = 3, pe_form: str = "paper") -> None:
+        super().__init__()
+        check_encoding_settings(pe_bands, pe_form)
+        self.grid = grid
+        self.pe_bands = pe_bands
+        self.pe_scale = PE_SCALES[pe_form]
+
+    @property
+    def output_dim(self) -> int:
+        return 2 * (1 + 2 * self.pe_bands) * self.grid.output_dim
+
+    def forward(self, p0: torch.Tensor, p1: torch.Tensor) -> torch.Tensor:
+        """p0, p1: (N, 3) normalized rest coordinates -> (N, 2*(1+2F)*L*Fd).
+
+        Feature order: end point, gamma point, level, feature. The result is a transposed
+        view of a feature-major (C, N) array, which ``nn.Linear`` consumes without a copy.
+        """
+        n = p0.shape[0]
+        coords = torch.stack((p0, p1)).to(torch.float32).permute(2, 0, 1).contiguous()  # (3, 2, N)
+        points = _gamma(coords, self.pe_bands, self.pe_scale, 2)  # (3, 2, 1+2F, N)
+        features = self.grid.features(points.view(3, -1))  # (Fd, L, 2*(1+2F)*N)
+        features = features.view(
+            self.grid.feature_dim, self.grid.levels, 2, 1 + 2 * self.pe_bands, n
+        ).permute(2, 3, 1, 0, 4)
+        return features.reshape(self.output_dim, n).t()

@@ -1,0 +1,119 @@
+"""Per-task losses and their weighting into one training objective (DESIGN.md section 8)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .errors import VDNIFError
+
+CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
+"""Tasks weighted as classification, exp(-s) L + s/2; the others are regression tasks."""
+
+
+def distance_target(
+    hit_frac: torch.Tensor, rest_len: torch.Tensor, distance_mode: str, voxel_size: float
+) -> torch.Tensor:
+    """What the distance head regresses: t/l (``fraction``) or log1p(d/h) (``log1p``).
+
+    hit_frac, rest_len: (N,); d = hit_frac * rest_len is the rest-space local distance and h
+    the voxel size, so the log1p target is scale-invariant.
+    """
+    if distance_mode == "fraction":
+        return hit_frac
+    return torch.log1p(hit_frac * rest_len / voxel_size)
+
+
+def task_losses(
+    outputs: Mapping[str, torch.Tensor],
+    batch: Mapping[str, torch.Tensor],
+    distance_mode: str,
+    voxel_size: float,
+) -> dict[str, torch.Tensor]:
+    """Scalar loss per head present in ``outputs``.
+
+    batch: ``hit`` (N,) bool, ``hit_frac`` (N,), ``rest_len`` (N,), ``normal`` (N, 3),
+    ``albedo`` (N, 3), ``material`` (N,) int64. Occlusion (BCE with logits) averages over all
+    segments; distance (MSE), normal (1 - cos), albedo (L1) and material (cross-entropy)
+    average over hits only, and are exactly 0 (with zero gradient) for a batch without hits.
+    """
+    hit = batch["hit"]
+    hits = hit.sum().clamp_min(1)
+
+    def over_hits(per_segment: torch.Tensor) -> torch.Tensor:
+        return torch.where(hit, per_segment, 0.0).sum() / hits
+
+    target = distance_target(batch["hit_frac"], batch["rest_len"], distance_mode, voxel_size)
+    losses = {
+        "occlusion": F.binary_cross_entropy_with_logits(
+            outputs["occlusion"], hit.to(outputs["occlusion"].dtype)
+        ),
+        "distance": over_hits((outputs["distance"] - target).square()),
+        "normal": over_hits(1.0 - F.cosine_similarity(outputs["normal"], batch["normal"], dim=1)),
+    }
+    if "albedo" in outputs:
+        losses["albedo"] = over_hits((outputs["albedo"] - batch["albedo"]).abs().mean(1))
+    if "material" in outputs:
+        material = torch.where(hit, batch["material"], 0)
+        losses["material"] = over_hits(
+            F.cross_entropy(outputs["material"], material, reduction="none")
+        )
+    return losses
+
+
+class UncertaintyWeighting(nn.Module):
+    """Kendall et al. (2018) multi-task weighting with learned log-variances s_i = log sigma_i^2.
+
+    Total = sum over tasks of ``0.5 exp(-s) L + 0.5 s`` (regression) or ``exp(-s) L + 0.5 s``
+    (classification); it may be negative. s starts at 0 and is bounded softly,
+    ``s = bound * tanh(raw / bound)``: unlike a hard clamp, whose gradient vanishes once s
+    reaches the bound (leaving it stuck there), this keeps s in (-bound, bound) and trainable.
+    """
+
+    def __init__(self, tasks: Sequence[str], bound: float = 6.0) -> None:
+        super().__init__()
+        self.tasks = tuple(tasks)
+        self.bound = bound
+        self.raw = nn.Parameter(torch.zeros(len(self.tasks)))
+        scale = [1.0 if task in CLASSIFICATION_TASKS else 0.5 for task in self.tasks]
+        self.register_buffer("_scale", torch.tensor(scale), persistent=False)
+
+    def log_variance_tensor(self) -> torch.Tensor:
+        """s per task, (K,), in ``tasks`` order."""
+        return self.bound * torch.tanh(self.raw / self.bound)
+
+    def forward(self, losses: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        s = self.log_variance_tensor()
+        stacked = torch.stack([losses[task] for task in self.tasks])
+        return (self._scale * torch.exp(-s) * stacked + 0.5 * s).sum()
+
+    def log_variances(self) -> dict[str, float]:
+        """Task -> s, for logging."""
+        return dict(zip(self.tasks, self.log_variance_tensor().tolist()))
+
+
+class FixedWeighting(nn.Module):
+    """The baselines' objective: the plain sum of the task losses (all weights 1)."""
+
+    def __init__(self, tasks: Sequence[str]) -> None:
+        super().__init__()
+        self.tasks = tuple(tasks)
+
+    def forward(self, losses: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        return torch.stack([losses[task] for task in self.tasks]).sum()
+
+    def log_variances(self) -> dict[str, float]:
+        return {}
+
+
+WEIGHTINGS = {"uncertainty": UncertaintyWeighting, "fixed": FixedWeighting}
+
+
+def make_weighting(kind: str, tasks: Sequence[str]) -> UncertaintyWeighting | FixedWeighting:
+    """``kind`` "uncertainty" or "fixed" over ``tasks``."""
+    if kind not in WEIGHTINGS:
+        raise VDNIFError(f"setting weighting must be one of {sorted(WEIGHTINGS)}, got {kind!r}")
+    return WEIGHTINGS[kind](tasks)

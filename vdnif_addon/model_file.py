@@ -1,0 +1,192 @@
+"""The saved model: one file holding the weights, the network config and the scene's tables.
+
+The file is a torch archive ``{"format", "version", "sha256", "payload"}`` whose payload is
+itself a serialized ``{"network_config", "state_dict", "train_info", "extra"}``; the SHA-256
+of the payload bytes catches corruption that the archive format alone would not. It is read
+with ``weights_only=True`` only, so a foreign file cannot run code, and written atomically.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import os
+import pickle
+import tempfile
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from .errors import VDNIFError
+from .network import IntersectionNetwork, NetworkConfig
+
+FORMAT_NAME = "vdnif-model"
+FORMAT_VERSION = 1
+
+
+def _storable(value: Any, where: str) -> Any:
+    """Plain data that a weights-only load accepts (numpy arrays -> tensors, scalars -> numbers)."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "biuf":
+            raise VDNIFError(f"{where}: cannot store an array of dtype {value.dtype}")
+        return torch.from_numpy(np.array(value))
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().clone()
+    if isinstance(value, Mapping):
+        if not all(isinstance(key, str) for key in value):
+            raise VDNIFError(f"{where}: dictionary keys must be strings")
+        return {key: _storable(item, f"{where}.{key}") for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(_storable(item, f"{where}[{i}]") for i, item in enumerate(value))
+    raise VDNIFError(f"{where}: cannot store a value of type {type(value).__name__}")
+
+
+def _reason(exc: Exception) -> str:
+    """The first line of an exception's message, for a one-line error."""
+    lines = str(exc).strip().splitlines()
+    return (lines[0] if lines else type(exc).__name__)[:200]
+
+
+def _as_numpy(value: Any) -> Any:
+    """Inverse of ``_storable`` for reading back: tensors become numpy arrays."""
+    if isinstance(value, torch.Tensor):
+        return value.numpy()
+    if isinstance(value, dict):
+        return {key: _as_numpy(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(_as_numpy(item) for item in value)
+    return value
+
+
+def save_model(
+    path: str | os.PathLike,
+    network: IntersectionNetwork,
+    network_config: NetworkConfig,
+    train_info: Mapping[str, Any],
+    extra: Mapping[str, Any],
+) -> None:
+    """Write ``network`` with its config and metadata to ``path``, atomically.
+
+    ``train_info`` (how it was trained) and ``extra`` (grid, heads, material and albedo
+    tables, ...) are plain data: dicts with string keys, lists, tuples, numbers, strings,
+    None and numeric numpy arrays or tensors. The file is written to a temporary file in
+    the same folder, fsynced and renamed over ``path``: a failed write leaves any existing
+    file at ``path`` untouched and no temporary file behind.
+    """
+    path = os.fspath(path)
+    if network.config != network_config:
+        raise VDNIFError(
+            f"cannot save {path}: the network was built with a different config than the one given"
+        )
+    inner = {
+        "network_config": network_config.to_dict(),
+        "state_dict": {
+            key: value.detach().cpu().clone() for key, value in network.state_dict().items()
+        },
+        "train_info": _storable(train_info, "train_info"),
+        "extra": _storable(extra, "extra"),
+    }
+    buffer = io.BytesIO()
+    torch.save(inner, buffer)
+    payload = buffer.getvalue()
+    archive = {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "sha256": hashlib.sha256(payload).hexdigest(),
+        "payload": torch.frombuffer(bytearray(payload), dtype=torch.uint8),
+    }
+    folder = os.path.dirname(os.path.abspath(path))
+    try:
+        handle, temporary = tempfile.mkstemp(
+            prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder
+        )
+    except OSError as exc:
+        raise VDNIFError(f"cannot write model file {path}: {_reason(exc)}") from exc
+    try:
+        with os.fdopen(handle, "wb") as file:
+            torch.save(archive, file)
+            file.flush()
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        if isinstance(exc, Exception):
+            raise VDNIFError(f"cannot write model file {path}: {_reason(exc)}") from exc
+        raise
+    with contextlib.suppress(OSError):  # make the rename itself durable where the OS allows
+        directory = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(directory)
+        finally:
+            os.close(directory)
+
+
+def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, Any]]:
+    """Read a model file: (network in eval mode on CPU, metadata).
+
+    metadata: ``format``, ``version``, ``network_config`` (a NetworkConfig), ``train_info`` and
+    ``extra`` (arrays come back as numpy arrays). A missing, corrupt, truncated, foreign or
+    newer-format file raises VDNIFError naming the file.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise VDNIFError(f"model file {path} does not exist")
+    try:
+        archive = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        reason = (
+            "not a plain-data torch archive"
+            if isinstance(exc, pickle.UnpicklingError)
+            else _reason(exc)
+        )
+        raise VDNIFError(
+            f"model file {path} cannot be read (corrupt, truncated or not a VDNIF model): {reason}"
+        ) from exc
+    if not isinstance(archive, dict) or archive.get("format") != FORMAT_NAME:
+        raise VDNIFError(f"{path} is not a VDNIF model file")
+    version = archive.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise VDNIFError(f"model file {path} has an invalid format version {version!r}")
+    if version > FORMAT_VERSION:
+        raise VDNIFError(
+            f"model file {path} has format version {version}, newer than this add-on reads "
+            f"({FORMAT_VERSION}); update the add-on"
+        )
+    payload = archive.get("payload")
+    if not isinstance(payload, torch.Tensor) or payload.dtype != torch.uint8:
+        raise VDNIFError(f"model file {path} is corrupt: it has no payload")
+    data = payload.numpy().tobytes()
+    if hashlib.sha256(data).hexdigest() != archive.get("sha256"):
+        raise VDNIFError(f"model file {path} is corrupt: its checksum does not match")
+    try:
+        inner = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
+        config = NetworkConfig.from_dict(inner["network_config"])
+        network = IntersectionNetwork(config)
+        network.load_state_dict(inner["state_dict"])
+    except Exception as exc:
+        raise VDNIFError(f"model file {path} is damaged: {_reason(exc)}") from exc
+    network.eval()
+    metadata = {
+        "format": FORMAT_NAME,
+        "version": version,
+        "network_config": config,
+        "train_info": _as_numpy(inner.get("train_info", {})),
+        "extra": _as_numpy(inner.get("extra", {})),
+    }
+    return network, metadata
+
+
+def model_bytes(path: str | os.PathLike) -> int:
+    """Size of the saved model file in bytes (the 'size' metric)."""
+    try:
+        return os.path.getsize(path)
+    except OSError as exc:
+        raise VDNIFError(f"model file {os.fspath(path)} cannot be read: {_reason(exc)}") from exc

@@ -1,0 +1,59 @@
+"""The three compared methods as configurations, trained and evaluated by the same code.
+
+``lsnif``: static single pose, hash grid only, sigmoid t/l distance, fixed loss weights.
+``deformed``: the same model trained on deformation-aware (many-pose) data.
+``proposed``: deformation-aware data, F = 3 positional bands, log1p distance, uncertainty weighting.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from .errors import VDNIFError
+from .network import NetworkConfig
+from .train import TrainConfig
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One method: its network, its training settings and which data it trains on."""
+
+    name: str
+    network: NetworkConfig
+    train: TrainConfig
+    deformed_data: bool
+    """Train on many deformed poses (True) or on the single rest pose (False)."""
+
+
+_BASELINE = {"pe_bands": 0, "distance_mode": "fraction", "weighting": "fixed"}
+VARIANTS: dict[str, dict[str, Any]] = {
+    "lsnif": {**_BASELINE, "deformed_data": False},
+    "deformed": {**_BASELINE, "deformed_data": True},
+    "proposed": {
+        "pe_bands": 3,
+        "distance_mode": "log1p",
+        "weighting": "uncertainty",
+        "deformed_data": True,
+    },
+}
+
+
+def variant_config(name: str, **overrides: Any) -> Variant:
+    """The named variant, with any NetworkConfig or TrainConfig field overridden by keyword."""
+    if name not in VARIANTS:
+        raise VDNIFError(f"unknown variant {name!r}; valid variants: {', '.join(VARIANTS)}")
+    settings = {**VARIANTS[name], **overrides}
+    network_fields = {f.name for f in dataclasses.fields(NetworkConfig)}
+    train_fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = set(settings) - network_fields - train_fields - {"deformed_data"}
+    if unknown:
+        valid = sorted(network_fields | train_fields | {"deformed_data"})
+        raise VDNIFError(f"unknown variant settings {sorted(unknown)}; valid: {valid}")
+    return Variant(
+        name=name,
+        network=NetworkConfig(**{k: v for k, v in settings.items() if k in network_fields}),
+        train=TrainConfig(**{k: v for k, v in settings.items() if k in train_fields}),
+        deformed_data=settings["deformed_data"],
+    )
