@@ -78,6 +78,15 @@ def test_dataset_then_references(tmp_path):
         assert data["embedded_vs_true"][key] is not None
     assert data["rays_per_s"] > 0 and data["segments_per_s"] > 0
     assert data["width"] == 32 and data["height"] == 24 and len(data["per_pose"]) == 2
+    summary = tmp_path / "train.json"
+    code, printed, err = run_batch("train", "--data", out, "--variant", "lsnif", "--steps", 20,
+                                   "--batch", 1024, "--log2-table-size", 12, "--json", summary)
+    assert code == 0, err
+    trained = json.loads(summary.read_text())
+    assert trained["train"]["steps"] == 20 and trained["model_bytes"] > 0
+    assert trained["network_config"]["pe_bands"] == 0
+    assert trained["network_config"]["log2_table_size"] == 12
+    assert (out / "lsnif.vdnif").is_file() and "ETA" in err
 
 
 @pytest.mark.parametrize("args, message", [
@@ -86,6 +95,7 @@ def test_dataset_then_references(tmp_path):
     (["capture", "--blend", "nowhere.blend"], "blend file 'nowhere.blend' does not exist"),
     (["capture", "--scene", "moon"], "invalid choice: 'moon'"),
     (["render"], "invalid choice: 'render'"),
+    (["train", "--data", "nowhere"], "dataset folder 'nowhere' does not exist"),
     (["dataset", "--scene", "arm", "--poses", 4, "--out", "x", "--pose-range", "3:9"],
      "pose range 3:9 is outside 0:4"),
     (["dataset", "--scene", "arm", "--out", "x", "--rays-per-pose", 0],
@@ -100,7 +110,8 @@ def test_failures_print_one_line_and_exit_non_zero(args, message):
 
 def test_help_documents_every_command():
     code, out, _ = run_batch("--help")
-    assert code == 0 and all(c in out for c in ("capture", "dataset", "references"))
+    assert code == 0 and all(c in out for c in ("capture", "dataset", "references", "train",
+                                             "bench-network"))
     code, out, _ = run_batch("capture", "--help")
     for option in ("--scene", "--mesh", "--rig", "--blend", "--object", "--resolution",
                    "--poses", "--seed", "--json"):

@@ -168,3 +168,12 @@ def test_empty_batches_and_non_finite_coordinates_are_safe():
     ].shape == (0,)
     odd = torch.tensor([[float("nan"), 0.5, float("inf")], [-float("inf"), 2.0, -3.0]])
     assert all(torch.isfinite(value).all() for value in network(odd, torch.rand(2, 3)).values())
+
+
+def test_log1p_distance_head_starts_alive():
+    """A ReLU distance head whose outputs all start at 0 never learns (dead ReLU)."""
+    torch.manual_seed(0)
+    network = IntersectionNetwork(NetworkConfig(distance_mode="log1p"))
+    p0, p1 = torch.rand(2, 4096, 3)
+    distance = network(p0, p1)["distance"]
+    assert (distance > 0).float().mean() > 0.9

@@ -187,6 +187,80 @@ def cmd_references(args):
     return 0
 
 
+NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
+    "--levels": ("levels", int, "hash-grid levels L"),
+    "--base-resolution": ("base_resolution", int, "coarsest hash-grid resolution N_min"),
+    "--growth": ("growth", float, "resolution growth factor b between levels"),
+    "--log2-table-size": ("log2_table_size", int, "hash table size 2^T per level"),
+    "--feature-dim": ("feature_dim", int, "features per hash-grid entry Fd"),
+    "--pe-bands": ("pe_bands", int, "positional-encoding bands F (0: plain LSNIF grid)"),
+    "--pe-form": ("pe_form", str, "sin(2^k x) ('paper') or sin(pi 2^k x) ('pi')"),
+    "--width": ("width", int, "MLP width"),
+    "--depth": ("depth", int, "MLP hidden layers"),
+}
+
+
+def cmd_train(args):
+    """Train a network on a dataset folder and write the model file."""
+    from .dataset import read_dataset
+    from .model_file import model_bytes, save_model
+    from .train import train
+    from .variants import variant_config
+
+    header, shards = read_dataset(args.data)
+    overrides = {field: getattr(args, option[2:].replace("-", "_"))
+                 for option, (field, _, _) in NETWORK_OPTIONS.items()
+                 if getattr(args, option[2:].replace("-", "_")) is not None}
+    overrides.update(steps=args.steps, batch_size=args.batch, device=args.device,
+                     seed=args.seed)
+    variant = variant_config(args.variant, **overrides)
+    network_config = variant.network.__class__.from_dict(
+        dict(variant.network.to_dict(), heads=dict(
+            albedo=bool(header["heads"]["albedo"]),
+            material_count=int(header["heads"]["material_count"]))))
+    out = args.out or pathlib.Path(args.data) / f"{args.variant}.vdnif"
+
+    def report(record):
+        losses = ", ".join(f"{k} {v:.4f}" for k, v in record["losses"].items())
+        print(f"train: step {record['step']}/{record['steps']}, loss {record['total']:.4f} "
+              f"({losses}), {record['samples_per_s']:,.0f} samples/s, "
+              f"ETA {record['eta_s']:.0f} s", file=sys.stderr, flush=True)
+
+    result = train(shards, header, variant.train, network_config, progress=report)
+    if not result.is_main:
+        return 0
+    extra = {"object": header["object"], "object_size": header["object_size"],
+             "grid": header["grid"], "heads": header["heads"],
+             "albedo_table": header["albedo_table"], "variant": args.variant,
+             "dataset": {"folder": str(args.data), "shards": header["shards"],
+                         "poses": len(header["poses"]), "segments": header["segments"]}}
+    save_model(out, result.network, result.network_config, result.info(), extra)
+    summary = {"variant": args.variant, "model": str(out), "model_bytes": model_bytes(out),
+               "train": result.info(), "network_config": result.network_config.to_dict()}
+    write_json(args.json, summary)
+    print(f"trained {args.variant} on '{header['object']}' ({header['segments']} segments): "
+          f"{result.status} after {result.steps} steps in {result.seconds:.1f} s, "
+          f"{result.samples_per_s:,.0f} samples/s")
+    if result.validation:
+        print("  validation on held-out poses: " + ", ".join(
+            f"{k} {v:.4g}" for k, v in result.validation.items()))
+    print(f"  model {out} ({summary['model_bytes']:,} bytes)")
+    return 0
+
+
+def cmd_bench_network(args):
+    """Measure encoder+MLP inference segments/s and training samples/s (paper setting)."""
+    from .network_bench import benchmark_network
+
+    result = benchmark_network(device=args.device, repeats=args.repeats)
+    write_json(args.json, result)
+    print(f"network ({result['device']}, {result['threads']} threads): "
+          f"{result['infer_segments_per_s']:,.0f} segments/s inference, "
+          f"{result['train_samples_per_s']:,.0f} samples/s training; inference split: "
+          f"encoding {result['encode_fraction']:.0%}, MLP {result['mlp_fraction']:.0%}")
+    return 0
+
+
 def add_capture_options(parser, default_poses):
     parser.add_argument("--resolution", type=int, default=32, metavar="R",
                         help="voxels along the longest side, 4..256 (default 32)")
@@ -232,6 +306,34 @@ def build_parser():
     refs.add_argument("--height", type=int, default=128, metavar="H")
     refs.add_argument("--json", type=pathlib.Path, metavar="PATH", help="write the report")
     refs.set_defaults(run=cmd_references)
+
+    training = commands.add_parser("train", help=cmd_train.__doc__, description=(
+        cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
+        "(DistributedDataParallel) and the first one writes the model."))
+    training.add_argument("--data", type=pathlib.Path, required=True, metavar="DIR",
+                          help="dataset folder written by 'dataset'")
+    training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"),
+                          default="proposed")
+    training.add_argument("--steps", type=int, default=2000, metavar="N")
+    training.add_argument("--batch", type=int, default=2 ** 14, metavar="B",
+                          help="segments per step and process (default 16384)")
+    training.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    training.add_argument("--seed", type=int, default=0)
+    training.add_argument("--out", type=pathlib.Path, metavar="MODEL",
+                          help="model file (default DIR/<variant>.vdnif)")
+    training.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    group = training.add_argument_group("encoding and network (default: the variant's)")
+    for option, (_, kind, text) in NETWORK_OPTIONS.items():
+        group.add_argument(option, type=kind, help=text)
+    training.set_defaults(run=cmd_train)
+
+    bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
+                                description=cmd_bench_network.__doc__ + " JSON keys "
+                                "infer_segments_per_s, train_samples_per_s.")
+    bench.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    bench.add_argument("--repeats", type=int, default=5)
+    bench.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    bench.set_defaults(run=cmd_bench_network)
     return parser
 
 

@@ -144,7 +144,15 @@ class IntersectionNetwork(nn.Module):
         for _ in range(config.depth):
             layers += [nn.Linear(width_in, config.width), nn.ReLU()]
             width_in = config.width
-        layers.append(nn.Linear(width_in, sum(self.head_sizes.values())))
+        output = nn.Linear(width_in, sum(self.head_sizes.values()))
+        if config.distance_mode == "log1p":
+            # ReLU output: start it in its active range (log1p of half a voxel), or a head
+            # whose first outputs are all negative never gets a gradient (a dead ReLU).
+            distance_column = list(self.head_sizes).index("distance")
+            start = sum(list(self.head_sizes.values())[:distance_column])
+            with torch.no_grad():
+                output.bias[start] = math.log1p(0.5)
+        layers.append(output)
         self.mlp = nn.Sequential(*layers)
 
     def forward(self, p0: torch.Tensor, p1: torch.Tensor) -> dict[str, torch.Tensor]:
