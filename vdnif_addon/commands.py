@@ -267,25 +267,29 @@ def add_capture_options(parser, default_poses):
     add_pose_options(parser, default_poses)
 
 
+def _scene_command(commands, name, run, default_poses, notes):
+    """A command that reads a scene: scene, resolution and pose options."""
+    parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
+    add_scene_options(parser)
+    add_capture_options(parser, default_poses)
+    parser.set_defaults(run=run)
+    return parser
+
+
 def build_parser():
     parser = _Parser(prog="batch.py", description=(
         "VDNIF batch commands. Run as: blender --background --python vdnif_addon/batch.py "
         "-- <command> [options], or python vdnif_addon/batch.py -- <command> [options]."))
     commands = parser.add_subparsers(dest="command", metavar="<command>", parser_class=_Parser)
-    capture = commands.add_parser("capture", help=cmd_capture.__doc__, description=(
-        cmd_capture.__doc__ + " Writes --json with grid_dims, voxel_size, occupied_voxels, "
-        "corners, poses, inverted_cells (per pose), heads and capture_s."))
-    add_scene_options(capture)
-    add_capture_options(capture, default_poses=8)
+    capture = _scene_command(commands, "capture", cmd_capture, 8, (
+        "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
+        "inverted_cells (per pose), heads and capture_s."))
     capture.add_argument("--json", type=pathlib.Path, metavar="PATH",
                          help="write the summary as JSON")
-    capture.set_defaults(run=cmd_capture)
 
-    data = commands.add_parser("dataset", help=cmd_dataset.__doc__, description=(
-        cmd_dataset.__doc__ + " Several processes may each write the shard of their "
-        "--pose-range into one folder; training reads them all."))
-    add_scene_options(data)
-    add_capture_options(data, default_poses=32)
+    data = _scene_command(commands, "dataset", cmd_dataset, 32, (
+        "Several processes may each write the shard of their --pose-range into one folder; "
+        "training reads them all."))
     data.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
                       help="training rays per pose (default 4096)")
     data.add_argument("--surface-fraction", type=float, default=0.6, metavar="F",
@@ -294,18 +298,14 @@ def build_parser():
     data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
     data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
-    data.set_defaults(run=cmd_dataset)
 
-    refs = commands.add_parser("references", help=cmd_references.__doc__, description=(
-        cmd_references.__doc__ + " Writes --json with embedded_vs_true (distance_mae in "
-        "object units, normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
-    add_scene_options(refs)
-    add_capture_options(refs, default_poses=4)
+    refs = _scene_command(commands, "references", cmd_references, 4, (
+        "Writes --json with embedded_vs_true (distance_mae in object units, "
+        "normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
     refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
     refs.add_argument("--width", type=int, default=128, metavar="W")
     refs.add_argument("--height", type=int, default=128, metavar="H")
     refs.add_argument("--json", type=pathlib.Path, metavar="PATH", help="write the report")
-    refs.set_defaults(run=cmd_references)
 
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
