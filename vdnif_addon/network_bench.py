@@ -5,8 +5,6 @@ Run ``python -m vdnif_addon.network_bench [--device cpu] [--segments 65536] [--r
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
 import time
 from collections.abc import Callable
@@ -91,21 +89,3 @@ def benchmark_network(
         "encode_fraction": encode / (encode + mlp),
         "mlp_fraction": mlp / (encode + mlp),
     }
-
-
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--segments", type=int, default=2**16)
-    parser.add_argument("--train-batch", type=int, default=2**14)
-    parser.add_argument("--repeats", type=int, default=5)
-    args = parser.parse_args()
-    print(
-        json.dumps(
-            benchmark_network(args.device, args.segments, args.train_batch, args.repeats), indent=2
-        )
-    )
-
-
-if __name__ == "__main__":
-    main()
