@@ -1,6 +1,6 @@
 """Throughput of the network alone (no traversal): inference segments/s and training samples/s.
 
-Run ``python -m vdnif_addon.network_bench [--device cpu] [--segments 65536] [--repeats 5]``.
+Run it as ``batch.py -- bench-network [--device cpu] [--repeats 5] [--json PATH]``.
 """
 
 from __future__ import annotations
