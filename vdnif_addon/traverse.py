@@ -274,58 +274,49 @@ class Walk:
             index, t = self.caster.cast(start, self.directions[rays], remaining)
             hit = index >= 0
             rays, index, t_from = rays[hit], index[hit], t_from[hit]
-            t = self._exact_distance(rays, index, t[hit] + t_from)
-            leaving = self._leaving(rays, index)
+            t, u, v, leaving = self._crossing(rays, index, t[hit] + t_from)
             if first:
-                rays, index, t = self._start_inside(rays, index, t, leaving)
+                back_index, back_t, back_u, back_v = self._start_inside(rays[leaving])
+                found = back_index >= 0                 # else keep the forward crossing
+                rows = np.flatnonzero(leaving)[found]
+                index[rows], t[rows] = back_index[found], back_t[found]
+                u[rows], v[rows] = back_u[found], back_v[found]
                 leaving[:] = False
                 first = False
-            self._enter(rays[~leaving], index[~leaving], t[~leaving])
+            self._enter(rays[~leaving], index[~leaving], t[~leaving], u[~leaving],
+                        v[~leaving])
             rays, t_from = rays[leaving], np.maximum(t, t_from)[leaving] + self.step
 
-    def _enter(self, rays, index, t):
+    def _enter(self, rays, index, t, u, v):
         cell = self.cells.boundary_cell[index]
         triangle = self.cells.boundary_triangle[index]
-        point_u, point_v = self._barycentric(rays, cell, triangle)
         self._add_walkers(rays, cell, triangle // 2, t,
-                          self.cells.rest_point(cell, triangle, point_u, point_v))
+                          self.cells.rest_point(cell, triangle, u, v))
 
-    def _leaving(self, rays, index):
-        """(M,) bool: the ray crosses boundary triangle ``index`` out of the occupied set."""
-        triangles = self.cells.boundary_triangles(index)
-        normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-        return (normal * self.directions[rays]).sum(1) > 0
-
-    def _exact_distance(self, rays, index, t):
-        """Float64 distance to the boundary triangle a (possibly float32) caster reported."""
+    def _crossing(self, rays, index, t):
+        """Where rays cross the boundary triangles a caster reported at ``t``: float64
+        distance (a float32 caster's ``t`` refined), barycentric (u, v), and whether the ray
+        leaves the occupied set there (the triangles' normals point out of it)."""
         local = CELL_TRIANGLES[self.cells.boundary_triangle[index]]
         cell = self.cells.boundary_cell[index]
         a, b, c = (self.cells.corners[cell, local[:, k]] for k in range(3))
-        exact, _, _, usable, _ = ray_triangle(self.origins[rays], self.directions[rays], a, b, c)
-        return np.where(usable & (np.abs(exact - t) < 1e-3 * (1 + np.abs(t))), exact, t)
+        exact, u, v, usable, outward = ray_triangle(self.origins[rays], self.directions[rays],
+                                                    a, b, c)
+        close = usable & (np.abs(exact - t) < 1e-3 * (1 + np.abs(t)))
+        return np.where(close, exact, t), u, v, outward
 
-    def _start_inside(self, rays, index, t, leaving):
+    def _start_inside(self, rays):
         """Rays whose first boundary crossing leaves the occupied set start inside it: they
-        are walked from where the backward ray leaves it, and clipped at the origin."""
-        if not leaving.any():
-            return rays, index, t
-        rows = np.flatnonzero(leaving)
-        inside = rays[rows]
-        back_index, back_t = self.caster.cast(self.origins[inside], -self.directions[inside],
-                                              np.full(len(inside), np.inf))
+        are walked from where the backward ray leaves it, and clipped at the origin.
+        Returns (index, t, u, v) of that backward crossing (t < 0); index -1 if none."""
+        back_index, back_t = self.caster.cast(self.origins[rays], -self.directions[rays],
+                                              np.full(len(rays), np.inf))
         found = back_index >= 0
-        rows, inside, back_index = rows[found], inside[found], back_index[found]
-        back_t = self._exact_distance(inside, back_index, -back_t[found])
-        self.clip_from[inside] = back_t
-        index, t = index.copy(), t.copy()
-        index[rows], t[rows] = back_index, back_t
-        return rays, index, t
-
-    def _barycentric(self, rays, cell, triangle):
-        local = CELL_TRIANGLES[triangle]
-        a, b, c = (self.cells.corners[cell, local[:, k]] for k in range(3))
-        _, u, v, _, _ = ray_triangle(self.origins[rays], self.directions[rays], a, b, c)
-        return u, v
+        t, u, v = np.zeros(len(rays)), np.zeros(len(rays)), np.zeros(len(rays))
+        t[found], u[found], v[found], _ = self._crossing(rays[found], back_index[found],
+                                                         -back_t[found])
+        self.clip_from[rays[found]] = t[found]
+        return back_index, t, u, v
 
     def _add_walkers(self, rays, cell, entry_face, t, p, zero_passes=None):
         zero_passes = np.zeros(len(rays), np.int64) if zero_passes is None else zero_passes
