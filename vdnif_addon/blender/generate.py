@@ -26,7 +26,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     records, counts = [], dict(rays=0, segments=0, hits=0)
     inverted, entry_casts = [], []
     with PosedObject(obj, capture) as posed_object:
-        rest_caster = posed_object.rest_caster = TimedCaster(posed_object.rest_caster)
+        rest_caster = TimedCaster(posed_object.rest_caster)
         for done, index in enumerate(range(start, stop), 1):
             geometry = posed_object.geometry(capture.poses[index])
             timings["prepare_s"] += geometry.prepare_s
@@ -46,7 +46,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
             targets = segment_targets(capture.mesh, rest_caster, segments)
             timings["ground_truth_s"] += time.perf_counter() - clock
             records.append(dataset.segment_records(capture.grid, segments, targets, index))
-            inverted.append(int(_inverted(capture, geometry).sum()))
+            inverted.append(int(_inverted(geometry).sum()))
             counts["rays"] += rays_per_pose
             counts["segments"] += len(segments)
             counts["hits"] += int(targets.hit.sum())
@@ -98,7 +98,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
                                         geometry.vertices, geometry.normals, origins, rays))
             clock["true_reference_s"] += time.perf_counter() - start
             per_pose.append(dict(compare(embedded[-1], truth[-1], mesh.size, mesh.heads()),
-                                 inverted_cells=int(_inverted(capture, geometry).sum())))
+                                 inverted_cells=int(_inverted(geometry).sum())))
             if progress is not None:
                 progress(index + 1, len(capture.poses))
     rays_total = len(capture.poses) * width * height
@@ -116,7 +116,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
     }
 
 
-def _inverted(capture, geometry):
+def _inverted(geometry):
     return inverted_cells(geometry.cells.corners.reshape(-1, 3),
                           np.arange(8 * len(geometry.cells.corners)).reshape(-1, 8))
 
