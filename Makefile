@@ -16,7 +16,7 @@ $(STAMP): requirements.txt
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) vdnif_addon/batch.py -- capture --scene arm --resolution 32 --poses 32 --json out/demo/capture.json
+	$(PY) vdnif_addon/batch.py -- demo --scene arm --out out/demo
 
 test: $(STAMP)
 	$(PY) -m pytest

@@ -94,7 +94,8 @@ def test_dataset_then_references(tmp_path):
     (["capture", "--mesh", "nowhere.obj"], "mesh file 'nowhere.obj' does not exist"),
     (["capture", "--blend", "nowhere.blend"], "blend file 'nowhere.blend' does not exist"),
     (["capture", "--scene", "moon"], "invalid choice: 'moon'"),
-    (["render"], "invalid choice: 'render'"),
+    (["render", "--out", "x"], "the following arguments are required: --model"),
+    (["train"], "give --data DIR (a dataset folder) or scene options"),
     (["train", "--data", "nowhere"], "dataset folder 'nowhere' does not exist"),
     (["dataset", "--scene", "arm", "--poses", 4, "--out", "x", "--pose-range", "3:9"],
      "pose range 3:9 is outside 0:4"),
@@ -111,8 +112,104 @@ def test_failures_print_one_line_and_exit_non_zero(args, message):
 def test_help_documents_every_command():
     code, out, _ = run_batch("--help")
     assert code == 0 and all(c in out for c in ("capture", "dataset", "references", "train",
-                                             "bench-network"))
+                                             "render", "evaluate", "demo", "bench-network"))
     code, out, _ = run_batch("capture", "--help")
     for option in ("--scene", "--mesh", "--rig", "--blend", "--object", "--resolution",
                    "--poses", "--seed", "--json"):
         assert option in out
+
+
+@pytest.fixture(scope="module")
+def quick_demo(tmp_path_factory):
+    """``demo --quick`` run once: its folder and its JSON."""
+    out = tmp_path_factory.mktemp("demo")
+    code, printed, err = run_batch("demo", "--quick", "--out", out, "--json", out / "d.json",
+                                   timeout=300)
+    assert code == 0, err
+    assert "vs true: distance MAE" in printed and "ETA" in err
+    return out, json.loads((out / "d.json").read_text())
+
+
+def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
+    out, report = quick_demo
+    assert report == json.loads((out / "report.json").read_text())
+    assert report["variant"] == "proposed" and report["unseen_poses"] is True
+    assert report["config"]["network"]["pe_bands"] == 3
+    assert report["config"]["train"]["steps"] == 300
+    for reference in ("vs_true", "vs_embedded"):
+        metrics = report[reference]
+        assert 0.2 < metrics["hit_iou"] <= 1, metrics
+        assert 0 < metrics["distance_mae"] < 0.5 and 0 < metrics["normal_error_deg"] < 90
+        assert 0 < metrics["albedo_psnr"] <= 100          # one constant albedo: exact
+        assert "material_accuracy" not in metrics          # one material: no metric
+    timings = report["timings"]
+    for key in ("train_s", "train_samples_per_s", "render_rays_per_s", "prepare_pose_s"):
+        assert timings[key] > 0, key
+    assert report["model_bytes"] == (out / "arm-proposed.vdnif").stat().st_size
+    assert len(report["per_pose"]) == report["poses"] == 2
+    assert "![reference, predicted, error per pass](figure-vs-true.png)" in (
+        out / "report.md").read_text()
+    for name in ("hit", "distance", "normal", "albedo", "material"):
+        assert (out / "passes" / f"{name}.png").is_file() and (
+            out / "passes" / f"{name}.exr").is_file()
+
+
+def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
+    out, demo_report = quick_demo
+    model = out / "arm-proposed.vdnif"
+    code, printed, err = run_batch("render", "--model", model, "--scene", "arm", "--frame", 30,
+                                   "--width", 24, "--height", 16, "--references",
+                                   "--out", tmp_path / "r")
+    assert code == 0, err
+    summary = json.loads((tmp_path / "r" / "render.json").read_text())
+    assert summary["hit_pixels"] > 0 and summary["frame"] == 30
+    assert "orbit viewpoint" in summary["view"]
+    for prefix in ("", "true-", "embedded-"):
+        assert (tmp_path / "r" / f"{prefix}distance.exr").is_file()
+    code, printed, err = run_batch("evaluate", "--model", model, "--scene", "arm", "--poses", 2,
+                                   "--width", 32, "--height", 24, "--json", tmp_path / "e.json",
+                                   "--out", tmp_path / "e")
+    assert code == 0, err
+    report = json.loads((tmp_path / "e.json").read_text())
+    # the demo evaluated the same unseen poses with the same cameras
+    assert report["vs_true"] == demo_report["vs_true"]
+    assert (tmp_path / "e" / "figure-vs-embedded.png").is_file()
+
+
+def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_demo, tmp_path):
+    out, _ = quick_demo
+    model = out / "arm-proposed.vdnif"
+    target = tmp_path / "r"
+    target.mkdir()
+    (target / "normal.png").write_bytes(b"keep")
+    future = tmp_path / "future.vdnif"
+    import torch
+    archive = torch.load(model, weights_only=True)
+    torch.save(dict(archive, version=99), future)
+    cases = [
+        (["--model", model, "--scene", "lattice"], "was trained on 'Arm' at resolution 16"),
+        (["--model", model, "--scene", "arm", "--resolution", 32], "not on 'Arm' at resolution 32"),
+        (["--model", model, "--scene", "arm", "--camera", "Ghost"], "no camera named 'Ghost'"),
+        (["--model", future, "--scene", "arm"], "format version 99, newer than this add-on"),
+        (["--model", tmp_path / "none.vdnif", "--scene", "arm"], "does not exist"),
+    ]
+    for args, message in cases:
+        code, _, err = run_batch("render", *args, "--out", target)
+        lines = error_lines(err)
+        assert code == 1 and len(lines) == 1 and message in lines[0], err
+    assert sorted(p.name for p in target.iterdir()) == ["normal.png"]
+    assert (target / "normal.png").read_bytes() == b"keep"
+
+
+def test_train_from_scene_options_generates_its_dataset(tmp_path):
+    data, model = tmp_path / "data", tmp_path / "m.vdnif"
+    code, printed, err = run_batch("train", "--scene", "arm", "--resolution", 8, "--poses", 3,
+                                   "--rays-per-pose", 64, "--variant", "lsnif", "--steps", 5,
+                                   "--batch", 256, "--log2-table-size", 10, "--data", data,
+                                   "--out", model, "--json", tmp_path / "t.json")
+    assert code == 0, err
+    shard = json.loads(next(data.glob("*.json")).read_text())
+    assert shard["poses"] == [{"rest": True}] and shard["counts"]["rays"] == 3 * 64
+    assert json.loads((tmp_path / "t.json").read_text())["model_bytes"] == model.stat().st_size
+    code, _, err = run_batch("train", "--scene", "arm", "--data", data, "--steps", 5)
+    assert code == 1 and "already holds shards" in error_lines(err)[0]

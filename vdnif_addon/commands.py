@@ -9,6 +9,8 @@ import json
 import pathlib
 import sys
 
+import numpy as np
+
 from .errors import VDNIFError
 
 
@@ -200,51 +202,193 @@ NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
 }
 
 
-def cmd_train(args):
-    """Train a network on a dataset folder and write the model file."""
-    from .dataset import read_dataset
-    from .model_file import model_bytes, save_model
-    from .train import train
-    from .variants import variant_config
-
-    header, shards = read_dataset(args.data)
+def network_overrides(args):
+    """NetworkConfig / TrainConfig fields set on the command line."""
     overrides = {field: getattr(args, option[2:].replace("-", "_"))
                  for option, (field, _, _) in NETWORK_OPTIONS.items()
                  if getattr(args, option[2:].replace("-", "_")) is not None}
     overrides.update(steps=args.steps, batch_size=args.batch, device=args.device,
                      seed=args.seed)
-    variant = variant_config(args.variant, **overrides)
-    network_config = variant.network.__class__.from_dict(
-        dict(variant.network.to_dict(), heads=dict(
-            albedo=bool(header["heads"]["albedo"]),
-            material_count=int(header["heads"]["material_count"]))))
-    out = args.out or pathlib.Path(args.data) / f"{args.variant}.vdnif"
+    return overrides
 
-    def report(record):
-        losses = ", ".join(f"{k} {v:.4f}" for k, v in record["losses"].items())
-        print(f"train: step {record['step']}/{record['steps']}, loss {record['total']:.4f} "
-              f"({losses}), {record['samples_per_s']:,.0f} samples/s, "
-              f"ETA {record['eta_s']:.0f} s", file=sys.stderr, flush=True)
 
-    result = train(shards, header, variant.train, network_config, progress=report)
+def report_training(record):
+    losses = ", ".join(f"{k} {v:.4f}" for k, v in record["losses"].items())
+    print(f"train: step {record['step']}/{record['steps']}, loss {record['total']:.4f} "
+          f"({losses}), {record['samples_per_s']:,.0f} samples/s, "
+          f"ETA {record['eta_s']:.0f} s", file=sys.stderr, flush=True)
+
+
+def cmd_train(args):
+    """Train a network on a dataset folder (or on a scene, generating its dataset first)
+    and write the model file."""
+    from .fit import fit_model
+
+    if _names_scene(args):
+        result, summary = _train_on_scene(args)
+    else:
+        if args.data is None:
+            raise VDNIFError("give --data DIR (a dataset folder) or scene options "
+                             "(--scene, --mesh or --blend)")
+        out = args.out or pathlib.Path(args.data) / f"{args.variant}.vdnif"
+        result, summary = fit_model(args.data, args.variant, out, network_overrides(args),
+                                    progress=report_training)
     if not result.is_main:
         return 0
-    extra = {"object": header["object"], "object_size": header["object_size"],
-             "grid": header["grid"], "heads": header["heads"],
-             "albedo_table": header["albedo_table"], "variant": args.variant,
-             "dataset": {"folder": str(args.data), "shards": header["shards"],
-                         "poses": len(header["poses"]), "segments": header["segments"]}}
-    save_model(out, result.network, result.network_config, result.info(), extra)
-    summary = {"variant": args.variant, "model": str(out), "model_bytes": model_bytes(out),
-               "train": result.info(), "network_config": result.network_config.to_dict()}
     write_json(args.json, summary)
-    print(f"trained {args.variant} on '{header['object']}' ({header['segments']} segments): "
+    print(f"trained {args.variant} on '{summary['object']}' ({summary['segments']} segments): "
           f"{result.status} after {result.steps} steps in {result.seconds:.1f} s, "
           f"{result.samples_per_s:,.0f} samples/s")
     if result.validation:
         print("  validation on held-out poses: " + ", ".join(
             f"{k} {v:.4g}" for k, v in result.validation.items()))
-    print(f"  model {out} ({summary['model_bytes']:,} bytes)")
+    print(f"  model {summary['model']} ({summary['model_bytes']:,} bytes)")
+    return 0
+
+
+def _names_scene(args):
+    return any(getattr(args, name) is not None for name in ("scene", "mesh", "blend"))
+
+
+def _train_on_scene(args):
+    """Capture, dataset (into --data, or a temporary folder) and training in one go."""
+    import tempfile
+
+    from .blender.capture import capture
+    from .blender.jobs import train_variant
+
+    check_resolution(args.resolution)
+    if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):
+        raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
+                         "folder with scene options, or train on it with --data alone")
+    obj = load_scene(args)
+    captured = capture(obj, args.resolution, pose_spec(args), deform_corners=False)
+    out = args.out or pathlib.Path("out") / f"{obj.name.lower()}-{args.variant}.vdnif"
+    pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
+        folder = args.data or pathlib.Path(scratch)
+        print(f"dataset '{obj.name}': {len(captured.poses)} poses, {args.rays_per_pose} "
+              f"rays per pose -> {args.data or 'a temporary folder'}", file=sys.stderr)
+        return train_variant(obj, captured, args.variant, folder, args.rays_per_pose, out,
+                             network_overrides(args), args.seed, progress=report_training)
+
+
+def _model_resolution(args):
+    """--resolution, or the model's own when not given (they must agree anyway)."""
+    from .model_file import load_model
+
+    if args.resolution is not None:
+        check_resolution(args.resolution)
+        return args.resolution
+    return int(load_model(args.model)[1]["extra"]["grid"]["resolution"])
+
+
+def cmd_render(args):
+    """Render the predicted passes of a pose through a camera with a trained model."""
+    import bpy
+
+    from .blender.capture import capture
+    from .blender.jobs import write_passes
+    from .blender.neural import camera_rays, load_scene_model, render_rays
+    from .blender.scenes import find_camera
+
+    resolution = _model_resolution(args)
+    obj = load_scene(args)
+    captured = capture(obj, resolution, pose_spec(args), deform_corners=False)
+    model = load_scene_model(args.model, captured, args.device)
+    scene = bpy.context.scene
+    frame = scene.frame_current if args.frame is None else args.frame
+    pose = {"frame": float(frame)}
+    camera = find_camera(args.camera)
+    if camera is not None:
+        origins, directions = camera_rays(camera, args.width, args.height)
+        view = f"camera '{camera.name}'"
+    else:
+        origins, directions = _orbit_world_rays(obj, captured, pose, args.width, args.height)
+        view = "an orbit viewpoint (the scene has no camera)"
+    result = render_rays(obj, captured, model, pose, origins, directions,
+                         references=args.references)
+    written = write_passes(args.out, result.predicted, args.height, args.width,
+                           result.world_scale)
+    if args.references:
+        for name in ("true", "embedded"):
+            written += write_passes(args.out, getattr(result, name), args.height, args.width,
+                                    result.world_scale, prefix=f"{name}-")
+    summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
+               "width": args.width, "height": args.height,
+               "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
+               "rays_per_s": result.timings["rays"] / result.timings["render_s"],
+               "files": [str(path) for path in written]}
+    write_json(pathlib.Path(args.out) / "render.json", summary)
+    print(f"rendered '{obj.name}' at frame {frame:g} through {view}, {args.width}x"
+          f"{args.height}: {summary['hit_pixels']} hit pixels, "
+          f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
+    return 0
+
+
+def _orbit_world_rays(obj, captured, pose, width, height):
+    """World rays of the first orbit viewpoint around the posed object's bounds."""
+    from .blender.posed import PosedObject
+    from .rays import orbit_rays, orbit_viewpoints, transform_rays
+
+    with PosedObject(obj, captured) as posed_object:
+        vertices = posed_object.geometry(pose).vertices
+    origins, directions = orbit_rays(vertices.min(0), vertices.max(0),
+                                     orbit_viewpoints(1)[0], width, height)
+    world = np.array(obj.matrix_world, np.float64)
+    origins, directions, _ = transform_rays(origins, directions, world)
+    return origins, directions
+
+
+def cmd_evaluate(args):
+    """Evaluate a trained model on unseen poses against the true and embedded references."""
+    from .blender.jobs import evaluate_file, evaluation_poses, write_figures
+    from .progress import Progress
+
+    resolution = _model_resolution(args)
+    obj = load_scene(args)
+    captured = evaluation_poses(obj, resolution, pose_spec(args), rest=args.rest_pose)
+    progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
+    report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
+                                  args.device, lambda done, _: progress.update(done))
+    if args.out is not None:
+        report["figures"] = {name: str(path) for name, path in write_figures(
+            args.out, views[0], args.height, args.width, captured.mesh.size).items()}
+    write_json(args.json, report)
+    print_evaluation(report)
+    return 0
+
+
+def print_evaluation(report):
+    print(f"evaluated {report['variant']} on '{report['object']}' R={report['resolution']}, "
+          f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
+          f"{report['width']}x{report['height']}")
+    for name in ("vs_true", "vs_embedded"):
+        m = report[name]
+        extra = "".join(f", {key} {m[key]:.4g}" for key in ("albedo_psnr", "material_accuracy")
+                        if key in m)
+        print(f"  {name.replace('_', ' ')}: distance MAE {_number(m['distance_mae'])} object "
+              f"units, normal error {_number(m['normal_error_deg'])} deg, hit IoU "
+              f"{m['hit_iou']:.4f}{extra}")
+    t = report["timings"]
+    print(f"  render {t['render_rays_per_s']:,.0f} rays/s, pose preparation "
+          f"{t['prepare_pose_s'] * 1e3:.1f} ms, model {report['model_bytes']:,} bytes")
+
+
+def _number(value):
+    return "n/a" if value is None else f"{value:.4g}"
+
+
+def cmd_demo(args):
+    """The main job on an embedded scene: capture, dataset, train (proposed), render and
+    evaluate on unseen poses, and a short report with the figure."""
+    from .blender.demo import run_demo
+
+    report = run_demo(args.scene, args.out, quick=args.quick, device=args.device,
+                      steps=args.steps, progress=report_training)
+    write_json(args.json, report)
+    print_evaluation(report)
+    print(f"  report {report['report']}")
     return 0
 
 
@@ -276,7 +420,32 @@ def _scene_command(commands, name, run, default_poses, notes):
     return parser
 
 
+def add_training_options(parser):
+    parser.add_argument("--steps", type=int, default=2000, metavar="N")
+    parser.add_argument("--batch", type=int, default=2 ** 14, metavar="B",
+                        help="segments per step and process (default 16384)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+
+
+def _model_command(commands, name, run, default_poses, notes):
+    """A command that uses a trained model on a scene; the resolution is the model's."""
+    parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
+    parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
+                        help="a model file written by 'train' or 'demo'")
+    add_scene_options(parser)
+    parser.add_argument("--resolution", type=int, metavar="R",
+                        help="voxel resolution (default: the model's; must match it)")
+    add_pose_options(parser, default_poses)
+    parser.add_argument("--width", type=int, default=128, metavar="W")
+    parser.add_argument("--height", type=int, default=128, metavar="H")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.set_defaults(run=run)
+    return parser
+
+
 def build_parser():
+    from .blender.scenes import DEMO_SCENES
+
     parser = _Parser(prog="batch.py", description=(
         "VDNIF batch commands. Run as: blender --background --python vdnif_addon/batch.py "
         "-- <command> [options], or python vdnif_addon/batch.py -- <command> [options]."))
@@ -310,22 +479,57 @@ def build_parser():
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
         "(DistributedDataParallel) and the first one writes the model."))
-    training.add_argument("--data", type=pathlib.Path, required=True, metavar="DIR",
-                          help="dataset folder written by 'dataset'")
+    training.add_argument("--data", type=pathlib.Path, metavar="DIR", help=(
+        "dataset folder written by 'dataset'; with scene options the dataset is generated "
+        "into it first (default then: a temporary folder)"))
+    add_scene_options(training)
+    add_capture_options(training, 32)
+    training.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
+                          help="with scene options: training rays per pose (default 4096)")
     training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"),
                           default="proposed")
-    training.add_argument("--steps", type=int, default=2000, metavar="N")
-    training.add_argument("--batch", type=int, default=2 ** 14, metavar="B",
-                          help="segments per step and process (default 16384)")
-    training.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    training.add_argument("--seed", type=int, default=0)
-    training.add_argument("--out", type=pathlib.Path, metavar="MODEL",
-                          help="model file (default DIR/<variant>.vdnif)")
+    training.add_argument("--out", type=pathlib.Path, metavar="MODEL", help=(
+        "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
+    add_training_options(training)
     training.add_argument("--json", type=pathlib.Path, metavar="PATH")
     group = training.add_argument_group("encoding and network (default: the variant's)")
     for option, (_, kind, text) in NETWORK_OPTIONS.items():
         group.add_argument(option, type=kind, help=text)
     training.set_defaults(run=cmd_train)
+
+    render = _model_command(commands, "render", cmd_render, 1, (
+        "Writes per pass (hit, distance, normal, albedo, material) a PNG for looking and an "
+        "EXR for use (distance in world units) and render.json into --out."))
+    render.add_argument("--frame", type=float, metavar="F",
+                        help="the timeline frame to pose the scene at (default: current)")
+    render.add_argument("--camera", metavar="NAME", help=(
+        "camera object (default: the scene's camera, else an orbit viewpoint)"))
+    render.add_argument("--references", action="store_true",
+                        help="also render the true and embedded references")
+    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
+
+    evaluate = _model_command(commands, "evaluate", cmd_evaluate, 8, (
+        "Poses are the evaluation poses of --seed: another random seed or frames between "
+        "the training frames, never trained on. Writes --json with variant, config, vs_true "
+        "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
+        "albedo_psnr, material_accuracy), timings and model_bytes."))
+    evaluate.add_argument("--rest-pose", action="store_true",
+                          help="evaluate on views of the undeformed rest pose instead")
+    evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
+                          help="write the comparison figures and error images here")
+    evaluate.add_argument("--json", type=pathlib.Path, metavar="PATH")
+
+    demo = commands.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
+    demo.add_argument("--scene", choices=DEMO_SCENES, default="arm")
+    demo.add_argument("--quick", action="store_true", help="a small size, for tests")
+    demo.add_argument("--steps", type=int, metavar="N", help="training steps (default: "
+                      "the demo's own)")
+    demo.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
+                      metavar="DIR", help="default out/demo")
+    demo.add_argument("--json", type=pathlib.Path, metavar="PATH",
+                      help="also write the report JSON here (it is always in DIR)")
+    demo.set_defaults(run=cmd_demo)
 
     bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
                                 description=cmd_bench_network.__doc__ + " JSON keys "

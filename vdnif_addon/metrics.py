@@ -5,6 +5,9 @@ from dataclasses import dataclass
 import numpy as np
 
 
+PSNR_FLOOR_MSE = 1e-10     # identical albedo reports 100 dB instead of infinity (valid JSON)
+
+
 @dataclass
 class Passes:
     """Per-ray (per-pixel) results: what a reference or the network says each ray sees."""
@@ -49,7 +52,7 @@ def compare(predicted, reference, object_size, heads=None):
     if heads.get("albedo") or heads.get("albedo_psnr"):
         mse = float(np.mean((np.clip(predicted.albedo[both], 0, 1)
                              - np.clip(reference.albedo[both], 0, 1)) ** 2))
-        result["albedo_psnr"] = float("inf") if mse == 0 else float(-10 * np.log10(mse))
+        result["albedo_psnr"] = float(-10 * np.log10(max(mse, PSNR_FLOOR_MSE)))
     if heads.get("material"):
         result["material_accuracy"] = float(
             (predicted.material[both] == reference.material[both]).mean())

@@ -13,7 +13,6 @@ from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
 from ..references import embedded_reference, true_reference
 from ..traverse import TimedCaster, traverse
-from ..voxels import inverted_cells
 from .posed import PosedObject
 
 
@@ -46,7 +45,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
             targets = segment_targets(capture.mesh, rest_caster, segments)
             timings["ground_truth_s"] += time.perf_counter() - clock
             records.append(dataset.segment_records(capture.grid, segments, targets, index))
-            inverted.append(int(_inverted(geometry).sum()))
+            inverted.append(geometry.inverted_cells())
             counts["rays"] += rays_per_pose
             counts["segments"] += len(segments)
             counts["hits"] += int(targets.hit.sum())
@@ -98,7 +97,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
                                         geometry.vertices, geometry.normals, origins, rays))
             clock["true_reference_s"] += time.perf_counter() - start
             per_pose.append(dict(compare(embedded[-1], truth[-1], mesh.size, mesh.heads()),
-                                 inverted_cells=int(_inverted(geometry).sum())))
+                                 inverted_cells=geometry.inverted_cells()))
             if progress is not None:
                 progress(index + 1, len(capture.poses))
     rays_total = len(capture.poses) * width * height
@@ -114,11 +113,6 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
         "segments_per_ray": segment_count / rays_total,
         "timings": clock, "versions": _versions(),
     }
-
-
-def _inverted(geometry):
-    return inverted_cells(geometry.cells.corners.reshape(-1, 3),
-                          np.arange(8 * len(geometry.cells.corners)).reshape(-1, 8))
 
 
 def _versions():

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..traverse import DeformedCells
+from ..voxels import inverted_cells
 from .bvh import BVHCaster
 from .deform import CornerDeformer
 from .poses import posed
@@ -28,6 +29,12 @@ class PoseGeometry:
             self._mesh_caster = BVHCaster(self.vertices, triangles)
         return self._mesh_caster
 
+    def inverted_cells(self):
+        """Number of occupied cells whose deformed trilinear map is inverted."""
+        corners = self.cells.corners
+        return int(inverted_cells(corners.reshape(-1, 3),
+                                  np.arange(8 * len(corners)).reshape(-1, 8)).sum())
+
 
 class PosedObject:
     """Poses a captured object one pose at a time. Use as a context manager."""
@@ -40,7 +47,10 @@ class PosedObject:
         self.rest_caster = BVHCaster(capture.mesh.vertices, capture.mesh.triangles)
 
     def geometry(self, pose):
-        """PoseGeometry of ``pose`` (a pose dict, see ``poses``)."""
+        """PoseGeometry of ``pose`` (a pose dict, see ``poses``; ``{"rest": True}`` is the
+        undeformed rest pose)."""
+        if pose.get("rest"):
+            return self.rest_geometry()
         with posed(pose):
             start = time.perf_counter()
             corners = (self.deformer.deformed() if self.deformer is not None

@@ -79,6 +79,17 @@ def find_object(name=None):
     return obj
 
 
+def find_camera(name=None):
+    """The object named as camera (``neural.camera_rays`` checks that it is one), or the
+    scene's active camera (None when it has none)."""
+    if name is None:
+        return bpy.context.scene.camera
+    obj = bpy.data.objects.get(name)
+    if obj is None:
+        raise VDNIFError(f"no camera named '{name}' in the scene")
+    return obj
+
+
 def import_mesh(path, name=None):
     """Imports a mesh file and returns one mesh object (several are joined)."""
     path = pathlib.Path(path)

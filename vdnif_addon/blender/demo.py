@@ -1,0 +1,53 @@
+"""The main job: on an embedded demo scene, capture, dataset, train the proposed variant,
+evaluate on unseen poses, write the passes, the figure and a short report."""
+
+import json
+import pathlib
+import shlex
+import sys
+import tempfile
+
+from ..report import demo_markdown
+from .capture import capture
+from .jobs import evaluate_file, evaluation_poses, train_variant, write_figures, write_passes
+from .poses import PoseSpec
+from .scenes import demo_scene
+
+SIZES = {   # full: the main job (minutes on 2 cores); quick: seconds, for tests
+    "full": dict(resolution=32, poses=32, rays_per_pose=4096, steps=2000, eval_poses=8,
+                 width=128, height=128, overrides={}),
+    "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=300, eval_poses=2,
+                  width=32, height=24, overrides=dict(log2_table_size=12, batch_size=2048)),
+}
+
+
+def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None):
+    """Runs the demo into folder ``out`` and returns the report (also written as
+    ``out/report.json`` and ``out/report.md`` with ``out/figure-vs-true.png``)."""
+    size = SIZES["quick" if quick else "full"]
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    obj = demo_scene(scene)
+    spec = PoseSpec(count=size["poses"])
+    captured = capture(obj, size["resolution"], spec, deform_corners=False)
+    overrides = dict(size["overrides"], steps=steps or size["steps"], device=device)
+    model = out / f"{scene}-proposed.vdnif"
+    with tempfile.TemporaryDirectory(prefix="data-", dir=out) as folder:
+        _, summary = train_variant(obj, captured, "proposed", folder, size["rays_per_pose"],
+                                   model, overrides, progress=progress)
+    evaluated = evaluation_poses(obj, size["resolution"],
+                                 PoseSpec(count=size["eval_poses"]))
+    width, height = size["width"], size["height"]
+    report, views = evaluate_file(obj, evaluated, model, width, height, device)
+    figures = write_figures(out, views[0], height, width, captured.mesh.size)
+    passes = write_passes(out / "passes", views[0]["predicted"], height, width)
+    report.update(train_poses=len(captured.poses), dataset_rays=summary["dataset"]["rays"],
+                  dataset_segments=summary["dataset"]["segments"],
+                  figures={name: str(path) for name, path in figures.items()},
+                  passes=[str(path) for path in passes], report=str(out / "report.md"))
+    command = shlex.join(["python", "vdnif_addon/batch.py", "--",
+                          *sys.argv[sys.argv.index("--") + 1:]] if "--" in sys.argv
+                         else ["python", "vdnif_addon/batch.py", "--", "demo"])
+    (out / "report.md").write_text(demo_markdown(report, command, "figure-vs-true.png"))
+    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    return report

@@ -1,0 +1,95 @@
+"""The pipeline's steps as the batch commands and the experiments chain them: datasets for a
+variant, training, evaluation on unseen poses, and the images they write."""
+
+import dataclasses
+import pathlib
+
+import numpy as np
+
+from .. import images
+from ..evaluation import figure, world_distances
+from ..fit import fit_model
+from ..variants import variant_config
+from .capture import capture
+from .generate import generate_dataset
+from .image_io import save_image
+from .neural import evaluate_model, load_scene_model
+from .poses import evaluation_spec
+
+REST_POSE = {"rest": True}
+
+
+def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progress=None):
+    """Writes the training data ``variant`` learns from into ``folder``: the walked segments
+    of every captured pose, or, for a single-pose variant (``lsnif``), of the rest pose alone
+    with as many rays as all poses together (the same data budget)."""
+    if not variant_config(variant).deformed_data and captured.mode != "static":
+        rays_per_pose *= len(captured.poses)
+        captured = dataclasses.replace(captured, poses=[REST_POSE])
+    return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
+
+
+def evaluation_poses(obj, resolution, spec, rest=False):
+    """A capture of ``obj`` (corners left to per-pose work) whose poses are the evaluation
+    poses of the training ``spec`` (never trained on), or ``spec.count`` views of the rest
+    pose with ``rest``."""
+    captured = capture(obj, resolution, evaluation_spec(spec), deform_corners=False)
+    if rest:
+        captured = dataclasses.replace(captured, poses=[REST_POSE] * spec.count)
+    return captured
+
+
+def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None):
+    """(report, views) of the model file on the poses of ``captured``, with the model's
+    training figures and size added to the report."""
+    model = load_scene_model(model_path, captured, device)
+    report, views = evaluate_model(obj, captured, model, width, height, progress=progress)
+    train_info = model.metadata["train_info"]
+    report["config"] = {"network": model.metadata["network_config"].to_dict(),
+                        "train": train_info.get("config")}
+    report["timings"].update(train_s=train_info.get("seconds"),
+                             train_samples_per_s=train_info.get("samples_per_s"),
+                             train_steps=train_info.get("steps"))
+    report["model_bytes"] = pathlib.Path(model_path).stat().st_size
+    return report, views
+
+
+def write_passes(folder, passes, height, width, world_scale=None, prefix=""):
+    """Writes every pass as a PNG for looking and an EXR for use (distance in world units
+    when ``world_scale`` is given); returns the written paths."""
+    folder = pathlib.Path(folder)
+    data = passes if world_scale is None else world_distances(passes, world_scale)
+    hits = data.distance[data.hit]
+    near_far = (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
+    shown = images.display(data, height, width, near_far)
+    shown["hit"] = np.repeat(images.raw(data, height, width)["hit"], 3, axis=2)
+    written = [save_image(folder / f"{prefix}{name}.png", image) for name, image in shown.items()]
+    written += [save_image(folder / f"{prefix}{name}.exr", image)
+                for name, image in images.raw(data, height, width).items()]
+    return written
+
+
+def write_figures(folder, view, height, width, object_size):
+    """The comparison figures of one view against each reference, and the error heat maps
+    against the true reference; returns {name: path}."""
+    folder = pathlib.Path(folder)
+    paths = {}
+    for reference in ("true", "embedded"):
+        paths[f"figure_vs_{reference}"] = save_image(
+            folder / f"figure-vs-{reference}.png",
+            figure(view[reference], view["predicted"], height, width, object_size))
+    errors = images.error_images(view["predicted"], view["true"], height, width, object_size)
+    for name in ("distance", "normal"):
+        paths[f"error_{name}"] = save_image(folder / f"error-{name}.png", errors[name])
+    return paths
+
+
+def train_variant(obj, captured, variant, folder, rays_per_pose, out, overrides, seed=0,
+                  progress=None):
+    """Dataset + training of ``variant`` in one step: (TrainResult, summary)."""
+    header = variant_dataset(obj, captured, variant, folder, rays_per_pose, seed)
+    result, summary = fit_model(folder, variant, out, overrides, progress=progress)
+    summary["dataset"] = {"folder": str(folder), "rays": header["counts"]["rays"],
+                          "segments": header["counts"]["segments"],
+                          "seconds": header["timings"]["total_s"]}
+    return result, summary

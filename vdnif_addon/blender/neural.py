@@ -1,0 +1,172 @@
+"""A trained model at work on a Blender scene: load it for a captured object, render its
+passes for a pose and a camera, and evaluate it against both references on unseen poses
+(DESIGN sections 9 and 10). The numerics are in ``render`` and ``evaluation``."""
+
+import json
+import math
+import statistics
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import VDNIFError
+from ..evaluation import check_model_fits, compare_both, concatenated
+from ..metrics import Passes
+from ..rays import camera_rays as pinhole_rays
+from ..rays import orbit_rays, orbit_viewpoints, transform_rays
+from ..references import embedded_passes, true_reference
+from ..render import neural_passes
+from .posed import PosedObject
+
+
+@dataclass
+class SceneModel:
+    """A model file loaded for one captured object (checked to fit it)."""
+
+    network: object            # IntersectionNetwork in eval mode on ``device``
+    metadata: dict             # model_file.load_model's metadata
+    grid: object               # the capture's VoxelGrid, equal to the model's
+    path: str
+    device: object             # torch.device
+
+    @property
+    def extra(self):
+        return self.metadata["extra"]
+
+    @property
+    def variant(self):
+        return self.extra.get("variant")
+
+    @property
+    def albedo_table(self):
+        return np.asarray(self.extra["albedo_table"], np.float32).reshape(-1, 3)
+
+
+def load_scene_model(path, capture, device="auto"):
+    """Loads the model file ``path`` for ``capture``'s object; a file that is corrupt, of a
+    newer format, or trained on another object or resolution raises a one-line VDNIFError."""
+    from ..model_file import load_model
+    from ..train import resolve_device
+
+    network, metadata = load_model(path)
+    check_model_fits(path, metadata["extra"], capture.mesh, capture.grid)
+    device = resolve_device(device)
+    return SceneModel(network=network.to(device), metadata=metadata, grid=capture.grid,
+                      path=str(path), device=device)
+
+
+@dataclass
+class RenderResult:
+    """The passes of one view, in the object's local units (see ``world_scale``)."""
+
+    predicted: Passes
+    true: Passes               # None unless references were asked for
+    embedded: Passes           # None unless references were asked for
+    timings: dict              # prepare_s, walk_s, network_s, render_s, rays, segments
+    object_size: float         # one object unit in local units
+    world_scale: np.ndarray    # (R,) local distance / world distance per ray
+    inverted_cells: int
+
+
+def render_rays(obj, capture, model, pose, origins, directions, references=False):
+    """Renders world-space rays (N, 3) of ``obj`` in ``pose`` (a pose dict; the current
+    frame is ``{"frame": scene.frame_current}``) with the network, and with the true and
+    embedded references when asked."""
+    inverse = np.array(obj.matrix_world.inverted(), np.float64)
+    local_origins, local_directions, scale = transform_rays(origins, directions, inverse)
+    with PosedObject(obj, capture) as posed_object:
+        result = _render(model, posed_object, posed_object.geometry(pose), local_origins,
+                         local_directions, references)
+    result.world_scale = scale
+    return result
+
+
+def camera_rays(camera, width, height):
+    """World-space rays (origins, directions), (H*W, 3) each, of a perspective Blender
+    camera object rendering a ``width`` x ``height`` image (its sensor fit respected)."""
+    if camera is None:
+        raise VDNIFError("no camera: the scene has no active camera and none was named")
+    if camera.type != "CAMERA":
+        raise VDNIFError(f"object '{camera.name}' is a {camera.type.lower()}, not a camera")
+    data = camera.data
+    if data.type != "PERSP":
+        raise VDNIFError(f"camera '{camera.name}' is {data.type.lower()}: only perspective "
+                         "cameras are supported")
+    # AUTO: the sensor width spans the larger image side; otherwise the named sensor side.
+    if data.sensor_fit == "AUTO":
+        vertical, angle = height > width, data.angle_x
+    else:
+        vertical = data.sensor_fit == "VERTICAL"
+        angle = data.angle_y if vertical else data.angle_x
+    half = math.tan(angle / 2) * (width / height if vertical else 1.0)
+    return pinhole_rays(np.array(camera.matrix_world), math.degrees(2 * math.atan(half)),
+                        width, height)
+
+
+def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress=None):
+    """Renders every pose of ``capture`` (the evaluation poses) from an orbit camera each
+    (``viewpoints`` (P, 3), default a Fibonacci sphere) with the network and both
+    references. Returns (report, views): the JSON-ready metrics and timings, and per pose
+    {"predicted", "true", "embedded"} Passes in local units."""
+    poses = capture.poses
+    viewpoints = orbit_viewpoints(len(poses)) if viewpoints is None else viewpoints
+    views, results = [], []
+    with PosedObject(obj, capture) as posed_object:
+        for index, pose in enumerate(poses):
+            geometry = posed_object.geometry(pose)
+            origins, directions = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
+                                             viewpoints[index], width, height)
+            result = _render(model, posed_object, geometry, origins, directions, True)
+            results.append(result)
+            views.append({"predicted": result.predicted, "true": result.true,
+                          "embedded": result.embedded})
+            if progress is not None:
+                progress(index + 1, len(poses))
+    joined = concatenated(views)
+    render_s = sum(r.timings["render_s"] for r in results)
+    report = {
+        "object": capture.mesh.name, "mode": capture.mode, "variant": model.variant,
+        "model": model.path, "resolution": capture.grid.resolution, "poses": len(poses),
+        "width": width, "height": height,
+        "unseen_poses": _unseen(poses, model.extra.get("train_poses", [])),
+        **compare_both(joined["predicted"], joined["true"], joined["embedded"], capture.mesh),
+        "per_pose": [dict(compare_both(r.predicted, r.true, r.embedded, capture.mesh),
+                          inverted_cells=r.inverted_cells) for r in results],
+        "timings": {
+            "render_rays_per_s": sum(r.timings["rays"] for r in results) / render_s,
+            "render_segments_per_s": sum(r.timings["segments"] for r in results) / render_s,
+            "prepare_pose_s": statistics.median(r.timings["prepare_s"] for r in results),
+            "network_fraction": sum(r.timings["network_s"] for r in results) / render_s,
+        },
+    }
+    return report, views
+
+
+def _render(model, posed_object, geometry, origins, directions, references):
+    """RenderResult of local rays for one posed geometry."""
+    mesh = posed_object.capture.mesh
+    start = time.perf_counter()
+    predicted, stats = neural_passes(model.network, model.grid, model.albedo_table,
+                                     geometry.cells, geometry.entry_caster, origins,
+                                     directions, model.device)
+    render_s = time.perf_counter() - start
+    true = embedded = None
+    if references:
+        true = true_reference(mesh, geometry.mesh_caster(mesh.triangles), geometry.vertices,
+                              geometry.normals, origins, directions)
+        embedded, _, _ = embedded_passes(geometry.cells, geometry.entry_caster, mesh,
+                                         posed_object.rest_caster, origins, directions)
+    timings = dict(prepare_s=geometry.prepare_s, walk_s=stats["walk_s"],
+                   network_s=stats["network_s"], render_s=render_s, rays=len(origins),
+                   segments=stats["segments"])
+    return RenderResult(predicted=predicted, true=true, embedded=embedded, timings=timings,
+                        object_size=mesh.size, world_scale=np.ones(len(origins)),
+                        inverted_cells=geometry.inverted_cells())
+
+
+def _unseen(poses, train_poses):
+    """True when no evaluation pose equals a training pose."""
+    key = lambda pose: json.dumps(pose, sort_keys=True, default=str)  # noqa: E731
+    trained = {key(pose) for pose in train_poses}
+    return not any(key(pose) in trained for pose in poses)

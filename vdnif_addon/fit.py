@@ -1,0 +1,53 @@
+"""One trained model from one dataset folder: the step shared by the ``train`` and ``demo``
+commands, the experiments and the UI's Train operator.
+
+Reads the shards, builds the variant's configuration with the scene's heads, trains, and
+writes the model file with everything rendering needs (grid, heads, albedo table, the
+training poses), atomically.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import threading
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from . import __version__
+from .dataset import read_dataset
+from .model_file import model_bytes, save_model
+from .train import TrainResult, train
+from .variants import variant_config
+
+
+def fit_model(
+    data_dir: str | pathlib.Path,
+    variant: str,
+    out: str | pathlib.Path,
+    overrides: Mapping[str, Any] | None = None,
+    progress: Callable[[dict[str, Any]], None] | None = None,
+    cancel: threading.Event | None = None,
+) -> tuple[TrainResult, dict[str, Any]]:
+    """Trains ``variant`` on the dataset in ``data_dir`` and writes the model to ``out``.
+
+    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...).
+    Returns (the TrainResult, a JSON-ready summary); only the main process of a ``torchrun``
+    launch writes the file (the summary is then empty on the others).
+    """
+    header, shards = read_dataset(data_dir)
+    chosen = variant_config(variant, **(overrides or {}))
+    result = train(shards, header, chosen.train, chosen.network, progress=progress,
+                   cancel=cancel)
+    if not result.is_main:
+        return result, {}
+    extra = {"object": header["object"], "object_size": header["object_size"],
+             "grid": header["grid"], "heads": header["heads"],
+             "albedo_table": header["albedo_table"], "variant": variant,
+             "vdnif_version": __version__, "train_poses": header["poses"],
+             "dataset": {"folder": str(data_dir), "shards": header["shards"],
+                         "poses": len(header["poses"]), "segments": header["segments"]}}
+    save_model(out, result.network, result.network_config, result.info(), extra)
+    summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
+               "object": header["object"], "segments": header["segments"],
+               "train": result.info(), "network_config": result.network_config.to_dict()}
+    return result, summary
