@@ -392,6 +392,21 @@ def cmd_demo(args):
     return 0
 
 
+def cmd_experiment(args):
+    """Run one of the paper's experiments and write its section of the results file."""
+    from .blender.experiments import run_experiment
+
+    records = run_experiment(args.name, args.results, quick=args.quick, device=args.device,
+                             progress=report_training)
+    for label, report in records.items():
+        print(f"{label}: vs true distance MAE {_number(report['vs_true']['distance_mae'])}, "
+              f"normal error {_number(report['vs_true']['normal_error_deg'])} deg; "
+              f"vs embedded {_number(report['vs_embedded']['distance_mae'])}, "
+              f"{_number(report['vs_embedded']['normal_error_deg'])} deg")
+    print(f"  written to {args.results}")
+    return 0
+
+
 def cmd_bench_network(args):
     """Measure encoder+MLP inference segments/s and training samples/s (paper setting)."""
     from .network_bench import benchmark_network
@@ -530,6 +545,17 @@ def build_parser():
     demo.add_argument("--json", type=pathlib.Path, metavar="PATH",
                       help="also write the report JSON here (it is always in DIR)")
     demo.set_defaults(run=cmd_demo)
+
+    experiment = commands.add_parser("experiment", help=cmd_experiment.__doc__,
+                                     description=cmd_experiment.__doc__)
+    experiment.add_argument("name", choices=("static", "deformation", "per-pose"))
+    experiment.add_argument("--quick", action="store_true", help="a tiny size, for tests")
+    experiment.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    experiment.add_argument("--results", type=pathlib.Path,
+                            default=pathlib.Path("docs/results.md"), metavar="PATH",
+                            help="markdown file whose section is rewritten (default "
+                                 "docs/results.md; figures and JSON beside it in results/)")
+    experiment.set_defaults(run=cmd_experiment)
 
     bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
                                 description=cmd_bench_network.__doc__ + " JSON keys "

@@ -39,11 +39,12 @@ def evaluation_poses(obj, resolution, spec, rest=False):
     return captured
 
 
-def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None):
+def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
+                  viewpoints=None):
     """(report, views) of the model file on the poses of ``captured``, with the model's
     training figures and size added to the report."""
     model = load_scene_model(model_path, captured, device)
-    report, views = evaluate_model(obj, captured, model, width, height, progress=progress)
+    report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress)
     train_info = model.metadata["train_info"]
     report["config"] = {"network": model.metadata["network_config"].to_dict(),
                         "train": train_info.get("config")}
