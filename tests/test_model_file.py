@@ -57,6 +57,7 @@ def test_round_trip_gives_identical_outputs_and_metadata(saved, network):
     np.testing.assert_array_equal(extra["occupied"], EXTRA["occupied"])
     assert extra["grid"]["resolution"] == (8, 8, 4) and extra["materials"] == EXTRA["materials"]
     assert model_bytes(saved) == os.path.getsize(saved) > 0
+    assert os.stat(saved).st_mode & 0o777 == 0o644     # readable by the farm, like any file
 
 
 def test_write_is_atomic_and_leaves_no_temporary_files(tmp_path, saved, network, monkeypatch):

@@ -111,6 +111,7 @@ def save_model(
         raise VDNIFError(f"cannot write model file {path}: {_reason(exc)}") from exc
     try:
         with os.fdopen(handle, "wb") as file:
+            os.fchmod(file.fileno(), 0o644)  # mkstemp makes it private; a model is shared
             torch.save(archive, file)
             file.flush()
             os.fsync(file.fileno())
