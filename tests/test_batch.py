@@ -96,6 +96,8 @@ def test_dataset_then_references(tmp_path):
     (["capture", "--scene", "moon"], "invalid choice: 'moon'"),
     (["render", "--out", "x"], "the following arguments are required: --model"),
     (["train"], "give --data DIR (a dataset folder) or scene options"),
+    (["capture", "--scene", "arm", "--deform", "wobble:3"], "unknown deform kind 'wobble'"),
+    (["references", "--scene", "arm", "--scale", "-2"], "object scale -2 must be a finite"),
     (["train", "--data", "nowhere"], "dataset folder 'nowhere' does not exist"),
     (["dataset", "--scene", "arm", "--poses", 4, "--out", "x", "--pose-range", "3:9"],
      "pose range 3:9 is outside 0:4"),

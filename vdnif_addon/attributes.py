@@ -49,12 +49,22 @@ def barycentric(points, corners) -> np.ndarray:
     d = points - corners[:, 0]
     d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
     denom = d11 * d22 - d12 * d12
-    planar = denom > DEGENERATE_SIN2 * d11 * d22
+    planar = has_area(corners)
     safe = np.where(planar, denom, 1.0)
     w1 = (d22 * _dot(d, e1) - d12 * _dot(d, e2)) / safe
     w2 = (d11 * _dot(d, e2) - d12 * _dot(d, e1)) / safe
     weights = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
     return np.where(planar[:, None], weights, _segment_weights(points, corners))
+
+
+def has_area(corners) -> np.ndarray:
+    """(T,) bool: triangles with corners (T, 3, 3) that are not degenerate, i.e. sin^2 of
+    the angle at corner 0 is at least DEGENERATE_SIN2 (|e1 x e2|^2 = d11 d22 - d12^2)."""
+    corners = np.asarray(corners, dtype=np.float64)
+    e1 = corners[:, 1] - corners[:, 0]
+    e2 = corners[:, 2] - corners[:, 0]
+    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
+    return d11 * d22 - d12 * d12 > DEGENERATE_SIN2 * d11 * d22
 
 
 def _segment_weights(points, corners) -> np.ndarray:

@@ -53,6 +53,15 @@ def load_scene(args):
     return scenes.demo_scene(args.scene or "arm", rig=args.rig)
 
 
+def load_posed_scene(args):
+    """(mesh object, PoseSpec): the scene of the options with ``--scale`` applied and
+    ``--deform`` carried by the pose spec."""
+    from .blender.extremes import apply_stress
+
+    obj = load_scene(args)
+    return obj, apply_stress(args, obj, pose_spec(args))
+
+
 def add_pose_options(parser, default_poses=8):
     group = parser.add_argument_group("poses")
     group.add_argument("--poses", type=int, default=default_poses, metavar="N",
@@ -96,8 +105,7 @@ def cmd_capture(args):
     from .progress import Progress
 
     check_resolution(args.resolution)
-    spec = pose_spec(args)
-    obj = load_scene(args)
+    obj, spec = load_posed_scene(args)
     progress = Progress(f"capture '{obj.name}'", spec.count, "poses")
     result = capture(obj, args.resolution, spec, progress=lambda done, _: progress.update(done))
     summary = result.summary()
@@ -129,8 +137,7 @@ def cmd_dataset(args):
     check_resolution(args.resolution)
     if args.rays_per_pose < 1:
         raise VDNIFError(f"rays per pose {args.rays_per_pose} must be at least 1")
-    spec = pose_spec(args)
-    obj = load_scene(args)
+    obj, spec = load_posed_scene(args)
     result = capture(obj, args.resolution, spec, deform_corners=False)
     pose_range = parse_range(args.pose_range, len(result.poses))
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
@@ -173,9 +180,8 @@ def cmd_references(args):
     from .progress import Progress
 
     check_resolution(args.resolution)
-    obj = load_scene(args)
-    result = capture(obj, args.resolution, evaluation_spec(pose_spec(args)),
-                     deform_corners=False)
+    obj, spec = load_posed_scene(args)
+    result = capture(obj, args.resolution, evaluation_spec(spec), deform_corners=False)
     progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
                            progress=lambda done, _: progress.update(done))
@@ -261,8 +267,8 @@ def _train_on_scene(args):
     if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):
         raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
                          "folder with scene options, or train on it with --data alone")
-    obj = load_scene(args)
-    captured = capture(obj, args.resolution, pose_spec(args), deform_corners=False)
+    obj, spec = load_posed_scene(args)
+    captured = capture(obj, args.resolution, spec, deform_corners=False)
     out = args.out or pathlib.Path("out") / f"{obj.name.lower()}-{args.variant}.vdnif"
     pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
@@ -293,8 +299,8 @@ def cmd_render(args):
     from .blender.scenes import find_camera
 
     resolution = _model_resolution(args)
-    obj = load_scene(args)
-    captured = capture(obj, resolution, pose_spec(args), deform_corners=False)
+    obj, spec = load_posed_scene(args)
+    captured = capture(obj, resolution, spec, deform_corners=False)
     model = load_scene_model(args.model, captured, args.device)
     scene = bpy.context.scene
     frame = scene.frame_current if args.frame is None else args.frame
@@ -346,8 +352,8 @@ def cmd_evaluate(args):
     from .progress import Progress
 
     resolution = _model_resolution(args)
-    obj = load_scene(args)
-    captured = evaluation_poses(obj, resolution, pose_spec(args), rest=args.rest_pose)
+    obj, spec = load_posed_scene(args)
+    captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose)
     progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
                                   args.device, lambda done, _: progress.update(done))
@@ -383,9 +389,11 @@ def cmd_demo(args):
     """The main job on an embedded scene: capture, dataset, train (proposed), render and
     evaluate on unseen poses, and a short report with the figure."""
     from .blender.demo import run_demo
+    from .blender.extremes import apply_stress
 
     report = run_demo(args.scene, args.out, quick=args.quick, device=args.device,
-                      steps=args.steps, progress=report_training)
+                      steps=args.steps, progress=report_training,
+                      stress=lambda obj, spec: apply_stress(args, obj, spec))
     write_json(args.json, report)
     print_evaluation(report)
     print(f"  report {report['report']}")
@@ -427,10 +435,13 @@ def add_capture_options(parser, default_poses):
 
 
 def _scene_command(commands, name, run, default_poses, notes):
-    """A command that reads a scene: scene, resolution and pose options."""
+    """A command that reads a scene: scene, resolution, pose and stress options."""
+    from .blender.extremes import add_stress_options
+
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     add_scene_options(parser)
     add_capture_options(parser, default_poses)
+    add_stress_options(parser)
     parser.set_defaults(run=run)
     return parser
 
@@ -444,6 +455,8 @@ def add_training_options(parser):
 
 def _model_command(commands, name, run, default_poses, notes):
     """A command that uses a trained model on a scene; the resolution is the model's."""
+    from .blender.extremes import add_stress_options
+
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
                         help="a model file written by 'train' or 'demo'")
@@ -451,6 +464,7 @@ def _model_command(commands, name, run, default_poses, notes):
     parser.add_argument("--resolution", type=int, metavar="R",
                         help="voxel resolution (default: the model's; must match it)")
     add_pose_options(parser, default_poses)
+    add_stress_options(parser)
     parser.add_argument("--width", type=int, default=128, metavar="W")
     parser.add_argument("--height", type=int, default=128, metavar="H")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
@@ -459,6 +473,7 @@ def _model_command(commands, name, run, default_poses, notes):
 
 
 def build_parser():
+    from .blender.extremes import add_stress_options
     from .blender.scenes import DEMO_SCENES
 
     parser = _Parser(prog="batch.py", description=(
@@ -499,6 +514,7 @@ def build_parser():
         "into it first (default then: a temporary folder)"))
     add_scene_options(training)
     add_capture_options(training, 32)
+    add_stress_options(training)
     training.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
                           help="with scene options: training rays per pose (default 4096)")
     training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"),
@@ -537,6 +553,7 @@ def build_parser():
     demo = commands.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
     demo.add_argument("--scene", choices=DEMO_SCENES, default="arm")
     demo.add_argument("--quick", action="store_true", help="a small size, for tests")
+    add_stress_options(demo)
     demo.add_argument("--steps", type=int, metavar="N", help="training steps (default: "
                       "the demo's own)")
     demo.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

@@ -60,6 +60,20 @@ def check_encoding_settings(pe_bands: int, pe_form: str) -> None:
         raise VDNIFError(f"setting pe_form must be one of {sorted(PE_SCALES)}, got {pe_form!r}")
 
 
+def full_precision(points: torch.Tensor, name: str) -> torch.Tensor:
+    """``points`` as float32, refusing floats of fewer bits: a normalized position rounded to
+    bfloat16 moves by up to 2**-9 of the grid (a quarter cell of a 128-cell level), to
+    float16 by up to 2**-12, which changes the looked-up features. ``torch.autocast`` leaves
+    the encoder in float32 (only the MLP runs in reduced precision), so positions need never
+    be converted."""
+    if points.is_floating_point() and torch.finfo(points.dtype).bits < 32:
+        raise VDNIFError(
+            f"{name} are {points.dtype}: positions must be float32 or float64, since reduced "
+            f"precision rounds them within the hash grid's cells (autocast keeps them float32)"
+        )
+    return points.to(torch.float32)
+
+
 class _Interpolate(torch.autograd.Function):
     """``sum_c weights[c] * table[:, rows[c]]``: table (Fd, R), rows and weights (8, M) -> (Fd, M).
 
@@ -191,8 +205,9 @@ class HashGrid(nn.Module):
         return values.view(self.feature_dim, self.levels, coords.shape[1])
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
-        """points: (N, 3) in [0,1] -> features (N, L*Fd), level-major."""
-        coords = points.t().to(torch.float32).contiguous()
+        """points: (N, 3) float32 or float64 in [0,1] (clamped) -> features (N, L*Fd),
+        level-major."""
+        coords = full_precision(points, "hash grid points").t().contiguous()
         return self.features(coords).transpose(0, 1).reshape(self.output_dim, points.shape[0]).t()
 
 
@@ -240,7 +255,8 @@ class SegmentEncoder(nn.Module):
         view of a feature-major (C, N) array, which ``nn.Linear`` consumes without a copy.
         """
         n = p0.shape[0]
-        coords = torch.stack((p0, p1)).to(torch.float32).permute(2, 0, 1).contiguous()  # (3, 2, N)
+        ends = [full_precision(p, "segment end points") for p in (p0, p1)]
+        coords = torch.stack(ends).permute(2, 0, 1).contiguous()  # (3, 2, N)
         points = _gamma(coords, self.pe_bands, self.pe_scale, 2)  # (3, 2, 1+2F, N)
         features = self.grid.features(points.view(3, -1))  # (Fd, L, 2*(1+2F)*N)
         features = features.view(

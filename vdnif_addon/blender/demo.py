@@ -1,6 +1,7 @@
 """The main job: on an embedded demo scene, capture, dataset, train the proposed variant,
 evaluate on unseen poses, write the passes, the figure and a short report."""
 
+import dataclasses
 import json
 import pathlib
 import shlex
@@ -21,14 +22,17 @@ SIZES = {   # full: the main job (minutes on 2 cores); quick: seconds, for tests
 }
 
 
-def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None):
+def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
+             stress=lambda obj, spec: spec):
     """Runs the demo into folder ``out`` and returns the report (also written as
-    ``out/report.json`` and ``out/report.md`` with ``out/figure-vs-true.png``)."""
+    ``out/report.json`` and ``out/report.md`` with ``out/figure-vs-true.png``).
+    ``stress(obj, spec)`` may scale the scene and return the pose spec with an extreme pose
+    (``extremes.apply_stress``)."""
     size = SIZES["quick" if quick else "full"]
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
     obj = demo_scene(scene)
-    spec = PoseSpec(count=size["poses"])
+    spec = stress(obj, PoseSpec(count=size["poses"]))
     captured = capture(obj, size["resolution"], spec, deform_corners=False)
     overrides = dict(size["overrides"], steps=steps or size["steps"], device=device)
     model = out / f"{scene}-proposed.vdnif"
@@ -36,7 +40,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None):
         _, summary = train_variant(obj, captured, "proposed", folder, size["rays_per_pose"],
                                    model, overrides, progress=progress)
     evaluated = evaluation_poses(obj, size["resolution"],
-                                 PoseSpec(count=size["eval_poses"]))
+                                 dataclasses.replace(spec, count=size["eval_poses"]))
     width, height = size["width"], size["height"]
     report, views = evaluate_file(obj, evaluated, model, width, height, device)
     figures = write_figures(out, views[0], height, width, captured.mesh.size)

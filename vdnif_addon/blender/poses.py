@@ -3,8 +3,9 @@ lattice points that actually move the mesh.
 
 A pose is a JSON-ready dict: ``{"frame": F}`` plus, for random poses,
 ``"bones": {name: [rx, ry, rz]}`` (local XYZ Euler radians) or
-``"lattice": {"object": name, "offsets": {index: [dx, dy, dz]}}`` (lattice-space offsets).
-``posed`` applies one and restores the scene afterwards.
+``"lattice": {"object": name, "offsets": {index: [dx, dy, dz]}}`` (lattice-space offsets),
+and with a ``PoseSpec.deform`` the extreme pose ``"deform": {"object", "kind", "amount"}``
+(see ``extremes``). ``posed`` applies one and restores the scene afterwards.
 """
 
 import contextlib
@@ -31,6 +32,7 @@ class PoseSpec:
     max_angle_deg: float = 45.0
     lattice_fraction: float = 0.3
     frame_offset: float = 0.0
+    deform: object = None           # an extremes.ExtremeDeform added on top of every pose
 
     def __post_init__(self):
         if self.source not in POSE_SOURCES:
@@ -55,17 +57,19 @@ def make_poses(obj, modifiers, spec):
     """The list of poses for ``obj`` deformed by ``modifiers`` according to ``spec``."""
     scene = bpy.context.scene
     if spec.source == "frames":
-        return frame_poses(scene.frame_start, scene.frame_end, spec.count, spec.frame_offset)
-    rng = np.random.default_rng(spec.seed)
-    frame = scene.frame_current
-    samplers = [_bone_sampler(obj, m, spec) if m.type == "ARMATURE"
-                else _lattice_sampler(obj, m, spec) for m in modifiers]
-    poses = []
-    for _ in range(spec.count):
-        pose = {"frame": frame}
-        for sample in samplers:
-            pose.update(sample(rng))
-        poses.append(pose)
+        poses = frame_poses(scene.frame_start, scene.frame_end, spec.count, spec.frame_offset)
+    else:
+        rng = np.random.default_rng(spec.seed)
+        samplers = [_bone_sampler(obj, m, spec) if m.type == "ARMATURE"
+                    else _lattice_sampler(obj, m, spec) for m in modifiers]
+        poses = []
+        for _ in range(spec.count):
+            pose = {"frame": scene.frame_current}
+            for sample in samplers:
+                pose.update(sample(rng))
+            poses.append(pose)
+    if spec.deform is not None:
+        poses = [dict(pose, deform=spec.deform.pose_key(obj)) for pose in poses]
     return poses
 
 
@@ -182,6 +186,10 @@ def posed(pose):
             restore.append(_set_bones(pose["bones"]))
         if "lattice" in pose:
             restore.append(_offset_lattice(pose["lattice"]))
+        if "deform" in pose:
+            from .extremes import set_extreme     # imported here: extremes builds on poses
+
+            restore.append(set_extreme(pose["deform"]))
         bpy.context.view_layer.update()
         yield
     finally:

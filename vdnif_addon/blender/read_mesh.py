@@ -5,6 +5,7 @@ import contextlib
 import bpy
 import numpy as np
 
+from ..attributes import has_area
 from ..errors import VDNIFError
 from ..restmesh import Albedo, RestMesh
 
@@ -83,10 +84,14 @@ def _rest_mesh_from(obj, mesh):
     vertices = _vertices(mesh)
     if not np.isfinite(vertices).all():
         raise VDNIFError(f"mesh object '{obj.name}' has vertices at infinite or NaN positions")
+    triangles = _loop_triangle_array(mesh, "vertices", 3, np.int32)
+    if not has_area(vertices[triangles]).any():
+        raise VDNIFError(f"mesh object '{obj.name}' has no area: all its {len(triangles)} "
+                         f"triangles are degenerate (collinear or repeated corners)")
     rest = RestMesh(
         name=obj.name,
         vertices=vertices,
-        triangles=_loop_triangle_array(mesh, "vertices", 3, np.int32),
+        triangles=triangles,
         corner_normals=_loop_triangle_array(mesh, "split_normals", 9, np.float32)
         .reshape(-1, 3, 3),
         material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel(),
