@@ -1,11 +1,12 @@
-"""VDNIF extension entry point: registers the operators and panels.
+"""VDNIF extension entry point: registers the preferences, the per-object settings, the
+operators and the panels. Registering imports no torch: the panel says when it is missing.
 
 The pipeline itself lives in ``vdnif_addon`` and never depends on this module.
 """
 
-from . import operators, panels
+from . import operators, panels, preferences, properties
 
-_modules = (operators, panels)
+_modules = (preferences, properties, operators, panels)
 
 
 def register():

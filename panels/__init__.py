@@ -2,6 +2,6 @@
 
 import bpy
 
-classes = ()
+from .sidebar import classes
 
 register, unregister = bpy.utils.register_classes_factory(classes)

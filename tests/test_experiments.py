@@ -3,16 +3,16 @@
 import json
 
 from test_batch import run_batch
+from vdnif_addon.report import write_section
 
 
-def test_a_section_is_replaced_in_place_and_others_are_kept(core, tmp_path):
-    write = core("blender.experiments")._write_section
+def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path):
     results = tmp_path / "results.md"
-    write(results, "static", "Table 1.", ["first"])
-    write(results, "per-pose", "Upper bound.", ["one"])
-    write(results, "static", "Table 1.", ["second"])
+    for key, body in (("experiment static", "first"), ("experiment per-pose", "one"),
+                      ("experiment static", "second")):
+        write_section(results, key, key.title(), [body], "# Results\n")
     text = results.read_text()
-    assert text.startswith("# Results of the paper's experiments")
+    assert text.startswith("# Results\n\n<!-- experiment static -->\n## Experiment Static")
     assert text.count("<!-- experiment static -->") == 1 and "first" not in text
     assert text.index("second") < text.index("<!-- experiment per-pose -->") < text.index("one")
 

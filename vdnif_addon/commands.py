@@ -415,6 +415,23 @@ def cmd_experiment(args):
     return 0
 
 
+def cmd_bench(args):
+    """Sweep resolution, hash grid, PE bands, width and steps; derive the presets."""
+    from .blender.bench import run_bench
+    from .presets import PRESETS_FILE
+
+    quick_dir = pathlib.Path("out/bench-quick")
+    out = args.out or (quick_dir if args.quick else pathlib.Path("docs/bench"))
+    presets = args.presets or (quick_dir / "presets.json" if args.quick else PRESETS_FILE)
+    performance = args.performance or (None if args.quick else pathlib.Path(
+        "docs/performance.md"))
+    rows = run_bench(out, presets, performance, quick=args.quick, device=args.device,
+                     progress=report_training)
+    print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
+          f"-> {presets}" + (f"; section of {performance}" if performance else ""))
+    return 0
+
+
 def cmd_bench_network(args):
     """Measure encoder+MLP inference segments/s and training samples/s (paper setting)."""
     from .network_bench import benchmark_network
@@ -573,6 +590,22 @@ def build_parser():
                             help="markdown file whose section is rewritten (default "
                                  "docs/results.md; figures and JSON beside it in results/)")
     experiment.set_defaults(run=cmd_experiment)
+
+    sweep = commands.add_parser("bench", help=cmd_bench.__doc__, description=(
+        cmd_bench.__doc__ + " Each point trains the proposed variant on the arm and evaluates "
+        "it on unseen poses (accuracy against both references, training time, render rays/s, "
+        "model bytes)."))
+    sweep.add_argument("--quick", action="store_true",
+                       help="a small sweep (minutes) into out/bench-quick, presets not shipped")
+    sweep.add_argument("--out", type=pathlib.Path, metavar="DIR",
+                       help="bench.csv, bench.json, pareto.png (default docs/bench)")
+    sweep.add_argument("--presets", type=pathlib.Path, metavar="PATH",
+                       help="presets JSON (default: the one the panel reads)")
+    sweep.add_argument("--performance", type=pathlib.Path, metavar="PATH",
+                       help="markdown whose sweep section is rewritten "
+                            "(default docs/performance.md; none with --quick)")
+    sweep.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    sweep.set_defaults(run=cmd_bench)
 
     bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
                                 description=cmd_bench_network.__doc__ + " JSON keys "

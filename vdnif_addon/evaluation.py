@@ -52,15 +52,22 @@ def concatenated(views):
             for name in ("predicted", "true", "embedded")}
 
 
-def figure(reference, predicted, height, width, object_size):
-    """The reference | predicted | error figure, one row per pass (normal, albedo,
-    distance, material), both passes on one distance scale."""
+def view_images(reference, predicted, height, width, object_size):
+    """{"reference" | "predicted" | "error": {pass: (H, W, 3) image}} of one view: both
+    passes on one distance scale, the errors of the prediction as heat maps."""
     hits = np.concatenate([reference.distance[reference.hit], predicted.distance[predicted.hit]])
     near_far = (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
-    shown_reference = display(reference, height, width, near_far)
-    shown_predicted = display(predicted, height, width, near_far)
-    errors = error_images(predicted, reference, height, width, object_size)
-    return comparison_figure([[shown_reference[name], shown_predicted[name], errors[name]]
+    return {"reference": display(reference, height, width, near_far),
+            "predicted": display(predicted, height, width, near_far),
+            "error": error_images(predicted, reference, height, width, object_size)}
+
+
+def figure(reference, predicted, height, width, object_size):
+    """The reference | predicted | error figure, one row per pass (normal, albedo,
+    distance, material)."""
+    shown = view_images(reference, predicted, height, width, object_size)
+    return comparison_figure([[shown[source][name] for source in ("reference", "predicted",
+                                                                  "error")]
                               for name in PASSES])
 
 

@@ -1,4 +1,8 @@
-"""Markdown for people: the demo's report and the tables of the experiments."""
+"""Markdown for people: the demo's report, the tables of the experiments and benchmarks, and
+the sections that each command rewrites in a shared document."""
+
+import pathlib
+import re
 
 # The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes.
 PAPER_PROPOSED = {"distance_mae": 0.039, "normal_error_deg": 11.8}
@@ -65,3 +69,18 @@ def demo_markdown(report, command, figure_name):
         "units, normal error bright at 45 deg; white where only one of them hits).",
         "",
     ])
+
+
+def write_section(path, key, title, body, preamble):
+    """Rewrites the section ``key`` of the markdown file ``path`` (between its markers) with
+    heading ``title`` and the lines ``body``, keeping every other section; appends it (to
+    ``preamble`` for a new file) when absent."""
+    path = pathlib.Path(path)
+    start, end = f"<!-- {key} -->", f"<!-- end {key} -->"
+    section = "\n".join([start, f"## {title}", "", *body, end])
+    text = path.read_text() if path.exists() else preamble
+    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.S)
+    text = pattern.sub(lambda _: section, text) if pattern.search(text) else (
+        text.rstrip("\n") + "\n\n" + section)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text + ("" if text.endswith("\n") else "\n"))

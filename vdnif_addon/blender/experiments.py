@@ -18,7 +18,7 @@ import tempfile
 from ..evaluation import compare_both, concatenated, figure
 from ..fit import fit_model
 from ..rays import orbit_viewpoints
-from ..report import goal_line, metrics_table, value
+from ..report import goal_line, metrics_table, value, write_section
 from .capture import capture
 from .generate import generate_dataset
 from .image_io import save_image
@@ -32,6 +32,8 @@ SIZES = {
     "quick": dict(resolution=12, poses=3, rays_per_pose=128, steps=20, eval_poses=2,
                   width=24, height=16, overrides=dict(log2_table_size=10, batch_size=1024)),
 }
+RESULTS_PREAMBLE = ("# Results of the paper's experiments\n\nEach section is written by the "
+                    "command it names; numbers are measured, not copied.\n")
 RUNS = {   # label: (variant, extra settings)
     "lsnif": ("lsnif", {}),
     "deformed": ("deformed", {}),
@@ -185,7 +187,8 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
     body = [f"Command: `{command}`", "",
             "Settings: " + ", ".join(f"{k} {v}" for k, v in settings.items()) +
             f". Every run's JSON: `{figures.name}/{name}.json`.", "", *lines]
-    _write_section(results, name, EXPERIMENTS[name].__doc__, body)
+    write_section(results, f"experiment {name}", f"{name}: {EXPERIMENTS[name].__doc__.strip()}",
+                  body, RESULTS_PREAMBLE)
     return records
 
 
@@ -206,17 +209,3 @@ def _figure_lines(paths):
     lines = ["Figures (first evaluation view; columns: true reference, prediction, error; "
              "rows: normal, albedo, distance, material):", ""]
     return lines + [f"![{path.stem}](results/{path.name})" for path in paths]
-
-
-def _write_section(results, name, title, body):
-    """Replaces the section between this experiment's markers (or appends it)."""
-    start, end = f"<!-- experiment {name} -->", f"<!-- end experiment {name} -->"
-    section = "\n".join([start, f"## {name}: {title.strip()}", "", *body, end])
-    text = results.read_text() if results.exists() else (
-        "# Results of the paper's experiments\n\nEach section is written by the command it "
-        "names; numbers are measured, not copied.\n")
-    pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.S)
-    text = pattern.sub(lambda _: section, text) if pattern.search(text) else (
-        text.rstrip("\n") + "\n\n" + section)
-    results.write_text(text + ("" if text.endswith("\n") else "\n"))
-

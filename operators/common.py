@@ -1,0 +1,122 @@
+"""What every VDNIF operator shares: poll checks whose reason the user sees, and errors
+reported with ``self.report`` and kept for the panel."""
+
+import contextlib
+
+from .. import preferences, storage
+from ..vdnif_addon.errors import VDNIFError
+
+JOBS = {}   # object name -> its running TrainingJob (runtime only, never saved)
+
+
+def _mesh(context):
+    obj = context.active_object
+    if obj is None:
+        return "Select a mesh object"
+    if obj.type != "MESH":
+        return f"'{obj.name}' is a {obj.type.lower()}, not a mesh: select a mesh object"
+    if not obj.data.polygons:
+        return f"'{obj.name}' has no faces"
+    return None
+
+
+def _torch(_context):
+    if not preferences.torch_available():
+        return f"PyTorch is not installed: {preferences.INSTALL_HINT}"
+    return None
+
+
+def _idle(context):
+    obj = context.active_object
+    if obj.name in JOBS:
+        return f"'{obj.name}' is training: wait or cancel it"
+    return None
+
+
+def _dataset(context):
+    obj = context.active_object
+    if not storage.has_dataset(obj):
+        return f"'{obj.name}' has no dataset yet: generate one first"
+    return None
+
+
+def _model(context):
+    obj = context.active_object
+    if not storage.has_model(obj):
+        return f"'{obj.name}' has no trained model: train one or load a model file"
+    return None
+
+
+def _training(context):
+    obj = context.active_object
+    if obj.name not in JOBS:
+        return f"'{obj.name}' is not training"
+    return None
+
+
+CHECKS = {"mesh": _mesh, "torch": _torch, "idle": _idle, "dataset": _dataset,
+          "model": _model, "training": _training}
+
+
+class VDNIFOperator:
+    """Mixin: ``needs`` names the CHECKS that must pass (in order; "mesh" first)."""
+
+    needs = ("mesh",)
+
+    @classmethod
+    def unavailable(cls, context):
+        """Why the operator cannot run now, or None."""
+        for need in cls.needs:
+            reason = CHECKS[need](context)
+            if reason:
+                return reason
+        return None
+
+    @classmethod
+    def poll(cls, context):
+        reason = cls.unavailable(context)
+        if reason:
+            cls.poll_message_set(reason)
+        return reason is None
+
+    def execute(self, context):
+        """Runs ``self.work(context, obj)`` on the active object; it returns the message
+        of success or raises a VDNIFError (or an OSError of a file), which is reported."""
+        obj = context.active_object
+        try:
+            message = self.work(context, obj)
+        except (VDNIFError, OSError) as exc:
+            return self.fail(obj, exc)
+        return self.succeed(obj, message)
+
+    def fail(self, obj, error):
+        """Reports ``error`` naming ``obj``, keeps it for the panel; returns CANCELLED."""
+        message = str(error)
+        if f"'{obj.name}'" not in message:
+            message = f"'{obj.name}': {message}"
+        obj.vdnif.last_error = message
+        self.report({"ERROR"}, message)
+        return {"CANCELLED"}
+
+    def succeed(self, obj, message):
+        obj.vdnif.last_error = ""
+        self.report({"INFO"}, message)
+        return {"FINISHED"}
+
+
+@contextlib.contextmanager
+def progress(context, total):
+    """A ``progress(done, total)`` callback driving the window manager's progress cursor."""
+    wm = context.window_manager
+    wm.progress_begin(0, max(total, 1))
+    try:
+        yield lambda done, _total: wm.progress_update(done)
+    finally:
+        wm.progress_end()
+
+
+def redraw(context):
+    for area in (context.screen.areas if context.screen else ()):
+        if area.type in ("VIEW_3D", "IMAGE_EDITOR"):
+            area.tag_redraw()
+

@@ -1,0 +1,104 @@
+"""Render Passes (into the pass viewer's images) and Evaluate (metrics on unseen poses)."""
+
+import json
+
+import bpy
+
+from .. import storage
+from ..vdnif_addon.blender import ui_support
+from ..vdnif_addon.errors import VDNIFError
+from .common import VDNIFOperator, progress
+
+
+def model_capture(obj, evaluation_count=None):
+    """The object captured at its model's resolution, with the unseen evaluation poses
+    when ``evaluation_count`` is given."""
+    from ..vdnif_addon.blender.capture import capture
+    from ..vdnif_addon.blender.jobs import evaluation_poses
+
+    settings = obj.vdnif
+    resolution = settings.parsed("model_info").get("resolution")
+    if resolution is None:
+        raise VDNIFError(f"'{obj.name}' has a model without its description: load it again")
+    if evaluation_count is None:
+        return capture(obj, resolution, settings.pose_spec(count=1), deform_corners=False)
+    return evaluation_poses(obj, resolution, settings.pose_spec(evaluation_count))
+
+
+def region_3d(context):
+    """The RegionView3D of the 3D Viewport the operator runs from, or of the screen's first."""
+    if context.space_data is not None and context.space_data.type == "VIEW_3D":
+        return context.space_data.region_3d
+    for area in (context.screen.areas if context.screen else ()):
+        if area.type == "VIEW_3D":
+            return area.spaces.active.region_3d
+    return None
+
+
+class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
+    """Render the current frame's passes with the network and the deformed mesh into VDNIF images"""
+
+    bl_idname = "vdnif.render_passes"
+    bl_label = "Render Passes"
+    needs = ("mesh", "torch", "idle", "model")
+
+    @classmethod
+    def unavailable(cls, context):
+        reason = super().unavailable(context)
+        if reason is None and context.active_object.vdnif.view == "CAMERA" and (
+                context.scene.camera is None):
+            return "The scene has no active camera: add one or render the viewport's view"
+        return reason
+
+    def work(self, context, obj):
+        from ..vdnif_addon.blender.neural import camera_rays, load_scene_model, render_rays
+
+        settings, scene = obj.vdnif, context.scene
+        width, height = settings.image_width, settings.image_height
+        if settings.view == "CAMERA":
+            origins, directions = camera_rays(scene.camera, width, height)
+        else:
+            origins, directions = ui_support.view_rays(region_3d(context), width, height)
+        captured = model_capture(obj)
+        model = load_scene_model(storage.model_path(obj), captured, settings.device_name(context))
+        pose = {"frame": scene.frame_current + scene.frame_subframe}
+        result = render_rays(obj, captured, model, pose, origins, directions, references=True)
+        ui_support.set_view(result.true, result.predicted, width, height, result.object_size)
+        image = ui_support.show(context, scene.vdnif_viewer)
+        where = ("" if ui_support.image_editor(context.screen) is not None
+                 else " (open an Image Editor to see it)")
+        return (f"'{obj.name}' at frame {pose['frame']:g}: {int(result.predicted.hit.sum())} "
+                f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}), "
+                f"image '{image.name}'{where}")
+
+
+class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
+    """Evaluate the model on unseen poses against the deformed mesh and the voxel embedding"""
+
+    bl_idname = "vdnif.evaluate"
+    bl_label = "Evaluate"
+    needs = ("mesh", "torch", "idle", "model")
+
+    def work(self, context, obj):
+        from ..vdnif_addon.blender.jobs import evaluate_file
+
+        settings = obj.vdnif
+        captured = model_capture(obj, settings.eval_poses)
+        with progress(context, len(captured.poses)) as update:
+            report, _ = evaluate_file(obj, captured, storage.model_path(obj),
+                                      settings.image_width, settings.image_height,
+                                      settings.device_name(context), progress=update)
+        settings.metrics = json.dumps(report)
+        return f"'{obj.name}': {metrics_line(report['vs_true'])} on {report['poses']} poses"
+
+
+def metrics_line(metrics):
+    """Distance MAE, normal error and hit IoU in one line."""
+    def number(value, digits=3):
+        return "n/a" if value is None else f"{value:.{digits}g}"
+
+    return (f"distance MAE {number(metrics['distance_mae'])} object units, normal error "
+            f"{number(metrics['normal_error_deg'])} deg, hit IoU {number(metrics['hit_iou'])}")
+
+
+classes = (VDNIF_OT_render_passes, VDNIF_OT_evaluate)

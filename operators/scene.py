@@ -1,0 +1,60 @@
+"""Voxelize (with its wireframe preview) and Generate Dataset."""
+
+import json
+
+import bpy
+
+from .. import storage
+from ..vdnif_addon.blender import ui_support
+from .common import VDNIFOperator, progress
+
+
+class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
+    """Voxelize the mesh; show its occupied cells, deformed at the current frame, as a wireframe"""
+
+    bl_idname = "vdnif.voxelize"
+    bl_label = "Voxelize"
+    bl_options = {"REGISTER", "UNDO"}
+    needs = ("mesh", "idle")
+
+    def work(self, context, obj):
+        settings = obj.vdnif
+        settings.preview, figures = ui_support.voxel_preview(obj, settings.resolution,
+                                                             settings.preview)
+        settings.voxel_info = (f"grid {'x'.join(map(str, figures['dims']))}, "
+                               f"{figures['cells']} occupied cells, "
+                               f"{figures['inverted']} inverted at frame "
+                               f"{context.scene.frame_current}")
+        return f"'{obj.name}': {settings.voxel_info}"
+
+
+class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
+    """Walk training rays through the deformed voxels of every pose and write the dataset"""
+
+    bl_idname = "vdnif.generate_dataset"
+    bl_label = "Generate Dataset"
+    needs = ("mesh", "torch", "idle")
+
+    def work(self, context, obj):
+        from ..vdnif_addon.blender.capture import capture
+        from ..vdnif_addon.blender.jobs import variant_dataset
+
+        settings = obj.vdnif
+        captured = capture(obj, settings.resolution, settings.pose_spec(),
+                           deform_corners=False)
+        folder = storage.dataset_folder(obj)
+        storage.clear_dataset(folder)
+        with progress(context, len(captured.poses)) as update:
+            header = variant_dataset(obj, captured, settings.variant, folder,
+                                     settings.rays_per_pose, settings.seed, progress=update)
+        settings.dataset_dir = storage.portable(folder)
+        counts = header["counts"]
+        settings.dataset_info = json.dumps({
+            "variant": settings.variant, "resolution": settings.resolution,
+            "poses": len(header["poses"]), "rays": counts["rays"],
+            "segments": counts["segments"], "hits": counts["hits"]})
+        return (f"'{obj.name}': {counts['segments']} segments of {counts['rays']} rays "
+                f"-> {settings.dataset_dir}")
+
+
+classes = (VDNIF_OT_voxelize, VDNIF_OT_generate_dataset)

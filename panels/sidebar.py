@@ -1,0 +1,212 @@
+"""The 3D Viewport sidebar tab "VDNIF": one panel per step, drawn from the active object's
+settings. Every state (no torch, no model, training, trained, error) says what to do next;
+a button that cannot run shows why under it."""
+
+import textwrap
+
+import bpy
+
+from .. import preferences, storage
+from ..operators import common
+from ..operators.dependencies import VDNIF_OT_install_dependencies
+from ..operators.model import VDNIF_OT_load_model, VDNIF_OT_save_model
+from ..operators.passes import VDNIF_OT_evaluate, VDNIF_OT_render_passes, metrics_line
+from ..operators.presets import VDNIF_OT_apply_preset
+from ..operators.scene import VDNIF_OT_generate_dataset, VDNIF_OT_voxelize
+from ..operators.training import VDNIF_OT_cancel_training, VDNIF_OT_train
+from ..vdnif_addon.blender import ui_support
+from ..vdnif_addon.presets import PRESET_NAMES
+
+WRAP = 42   # characters per line of wrapped messages
+
+
+def button(layout, context, operator, icon="NONE"):
+    """The operator's button; under it, why it cannot run now."""
+    layout.operator(operator.bl_idname, icon=icon)
+    reason = operator.unavailable(context)
+    if reason:
+        lines(layout, reason, "INFO")
+
+
+def lines(layout, text, icon="NONE"):
+    """``text`` wrapped over several labels (labels do not wrap)."""
+    for number, line in enumerate(textwrap.wrap(text, WRAP)):
+        layout.label(text=line, icon=icon if number == 0 else "BLANK1")
+
+
+def properties(layout, data, names):
+    column = layout.column(align=True)
+    for name in names:
+        column.prop(data, name)
+
+
+class SidebarPanel:
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "VDNIF"
+
+
+class StepPanel(SidebarPanel):
+    """A sub-panel of one step, shown for a mesh object."""
+
+    bl_parent_id = "VDNIF_PT_main"
+
+    @classmethod
+    def poll(cls, context):
+        return common.CHECKS["mesh"](context) is None
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        self.draw_step(layout, context, context.active_object.vdnif)
+
+
+class VDNIF_PT_main(SidebarPanel, bpy.types.Panel):
+    bl_label = "VDNIF"
+
+    def draw(self, context):
+        layout = self.layout
+        if not preferences.torch_available():
+            box = layout.box()
+            box.alert = True
+            lines(box, "PyTorch is not installed: VDNIF needs it to generate datasets, train "
+                       "and render.", "ERROR")
+            box.operator(VDNIF_OT_install_dependencies.bl_idname, icon="IMPORT")
+            lines(box, f"or install it from {preferences.INSTALL_HINT}.")
+        reason = common.CHECKS["mesh"](context)
+        if reason:
+            lines(layout, reason, "INFO")
+            return
+        obj = context.active_object
+        job = common.JOBS.get(obj.name)
+        if job is not None:
+            state = f"training: {job.state.line()}"
+        elif storage.has_model(obj):
+            info = obj.vdnif.parsed("model_info")
+            state = f"trained: {info.get('variant')}, {info.get('steps')} steps"
+        else:
+            state = "no model yet"
+        layout.label(text=f"{obj.name}: {state}", icon="MESH_DATA")
+        if obj.vdnif.last_error:
+            box = layout.box()
+            box.alert = True
+            lines(box, obj.vdnif.last_error, "ERROR")
+
+
+class VDNIF_PT_voxels(StepPanel, bpy.types.Panel):
+    bl_label = "Voxels and Poses"
+
+    def draw_step(self, layout, context, settings):
+        layout.prop(settings, "resolution")
+        layout.prop(settings, "pose_source")
+        names = ["pose_count"] + (["seed", "max_angle"] if settings.pose_source == "random"
+                                  else [])
+        properties(layout, settings, names)
+        button(layout, context, VDNIF_OT_voxelize, "MESH_GRID")
+        if settings.voxel_info:
+            lines(layout, settings.voxel_info)
+
+
+class VDNIF_PT_network(StepPanel, bpy.types.Panel):
+    bl_label = "Network"
+
+    def draw_step(self, layout, context, settings):
+        row = layout.row(align=True)
+        row.label(text="Preset")
+        for name in PRESET_NAMES:
+            row.operator(VDNIF_OT_apply_preset.bl_idname, text=name.title()).preset = name
+        layout.prop(settings, "variant")
+        layout.label(text="Encoding")
+        properties(layout, settings, ("levels", "base_resolution", "log2_table_size",
+                                      "feature_dim", "pe_bands"))
+        layout.label(text="MLP and Training")
+        properties(layout, settings, ("width", "depth", "steps", "batch_size"))
+        layout.prop(settings, "device")
+
+
+class VDNIF_PT_dataset(StepPanel, bpy.types.Panel):
+    bl_label = "Dataset"
+
+    def draw_step(self, layout, context, settings):
+        layout.prop(settings, "rays_per_pose")
+        layout.prop(settings, "dataset_dir")
+        button(layout, context, VDNIF_OT_generate_dataset, "FILE_NEW")
+        info = settings.parsed("dataset_info")
+        if info:
+            lines(layout, f"{info['segments']:,} segments ({info['hits']:,} hits) of "
+                          f"{info['rays']:,} rays, {info['poses']} poses, resolution "
+                          f"{info['resolution']}, for {info['variant']}")
+
+
+class VDNIF_PT_training(StepPanel, bpy.types.Panel):
+    bl_label = "Training and Model"
+
+    def draw_step(self, layout, context, settings):
+        obj = context.active_object
+        job = common.JOBS.get(obj.name)
+        if job is not None:
+            layout.progress(factor=job.state.fraction, type="BAR", text=job.state.line())
+            layout.operator(VDNIF_OT_cancel_training.bl_idname, icon="CANCEL")
+        else:
+            button(layout, context, VDNIF_OT_train, "PLAY")
+        layout.prop(settings, "model_storage")
+        info = settings.parsed("model_info")
+        if storage.has_model(obj) and info:
+            lines(layout, f"Model: {storage.model_location(obj)}", "FILE")
+            lines(layout, f"{info['variant']} at resolution {info['resolution']}, "
+                          f"{info['status']} after {info['steps']} steps")
+            validation = info.get("validation")
+            if validation:
+                lines(layout, "held-out poses: distance error "
+                              f"{validation['distance_mae_voxels']:.3g} voxels, normal error "
+                              f"{validation['normal_error_deg']:.3g} deg")
+        elif settings.model_path:
+            lines(layout, f"Model file {settings.model_path} is missing", "ERROR")
+        row = layout.row(align=True)
+        row.operator(VDNIF_OT_save_model.bl_idname, icon="EXPORT")
+        row.operator(VDNIF_OT_load_model.bl_idname, icon="IMPORT")
+
+
+class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
+    bl_label = "Passes"
+
+    def draw_step(self, layout, context, settings):
+        layout.prop(settings, "view")
+        properties(layout, settings, ("image_width", "image_height"))
+        button(layout, context, VDNIF_OT_render_passes, "RENDER_STILL")
+        viewer = context.scene.vdnif_viewer
+        layout.use_property_split = False
+        layout.row().prop(viewer, "pass_name", expand=True)
+        layout.row().prop(viewer, "source", expand=True)
+        if ui_support.viewed():
+            layout.label(text=f"Image: {ui_support.image_name(viewer.pass_name, viewer.source)}"
+                         " (Image Editor)", icon="IMAGE_DATA")
+        else:
+            layout.label(text="Render the passes to fill the images", icon="INFO")
+
+
+class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
+    bl_label = "Evaluation"
+
+    def draw_step(self, layout, context, settings):
+        layout.prop(settings, "eval_poses")
+        button(layout, context, VDNIF_OT_evaluate, "GRAPH")
+        report = settings.parsed("metrics")
+        if not report:
+            return
+        unseen = "unseen " if report.get("unseen_poses") else ""
+        layout.label(text=f"{report['poses']} {unseen}poses, {report['width']}x"
+                          f"{report['height']}, {report['variant']}")
+        for name, title in (("vs_true", "Against the mesh"),
+                            ("vs_embedded", "Against the embedding")):
+            box = layout.box()
+            box.label(text=title)
+            lines(box, metrics_line(report[name]))
+        timings = report.get("timings", {})
+        if "render_rays_per_s" in timings:
+            layout.label(text=f"{timings['render_rays_per_s']:,.0f} rays/s")
+
+
+classes = (VDNIF_PT_main, VDNIF_PT_voxels, VDNIF_PT_network, VDNIF_PT_dataset,
+           VDNIF_PT_training, VDNIF_PT_passes, VDNIF_PT_evaluation)

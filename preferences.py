@@ -1,0 +1,132 @@
+"""Add-on preferences: the default device, PyTorch's status, and PyTorch installed on request
+into the extension's user folder (never into the extension's own folder)."""
+
+import importlib
+import importlib.metadata
+import importlib.util
+import os
+import subprocess
+import sys
+
+import bpy
+
+DEVICES = [("auto", "Auto", "CUDA when available, else the CPU"),
+           ("cpu", "CPU", "Train and render on the CPU"),
+           ("cuda", "CUDA", "Train and render on the first CUDA GPU")]
+INSTALL_HINT = "Preferences > Add-ons > VDNIF > Install PyTorch"
+
+_torch_details = None                  # cached (version, cuda available) or an error line
+install = {"process": None, "message": ""}
+
+
+def dependencies_folder():
+    """The user folder torch is installed into (kept across extension updates)."""
+    return bpy.utils.extension_path_user(__package__, path="site-packages", create=True)
+
+
+def torch_available():
+    """Whether torch can be imported, found without importing it."""
+    return importlib.util.find_spec("torch") is not None
+
+
+def torch_details():
+    """'PyTorch 2.x, CUDA available' or why it cannot be used; imports torch (cached)."""
+    global _torch_details
+    if _torch_details is None:
+        try:
+            import torch
+
+            cuda = "CUDA available" if torch.cuda.is_available() else "no CUDA device"
+            _torch_details = f"PyTorch {torch.__version__}, {cuda}"
+        except Exception as exc:   # a broken install must not break the preferences
+            _torch_details = f"PyTorch is installed but cannot be imported: {exc}"
+    return _torch_details
+
+
+def device(context):
+    return context.preferences.addons[__package__].preferences.device
+
+
+def install_command(folder):
+    """pip installing torch into ``folder`` with Blender's own Python."""
+    return [sys.executable, "-m", "pip", "install", "--upgrade", "--no-input",
+            "--target", folder, "torch"]
+
+
+def start_install(background):
+    """Installs torch: synchronously in background mode, else as a process watched by a
+    timer so the UI keeps running. Returns a message for the user."""
+    folder = dependencies_folder()
+    command = install_command(folder)
+    environment = dict(os.environ, PYTHONNOUSERSITE="1")
+    if background:
+        done = subprocess.run(command, capture_output=True, text=True, env=environment)
+        return _installed(done.returncode, done.stdout + done.stderr)
+    log = open(os.path.join(folder, "install.log"), "w")
+    install["process"] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
+                                          env=environment, text=True)
+    install["process"].log = log
+    install["message"] = "Installing PyTorch (several minutes, several hundred MB)..."
+    bpy.app.timers.register(_watch_install, first_interval=1.0)
+    return install["message"]
+
+
+def _watch_install():
+    process = install["process"]
+    if process.poll() is None:
+        return 1.0
+    process.log.close()
+    with open(process.log.name) as log:
+        _installed(process.returncode, log.read())
+    install["process"] = None
+    return None
+
+
+def _installed(returncode, output):
+    global _torch_details
+    _torch_details = None
+    importlib.invalidate_caches()
+    if returncode == 0 and torch_available():
+        install["message"] = f"Installed PyTorch {importlib.metadata.version('torch')}"
+    else:
+        lines = [line for line in output.splitlines() if line.strip()]
+        install["message"] = "PyTorch install failed: " + (lines[-1] if lines else
+                                                           f"pip exit code {returncode}")
+    return install["message"]
+
+
+class VDNIFPreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+
+    device: bpy.props.EnumProperty(name="Device", items=DEVICES, default="auto",
+                                   description="Device for objects whose device setting is "
+                                               "'Preferences'")
+
+    def draw(self, context):
+        layout = self.layout
+        layout.prop(self, "device")
+        box = layout.box()
+        if torch_available():
+            box.label(text=torch_details(), icon="CHECKMARK")
+        else:
+            box.label(text="PyTorch is not installed: VDNIF needs it to train and render",
+                      icon="ERROR")
+            box.operator("vdnif.install_dependencies", icon="IMPORT")
+        if install["message"]:
+            box.label(text=install["message"], icon="INFO")
+
+
+def register():
+    folder = dependencies_folder()
+    if folder not in sys.path:
+        sys.path.append(folder)
+    bpy.utils.register_class(VDNIFPreferences)
+
+
+def unregister():
+    bpy.utils.unregister_class(VDNIFPreferences)
+    if bpy.app.timers.is_registered(_watch_install):
+        bpy.app.timers.unregister(_watch_install)
+    folder = dependencies_folder()
+    if folder in sys.path:
+        sys.path.remove(folder)

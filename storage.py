@@ -1,0 +1,157 @@
+"""Where an object's dataset and model live. The model goes with the .blend: packed into it
+(its bytes in the object's settings) or as a file beside it (a ``//`` relative path); either
+way reopening the .blend finds it. Packed models are unpacked on first use into a cache in
+the extension's user folder, named by their SHA-256."""
+
+import hashlib
+import json
+import os
+import pathlib
+import re
+import shutil
+
+import bpy
+
+from .vdnif_addon.errors import VDNIFError
+
+PACKED = "model_data"     # the ID property of an object's settings holding the packed model
+
+
+def user_folder(*parts):
+    return pathlib.Path(bpy.utils.extension_path_user(__package__, path=os.path.join(*parts),
+                                                      create=True))
+
+
+def portable(path):
+    """``path`` relative to the .blend (``//...``) when the .blend is saved, else absolute."""
+    return bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
+
+
+def _slug(obj):
+    return re.sub(r"[^\w.-]+", "_", obj.name)
+
+
+def _beside_blend(obj, name):
+    return pathlib.Path(bpy.path.abspath(f"//vdnif/{_slug(obj)}{name}"))
+
+
+def dataset_folder(obj):
+    """The object's dataset folder: its setting, else beside the .blend, else (unsaved
+    .blend) in the user folder."""
+    chosen = obj.vdnif.dataset_dir
+    if chosen:
+        return pathlib.Path(bpy.path.abspath(chosen))
+    if bpy.data.filepath:
+        return _beside_blend(obj, "-dataset")
+    return user_folder("datasets", _slug(obj))
+
+
+def has_dataset(obj):
+    folder = dataset_folder(obj)
+    return folder.is_dir() and any(folder.glob("shard-*.json"))
+
+
+def clear_dataset(folder):
+    """Removes the shards of an earlier dataset from ``folder`` (nothing else)."""
+    for path in pathlib.Path(folder).glob("shard-*.*"):
+        if path.suffix in (".json", ".npz"):
+            path.unlink()
+
+
+def training_target(obj):
+    """The file training writes the object's next model to: beside the .blend for file
+    storage; for packed storage a work file in the user folder, packed when done."""
+    if obj.vdnif.model_storage == "FILE":
+        if not bpy.data.filepath:
+            raise VDNIFError(f"'{obj.name}': save the .blend first so its model can be stored "
+                             "beside it, or choose packed model storage")
+        return _beside_blend(obj, ".vdnif")
+    return user_folder("models") / f"{_slug(obj)}-training.vdnif"
+
+
+def keep_model(obj, path, summary):
+    """Makes the model file ``path`` the object's model, packed or copied beside the .blend
+    as its storage setting says, with ``summary`` (see ``model_summary``) for the panel."""
+    settings = obj.vdnif
+    path = pathlib.Path(path)
+    packed = settings.model_storage == "PACKED"
+    target = None if packed else training_target(obj)     # raises before anything changes
+    if PACKED in settings:
+        del settings[PACKED]        # assigning over it would store the bytes up to a NUL
+    if packed:
+        data = path.read_bytes()
+        settings[PACKED] = data
+        settings.model_path = ""
+        cached = _cache_path(data)
+        if path.parent == user_folder("models"):
+            os.replace(path, cached)
+        elif not cached.exists():
+            _write_atomically(cached, data)
+    else:
+        if path.resolve() != target.resolve():
+            _copy_atomically(path, target)
+        settings.model_path = portable(target)
+    settings.model_info = json.dumps(summary)
+
+
+def model_path(obj):
+    """The object's model as a file to load; raises a VDNIFError naming what is missing."""
+    settings = obj.vdnif
+    if PACKED in settings:
+        data = bytes(settings[PACKED])
+        cached = _cache_path(data)
+        if not cached.exists():
+            _write_atomically(cached, data)
+        return cached
+    if not settings.model_path:
+        raise VDNIFError(f"'{obj.name}' has no trained model: generate a dataset and train, "
+                         "or load a model file")
+    path = pathlib.Path(os.path.normpath(bpy.path.abspath(settings.model_path)))
+    if not path.is_file():
+        raise VDNIFError(f"the model file of '{obj.name}', {settings.model_path}, is missing")
+    return path
+
+
+def has_model(obj):
+    settings = obj.vdnif
+    return PACKED in settings or (
+        bool(settings.model_path) and os.path.isfile(bpy.path.abspath(settings.model_path)))
+
+
+def model_location(obj):
+    """Where the object's model is, in words, for the panel."""
+    settings = obj.vdnif
+    if PACKED in settings:
+        return f"packed in the .blend ({len(settings[PACKED]) / 1e6:.2f} MB)"
+    return settings.model_path or "none"
+
+
+def export_model(obj, target):
+    """Copies the object's model to the file ``target``, atomically."""
+    _copy_atomically(model_path(obj), pathlib.Path(target))
+
+
+def model_summary(metadata, path):
+    """What the panel shows of a model file, from ``model_file.load_model``'s metadata."""
+    extra, info = metadata["extra"], metadata["train_info"]
+    return {"object": extra.get("object"), "variant": extra.get("variant"),
+            "resolution": extra["grid"]["resolution"], "status": info.get("status"),
+            "steps": info.get("steps"), "seconds": info.get("seconds"),
+            "validation": info.get("validation"), "bytes": os.path.getsize(path)}
+
+
+def _cache_path(data):
+    return user_folder("models") / f"{hashlib.sha256(data).hexdigest()}.vdnif"
+
+
+def _copy_atomically(source, target):
+    target.parent.mkdir(parents=True, exist_ok=True)
+    partial = target.with_name(f".{target.name}.partial")
+    shutil.copyfile(source, partial)
+    os.replace(partial, target)
+
+
+def _write_atomically(path, data):
+    partial = path.with_name(f".{path.name}.partial")
+    partial.write_bytes(data)
+    os.replace(partial, path)

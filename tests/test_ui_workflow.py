@@ -1,0 +1,337 @@
+"""Every operator in background mode on the arm demo scene, checked on its results, and the
+trained model, settings and metrics restored from the saved .blend."""
+
+import hashlib
+import importlib
+import json
+import math
+import time
+
+import bpy
+import numpy as np
+import pytest
+from mathutils import Vector
+
+from conftest import EXTENSION_MODULE
+
+SMALL = dict(resolution=12, pose_count=4, rays_per_pose=128, steps=30, batch_size=256,
+             log2_table_size=12, base_resolution=16, width=32, depth=2, image_width=32,
+             image_height=24, eval_poses=2)
+PASS_IMAGES = ("VDNIF Normal", "VDNIF Albedo", "VDNIF Distance", "VDNIF Material",
+               "VDNIF Error")
+
+
+def module(name):
+    return importlib.import_module(f"{EXTENSION_MODULE}.{name}")
+
+
+def arm_scene():
+    """The arm demo scene with small settings and a camera that frames it."""
+    obj = module("vdnif_addon.blender.scenes").demo_scene("arm")
+    for name, value in SMALL.items():
+        setattr(obj.vdnif, name, value)
+    corners = [obj.matrix_world @ Vector(c) for c in obj.bound_box]
+    centre = sum(corners, Vector()) / 8
+    camera = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    bpy.context.scene.collection.objects.link(camera)
+    camera.location = centre + Vector((0, -8, 0))
+    camera.rotation_euler = (math.pi / 2, 0, 0)               # looking along +y
+    bpy.context.scene.camera = camera
+    bpy.context.view_layer.objects.active = obj
+    return obj
+
+
+def pixels(name):
+    """(H, W, 4) pixels of an image, row 0 at the top."""
+    image = bpy.data.images[name]
+    width, height = image.size
+    data = np.empty(width * height * 4, np.float32)
+    image.pixels.foreach_get(data)
+    return data.reshape(height, width, 4)[::-1]
+
+
+def eager_model(source, target):
+    """The model file ``source`` changed to answer 'hit' for every segment, so a barely
+    trained network still yields hit pixels and metrics over them."""
+    model_file = module("vdnif_addon.model_file")
+    network, metadata = model_file.load_model(source)
+    output = network.mlp[-1]
+    with __import__("torch").no_grad():
+        output.weight[0] = 0.0
+        output.bias[0] = 20.0                        # occlusion logit: column 0
+    model_file.save_model(target, network, metadata["network_config"],
+                          metadata["train_info"], metadata["extra"])
+
+
+@pytest.fixture(scope="module")
+def session(extension, tmp_path_factory):
+    """Runs every operator on the arm scene, records what they produced and saves the
+    .blend; tests check the records and reopen the file."""
+    folder = tmp_path_factory.mktemp("blend")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    obj = arm_scene()
+    settings = obj.vdnif
+    blend = folder / "arm.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    storage = module("storage")
+    record = {"blend": blend, "folder": folder}
+
+    bpy.ops.vdnif.voxelize()
+    bpy.ops.vdnif.generate_dataset()
+    record["dataset"] = storage.dataset_folder(obj)
+    bpy.ops.vdnif.train()
+    record["trained_info"] = settings.parsed("model_info")
+    record["trained_path"] = storage.model_path(obj)
+    eager = folder / "eager.vdnif"
+    eager_model(record["trained_path"], eager)
+    bpy.ops.vdnif.load_model(filepath=str(eager))
+    bpy.ops.vdnif.render_passes()
+    record["images"] = {name: pixels(name) for name in PASS_IMAGES}
+    record["colorspaces"] = {name: bpy.data.images[name].colorspace_settings.name
+                             for name in PASS_IMAGES}
+    bpy.ops.vdnif.evaluate()
+    record["metrics"] = settings.metrics
+    record["packed_sha"] = hashlib.sha256(settings[storage.PACKED]).hexdigest()
+    record["settings"] = {name: getattr(settings, name) for name in SMALL}
+    bpy.ops.wm.save_mainfile()
+    return record
+
+
+def test_voxelize_shows_the_occupied_cells_deformed_at_the_current_frame(empty_scene):
+    obj = arm_scene()
+    scene = bpy.context.scene
+    bpy.ops.vdnif.voxelize()
+    preview = obj.vdnif.preview
+    grid = module("vdnif_addon.blender.capture").capture(obj, 12, deform_corners=False).grid
+    mesh = preview.data
+    assert preview.parent == obj and preview.display_type == "WIRE" and preview.hide_render
+    assert len(mesh.vertices) == len(grid.corners) and not mesh.polygons
+    rest = np.array([v.co for v in mesh.vertices])
+    edges = np.array([e.vertices for e in mesh.edges])
+    lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+    assert np.allclose(lengths, grid.voxel_size, rtol=1e-5), "edges join neighbouring corners"
+    assert len(edges) == len(module("vdnif_addon.blender.ui_support").cell_edges(
+        grid.cell_corners)) > len(grid.cells)
+    assert np.allclose(rest, grid.corner_positions(), atol=1e-5), "frame 1 is the rest pose"
+    scene.frame_set(30)
+    bpy.ops.vdnif.voxelize()
+    assert obj.vdnif.preview == preview and "at frame 30" in obj.vdnif.voxel_info
+    bent = np.array([v.co for v in preview.data.vertices])
+    assert np.abs(bent - rest).max() > 0.3 * grid.voxel_size * 12, "the arm did not bend"
+    assert len([o for o in bpy.data.objects if "VDNIF Voxels" in o.name]) == 1
+
+
+def test_dataset_and_training_write_their_results(session):
+    dataset = session["dataset"]
+    assert dataset.parent.name == "vdnif" and dataset.parent.parent == session["folder"]
+    header = json.loads(next(dataset.glob("shard-*.json")).read_text())
+    assert header["object"] == "Arm" and header["counts"]["segments"] > 0
+    assert len(header["poses"]) == 4 and header["grid"]["resolution"] == 12
+    info = session["trained_info"]
+    assert info["status"] == "completed" and info["steps"] == 30 and info["resolution"] == 12
+    _, metadata = module("vdnif_addon.model_file").load_model(session["trained_path"])
+    assert metadata["train_info"]["steps"] == 30 and metadata["extra"]["object"] == "Arm"
+    assert math.isfinite(info["validation"]["distance_mae"])
+
+
+def test_render_passes_fills_the_pass_images(session):
+    images = session["images"]
+    for name, data in images.items():
+        assert data.shape == (24, 32, 4) and np.isfinite(data).all(), name
+    hit = images["VDNIF Normal"][..., 3] > 0.5
+    assert 0 < hit.sum() < hit.size, "the predicted view has hit and missed pixels"
+    normals = images["VDNIF Normal"][..., :3][hit] * 2 - 1
+    assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-3)
+    assert session["colorspaces"] == {"VDNIF Normal": "Non-Color", "VDNIF Albedo": "sRGB",
+                                      "VDNIF Distance": "Non-Color",
+                                      "VDNIF Material": "Non-Color", "VDNIF Error": "Non-Color"}
+
+
+def test_evaluate_keeps_finite_metrics(session):
+    report = json.loads(session["metrics"])
+    assert report["poses"] == 2 and report["unseen_poses"] and report["resolution"] == 12
+    for reference in ("vs_true", "vs_embedded"):
+        metrics = report[reference]
+        assert metrics["compared_rays"] > 0, reference
+        for key in ("distance_mae", "normal_error_deg", "hit_iou"):
+            assert math.isfinite(metrics[key]), (reference, key)
+    assert report["timings"]["render_rays_per_s"] > 0
+
+
+def test_reopened_blend_restores_settings_model_and_metrics(session, extension):
+    from test_ui_panels import draw_all, texts
+
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    settings = obj.vdnif
+    storage = module("storage")
+    assert {name: getattr(settings, name) for name in SMALL} == session["settings"]
+    assert settings.metrics == session["metrics"] and settings.parsed("model_info")["steps"] == 30
+    assert hashlib.sha256(settings[storage.PACKED]).hexdigest() == session["packed_sha"]
+    network, _ = module("vdnif_addon.model_file").load_model(storage.model_path(obj))
+    assert network.mlp[-1].bias[0].item() == 20.0, "not the model that was kept"
+    assert settings.dataset_dir.startswith("//"), "the dataset path follows the .blend"
+    shown = texts(draw_all(extension))                     # the panels show what was kept
+    assert "Arm: trained: proposed, 30 steps" in shown and "2 unseen poses" in shown
+    assert "Model: packed in the .blend" in shown and "object units" in shown
+    bpy.ops.image.new(name="Blank")          # the pass images are not saved; render again
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.vdnif.render_passes()
+    assert (pixels("VDNIF Normal")[..., 3] > 0.5).sum() > 0
+
+
+def test_pass_viewer_switches_pass_and_source(session):
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    screen = bpy.context.screen
+    editor = next(a for a in screen.areas if a.type != "VIEW_3D")
+    editor.type = "IMAGE_EDITOR"
+    bpy.context.view_layer.objects.active = bpy.data.objects["Arm"]
+    viewed = module("vdnif_addon.blender.ui_support").viewed()
+    assert not viewed, "the view rendered in another file was kept"
+    bpy.ops.vdnif.render_passes()
+    viewer = bpy.context.scene.vdnif_viewer
+    assert viewer.source == "predicted" and editor.spaces.active.image.name == "VDNIF Normal"
+    viewer.source = "reference"
+    assert np.allclose(pixels("VDNIF Normal"), viewed["reference"]["normal"])
+    assert not np.allclose(viewed["reference"]["normal"], viewed["predicted"]["normal"])
+    viewer.pass_name = "distance"
+    assert editor.spaces.active.image.name == "VDNIF Distance"
+    assert np.allclose(pixels("VDNIF Distance"), viewed["reference"]["distance"])
+    viewer.source = "error"
+    assert editor.spaces.active.image.name == "VDNIF Error"
+    assert np.allclose(pixels("VDNIF Error"), viewed["error"]["distance"])
+    assert np.allclose(pixels("VDNIF Distance"), viewed["predicted"]["distance"])
+
+
+def test_viewport_view_renders_the_3d_viewports_perspective(session):
+    """The hits lie where the viewport's projection puts the object (pinhole through the
+    pixel centres, the view's horizontal angle, the image's aspect)."""
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    bpy.context.view_layer.objects.active = obj
+    view = next(a for a in bpy.context.screen.areas if a.type == "VIEW_3D").spaces.active.region_3d
+    width, height = obj.vdnif.image_width, obj.vdnif.image_height = 128, 96
+    bpy.context.scene.camera = None
+    with pytest.raises(RuntimeError, match="The scene has no active camera"):
+        bpy.ops.vdnif.render_passes()
+    obj.vdnif.view = "VIEWPORT"
+    bpy.ops.vdnif.render_passes()
+    viewed = module("vdnif_addon.blender.ui_support").viewed()
+    hit = viewed["reference"]["normal"][..., 3] > 0.5
+    assert hit.sum() > 10
+    centre = sum((obj.matrix_world @ Vector(c) for c in obj.bound_box), Vector()) / 8
+    x, y, z = view.view_matrix @ centre
+    half = 1 / view.window_matrix[0][0]                      # tan of half the view angle
+    column = (x / -z / half + 1) / 2 * width
+    row = (1 - y / -z / (half * height / width)) / 2 * height
+    rows, columns = np.nonzero(hit)
+    assert abs(columns.mean() + 0.5 - column) < 2 and abs(rows.mean() + 0.5 - row) < 4
+    view.is_perspective = False
+    with pytest.raises(RuntimeError, match="orthographic"):
+        bpy.ops.vdnif.render_passes()
+    assert "'Arm'" in obj.vdnif.last_error and "orthographic" in obj.vdnif.last_error
+
+
+def test_save_and_load_model_files(session, tmp_path):
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    bpy.context.view_layer.objects.active = obj
+    storage = module("storage")
+    exported = tmp_path / "copy.vdnif"
+    bpy.ops.vdnif.save_model(filepath=str(exported))
+    assert exported.read_bytes() == bytes(obj.vdnif[storage.PACKED])
+    settings = obj.vdnif
+    settings.model_storage = "FILE"
+    settings.width = 7
+    bpy.ops.vdnif.load_model(filepath=str(session["trained_path"]))
+    assert storage.PACKED not in settings and settings.model_path == "//vdnif/Arm.vdnif"
+    assert storage.model_path(obj).read_bytes() == session["trained_path"].read_bytes()
+    assert settings.width == 32, "the loaded model's settings were not adopted"
+    assert settings.metrics == "" and settings.parsed("model_info")["steps"] == 30
+    bpy.ops.vdnif.render_passes()                     # the loaded model renders
+
+    corrupt = tmp_path / "corrupt.vdnif"
+    corrupt.write_bytes(b"not a model")
+    with pytest.raises(RuntimeError, match="corrupt.vdnif cannot be read"):
+        bpy.ops.vdnif.load_model(filepath=str(corrupt))
+    assert storage.model_path(obj).read_bytes() == session["trained_path"].read_bytes()
+    bpy.ops.mesh.primitive_cube_add()
+    with pytest.raises(RuntimeError, match="trained on 'Arm'.*not on 'Cube'"):
+        bpy.ops.vdnif.load_model(filepath=str(exported))
+
+
+def test_failed_training_is_reported_and_keeps_the_model(session):
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    bpy.context.view_layer.objects.active = obj
+    storage = module("storage")
+    kept = bytes(obj.vdnif[storage.PACKED])
+    obj.vdnif.base_resolution = 65536                      # finest level 131072 cells
+    with pytest.raises(RuntimeError, match="'Arm': .*finest resolution 131072"):
+        bpy.ops.vdnif.train()
+    assert bytes(obj.vdnif[storage.PACKED]) == kept and "131072" in obj.vdnif.last_error
+    obj.vdnif.base_resolution, obj.vdnif.variant = 16, "lsnif"
+    with pytest.raises(RuntimeError, match="generated for the proposed variant"):
+        bpy.ops.vdnif.train()
+
+
+def test_file_storage_needs_a_saved_blend(session, empty_scene):
+    obj = arm_scene()
+    obj.vdnif.model_storage = "FILE"
+    with pytest.raises(RuntimeError, match="'Arm': save the .blend first"):
+        bpy.ops.vdnif.load_model(filepath=str(session["trained_path"]))
+    assert not module("storage").has_model(obj)
+
+
+class OperatorStandIn:
+    """A ``self`` for the Train operator's methods (operators cannot be instanced): the
+    class's functions bound to it, reports recorded."""
+
+    def __init__(self, cls, **attributes):
+        self.cls, self.reports = cls, []
+        self.__dict__.update(attributes)
+
+    def __getattr__(self, name):
+        return getattr(self.cls, name).__get__(self)
+
+    def report(self, kind, message):
+        self.reports.append((set(kind), message))
+
+
+def test_modal_train_shows_progress_and_esc_keeps_the_last_step(session):
+    """The modal glue driven by hand: timer events poll the worker, Esc cancels it, the
+    network of the last finished step becomes the object's model."""
+    from types import SimpleNamespace
+
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    obj.vdnif.steps = 1000
+    training = module("operators.training")
+    jobs = module("operators.common").JOBS
+    status, removed = [], []
+    context = SimpleNamespace(
+        screen=None, workspace=SimpleNamespace(status_text_set=status.append),
+        window_manager=SimpleNamespace(event_timer_remove=removed.append))
+    timer = object()
+    operator = OperatorStandIn(training.VDNIF_OT_train, _name="Arm", _timer=timer)
+    job = jobs["Arm"] = training.VDNIF_OT_train._job(operator, bpy.context, obj)
+    training._timers.append(timer)
+    job.start()
+    tick = SimpleNamespace(type="TIMER", value="NOTHING")
+    while job.state.step < 20:
+        assert operator.modal(context, tick) == {"PASS_THROUGH"}
+        time.sleep(0.05)
+    assert operator.modal(context, SimpleNamespace(type="ESC", value="PRESS")) == {
+        "RUNNING_MODAL"}
+    while (result := operator.modal(context, tick)) == {"PASS_THROUGH"}:
+        time.sleep(0.05)
+    assert result == {"FINISHED"} and removed == [timer] and not jobs
+    assert training._timers == [] and status[-1] is None
+    assert any("loss" in text and "Esc cancels" in text for text in status[:-1])
+    info = obj.vdnif.parsed("model_info")
+    assert info["status"] == "cancelled" and 20 <= info["steps"] < 1000
+    assert len(operator.reports) == 1 and operator.reports[0][0] == {"INFO"}
+    assert f"'Arm': cancelled after {info['steps']} steps" in operator.reports[0][1]
+    network, _ = module("vdnif_addon.model_file").load_model(
+        module("storage").model_path(obj))
+    assert network.mlp[-1].bias[0].item() != 20.0, "the new model replaced the old one"

@@ -1,0 +1,183 @@
+"""The speed/accuracy sweep behind ``batch.py -- bench``: the proposed variant trained and
+evaluated on unseen poses of the arm while one setting at a time moves away from a base
+(voxel resolution, hash levels and table size, PE bands, MLP width, training steps). Writes
+CSV, JSON, Pareto plots, the presets derived from the front and a section of
+``docs/performance.md``."""
+
+import csv
+import json
+import pathlib
+import shlex
+import tempfile
+
+from ..fit import fit_model
+from ..presets import SETTINGS, derive_presets, pareto_front
+from ..report import value, write_section
+from .capture import capture
+from .jobs import evaluate_file, evaluation_poses, variant_dataset
+from .poses import PoseSpec
+from .scenes import demo_scene
+
+SIZES = {
+    "full": dict(
+        poses=32, rays_per_pose=4096, eval_poses=4, width=96, height=96, overrides={},
+        base=dict(resolution=32, levels=2, log2_table_size=16, pe_bands=3, width=64,
+                  steps=1000),
+        axes={"resolution": [16, 32, 64], "grid": [(2, 14), (2, 16), (4, 18)],
+              "pe_bands": [0, 3, 6], "width": [32, 64, 128], "steps": [500, 1000, 2000]}),
+    "quick": dict(
+        poses=4, rays_per_pose=512, eval_poses=1, width=24, height=16,
+        overrides=dict(batch_size=2048),
+        base=dict(resolution=12, levels=2, log2_table_size=12, pe_bands=3, width=32,
+                  steps=300),
+        axes={"resolution": [8, 12], "grid": [(2, 10), (2, 12)], "pe_bands": [0, 3],
+              "width": [16, 32], "steps": [150, 300]}),
+}
+ERROR = "vs_true_distance_mae"        # the error the front and the presets minimize
+PERFORMANCE_PREAMBLE = "# Performance\n\nEach section names the command that measured it.\n"
+
+
+def sweep_points(base, axes):
+    """The base settings and each one-setting variation of them, without repeats."""
+    points = [dict(base)]
+    for axis, values in axes.items():
+        for entry in values:
+            changed = dict(zip(("levels", "log2_table_size"), entry)) if axis == "grid" else {
+                axis: entry}
+            point = dict(base, **changed)
+            if point not in points:
+                points.append(point)
+    return points
+
+
+def run_bench(out, presets_path, performance=None, quick=False, device="auto",
+              progress=None, command=None):
+    """Runs the sweep; writes ``bench.csv``, ``bench.json`` and ``pareto.png`` into ``out``,
+    the presets to ``presets_path`` and, if given, its section of ``performance``. Returns
+    the rows."""
+    size = SIZES["quick" if quick else "full"]
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    obj = demo_scene("arm")
+    spec = PoseSpec(count=size["poses"])
+    points = sweep_points(size["base"], size["axes"])
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="vdnif-bench-") as scratch:
+        scratch = pathlib.Path(scratch)
+        scenes = {}
+        for resolution in sorted({p["resolution"] for p in points}):
+            captured = capture(obj, resolution, spec, deform_corners=False)
+            variant_dataset(obj, captured, "proposed", scratch / f"r{resolution}",
+                            size["rays_per_pose"])
+            scenes[resolution] = evaluation_poses(obj, resolution, PoseSpec(
+                count=size["eval_poses"]))
+        for number, point in enumerate(points):
+            model = scratch / f"point-{number}.vdnif"
+            settings = {k: v for k, v in point.items() if k != "resolution"}
+            fit_model(scratch / f"r{point['resolution']}", "proposed", model,
+                      dict(size["overrides"], device=device, **settings), progress=progress)
+            report, _ = evaluate_file(obj, scenes[point["resolution"]], model, size["width"],
+                                      size["height"], device)
+            rows.append(_row(point, report))
+    write_outputs(out, rows)
+    presets = derive_presets(rows, ERROR)
+    pathlib.Path(presets_path).parent.mkdir(parents=True, exist_ok=True)
+    pathlib.Path(presets_path).write_text(json.dumps(
+        {"source": "bench" + (" --quick" if quick else ""), "error": ERROR,
+         "presets": presets}, indent=2) + "\n")
+    if performance is not None:
+        command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
+                                        + (["--quick"] if quick else []))
+        write_section(performance, "bench", "Speed/accuracy sweep",
+                      sweep_markdown(rows, presets, size, command, out, performance),
+                      PERFORMANCE_PREAMBLE)
+    return rows
+
+
+def _row(point, report):
+    row = dict(point)
+    for reference in ("vs_true", "vs_embedded"):
+        for key in ("distance_mae", "normal_error_deg", "hit_iou"):
+            row[f"{reference}_{key}"] = report[reference][key]
+    timings = report["timings"]
+    row.update(train_s=timings["train_s"], render_rays_per_s=timings["render_rays_per_s"],
+               model_bytes=report["model_bytes"])
+    return row
+
+
+def write_outputs(out, rows):
+    """bench.csv, bench.json and pareto.png (error vs render speed and vs training time)."""
+    with open(out / "bench.csv", "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    (out / "bench.json").write_text(json.dumps(rows, indent=2) + "\n")
+    _plot(out / "pareto.png", rows)
+
+
+def _plot(path, rows):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot
+
+    usable = [r for r in rows if r[ERROR] is not None]
+    error = [r[ERROR] for r in usable]
+    figure, axes = pyplot.subplots(1, 2, figsize=(11, 4.2))
+    for ax, key, label, cost in (
+            (axes[0], "render_rays_per_s", "neural render (rays/s)", lambda v: 1 / v),
+            (axes[1], "train_s", "training time (s)", lambda v: v)):
+        x = [r[key] for r in usable]
+        front = pareto_front(error, [cost(v) for v in x])
+        ax.scatter(x, error, color="0.6", label="sweep point")
+        ax.plot([x[i] for i in front], [error[i] for i in front], "o-", color="C3",
+                label="Pareto front")
+        for r, xv, yv in zip(usable, x, error):
+            ax.annotate(_label(r), (xv, yv), fontsize=6, xytext=(3, 3),
+                        textcoords="offset points")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("distance MAE vs true reference (object units)")
+        ax.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    pyplot.close(figure)
+
+
+def _label(row):
+    return (f"R{row['resolution']} L{row['levels']} T{row['log2_table_size']} "
+            f"F{row['pe_bands']} W{row['width']} S{row['steps']}")
+
+
+def sweep_markdown(rows, presets, size, command, out, performance):
+    """The sweep's table, plot and presets for docs/performance.md."""
+    relative = pathlib.Path(out).resolve().relative_to(
+        pathlib.Path(performance).resolve().parent) if performance else out
+    lines = [f"Command: `{command}`", "",
+             f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
+             f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} unseen poses "
+             f"at {size['width']}x{size['height']}. One setting moves at a time from the base "
+             + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
+             "| R | L | log2 T | F | width | steps | distance MAE true / embedded | normal "
+             "error true / embedded (deg) | hit IoU (true) | train (s) | render rays/s | "
+             "model bytes |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        lines.append(
+            f"| {r['resolution']} | {r['levels']} | {r['log2_table_size']} | {r['pe_bands']} | "
+            f"{r['width']} | {r['steps']} | {value(r['vs_true_distance_mae'])} / "
+            f"{value(r['vs_embedded_distance_mae'])} | {value(r['vs_true_normal_error_deg'], 3)}"
+            f" / {value(r['vs_embedded_normal_error_deg'], 3)} | {value(r['vs_true_hit_iou'])}"
+            f" | {r['train_s']:.1f} | {r['render_rays_per_s']:,.0f} | {r['model_bytes']:,} |")
+    lines += ["", f"![Pareto fronts]({relative}/pareto.png)", "",
+              f"Presets (the panel's preset menu), from the front of {ERROR} vs render speed:",
+              "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s |",
+              "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
+    for name, preset in presets.items():
+        measured = preset["measured"]
+        lines.append(f"| {name} | " + " | ".join(str(preset[k]) for k in SETTINGS)
+                     + f" | {value(measured[ERROR])} | "
+                     f"{measured['render_rays_per_s']:,.0f} |")
+    lines += ["", f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
+    return lines

@@ -1,0 +1,65 @@
+"""Speed/accuracy presets: the Pareto front of a measured sweep, and the fast / balanced /
+accurate settings derived from it (written by the ``bench`` command, read by the panel)."""
+
+import json
+import pathlib
+
+import numpy as np
+
+from .errors import VDNIFError
+
+PRESETS_FILE = pathlib.Path(__file__).with_name("presets.json")
+PRESET_NAMES = ("fast", "balanced", "accurate")
+SETTINGS = ("resolution", "levels", "log2_table_size", "pe_bands", "width", "steps")
+
+
+def pareto_front(error, cost):
+    """Indices of the points no other point beats on both ``error`` and ``cost`` (both
+    lower is better; ties keep the first), ordered by increasing cost."""
+    error, cost = np.asarray(error, np.float64), np.asarray(cost, np.float64)
+    order = np.lexsort((error, cost))
+    front, best = [], np.inf
+    for index in order:
+        if error[index] < best:
+            front.append(int(index))
+            best = error[index]
+    return front
+
+
+def derive_presets(points, error_key="error", speed_key="render_rays_per_s"):
+    """{fast, balanced, accurate} from the sweep ``points`` (dicts with SETTINGS, the error
+    and the speed): on the front of error vs 1/speed, the fastest point, the most accurate
+    one, and the one closest to the ideal corner in normalized log space (the knee)."""
+    usable = [p for p in points if p.get(error_key) is not None and p.get(speed_key)]
+    if not usable:
+        raise VDNIFError("no sweep point has both an error and a speed: cannot derive presets")
+    error = np.array([p[error_key] for p in usable])
+    cost = 1.0 / np.array([p[speed_key] for p in usable])
+    front = pareto_front(error, cost)
+    log_error, log_cost = np.log(error[front]), np.log(cost[front])
+
+    def unit(values):
+        span = values.max() - values.min()
+        return (values - values.min()) / span if span > 0 else np.zeros_like(values)
+
+    knee = front[int(np.argmin(np.hypot(unit(log_error), unit(log_cost))))]
+    chosen = {"fast": front[0], "balanced": knee, "accurate": front[-1]}
+    return {name: {**{key: usable[i][key] for key in SETTINGS},
+                   "measured": {error_key: usable[i][error_key],
+                                speed_key: usable[i][speed_key]}}
+            for name, i in chosen.items()}
+
+
+def load_presets(path=None):
+    """The presets written by ``bench`` (default: the shipped file); a missing or malformed
+    file raises VDNIFError."""
+    path = pathlib.Path(path or PRESETS_FILE)
+    try:
+        presets = json.loads(path.read_text())["presets"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise VDNIFError(f"presets file '{path}' cannot be read: {exc}") from None
+    if set(presets) != set(PRESET_NAMES) or any(
+            set(SETTINGS) - set(preset) for preset in presets.values()):
+        raise VDNIFError(f"presets file '{path}' does not hold {', '.join(PRESET_NAMES)} "
+                         f"with {', '.join(SETTINGS)}")
+    return presets

@@ -1,0 +1,151 @@
+"""Training for the UI: ``fit.fit_model`` in a worker thread, progress through a queue, and
+cancel, with no Blender data touched (the Train operator is only glue around this).
+
+The model is written to a temporary file beside the target and moved over it only once at
+least one training step was taken: a cancel at once, a failure or a crash never replaces
+the last good model, and a cancel later keeps the network of the last finished step.
+
+Importing this module does not import torch (``fit`` is imported by the worker), so the
+UI can show a job's state without it.
+"""
+
+import os
+import pathlib
+import queue
+import threading
+from dataclasses import dataclass
+
+from .errors import VDNIFError
+
+
+def progress_interval(steps):
+    """Steps between progress records: about 50 per run (each validates a probe subset)."""
+    return max(1, min(100, steps // 50))
+
+
+@dataclass
+class JobState:
+    """What the UI shows of a job. Changed only by ``TrainingJob.poll`` (the UI's thread)."""
+
+    steps: int
+    status: str = "running"        # running, completed, cancelled or failed
+    step: int = 0
+    loss: float = None
+    eta_s: float = None
+    samples_per_s: float = None
+    cancelling: bool = False
+    message: str = ""              # the error of a failed job, or what happened
+    model: str = None              # the model file written, None if none was
+
+    @property
+    def done(self):
+        return self.status != "running"
+
+    @property
+    def fraction(self):
+        return self.step / self.steps if self.steps else 0.0
+
+    def line(self):
+        """One line for the panel and the status bar."""
+        if self.done:
+            return self.message
+        if self.loss is None:
+            text = f"step 0/{self.steps}, starting"
+        else:
+            text = (f"step {self.step}/{self.steps}, loss {self.loss:.4f}, "
+                    f"ETA {_duration(self.eta_s)}")
+        return text + (", cancelling" if self.cancelling else "")
+
+
+class TrainingJob:
+    """Trains ``variant`` on the dataset folder ``data_dir`` into the model file ``out``.
+
+    ``overrides``: NetworkConfig / TrainConfig fields (``steps`` required). Call ``run()``
+    to train in this thread (background mode), or ``start()`` for a worker thread; then
+    ``poll()`` from the UI's thread drains the queue into ``state``, ``cancel()`` asks the
+    worker to stop after its current step.
+    """
+
+    def __init__(self, data_dir, variant, out, overrides):
+        if "steps" not in overrides:
+            raise VDNIFError("training settings lack the number of steps")
+        self.data_dir, self.variant = pathlib.Path(data_dir), variant
+        self.out = pathlib.Path(out)
+        self.overrides = {"log_interval": progress_interval(overrides["steps"]), **overrides}
+        self.state = JobState(steps=overrides["steps"])
+        self._queue = queue.Queue()
+        self._cancel = threading.Event()
+        self._thread = None
+
+    def start(self):
+        """Trains in a daemon worker thread."""
+        self._thread = threading.Thread(target=self.run, name=f"vdnif-train-{self.out.stem}",
+                                        daemon=True)
+        self._thread.start()
+
+    def run(self):
+        """Trains, writes the model and queues the outcome; never raises."""
+        partial = self.out.with_name(f".{self.out.name}.training")
+        try:
+            from .fit import fit_model
+
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+            result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
+                                        progress=lambda record: self._queue.put(
+                                            ("progress", record)),
+                                        cancel=self._cancel)
+            if result.steps == 0:
+                self._queue.put(("cancelled", None))
+                return
+            os.replace(partial, self.out)
+            self._queue.put((result.status, dict(summary, model=str(self.out))))
+        except VDNIFError as exc:
+            self._queue.put(("failed", str(exc)))
+        except Exception as exc:   # torch errors (out of memory, ...) end the job, not Blender
+            self._queue.put(("failed", f"training failed: {type(exc).__name__}: {exc}"))
+        finally:
+            if partial.exists():
+                partial.unlink()
+
+    def cancel(self):
+        self._cancel.set()
+        self.state.cancelling = not self.state.done
+
+    def poll(self):
+        """Applies the queued records and outcome to ``state`` and returns it."""
+        while True:
+            try:
+                kind, payload = self._queue.get_nowait()
+            except queue.Empty:
+                return self.state
+            self._apply(kind, payload)
+
+    def join(self, timeout=None):
+        """Waits for the worker (if any) and returns the final ``poll()``."""
+        if self._thread is not None:
+            self._thread.join(timeout)
+        return self.poll()
+
+    def _apply(self, kind, payload):
+        state = self.state
+        if kind == "progress":
+            state.step, state.loss = payload["step"], payload["total"]
+            state.eta_s, state.samples_per_s = payload["eta_s"], payload["samples_per_s"]
+            return
+        state.status, state.cancelling = kind, False
+        if kind == "failed":
+            state.message = payload
+        elif payload is None:
+            state.message = "cancelled before the first step: the previous model is kept"
+        else:
+            state.model = payload["model"]
+            state.step = payload["train"]["steps"]
+            state.message = (f"{kind} after {state.step} steps in "
+                             f"{_duration(payload['train']['seconds'])}")
+
+
+def _duration(seconds):
+    if seconds is None:
+        return "?"
+    seconds = round(seconds)
+    return f"{seconds // 60}:{seconds % 60:02d}" if seconds >= 60 else f"{seconds} s"
