@@ -106,3 +106,24 @@ def test_a_model_for_another_object_or_resolution_is_refused(empty_scene, core):
     for other, message in cases:
         with pytest.raises(errors.VDNIFError, match=message):
             fits("m.vdnif", other, capture.mesh, grid)
+
+
+def test_a_ray_leaving_through_the_other_half_of_its_folded_entry_face_walks_on(empty_scene,
+                                                                                core):
+    """Regression: on this unseen arm pose one orbit ray enters a cell through one triangle
+    of a non-planar face and leaves through the other; the walk re-seeked from just past
+    its entry, where the float32 BVH found the entry again, forever."""
+    jobs, rays = core("blender.jobs"), core("rays")
+    obj = core("blender.scenes").demo_scene("arm")
+    evaluated = jobs.evaluation_poses(obj, 32, core("blender.poses").PoseSpec(count=4))
+    with core("blender.posed").PosedObject(obj, evaluated) as posed_object:
+        geometry = posed_object.geometry(evaluated.poses[1])
+        origins, directions = rays.orbit_rays(geometry.vertices.min(0),
+                                              geometry.vertices.max(0),
+                                              rays.orbit_viewpoints(4)[1], 128, 128)
+        walk = core("traverse").Walk(geometry.cells, geometry.entry_caster,
+                                     origins[5680:5685], directions[5680:5685])
+        walk.run(max_steps=100)
+    assert not walk.active()
+    segments = walk.segments()
+    assert len(segments) > 5 and (segments.t1 >= segments.t0).all()

@@ -25,7 +25,7 @@ def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, dir
     walk = Walk(cells, entry_caster, origins, directions)
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
     table = torch.as_tensor(np.asarray(albedo_table, np.float32), device=device)
-    while walk.active():
+    while walk.running():
         clock = time.perf_counter()
         walk.advance()
         wave = walk.take_new()
@@ -46,6 +46,7 @@ def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, dir
         stats["network_s"] += time.perf_counter() - clock
         stats["segments"] += len(wave)
         stats["waves"] += 1
+    stats["truncated"] = walk.active()
     return passes, stats
 
 

@@ -243,9 +243,14 @@ class Walk:
     def active(self):
         return len(self.ray)
 
+    def running(self, max_steps=None):
+        """True while rays are active and fewer than ``max_steps`` (default: four per used
+        corner) steps were made: a bound that no terminating walk reaches."""
+        return bool(self.active()) and self.steps < (max_steps or self.default_steps)
+
     def run(self, max_steps=None):
         """Advances until no ray is active or ``max_steps`` steps were made."""
-        while self.active() and self.steps < (max_steps or self.default_steps):
+        while self.running(max_steps):
             self.advance()
 
     def take_new(self):
@@ -345,6 +350,10 @@ class Walk:
         d = self.directions[ray].T[:, :, None]
         t, u, v, hit, outward = _crossings(o, d, triangles[0:3], triangles[3:6],
                                            triangles[6:9], triangles[9])    # (W, 12)
+        # A lost walker (no exit found) re-seeks beyond every crossing of its cell: a ray
+        # can leave through the other triangle of a folded entry face, and re-seeking from
+        # just past its entry would find that entry again through float32 caster error.
+        far_side = np.where(hit & (t > t_in[:, None]), t, -np.inf).max(1)
         # An exit crosses a face outward: at a corner or edge this picks, among the faces
         # touched there, one that leads on rather than back.
         hit &= outward & ((np.arange(12) // 2)[None] != entry_face[:, None])
@@ -369,7 +378,8 @@ class Walk:
         self._add_walkers(ray[go_on], neighbour[go_on], OPPOSITE_FACE[exit_face[go_on]],
                           t_out[go_on], p_out[go_on], zero_passes[go_on])
         reseek = ~go_on & beyond
-        self.seek(ray[reseek], np.where(lost, t_in, t_out)[reseek] + self.step)
+        self.seek(ray[reseek], np.where(lost, np.maximum(far_side, t_in), t_out)[reseek]
+                  + self.step)
 
     def _record(self, ray, cell, t0, t1, p0, p1):
         clip = self.clip_from[ray] < 0

@@ -139,6 +139,7 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
             "prepare_pose_s": statistics.median(r.timings["prepare_s"] for r in results),
             "network_fraction": sum(r.timings["network_s"] for r in results) / render_s,
         },
+        "truncated_rays": sum(r.timings["truncated_rays"] for r in results),
     }
     return report, views
 
@@ -159,7 +160,7 @@ def _render(model, posed_object, geometry, origins, directions, references):
                                          posed_object.rest_caster, origins, directions)
     timings = dict(prepare_s=geometry.prepare_s, walk_s=stats["walk_s"],
                    network_s=stats["network_s"], render_s=render_s, rays=len(origins),
-                   segments=stats["segments"])
+                   segments=stats["segments"], truncated_rays=stats["truncated"])
     return RenderResult(predicted=predicted, true=true, embedded=embedded, timings=timings,
                         object_size=mesh.size, world_scale=np.ones(len(origins)),
                         inverted_cells=geometry.inverted_cells())
