@@ -491,6 +491,7 @@ def _model_command(commands, name, run, default_poses, notes):
 
 def build_parser():
     from .blender.extremes import add_stress_options
+    from .blender.side_by_side import add_side_by_side_parser
     from .blender.scenes import DEMO_SCENES
 
     parser = _Parser(prog="batch.py", description=(
@@ -606,6 +607,8 @@ def build_parser():
                             "(default docs/performance.md; none with --quick)")
     sweep.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     sweep.set_defaults(run=cmd_bench)
+
+    add_side_by_side_parser(commands)
 
     bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
                                 description=cmd_bench_network.__doc__ + " JSON keys "

@@ -33,7 +33,7 @@ def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, dir
         if not len(wave):
             continue
         clock = time.perf_counter()
-        prediction = _predict(network, grid, wave, device)
+        prediction = predict_segments(network, grid, wave, device)
         hit = prediction["hit"].cpu().numpy()
         index = np.flatnonzero(hit)
         material = prediction["material"][hit]
@@ -50,7 +50,8 @@ def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, dir
     return passes, stats
 
 
-def _predict(network, grid, segments, device):
+def predict_segments(network, grid, segments, device):
+    """``network.predict`` of Segments (rest-space end points normalized to the grid)."""
     rest_length = np.linalg.norm(segments.p1 - segments.p0, axis=1)
     return network.predict(_tensor(grid.normalize(segments.p0), device),
                            _tensor(grid.normalize(segments.p1), device),
