@@ -463,11 +463,18 @@ def _scene_command(commands, name, run, default_poses, notes):
     return parser
 
 
+def add_device_option(parser, default="auto"):
+    """``--device auto|cpu|cuda`` (train.DEVICES, named here so that parsing never imports
+    torch): auto takes CUDA where torch has it."""
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default=default,
+                        help=f"where the network runs (default {default})")
+
+
 def add_training_options(parser):
     parser.add_argument("--steps", type=int, default=2000, metavar="N")
     parser.add_argument("--batch", type=int, default=2 ** 14, metavar="B",
                         help="segments per step and process (default 16384)")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
 
 
 def _model_command(commands, name, run, default_poses, notes):
@@ -484,7 +491,7 @@ def _model_command(commands, name, run, default_poses, notes):
     add_stress_options(parser)
     parser.add_argument("--width", type=int, default=128, metavar="W")
     parser.add_argument("--height", type=int, default=128, metavar="H")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
     parser.set_defaults(run=run)
     return parser
 
@@ -574,7 +581,7 @@ def build_parser():
     add_stress_options(demo)
     demo.add_argument("--steps", type=int, metavar="N", help="training steps (default: "
                       "the demo's own)")
-    demo.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(demo)
     demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
                       metavar="DIR", help="default out/demo")
     demo.add_argument("--json", type=pathlib.Path, metavar="PATH",
@@ -585,7 +592,7 @@ def build_parser():
                                      description=cmd_experiment.__doc__)
     experiment.add_argument("name", choices=("static", "deformation", "per-pose"))
     experiment.add_argument("--quick", action="store_true", help="a tiny size, for tests")
-    experiment.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(experiment)
     experiment.add_argument("--results", type=pathlib.Path,
                             default=pathlib.Path("docs/results.md"), metavar="PATH",
                             help="markdown file whose section is rewritten (default "
@@ -605,7 +612,7 @@ def build_parser():
     sweep.add_argument("--performance", type=pathlib.Path, metavar="PATH",
                        help="markdown whose sweep section is rewritten "
                             "(default docs/performance.md; none with --quick)")
-    sweep.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(sweep)
     sweep.set_defaults(run=cmd_bench)
 
     add_side_by_side_parser(commands)
@@ -613,7 +620,7 @@ def build_parser():
     bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
                                 description=cmd_bench_network.__doc__ + " JSON keys "
                                 "infer_segments_per_s, train_samples_per_s.")
-    bench.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(bench)
     bench.add_argument("--repeats", type=int, default=5)
     bench.add_argument("--json", type=pathlib.Path, metavar="PATH")
     bench.set_defaults(run=cmd_bench_network)

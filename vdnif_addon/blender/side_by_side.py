@@ -352,6 +352,8 @@ def cmd_side_by_side(args):
 
 def add_side_by_side_parser(commands):
     """Adds the ``side-by-side`` command to the batch parser's subcommands."""
+    from ..commands import add_device_option
+
     parser = commands.add_parser("side-by-side", help=cmd_side_by_side.__doc__,
                                  description=cmd_side_by_side.__doc__ + (
                                      " Poses are unseen evaluation poses; 'million' is "
@@ -372,8 +374,7 @@ def add_side_by_side_parser(commands):
                         help="training pose seed; the evaluation poses of it are used")
     parser.add_argument("--width", type=int, default=128, metavar="W")
     parser.add_argument("--height", type=int, default=128, metavar="H")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="cpu",
-                        help="network device with --model (default cpu)")
+    add_device_option(parser, default="cpu")
     parser.add_argument("--json", type=pathlib.Path, metavar="PATH",
                         help="write every repeat's timings and the medians as JSON")
     parser.add_argument("--markdown", type=pathlib.Path, metavar="PATH",
