@@ -22,9 +22,9 @@ SIZES = {
     "full": dict(
         poses=32, rays_per_pose=4096, eval_poses=4, width=96, height=96, overrides={},
         base=dict(resolution=32, levels=2, log2_table_size=16, pe_bands=3, width=64,
-                  steps=1000),
+                  steps=500),
         axes={"resolution": [16, 32, 64], "grid": [(2, 14), (2, 16), (4, 18)],
-              "pe_bands": [0, 3, 6], "width": [32, 64, 128], "steps": [500, 1000, 2000]}),
+              "pe_bands": [0, 3, 6], "width": [32, 64, 128], "steps": [250, 500, 1000]}),
     "quick": dict(
         poses=4, rays_per_pose=512, eval_poses=1, width=24, height=16,
         overrides=dict(batch_size=2048),

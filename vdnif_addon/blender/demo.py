@@ -15,7 +15,7 @@ from .poses import PoseSpec
 from .scenes import demo_scene
 
 SIZES = {   # full: the main job (minutes on 2 cores); quick: seconds, for tests
-    "full": dict(resolution=32, poses=32, rays_per_pose=4096, steps=2000, eval_poses=8,
+    "full": dict(resolution=32, poses=32, rays_per_pose=4096, steps=1500, eval_poses=8,
                  width=128, height=128, overrides={}),
     "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=300, eval_poses=2,
                   width=32, height=24, overrides=dict(log2_table_size=12, batch_size=2048)),
