@@ -10,6 +10,8 @@ import pathlib
 import shlex
 import tempfile
 
+import torch
+
 from ..fit import fit_model
 from ..presets import SETTINGS, derive_presets, pareto_front
 from ..report import value, write_section
@@ -157,7 +159,8 @@ def sweep_markdown(rows, presets, size, command, out, performance):
     lines = [f"Command: `{command}`", "",
              f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
              f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} unseen poses "
-             f"at {size['width']}x{size['height']}. One setting moves at a time from the base "
+             f"at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
+             f"thread(s). One setting moves at a time from the base "
              + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
              "| R | L | log2 T | F | width | steps | distance MAE true / embedded | normal "
              "error true / embedded (deg) | hit IoU (true) | train (s) | render rays/s | "

@@ -15,6 +15,8 @@ import re
 import shlex
 import tempfile
 
+import torch
+
 from ..evaluation import compare_both, concatenated, figure
 from ..fit import fit_model
 from ..rays import orbit_viewpoints
@@ -179,7 +181,7 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
                                                       progress))
     settings = {key: size[key] for key in ("resolution", "poses", "rays_per_pose", "steps",
                                            "eval_poses", "width", "height")}
-    settings.update(size["overrides"])
+    settings.update(size["overrides"], torch_threads=torch.get_num_threads())
     (figures / f"{name}.json").write_text(json.dumps(
         {"experiment": name, "settings": settings, "runs": records}, indent=2) + "\n")
     command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "experiment",
