@@ -8,7 +8,8 @@ import pytest
 
 from test_batch import run_batch
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.presets import SETTINGS, derive_presets, load_presets, pareto_front
+from vdnif_addon.presets import (PRESETS_FILE, SETTINGS, derive_presets, load_presets,
+                                  pareto_front)
 
 
 def test_pareto_front_keeps_only_undominated_points():
@@ -33,6 +34,18 @@ def test_presets_are_the_fastest_the_knee_and_the_most_accurate_of_the_front():
     assert presets["balanced"]["measured"] == {"error": 0.04, "render_rays_per_s": 900.0}
     with pytest.raises(VDNIFError, match="no sweep point has both"):
         derive_presets([point(None, 10.0, 8)])
+
+
+def test_shipped_presets_come_from_a_full_sweep():
+    shipped = json.loads(PRESETS_FILE.read_text())
+    assert shipped["source"] == "bench"                   # not a --quick run
+    presets = load_presets()
+    assert presets["fast"]["measured"]["render_rays_per_s"] >= \
+        presets["balanced"]["measured"]["render_rays_per_s"] >= \
+        presets["accurate"]["measured"]["render_rays_per_s"]
+    errors = [presets[name]["measured"]["vs_true_distance_mae"]
+              for name in ("fast", "balanced", "accurate")]
+    assert errors == sorted(errors, reverse=True)
 
 
 def test_bad_presets_files_are_refused(tmp_path):
