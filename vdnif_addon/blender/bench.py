@@ -28,12 +28,12 @@ SIZES = {
         axes={"resolution": [16, 32, 64], "grid": [(2, 14), (2, 16), (4, 18)],
               "pe_bands": [0, 3, 6], "width": [32, 64, 128], "steps": [250, 500, 1000]}),
     "quick": dict(
-        poses=4, rays_per_pose=512, eval_poses=1, width=24, height=16,
-        overrides=dict(batch_size=2048),
-        base=dict(resolution=12, levels=2, log2_table_size=12, pe_bands=3, width=32,
-                  steps=300),
-        axes={"resolution": [8, 12], "grid": [(2, 10), (2, 12)], "pe_bands": [0, 3],
-              "width": [16, 32], "steps": [150, 300]}),
+        poses=4, rays_per_pose=1024, eval_poses=2, width=32, height=24,
+        overrides=dict(batch_size=4096),
+        base=dict(resolution=16, levels=2, log2_table_size=12, pe_bands=3, width=64,
+                  steps=400),
+        axes={"resolution": [12, 16], "grid": [(2, 10), (2, 12)], "pe_bands": [0, 3],
+              "width": [32, 64], "steps": [300, 400]}),
 }
 ERROR = "vs_true_distance_mae"        # the error the front and the presets minimize
 PERFORMANCE_PREAMBLE = "# Performance\n\nEach section names the command that measured it.\n"
@@ -81,8 +81,8 @@ def run_bench(out, presets_path, performance=None, quick=False, device="auto",
             report, _ = evaluate_file(obj, scenes[point["resolution"]], model, size["width"],
                                       size["height"], device)
             rows.append(_row(point, report))
-    write_outputs(out, rows)
     presets = derive_presets(rows, ERROR)
+    write_outputs(out, rows)
     pathlib.Path(presets_path).parent.mkdir(parents=True, exist_ok=True)
     pathlib.Path(presets_path).write_text(json.dumps(
         {"source": "bench" + (" --quick" if quick else ""), "error": ERROR,
