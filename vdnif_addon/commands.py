@@ -9,8 +9,6 @@ import json
 import pathlib
 import sys
 
-import numpy as np
-
 from .errors import VDNIFError
 
 
@@ -295,7 +293,7 @@ def cmd_render(args):
 
     from .blender.capture import capture
     from .blender.jobs import write_passes
-    from .blender.neural import camera_rays, load_scene_model, render_rays
+    from .blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
     from .blender.scenes import find_camera
 
     resolution = _model_resolution(args)
@@ -309,11 +307,12 @@ def cmd_render(args):
     if camera is not None:
         origins, directions = camera_rays(camera, args.width, args.height)
         view = f"camera '{camera.name}'"
+        result = render_rays(obj, captured, model, pose, origins, directions,
+                             references=args.references)
     else:
-        origins, directions = _orbit_world_rays(obj, captured, pose, args.width, args.height)
         view = "an orbit viewpoint (the scene has no camera)"
-    result = render_rays(obj, captured, model, pose, origins, directions,
-                         references=args.references)
+        result = render_orbit(obj, captured, model, pose, args.width, args.height,
+                              references=args.references)
     written = write_passes(args.out, result.predicted, args.height, args.width,
                            result.world_scale)
     if args.references:
@@ -330,20 +329,6 @@ def cmd_render(args):
           f"{args.height}: {summary['hit_pixels']} hit pixels, "
           f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
     return 0
-
-
-def _orbit_world_rays(obj, captured, pose, width, height):
-    """World rays of the first orbit viewpoint around the posed object's bounds."""
-    from .blender.posed import PosedObject
-    from .rays import orbit_rays, orbit_viewpoints, transform_rays
-
-    with PosedObject(obj, captured) as posed_object:
-        vertices = posed_object.geometry(pose).vertices
-    origins, directions = orbit_rays(vertices.min(0), vertices.max(0),
-                                     orbit_viewpoints(1)[0], width, height)
-    world = np.array(obj.matrix_world, np.float64)
-    origins, directions, _ = transform_rays(origins, directions, world)
-    return origins, directions
 
 
 def cmd_evaluate(args):

@@ -52,11 +52,17 @@ def concatenated(views):
             for name in ("predicted", "true", "embedded")}
 
 
+def distance_range(*passes):
+    """(near, far) over the hit distances of every Passes given: one brightness scale for
+    images that are compared; (0, 1) without any hit."""
+    hits = np.concatenate([p.distance[p.hit] for p in passes])
+    return (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
+
+
 def view_images(reference, predicted, height, width, object_size):
     """{"reference" | "predicted" | "error": {pass: (H, W, 3) image}} of one view: both
     passes on one distance scale, the errors of the prediction as heat maps."""
-    hits = np.concatenate([reference.distance[reference.hit], predicted.distance[predicted.hit]])
-    near_far = (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
+    near_far = distance_range(reference, predicted)
     return {"reference": display(reference, height, width, near_far),
             "predicted": display(predicted, height, width, near_far),
             "error": error_images(predicted, reference, height, width, object_size)}

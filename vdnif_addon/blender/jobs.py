@@ -7,7 +7,7 @@ import pathlib
 import numpy as np
 
 from .. import images
-from ..evaluation import figure, world_distances
+from ..evaluation import distance_range, figure, world_distances
 from ..fit import fit_model
 from ..variants import variant_config
 from .capture import capture
@@ -60,9 +60,7 @@ def write_passes(folder, passes, height, width, world_scale=None, prefix=""):
     when ``world_scale`` is given); returns the written paths."""
     folder = pathlib.Path(folder)
     data = passes if world_scale is None else world_distances(passes, world_scale)
-    hits = data.distance[data.hit]
-    near_far = (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
-    shown = images.display(data, height, width, near_far)
+    shown = images.display(data, height, width, distance_range(data))
     shown["hit"] = np.repeat(images.raw(data, height, width)["hit"], 3, axis=2)
     written = [save_image(folder / f"{prefix}{name}.png", image) for name, image in shown.items()]
     written += [save_image(folder / f"{prefix}{name}.exr", image)

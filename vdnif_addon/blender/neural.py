@@ -82,6 +82,24 @@ def render_rays(obj, capture, model, pose, origins, directions, references=False
     return result
 
 
+def render_orbit(obj, capture, model, pose, width, height, references=False):
+    """``render_rays`` through the first orbit viewpoint around the posed object, for a
+    scene without a camera (rays in local space: world distances are scaled back)."""
+    with PosedObject(obj, capture) as posed_object:
+        geometry = posed_object.geometry(pose)
+        origins, directions = orbit_view(geometry, orbit_viewpoints(1)[0], width, height)
+        result = _render(model, posed_object, geometry, origins, directions, references)
+    linear = np.array(obj.matrix_world, np.float64)[:3, :3]
+    result.world_scale = 1.0 / np.linalg.norm(directions @ linear.T, axis=1)
+    return result
+
+
+def orbit_view(geometry, direction, width, height):
+    """Local rays of an orbit camera on ``direction`` around a posed geometry's bounds."""
+    return orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0), direction, width,
+                      height)
+
+
 def camera_rays(camera, width, height):
     """World-space rays (origins, directions), (H*W, 3) each, of a perspective Blender
     camera object rendering a ``width`` x ``height`` image (its sensor fit respected)."""
@@ -115,8 +133,7 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
     with PosedObject(obj, capture) as posed_object:
         for index, pose in enumerate(poses):
             geometry = posed_object.geometry(pose)
-            origins, directions = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
-                                             viewpoints[index], width, height)
+            origins, directions = orbit_view(geometry, viewpoints[index], width, height)
             result = _render(model, posed_object, geometry, origins, directions, True)
             results.append(result)
             views.append({"predicted": result.predicted, "true": result.true,
