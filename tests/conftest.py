@@ -15,6 +15,8 @@ EXTENSION_MODULE = "bl_ext.dev.vdnif"
 
 # Must be set before bpy is first imported, so user preferences never touch the real home.
 os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="vdnif-user-")
+# Compiled kernels are cached inside the checkout (ignored by git), not in the user's home.
+os.environ.setdefault("VDNIF_KERNEL_CACHE", str(REPO / ".kernel-cache"))
 
 
 @pytest.fixture(scope="session")

@@ -1,0 +1,95 @@
+"""Warp, initialized once: a per-machine kernel cache, quiet start-up, torch <-> Warp devices.
+
+CPU kernels are compiled for the host CPU (``-march=native``), so a cache copied to another
+machine can crash with an illegal instruction: the cache folder is keyed by the host's CPU
+model and feature flags as well as Warp's version. The extension points the cache root at its
+user folder (``set_cache_root``); batch runs use ``$VDNIF_KERNEL_CACHE`` or the user's cache
+folder. The first compile of a kernel module takes seconds; ``load`` says so on stderr.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import pathlib
+import platform
+import sys
+import threading
+import time
+
+import warp as wp
+
+CACHE_ENV = "VDNIF_KERNEL_CACHE"
+
+_lock = threading.Lock()
+_state = {"ready": False, "root": None}
+_loaded: set = set()
+
+
+def set_cache_root(path: str | os.PathLike) -> None:
+    """Where kernel caches live (before the first kernel is used; later calls are ignored)."""
+    with _lock:
+        if not _state["ready"]:
+            _state["root"] = pathlib.Path(path)
+
+
+def host_key() -> str:
+    """12 hex digits naming this machine's CPU model and features and Warp's version."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
+            wanted = ("model name", "flags", "Features", "CPU implementer", "CPU part")
+            cpu = "\n".join(sorted({line.strip() for line in info if line.startswith(wanted)}))
+    except OSError:
+        pass
+    text = f"{platform.system()}|{platform.machine()}|{cpu}|warp {wp.__version__}"
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def cache_dir() -> pathlib.Path:
+    """The kernel cache folder of this machine."""
+    root = _state["root"] or os.environ.get(CACHE_ENV)
+    if root is None:
+        base = os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache"
+        root = pathlib.Path(base) / "vdnif" / "kernels"
+    return pathlib.Path(root) / f"warp-{wp.__version__}-{host_key()}"
+
+
+def init():
+    """Warp, initialized once with this machine's kernel cache; returns the module."""
+    with _lock:
+        if not _state["ready"]:
+            wp.config.log_level = wp.LOG_WARNING
+            folder = cache_dir()
+            folder.mkdir(parents=True, exist_ok=True)
+            wp.config.kernel_cache_dir = str(folder)
+            wp.init()
+            _state["ready"] = True
+    return wp
+
+
+def device(torch_device) -> str:
+    """The Warp device name of a torch device (or of "cpu" / "cuda" / "cuda:N")."""
+    text = str(torch_device)
+    if text == "cuda":
+        import torch
+
+        text = f"cuda:{torch.cuda.current_device()}"
+    return text
+
+
+def load(module, device_name: str) -> None:
+    """Compiles (first use on this machine) or loads the kernels of ``module`` for a device,
+    saying on stderr when a compile takes a noticeable time."""
+    init()
+    key = (getattr(module, "__name__", str(module)), device_name)
+    if key in _loaded:
+        return
+    start = time.perf_counter()
+    wp.load_module(module, device=device_name)
+    seconds = time.perf_counter() - start
+    if seconds > 0.5:
+        name = key[0].rsplit(".", 1)[-1]
+        print(f"vdnif: compiled the '{name}' kernels for {device_name} in {seconds:.1f} s "
+              f"(cached in {cache_dir()})", file=sys.stderr, flush=True)
+    _loaded.add(key)
