@@ -15,7 +15,8 @@ bpy module:
   proposed variant on that shard (table 2^12, batch 1024, seed 0, no validation split).
 - ``arm-train.vdnif``: the weights after those 50 steps.
 - ``arm-render.npz`` and ``arm-render-model.vdnif``: a model trained 300 steps (batch 2048)
-  and the passes the renderer predicted with it for the first evaluation pose, 32x24 rays.
+  and the passes the renderer predicted with it for the first evaluation pose (its deformed
+  voxel corners and its 32x24 orbit rays are stored beside them).
 - ``arm-references.json``: ``references`` metrics on 2 evaluation poses at 32x24.
 """
 
@@ -89,11 +90,13 @@ def render_golden(obj, folder):
     model = load_scene_model(model_path, evaluated, "cpu")
     with PosedObject(obj, evaluated) as posed_object:
         geometry = posed_object.geometry(evaluated.poses[0])
+        with posed(evaluated.poses[0]):
+            corners = posed_object.deformer.deformed()
         origins, directions = orbit_view(geometry, orbit_viewpoints(2)[0], 32, 24)
         passes, _ = neural_passes(model.network, model.grid, model.albedo_table,
                                   geometry.cells, geometry.entry_caster, origins, directions,
                                   "cpu")
-        np.savez_compressed(HERE / "arm-render.npz",
+        np.savez_compressed(HERE / "arm-render.npz", corners=corners,
                             origins=origins, directions=directions, hit=passes.hit,
                             distance=passes.distance, normal=passes.normal,
                             albedo=passes.albedo, material=passes.material)
