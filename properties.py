@@ -11,10 +11,15 @@ from bpy.props import (EnumProperty, FloatProperty, IntProperty, PointerProperty
 from . import preferences
 from .vdnif_addon.blender import ui_support
 
-VARIANTS = [("proposed", "Proposed", "VDNIF: positional bands, log1p distance, "
-                                     "uncertainty weighting, trained on many poses"),
-            ("deformed", "Deformed", "The LSNIF model trained on many poses"),
-            ("lsnif", "LSNIF", "The static baseline: hash grid only, trained on the rest pose")]
+# Numbered: a .blend stores an enum by number, and "auto" came after the other three.
+VARIANTS = [("auto", "Automatic", "LSNIF where no armature or lattice deforms the object "
+                                  "(a static scene), else Proposed; each with its own PE "
+                                  "bands", 3),
+            ("proposed", "Proposed", "VDNIF: positional bands, log1p distance, "
+                                     "uncertainty weighting, trained on many poses", 0),
+            ("deformed", "Deformed", "The LSNIF model trained on many poses", 1),
+            ("lsnif", "LSNIF", "The static baseline: hash grid only, trained on the rest "
+                               "pose", 2)]
 NETWORK_FIELDS = ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
                   "width", "depth")
 TRAIN_FIELDS = ("steps", "batch_size")
@@ -22,7 +27,7 @@ TRAIN_FIELDS = ("steps", "batch_size")
 
 def _variant_changed(settings, _context):
     """A variant brings its own positional bands (none for the hash-grid-only baselines)."""
-    if preferences.torch_available():
+    if preferences.torch_available() and settings.variant != "auto":
         from .vdnif_addon.variants import VARIANTS as DEFINITIONS
 
         settings.pe_bands = DEFINITIONS[settings.variant]["pe_bands"]
@@ -41,7 +46,7 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                                          "for bones without rotation limits")
     rays_per_pose: IntProperty(name="Rays per Pose", default=4096, min=1, max=2**24,
                                soft_max=65536)
-    variant: EnumProperty(name="Variant", items=VARIANTS, default="proposed",
+    variant: EnumProperty(name="Variant", items=VARIANTS, default="auto",
                           update=_variant_changed)
     levels: IntProperty(name="Levels", default=2, min=1, max=64, soft_max=16)
     base_resolution: IntProperty(name="Base Resolution", default=64, min=1, max=2**16)
@@ -90,9 +95,21 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         return preferences.device(context) if self.device == "PREFERENCES" else self.device
 
     def overrides(self, context):
-        """The NetworkConfig / TrainConfig fields these settings choose."""
-        fields = {name: getattr(self, name) for name in NETWORK_FIELDS + TRAIN_FIELDS}
+        """The NetworkConfig / TrainConfig fields these settings choose (the automatic
+        variant keeps its own PE bands)."""
+        fields = {name: getattr(self, name) for name in NETWORK_FIELDS + TRAIN_FIELDS
+                  if not (name == "pe_bands" and self.variant == "auto")}
         return dict(fields, seed=self.seed, device=self.device_name(context))
+
+    def chosen_variant(self):
+        """(variant, note) to generate data for and train: the chosen one, or for
+        Automatic the static variant where no armature or lattice deforms the object
+        (``variants.choose_variant``; the note says what was decided, or None)."""
+        from .vdnif_addon.blender.read_mesh import deform_modifiers
+        from .vdnif_addon.variants import choose_variant
+
+        return choose_variant(None if self.variant == "auto" else self.variant,
+                              not deform_modifiers(self.id_data))
 
     def adopt(self, metadata):
         """Takes the variant, resolution and network settings of a loaded model."""

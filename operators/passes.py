@@ -11,10 +11,12 @@ from .common import VDNIFOperator, progress
 
 
 def model_capture(obj, evaluation_count=None):
-    """The object captured at its model's resolution, with the unseen evaluation poses
-    when ``evaluation_count`` is given."""
+    """The object captured at its model's resolution, with ``evaluation_count`` evaluation
+    poses when given: from the object's pose settings, disjoint from the poses its model
+    was trained on."""
     from ..vdnif_addon.blender.capture import capture
     from ..vdnif_addon.blender.jobs import evaluation_poses
+    from ..vdnif_addon.model_file import load_model
 
     settings = obj.vdnif
     resolution = settings.parsed("model_info").get("resolution")
@@ -22,7 +24,9 @@ def model_capture(obj, evaluation_count=None):
         raise VDNIFError(f"'{obj.name}' has a model without its description: load it again")
     if evaluation_count is None:
         return capture(obj, resolution, settings.pose_spec(count=1), deform_corners=False)
-    return evaluation_poses(obj, resolution, settings.pose_spec(evaluation_count))
+    trained = load_model(storage.model_path(obj))[1]["extra"].get("train_poses", [])
+    return evaluation_poses(obj, resolution, settings.pose_spec(), count=evaluation_count,
+                            trained=trained)
 
 
 def region_3d(context):
@@ -63,7 +67,9 @@ class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
         model = load_scene_model(storage.model_path(obj), captured, settings.device_name(context))
         pose = {"frame": scene.frame_current + scene.frame_subframe}
         result = render_rays(obj, captured, model, pose, origins, directions, references=True)
-        ui_support.set_view(result.true, result.predicted, width, height, result.object_size)
+        slots = captured.mesh.material_slots          # the material pass shows the slots
+        ui_support.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
+                            width, height, result.object_size)
         image = ui_support.show(context, scene.vdnif_viewer)
         where = ("" if ui_support.image_editor(context.screen) is not None
                  else " (open an Image Editor to see it)")
@@ -93,12 +99,18 @@ class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
 
 
 def metrics_line(metrics):
-    """Distance MAE, normal error and hit IoU in one line."""
+    """Distance MAE (object units and voxels), normal error, hit IoU and the false-negative
+    and false-positive rates in one line."""
+    from ..vdnif_addon.report import percent
+
     def number(value, digits=3):
         return "n/a" if value is None else f"{value:.{digits}g}"
 
-    return (f"distance MAE {number(metrics['distance_mae'])} object units, normal error "
-            f"{number(metrics['normal_error_deg'])} deg, hit IoU {number(metrics['hit_iou'])}")
+    return (f"distance MAE {number(metrics['distance_mae'])} object units "
+            f"({number(metrics.get('distance_mae_voxels'))} voxels), normal error "
+            f"{number(metrics['normal_error_deg'])} deg, hit IoU {number(metrics['hit_iou'])}, "
+            f"false negatives {percent(metrics.get('false_negative_rate'))}, false positives "
+            f"{percent(metrics.get('false_positive_rate'))}")
 
 
 classes = (VDNIF_OT_render_passes, VDNIF_OT_evaluate)

@@ -40,17 +40,18 @@ class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
         from ..vdnif_addon.blender.jobs import variant_dataset
 
         settings = obj.vdnif
+        variant, _ = settings.chosen_variant()
         captured = capture(obj, settings.resolution, settings.pose_spec(),
                            deform_corners=False)
         folder = storage.dataset_folder(obj)
         storage.clear_dataset(folder)
         with progress(context, len(captured.poses)) as update:
-            header = variant_dataset(obj, captured, settings.variant, folder,
+            header = variant_dataset(obj, captured, variant, folder,
                                      settings.rays_per_pose, settings.seed, progress=update)
         settings.dataset_dir = storage.portable(folder)
         counts = header["counts"]
         settings.dataset_info = json.dumps({
-            "variant": settings.variant, "resolution": settings.resolution,
+            "variant": variant, "resolution": settings.resolution,
             "poses": len(header["poses"]), "rays": counts["rays"],
             "segments": counts["segments"], "hits": counts["hits"]})
         return (f"'{obj.name}': {counts['segments']} segments of {counts['rays']} rays "

@@ -78,17 +78,19 @@ class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
         from ..vdnif_addon.variants import variant_config
 
         settings = obj.vdnif
-        made_for = settings.parsed("dataset_info").get("variant", settings.variant)
-        deformed = variant_config(settings.variant).deformed_data
+        variant, _ = settings.chosen_variant()
+        made_for = settings.parsed("dataset_info").get("variant", variant)
+        deformed = variant_config(variant).deformed_data
         if variant_config(made_for).deformed_data != deformed:
             raise VDNIFError(f"the dataset of '{obj.name}' was generated for the {made_for} "
-                             f"variant, which trains on other poses than {settings.variant}: "
+                             f"variant, which trains on other poses than {variant}: "
                              "generate it again")
-        return TrainingJob(storage.dataset_folder(obj), settings.variant,
+        return TrainingJob(storage.dataset_folder(obj), variant,
                            storage.training_target(obj), settings.overrides(context))
 
     def _keep(self, obj, state):
-        """Keeps the model the job wrote with the object; the message of the outcome."""
+        """Keeps the model the job wrote with the object; the message of the outcome (with
+        the note on the variant choice, if any)."""
         if state.status == "failed":
             raise VDNIFError(state.message)
         if state.model is not None:
@@ -97,7 +99,9 @@ class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
             _, metadata = load_model(state.model)
             storage.keep_model(obj, state.model, storage.model_summary(metadata, state.model))
             obj.vdnif.metrics = ""
-        return f"'{obj.name}': {state.message}"
+        variant, note = obj.vdnif.chosen_variant()
+        return f"'{obj.name}': {state.message}, variant {variant}" + (
+            f" ({note})" if note else "")
 
     def _stop(self, context):
         JOBS.pop(self._name, None)

@@ -119,7 +119,10 @@ class VDNIF_PT_network(StepPanel, bpy.types.Panel):
         layout.prop(settings, "variant")
         layout.label(text="Encoding")
         properties(layout, settings, ("levels", "base_resolution", "log2_table_size",
-                                      "feature_dim", "pe_bands"))
+                                      "feature_dim"))
+        bands = layout.row()
+        bands.enabled = settings.variant != "auto"     # Automatic: the variant's own bands
+        bands.prop(settings, "pe_bands")
         layout.label(text="MLP and Training")
         properties(layout, settings, ("width", "depth", "steps", "batch_size"))
         layout.prop(settings, "device")
@@ -203,9 +206,11 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
             box = layout.box()
             box.label(text=title)
             lines(box, metrics_line(report[name]))
-        timings = report.get("timings", {})
-        if "render_rays_per_s" in timings:
-            layout.label(text=f"{timings['render_rays_per_s']:,.0f} rays/s")
+        speed = report.get("timings", {}).get("render_rays_per_s")
+        if speed is not None:
+            layout.label(text=f"{speed:,.0f} rays/s")
+        elif report.get("speed_withheld"):
+            lines(layout, f"Speed n/a: {report['speed_withheld']}", "INFO")
 
 
 classes = (VDNIF_PT_main, VDNIF_PT_voxels, VDNIF_PT_network, VDNIF_PT_dataset,

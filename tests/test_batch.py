@@ -7,6 +7,7 @@ import sys
 import pytest
 
 from conftest import REPO
+from vdnif_addon.metrics import SPEED_MIN_HIT_IOU, speed_withheld
 
 BATCH = REPO / "vdnif_addon" / "batch.py"
 
@@ -142,11 +143,22 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
         metrics = report[reference]
         assert 0.2 < metrics["hit_iou"] <= 1, metrics
         assert 0 < metrics["distance_mae"] < 0.5 and 0 < metrics["normal_error_deg"] < 90
-        assert 0 < metrics["albedo_psnr"] <= 100          # one constant albedo: exact
+        # h = longest rest side / R (DESIGN section 2): R voxels to one object unit
+        assert metrics["distance_mae_voxels"] == pytest.approx(
+            metrics["distance_mae"] * report["resolution"])
+        assert 0 <= metrics["false_negative_rate"] <= 1 and metrics["false_positive_rate"] >= 0
+        assert "albedo_psnr" not in metrics                # one constant albedo: nothing
         assert "material_accuracy" not in metrics          # one material: no metric
     timings = report["timings"]
-    for key in ("train_s", "train_samples_per_s", "render_rays_per_s", "prepare_pose_s"):
+    for key in ("train_s", "train_samples_per_s", "prepare_pose_s"):
         assert timings[key] > 0, key
+    iou = report["vs_true"]["hit_iou"]
+    if iou >= SPEED_MIN_HIT_IOU:
+        assert timings["render_rays_per_s"] > 0 and report["speed_withheld"] is None
+    else:                                                   # no speed from a model that misses
+        assert timings["render_rays_per_s"] is None
+        assert report["speed_withheld"] == speed_withheld(iou)
+        assert f"n/a ({speed_withheld(iou)})" in (out / "report.md").read_text()
     assert report["model_bytes"] == (out / "arm-proposed.vdnif").stat().st_size
     assert len(report["per_pose"]) == report["poses"] == 2
     assert "![reference, predicted, error per pass](figure-vs-true.png)" in (

@@ -6,8 +6,10 @@ import json
 
 import pytest
 
+from conftest import REPO
 from test_batch import run_batch
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.metrics import speed_withheld
 from vdnif_addon.presets import (PRESETS_FILE, SETTINGS, derive_presets, load_presets,
                                   pareto_front)
 
@@ -21,8 +23,9 @@ def test_pareto_front_keeps_only_undominated_points():
 
 
 def point(error, speed, resolution):
+    """A sweep point of a model that predicts hits (see test_metrics for one that does not)."""
     return dict(dict.fromkeys(SETTINGS, 1), resolution=resolution, error=error,
-                render_rays_per_s=speed)
+                render_rays_per_s=speed, vs_true_hit_iou=0.95)
 
 
 def test_presets_are_the_fastest_the_knee_and_the_most_accurate_of_the_front():
@@ -48,6 +51,15 @@ def test_shipped_presets_come_from_a_full_sweep():
     assert errors == sorted(errors, reverse=True)
 
 
+def test_shipped_presets_are_the_front_of_the_points_that_predict_hits():
+    """The shipped presets follow from the shipped sweep by the rule that only models that
+    predict hits (hit IoU >= 0.9 against the true reference) have a speed."""
+    shipped = json.loads(PRESETS_FILE.read_text())
+    rows = json.loads((REPO / "docs" / "bench" / "bench.json").read_text())
+    assert any(speed_withheld(row["vs_true_hit_iou"]) for row in rows), "a point is left out"
+    assert derive_presets(rows, shipped["error"]) == shipped["presets"]
+
+
 def test_bad_presets_files_are_refused(tmp_path):
     broken = tmp_path / "presets.json"
     broken.write_text(json.dumps({"presets": {"fast": {}}}))
@@ -63,11 +75,63 @@ def test_bench_quick_writes_every_output(tmp_path):
                                    "--performance", performance, timeout=600)
     assert code == 0, err
     rows = list(csv.DictReader(open(out / "bench.csv")))
-    assert len(rows) == 6 == len(json.loads((out / "bench.json").read_text()))
+    records = json.loads((out / "bench.json").read_text())
+    assert len(rows) == 6 == len(records)
     assert {row["resolution"] for row in rows} == {"12", "16"}
     assert sum(row["vs_true_distance_mae"] != "" for row in rows) >= 2    # hits to compare
     assert (out / "pareto.png").stat().st_size > 10_000
-    assert set(load_presets(presets)) == {"fast", "balanced", "accurate"}
     text = performance.read_text()
     assert text.startswith("# Performance") and "## Speed/accuracy sweep" in text
     assert "![Pareto fronts](bench/pareto.png)" in text
+    # a speed, a common-set error and a preset only from points that predict hits
+    for record in records:
+        withheld = speed_withheld(record["vs_true_hit_iou"])
+        assert record["speed_withheld"] == withheld
+        assert (record["render_rays_per_s"] is None) == (withheld is not None)
+        assert (record["common_vs_true_distance_mae"] is None) == (withheld is not None)
+    compared = [r for r in records if r["speed_withheld"] is None]
+    if compared:
+        assert len({r["common_vs_true_compared_rays"] for r in compared}) == 1
+        assert set(load_presets(presets)) == {"fast", "balanced", "accurate"}
+    else:         # the quick size's small networks (hit IoU 0.0-0.7 here) predict no hits
+        assert not presets.exists() and "presets n/a (no sweep point predicts hits" in printed
+        assert "Presets: n/a, no sweep point predicts hits" in text
+
+
+def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
+    """Three sweep points on the same rays: two predict hits (one predicts fewer), one does
+    not. The two are compared over the pixels both hit; the third has no speed, no
+    common-set error and no say in the presets."""
+    from test_metrics import image, one_material_mesh
+    from vdnif_addon.blender import bench
+    from vdnif_addon.evaluation import compare_both, speed_figures
+
+    mesh = one_material_mesh()
+    reference = image(["##########"] * 2)
+    few = image(["#########."] * 2, distance=1.1)         # IoU 0.9, off by 0.1
+    many = image(["##########"] * 2, distance=1.05)       # IoU 1, off by 0.05 ...
+    many.distance[[9, 19]] += 0.3                         # ... and 0.35 where "few" misses
+    none = image(["#........."] * 2)                      # IoU 0.1
+    rows, runs = [], []
+    for number, (predicted, speed) in enumerate(((few, 3000.0), (many, 1000.0),
+                                                 (none, 9000.0))):
+        metrics = compare_both(predicted, reference, reference, mesh, 0.1)
+        timings, withheld = speed_figures({"render_rays_per_s": speed}, metrics["vs_true"])
+        report = dict(metrics, timings=dict(timings, train_s=10.0 * (number + 1)),
+                      speed_withheld=withheld, model_bytes=1000)
+        rows.append(bench._row(dict(bench.SIZES["quick"]["base"], width=32 * (number + 1)),
+                               report))
+        runs.append(({"predicted": predicted, "true": reference, "embedded": reference}, 0.1))
+    bench._add_common(rows, runs, mesh)
+    assert [r["render_rays_per_s"] for r in rows] == [3000.0, 1000.0, None]
+    assert [r["common_vs_true_compared_rays"] for r in rows] == [18, 18, None]
+    assert rows[1]["vs_true_distance_mae"] == pytest.approx(0.08)      # its own pixels
+    assert [r[bench.ERROR] for r in rows[:2]] == pytest.approx([0.1, 0.05])
+    assert rows[2][bench.ERROR] is None
+    presets = derive_presets(rows, bench.ERROR)
+    assert presets["fast"]["width"] == 32 and presets["accurate"]["width"] == 64
+    bench.write_outputs(tmp_path, rows)
+    assert (tmp_path / "pareto.png").stat().st_size > 10_000
+    text = "\n".join(bench.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
+                                          tmp_path, None))
+    assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text

@@ -167,7 +167,8 @@ def test_rest_mesh_attributes(empty_scene, core):
     assert mesh.uvs.shape == (len(mesh.triangles), 3, 2)
     assert sorted(np.unique(mesh.material_index)) == [0, 1]
     assert mesh.heads() == {"occlusion": True, "distance": True, "normal": True,
-                            "albedo": False, "material": True, "material_count": 2}
+                            "albedo": False, "material": True, "material_count": 2,
+                            "material_slots": [0, 1]}
     np.testing.assert_allclose(mesh.albedo_table(), [[1, 0, 0], [0, 0, 1]])
 
 

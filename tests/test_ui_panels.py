@@ -161,7 +161,8 @@ def test_trained_and_evaluated(arm, extension):
                                       "status": "completed", "steps": 40,
                                       "validation": {"distance_mae_voxels": 0.25,
                                                      "normal_error_deg": 9.5}})
-    metrics = {"distance_mae": 0.02, "normal_error_deg": 12.0, "hit_iou": 0.9}
+    metrics = {"distance_mae": 0.02, "distance_mae_voxels": 0.64, "normal_error_deg": 12.0,
+               "hit_iou": 0.9, "false_negative_rate": 0.0046, "false_positive_rate": 0.088}
     settings.metrics = json.dumps({"poses": 2, "unseen_poses": True, "width": 32,
                                    "height": 24, "variant": "proposed", "vs_true": metrics,
                                    "vs_embedded": dict(metrics, distance_mae=None),
@@ -171,9 +172,17 @@ def test_trained_and_evaluated(arm, extension):
     assert "Model: packed in the .blend (0.25 MB)" in everything
     assert "distance error 0.25 voxels, normal error 9.5 deg" in everything
     assert "2 unseen poses, 32x24, proposed" in everything
-    assert "distance MAE 0.02 object units, normal error 12 deg, hit IoU 0.9" in everything
+    assert ("distance MAE 0.02 object units (0.64 voxels), normal error 12 deg, hit IoU 0.9, "
+            "false negatives 0.46 %, false positives 8.8 %") in everything
     assert "distance MAE n/a" in everything and "12,345 rays/s" in everything
     assert "has no trained model" not in everything
+    report = json.loads(settings.metrics)
+    report.update(timings={"render_rays_per_s": None},
+                  speed_withheld="hit IoU 0.500 against the true reference is below 0.9: the "
+                                 "model does not predict hits")
+    settings.metrics = json.dumps(report)
+    everything = texts(draw_all(extension))
+    assert f"Speed n/a: {report['speed_withheld']}" in everything and "rays/s" not in everything
 
 
 def test_error_is_shown_until_the_next_success(arm, extension):

@@ -153,9 +153,15 @@ def test_evaluate_keeps_finite_metrics(session):
     for reference in ("vs_true", "vs_embedded"):
         metrics = report[reference]
         assert metrics["compared_rays"] > 0, reference
-        for key in ("distance_mae", "normal_error_deg", "hit_iou"):
+        for key in ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
+                    "false_negative_rate", "false_positive_rate"):
             assert math.isfinite(metrics[key]), (reference, key)
-    assert report["timings"]["render_rays_per_s"] > 0
+    # the eager model hits in the first cell of every ray: extras, no speed figure
+    iou = report["vs_true"]["hit_iou"]
+    assert iou < 0.9 and report["vs_true"]["false_positive_rate"] > 0.1
+    assert report["timings"]["render_rays_per_s"] is None
+    assert report["speed_withheld"] == module("vdnif_addon.metrics").speed_withheld(iou)
+    assert report["timings"]["prepare_pose_s"] > 0
 
 
 def test_reopened_blend_restores_settings_model_and_metrics(session, extension):

@@ -187,8 +187,7 @@ def cmd_references(args):
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
           f"{'rest' if args.rest_pose else 'unseen'} poses, {args.width}x{args.height}")
-    print(f"  embedded vs true: distance MAE {error['distance_mae']:.3g} object units, "
-          f"normal error {error['normal_error_deg']:.3g} deg, hit IoU {error['hit_iou']:.4f}")
+    print(f"  embedded vs true: {metrics_text(error)}")
     print(f"  {report['rays_per_s']:,.0f} rays/s, {report['segments_per_s']:,.0f} segments/s")
     return 0
 
@@ -226,6 +225,7 @@ def report_training(record):
 def cmd_train(args):
     """Train a network on a dataset folder (or on a scene, generating its dataset first)
     and write the model file."""
+    from .dataset import read_dataset
     from .fit import fit_model
 
     if _names_scene(args):
@@ -234,13 +234,16 @@ def cmd_train(args):
         if args.data is None:
             raise VDNIFError("give --data DIR (a dataset folder) or scene options "
                              "(--scene, --mesh or --blend)")
-        out = args.out or pathlib.Path(args.data) / f"{args.variant}.vdnif"
-        result, summary = fit_model(args.data, args.variant, out, network_overrides(args),
+        header, _ = read_dataset(args.data)
+        variant = _variant(args, header["object"], header.get("mode") == "static")
+        out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
+        result, summary = fit_model(args.data, variant, out, network_overrides(args),
                                     progress=report_training)
     if not result.is_main:
         return 0
     write_json(args.json, summary)
-    print(f"trained {args.variant} on '{summary['object']}' ({summary['segments']} segments): "
+    print(f"trained {summary['variant']} on '{summary['object']}' ({summary['segments']} "
+          f"segments): "
           f"{result.status} after {result.steps} steps in {result.seconds:.1f} s, "
           f"{result.samples_per_s:,.0f} samples/s")
     if result.validation:
@@ -248,6 +251,17 @@ def cmd_train(args):
             f"{k} {v:.4g}" for k, v in result.validation.items()))
     print(f"  model {summary['model']} ({summary['model_bytes']:,} bytes)")
     return 0
+
+
+def _variant(args, name, static):
+    """The variant to train on object ``name``: --variant, or the scene's own (static or
+    deforming, ``variants.choose_variant``); what was decided is said on stderr."""
+    from .variants import choose_variant
+
+    variant, note = choose_variant(args.variant, static)
+    if note is not None:
+        print(f"train: '{name}': {note}", file=sys.stderr)
+    return variant
 
 
 def _names_scene(args):
@@ -267,24 +281,30 @@ def _train_on_scene(args):
                          "folder with scene options, or train on it with --data alone")
     obj, spec = load_posed_scene(args)
     captured = capture(obj, args.resolution, spec, deform_corners=False)
-    out = args.out or pathlib.Path("out") / f"{obj.name.lower()}-{args.variant}.vdnif"
+    variant = _variant(args, obj.name, captured.mode == "static")
+    out = args.out or pathlib.Path("out") / f"{obj.name.lower()}-{variant}.vdnif"
     pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
         folder = args.data or pathlib.Path(scratch)
         print(f"dataset '{obj.name}': {len(captured.poses)} poses, {args.rays_per_pose} "
               f"rays per pose -> {args.data or 'a temporary folder'}", file=sys.stderr)
-        return train_variant(obj, captured, args.variant, folder, args.rays_per_pose, out,
+        return train_variant(obj, captured, variant, folder, args.rays_per_pose, out,
                              network_overrides(args), args.seed, progress=report_training)
 
 
 def _model_resolution(args):
     """--resolution, or the model's own when not given (they must agree anyway)."""
-    from .model_file import load_model
-
     if args.resolution is not None:
         check_resolution(args.resolution)
         return args.resolution
-    return int(load_model(args.model)[1]["extra"]["grid"]["resolution"])
+    return int(_model_extra(args)["grid"]["resolution"])
+
+
+def _model_extra(args):
+    """The metadata ``extra`` of the --model file (grid, heads, training poses, ...)."""
+    from .model_file import load_model
+
+    return load_model(args.model)[1]["extra"]
 
 
 def cmd_render(args):
@@ -313,12 +333,13 @@ def cmd_render(args):
         view = "an orbit viewpoint (the scene has no camera)"
         result = render_orbit(obj, captured, model, pose, args.width, args.height,
                               references=args.references)
+    slots = captured.mesh.material_slots
     written = write_passes(args.out, result.predicted, args.height, args.width,
-                           result.world_scale)
+                           result.world_scale, slots=slots)
     if args.references:
         for name in ("true", "embedded"):
             written += write_passes(args.out, getattr(result, name), args.height, args.width,
-                                    result.world_scale, prefix=f"{name}-")
+                                    result.world_scale, prefix=f"{name}-", slots=slots)
     summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
                "width": args.width, "height": args.height,
                "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
@@ -337,8 +358,9 @@ def cmd_evaluate(args):
     from .progress import Progress
 
     resolution = _model_resolution(args)
+    trained = _model_extra(args).get("train_poses", [])
     obj, spec = load_posed_scene(args)
-    captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose)
+    captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose, trained=trained)
     progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
                                   args.device, lambda done, _: progress.update(done))
@@ -351,19 +373,32 @@ def cmd_evaluate(args):
 
 
 def print_evaluation(report):
+    from .report import speed_line
+
     print(f"evaluated {report['variant']} on '{report['object']}' R={report['resolution']}, "
           f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
           f"{report['width']}x{report['height']}")
     for name in ("vs_true", "vs_embedded"):
-        m = report[name]
-        extra = "".join(f", {key} {m[key]:.4g}" for key in ("albedo_psnr", "material_accuracy")
-                        if key in m)
-        print(f"  {name.replace('_', ' ')}: distance MAE {_number(m['distance_mae'])} object "
-              f"units, normal error {_number(m['normal_error_deg'])} deg, hit IoU "
-              f"{m['hit_iou']:.4f}{extra}")
+        print(f"  {name.replace('_', ' ')}: {metrics_text(report[name])}")
     t = report["timings"]
-    print(f"  render {t['render_rays_per_s']:,.0f} rays/s, pose preparation "
-          f"{t['prepare_pose_s'] * 1e3:.1f} ms, model {report['model_bytes']:,} bytes")
+    print(f"  pose preparation {t['prepare_pose_s'] * 1e3:.1f} ms, model "
+          f"{report['model_bytes']:,} bytes, render {speed_line(report)}")
+
+
+def metrics_text(m):
+    """One line of compare's metrics: distance error in object units and voxels, normal
+    error, the hit-mask metrics and the scene's optional metrics (n/a where the scene has
+    nothing to predict: one material without texture)."""
+    from .report import percent
+
+    voxels = m.get("distance_mae_voxels")
+    extra = "".join(f", {name} {_number(m.get(key))}" for key, name in (
+        ("albedo_psnr", "albedo PSNR"), ("material_accuracy", "material accuracy")))
+    return (f"distance MAE {_number(m['distance_mae'])} object units"
+            + ("" if voxels is None else f" ({_number(voxels)} voxels)")
+            + f", normal error {_number(m['normal_error_deg'])} deg, hit IoU "
+            f"{_number(m['hit_iou'])}, false negatives {percent(m.get('false_negative_rate'))}"
+            f", false positives {percent(m.get('false_positive_rate'))}{extra}")
 
 
 def _number(value):
@@ -392,17 +427,20 @@ def cmd_experiment(args):
     records = run_experiment(args.name, args.results, quick=args.quick, device=args.device,
                              progress=report_training)
     for label, report in records.items():
-        print(f"{label}: vs true distance MAE {_number(report['vs_true']['distance_mae'])}, "
-              f"normal error {_number(report['vs_true']['normal_error_deg'])} deg; "
-              f"vs embedded {_number(report['vs_embedded']['distance_mae'])}, "
-              f"{_number(report['vs_embedded']['normal_error_deg'])} deg")
+        m = report.get("common", report)     # the table's figures: the common pixel set
+        print(f"{label}: vs true distance MAE {_number(m['vs_true']['distance_mae'])} "
+              f"({_number(m['vs_true'].get('distance_mae_voxels'))} voxels), normal error "
+              f"{_number(m['vs_true']['normal_error_deg'])} deg, hit IoU "
+              f"{_number(m['vs_true']['hit_iou'])}; vs embedded "
+              f"{_number(m['vs_embedded']['distance_mae'])}, "
+              f"{_number(m['vs_embedded']['normal_error_deg'])} deg")
     print(f"  written to {args.results}")
     return 0
 
 
 def cmd_bench(args):
     """Sweep resolution, hash grid, PE bands, width and steps; derive the presets."""
-    from .blender.bench import run_bench
+    from .blender.bench import NO_PRESETS, run_bench
     from .presets import PRESETS_FILE
 
     quick_dir = pathlib.Path("out/bench-quick")
@@ -410,10 +448,12 @@ def cmd_bench(args):
     presets = args.presets or (quick_dir / "presets.json" if args.quick else PRESETS_FILE)
     performance = args.performance or (None if args.quick else pathlib.Path(
         "docs/performance.md"))
-    rows = run_bench(out, presets, performance, quick=args.quick, device=args.device,
-                     progress=report_training)
+    rows, derived = run_bench(out, presets, performance, quick=args.quick,
+                              device=args.device, progress=report_training)
     print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
-          f"-> {presets}" + (f"; section of {performance}" if performance else ""))
+          + (f"-> {presets}" if derived is not None else f"n/a ({NO_PRESETS}; {presets} "
+             "left as it was)")
+          + (f"; section of {performance}" if performance else ""))
     return 0
 
 
@@ -527,8 +567,9 @@ def build_parser():
     add_stress_options(training)
     training.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
                           help="with scene options: training rays per pose (default 4096)")
-    training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"),
-                          default="proposed")
+    training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"), help=(
+        "default: lsnif for a scene that no armature or lattice deforms (static), else "
+        "proposed"))
     training.add_argument("--out", type=pathlib.Path, metavar="MODEL", help=(
         "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
     add_training_options(training)

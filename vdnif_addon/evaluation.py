@@ -5,7 +5,12 @@ import numpy as np
 
 from .errors import VDNIFError
 from .images import PASSES, comparison_figure, display, error_images
-from .metrics import Passes, compare
+from .metrics import Passes, common_pixels, compare, speed_withheld
+
+REFERENCES = ("true", "embedded")
+# What the neural render's timings say of the model's speed: no figure unless it predicts
+# hits (metrics.speed_withheld).
+RENDER_SPEEDS = ("render_rays_per_s", "render_segments_per_s", "network_fraction")
 
 
 def check_model_fits(path, extra, mesh, grid):
@@ -27,29 +32,73 @@ def check_model_fits(path, extra, mesh, grid):
     if not same_grid:
         raise VDNIFError(f"model '{path}' was trained on {trained_on}, but the mesh of "
                          f"'{mesh.name}' has changed since (now {here}): train it again")
-    materials = (extra.get("heads") or {}).get("material_count")
+    heads = extra.get("heads") or {}
+    materials = heads.get("material_count")
     if materials != mesh.material_count:
         raise VDNIFError(f"model '{path}' knows {materials} materials, '{mesh.name}' has "
                          f"{mesh.material_count}: train it again")
+    # Models written before the used-slot table had a head over every slot.
+    slots = list(heads.get("material_slots", range(materials)))
+    if slots != mesh.material_slots.tolist():
+        raise VDNIFError(f"model '{path}' knows the materials of slots {slots}, "
+                         f"'{mesh.name}' uses slots {mesh.material_slots.tolist()}: "
+                         "train it again")
 
 
 def metric_heads(mesh):
-    """Which optional metrics a scene has: albedo PSNR always, material accuracy with
-    several materials."""
-    return {"albedo_psnr": True, "material": mesh.material_count > 1}
+    """Which optional metrics a scene has (DESIGN section 10): albedo PSNR unless one
+    material of constant albedo makes it exact by construction (nothing is predicted),
+    material accuracy with several materials."""
+    several = mesh.material_count > 1
+    return {"albedo_psnr": several or mesh.albedo_varies, "material": several}
 
 
-def compare_both(predicted, true, embedded, mesh):
-    """{"vs_true": ..., "vs_embedded": ...}: ``compare`` against each reference."""
+def compare_both(predicted, true, embedded, mesh, voxel_size=None, pixels=None):
+    """{"vs_true": ..., "vs_embedded": ...}: ``compare`` against each reference, distance
+    errors also in voxels of ``voxel_size``; continuous metrics over ``pixels``
+    ({"vs_true": (R,) bool, "vs_embedded": ...}, the common pixel sets) when given."""
     heads = metric_heads(mesh)
-    return {"vs_true": compare(predicted, true, mesh.size, heads),
-            "vs_embedded": compare(predicted, embedded, mesh.size, heads)}
+    pixels = pixels or {}
+    return {f"vs_{name}": compare(predicted, reference, mesh.size, heads, voxel_size,
+                                  pixels.get(f"vs_{name}"))
+            for name, reference in zip(REFERENCES, (true, embedded))}
+
+
+def compare_common(runs, mesh, voxel_sizes):
+    """Compared models on one common pixel set per reference (DESIGN section 10).
+
+    ``runs``: per model its joined {"predicted", "true", "embedded"} Passes over the same
+    rays (``concatenated``); ``voxel_sizes``: per model the voxel size of its grid. Returns
+    per model ``compare_both`` whose distance, normal, albedo and material figures are
+    taken over the rays where every model and its reference hit; hit IoU and the rates
+    still count every ray.
+    """
+    truths = [run["true"] for run in runs]
+    if any(len(t.hit) != len(truths[0].hit) or not np.array_equal(t.hit, truths[0].hit)
+           for t in truths):
+        raise VDNIFError("compared models were evaluated on different rays or poses: "
+                         "their errors cannot share a pixel set")
+    pixels = {f"vs_{name}": common_pixels((run["predicted"], run[name]) for run in runs)
+              for name in REFERENCES}
+    return [compare_both(run["predicted"], run["true"], run["embedded"], mesh, h, pixels)
+            for run, h in zip(runs, voxel_sizes)]
+
+
+def speed_figures(timings, vs_true):
+    """(timings, reason): the neural render's speed figures of ``timings`` kept only for a
+    model that predicts hits (metrics.speed_withheld on its hit IoU ``vs_true``), else
+    None with the reason why (None when they are kept)."""
+    reason = speed_withheld(vs_true["hit_iou"])
+    if reason is None:
+        return dict(timings), None
+    return {key: (None if key in RENDER_SPEEDS else value)
+            for key, value in timings.items()}, reason
 
 
 def concatenated(views):
     """Passes of every view joined: {"predicted", "true", "embedded"} -> Passes."""
     return {name: Passes.concatenate([view[name] for view in views])
-            for name in ("predicted", "true", "embedded")}
+            for name in ("predicted", *REFERENCES)}
 
 
 def distance_range(*passes):

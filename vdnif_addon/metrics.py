@@ -6,6 +6,10 @@ import numpy as np
 
 
 PSNR_FLOOR_MSE = 1e-10     # identical albedo reports 100 dB instead of infinity (valid JSON)
+# A model whose hit mask overlaps the true reference's by less than this (hit IoU) does not
+# predict hits: its rays stop in other cells than a working model's, so its rays/s measure
+# another workload and are no speed figure (DESIGN section 10).
+SPEED_MIN_HIT_IOU = 0.9
 
 
 @dataclass
@@ -16,7 +20,7 @@ class Passes:
     distance: np.ndarray     # (R,) float64 along the deformed ray, object-local units
     normal: np.ndarray       # (R, 3) float64 unit, deformed space
     albedo: np.ndarray       # (R, 3) float32
-    material: np.ndarray     # (R,) int32
+    material: np.ndarray     # (R,) int32: index into the mesh's used materials
 
     @classmethod
     def empty(cls, rays):
@@ -29,31 +33,92 @@ class Passes:
         return cls(*(np.concatenate([getattr(p, name) for p in passes])
                      for name in ("hit", "distance", "normal", "albedo", "material")))
 
+    def with_slots(self, slots):
+        """A copy whose material pass holds the Blender material slot the user knows:
+        ``slots`` (K,) maps the used-material index to its slot (RestMesh.material_slots);
+        0 where nothing is hit."""
+        slots = np.asarray(slots, np.int32)
+        material = np.where(self.hit, slots[np.clip(self.material, 0, len(slots) - 1)], 0)
+        return Passes(hit=self.hit, distance=self.distance, normal=self.normal,
+                      albedo=self.albedo, material=material.astype(np.int32))
 
-def compare(predicted, reference, object_size, heads=None):
-    """Errors of ``predicted`` against ``reference`` over rays where both hit.
 
-    ``distance_mae`` is in object units (divided by ``object_size``, the rest mesh's longest
-    side), ``normal_error_deg`` is the mean angle, ``hit_iou`` compares the hit masks;
-    ``albedo_psnr`` and ``material_accuracy`` are added where ``heads`` asks for them.
+def _share(count, total):
+    return float(count / total) if total else None
+
+
+def compare(predicted, reference, object_size, heads=None, voxel_size=None, pixels=None):
+    """Errors of ``predicted`` against ``reference``.
+
+    Hit-mask metrics count every ray: ``hit_iou`` (None when neither hits anything),
+    ``false_negative_rate`` (reference hits the prediction misses) and
+    ``false_positive_rate`` (prediction hits the reference misses), both over the
+    reference's hits (None without any). The other metrics are taken over the rays where
+    both hit, restricted to ``pixels`` (R,) bool when given (the common pixel set of
+    compared models, see ``common_pixels``): ``distance_mae`` in object units (divided by
+    ``object_size``, the rest mesh's longest side), ``distance_mae_voxels`` (divided by
+    ``voxel_size``; only when it is given), ``normal_error_deg`` the mean angle; ``albedo_psnr`` and
+    ``material_accuracy`` where ``heads`` asks for them. ``compared_rays`` counts the rays
+    they are taken over.
     """
-    both = predicted.hit & reference.hit
+    reference_hits = int(reference.hit.sum())
     union = predicted.hit | reference.hit
-    result = {"hit_iou": float(both.sum() / union.sum()) if union.any() else 1.0,
-              "compared_rays": int(both.sum())}
+    both = predicted.hit & reference.hit
+    result = {
+        "hit_iou": _share(both.sum(), union.sum()),
+        "false_negative_rate": _share((reference.hit & ~predicted.hit).sum(), reference_hits),
+        "false_positive_rate": _share((predicted.hit & ~reference.hit).sum(), reference_hits),
+    }
+    if pixels is not None:
+        both = both & pixels
+    result["compared_rays"] = int(both.sum())
+    heads = heads or {}
+    albedo = bool(heads.get("albedo") or heads.get("albedo_psnr"))
+    material = bool(heads.get("material"))
     if not both.any():
         result.update(distance_mae=None, normal_error_deg=None)
+        result.update({} if voxel_size is None else {"distance_mae_voxels": None})
+        result.update({"albedo_psnr": None} if albedo else {})
+        result.update({"material_accuracy": None} if material else {})
         return result
-    error = np.abs(predicted.distance[both] - reference.distance[both])
-    result["distance_mae"] = float(error.mean() / object_size)
+    error = np.abs(predicted.distance[both] - reference.distance[both]).mean()
+    result["distance_mae"] = float(error / object_size)
+    if voxel_size is not None:
+        result["distance_mae_voxels"] = float(error / voxel_size)
     cosine = np.clip((predicted.normal[both] * reference.normal[both]).sum(1), -1.0, 1.0)
     result["normal_error_deg"] = float(np.degrees(np.arccos(cosine)).mean())
-    heads = heads or {}
-    if heads.get("albedo") or heads.get("albedo_psnr"):
+    if albedo:
         mse = float(np.mean((np.clip(predicted.albedo[both], 0, 1)
                              - np.clip(reference.albedo[both], 0, 1)) ** 2))
         result["albedo_psnr"] = float(-10 * np.log10(max(mse, PSNR_FLOOR_MSE)))
-    if heads.get("material"):
+    if material:
         result["material_accuracy"] = float(
             (predicted.material[both] == reference.material[both]).mean())
     return result
+
+
+def common_pixels(pairs):
+    """(R,) bool: the rays where every (predicted, reference) Passes pair of ``pairs`` hits
+    on both sides, the common pixel set over which compared models' errors are taken
+    (DESIGN section 10). All pairs must be over the same rays."""
+    pairs = list(pairs)
+    sizes = {len(p.hit) for pair in pairs for p in pair}
+    if len(sizes) != 1:
+        raise ValueError(f"compared passes cover different numbers of rays: {sorted(sizes)}")
+    common = np.ones(sizes.pop(), bool)
+    for predicted, reference in pairs:
+        common &= predicted.hit & reference.hit
+    return common
+
+
+def speed_withheld(hit_iou):
+    """Why no speed figure may be given for a trained model whose hit IoU against the true
+    reference is ``hit_iou``, or None when it may: only models that predict hits (hit IoU
+    at least SPEED_MIN_HIT_IOU) have speeds (DESIGN section 10). The one place that decides
+    it for every report, table and preset."""
+    if hit_iou is None:
+        return "neither the model nor the true reference hits anything"
+    if hit_iou < SPEED_MIN_HIT_IOU:
+        return (f"hit IoU {hit_iou:.3f} against the true reference is below "
+                f"{SPEED_MIN_HIT_IOU}: the model does not predict hits")
+    return None

@@ -7,6 +7,7 @@ import pathlib
 import numpy as np
 
 from .errors import VDNIFError
+from .metrics import speed_withheld
 
 PRESETS_FILE = pathlib.Path(__file__).with_name("presets.json")
 PRESET_NAMES = ("fast", "balanced", "accurate")
@@ -26,13 +27,18 @@ def pareto_front(error, cost):
     return front
 
 
-def derive_presets(points, error_key="error", speed_key="render_rays_per_s"):
-    """{fast, balanced, accurate} from the sweep ``points`` (dicts with SETTINGS, the error
-    and the speed): on the front of error vs 1/speed, the fastest point, the most accurate
-    one, and the one closest to the ideal corner in normalized log space (the knee)."""
-    usable = [p for p in points if p.get(error_key) is not None and p.get(speed_key)]
+def derive_presets(points, error_key="error", speed_key="render_rays_per_s",
+                   iou_key="vs_true_hit_iou"):
+    """{fast, balanced, accurate} from the sweep ``points`` (dicts with SETTINGS, the error,
+    the speed and the hit IoU against the true reference): on the front of error vs
+    1/speed of the points that predict hits (metrics.speed_withheld), the fastest point,
+    the most accurate one, and the one closest to the ideal corner in normalized log space
+    (the knee)."""
+    usable = [p for p in points if p.get(error_key) is not None and p.get(speed_key)
+              and speed_withheld(p.get(iou_key)) is None]
     if not usable:
-        raise VDNIFError("no sweep point has both an error and a speed: cannot derive presets")
+        raise VDNIFError("no sweep point has both an error and a speed of a model that "
+                         "predicts hits: cannot derive presets")
     error = np.array([p[error_key] for p in usable])
     cost = 1.0 / np.array([p[speed_key] for p in usable])
     front = pareto_front(error, cost)

@@ -31,12 +31,23 @@ class RestMesh:
     vertices: np.ndarray                      # (V, 3) float64
     triangles: np.ndarray                     # (T, 3) int32
     corner_normals: np.ndarray                # (T, 3, 3) float32 shading normal per corner
-    material_index: np.ndarray                # (T,) int32 material slot per triangle
-    albedo: list = field(default_factory=list)   # one Albedo per material slot (>= 1)
+    material_index: np.ndarray                # (T,) int32 index into ``albedo`` per triangle
+    albedo: list = field(default_factory=list)   # one Albedo per used material (>= 1)
     uvs: np.ndarray | None = None             # (T, 3, 2) float32
     corner_colors: np.ndarray | None = None   # (T, 3, 3) float32 linear
     triangle_loops: np.ndarray | None = None  # (T, 3) int64 face-corner (loop) of each corner
     warnings: list = field(default_factory=list)
+    used_slots: np.ndarray | None = None      # (K,) int32, see ``material_slots``
+
+    @property
+    def material_slots(self):
+        """(K,) int32 the object's material slot of each used material ``albedo[k]``: the
+        used-slot table (``used_slots``; slots 0..K-1 when not given). The network, the
+        dataset and the metrics count used materials only (4 slots of which 2 are on faces
+        give a 2-way material head); users see the slot (Passes.with_slots)."""
+        if self.used_slots is None:
+            return np.arange(self.material_count, dtype=np.int32)
+        return np.asarray(self.used_slots, np.int32)
 
     @property
     def size(self):
@@ -61,6 +72,7 @@ class RestMesh:
             "albedo": self.albedo_varies,
             "material": self.material_count > 1,
             "material_count": self.material_count,
+            "material_slots": self.material_slots.tolist(),
         }
 
     def albedo_table(self):

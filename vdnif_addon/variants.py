@@ -40,6 +40,31 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 
 
+DEFAULT_VARIANT = "proposed"
+STATIC_VARIANT = "lsnif"
+
+
+def choose_variant(requested: str | None, static: bool) -> tuple[str, str | None]:
+    """(variant, note): what to train when ``requested`` is asked for (None: not asked) on
+    a scene that is ``static`` (no armature or lattice deforms it) or not.
+
+    Model only what the scene requires (DESIGN section 7): unasked, a static scene trains
+    the static variant and a deforming one the default; an asked variant always wins. The
+    note (None when there is nothing to say) tells the user which choice was made for them,
+    or that a deformation-aware variant gains nothing on a static scene.
+    """
+    if requested is None:
+        if static:
+            return STATIC_VARIANT, (f"no armature or lattice deforms it: training the static "
+                                    f"variant {STATIC_VARIANT}")
+        return DEFAULT_VARIANT, None
+    if static and variant_config(requested).deformed_data:
+        return requested, (f"no armature or lattice deforms it: the deformation-aware "
+                           f"variant {requested} gains nothing over the static variant "
+                           f"{STATIC_VARIANT} here")
+    return requested, None
+
+
 def variant_config(name: str, **overrides: Any) -> Variant:
     """The named variant, with any NetworkConfig or TrainConfig field overridden by keyword."""
     if name not in VARIANTS:

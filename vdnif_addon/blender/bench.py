@@ -2,7 +2,11 @@
 evaluated on unseen poses of the arm while one setting at a time moves away from a base
 (voxel resolution, hash levels and table size, PE bands, MLP width, training steps). Writes
 CSV, JSON, Pareto plots, the presets derived from the front and a section of
-``docs/performance.md``."""
+``docs/performance.md``.
+
+Only points that predict hits (``metrics.speed_withheld``) have a speed, and their errors
+are compared on one common pixel set (DESIGN section 10): the front and the presets come
+from them alone."""
 
 import csv
 import json
@@ -12,9 +16,11 @@ import tempfile
 
 import torch
 
+from ..evaluation import compare_common, concatenated
 from ..fit import fit_model
+from ..metrics import SPEED_MIN_HIT_IOU
 from ..presets import SETTINGS, derive_presets, pareto_front
-from ..report import value, write_section
+from ..report import percent, value, write_section
 from .capture import capture
 from .jobs import evaluate_file, evaluation_poses, variant_dataset
 from .poses import PoseSpec
@@ -35,7 +41,14 @@ SIZES = {
         axes={"resolution": [12, 16], "grid": [(2, 10), (2, 12)], "pe_bands": [0, 3],
               "width": [32, 64], "steps": [300, 400]}),
 }
-ERROR = "vs_true_distance_mae"        # the error the front and the presets minimize
+# The error the front and the presets minimize: against the true reference, over the common
+# pixel set of the points that predict hits.
+ERROR = "common_vs_true_distance_mae"
+METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
+           "false_negative_rate", "false_positive_rate")
+COMMON_METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg")
+NO_PRESETS = (f"no sweep point predicts hits (hit IoU at least {SPEED_MIN_HIT_IOU} against the "
+              "true reference): nothing to compare, no presets derived")
 PERFORMANCE_PREAMBLE = "# Performance\n\nEach section names the command that measured it.\n"
 
 
@@ -55,15 +68,15 @@ def sweep_points(base, axes):
 def run_bench(out, presets_path, performance=None, quick=False, device="auto",
               progress=None, command=None):
     """Runs the sweep; writes ``bench.csv``, ``bench.json`` and ``pareto.png`` into ``out``,
-    the presets to ``presets_path`` and, if given, its section of ``performance``. Returns
-    the rows."""
+    the presets to ``presets_path`` (only when a point predicts hits) and, if given, its
+    section of ``performance``. Returns (rows, presets or None)."""
     size = SIZES["quick" if quick else "full"]
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
     obj = demo_scene("arm")
     spec = PoseSpec(count=size["poses"])
     points = sweep_points(size["base"], size["axes"])
-    rows = []
+    rows, runs = [], []
     with tempfile.TemporaryDirectory(prefix="vdnif-bench-") as scratch:
         scratch = pathlib.Path(scratch)
         scenes = {}
@@ -71,40 +84,61 @@ def run_bench(out, presets_path, performance=None, quick=False, device="auto",
             captured = capture(obj, resolution, spec, deform_corners=False)
             variant_dataset(obj, captured, "proposed", scratch / f"r{resolution}",
                             size["rays_per_pose"])
-            scenes[resolution] = evaluation_poses(obj, resolution, PoseSpec(
-                count=size["eval_poses"]))
+            scenes[resolution] = evaluation_poses(obj, resolution, spec,
+                                                  count=size["eval_poses"])
         for number, point in enumerate(points):
             model = scratch / f"point-{number}.vdnif"
             settings = {k: v for k, v in point.items() if k != "resolution"}
             fit_model(scratch / f"r{point['resolution']}", "proposed", model,
                       dict(size["overrides"], device=device, **settings), progress=progress)
-            report, _ = evaluate_file(obj, scenes[point["resolution"]], model, size["width"],
-                                      size["height"], device)
+            evaluated = scenes[point["resolution"]]
+            report, views = evaluate_file(obj, evaluated, model, size["width"],
+                                          size["height"], device)
             rows.append(_row(point, report))
-    presets = derive_presets(rows, ERROR)
+            runs.append((concatenated(views), evaluated.grid.voxel_size))
+        _add_common(rows, runs, evaluated.mesh)
+    # No presets from models that do not predict hits: the presets file is then left as it
+    # was, and the section says why.
+    presets = (derive_presets(rows, ERROR)
+               if any(row["speed_withheld"] is None for row in rows) else None)
     write_outputs(out, rows)
-    pathlib.Path(presets_path).parent.mkdir(parents=True, exist_ok=True)
-    pathlib.Path(presets_path).write_text(json.dumps(
-        {"source": "bench" + (" --quick" if quick else ""), "error": ERROR,
-         "presets": presets}, indent=2) + "\n")
+    if presets is not None:
+        pathlib.Path(presets_path).parent.mkdir(parents=True, exist_ok=True)
+        pathlib.Path(presets_path).write_text(json.dumps(
+            {"source": "bench" + (" --quick" if quick else ""), "error": ERROR,
+             "presets": presets}, indent=2) + "\n")
     if performance is not None:
         command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
                                         + (["--quick"] if quick else []))
         write_section(performance, "bench", "Speed/accuracy sweep",
                       sweep_markdown(rows, presets, size, command, out, performance),
                       PERFORMANCE_PREAMBLE)
-    return rows
+    return rows, presets
 
 
 def _row(point, report):
     row = dict(point)
     for reference in ("vs_true", "vs_embedded"):
-        for key in ("distance_mae", "normal_error_deg", "hit_iou"):
+        for key in METRICS:
             row[f"{reference}_{key}"] = report[reference][key]
     timings = report["timings"]
     row.update(train_s=timings["train_s"], render_rays_per_s=timings["render_rays_per_s"],
-               model_bytes=report["model_bytes"])
+               speed_withheld=report["speed_withheld"], model_bytes=report["model_bytes"])
     return row
+
+
+def _add_common(rows, runs, mesh):
+    """Adds ``common_<reference>_<metric>`` to every row: the errors over the common pixel
+    set of the points that have a speed (they predict hits); None for the others."""
+    compared = [i for i, row in enumerate(rows) if row["speed_withheld"] is None]
+    common = compare_common([runs[i][0] for i in compared], mesh,
+                            [runs[i][1] for i in compared]) if compared else []
+    by_row = dict(zip(compared, common))
+    for i, row in enumerate(rows):
+        for reference in ("vs_true", "vs_embedded"):
+            metrics = by_row.get(i, {}).get(reference, {})
+            for key in COMMON_METRICS + ("compared_rays",):
+                row[f"common_{reference}_{key}"] = metrics.get(key)
 
 
 def write_outputs(out, rows):
@@ -123,9 +157,17 @@ def _plot(path, rows):
     matplotlib.use("Agg")
     from matplotlib import pyplot
 
-    usable = [r for r in rows if r[ERROR] is not None]
+    usable = [r for r in rows if r[ERROR] is not None and r["render_rays_per_s"] is not None]
     error = [r[ERROR] for r in usable]
     figure, axes = pyplot.subplots(1, 2, figsize=(11, 4.2))
+    if not usable:                      # no point to put on a log scale: say why
+        for ax in axes:
+            ax.set_axis_off()
+        figure.text(0.5, 0.5, NO_PRESETS.replace(": ", ":\n"), ha="center", va="center",
+                    fontsize=12)
+        figure.savefig(path, dpi=120)
+        pyplot.close(figure)
+        return
     for ax, key, label, cost in (
             (axes[0], "render_rays_per_s", "neural render (rays/s)", lambda v: 1 / v),
             (axes[1], "train_s", "training time (s)", lambda v: v)):
@@ -140,7 +182,7 @@ def _plot(path, rows):
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel(label)
-        ax.set_ylabel("distance MAE vs true reference (object units)")
+        ax.set_ylabel("distance MAE vs true reference (object units, common pixels)")
         ax.legend(fontsize=7)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
@@ -156,25 +198,46 @@ def sweep_markdown(rows, presets, size, command, out, performance):
     """The sweep's table, plot and presets for docs/performance.md."""
     relative = pathlib.Path(out).resolve().relative_to(
         pathlib.Path(performance).resolve().parent) if performance else out
+    compared = [r for r in rows if r["speed_withheld"] is None]
+    pixels = compared[0]["common_vs_true_compared_rays"] if compared else 0
     lines = [f"Command: `{command}`", "",
              f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
              f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} unseen poses "
              f"at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
              f"thread(s). One setting moves at a time from the base "
              + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
-             "| R | L | log2 T | F | width | steps | distance MAE true / embedded | normal "
-             "error true / embedded (deg) | hit IoU (true) | train (s) | render rays/s | "
-             "model bytes |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             f"Only points that predict hits (hit IoU at least {SPEED_MIN_HIT_IOU} against "
+             f"the true reference) have a speed, {len(compared)} of {len(rows)} here; their "
+             f"distance and normal errors are taken over one common pixel set, the {pixels:,} "
+             "pixels where every one of them and the reference hit (against the embedded "
+             "reference: where each hits its own resolution's embedding). The other points "
+             "show n/a (their errors over their own hits are in bench.json). Hit IoU and the "
+             "false-negative / false-positive rates (shares of the true reference's hits) "
+             "count every pixel.",
+             "",
+             "| R | L | log2 T | F | width | steps | distance MAE true / embedded | distance "
+             "MAE true (voxels) | normal error true / embedded (deg) | hit IoU (true) | false "
+             "neg. / pos. (true) | train (s) | render rays/s | model bytes |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+             "| --- |"]
     for r in rows:
+        speed = (f"{r['render_rays_per_s']:,.0f}" if r["render_rays_per_s"] is not None
+                 else "n/a")
         lines.append(
             f"| {r['resolution']} | {r['levels']} | {r['log2_table_size']} | {r['pe_bands']} | "
-            f"{r['width']} | {r['steps']} | {value(r['vs_true_distance_mae'])} / "
-            f"{value(r['vs_embedded_distance_mae'])} | {value(r['vs_true_normal_error_deg'], 3)}"
-            f" / {value(r['vs_embedded_normal_error_deg'], 3)} | {value(r['vs_true_hit_iou'])}"
-            f" | {r['train_s']:.1f} | {r['render_rays_per_s']:,.0f} | {r['model_bytes']:,} |")
-    lines += ["", f"![Pareto fronts]({relative}/pareto.png)", "",
-              f"Presets (the panel's preset menu), from the front of {ERROR} vs render speed:",
+            f"{r['width']} | {r['steps']} | {value(r['common_vs_true_distance_mae'])} / "
+            f"{value(r['common_vs_embedded_distance_mae'])} | "
+            f"{value(r['common_vs_true_distance_mae_voxels'], 3)} | "
+            f"{value(r['common_vs_true_normal_error_deg'], 3)}"
+            f" / {value(r['common_vs_embedded_normal_error_deg'], 3)} | "
+            f"{value(r['vs_true_hit_iou'])} | {percent(r['vs_true_false_negative_rate'])} / "
+            f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f} | {speed} | "
+            f"{r['model_bytes']:,} |")
+    lines += ["", f"![Pareto fronts]({relative}/pareto.png)", ""]
+    if presets is None:
+        return lines + [f"Presets: n/a, {NO_PRESETS}.", "",
+                        f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
+    lines += [f"Presets (the panel's preset menu), from the front of {ERROR} vs render speed:",
               "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s |",
               "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
     for name, preset in presets.items():

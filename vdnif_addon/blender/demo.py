@@ -1,7 +1,7 @@
-"""The main job: on an embedded demo scene, capture, dataset, train the proposed variant,
-evaluate on unseen poses, write the passes, the figure and a short report."""
+"""The main job: on an embedded demo scene, capture, dataset, train the proposed variant (the
+static one where nothing deforms the scene), evaluate on unseen poses, write the passes, the
+figure and a short report."""
 
-import dataclasses
 import json
 import pathlib
 import shlex
@@ -9,6 +9,7 @@ import sys
 import tempfile
 
 from ..report import demo_markdown
+from ..variants import choose_variant
 from .capture import capture
 from .jobs import evaluate_file, evaluation_poses, train_variant, write_figures, write_passes
 from .poses import PoseSpec
@@ -34,18 +35,21 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     obj = demo_scene(scene)
     spec = stress(obj, PoseSpec(count=size["poses"]))
     captured = capture(obj, size["resolution"], spec, deform_corners=False)
+    variant, note = choose_variant(None, captured.mode == "static")
+    if note is not None:
+        print(f"demo: '{obj.name}': {note}", file=sys.stderr)
     overrides = dict(size["overrides"], steps=steps or size["steps"], device=device)
-    model = out / f"{scene}-proposed.vdnif"
+    model = out / f"{scene}-{variant}.vdnif"
     with tempfile.TemporaryDirectory(prefix="data-", dir=out) as folder:
-        _, summary = train_variant(obj, captured, "proposed", folder, size["rays_per_pose"],
+        _, summary = train_variant(obj, captured, variant, folder, size["rays_per_pose"],
                                    model, overrides, progress=progress)
-    evaluated = evaluation_poses(obj, size["resolution"],
-                                 dataclasses.replace(spec, count=size["eval_poses"]))
+    evaluated = evaluation_poses(obj, size["resolution"], spec, count=size["eval_poses"])
     width, height = size["width"], size["height"]
     report, views = evaluate_file(obj, evaluated, model, width, height, device)
     figures = write_figures(out, views[0], height, width, captured.mesh.size)
     passes = write_passes(out / "passes", views[0]["predicted"], height, width)
-    report.update(train_poses=len(captured.poses), dataset_rays=summary["dataset"]["rays"],
+    report.update(train_poses=len(captured.poses), variant_note=note,
+                  dataset_rays=summary["dataset"]["rays"],
                   dataset_segments=summary["dataset"]["segments"],
                   figures={name: str(path) for name, path in figures.items()},
                   passes=[str(path) for path in passes], report=str(out / "report.md"))

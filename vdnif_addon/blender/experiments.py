@@ -17,10 +17,10 @@ import tempfile
 
 import torch
 
-from ..evaluation import compare_both, concatenated, figure
+from ..evaluation import compare_both, compare_common, concatenated, figure
 from ..fit import fit_model
 from ..rays import orbit_viewpoints
-from ..report import goal_line, metrics_table, value, write_section
+from ..report import common_pixels_line, goal_line, metrics_table, value, write_section
 from .capture import capture
 from .generate import generate_dataset
 from .image_io import save_image
@@ -55,18 +55,24 @@ class Experiment:
         return dict(self.size["overrides"], steps=self.size["steps"], device=self.device,
                     **(extra or {}))
 
+    @property
+    def spec(self):
+        """The training poses of every run: random poses of seed 0."""
+        return PoseSpec(count=self.size["poses"])
+
     def scene(self, name):
         """(object, training capture) of a demo scene."""
         obj = demo_scene(name)
-        spec = PoseSpec(count=self.size["poses"])
-        return obj, capture(obj, self.size["resolution"], spec, deform_corners=False)
+        return obj, capture(obj, self.size["resolution"], self.spec, deform_corners=False)
 
     def evaluation(self, obj, rest=False):
-        return evaluation_poses(obj, self.size["resolution"],
-                                PoseSpec(count=self.size["eval_poses"]), rest=rest)
+        """Evaluation poses disjoint from the training poses (or views of the rest pose)."""
+        return evaluation_poses(obj, self.size["resolution"], self.spec, rest=rest,
+                                count=self.size["eval_poses"])
 
     def train_and_evaluate(self, obj, captured, evaluated, label):
-        """Trains run ``label`` of RUNS on ``captured``, evaluates it on ``evaluated``."""
+        """Trains run ``label`` of RUNS on ``captured``, evaluates it on ``evaluated``:
+        (report, views)."""
         variant, extra = RUNS[label]
         tag = re.sub(r"\W+", "-", f"{obj.name}-{label}").strip("-").lower()
         model = self.scratch / f"{tag}.vdnif"
@@ -74,9 +80,9 @@ class Experiment:
                       model, self.overrides(extra), progress=self.progress)
         return self.evaluate(obj, evaluated, model)
 
-    def evaluate(self, obj, evaluated, model, viewpoints=None):
+    def evaluate(self, obj, evaluated, model, viewpoints=None, seen=False):
         return evaluate_file(obj, evaluated, model, self.size["width"], self.size["height"],
-                             self.device, viewpoints=viewpoints)
+                             self.device, viewpoints=viewpoints, seen=seen)
 
     def figure(self, name, views, object_size):
         """reference | prediction | error of the first view, against the true reference."""
@@ -86,48 +92,77 @@ class Experiment:
         return path
 
 
+def compared(records, views, labels, mesh, voxel_sizes):
+    """Adds to each record of ``labels`` its metrics on the common pixel set of these
+    models (``records[label]["common"]``, DESIGN section 10); returns the table rows and
+    the line that says what the errors are taken over."""
+    common = compare_common([concatenated(views[label]) for label in labels], mesh,
+                            voxel_sizes)
+    rows = []
+    for label, metrics in zip(labels, common):
+        records[label]["common"] = dict(metrics, models=list(labels))
+        rows.append((label, metrics["vs_true"], metrics["vs_embedded"]))
+    return rows, common_pixels_line(labels, common[0])
+
+
 def static(run):
     """Table 1: every variant on the rest pose of spot and the bunny."""
-    rows, records, figures = [], {}, []
+    rows, records, figures, notes = [], {}, [], []
     for scene in ("spot", "bunny"):
         obj, captured = run.scene(scene)
         evaluated = run.evaluation(obj, rest=True)
+        views, labels = {}, []
         for label in ("lsnif", "deformed", "proposed"):
-            report, views = run.train_and_evaluate(obj, captured, evaluated, label)
+            report, views[f"{scene}: {label}"] = run.train_and_evaluate(obj, captured,
+                                                                         evaluated, label)
             records[f"{scene}/{label}"] = report
-            rows.append((f"{scene}: {label}", report["vs_true"], report["vs_embedded"]))
-            figures.append(run.figure(f"static-{scene}-{label}.png", views,
+            labels.append(f"{scene}: {label}")
+            figures.append(run.figure(f"static-{scene}-{label}.png", views[labels[-1]],
                                       captured.mesh.size))
+        scene_rows, note = compared(_keyed(records, scene), views, labels, captured.mesh,
+                                    [captured.grid.voxel_size] * len(labels))
+        rows += scene_rows
+        notes.append(f"- {note}")
     lines = [
         "lsnif trains on the rest pose alone (as many rays as all poses of the others); "
         "deformed and proposed train on random poses; all are evaluated on "
         f"{run.size['eval_poses']} views of the rest pose.", "",
-        metrics_table(rows), "", _cost_table(records), "", *_figure_lines(figures)]
+        metrics_table(rows), "", *notes, "", _cost_table(records), "",
+        *_figure_lines(figures)]
     return records, lines
 
 
 def deformation(run):
     """Deformed vs proposed on unseen poses of the armature arm and the lattice Suzanne."""
-    rows, records, figures, goals = [], {}, [], []
+    rows, records, figures, goals, notes = [], {}, [], [], []
     for scene in ("arm", "lattice"):
         obj, captured = run.scene(scene)
         evaluated = run.evaluation(obj)
+        views, labels = {}, []
         for label in ("deformed", "proposed", "proposed, sin(pi 2^k x)"):
-            report, views = run.train_and_evaluate(obj, captured, evaluated, label)
+            report, views[f"{scene}: {label}"] = run.train_and_evaluate(obj, captured,
+                                                                         evaluated, label)
             records[f"{scene}/{label}"] = report
-            rows.append((f"{scene}: {label}", report["vs_true"], report["vs_embedded"]))
+            labels.append(f"{scene}: {label}")
             if label != "proposed, sin(pi 2^k x)":
-                figures.append(run.figure(f"deformation-{scene}-{label}.png", views,
-                                          captured.mesh.size))
-        proposed, deformed = records[f"{scene}/proposed"], records[f"{scene}/deformed"]
+                figures.append(run.figure(f"deformation-{scene}-{label}.png",
+                                          views[labels[-1]], captured.mesh.size))
+        scene_rows, note = compared(_keyed(records, scene), views, labels, captured.mesh,
+                                    [captured.grid.voxel_size] * len(labels))
+        rows += scene_rows
+        notes.append(f"- {note}")
+        proposed = records[f"{scene}/proposed"]["common"]
+        deformed = records[f"{scene}/deformed"]["common"]
         beats = all(_better(proposed[ref], deformed[ref]) for ref in ("vs_true", "vs_embedded"))
         goals.append(f"- {scene}: {goal_line(proposed['vs_embedded'])} Proposed "
                      f"{'beats' if beats else 'does not beat'} the deformed baseline on "
-                     "distance and normal error against both references.")
+                     "distance and normal error against both references (common pixel set).")
     lines = [
         f"Both train on the same {run.size['poses']} random poses and are evaluated on "
-        f"{run.size['eval_poses']} other random poses (another seed, never trained on).", "",
-        metrics_table(rows), "", *goals, "", _cost_table(records), "", *_figure_lines(figures)]
+        f"{run.size['eval_poses']} other random poses (another seed, disjoint from the "
+        "training poses by construction).", "",
+        metrics_table(rows), "", *notes, "", *goals, "", _cost_table(records), "",
+        *_figure_lines(figures)]
     return records, lines
 
 
@@ -136,7 +171,7 @@ def per_pose(run):
     obj, captured = run.scene("arm")
     evaluated = run.evaluation(obj)
     viewpoints = orbit_viewpoints(len(evaluated.poses))
-    proposed, _ = run.train_and_evaluate(obj, captured, evaluated, "proposed")
+    proposed, proposed_views = run.train_and_evaluate(obj, captured, evaluated, "proposed")
     views, train_s, model_bytes = [], 0.0, 0
     rays = run.size["rays_per_pose"] * run.size["poses"]
     for index, pose in enumerate(evaluated.poses):
@@ -144,26 +179,37 @@ def per_pose(run):
         folder, model = run.scratch / f"pose-{index}", run.scratch / f"pose-{index}.vdnif"
         generate_dataset(obj, one, folder, rays, seed=index)
         fit_model(folder, "lsnif", model, run.overrides(), progress=run.progress)
+        # The upper bound is trained on the very pose it is evaluated on, by design.
         report, pose_views = run.evaluate(obj, dataclasses.replace(evaluated, poses=[pose]),
-                                          model, viewpoints[index:index + 1])
+                                          model, viewpoints[index:index + 1], seen=True)
         views += pose_views
         train_s += report["timings"]["train_s"]
         model_bytes += report["model_bytes"]
     joined = concatenated(views)
+    h = captured.grid.voxel_size
     upper = {**compare_both(joined["predicted"], joined["true"], joined["embedded"],
-                            captured.mesh),
+                            captured.mesh, h),
              "timings": {"train_s": train_s}, "model_bytes": model_bytes}
     records = {"arm/proposed": proposed, "arm/lsnif per pose": upper}
+    upper_label = f"lsnif per pose ({len(evaluated.poses)} models)"
+    labels = ("proposed (one model)", upper_label)
+    rows, note = compared({labels[0]: proposed, labels[1]: upper},
+                          {labels[0]: proposed_views, labels[1]: views}, labels,
+                          captured.mesh, [h, h])
     lines = [
         f"{len(evaluated.poses)} unseen poses of the arm. The upper bound trains one lsnif "
         f"network per pose on that pose alone ({rays:,} rays each, through the same voxel "
         "embedding), so it pays training and storage once per pose; the proposed model is "
         f"trained once on {run.size['poses']} other poses.", "",
-        metrics_table([("proposed (one model)", proposed["vs_true"], proposed["vs_embedded"]),
-                       (f"lsnif per pose ({len(evaluated.poses)} models)", upper["vs_true"],
-                        upper["vs_embedded"])]), "",
+        metrics_table(rows), "", f"- {note}", "",
         _cost_table(records)]
     return records, lines
+
+
+def _keyed(records, scene):
+    """The records of ``scene`` under their table labels ("scene: run"), the same dicts."""
+    return {key.replace("/", ": ", 1): record for key, record in records.items()
+            if key.startswith(f"{scene}/")}
 
 
 EXPERIMENTS = {"static": static, "deformation": deformation, "per-pose": per_pose}

@@ -14,9 +14,7 @@ from .capture import capture
 from .generate import generate_dataset
 from .image_io import save_image
 from .neural import evaluate_model, load_scene_model
-from .poses import evaluation_spec
-
-REST_POSE = {"rest": True}
+from .poses import REST_POSE, evaluation_spec
 
 
 def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progress=None):
@@ -29,22 +27,28 @@ def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progr
     return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
 
 
-def evaluation_poses(obj, resolution, spec, rest=False):
-    """A capture of ``obj`` (corners left to per-pose work) whose poses are the evaluation
-    poses of the training ``spec`` (never trained on), or ``spec.count`` views of the rest
-    pose with ``rest``."""
-    captured = capture(obj, resolution, evaluation_spec(spec), deform_corners=False)
+def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None):
+    """A capture of ``obj`` (corners left to per-pose work) whose ``count`` poses (default
+    ``spec.count``) are evaluation poses disjoint from the training poses (``trained``, a
+    model's stored training poses, else those of the training ``spec``), or ``count`` views
+    of the rest pose with ``rest``. A request that cannot be disjoint raises a VDNIFError
+    naming the object (``poses.make_poses``)."""
+    count = count or spec.count
     if rest:
-        captured = dataclasses.replace(captured, poses=[REST_POSE] * spec.count)
-    return captured
+        captured = capture(obj, resolution, dataclasses.replace(spec, count=1),
+                           deform_corners=False)
+        return dataclasses.replace(captured, poses=[REST_POSE] * count)
+    return capture(obj, resolution, evaluation_spec(spec, count, trained),
+                   deform_corners=False)
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
-                  viewpoints=None):
+                  viewpoints=None, seen=False):
     """(report, views) of the model file on the poses of ``captured``, with the model's
-    training figures and size added to the report."""
+    training figures and size added to the report (``seen``: see ``evaluate_model``)."""
     model = load_scene_model(model_path, captured, device)
-    report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress)
+    report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress,
+                                   seen)
     train_info = model.metadata["train_info"]
     report["config"] = {"network": model.metadata["network_config"].to_dict(),
                         "train": train_info.get("config")}
@@ -55,11 +59,13 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     return report, views
 
 
-def write_passes(folder, passes, height, width, world_scale=None, prefix=""):
+def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None):
     """Writes every pass as a PNG for looking and an EXR for use (distance in world units
-    when ``world_scale`` is given); returns the written paths."""
+    when ``world_scale`` is given, material as the object's slot with the used-slot table
+    ``slots``, see ``Passes.with_slots``); returns the written paths."""
     folder = pathlib.Path(folder)
     data = passes if world_scale is None else world_distances(passes, world_scale)
+    data = data if slots is None else data.with_slots(slots)
     shown = images.display(data, height, width, distance_range(data))
     shown["hit"] = np.repeat(images.raw(data, height, width)["hit"], 3, axis=2)
     written = [save_image(folder / f"{prefix}{name}.png", image) for name, image in shown.items()]

@@ -2,7 +2,6 @@
 passes for a pose and a camera, and evaluate it against both references on unseen poses
 (DESIGN sections 9 and 10). The numerics are in ``render`` and ``evaluation``."""
 
-import json
 import math
 import statistics
 import time
@@ -11,13 +10,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import VDNIFError
-from ..evaluation import check_model_fits, compare_both, concatenated
+from ..evaluation import check_model_fits, compare_both, concatenated, speed_figures
 from ..metrics import Passes
 from ..rays import camera_rays as pinhole_rays
 from ..rays import orbit_rays, orbit_viewpoints, transform_rays
 from ..references import embedded_passes, true_reference
 from ..render import neural_passes
 from .posed import PosedObject
+from .poses import pose_key
 
 
 @dataclass
@@ -122,12 +122,25 @@ def camera_rays(camera, width, height):
                         width, height)
 
 
-def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress=None):
+def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress=None,
+                   seen=False):
     """Renders every pose of ``capture`` (the evaluation poses) from an orbit camera each
     (``viewpoints`` (P, 3), default a Fibonacci sphere) with the network and both
     references. Returns (report, views): the JSON-ready metrics and timings, and per pose
-    {"predicted", "true", "embedded"} Passes in local units."""
+    {"predicted", "true", "embedded"} Passes in local units whose material pass holds the
+    object's material slots (``Passes.with_slots``).
+
+    Deformed poses must be unseen: evaluation poses that the model was trained on are
+    refused (a VDNIFError naming the object) unless ``seen`` says the model was trained on
+    them by design (the per-pose upper bound). Views of the rest pose and a static object's
+    one pose may be the training pose; ``unseen_poses`` says whether they are. Render
+    speeds are given only for a model that predicts hits (``evaluation.speed_figures``).
+    """
     poses = capture.poses
+    unseen = _unseen(poses, model.extra.get("train_poses", []))
+    if not (unseen or seen or capture.mode == "static" or all(p.get("rest") for p in poses)):
+        raise VDNIFError(f"'{obj.name}': the evaluation poses include poses that model "
+                         f"'{model.path}' was trained on: evaluate on unseen poses")
     viewpoints = orbit_viewpoints(len(poses)) if viewpoints is None else viewpoints
     views, results = [], []
     with PosedObject(obj, capture) as posed_object:
@@ -136,26 +149,30 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
             origins, directions = orbit_view(geometry, viewpoints[index], width, height)
             result = _render(model, posed_object, geometry, origins, directions, True)
             results.append(result)
-            views.append({"predicted": result.predicted, "true": result.true,
-                          "embedded": result.embedded})
+            views.append({name: getattr(result, name).with_slots(capture.mesh.material_slots)
+                          for name in ("predicted", "true", "embedded")})
             if progress is not None:
                 progress(index + 1, len(poses))
     joined = concatenated(views)
     render_s = sum(r.timings["render_s"] for r in results)
+    h = capture.grid.voxel_size
+    metrics = compare_both(joined["predicted"], joined["true"], joined["embedded"],
+                           capture.mesh, h)
+    timings, withheld = speed_figures({
+        "render_rays_per_s": sum(r.timings["rays"] for r in results) / render_s,
+        "render_segments_per_s": sum(r.timings["segments"] for r in results) / render_s,
+        "prepare_pose_s": statistics.median(r.timings["prepare_s"] for r in results),
+        "network_fraction": sum(r.timings["network_s"] for r in results) / render_s,
+    }, metrics["vs_true"])
     report = {
         "object": capture.mesh.name, "mode": capture.mode, "variant": model.variant,
         "model": model.path, "resolution": capture.grid.resolution, "poses": len(poses),
-        "width": width, "height": height,
-        "unseen_poses": _unseen(poses, model.extra.get("train_poses", [])),
-        **compare_both(joined["predicted"], joined["true"], joined["embedded"], capture.mesh),
-        "per_pose": [dict(compare_both(r.predicted, r.true, r.embedded, capture.mesh),
+        "width": width, "height": height, "voxel_size": h, "unseen_poses": unseen,
+        **metrics,
+        "per_pose": [dict(compare_both(r.predicted, r.true, r.embedded, capture.mesh, h),
                           inverted_cells=r.inverted_cells) for r in results],
-        "timings": {
-            "render_rays_per_s": sum(r.timings["rays"] for r in results) / render_s,
-            "render_segments_per_s": sum(r.timings["segments"] for r in results) / render_s,
-            "prepare_pose_s": statistics.median(r.timings["prepare_s"] for r in results),
-            "network_fraction": sum(r.timings["network_s"] for r in results) / render_s,
-        },
+        "timings": timings,
+        "speed_withheld": withheld,
         "truncated_rays": sum(r.timings["truncated_rays"] for r in results),
     }
     return report, views
@@ -184,7 +201,7 @@ def _render(model, posed_object, geometry, origins, directions, references):
 
 
 def _unseen(poses, train_poses):
-    """True when no evaluation pose equals a training pose."""
-    key = lambda pose: json.dumps(pose, sort_keys=True, default=str)  # noqa: E731
-    trained = {key(pose) for pose in train_poses}
-    return not any(key(pose) in trained for pose in poses)
+    """True when no evaluation pose equals a training pose (compared as ``pose_key``:
+    the model's training poses come back from its file with string keys)."""
+    trained = {pose_key(pose) for pose in train_poses}
+    return not any(pose_key(pose) in trained for pose in poses)

@@ -5,10 +5,17 @@ A pose is a JSON-ready dict: ``{"frame": F}`` plus, for random poses,
 ``"bones": {name: [rx, ry, rz]}`` (local XYZ Euler radians) or
 ``"lattice": {"object": name, "offsets": {index: [dx, dy, dz]}}`` (lattice-space offsets),
 and with a ``PoseSpec.deform`` the extreme pose ``"deform": {"object", "kind", "amount"}``
-(see ``extremes``). ``posed`` applies one and restores the scene afterwards.
+(see ``extremes``); ``REST_POSE`` is the undeformed rest pose. ``posed`` applies one and
+restores the scene afterwards.
+
+Evaluation poses are disjoint from the training poses by construction (DESIGN section 4):
+``evaluation_spec`` names the training poses to avoid, frames are placed apart from the
+training frames and random poses that equal a training pose are drawn again; a request that
+cannot be met is refused.
 """
 
 import contextlib
+import json
 import math
 from dataclasses import dataclass, replace
 
@@ -20,19 +27,27 @@ from ..errors import VDNIFError
 
 POSE_SOURCES = ("random", "frames")
 EVALUATION_SEED_OFFSET = 1_000_003
+REST_POSE = {"rest": True}
+# Frames closer than this are not distinct poses: Blender keeps the subframe as a float32
+# (about 7 digits), and a thousandth of a frame is far below any animation's detail.
+MIN_FRAME_SPACING = 1e-3
 
 
 @dataclass(frozen=True)
 class PoseSpec:
-    """How to choose poses: ``count`` random poses from ``seed`` or frames of the range."""
+    """How to choose poses: ``count`` random poses from ``seed`` or frames of the range.
+
+    ``avoid``, set by ``evaluation_spec``: the training poses these must be disjoint from,
+    as the PoseSpec that chose them or as a tuple of pose dicts (a model's training poses).
+    """
 
     source: str = "random"
     count: int = 8
     seed: int = 0
     max_angle_deg: float = 45.0
     lattice_fraction: float = 0.3
-    frame_offset: float = 0.0
     deform: object = None           # an extremes.ExtremeDeform added on top of every pose
+    avoid: object = None
 
     def __post_init__(self):
         if self.source not in POSE_SOURCES:
@@ -46,38 +61,94 @@ class PoseSpec:
             raise VDNIFError(f"lattice offset fraction {self.lattice_fraction} is outside (0, 1]")
 
 
-def evaluation_spec(spec, count=None):
-    """The pose spec for evaluation: other random seed, or frames half a step apart from
-    the training frames, so every reported figure is on poses never trained on."""
+def evaluation_spec(spec, count=None, trained=None):
+    """The pose spec for evaluating a model trained on the poses of ``spec``: ``count``
+    poses (default ``spec.count``) from another random seed or frames between the training
+    frames, disjoint from the training poses: ``trained`` (a model's stored training poses)
+    when given, else those ``spec`` chooses."""
     return replace(spec, count=count or spec.count, seed=spec.seed + EVALUATION_SEED_OFFSET,
-                   frame_offset=0.5)
+                   avoid=replace(spec, avoid=None) if trained is None else tuple(trained))
+
+
+def pose_key(pose):
+    """A pose as comparable text: equal poses give equal keys, also after a trip through a
+    JSON file (dataset header, model file) that turns integer keys into strings."""
+    return json.dumps(json.loads(json.dumps(pose)), sort_keys=True)
 
 
 def make_poses(obj, modifiers, spec):
-    """The list of poses for ``obj`` deformed by ``modifiers`` according to ``spec``."""
+    """The list of poses for ``obj`` deformed by ``modifiers`` according to ``spec``;
+    disjoint from ``spec.avoid`` (raises a VDNIFError naming ``obj`` when they cannot be)."""
     scene = bpy.context.scene
+    trained = spec.avoid
+    if isinstance(trained, PoseSpec):
+        trained = make_poses(obj, modifiers, trained)
+    trained = list(trained or ())
+    extreme = {} if spec.deform is None else {"deform": spec.deform.pose_key(obj)}
     if spec.source == "frames":
-        poses = frame_poses(scene.frame_start, scene.frame_end, spec.count, spec.frame_offset)
-    else:
-        rng = np.random.default_rng(spec.seed)
-        samplers = [_bone_sampler(obj, m, spec) if m.type == "ARMATURE"
-                    else _lattice_sampler(obj, m, spec) for m in modifiers]
-        poses = []
-        for _ in range(spec.count):
-            pose = {"frame": scene.frame_current}
-            for sample in samplers:
-                pose.update(sample(rng))
+        try:
+            frames = frame_poses(scene.frame_start, scene.frame_end, spec.count,
+                                 [p["frame"] for p in trained if _frame_only(p)])
+        except VDNIFError as exc:
+            raise VDNIFError(f"'{obj.name}': {exc}") from None
+        return [dict(pose, **extreme) for pose in frames]
+    rng = np.random.default_rng(spec.seed)
+    samplers = [_bone_sampler(obj, m, spec) if m.type == "ARMATURE"
+                else _lattice_sampler(obj, m, spec) for m in modifiers]
+    seen = {pose_key(pose) for pose in trained}
+    poses, draws = [], 0
+    while len(poses) < spec.count:
+        # Each training pose can be drawn once more than in the training stream at most
+        # (the same seed); more repeats mean the samplers cannot vary the pose at all.
+        if draws == spec.count + len(trained):
+            raise VDNIFError(
+                f"'{obj.name}': random poses keep repeating the {len(trained)} training "
+                f"poses (do the bones or lattice points that move it have no freedom?): "
+                "evaluation poses cannot be disjoint from them")
+        pose = {"frame": scene.frame_current}
+        for sample in samplers:
+            pose.update(sample(rng))
+        pose.update(extreme)
+        draws += 1
+        if pose_key(pose) not in seen:
             poses.append(pose)
-    if spec.deform is not None:
-        poses = [dict(pose, deform=spec.deform.pose_key(obj)) for pose in poses]
     return poses
 
 
-def frame_poses(start, end, count, offset=0.0):
-    """``count`` frames evenly spread over [start, end]; ``offset`` in (0, 1) shifts them by
-    that fraction of a step, which gives evaluation frames disjoint from training ones."""
+def _frame_only(pose):
+    return "frame" in pose and set(pose) <= {"frame", "deform"}
+
+
+def frame_poses(start, end, count, avoid=()):
+    """``count`` frames evenly spread over [start, end] (the centres of ``count`` equal
+    steps), at least MIN_FRAME_SPACING apart.
+
+    ``avoid``: frames of training poses. A frame that falls on one of them moves half-way
+    into the larger of the gaps beside that training frame (to the next training or
+    evaluation frame, or the end of the range), so the frames are disjoint from ``avoid``
+    by construction whatever the two counts; with equal counts that is half a step from each
+    training frame. Raises a VDNIFError when the range cannot hold them all apart.
+    """
     step = (end - start) / count
-    return [{"frame": float(start + (i + 0.5 + offset) * step)} for i in range(count)]
+    frames = [start + (i + 0.5) * step for i in range(count)]
+    avoid = sorted({float(frame) for frame in avoid})
+    for i, frame in enumerate(frames):
+        clash = [t for t in avoid if abs(t - frame) < MIN_FRAME_SPACING]
+        if not clash:
+            continue
+        t = clash[0]
+        others = avoid + frames[:i] + frames[i + 1:]
+        up = min([f for f in others if f > t + MIN_FRAME_SPACING] + [end])
+        down = max([f for f in others if f < t - MIN_FRAME_SPACING] + [start])
+        frames[i] = (t + up) / 2 if up - t >= t - down else (t + down) / 2
+    everything = np.sort(np.concatenate([frames, avoid]))
+    if len(everything) > 1 and np.diff(everything).min() < MIN_FRAME_SPACING:
+        held = (f"{count} frames" if not avoid else
+                f"{count} evaluation frames apart from the {len(avoid)} training frames")
+        raise VDNIFError(f"the frame range {start:g}..{end:g} cannot hold {held} at least "
+                         f"{MIN_FRAME_SPACING:g} frame apart: widen the range or ask for "
+                         "fewer poses")
+    return [{"frame": float(frame)} for frame in frames]
 
 
 def influencing_bones(obj, modifier):

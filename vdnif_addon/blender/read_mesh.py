@@ -101,10 +101,15 @@ def _rest_mesh_from(obj, mesh):
         uv = np.empty(len(mesh.loops) * 2, np.float32)
         mesh.uv_layers.active.uv.foreach_get("vector", uv)
         rest.uvs = uv.reshape(-1, 2)[loops]
-    rest.albedo = [_albedo(slot.material, obj, rest) for slot in obj.material_slots] or [
+    # Model only what the scene requires: the materials of the slots that faces use (a
+    # face's index past the last slot renders with the last one, as in Blender).
+    slot_index = np.clip(rest.material_index, 0, max(len(obj.material_slots), 1) - 1)
+    used, rest.material_index = np.unique(slot_index, return_inverse=True)
+    rest.material_index = rest.material_index.astype(np.int32).ravel()
+    rest.used_slots = used.astype(np.int32)
+    rest.albedo = [_albedo(obj.material_slots[int(slot)].material, obj, rest) for slot in used
+                   ] if len(obj.material_slots) else [
         Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="no material")]
-    slots = len(rest.albedo)
-    rest.material_index = np.clip(rest.material_index, 0, slots - 1)
     attribute = next((a.source for a in rest.albedo if a.kind == "attribute"), None)
     if attribute is not None:
         rest.corner_colors = _corner_colors(obj, mesh, attribute, loops)

@@ -1,0 +1,133 @@
+"""Evaluation poses are disjoint from the training poses by construction (DESIGN section 4),
+for timeline frames and random poses, against a training spec or a model's stored poses; a
+request that cannot be disjoint is refused on one line naming the object."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+import scene_builders as sb
+
+
+def frames_of(poses):
+    return np.array([p["frame"] for p in poses])
+
+
+def test_evaluation_frames_avoid_training_frames_whatever_the_counts(empty_scene, core):
+    poses = core("blender.poses")
+    spacing = poses.MIN_FRAME_SPACING
+    start, end = 1, 48
+    for trained, evaluated in itertools.product(range(1, 25), repeat=2):
+        training = frames_of(poses.frame_poses(start, end, trained))
+        frames = frames_of(poses.frame_poses(start, end, evaluated, training))
+        assert len(frames) == evaluated
+        assert np.all((frames >= start) & (frames <= end))
+        # brute force: every pair of frames, training or evaluation, is apart
+        everything = np.concatenate([training, frames])
+        gaps = np.abs(everything[:, None] - everything[None, :])[
+            ~np.eye(len(everything), dtype=bool)]
+        assert gaps.min() >= spacing, (trained, evaluated)
+    # equal counts: half a step after each training frame (the last one stays in range)
+    training = frames_of(poses.frame_poses(1, 9, 4))
+    assert training.tolist() == [2, 4, 6, 8]
+    assert frames_of(poses.frame_poses(1, 9, 4, training)).tolist() == [3, 5, 7, 8.5]
+
+
+def test_frames_that_cannot_be_apart_are_refused(empty_scene, core):
+    poses, error = core("blender.poses"), core("errors").VDNIFError
+    with pytest.raises(error, match=r"frame range 5..5 cannot hold 2 frames"):
+        poses.frame_poses(5, 5, 2)
+    with pytest.raises(error, match=r"cannot hold 1 evaluation frames apart from the 1 "
+                                    r"training frames"):
+        poses.frame_poses(5, 5, 1, [5.0])
+    assert frames_of(poses.frame_poses(5, 5, 1)).tolist() == [5.0]   # one frame is fine
+    box = sb.lattice_box((4, 2, 2), 0.5)
+    sb.two_bone_rig(box)
+    scene = empty_scene
+    scene.frame_start = scene.frame_end = 3
+    spec = poses.PoseSpec(source="frames", count=1)
+    with pytest.raises(error, match=r"^'Box': the frame range 3..3 cannot hold 1 evaluation "
+                                    r"frames apart from the 1 training frames"):
+        core("blender.jobs").evaluation_poses(box, 8, spec)
+
+
+def test_evaluation_frames_avoid_the_frames_a_model_was_trained_on(empty_scene, core):
+    """``evaluate`` knows the model's training frames, not their count: 3 trained frames,
+    evaluated on 9 (9 frames spread over the range include all 3)."""
+    poses = core("blender.poses")
+    box = sb.lattice_box((4, 2, 2), 0.5)
+    sb.two_bone_rig(box)
+    empty_scene.frame_start, empty_scene.frame_end = 1, 7
+    trained = poses.frame_poses(1, 7, 3)
+    assert frames_of(trained).tolist() == [2, 4, 6]
+    spread = frames_of(poses.frame_poses(1, 7, 9))
+    assert np.isclose(spread[:, None], [2, 4, 6]).any(0).all()
+    spec = poses.PoseSpec(source="frames", count=9)
+    evaluated = core("blender.jobs").evaluation_poses(box, 8, spec, trained=trained)
+    frames = frames_of(evaluated.poses)
+    assert len(frames) == 9 and np.abs(frames[:, None] - [2, 4, 6]).min() >= 0.3
+    assert np.diff(np.sort(frames)).min() > 0.1
+
+
+def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_poses(
+        empty_scene, core):
+    """A model trained on the stream that evaluation uses (training seed = evaluation seed):
+    the evaluation poses skip the repeated ones and are still as many."""
+    poses, capture = core("blender.poses"), core("blender.capture").capture
+    box = sb.lattice_box((4, 2, 2), 0.5)
+    sb.two_bone_rig(box)
+    unlucky = poses.PoseSpec(count=3, seed=poses.EVALUATION_SEED_OFFSET)
+    trained = capture(box, 8, unlucky, deform_corners=False).poses
+    evaluated = core("blender.jobs").evaluation_poses(box, 8, poses.PoseSpec(count=5),
+                                                      trained=trained)
+    keys = {poses.pose_key(p) for p in trained}
+    assert len(evaluated.poses) == 5
+    assert not keys & {poses.pose_key(p) for p in evaluated.poses}
+    # what an unchecked evaluation (the same seed) would have drawn: the training poses
+    unchecked = capture(box, 8, poses.PoseSpec(count=5, seed=poses.EVALUATION_SEED_OFFSET),
+                        deform_corners=False).poses
+    assert {poses.pose_key(p) for p in unchecked[:3]} == keys
+    assert evaluated.poses[:2] == unchecked[3:]
+
+
+def test_random_poses_that_cannot_vary_are_refused(empty_scene, core):
+    poses, error = core("blender.poses"), core("errors").VDNIFError
+    box = sb.lattice_box((4, 2, 2), 0.5)
+    rig = sb.two_bone_rig(box)
+    for bone in rig.pose.bones:
+        bone.lock_rotation = (True, True, True)
+    with pytest.raises(error, match=r"^'Box': random poses keep repeating the 4 training "
+                                    r"poses .* cannot be disjoint"):
+        core("blender.jobs").evaluation_poses(box, 8, poses.PoseSpec(count=4))
+
+
+def test_pose_keys_survive_a_json_file(empty_scene, core):
+    """A lattice pose's point indices come back from a file as strings, in text order."""
+    import json
+
+    poses = core("blender.poses")
+    pose = {"frame": 1, "lattice": {"object": "Cage", "offsets": {2: [0.1, 0, 0],
+                                                                  10: [0, 0.2, 0]}}}
+    assert poses.pose_key(json.loads(json.dumps(pose))) == poses.pose_key(pose)
+    assert poses.pose_key(dict(pose, frame=2)) != poses.pose_key(pose)
+
+
+def test_evaluating_on_training_poses_is_refused(empty_scene, core):
+    from test_render import OracleNetwork
+
+    box = sb.lattice_box((4, 2, 2), 0.5)
+    sb.two_bone_rig(box)
+    capture = core("blender.capture").capture(box, 8, core("blender.poses").PoseSpec(count=2),
+                                              deform_corners=False)
+    neural = core("blender.neural")
+    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid), metadata={
+        "extra": {"albedo_table": capture.mesh.albedo_table().tolist(),
+                  "train_poses": capture.poses[1:]}},
+        grid=capture.grid, path="oracle.vdnif", device="cpu")
+    with pytest.raises(core("errors").VDNIFError,
+                       match=r"^'Box': the evaluation poses include poses that model "
+                             r"'oracle.vdnif' was trained on"):
+        neural.evaluate_model(box, capture, model, 8, 8)
+    report, _ = neural.evaluate_model(box, capture, model, 8, 8, seen=True)
+    assert report["unseen_poses"] is False
