@@ -231,6 +231,13 @@ def _cell_triangles(
 
 
 @wp.kernel
+def _gather_corners(vertices: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.int32),
+                    corners: wp.array(dtype=wp.vec3d)):
+    k = wp.tid()
+    corners[k] = vertices[triangles[k]]
+
+
+@wp.kernel
 def _group_roots(mesh: wp.uint64, roots: wp.array(dtype=wp.int32)):
     c = wp.tid()
     roots[c] = wp.mesh_get_group_root(mesh, c)
@@ -250,10 +257,13 @@ class SurfaceCaster:
                  cell_boxes=None, cell_margin: float = 0.0) -> None:
         runtime.load(sys.modules[__name__], device)
         self.device = device
+        self._on_cpu = wp.get_device(device).is_cpu
         self.triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
         count = len(self.triangles)
-        self.points = wp.empty(len(np.asarray(vertices).reshape(-1, 3)), dtype=wp.vec3,
-                               device=device)
+        vertex_count = len(np.asarray(vertices).reshape(-1, 3))
+        self.points = wp.empty(vertex_count, dtype=wp.vec3, device=device)
+        self.vertices = wp.empty(vertex_count, dtype=wp.vec3d, device=device)
+        self.corner_vertex = wp.array(self.triangles.ravel(), dtype=wp.int32, device=device)
         # Each triangle's float64 corners and float32 normals, contiguous: a hit reads two or
         # three cache lines, not one per vertex (it is memory-bound on large meshes).
         self.corners = wp.empty(3 * count, dtype=wp.vec3d, device=device)
@@ -270,8 +280,9 @@ class SurfaceCaster:
 
     def _bvh(self, triangles, groups=None):
         """A Warp mesh of ``triangles`` (K, 3) over ``self.points``, grouped by ``groups``."""
-        indices = wp.array(np.ascontiguousarray(triangles, np.int32).ravel(), dtype=wp.int32,
-                           device=self.device)
+        indices = self.corner_vertex if groups is None else wp.array(
+            np.ascontiguousarray(triangles, np.int32).ravel(), dtype=wp.int32,
+            device=self.device)
         if groups is not None:
             groups = wp.array(groups, dtype=wp.int32, device=self.device)
         return wp.Mesh(points=self.points, indices=indices, groups=groups)
@@ -313,7 +324,9 @@ class SurfaceCaster:
     def _set(self, vertices, corner_normals) -> None:
         vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
         self.points.assign(vertices.astype(np.float32))
-        self.corners.assign(vertices[self.triangles].reshape(-1, 3))
+        self.vertices.assign(vertices)
+        wp.launch(_gather_corners, dim=len(self.corner_vertex),
+                  inputs=[self.vertices, self.corner_vertex, self.corners], device=self.device)
         self.corner_normals.assign(np.asarray(corner_normals, np.float32).reshape(-1, 3))
 
     def cast_rays(self, origins, directions, max_distance):
@@ -346,8 +359,9 @@ class SurfaceCaster:
             wp.float64(margin)])
 
     def _vectors(self, values):
-        return wp.array(np.asarray(values, np.float64).reshape(-1, 3), dtype=wp.vec3d,
-                        device=self.device)
+        # On the CPU the kernel reads float64 input in place (a copy costs a tenth of a cast).
+        return wp.array(np.ascontiguousarray(values, np.float64).reshape(-1, 3),
+                        dtype=wp.vec3d, device=self.device, copy=not self._on_cpu)
 
     def _launch(self, kernel, count, inputs):
         if self.mesh is None or count == 0:
