@@ -254,7 +254,7 @@ def test_a_surface_just_beyond_the_cell_face_is_hit_within_the_margin():
     np.testing.assert_allclose(distance, [0.5, 0, 0.5 - margin / 2], atol=1e-12)
 
 
-def test_segment_cells_outside_the_caster_are_refused():
+def test_segment_cells_outside_the_caster_and_refits_are_refused():
     mesh = blob_mesh()
     grid = voxels.build_grid(mesh.vertices, mesh.triangles, 6)
     caster = groundtruth.rest_surface(mesh, grid)
@@ -262,6 +262,8 @@ def test_segment_cells_outside_the_caster_are_refused():
     segments.cell[3] = len(grid.cells)
     with pytest.raises(VDNIFError, match="cells"):
         groundtruth.segment_targets(mesh, caster, segments)
+    with pytest.raises(VDNIFError, match="cannot be refit"):
+        caster.refit(mesh.vertices, mesh.corner_normals)
 
 
 def test_true_reference_is_the_cast_of_its_pose():
