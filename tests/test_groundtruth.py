@@ -189,3 +189,32 @@ def test_references_equal_the_golden_metrics(empty_scene, core):
                                                       abs=TOLERANCE)
         assert found["normal_error_deg"] == pytest.approx(expected["normal_error_deg"],
                                                           abs=1e-3)
+
+
+def test_one_deformed_caster_per_posed_object_follows_the_pose_asked_for(empty_scene, core):
+    """Built once, refit to whichever pose's ``mesh_caster`` is asked for, equal to a caster
+    built on that pose alone; the rest pose uses the rest caster."""
+    obj = core("blender.scenes").demo_scene("arm")
+    capture = core("blender.capture").capture(
+        obj, 12, core("blender.poses").PoseSpec(count=2, seed=1), deform_corners=False)
+    rays, references = core("rays"), core("references")
+    surface = core("kernels.surface")
+    with core("blender.posed").PosedObject(obj, capture) as posed_object:
+        first, second = (posed_object.geometry(pose) for pose in capture.poses)
+        origins, directions = rays.orbit_rays(first.vertices.min(0), first.vertices.max(0),
+                                              rays.orbit_viewpoints(1)[0], 32, 32)
+        mesh = capture.mesh
+        casters, passes = [], []
+        for geometry in (first, second, first):
+            casters.append(geometry.mesh_caster(mesh.triangles))
+            passes.append(references.true_reference(mesh, casters[-1], origins, directions))
+        alone = references.true_reference(
+            mesh, surface.SurfaceCaster(second.vertices, mesh.triangles, second.normals),
+            origins, directions)
+        rest = posed_object.rest_geometry().mesh_caster(mesh.triangles)
+        assert rest is posed_object.rest_caster
+    assert casters[0] is casters[1] is casters[2]
+    assert passes[0].hit.sum() > 100 and (passes[0].distance != passes[1].distance).any()
+    for name in ("hit", "distance", "normal"):
+        np.testing.assert_array_equal(getattr(passes[2], name), getattr(passes[0], name))
+        np.testing.assert_array_equal(getattr(passes[1], name), getattr(alone, name))
