@@ -19,38 +19,7 @@ def unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-# --- barycentric -----------------------------------------------------------------------------
-
-def test_barycentric_recovers_weights_and_points_of_random_triangles():
-    rng = np.random.default_rng(1)
-    corners = rng.normal(size=(500, 3, 3))
-    weights = rng.normal(size=(500, 3))
-    weights /= weights.sum(axis=1, keepdims=True)    # points in the plane, also outside
-    points = np.einsum("nc,nci->ni", weights, corners)
-    normal = unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
-    lifted = points + rng.normal(size=(500, 1)) * normal   # off the plane: projected
-    found = attributes.barycentric(lifted, corners)
-    np.testing.assert_allclose(found, weights, atol=1e-8)
-    np.testing.assert_allclose(np.einsum("nc,nci->ni", found, corners), points, atol=1e-8)
-
-
-def test_barycentric_of_degenerate_triangles_is_finite_and_sensible():
-    corners = np.array([
-        [[0, 0, 0], [1, 0, 0], [2, 0, 0]],      # collinear: segment 0..2 along x
-        [[0, 0, 0], [0, 0, 0], [0, 4, 0]],      # two corners coincide
-        [[1, 1, 1], [1, 1, 1], [1, 1, 1]],      # a point
-        [[0, 0, 0], [2, 0, 0], [1, 0, 0]],      # collinear, point beyond the segment
-    ], dtype=float)
-    points = np.array([[1.5, 0, 0], [5, 1, 0], [3, 3, 3], [-1, 2, 0]], dtype=float)
-    weights = attributes.barycentric(points, corners)
-    assert np.all(np.isfinite(weights))
-    np.testing.assert_allclose(weights.sum(axis=1), 1.0)
-    recomposed = np.einsum("nc,nci->ni", weights, corners)
-    # The nearest point of each degenerate triangle (a segment or a point).
-    np.testing.assert_allclose(recomposed, [[1.5, 0, 0], [0, 1, 0], [1, 1, 1], [0, 0, 0]],
-                               atol=1e-12)
-    np.testing.assert_allclose(weights[2], [1 / 3, 1 / 3, 1 / 3])
-
+# --- interpolate ---------------------------------------------------------------------------
 
 def test_interpolate_blends_per_corner_values():
     values = np.array([[[1.0, 10.0], [2.0, 20.0], [4.0, 40.0]]])
@@ -116,7 +85,8 @@ def test_sample_texture_rejects_bad_input():
         attributes.sample_texture(np.zeros((0, 2, 3)), np.zeros((1, 2)), "REPEAT")
 
 
-# --- surface_attributes ----------------------------------------------------------------------
+# --- surface_albedo --------------------------------------------------------------------------
+# (Barycentric weights and shading normals of hits: tests/test_surface_kernel.py.)
 
 def square_mesh(**overrides):
     """Unit square at z = 0 as two triangles: 0 = (0,0)(1,0)(1,1), 1 = (0,0)(1,1)(0,1);
@@ -134,55 +104,47 @@ def square_mesh(**overrides):
     return RestMesh(**fields)
 
 
-def test_surface_attributes_by_material():
+def test_surface_albedo_by_material():
     mesh = square_mesh()
     # Triangle 1 at (0.25, 0.75): x = w1, y = w1 + w2 -> weights (0.25, 0.25, 0.5).
-    result = attributes.surface_attributes(
+    albedo, material = attributes.surface_albedo(
         mesh, np.array([0, 1, 0]), np.array([[0.2, 0.3, 0.5], [0.25, 0.25, 0.5], [1, 0, 0]]))
-    assert result["material"].dtype == np.int32 and result["material"].tolist() == [0, 1, 0]
-    assert result["albedo"].dtype == np.float32
-    np.testing.assert_allclose(result["albedo"], [[0.2, 0.4, 0.6], [3, 1.5, 0.75],
-                                                  [0.2, 0.4, 0.6]], atol=1e-6)
-    np.testing.assert_allclose(result["normal"], np.tile([0, 0, 1.0], (3, 1)))
+    assert material.dtype == np.int32 and material.tolist() == [0, 1, 0]
+    assert albedo.dtype == np.float32
+    np.testing.assert_allclose(albedo, [[0.2, 0.4, 0.6], [3, 1.5, 0.75], [0.2, 0.4, 0.6]],
+                               atol=1e-6)
 
 
 def test_texture_without_uvs_uses_the_constant_color():
-    result = attributes.surface_attributes(square_mesh(uvs=None), np.array([1]),
-                                           np.array([[0.25, 0.25, 0.5]]))
-    np.testing.assert_allclose(result["albedo"], [[0.9, 0.9, 0.9]], atol=1e-7)
+    albedo, _ = attributes.surface_albedo(square_mesh(uvs=None), np.array([1]),
+                                          np.array([[0.25, 0.25, 0.5]]))
+    np.testing.assert_allclose(albedo, [[0.9, 0.9, 0.9]], atol=1e-7)
 
 
 def test_color_attribute_is_interpolated():
     colors = np.float32([[[1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 0, 0]] * 3])
     mesh = square_mesh(albedo=[Albedo("attribute", np.float32([0.5, 0.5, 0.5]))],
                        material_index=np.zeros(2, dtype=np.int32), corner_colors=colors)
-    result = attributes.surface_attributes(mesh, np.array([0]), np.array([[0.2, 0.3, 0.5]]))
-    np.testing.assert_allclose(result["albedo"], [[0.2, 0.3, 0.5]], atol=1e-7)
+    albedo, material = attributes.surface_albedo(mesh, np.array([0, 1]),
+                                                 np.array([[0.2, 0.3, 0.5], [1, 0, 0]]))
+    assert albedo.dtype == np.float32 and material.tolist() == [0, 0]
+    np.testing.assert_allclose(albedo, [[0.2, 0.3, 0.5], [0, 0, 0]], atol=1e-7)
 
 
-def test_smooth_normals_are_interpolated_and_renormalized():
-    normals = np.float32([[[0, 0, 1], [1, 0, 0], [0, 1, 0]], [[0, 0, 1]] * 3])
-    mesh = square_mesh(corner_normals=normals)
-    result = attributes.surface_attributes(mesh, np.array([0, 1]),
-                                           np.array([[0.5, 0.5, 0], [0.1, 0.2, 0.7]]))
-    np.testing.assert_allclose(result["normal"], [[np.sqrt(0.5), 0, np.sqrt(0.5)], [0, 0, 1]],
-                               atol=1e-7)
-
-
-def test_given_normals_replace_the_rest_normals_and_cancelling_ones_fall_back():
-    mesh = square_mesh()
-    deformed = np.float32([[[1, 0, 0]] * 3, [[0, 0, 1], [0, 0, -1], [0, 0, 1]]])
-    result = attributes.surface_attributes(mesh, np.array([0, 1]),
-                                           np.array([[0.3, 0.3, 0.4], [0.5, 0.5, 0]]),
-                                           normals=deformed)
-    # Triangle 1's normals cancel at that point: its geometric normal (counter-clockwise, +z).
-    np.testing.assert_allclose(result["normal"], [[1, 0, 0], [0, 0, 1]], atol=1e-12)
+def test_single_constant_material_fills_every_point():
+    mesh = square_mesh(albedo=[Albedo("constant", np.float32([0.2, 0.4, 0.6]))],
+                       material_index=np.zeros(2, dtype=np.int32))
+    albedo, material = attributes.surface_albedo(mesh, np.array([0, 1, 1]), np.eye(3))
+    np.testing.assert_array_equal(albedo, np.tile(np.float32([0.2, 0.4, 0.6]), (3, 1)))
+    assert material.tolist() == [0, 0, 0]
+    albedo, material = attributes.surface_albedo(mesh, np.zeros(0, int), np.zeros((0, 3)))
+    assert albedo.shape == (0, 3) and material.shape == (0,)
 
 
 def test_material_index_out_of_range_is_reported():
     mesh = square_mesh(material_index=np.array([0, 2], dtype=np.int32))
     with pytest.raises(VDNIFError, match="material index"):
-        attributes.surface_attributes(mesh, np.array([1]), np.array([[1.0, 0, 0]]))
+        attributes.surface_albedo(mesh, np.array([1]), np.array([[1.0, 0, 0]]))
 
 
 # --- trilinear map, Jacobian and deformed normals --------------------------------------------

@@ -44,7 +44,7 @@ class OracleNetwork:
 
     def __init__(self, mesh, grid):
         self.mesh, self.grid = mesh, grid
-        self.caster = traverse.BruteForceCaster(mesh.vertices[mesh.triangles])
+        self.caster = groundtruth.rest_surface(mesh)           # segments in no given cell
         self.queries = 0
 
     def predict(self, p0, p1, rest_len, voxel_size):
@@ -73,7 +73,7 @@ def test_oracle_network_renders_the_embedded_reference():
     oracle = OracleNetwork(mesh, grid)
     predicted, stats = render.neural_passes(oracle, grid, mesh.albedo_table(), cells, entry,
                                             origins, directions)
-    rest_caster = traverse.BruteForceCaster(mesh.vertices[mesh.triangles])
+    rest_caster = groundtruth.rest_surface(mesh, grid)
     reference, segments, _ = references.embedded_passes(cells, entry, mesh, rest_caster,
                                                         origins, directions)
     np.testing.assert_array_equal(predicted.hit, reference.hit)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from vdnif_addon import references, traverse, voxels
+from vdnif_addon import groundtruth, references, traverse, voxels
 from vdnif_addon.attributes import FALLBACK_NORMAL, normalize
 from vdnif_addon.encoding import HashGrid
 from vdnif_addon.errors import VDNIFError
@@ -45,8 +45,7 @@ def walk_pose(core, obj, capture, pose, size=32):
             geometry.cells, geometry.entry_caster, capture.mesh, posed_object.rest_caster,
             origins, directions)
         truth = refs.true_reference(
-            capture.mesh, geometry.mesh_caster(capture.mesh.triangles), geometry.vertices,
-            geometry.normals, origins, directions)
+            capture.mesh, geometry.mesh_caster(capture.mesh.triangles), origins, directions)
         corners = geometry.cells.corners.reshape(-1, 3)
         inverted = core("voxels").inverted_cells(corners, np.arange(len(corners)).reshape(-1, 8))
     return dict(segments=segments, targets=targets, embedded=embedded, truth=truth,
@@ -254,7 +253,7 @@ def embedded_at_rest(mesh, origins, directions, resolution=8):
     cells = traverse.DeformedCells.build(grid, grid.corner_positions())
     passes, segments, targets = references.embedded_passes(
         cells, traverse.BruteForceCaster(cells.boundary_triangles()), mesh,
-        traverse.BruteForceCaster(mesh.vertices[mesh.triangles]), origins, directions)
+        groundtruth.rest_surface(mesh, grid), origins, directions)
     assert segments.truncated == 0
     for array in (segments.p0, segments.p1, targets.distance, targets.normal, passes.distance,
                   passes.normal):
@@ -264,9 +263,8 @@ def embedded_at_rest(mesh, origins, directions, resolution=8):
 
 def brute_force(mesh, origins, directions):
     """Rays cast straight at the triangles, no voxels."""
-    caster = traverse.BruteForceCaster(mesh.vertices[mesh.triangles])
-    return references.true_reference(mesh, caster, mesh.vertices, mesh.corner_normals,
-                                     origins, directions)
+    return references.true_reference(mesh, groundtruth.rest_surface(mesh), origins,
+                                     directions)
 
 
 def assert_same_passes(embedded, truth, size):

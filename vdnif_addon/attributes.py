@@ -1,5 +1,6 @@
-"""Surface attributes at hit points: barycentric weights, shading normals, albedo, material,
-and the trilinear cell map whose Jacobian carries rest normals into deformed space.
+"""Surface attributes at hit points: albedo and material, and the trilinear cell map whose
+Jacobian carries rest normals into deformed space. (Barycentric weights and shading normals of
+hits are computed where the hits are found, in ``kernels.surface``.)
 
 Pure numpy, vectorized over all points (DESIGN sections 6 and 7). Degenerate input (zero-area
 triangles, singular Jacobians, zero vectors) gives documented finite fallbacks, never NaN.
@@ -33,30 +34,6 @@ def normalize(vectors, fallback) -> np.ndarray:
     return np.where(ok, unit, np.broadcast_to(fallback, vectors.shape))
 
 
-def barycentric(points, corners) -> np.ndarray:
-    """(N, 3) float64 weights of each point (N, 3) w.r.t. its triangle corners (N, 3, 3).
-
-    The point is projected onto the triangle's plane (weights are not clamped, so a point
-    outside the triangle gets negative weights). A degenerate triangle (collinear corners)
-    has no plane: the point is projected onto its longest edge, clamped to that segment, which
-    for collinear corners is the whole triangle; if all corners coincide the weights are 1/3
-    each. Weights always sum to 1 and are finite.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    corners = np.asarray(corners, dtype=np.float64)
-    e1 = corners[:, 1] - corners[:, 0]
-    e2 = corners[:, 2] - corners[:, 0]
-    d = points - corners[:, 0]
-    d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
-    denom = d11 * d22 - d12 * d12
-    planar = has_area(corners)
-    safe = np.where(planar, denom, 1.0)
-    w1 = (d22 * _dot(d, e1) - d12 * _dot(d, e2)) / safe
-    w2 = (d11 * _dot(d, e2) - d12 * _dot(d, e1)) / safe
-    weights = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
-    return np.where(planar[:, None], weights, _segment_weights(points, corners))
-
-
 def has_area(corners) -> np.ndarray:
     """(T,) bool: triangles with corners (T, 3, 3) that are not degenerate, i.e. sin^2 of
     the angle at corner 0 is at least DEGENERATE_SIN2 (|e1 x e2|^2 = d11 d22 - d12^2)."""
@@ -65,23 +42,6 @@ def has_area(corners) -> np.ndarray:
     e2 = corners[:, 2] - corners[:, 0]
     d11, d12, d22 = _dot(e1, e1), _dot(e1, e2), _dot(e2, e2)
     return d11 * d22 - d12 * d12 > DEGENERATE_SIN2 * d11 * d22
-
-
-def _segment_weights(points, corners) -> np.ndarray:
-    """(N, 3) weights of the nearest point on each triangle's longest edge (degenerate case)."""
-    start = np.array([0, 1, 2])
-    end = np.array([1, 2, 0])
-    edges = corners[:, end] - corners[:, start]                     # (N, 3 edges, 3)
-    longest = np.argmax(_dot(edges, edges), axis=1)                 # (N,)
-    rows = np.arange(len(points))
-    edge = edges[rows, longest]
-    length2 = _dot(edge, edge)
-    t = np.clip(_dot(points - corners[rows, start[longest]], edge)
-                / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    weights = np.zeros((len(points), 3))
-    weights[rows, start[longest]] = 1.0 - t
-    weights[rows, end[longest]] = t
-    return np.where(length2[:, None] > 0, weights, 1.0 / 3.0)
 
 
 def interpolate(values, weights) -> np.ndarray:
@@ -135,35 +95,27 @@ def _texel_pairs(coordinate, size: int, extension: str):
     return np.clip(index, 0, size - 1), weight
 
 
-def surface_attributes(mesh: RestMesh, triangle, weights, normals=None, vertices=None) -> dict:
-    """Shading attributes at surface points given by triangle (N,) int and weights (N, 3).
-
-    ``normals`` (T, 3, 3) and ``vertices`` (V, 3) replace ``mesh.corner_normals`` and
-    ``mesh.vertices``, so the same code serves a deformed mesh of the same topology. Returns
-    ``normal`` (N, 3) float64 unit: interpolated corner normals renormalized, else the
-    geometric face normal, else +Z (zero-area triangle with cancelling normals); ``albedo``
-    (N, 3) float32 from the triangle's material (DESIGN section 7: constant; texture at the
-    interpolated UV; interpolated color attribute; a texture without UVs or an attribute
-    without colors falls back to the constant color); ``material`` (N,) int32.
-    """
+def surface_albedo(mesh: RestMesh, triangle, weights):
+    """Albedo (N, 3) float32 and material slot (N,) int32 of surface points given by
+    triangle (N,) int and barycentric weights (N, 3), from the triangle's material (DESIGN
+    section 7: constant; texture at the interpolated UV; interpolated color attribute; a
+    texture without UVs or an attribute without colors falls back to the constant color).
+    Shading normals are read in the hit kernel (``kernels.surface``)."""
     triangle = np.asarray(triangle, dtype=np.int64)
     weights = np.asarray(weights, dtype=np.float64)
-    normals = mesh.corner_normals if normals is None else normals
-    vertices = mesh.vertices if vertices is None else vertices
-    corners = np.asarray(vertices, dtype=np.float64)[mesh.triangles[triangle]]
-    face_normal = normalize(np.cross(corners[:, 1] - corners[:, 0],
-                                     corners[:, 2] - corners[:, 0]), FALLBACK_NORMAL)
-    normal = normalize(interpolate(np.asarray(normals, dtype=np.float64)[triangle], weights),
-                       face_normal)
     material = np.asarray(mesh.material_index, dtype=np.int32)[triangle]
     if len(material) and (material.min() < 0 or material.max() >= mesh.material_count):
         raise VDNIFError(f"mesh {mesh.name!r}: material index out of range of its "
                          f"{mesh.material_count} material slot(s)")
     albedo = np.zeros((len(triangle), 3), dtype=np.float32)
+    if mesh.material_count == 1:
+        # One slot (the common case): no per-slot masks over every hit.
+        albedo[:] = _albedo(mesh, mesh.albedo[0], triangle, weights)
+        return albedo, material
     for slot in np.unique(material):
         mask = material == slot
         albedo[mask] = _albedo(mesh, mesh.albedo[slot], triangle[mask], weights[mask])
-    return {"normal": normal, "albedo": albedo, "material": material}
+    return albedo, material
 
 
 def _albedo(mesh: RestMesh, source, triangle, weights) -> np.ndarray:

@@ -1,11 +1,17 @@
 """Ground truth for rest-space segments (DESIGN section 6): cast ``p0 -> p1`` against the rest
-mesh and read the surface attributes at the hit."""
+mesh and read the surface attributes at the hit.
+
+The casts, barycentric weights and shading normals run as one kernel over all segments (or
+rays) on a ``kernels.surface.SurfaceCaster``; albedo and material are read here, over hits
+only.
+"""
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from .attributes import barycentric, surface_attributes
+from .attributes import surface_albedo
+from .kernels.surface import SurfaceCaster
 
 BOUNDARY_MARGIN = 1e-6
 
@@ -23,44 +29,46 @@ class SurfaceHits:
     material: np.ndarray     # (N,) int32
 
 
-def cast_surface(mesh, caster, origins, directions, max_distance, vertices=None, normals=None):
-    """First hits of rays against ``mesh`` (via ``caster`` built on the same triangles) with
-    their shading attributes. ``vertices``/``normals`` give a deformed pose of the mesh."""
-    vertices = mesh.vertices if vertices is None else vertices
-    triangle, distance = caster.cast(origins, directions, max_distance)
-    hit = triangle >= 0
-    count = len(origins)
-    hits = SurfaceHits(hit=hit, distance=np.where(hit, distance, 0.0), triangle=triangle,
-                       weights=np.zeros((count, 3)), normal=np.zeros((count, 3)),
-                       albedo=np.zeros((count, 3), np.float32),
-                       material=np.zeros(count, np.int32))
-    if hit.any():
-        points = origins[hit] + distance[hit, None] * directions[hit]
-        corners = np.asarray(vertices, np.float64)[mesh.triangles[triangle[hit]]]
-        hits.weights[hit] = barycentric(points, corners)
-        attributes = surface_attributes(mesh, triangle[hit], hits.weights[hit],
-                                        normals=normals, vertices=vertices)
-        hits.normal[hit] = attributes["normal"]
-        hits.albedo[hit] = attributes["albedo"]
-        hits.material[hit] = attributes["material"]
-    return hits
+def rest_surface(mesh, grid=None, device: str = "cpu") -> SurfaceCaster:
+    """The rest mesh (a RestMesh) as a SurfaceCaster, built once per capture. Given the
+    VoxelGrid, each cell keeps the triangles its segments can hit (their casts reach
+    BOUNDARY_MARGIN of the object size beyond the cell: the lists take twice that, so float32
+    bounds never drop one); without it segments are cast against the whole mesh."""
+    boxes, reach = None, 0.0
+    if grid is not None:
+        boxes = grid.cell_bounds(np.arange(len(grid.cells)))
+        reach = 2 * BOUNDARY_MARGIN * mesh.size
+    return SurfaceCaster(mesh.vertices, mesh.triangles, mesh.corner_normals, device,
+                         cell_boxes=boxes, cell_margin=reach)
+
+
+def cast_surface(mesh, caster, origins, directions, max_distance):
+    """First hits of rays (N, 3) within ``max_distance`` against ``caster`` (a SurfaceCaster
+    of ``mesh``'s triangles, in whichever pose it holds) with their shading attributes."""
+    return _surface_hits(mesh, *caster.cast_rays(origins, directions, max_distance))
 
 
 def segment_targets(mesh, rest_caster, segments):
-    """SurfaceHits of each rest segment; ``distance`` is the rest-space local distance d
-    from ``p0``. The hit fraction along the segment is ``distance / rest_length``.
+    """SurfaceHits of each rest segment on ``rest_caster`` (``rest_surface(mesh, grid)``,
+    the grid whose cells ``segments.cell`` indexes);
+    ``distance`` is the rest-space local distance d from ``p0``. The hit fraction along the
+    segment is ``distance / rest_length``.
 
     Each cast starts a hair before ``p0`` and ends a hair after ``p1`` (BOUNDARY_MARGIN of
     the object size): a surface lying exactly on a cell face (a flat cap on a grid plane)
     is otherwise missed by both segments that share the face, since a float32 BVH cast
     starting or ending on a surface may not report it. The earlier segment keeps it.
     """
-    offset = segments.p1 - segments.p0
-    rest_length = np.linalg.norm(offset, axis=1)
-    usable = rest_length > 0
-    directions = offset / np.where(usable, rest_length, 1.0)[:, None]
-    margin = BOUNDARY_MARGIN * mesh.size
-    hits = cast_surface(mesh, rest_caster, segments.p0 - margin * directions, directions,
-                        np.where(usable, rest_length + 2 * margin, -1.0))
-    hits.distance = np.where(hits.hit, np.clip(hits.distance - margin, 0.0, rest_length), 0.0)
-    return hits
+    return _surface_hits(mesh, *rest_caster.cast_segments(
+        segments.p0, segments.p1, segments.cell, BOUNDARY_MARGIN * mesh.size))
+
+
+def _surface_hits(mesh, triangle, distance, weights, normal):
+    hit = triangle >= 0
+    count = len(triangle)
+    albedo = np.zeros((count, 3), np.float32)
+    material = np.zeros(count, np.int32)
+    if hit.any():
+        albedo[hit], material[hit] = surface_albedo(mesh, triangle[hit], weights[hit])
+    return SurfaceHits(hit=hit, distance=distance, triangle=triangle, weights=weights,
+                       normal=normal, albedo=albedo, material=material)

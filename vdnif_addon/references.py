@@ -13,11 +13,11 @@ from .metrics import Passes
 from .traverse import traverse
 
 
-def true_reference(mesh, deformed_caster, vertices, normals, origins, directions):
-    """Passes of rays against the deformed mesh: ``vertices`` (V, 3) and corner ``normals``
-    (T, 3, 3) of the evaluated mesh, which has the rest mesh's topology."""
-    hits = cast_surface(mesh, deformed_caster, origins, directions,
-                        np.full(len(origins), np.inf), vertices=vertices, normals=normals)
+def true_reference(mesh, deformed_caster, origins, directions):
+    """Passes of rays (N, 3) against the deformed mesh: ``deformed_caster`` is a
+    ``kernels.surface.SurfaceCaster`` holding the evaluated mesh's vertices and corner normals
+    (the rest mesh's topology, e.g. ``PoseGeometry.mesh_caster``)."""
+    hits = cast_surface(mesh, deformed_caster, origins, directions, np.inf)
     return Passes(hit=hits.hit, distance=hits.distance, normal=hits.normal,
                   albedo=hits.albedo, material=hits.material)
 

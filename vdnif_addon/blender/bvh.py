@@ -1,7 +1,7 @@
 """Ray casts against triangles with Blender's BVHTree (mathutils): the entry caster over the
-boundary faces of deformed cells, the rest mesh for segment ground truth, and the deformed
-mesh for the true reference. BVHTree has no batch API, so this is the one Python loop over
-rays (measured in the throughput figures)."""
+boundary faces of deformed cells, the classical baseline of ``side-by-side`` and the
+independent check of the Warp casts in tests (the ground truth and the true reference cast
+with ``kernels.surface``). BVHTree has no batch API, so this is a Python loop over rays."""
 
 import bpy  # noqa: F401  (mathutils must be imported after bpy)
 import numpy as np

@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import dataset
 from ..attributes import sample_surface
+from ..evaluation import metric_heads
 from ..groundtruth import segment_targets
 from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
@@ -21,14 +22,18 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its header."""
     start, stop = pose_range or (0, len(capture.poses))
-    timings = dict(prepare_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0)
+    timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
+                   records_s=0.0)
     records, counts = [], dict(rays=0, segments=0, hits=0)
     inverted, entry_casts = [], []
     with PosedObject(obj, capture) as posed_object:
-        rest_caster = TimedCaster(posed_object.rest_caster)
+        clock = time.perf_counter()
+        rest_caster = posed_object.rest_caster
+        timings["rest_surface_s"] = time.perf_counter() - clock
         for done, index in enumerate(range(start, stop), 1):
+            clock = time.perf_counter()
             geometry = posed_object.geometry(capture.poses[index])
-            timings["prepare_s"] += geometry.prepare_s
+            _pose_timings(timings, geometry, time.perf_counter() - clock)
             clock = time.perf_counter()
             rng = np.random.default_rng([seed, index])
             surface, _, _ = sample_surface(geometry.vertices, capture.mesh.triangles,
@@ -44,17 +49,20 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
             clock = time.perf_counter()
             targets = segment_targets(capture.mesh, rest_caster, segments)
             timings["ground_truth_s"] += time.perf_counter() - clock
+            clock = time.perf_counter()
             records.append(dataset.segment_records(capture.grid, segments, targets, index))
+            timings["records_s"] += time.perf_counter() - clock
             inverted.append(geometry.inverted_cells())
             counts["rays"] += rays_per_pose
             counts["segments"] += len(segments)
             counts["hits"] += int(targets.hit.sum())
             if progress is not None:
                 progress(done, stop - start)
+    clock = time.perf_counter()
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
+    timings["records_s"] += time.perf_counter() - clock
     timings["total_s"] = sum(timings.values())
     timings["walk_entry_bvh_s"] = sum(c.seconds for c in entry_casts)
-    timings["ground_truth_bvh_s"] = rest_caster.seconds
     header = {
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
         "grid": dataset.grid_header(capture.grid), "voxel_size": capture.grid.voxel_size,
@@ -64,7 +72,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
         "versions": _versions(),
     }
+    clock = time.perf_counter()
     dataset.write_shard(out_dir, f"shard-{start:06d}-{stop:06d}", merged, header)
+    timings["write_s"] = time.perf_counter() - clock     # in the returned header only
     return header
 
 
@@ -72,31 +82,41 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
     """Renders the true and embedded references of every pose in ``capture`` from an orbit
     camera each, and returns the embedding error and throughput as a JSON-ready dict."""
     mesh = capture.mesh
+    heads = metric_heads(mesh)
     directions = orbit_viewpoints(len(capture.poses))
     truth, embedded, per_pose = [], [], []
-    clock = dict(prepare_s=0.0, walk_s=0.0, ground_truth_s=0.0, true_reference_s=0.0)
+    clock = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
+                 embedded_reference_s=0.0, true_reference_s=0.0)
     segment_count = 0
     with PosedObject(obj, capture) as posed_object:
+        start = time.perf_counter()
+        rest_caster = posed_object.rest_caster
+        clock["rest_surface_s"] = time.perf_counter() - start
         for index, pose in enumerate(capture.poses):
+            start = time.perf_counter()
             geometry = (posed_object.rest_geometry() if rest_pose
                         else posed_object.geometry(pose))
-            clock["prepare_s"] += geometry.prepare_s
+            _pose_timings(clock, geometry, time.perf_counter() - start)
+            start = time.perf_counter()
             origins, rays = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
                                        directions[index], width, height)
+            clock["rays_s"] += time.perf_counter() - start
             start = time.perf_counter()
             segments = traverse(geometry.cells, geometry.entry_caster, origins, rays)
             walked = time.perf_counter()
-            targets = segment_targets(mesh, posed_object.rest_caster, segments)
+            targets = segment_targets(mesh, rest_caster, segments)
             grounded = time.perf_counter()
             embedded.append(embedded_reference(geometry.cells, segments, targets, len(rays)))
             clock["walk_s"] += walked - start
             clock["ground_truth_s"] += grounded - walked
+            clock["embedded_reference_s"] += time.perf_counter() - grounded
             segment_count += len(segments)
             start = time.perf_counter()
-            truth.append(true_reference(mesh, geometry.mesh_caster(mesh.triangles),
-                                        geometry.vertices, geometry.normals, origins, rays))
+            truth.append(true_reference(mesh, geometry.mesh_caster(mesh.triangles), origins,
+                                        rays))
             clock["true_reference_s"] += time.perf_counter() - start
-            per_pose.append(dict(compare(embedded[-1], truth[-1], mesh.size, mesh.heads()),
+            per_pose.append(dict(compare(embedded[-1], truth[-1], mesh.size, heads,
+                                         capture.grid.voxel_size),
                                  inverted_cells=geometry.inverted_cells()))
             if progress is not None:
                 progress(index + 1, len(capture.poses))
@@ -106,13 +126,20 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
         "object": mesh.name, "mode": capture.mode, "resolution": capture.grid.resolution,
         "poses": len(capture.poses), "rest_pose": rest_pose, "width": width, "height": height,
         "embedded_vs_true": compare(Passes.concatenate(embedded), Passes.concatenate(truth),
-                                    mesh.size, mesh.heads()),
+                                    mesh.size, heads, capture.grid.voxel_size),
         "per_pose": per_pose,
         "rays_per_s": rays_total / neural_path_s,
         "segments_per_s": segment_count / neural_path_s,
         "segments_per_ray": segment_count / rays_total,
         "timings": clock, "versions": _versions(),
     }
+
+
+def _pose_timings(timings, geometry, seconds):
+    """Adds a pose's preparation (deformed cells and entry BVH) and the rest of posing it
+    (Blender's evaluation of the deformed mesh) to ``timings``."""
+    timings["prepare_s"] += geometry.prepare_s
+    timings["evaluate_s"] += seconds - geometry.prepare_s
 
 
 def _versions():

@@ -188,8 +188,7 @@ def _render(model, posed_object, geometry, origins, directions, references):
     render_s = time.perf_counter() - start
     true = embedded = None
     if references:
-        true = true_reference(mesh, geometry.mesh_caster(mesh.triangles), geometry.vertices,
-                              geometry.normals, origins, directions)
+        true = true_reference(mesh, geometry.mesh_caster(mesh.triangles), origins, directions)
         embedded, _, _ = embedded_passes(geometry.cells, geometry.entry_caster, mesh,
                                          posed_object.rest_caster, origins, directions)
     timings = dict(prepare_s=geometry.prepare_s, walk_s=stats["walk_s"],
