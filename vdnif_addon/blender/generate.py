@@ -23,7 +23,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0)
     records, counts = [], dict(rays=0, segments=0, hits=0)
-    inverted, entry_casts = [], []
+    inverted = []
     with PosedObject(obj, capture) as posed_object:
         rest_caster = TimedCaster(posed_object.rest_caster)
         for done, index in enumerate(range(start, stop), 1):
@@ -38,8 +38,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                                                 rays_per_pose, surface_fraction, rng)
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
-            entry_casts.append(TimedCaster(geometry.entry_caster))
-            segments = traverse(geometry.cells, entry_casts[-1], origins, directions)
+            segments = traverse(geometry.cells, origins, directions)
             timings["walk_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             targets = segment_targets(capture.mesh, rest_caster, segments)
@@ -53,7 +52,6 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                 progress(done, stop - start)
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
     timings["total_s"] = sum(timings.values())
-    timings["walk_entry_bvh_s"] = sum(c.seconds for c in entry_casts)
     timings["ground_truth_bvh_s"] = rest_caster.seconds
     header = {
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
@@ -84,7 +82,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
             origins, rays = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
                                        directions[index], width, height)
             start = time.perf_counter()
-            segments = traverse(geometry.cells, geometry.entry_caster, origins, rays)
+            segments = traverse(geometry.cells, origins, rays)
             walked = time.perf_counter()
             targets = segment_targets(mesh, posed_object.rest_caster, segments)
             grounded = time.perf_counter()
