@@ -21,6 +21,7 @@ from mathutils.bvhtree import BVHTree
 
 from ..dda import StaticGrid
 from ..errors import VDNIFError
+from ..kernels import runtime
 from ..network import Heads, IntersectionNetwork, NetworkConfig
 from ..rays import orbit_rays, orbit_viewpoints
 from ..render import predict_segments, neural_passes
@@ -77,9 +78,9 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None):
                          "at least 1x1")
     network, albedo_table, device, model_info = _network(capture, model)
     viewpoints = orbit_viewpoints(len(capture.poses))
-    static_grid = StaticGrid(capture.grid)
+    static_grid = StaticGrid(capture.grid, runtime.device(device))
     runs = []
-    with PosedObject(obj, capture) as posed_object:
+    with PosedObject(obj, capture, device) as posed_object:
         rest = posed_object.rest_geometry()
         rest_rays = [orbit_rays(capture.mesh.vertices.min(0), capture.mesh.vertices.max(0),
                                 view, width, height) for view in viewpoints]
@@ -157,8 +158,7 @@ def _pose_record(obj, posed_object, pose, view, width, height, network, albedo_t
     classical_render_s = time.perf_counter() - start
     start = time.perf_counter()
     passes, stats = neural_passes(network, posed_object.capture.grid, albedo_table,
-                                  geometry.cells, geometry.entry_caster, origins, directions,
-                                  device)
+                                  geometry.cells, origins, directions, device)
     neural_render_s = time.perf_counter() - start
     return {
         "classical_evaluate_s": classical_evaluate_s, "classical_bvh_s": classical_bvh_s,
@@ -186,7 +186,7 @@ def _rest_record(rest, static_grid, network, grid, device, origins, directions):
     """Deformed walk vs static DDA walk of the same rest-pose rays, and the network over
     every walked segment (the same segments for both walks)."""
     start = time.perf_counter()
-    deformed = traverse(rest.cells, rest.entry_caster, origins, directions)
+    deformed = traverse(rest.cells, origins, directions)
     deformed_walk_s = time.perf_counter() - start
     start = time.perf_counter()
     static = static_grid.traverse(origins, directions)
