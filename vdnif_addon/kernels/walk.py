@@ -298,12 +298,24 @@ def segment_buffer(capacity: int, device: str) -> SegmentBuffer:
     return buffer
 
 
+class Lane:
+    """A list of unfinished rays on the device (order kept on the CPU)."""
+
+    def __init__(self, rays: np.ndarray, device: str) -> None:
+        self.active = wp.array(np.asarray(rays, np.int32), dtype=wp.int32, device=device)
+        self._spare = wp.empty(len(rays), dtype=wp.int32, device=device)
+        self._cursor = wp.zeros(1, dtype=wp.int32, device=device)
+        self.count = len(rays)
+
+
 class RayWalk:
     """The walker state of a set of rays through ``cells`` (a ``DeviceCells`` in its current
-    pose) on the cells' device. ``advance`` launches the walk for every unfinished ray;
-    ``active``/``count`` list them."""
+    pose) on the cells' device. The unfinished rays are split into ``lanes`` (ray i in lane
+    i mod lanes) that can be walked separately: ``advance`` walks one lane on,
+    ``drop_finished`` takes its finished rays out; ``count`` is the total left."""
 
-    def __init__(self, cells, origins, directions, max_distance=None, max_steps=None) -> None:
+    def __init__(self, cells, origins, directions, max_distance=None, max_steps=None,
+                 lanes=1) -> None:
         runtime.load(sys.modules[__name__], cells.device)
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)
@@ -324,40 +336,42 @@ class RayWalk:
                             ("t", wp.float64), ("p", wp.vec3d), ("clip_from", wp.float64)):
             setattr(state, name, wp.zeros(count, dtype=dtype, device=self.device))
         self.state = state
-        self.active = wp.array(np.arange(count, dtype=np.int32), dtype=wp.int32,
-                               device=self.device)
-        self._spare = wp.empty(count, dtype=wp.int32, device=self.device)
-        self._cursor = wp.zeros(1, dtype=wp.int32, device=self.device)
-        self.count = count
+        self.lanes = [Lane(np.arange(lane, count, lanes), self.device) for lane in range(lanes)]
 
-    def advance(self, out: SegmentBuffer, per_wave: int = UNLIMITED) -> int:
-        """Walks every unfinished ray on until done, ``per_wave`` segments written, or
-        ``out`` full; returns the number of segments now in ``out`` (written from slot
-        ``out.cursor``, which the caller zeroes)."""
-        if self.count:
-            wp.launch(walk_rays, dim=self.count,
-                      inputs=[self.cells.arrays, self.state, self.active, self.max_steps,
+    @property
+    def count(self) -> int:
+        return sum(lane.count for lane in self.lanes)
+
+    def advance(self, out: SegmentBuffer, per_wave: int = UNLIMITED, lane: int = 0) -> int:
+        """Walks every unfinished ray of ``lane`` on until done, ``per_wave`` segments
+        written, or ``out`` full; returns the number of segments now in ``out`` (written
+        from slot ``out.cursor``, which the caller zeroes)."""
+        rays = self.lanes[lane]
+        if rays.count:
+            wp.launch(walk_rays, dim=rays.count,
+                      inputs=[self.cells.arrays, self.state, rays.active, self.max_steps,
                               per_wave, out], device=self.device)
         return min(int(out.cursor.numpy()[0]), out.capacity)
 
-    def drop_finished(self) -> int:
-        """Keeps only unfinished rays in ``active`` (order kept on the CPU); their count."""
-        if self.count:
-            self._cursor.zero_()
-            wp.launch(_still_walking, dim=self.count,
-                      inputs=[self.state, self.active, self._spare, self._cursor],
+    def drop_finished(self, lane: int = 0) -> int:
+        """Keeps only the unfinished rays in ``lane``; returns their count."""
+        rays = self.lanes[lane]
+        if rays.count:
+            rays._cursor.zero_()
+            wp.launch(_still_walking, dim=rays.count,
+                      inputs=[self.state, rays.active, rays._spare, rays._cursor],
                       device=self.device)
-            self.active, self._spare = self._spare, self.active
-            self.count = int(self._cursor.numpy()[0])
-        return self.count
+            rays.active, rays._spare = rays._spare, rays.active
+            rays.count = int(rays._cursor.numpy()[0])
+        return rays.count
 
     def truncated(self) -> int:
         """Rays that ran out of steps or whose seek was given up."""
-        self._cursor.zero_()
+        counter = wp.zeros(1, dtype=wp.int32, device=self.device)
         if self.rays:
-            wp.launch(_count_truncated, dim=self.rays, inputs=[self.state, self._cursor],
+            wp.launch(_count_truncated, dim=self.rays, inputs=[self.state, counter],
                       device=self.device)
-        return int(self._cursor.numpy()[0])
+        return int(counter.numpy()[0])
 
 
 def collect(buffer: SegmentBuffer, count: int, device: str):
