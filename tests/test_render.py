@@ -113,19 +113,24 @@ def test_oracle_network_renders_the_embedded_reference():
 
 class RandomNetwork:
     """Deterministic pseudo-random answers from the segment's end points (no training
-    needed): hits, fractions, normals, materials and optionally albedo."""
+    needed): hits, fractions, normals, materials and optionally albedo, in integer
+    arithmetic on the quantized end points, so that every device gives the same bits."""
 
     def __init__(self, materials=2, albedo=False):
         self.materials, self.albedo = materials, albedo
 
     def predict(self, p0, p1, rest_len, voxel_size):
-        code = torch.sin(37.0 * p0 @ torch.tensor([1.0, 2.3, 3.1]) + 53.0 * p1[:, 0])
-        out = {"hit": code > 0.3, "fraction": (code.abs() * 7.0) % 1.0,
+        q = torch.cat([p0, p1], 1).mul(1 << 20).floor().long()
+        primes = torch.tensor([73856093, 19349663, 83492791, 2654435761, 805459861, 3674653429],
+                              device=p0.device)
+        code = (q * primes).sum(1) % 10007                                   # 0..10006
+        unit = (code.double() / 10007.0).float()
+        out = {"hit": code % 3 == 0, "fraction": unit,
                "normal": torch.nn.functional.normalize(torch.stack(
-                   [code, torch.cos(11 * p1[:, 1]), p0[:, 2] - 0.5], 1), dim=1),
-               "material": ((code + 1) * 100).long() % self.materials}
+                   [unit - 0.5, ((code % 7) - 3).float(), ((code % 11) - 5).float()], 1), dim=1),
+               "material": code % self.materials}
         if self.albedo:
-            out["albedo"] = torch.stack([code.abs(), p0[:, 0], p1[:, 1]], 1)
+            out["albedo"] = torch.stack([unit, 1 - unit, (code % 5).float() / 4], 1)
         return out
 
 
@@ -154,6 +159,27 @@ def test_renderer_equals_the_old_renderer(albedo):
     np.testing.assert_allclose(got.normal, expected.normal, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(got.albedo, expected.albedo)
     assert stats["truncated"] == old_stats["truncated"] == 0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_renderer_on_cuda_equals_the_cpu():
+    """``--device cuda``: the cells, the walk and the resolve on the GPU with the network."""
+    mesh, grid, bend = bent_ball(12)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([-0.5, 0.4, 1]) /
+                                          np.linalg.norm([-0.5, 0.4, 1]), 40, 30)
+    table = np.array([[0.2, 0.4, 0.6], [0.9, 0.1, 0.0]], np.float32)
+    network = RandomNetwork(albedo=True)
+    cpu, _ = render.neural_passes(network, grid, table, DeviceCells(grid, corners=bend),
+                                  origins, directions)
+    gpu, stats = render.neural_passes(network, grid, table,
+                                      DeviceCells(grid, "cuda:0", corners=bend), origins,
+                                      directions, device="cuda")
+    assert cpu.hit.sum() > 100 and stats["truncated"] == 0
+    np.testing.assert_array_equal(gpu.hit, cpu.hit)
+    np.testing.assert_array_equal(gpu.material, cpu.material)
+    np.testing.assert_allclose(gpu.distance, cpu.distance, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(gpu.normal, cpu.normal, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(gpu.albedo, cpu.albedo, rtol=0, atol=1e-6)
 
 
 def test_renderer_reproduces_its_golden_passes(core):

@@ -203,3 +203,20 @@ def test_a_full_segment_buffer_resumes_where_it_stopped(blob):
 def test_corners_of_another_grid_are_one_line(blob):
     with pytest.raises(VDNIFError, match="corners"):
         DeviceCells(blob).set_pose(np.zeros((5, 3)))
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs CUDA")
+def test_cuda_walks_the_same_segments_as_the_cpu(blob):
+    """The same kernels on CUDA: same segments once sorted (a CUDA launch writes rays in any
+    order), a buffer too small for one launch included."""
+    rng = np.random.default_rng(11)
+    origins, directions = outside_rays(rng, 500)
+    bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
+        size=blob.corners.shape)
+    cpu = traverse.traverse(DeviceCells(blob, corners=bent), origins, directions)
+    cells = DeviceCells(blob, "cuda:0", corners=bent)
+    for got in (traverse.traverse(cells, origins, directions),
+                walk_segments(cells, origins, directions, capacity=100)):
+        assert got.truncated == cpu.truncated and len(got) == len(cpu) > 1000
+        for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(cpu, name))
