@@ -16,7 +16,8 @@ import numpy as np
 import warp as wp
 
 from . import runtime
-from .walk import SegmentBuffer, collect, emit, segment_buffer, segments_from
+from .walk import (SegmentBuffer, collect, emit, reusable_buffer, segment_buffer,
+                   segments_from)
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
@@ -47,15 +48,15 @@ class DDAState:
 
 
 @wp.func
-def wall_crossing(grid: Grid, o: wp.vec3d, d: wp.vec3d, cell: wp.vec3i, axis: wp.int32):
-    """Distance to the next cell wall along ``axis`` (inf for a ray parallel to it)."""
-    if d[axis] == wp.float64(0.0):
+def wall_crossing(low: wp.float64, h: wp.float64, o: wp.float64, d: wp.float64,
+                  cell: wp.int32) -> wp.float64:
+    """Distance along one axis to the cell's next wall (inf for a ray parallel to it)."""
+    if d == wp.float64(0.0):
         return INF
     up = wp.int32(0)
-    if d[axis] > wp.float64(0.0):
+    if d > wp.float64(0.0):
         up = 1
-    wall = grid.low[axis] + wp.float64(cell[axis] + up) * grid.voxel_size
-    return (wall - o[axis]) / d[axis]
+    return (low + wp.float64(cell + up) * h - o) / d
 
 
 @wp.kernel
@@ -70,6 +71,7 @@ def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
     far = rays.far[r]
     t = rays.t[r]
     cell = rays.cell[r]
+    h = grid.voxel_size
     if mode == ENTER:
         near = -INF
         leave = INF
@@ -89,36 +91,63 @@ def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
             return
         point = o + d * t
         for axis in range(3):
-            index = wp.int32(wp.floor((point[axis] - grid.low[axis]) / grid.voxel_size))
+            index = wp.int32(wp.floor((point[axis] - grid.low[axis]) / h))
             cell[axis] = wp.clamp(index, 0, grid.dims[axis] - 1)
         mode = WALK
-    crossing = wp.vec3d(wall_crossing(grid, o, d, cell, 0), wall_crossing(grid, o, d, cell, 1),
-                        wall_crossing(grid, o, d, cell, 2))
+    # the walk in scalars: a vector indexed by a run-time axis would live in memory
+    i = cell[0]
+    j = cell[1]
+    k = cell[2]
+    tx = wall_crossing(grid.low[0], h, o[0], d[0], i)
+    ty = wall_crossing(grid.low[1], h, o[1], d[1], j)
+    tz = wall_crossing(grid.low[2], h, o[2], d[2], k)
+    nx = grid.dims[0]
+    ny = grid.dims[1]
+    nz = grid.dims[2]
     while mode == WALK:
         if out.cursor[0] >= out.capacity:
             break                                          # paused until the next launch
-        axis = wp.int32(0)
-        if crossing[1] < crossing[axis]:
+        t_out = tz                                         # the first smallest crossing
+        axis = 2
+        if ty <= tz:
+            t_out = ty
             axis = 1
-        if crossing[2] < crossing[axis]:
-            axis = 2
-        t_out = crossing[axis]
-        index = grid.lookup[cell[0] + grid.dims[0] * (cell[1] + grid.dims[1] * cell[2])]
+        if tx <= t_out:
+            t_out = tx
+            axis = 0
+        index = grid.lookup[i + nx * (j + ny * k)]
         within = t_out <= far
         if within and index >= 0 and t_out - t > grid.min_piece:
             if emit(out, r, index, t, t_out, o + d * t, o + d * t_out) < 0:
                 break                                      # buffer full: redo this step later
-        if d[axis] > wp.float64(0.0):
-            cell[axis] = cell[axis] + 1
+        inside = False
+        if axis == 0:
+            if d[0] > wp.float64(0.0):
+                i += 1
+            else:
+                i -= 1
+            inside = i >= 0 and i < nx
+            tx = wall_crossing(grid.low[0], h, o[0], d[0], i)
+        elif axis == 1:
+            if d[1] > wp.float64(0.0):
+                j += 1
+            else:
+                j -= 1
+            inside = j >= 0 and j < ny
+            ty = wall_crossing(grid.low[1], h, o[1], d[1], j)
         else:
-            cell[axis] = cell[axis] - 1
-        if not (within and cell[axis] >= 0 and cell[axis] < grid.dims[axis]):
+            if d[2] > wp.float64(0.0):
+                k += 1
+            else:
+                k -= 1
+            inside = k >= 0 and k < nz
+            tz = wall_crossing(grid.low[2], h, o[2], d[2], k)
+        if not (within and inside):
             mode = DONE
         t = wp.max(t_out, t)
-        crossing[axis] = wall_crossing(grid, o, d, cell, axis)
     rays.mode[r] = mode
     rays.t[r] = t
-    rays.cell[r] = cell
+    rays.cell[r] = wp.vec3i(i, j, k)
 
 
 @wp.kernel
@@ -144,7 +173,8 @@ def dda_segments(static_grid, origins, directions, far, device, capacity=None):
     active = wp.array(np.arange(count, dtype=np.int32), dtype=wp.int32, device=device)
     spare = wp.empty(count, dtype=wp.int32, device=device)
     cursor = wp.zeros(1, dtype=wp.int32, device=device)
-    buffer = segment_buffer(int(capacity or max(8 * count, 1024)), device)
+    buffer = (segment_buffer(capacity, device) if capacity
+              else reusable_buffer(static_grid, max(8 * count, 1024), device))
     pieces = []
     while count:
         buffer.cursor.zero_()
