@@ -25,9 +25,11 @@ from .kernels.walk import RayWalk, segment_buffer
 from .metrics import Passes
 
 # Segments per ray and wave: k for wave w (w = 0, 1, ...). A wave costs a fixed overhead
-# (launches, one network call) and every segment past a ray's hit in its wave is evaluated
-# for nothing. Most rays that hit, hit within their first cells, while rays that survive a
-# few waves mostly pass through the object and need all their cells: k grows.
+# (launches, one network call: about 1 ms on a CPU core) and every segment past a ray's hit
+# in its wave is evaluated for nothing. Most rays that hit, hit within their first cells,
+# while rays that survive a few waves mostly pass through the object and need all their
+# cells: k grows. Measured on a trained bunny, 256x256: k = 1 throughout takes 21 waves and
+# 44.7 k segments, this schedule 6 waves and 49.6 k (k = 2, 4, 8, 16: 4 waves, 56.4 k).
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
 
 
