@@ -200,6 +200,23 @@ def test_a_full_segment_buffer_resumes_where_it_stopped(blob):
             np.testing.assert_array_equal(getattr(got, name), getattr(whole, name))
 
 
+def test_segments_written_in_any_ray_order_come_out_ordered(blob):
+    """As a CUDA launch writes them: rays interleaved, each ray's own segments in walk order,
+    over two launches. Walk order decides ties in distance (zero-length pieces)."""
+    origins, directions = outside_rays(np.random.default_rng(12), 300)
+    whole = traverse.traverse(DeviceCells(blob), origins, directions)
+    rng = np.random.default_rng(13)
+    keys = rng.random(len(whole))[np.searchsorted(np.unique(whole.ray), whole.ray)]
+    order = np.argsort(keys, kind="stable")                 # rays shuffled, walks kept
+    columns = [getattr(whole, n)[order] for n in ("ray", "cell", "t0", "t1", "p0", "p1")]
+    half = len(order) // 2
+    pieces = [tuple(c[:half] for c in columns), tuple(c[half:] for c in columns)]
+    got = segments_from(pieces, 0)
+    assert not np.array_equal(columns[0], whole.ray)
+    for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(whole, name))
+
+
 def test_corners_of_another_grid_are_one_line(blob):
     with pytest.raises(VDNIFError, match="corners"):
         DeviceCells(blob).set_pose(np.zeros((5, 3)))
