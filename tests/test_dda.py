@@ -1,11 +1,14 @@
 """The static DDA walk against the deformed-space walk on undeformed cells (no bpy): both must
-give the same cells per ray in the same order with the same distances and rest points."""
+give the same cells per ray in the same order with the same distances and rest points; and
+the DDA kernel against the numpy DDA it replaced."""
 
 import numpy as np
 import pytest
+from oracles import dda as oracle
 
 from vdnif_addon import dda, traverse, voxels
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.kernels.cells import DeviceCells
 
 
 @pytest.fixture(scope="module")
@@ -19,15 +22,14 @@ def blob():
 
 
 def deformed_walk(grid, origins, directions, **kw):
-    cells = traverse.DeformedCells.build(grid, grid.corner_positions())
-    caster = traverse.BruteForceCaster(cells.boundary_triangles())
-    return traverse.traverse(cells, caster, origins, directions, **kw)
+    return traverse.traverse(DeviceCells(grid), origins, directions, **kw)
 
 
 def assert_same_segments(grid, origins, directions, **kw):
     expected = deformed_walk(grid, origins, directions, **kw)
     got = dda.StaticGrid(grid).traverse(origins, directions, **kw)
     assert expected.truncated == 0 and len(expected) > 0
+    assert_same_as_numpy_dda(grid, got, origins, directions, **kw)
     assert len(got) == len(expected)
     np.testing.assert_array_equal(got.ray, expected.ray)
     np.testing.assert_array_equal(got.cell, expected.cell)
@@ -38,6 +40,14 @@ def assert_same_segments(grid, origins, directions, **kw):
         np.testing.assert_allclose(getattr(got, name), getattr(expected, name), rtol=0,
                                    atol=1e-9 * grid.extent)
     return got
+
+
+def assert_same_as_numpy_dda(grid, got, origins, directions, **kw):
+    """The kernel gives the numpy DDA's segments, bit for bit (same formulas, same order)."""
+    expected = oracle.StaticGrid(grid).traverse(origins, directions, **kw)
+    assert len(got) == len(expected)
+    for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
 
 
 def test_rays_from_outside(blob):
@@ -75,6 +85,25 @@ def test_max_distance_and_degenerate_rays(blob):
     assert_same_segments(blob, origins, directions, max_distance=rng.uniform(2, 4, 40))
     none = dda.StaticGrid(blob).traverse(origins[:3], np.zeros((3, 3)))
     assert len(none) == 0
+
+
+def test_a_full_segment_buffer_resumes_where_it_stopped(blob):
+    """A buffer of 7 segments: every launch stops when it is full and the next goes on, to
+    the same segments as one launch (which equal the numpy DDA's, above)."""
+    from vdnif_addon.kernels.dda import dda_segments
+
+    rng = np.random.default_rng(5)
+    origins = rng.normal(size=(50, 3))
+    origins *= 3.0 / np.linalg.norm(origins, axis=1, keepdims=True)
+    directions = rng.normal(size=(50, 3)) * 0.3 - origins
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    grid = dda.StaticGrid(blob)
+    far = np.full(50, np.inf)
+    small = dda_segments(grid, origins, directions, far, "cpu", capacity=7)
+    whole = dda_segments(grid, origins, directions, far, "cpu")
+    assert len(small) > 100
+    for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+        np.testing.assert_array_equal(getattr(small, name), getattr(whole, name))
 
 
 def test_bad_input_is_one_line(blob):

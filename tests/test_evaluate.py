@@ -121,9 +121,7 @@ def test_a_ray_leaving_through_the_other_half_of_its_folded_entry_face_walks_on(
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),
                                               geometry.vertices.max(0),
                                               rays.orbit_viewpoints(4)[1], 128, 128)
-        walk = core("traverse").Walk(geometry.cells, geometry.entry_caster,
-                                     origins[5680:5685], directions[5680:5685])
-        walk.run(max_steps=100)
-    assert not walk.active()
-    segments = walk.segments()
+        segments = core("traverse").traverse(geometry.cells, origins[5680:5685],
+                                             directions[5680:5685], max_steps=100)
+    assert segments.truncated == 0
     assert len(segments) > 5 and (segments.t1 >= segments.t0).all()

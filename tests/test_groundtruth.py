@@ -102,8 +102,7 @@ def walked_segments(core, obj, resolution, size):
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),
                                               geometry.vertices.max(0),
                                               rays.orbit_viewpoints(1)[0], size, size)
-        segments = traverse.traverse(geometry.cells, geometry.entry_caster, origins,
-                                     directions)
+        segments = traverse.traverse(geometry.cells, origins, directions)
         return capture, segments, posed_object.rest_caster
 
 

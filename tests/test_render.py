@@ -1,12 +1,19 @@
 """The neural renderer's wave logic, driven by an oracle network that knows the ground truth:
-its passes must equal the embedded reference exactly (no bpy needed)."""
+its passes must equal the embedded reference exactly (no bpy needed); and the renderer
+against the numpy/torch renderer it replaced (``oracles/render.py``) and its golden passes."""
 
 import numpy as np
+import pytest
 import torch
+from oracles import render as old_render
+from oracles import walk as old_walk
 
 from vdnif_addon import groundtruth, images, rays, references, render, traverse, voxels
+from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.metrics import Passes
 from vdnif_addon.restmesh import Albedo, RestMesh
+
+GOLDEN = __import__("pathlib").Path(__file__).parent / "golden"
 
 
 def icosphere_mesh():
@@ -61,20 +68,26 @@ class OracleNetwork:
                 "material": torch.as_tensor(hits.material.astype(np.int64))}
 
 
-def test_oracle_network_renders_the_embedded_reference():
+def bent_ball(resolution=10):
+    """The ball, its grid and a smooth non-affine pose of its corners."""
     mesh = icosphere_mesh()
-    grid = voxels.build_grid(mesh.vertices, mesh.triangles, 10)
+    grid = voxels.build_grid(mesh.vertices, mesh.triangles, resolution)
     bend = grid.corner_positions().copy()
-    bend[:, 0] += 0.15 * bend[:, 2] ** 2                        # a smooth non-affine pose
-    cells = traverse.DeformedCells.build(grid, bend)
-    entry = traverse.BruteForceCaster(cells.boundary_triangles())
+    bend[:, 0] += 0.15 * bend[:, 2] ** 2
+    return mesh, grid, bend
+
+
+def test_oracle_network_renders_the_embedded_reference():
+    mesh, grid, bend = bent_ball()
+    cells = DeviceCells(grid, corners=bend)
     origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.3, -1, 0.2]) /
                                           np.linalg.norm([0.3, -1, 0.2]), 24, 20)
     oracle = OracleNetwork(mesh, grid)
-    predicted, stats = render.neural_passes(oracle, grid, mesh.albedo_table(), cells, entry,
-                                            origins, directions)
+    # one segment per ray and wave: a ray is evaluated exactly up to its hit
+    predicted, stats = render.neural_passes(oracle, grid, mesh.albedo_table(), cells,
+                                            origins, directions, schedule=(1,))
     rest_caster = groundtruth.rest_surface(mesh, grid)
-    reference, segments, _ = references.embedded_passes(cells, entry, mesh, rest_caster,
+    reference, segments, _ = references.embedded_passes(cells, mesh, rest_caster,
                                                         origins, directions)
     np.testing.assert_array_equal(predicted.hit, reference.hit)
     assert predicted.hit.sum() > 50
@@ -88,6 +101,105 @@ def test_oracle_network_renders_the_embedded_reference():
     hit_ray = reference.hit[segments.ray]
     before_or_at_hit = ~hit_ray | (segments.t0 <= reference.distance[segments.ray])
     assert oracle.queries == stats["segments"] == before_or_at_hit.sum() < len(segments)
+    # the default waves (k growing) give the same passes; segments past a ray's hit within
+    # its last wave are evaluated too, never more than the walk has
+    again, more = render.neural_passes(OracleNetwork(mesh, grid), grid, mesh.albedo_table(),
+                                       cells, origins, directions)
+    for name in ("hit", "distance", "normal", "albedo", "material"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(predicted, name))
+    assert stats["segments"] <= more["segments"] < len(segments)
+    assert more["waves"] < stats["waves"]
+
+
+class RandomNetwork:
+    """Deterministic pseudo-random answers from the segment's end points (no training
+    needed): hits, fractions, normals, materials and optionally albedo, in integer
+    arithmetic on the quantized end points, so that every device gives the same bits."""
+
+    def __init__(self, materials=2, albedo=False):
+        self.materials, self.albedo = materials, albedo
+
+    def predict(self, p0, p1, rest_len, voxel_size):
+        q = torch.cat([p0, p1], 1).mul(1 << 20).floor().long()
+        primes = torch.tensor([73856093, 19349663, 83492791, 2654435761, 805459861, 3674653429],
+                              device=p0.device)
+        code = (q * primes).sum(1) % 10007                                   # 0..10006
+        unit = (code.double() / 10007.0).float()
+        out = {"hit": code % 3 == 0, "fraction": unit,
+               "normal": torch.nn.functional.normalize(torch.stack(
+                   [unit - 0.5, ((code % 7) - 3).float(), ((code % 11) - 5).float()], 1), dim=1),
+               "material": code % self.materials}
+        if self.albedo:
+            out["albedo"] = torch.stack([unit, 1 - unit, (code % 5).float() / 4], 1)
+        return out
+
+
+@pytest.mark.parametrize("albedo", [False, True])
+def test_renderer_equals_the_old_renderer(albedo):
+    """Kernel walk + waves + device resolve against numpy walk + torch + numpy resolve,
+    with the same entry BVH, on a bent pose and rays from outside and inside."""
+    mesh, grid, bend = bent_ball(12)
+    cells = DeviceCells(grid, corners=bend)
+    rng = np.random.default_rng(3)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([-0.5, 0.4, 1]) /
+                                          np.linalg.norm([-0.5, 0.4, 1]), 40, 30)
+    inside = rng.uniform(bend.min(0), bend.max(0), (300, 3))
+    origins = np.concatenate([origins, inside])
+    directions = np.concatenate([directions, rng.normal(size=(300, 3))])
+    network = RandomNetwork(albedo=albedo)
+    table = np.array([[0.2, 0.4, 0.6], [0.9, 0.1, 0.0]], np.float32)
+    got, stats = render.neural_passes(network, grid, table, cells, origins, directions)
+    expected, old_stats = old_render.neural_passes(
+        network, grid, table, old_walk.DeformedCells(grid, bend), cells, origins,
+        directions)
+    assert expected.hit.sum() > 300 and (~expected.hit).sum() > 300
+    np.testing.assert_array_equal(got.hit, expected.hit)
+    np.testing.assert_array_equal(got.material, expected.material)
+    np.testing.assert_allclose(got.distance, expected.distance, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(got.normal, expected.normal, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(got.albedo, expected.albedo)
+    assert stats["truncated"] == old_stats["truncated"] == 0
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_renderer_on_cuda_equals_the_cpu():
+    """``--device cuda``: the cells, the walk and the resolve on the GPU with the network."""
+    mesh, grid, bend = bent_ball(12)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([-0.5, 0.4, 1]) /
+                                          np.linalg.norm([-0.5, 0.4, 1]), 40, 30)
+    table = np.array([[0.2, 0.4, 0.6], [0.9, 0.1, 0.0]], np.float32)
+    network = RandomNetwork(albedo=True)
+    cpu, _ = render.neural_passes(network, grid, table, DeviceCells(grid, corners=bend),
+                                  origins, directions)
+    gpu, stats = render.neural_passes(network, grid, table,
+                                      DeviceCells(grid, "cuda:0", corners=bend), origins,
+                                      directions, device="cuda")
+    assert cpu.hit.sum() > 100 and stats["truncated"] == 0
+    np.testing.assert_array_equal(gpu.hit, cpu.hit)
+    np.testing.assert_array_equal(gpu.material, cpu.material)
+    np.testing.assert_allclose(gpu.distance, cpu.distance, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(gpu.normal, cpu.normal, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(gpu.albedo, cpu.albedo, rtol=0, atol=1e-6)
+
+
+def test_renderer_reproduces_its_golden_passes(core):
+    """The arm at resolution 12 in its first evaluation pose, rendered with the golden model
+    by the numpy/torch renderer before kernels replaced it (tests/golden/make_goldens.py)."""
+    golden = np.load(GOLDEN / "arm-render.npz")
+    network, metadata = core("model_file").load_model(GOLDEN / "arm-render-model.vdnif")
+    obj = core("blender.scenes").demo_scene("arm")
+    spec = core("blender.poses").PoseSpec(count=1)
+    grid = core("blender.capture").capture(obj, 12, spec, deform_corners=False).grid
+    cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
+    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
+    passes, stats = core("render").neural_passes(network, grid, table, cells,
+                                                 golden["origins"], golden["directions"])
+    assert golden["hit"].sum() > 10 and stats["truncated"] == 0
+    np.testing.assert_array_equal(passes.hit, golden["hit"])
+    np.testing.assert_allclose(passes.distance, golden["distance"], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(passes.normal, golden["normal"], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(passes.albedo, golden["albedo"], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(passes.material, golden["material"])
 
 
 def test_display_images_and_figure():

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from vdnif_addon import groundtruth, references, traverse, voxels
+from vdnif_addon import groundtruth, references, voxels
 from vdnif_addon.attributes import FALLBACK_NORMAL, normalize
 from vdnif_addon.encoding import HashGrid
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.metrics import compare
 from vdnif_addon.network import IntersectionNetwork, NetworkConfig
 from vdnif_addon.restmesh import Albedo, RestMesh
@@ -42,11 +43,10 @@ def walk_pose(core, obj, capture, pose, size=32):
         lo, hi = geometry.vertices.min(0), geometry.vertices.max(0)
         origins, directions = rays.orbit_rays(lo, hi, rays.orbit_viewpoints(1)[0], size, size)
         embedded, segments, targets = refs.embedded_passes(
-            geometry.cells, geometry.entry_caster, capture.mesh, posed_object.rest_caster,
-            origins, directions)
+            geometry.cells, capture.mesh, posed_object.rest_caster, origins, directions)
         truth = refs.true_reference(
             capture.mesh, geometry.mesh_caster(capture.mesh.triangles), origins, directions)
-        corners = geometry.cells.corners.reshape(-1, 3)
+        corners = geometry.cells.cell_corner_positions().reshape(-1, 3)
         inverted = core("voxels").inverted_cells(corners, np.arange(len(corners)).reshape(-1, 8))
     return dict(segments=segments, targets=targets, embedded=embedded, truth=truth,
                 inverted=int(inverted.sum()), vertices=geometry.vertices,
@@ -250,10 +250,8 @@ def rays_at(vertices, count=300, seed=0):
 def embedded_at_rest(mesh, origins, directions, resolution=8):
     """The embedded reference of the undeformed grid (walk + segment ground truth)."""
     grid = voxels.build_grid(mesh.vertices, mesh.triangles, resolution)
-    cells = traverse.DeformedCells.build(grid, grid.corner_positions())
     passes, segments, targets = references.embedded_passes(
-        cells, traverse.BruteForceCaster(cells.boundary_triangles()), mesh,
-        groundtruth.rest_surface(mesh, grid), origins, directions)
+        DeviceCells(grid), mesh, groundtruth.rest_surface(mesh, grid), origins, directions)
     assert segments.truncated == 0
     for array in (segments.p0, segments.p1, targets.distance, targets.normal, passes.distance,
                   passes.normal):

@@ -58,7 +58,7 @@ def poses_of(args):
                 surface, _, _ = sample_surface(geometry.vertices, captured.mesh.triangles,
                                                args.rays, rng)
                 origins, directions = training_rays(lo, hi, surface, args.rays, 0.6, rng)
-            segments = traverse(geometry.cells, geometry.entry_caster, origins, directions)
+            segments = traverse(geometry.cells, origins, directions)
             inputs.append((segments, origins, directions, geometry.vertices, geometry.normals))
     return captured, inputs
 

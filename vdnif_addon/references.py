@@ -7,8 +7,8 @@
 
 import numpy as np
 
-from .attributes import deformed_normals, trilinear_jacobian
 from .groundtruth import cast_surface, segment_targets
+from .kernels.render import write_hits
 from .metrics import Passes
 from .traverse import traverse
 
@@ -41,21 +41,15 @@ def embedded_reference(cells, segments, targets, rays):
 def set_hits(passes, ray, cells, segments, k, fraction, rest_normal, albedo, material):
     """Writes hits into ``passes`` for ``ray`` from their hit segment ``k`` and the hit
     ``fraction`` along it: deformed distance ``t0 + fraction * l`` and the rest normal
-    carried to deformed space by ``J^-T`` of the cell's trilinear map at the rest hit."""
-    passes.hit[ray] = True
-    passes.distance[ray] = segments.t0[k] + fraction * segments.length[k]
-    point = segments.p0[k] + fraction[:, None] * (segments.p1[k] - segments.p0[k])
-    cell = segments.cell[k]
-    low, high = cells.rest_corners[cell, 0], cells.rest_corners[cell, 7]
-    local = np.clip((point - low) / (high - low), 0.0, 1.0)
-    jacobian = trilinear_jacobian(cells.corners[cell], local)
-    passes.normal[ray] = deformed_normals(rest_normal, jacobian)
-    passes.albedo[ray] = albedo
-    passes.material[ray] = material
+    carried to deformed space by ``J^-T`` of the cell's trilinear map at the rest hit, by
+    the renderer's own kernel (``kernels/render.py``) on ``cells`` (a ``DeviceCells`` in
+    the segments' pose)."""
+    write_hits(cells, passes, ray, segments.cell[k], segments.t0[k], segments.t1[k],
+               segments.p0[k], segments.p1[k], fraction, rest_normal, albedo, material)
 
 
-def embedded_passes(cells, entry_caster, mesh, rest_caster, origins, directions):
+def embedded_passes(cells, mesh, rest_caster, origins, directions):
     """Walk + ground truth + embedded reference in one call: (Passes, Segments, targets)."""
-    segments = traverse(cells, entry_caster, origins, directions)
+    segments = traverse(cells, origins, directions)
     targets = segment_targets(mesh, rest_caster, segments)
     return embedded_reference(cells, segments, targets, len(origins)), segments, targets

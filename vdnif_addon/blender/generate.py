@@ -13,7 +13,7 @@ from ..groundtruth import segment_targets
 from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
 from ..references import embedded_reference, true_reference
-from ..traverse import TimedCaster, traverse
+from ..traverse import traverse
 from .posed import PosedObject
 
 
@@ -25,7 +25,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
     records, counts = [], dict(rays=0, segments=0, hits=0)
-    inverted, entry_casts = [], []
+    inverted = []
     with PosedObject(obj, capture) as posed_object:
         clock = time.perf_counter()
         rest_caster = posed_object.rest_caster
@@ -43,8 +43,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                                                 rays_per_pose, surface_fraction, rng)
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
-            entry_casts.append(TimedCaster(geometry.entry_caster))
-            segments = traverse(geometry.cells, entry_casts[-1], origins, directions)
+            segments = traverse(geometry.cells, origins, directions)
             timings["walk_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             targets = segment_targets(capture.mesh, rest_caster, segments)
@@ -62,7 +61,6 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
     timings["records_s"] += time.perf_counter() - clock
     timings["total_s"] = sum(timings.values())
-    timings["walk_entry_bvh_s"] = sum(c.seconds for c in entry_casts)
     header = {
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
         "grid": dataset.grid_header(capture.grid), "voxel_size": capture.grid.voxel_size,
@@ -102,7 +100,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
                                        directions[index], width, height)
             clock["rays_s"] += time.perf_counter() - start
             start = time.perf_counter()
-            segments = traverse(geometry.cells, geometry.entry_caster, origins, rays)
+            segments = traverse(geometry.cells, origins, rays)
             walked = time.perf_counter()
             targets = segment_targets(mesh, rest_caster, segments)
             grounded = time.perf_counter()

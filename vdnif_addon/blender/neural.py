@@ -75,7 +75,7 @@ def render_rays(obj, capture, model, pose, origins, directions, references=False
     embedded references when asked."""
     inverse = np.array(obj.matrix_world.inverted(), np.float64)
     local_origins, local_directions, scale = transform_rays(origins, directions, inverse)
-    with PosedObject(obj, capture) as posed_object:
+    with PosedObject(obj, capture, model.device) as posed_object:
         result = _render(model, posed_object, posed_object.geometry(pose), local_origins,
                          local_directions, references)
     result.world_scale = scale
@@ -85,7 +85,7 @@ def render_rays(obj, capture, model, pose, origins, directions, references=False
 def render_orbit(obj, capture, model, pose, width, height, references=False):
     """``render_rays`` through the first orbit viewpoint around the posed object, for a
     scene without a camera (rays in local space: world distances are scaled back)."""
-    with PosedObject(obj, capture) as posed_object:
+    with PosedObject(obj, capture, model.device) as posed_object:
         geometry = posed_object.geometry(pose)
         origins, directions = orbit_view(geometry, orbit_viewpoints(1)[0], width, height)
         result = _render(model, posed_object, geometry, origins, directions, references)
@@ -143,7 +143,7 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
                          f"'{model.path}' was trained on: evaluate on unseen poses")
     viewpoints = orbit_viewpoints(len(poses)) if viewpoints is None else viewpoints
     views, results = [], []
-    with PosedObject(obj, capture) as posed_object:
+    with PosedObject(obj, capture, model.device) as posed_object:
         for index, pose in enumerate(poses):
             geometry = posed_object.geometry(pose)
             origins, directions = orbit_view(geometry, viewpoints[index], width, height)
@@ -183,14 +183,13 @@ def _render(model, posed_object, geometry, origins, directions, references):
     mesh = posed_object.capture.mesh
     start = time.perf_counter()
     predicted, stats = neural_passes(model.network, model.grid, model.albedo_table,
-                                     geometry.cells, geometry.entry_caster, origins,
-                                     directions, model.device)
+                                     geometry.cells, origins, directions, model.device)
     render_s = time.perf_counter() - start
     true = embedded = None
     if references:
         true = true_reference(mesh, geometry.mesh_caster(mesh.triangles), origins, directions)
-        embedded, _, _ = embedded_passes(geometry.cells, geometry.entry_caster, mesh,
-                                         posed_object.rest_caster, origins, directions)
+        embedded, _, _ = embedded_passes(geometry.cells, mesh, posed_object.rest_caster,
+                                         origins, directions)
     timings = dict(prepare_s=geometry.prepare_s, walk_s=stats["walk_s"],
                    network_s=stats["network_s"], render_s=render_s, rays=len(origins),
                    segments=stats["segments"], truncated_rays=stats["truncated"])

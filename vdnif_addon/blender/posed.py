@@ -3,16 +3,17 @@ Blender-evaluated deformed mesh for the true reference."""
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
 from functools import cached_property
+from typing import Callable
 
 import numpy as np
 
+from ..errors import VDNIFError
 from ..groundtruth import rest_surface
+from ..kernels import runtime
+from ..kernels.cells import DeviceCells
 from ..kernels.surface import SurfaceCaster
-from ..traverse import DeformedCells
 from ..voxels import inverted_cells
-from .bvh import BVHCaster
 from .deform import CornerDeformer
 from .poses import posed
 from .read_mesh import evaluated_surface
@@ -20,12 +21,22 @@ from .read_mesh import evaluated_surface
 
 @dataclass
 class PoseGeometry:
-    cells: DeformedCells
-    entry_caster: BVHCaster
+    _cells: DeviceCells            # the object's device cells, set to this pose
+    corners: np.ndarray            # (C, 3) deformed voxel corners of this pose
     vertices: np.ndarray           # (V, 3) deformed mesh vertices
     normals: np.ndarray            # (T, 3, 3) deformed corner normals
-    prepare_s: float               # deform corners + entry BVH
+    prepare_s: float               # read the corners, refit the entry BVH, face triangles
+    _pose: int = 0                 # the cells' pose count when they were set to this pose
     _surface: Callable = field(default=None, repr=False)   # (geometry, triangles) -> caster
+
+    @property
+    def cells(self):
+        """The deformed cells (``DeviceCells``): valid until the next pose of the same
+        PosedObject, which moves them."""
+        if self._cells.pose != self._pose:
+            raise VDNIFError("the cells of this pose were moved to a later pose of the same "
+                             "object: take the geometry of one pose at a time")
+        return self._cells
 
     def mesh_caster(self, triangles):
         """The deformed mesh (``triangles`` over this pose's vertices and normals) as a
@@ -35,19 +46,23 @@ class PoseGeometry:
 
     def inverted_cells(self):
         """Number of occupied cells whose deformed trilinear map is inverted."""
-        corners = self.cells.corners
-        return int(inverted_cells(corners.reshape(-1, 3),
-                                  np.arange(8 * len(corners)).reshape(-1, 8)).sum())
+        return int(inverted_cells(self.corners, self._cells.grid.cell_corners).sum())
 
 
 class PosedObject:
-    """Poses a captured object one pose at a time. Use as a context manager."""
+    """Poses a captured object one pose at a time. Use as a context manager.
 
-    def __init__(self, obj, capture):
-        self.obj, self.capture = obj, capture
+    The device cells (topology and entry BVH) are built once, on ``device`` (a Warp
+    device, the network's): a pose copies its deformed corners into them and refits.
+    """
+
+    def __init__(self, obj, capture, device="cpu"):
+        self.obj, self.capture, self.device = obj, capture, runtime.device(device)
         self.deformer = None
         if capture.mode != "static":
             self.deformer = CornerDeformer(obj, capture.grid.corner_positions())
+        self.cells = DeviceCells(capture.grid, self.device)
+        self._rest_cells = None
         self._deformed, self._deformed_pose = None, None
 
     @cached_property
@@ -67,32 +82,33 @@ class PosedObject:
 
     def geometry(self, pose):
         """PoseGeometry of ``pose`` (a pose dict, see ``poses``; ``{"rest": True}`` is the
-        undeformed rest pose)."""
+        undeformed rest pose). The cells of the previous pose are moved to this one."""
         if pose.get("rest"):
             return self.rest_geometry()
         with posed(pose):
             start = time.perf_counter()
             corners = (self.deformer.deformed() if self.deformer is not None
                        else self.capture.grid.corner_positions())
-            cells, entry = self._cells(corners)
+            self.cells.set_pose(corners)
             prepare_s = time.perf_counter() - start
             vertices, normals = evaluated_surface(self.obj, self.capture.mesh)
-        return PoseGeometry(cells=cells, entry_caster=entry, vertices=vertices,
-                            normals=normals, prepare_s=prepare_s,
+        return PoseGeometry(_cells=self.cells, corners=corners, vertices=vertices,
+                            normals=normals, prepare_s=prepare_s, _pose=self.cells.pose,
                             _surface=self._deformed_caster)
 
     def rest_geometry(self):
-        """PoseGeometry of the undeformed rest pose (rest corners, rest mesh)."""
+        """PoseGeometry of the undeformed rest pose (rest corners, rest mesh), on cells of
+        its own that stay at rest (built on first use)."""
         start = time.perf_counter()
-        cells, entry = self._cells(self.capture.grid.corner_positions())
+        if self._rest_cells is None:
+            self._rest_cells = DeviceCells(self.capture.grid, self.device)
         mesh = self.capture.mesh
-        return PoseGeometry(cells=cells, entry_caster=entry, vertices=mesh.vertices,
-                            normals=mesh.corner_normals, prepare_s=time.perf_counter() - start,
+        return PoseGeometry(_cells=self._rest_cells,
+                            corners=self.capture.grid.corner_positions(),
+                            vertices=mesh.vertices, normals=mesh.corner_normals,
+                            prepare_s=time.perf_counter() - start,
+                            _pose=self._rest_cells.pose,
                             _surface=lambda geometry, triangles: self.rest_caster)
-
-    def _cells(self, corners):
-        cells = DeformedCells.build(self.capture.grid, corners)
-        return cells, BVHCaster.from_soup(cells.boundary_triangles())
 
     def close(self):
         if self.deformer is not None:

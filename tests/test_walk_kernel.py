@@ -1,0 +1,239 @@
+"""The walk kernel against the numpy walk it replaced (``oracles/walk.py``), both casting on
+the same entry BVH (``DeviceCells.cast``), so that both see the same float32 entries and only
+the walk logic is compared: same segments (ray, cell, order), end points within 1e-6 voxel,
+same truncated count. No bpy."""
+
+import numpy as np
+import pytest
+from oracles import walk as oracle
+
+from vdnif_addon import traverse, voxels
+from vdnif_addon.errors import VDNIFError
+from vdnif_addon.kernels.cells import DeviceCells
+from vdnif_addon.kernels.walk import RayWalk, segment_buffer, segments_from, walk_segments
+
+
+@pytest.fixture(scope="module")
+def blob():
+    """A random triangle soup around the unit sphere at R=12: occupied cells with holes and
+    concavities, so rays leave and re-enter the occupied set."""
+    rng = np.random.default_rng(7)
+    vertices = rng.normal(size=(120, 3))
+    vertices /= np.linalg.norm(vertices, axis=1, keepdims=True)
+    return voxels.build_grid(vertices, rng.integers(0, 120, size=(240, 3)), 12)
+
+
+def outside_rays(rng, count, radius=3.0, spread=0.3):
+    origins = rng.normal(size=(count, 3))
+    origins *= radius / np.linalg.norm(origins, axis=1, keepdims=True)
+    return origins, rng.normal(size=(count, 3)) * spread - origins
+
+
+def inside_rays(rng, grid, count):
+    origins = grid.origin + rng.random((count, 3)) * grid.dims * grid.voxel_size
+    return origins, rng.normal(size=(count, 3))
+
+
+def lattice_rays(grid):
+    """Rays along lattice lines (cell edges), in lattice planes (cell faces), through lattice
+    points diagonally, and grazing the grid's outer planes."""
+    h, low = grid.voxel_size, grid.origin
+    top = low + grid.dims * h
+    origins, directions = [], []
+    for i in range(1, grid.dims[1]):
+        for k in range(1, grid.dims[2], 2):
+            origins.append(low + [-2 * h, i * h, k * h])                   # along an edge
+            directions.append([1.0, 0.0, 0.0])
+            origins.append(low + [-2 * h, i * h, (k + 0.3) * h])           # in a face
+            directions.append([1.0, 0.0, 0.7])
+    for i in range(grid.dims[0] + 1):
+        origins.append(low + [i * h, -2 * h, -2 * h])                     # through corners
+        directions.append([0.0, 1.0, 1.0])
+        origins.append(low - 2 * h + [i * h, 0.0, 0.0])
+        directions.append([1.0, 1.0, 1.0])
+    for z in (low[2], top[2]):                                           # grazing outside
+        origins.append([low[0] - 2 * h, low[1] + 2.5 * h, z])
+        directions.append([1.0, 0.0, 0.0])
+    return np.array(origins), np.array(directions)
+
+
+def assert_same_walk(grid, corners, origins, directions, **kw):
+    cells = DeviceCells(grid, corners=corners)
+    got = traverse.traverse(cells, origins, directions, **kw)
+    expected = oracle.traverse(oracle.DeformedCells(grid, corners), cells, origins,
+                               directions, **kw)
+    assert got.truncated == expected.truncated
+    assert len(got) == len(expected)
+    np.testing.assert_array_equal(got.ray, expected.ray)
+    np.testing.assert_array_equal(got.cell, expected.cell)
+    for name in ("t0", "t1", "p0", "p1"):
+        np.testing.assert_allclose(getattr(got, name), getattr(expected, name), rtol=0,
+                                   atol=1e-6 * grid.voxel_size)
+    return got
+
+
+def test_rest_pose(blob):
+    rng = np.random.default_rng(1)
+    got = assert_same_walk(blob, blob.corner_positions(), *outside_rays(rng, 1500))
+    assert len(got) > 10000 and got.truncated == 0
+
+
+def test_affine_pose(blob):
+    linear = np.array([[1.3, 0.2, 0.0], [-0.3, 0.8, 0.1], [0.1, 0.0, 1.1]])
+    deformed = blob.corner_positions() @ linear.T + [0.2, -0.1, 0.3]
+    assert len(assert_same_walk(blob, deformed, *outside_rays(np.random.default_rng(2), 1000,
+                                                              radius=4.0))) > 5000
+
+
+def test_random_deformed_pose(blob):
+    rng = np.random.default_rng(3)
+    corners = blob.corner_positions()
+    deformed = corners + 0.3 * blob.voxel_size * rng.normal(size=corners.shape)
+    deformed[:, 0] += 0.2 * corners[:, 2] ** 2                    # and a smooth bend
+    origins, directions = outside_rays(rng, 1000)
+    assert len(assert_same_walk(blob, deformed, origins, directions)) > 5000
+
+
+def test_folded_and_inverted_cells(blob):
+    rng = np.random.default_rng(4)
+    deformed = blob.corner_positions().copy()
+    deformed[rng.random(len(deformed)) < 0.2] *= -0.5
+    deformed[rng.random(len(deformed)) < 0.05] = 0.0
+    assert voxels.inverted_cells(deformed, blob.cell_corners).sum() > 10
+    origins, directions = outside_rays(rng, 300)
+    assert_same_walk(blob, deformed, origins, directions, max_steps=2000)
+
+
+def test_rays_along_edges_faces_and_through_corners(blob):
+    got = assert_same_walk(blob, blob.corner_positions(), *lattice_rays(blob))
+    assert got.truncated == 0 and len(got) > 100
+
+
+def test_rays_starting_inside(blob):
+    rng = np.random.default_rng(5)
+    got = assert_same_walk(blob, blob.corner_positions(), *inside_rays(rng, blob, 800))
+    assert (got.t0 == 0).sum() > 50                      # many start in an occupied cell
+    bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
+        size=blob.corners.shape)
+    assert_same_walk(blob, bent, *inside_rays(rng, blob, 800))
+
+
+def test_missing_grazing_zero_and_limited_rays(blob):
+    rng = np.random.default_rng(6)
+    origins, directions = outside_rays(rng, 400)
+    directions[:50] = -directions[:50]                   # pointing away: no segment
+    directions[50:60] = 0.0                              # no direction: no segment
+    limits = rng.uniform(1.5, 4.0, 400)                  # rays ending inside the object
+    got = assert_same_walk(blob, blob.corner_positions(), origins, directions,
+                           max_distance=limits)
+    assert not np.isin(got.ray, np.arange(60)).any()
+    assert (got.t1 <= limits[got.ray]).all()
+
+
+def test_step_limit_truncates_the_same_rays(blob):
+    origins, directions = outside_rays(np.random.default_rng(7), 300)
+    got = assert_same_walk(blob, blob.corner_positions(), origins, directions, max_steps=6)
+    assert got.truncated > 20
+
+
+@pytest.mark.parametrize("scale", [1e-15, 1e15])
+def test_extreme_object_scales_walk_like_scale_one(blob, scale):
+    """The entry BVH lives in the grid's frame, so tiny and huge objects walk the cells of
+    the unit object (at scale 1e-15 a float32 cast in object units never found its way out
+    of a face: the seek then looped forever)."""
+    rng = np.random.default_rng(8)
+    origins, directions = outside_rays(rng, 300)
+    unit = traverse.traverse(DeviceCells(blob), origins, directions)
+    grid = voxels.VoxelGrid(origin=blob.origin * scale, voxel_size=blob.voxel_size * scale,
+                            dims=blob.dims, resolution=blob.resolution, cells=blob.cells,
+                            neighbours=blob.neighbours, corners=blob.corners,
+                            cell_corners=blob.cell_corners)
+    scaled = assert_same_walk(grid, grid.corner_positions(), origins * scale, directions)
+    assert scaled.truncated == 0 and len(scaled) == len(unit)
+    np.testing.assert_array_equal(scaled.cell, unit.cell)
+    np.testing.assert_allclose(scaled.t0 / scale, unit.t0, rtol=1e-9, atol=1e-12)
+
+
+def test_a_seek_that_makes_no_progress_is_given_up(blob):
+    """With a vanishing ``step`` (an object whose coordinates swallow it) a seek that meets
+    the face the ray just left finds it again and again: after SEEK_LIMIT casts the ray is
+    given up and counted as truncated, by the kernel as by the oracle (the numpy walk
+    before the bound looped forever here)."""
+    import warp as wp
+
+    cells = DeviceCells(blob)
+    cells.arrays.step = wp.float64(0.0)
+    origins, directions = outside_rays(np.random.default_rng(9), 300)
+    got = traverse.traverse(cells, origins, directions)
+    expected = oracle.traverse(oracle.DeformedCells(blob, blob.corner_positions()), cells,
+                               origins, directions, step=0.0)
+    assert got.truncated == expected.truncated > 100
+    assert len(got) == len(expected) > 1000
+    np.testing.assert_array_equal(got.ray, expected.ray)
+    np.testing.assert_array_equal(got.cell, expected.cell)
+
+
+def test_a_full_segment_buffer_resumes_where_it_stopped(blob):
+    """Buffers of 7 segments, and waves of 3 segments per ray, give the one-launch walk."""
+    rng = np.random.default_rng(10)
+    origins, directions = outside_rays(rng, 200)
+    bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
+        size=blob.corners.shape)
+    cells = DeviceCells(blob, corners=bent)
+    whole = walk_segments(cells, origins, directions)
+    small = walk_segments(cells, origins, directions, capacity=7)
+    walk, pieces, waves = RayWalk(cells, origins, directions), [], 0
+    buffer = segment_buffer(3 * walk.count, cells.device)
+    while walk.count:
+        buffer.cursor.zero_()
+        written = walk.advance(buffer, per_wave=3)
+        counts = np.bincount(buffer.ray.numpy()[:written], minlength=200)
+        assert counts.max() <= 3
+        pieces.append(tuple(getattr(buffer, n).numpy()[:written].copy()
+                            for n in ("ray", "cell", "t0", "t1", "p0", "p1")))
+        walk.drop_finished()
+        waves += 1
+    waved = segments_from(pieces, walk.truncated())
+    assert len(whole) > 1000 and waves > 3
+    for got in (small, waved):
+        for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(whole, name))
+
+
+def test_segments_written_in_any_ray_order_come_out_ordered(blob):
+    """As a CUDA launch writes them: rays interleaved, each ray's own segments in walk order,
+    over two launches. Walk order decides ties in distance (zero-length pieces)."""
+    origins, directions = outside_rays(np.random.default_rng(12), 300)
+    whole = traverse.traverse(DeviceCells(blob), origins, directions)
+    rng = np.random.default_rng(13)
+    keys = rng.random(len(whole))[np.searchsorted(np.unique(whole.ray), whole.ray)]
+    order = np.argsort(keys, kind="stable")                 # rays shuffled, walks kept
+    columns = [getattr(whole, n)[order] for n in ("ray", "cell", "t0", "t1", "p0", "p1")]
+    half = len(order) // 2
+    pieces = [tuple(c[:half] for c in columns), tuple(c[half:] for c in columns)]
+    got = segments_from(pieces, 0)
+    assert not np.array_equal(columns[0], whole.ray)
+    for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(whole, name))
+
+
+def test_corners_of_another_grid_are_one_line(blob):
+    with pytest.raises(VDNIFError, match="corners"):
+        DeviceCells(blob).set_pose(np.zeros((5, 3)))
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs CUDA")
+def test_cuda_walks_the_same_segments_as_the_cpu(blob):
+    """The same kernels on CUDA: same segments once sorted (a CUDA launch writes rays in any
+    order), a buffer too small for one launch included."""
+    rng = np.random.default_rng(11)
+    origins, directions = outside_rays(rng, 500)
+    bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
+        size=blob.corners.shape)
+    cpu = traverse.traverse(DeviceCells(blob, corners=bent), origins, directions)
+    cells = DeviceCells(blob, "cuda:0", corners=bent)
+    for got in (traverse.traverse(cells, origins, directions),
+                walk_segments(cells, origins, directions, capacity=100)):
+        assert got.truncated == cpu.truncated and len(got) == len(cpu) > 1000
+        for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(cpu, name))

@@ -1,0 +1,217 @@
+"""The neural render's device side: network inputs of walked segments, and hits made into
+passes (DESIGN section 9).
+
+A hit on segment ``(t0, t1, p0, p1)`` of cell ``cell`` at ``fraction`` of its length has the
+deformed distance ``t0 + fraction (t1 - t0)``; its rest normal is carried to deformed space by
+``J^-T``, J the Jacobian of the cell's trilinear map at the rest hit point, computed as
+``attributes.deformed_normals`` does (sign(det J) cof(J) n with J scaled to unit max entry, the
+rest normal kept where the cofactor normal vanishes). The renderer (``render.py``) and the
+embedded reference (``references.set_hits``) both make their passes here.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import warp as wp
+
+from ..attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
+from . import runtime
+from .cells import CellArrays, cross, dot
+from .walk import DONE, TRUNCATED, RayState, SegmentBuffer
+
+wp.set_module_options({"fuse_fp": False, "enable_backward": False})
+
+NO_HIT = wp.constant(np.iinfo(np.int32).max)
+SINGULAR = wp.constant(wp.float64(SINGULAR_COFACTOR))
+FALLBACK = wp.constant(wp.vec3d(*FALLBACK_NORMAL))
+
+
+@wp.struct
+class Passes:
+    hit: wp.array(dtype=wp.int32)         # (R,) 1 where the ray hit
+    distance: wp.array(dtype=wp.float64)  # (R,)
+    normal: wp.array(dtype=wp.vec3d)      # (R,) unit, deformed space
+    albedo: wp.array(dtype=wp.vec3)       # (R,)
+    material: wp.array(dtype=wp.int32)    # (R,)
+
+
+@wp.struct
+class Prediction:
+    """What the network says of each segment of a wave (torch tensors, shared)."""
+
+    hit: wp.array(dtype=wp.int32)         # (S,) 1 where occlusion probability > 0.5
+    fraction: wp.array(dtype=wp.float64)  # (S,) hit position along the segment, 0..1
+    normal: wp.array(dtype=wp.vec3d)      # (S,) rest-space normal
+    material: wp.array(dtype=wp.int64)    # (S,)
+    albedo: wp.array(dtype=wp.vec3)       # (S,) the albedo head, or empty
+    table: wp.array(dtype=wp.vec3)        # (M,) albedo by material without an albedo head
+
+
+@wp.func
+def unit(x: wp.vec3d, fallback: wp.vec3d) -> wp.vec3d:
+    """x / |x|, or ``fallback`` where |x| is zero or not finite (``attributes.normalize``)."""
+    length = wp.sqrt(dot(x, x))
+    if length > wp.float64(0.0) and length < wp.float64(np.inf):
+        return x / length
+    return fallback
+
+
+@wp.func
+def deformed_normal(cells: CellArrays, cell: wp.int32, point: wp.vec3d,
+                    rest_normal: wp.vec3d) -> wp.vec3d:
+    """normalize(J^-T n) at rest ``point`` of ``cell`` for rest normal n."""
+    low = cells.rest[cells.cell_corners[cell, 0]]
+    high = cells.rest[cells.cell_corners[cell, 7]]
+    local = wp.vec3d()
+    for axis in range(3):
+        local[axis] = wp.clamp((point[axis] - low[axis]) / (high[axis] - low[axis]),
+                               wp.float64(0.0), wp.float64(1.0))
+    jacobian = wp.mat33d()
+    for corner in range(8):
+        x = cells.corners[cells.cell_corners[cell, corner]]
+        for j in range(3):
+            weight = wp.float64(1.0)
+            for axis in range(3):
+                if axis != j:
+                    if (corner >> axis) & 1 == 1:
+                        weight = weight * local[axis]
+                    else:
+                        weight = weight * (wp.float64(1.0) - local[axis])
+            if (corner >> j) & 1 == 0:
+                weight = -weight
+            for i in range(3):
+                jacobian[i, j] = jacobian[i, j] + x[i] * weight
+    rest = unit(rest_normal, FALLBACK)
+    scale = wp.float64(0.0)
+    for i in range(3):
+        for j in range(3):
+            scale = wp.max(scale, wp.abs(jacobian[i, j]))
+    if scale > wp.float64(0.0):
+        jacobian = jacobian / scale
+    a = wp.vec3d(jacobian[0, 0], jacobian[1, 0], jacobian[2, 0])
+    b = wp.vec3d(jacobian[0, 1], jacobian[1, 1], jacobian[2, 1])
+    c = wp.vec3d(jacobian[0, 2], jacobian[1, 2], jacobian[2, 2])
+    bc = cross(b, c)
+    deformed = bc * rest[0] + cross(c, a) * rest[1] + cross(a, b) * rest[2]
+    if dot(a, bc) < wp.float64(0.0):
+        deformed = -deformed
+    if wp.sqrt(dot(deformed, deformed)) <= SINGULAR:
+        return rest
+    return unit(deformed, rest)
+
+
+@wp.func
+def write_hit(cells: CellArrays, passes: Passes, ray: wp.int32, cell: wp.int32,
+              t0: wp.float64, t1: wp.float64, p0: wp.vec3d, p1: wp.vec3d,
+              fraction: wp.float64, rest_normal: wp.vec3d, albedo: wp.vec3,
+              material: wp.int32):
+    passes.hit[ray] = 1
+    passes.distance[ray] = t0 + fraction * (t1 - t0)
+    point = p0 + (p1 - p0) * fraction
+    passes.normal[ray] = deformed_normal(cells, cell, point, rest_normal)
+    passes.albedo[ray] = albedo
+    passes.material[ray] = material
+
+
+@wp.kernel
+def _hits(cells: CellArrays, passes: Passes, ray: wp.array(dtype=wp.int32),
+          cell: wp.array(dtype=wp.int32), t0: wp.array(dtype=wp.float64),
+          t1: wp.array(dtype=wp.float64), p0: wp.array(dtype=wp.vec3d),
+          p1: wp.array(dtype=wp.vec3d), fraction: wp.array(dtype=wp.float64),
+          rest_normal: wp.array(dtype=wp.vec3d), albedo: wp.array(dtype=wp.vec3),
+          material: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    write_hit(cells, passes, ray[i], cell[i], t0[i], t1[i], p0[i], p1[i], fraction[i],
+              rest_normal[i], albedo[i], material[i])
+
+
+@wp.kernel
+def network_inputs(out: SegmentBuffer, origin: wp.vec3d, extent: wp.float64,
+                   p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
+                   rest_length: wp.array(dtype=wp.float32)):
+    """Segment end points normalized to the grid (``VoxelGrid.normalize``) and rest lengths,
+    in float32 for the network."""
+    s = wp.tid()
+    a = out.p0[s]
+    b = out.p1[s]
+    na = (a - origin) / extent
+    nb = (b - origin) / extent
+    p0[s] = wp.vec3(wp.float32(na[0]), wp.float32(na[1]), wp.float32(na[2]))
+    p1[s] = wp.vec3(wp.float32(nb[0]), wp.float32(nb[1]), wp.float32(nb[2]))
+    rest_length[s] = wp.float32(wp.sqrt(dot(b - a, b - a)))
+
+
+@wp.kernel
+def first_hits(out: SegmentBuffer, prediction: Prediction,
+               first: wp.array(dtype=wp.int32)):
+    """The earliest segment of each ray that the network says is hit (a ray's segments
+    take increasing slots in walk order)."""
+    s = wp.tid()
+    if prediction.hit[s] != 0:
+        wp.atomic_min(first, out.ray[s], s)
+
+
+@wp.kernel
+def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
+            out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype=wp.int32),
+            has_albedo: wp.int32, passes: Passes):
+    """Rays with a hit in this wave: their passes, and their walk ends."""
+    r = active[wp.tid()]
+    s = first[r]
+    if s == NO_HIT:
+        return
+    first[r] = NO_HIT
+    material = wp.int32(prediction.material[s])
+    albedo = wp.vec3()
+    if has_albedo != 0:
+        albedo = prediction.albedo[s]
+    else:
+        albedo = prediction.table[material]
+    write_hit(cells, passes, r, out.cell[s], out.t0[s], out.t1[s], out.p0[s], out.p1[s],
+              prediction.fraction[s], prediction.normal[s], albedo, material)
+    rays.mode[r] = DONE
+
+
+@wp.kernel
+def unresolved_truncated(rays: RayState, passes: Passes, count: wp.array(dtype=wp.int32)):
+    """Counts rays truncated without a hit."""
+    r = wp.tid()
+    if rays.mode[r] == TRUNCATED and passes.hit[r] == 0:
+        wp.atomic_add(count, 0, 1)
+
+
+def empty_passes(rays: int, device: str) -> Passes:
+    passes = Passes()
+    passes.hit = wp.zeros(rays, dtype=wp.int32, device=device)
+    passes.distance = wp.zeros(rays, dtype=wp.float64, device=device)
+    passes.normal = wp.zeros(rays, dtype=wp.vec3d, device=device)
+    passes.albedo = wp.zeros(rays, dtype=wp.vec3, device=device)
+    passes.material = wp.zeros(rays, dtype=wp.int32, device=device)
+    return passes
+
+
+def write_hits(cells, passes, ray, cell, t0, t1, p0, p1, fraction, rest_normal, albedo,
+               material) -> None:
+    """Hits of rays ``ray`` (H,) from their hit segments (cell, t0, t1, p0, p1 (H,...)) at
+    ``fraction`` (H,) with rest normals (H, 3), albedo (H, 3) and material (H,) into host
+    ``metrics.Passes``."""
+    count = len(ray)
+    if count == 0:
+        return
+    device = cells.device
+    runtime.load(sys.modules[__name__], device)
+    local = empty_passes(count, device)
+    arrays = [wp.array(np.asarray(x, dtype), dtype=kind, device=device) for x, dtype, kind in (
+        (np.arange(count), np.int32, wp.int32), (cell, np.int32, wp.int32),
+        (t0, np.float64, wp.float64), (t1, np.float64, wp.float64),
+        (p0, np.float64, wp.vec3d), (p1, np.float64, wp.vec3d),
+        (fraction, np.float64, wp.float64), (rest_normal, np.float64, wp.vec3d),
+        (albedo, np.float32, wp.vec3), (material, np.int32, wp.int32))]
+    wp.launch(_hits, dim=count, inputs=[cells.arrays, local, *arrays], device=device)
+    passes.hit[ray] = True
+    passes.distance[ray] = local.distance.numpy()
+    passes.normal[ray] = local.normal.numpy()
+    passes.albedo[ray] = local.albedo.numpy()
+    passes.material[ray] = local.material.numpy()

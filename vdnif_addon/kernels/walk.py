@@ -1,0 +1,430 @@
+"""The deformation-aware walk as one Warp kernel: one thread per ray (DESIGN section 5).
+
+Each ray keeps its walker state on the device between launches (``RayWalk``): seeking an
+entry into the occupied set, walking a cell, done, or truncated. A launch advances every
+listed ray until it is done, or has written ``per_wave`` segments, or the segment buffer is
+full; the renderer uses the first bound (a wave of at most k segments per ray), ``traverse``
+the last (it drains the buffer and goes on). The rules are those of the numpy walk this
+kernel replaced (kept as the oracle in ``tests/oracles/walk.py``):
+
+- entry and re-entry: the first boundary triangle of the entry BVH (``wp.mesh_query_ray``,
+  float32) along the ray, its crossing refined in float64; a triangle the ray leaves by is
+  passed (``step`` beyond it) and the cast repeated, at most ``SEEK_LIMIT`` times per seek,
+  after which the ray is given up (truncated); on the first seek it means the ray starts
+  inside, and it is walked from the backward cast's crossing and clipped at its origin;
+- in a cell: the exit is the nearest of the cell's face triangles (entry face skipped) that
+  the ray crosses outward more than ``step`` beyond its entry, else the farthest one it
+  touches; a zero-length pass counts, and after ``ZERO_PASS_LIMIT`` in a row, a lost walker
+  (no exit) or an exit into an empty cell the ray re-seeks (a lost one past the farthest
+  crossing of its cell);
+- every ray makes at most ``max_steps`` cell steps; rays still walking then are truncated.
+
+Segments are written through one atomic cursor: on the CPU a launch runs its threads in
+order, so segments come out grouped by ray in walk order; on CUDA a ray's own segments keep
+their order and ``collect`` sorts by ray.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import warp as wp
+
+from ..traverse import SEEK_LIMIT, ZERO_PASS_LIMIT, Segments, step_budget
+from . import runtime
+from .cells import (
+    INF,
+    ONE_PLUS_TOLERANCE,
+    TINY_SCALE,
+    TOLERANCE,
+    USABLE_DETERMINANT,
+    CellArrays,
+    boundary_crossing,
+    cross,
+    dot,
+    entry_cast,
+    intersect,
+    maximum,
+    rest_point,
+)
+
+wp.set_module_options({"fuse_fp": False, "enable_backward": False})
+
+SEEK_FIRST = wp.constant(0)     # before the first entry: a leaving hit means "starts inside"
+SEEK = wp.constant(1)           # looking for the next entry from ``t``
+WALK = wp.constant(2)           # in ``cell``, entered at ``t`` / ``p`` through ``entry_face``
+DONE = wp.constant(3)
+TRUNCATED = wp.constant(4)      # out of steps, or a seek given up
+
+SEEKS = wp.constant(SEEK_LIMIT)
+ZERO_PASSES = wp.constant(ZERO_PASS_LIMIT)
+UNLIMITED = np.iinfo(np.int32).max
+
+
+@wp.struct
+class RayState:
+    origin: wp.array(dtype=wp.vec3d)      # (R,)
+    direction: wp.array(dtype=wp.vec3d)   # (R,) unit (zero for a zero direction)
+    far: wp.array(dtype=wp.float64)       # (R,) max distance (-1: cast nothing)
+    mode: wp.array(dtype=wp.int32)        # (R,) SEEK_FIRST .. TRUNCATED
+    cell: wp.array(dtype=wp.int32)
+    entry_face: wp.array(dtype=wp.int32)
+    zero_passes: wp.array(dtype=wp.int32)
+    steps: wp.array(dtype=wp.int32)
+    t: wp.array(dtype=wp.float64)         # entry distance (WALK) or seek start (SEEK)
+    p: wp.array(dtype=wp.vec3d)           # rest-space entry point (WALK)
+    clip_from: wp.array(dtype=wp.float64)  # < 0: started inside, segments cut at 0
+
+
+@wp.struct
+class SegmentBuffer:
+    ray: wp.array(dtype=wp.int32)
+    cell: wp.array(dtype=wp.int32)
+    t0: wp.array(dtype=wp.float64)
+    t1: wp.array(dtype=wp.float64)
+    p0: wp.array(dtype=wp.vec3d)
+    p1: wp.array(dtype=wp.vec3d)
+    cursor: wp.array(dtype=wp.int32)      # (1,) segments written (may overshoot capacity)
+    capacity: wp.int32
+
+
+@wp.func
+def emit(out: SegmentBuffer, ray: wp.int32, cell: wp.int32, t0: wp.float64, t1: wp.float64,
+         p0: wp.vec3d, p1: wp.vec3d) -> wp.int32:
+    """Writes one segment; returns its slot, or -1 when the buffer is full."""
+    slot = wp.atomic_add(out.cursor, 0, 1)
+    if slot >= out.capacity:
+        return -1
+    out.ray[slot] = ray
+    out.cell[slot] = cell
+    out.t0[slot] = t0
+    out.t1[slot] = t1
+    out.p0[slot] = p0
+    out.p1[slot] = p1
+    return slot
+
+
+@wp.kernel
+def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
+              max_steps: wp.int32, per_wave: wp.int32, out: SegmentBuffer):
+    r = active[wp.tid()]
+    mode = rays.mode[r]
+    if mode >= DONE:
+        return
+    o = rays.origin[r]
+    d = rays.direction[r]
+    far = rays.far[r]
+    cell = rays.cell[r]
+    entry_face = rays.entry_face[r]
+    zero_passes = rays.zero_passes[r]
+    steps = rays.steps[r]
+    t = rays.t[r]
+    p = rays.p[r]
+    clip_from = rays.clip_from[r]
+    step = cells.step
+    written = wp.int32(0)
+    while mode < DONE:
+        if mode != WALK:
+            # seek the next entry at or after t
+            casts = wp.int32(0)
+            while mode != WALK and mode < DONE:
+                if mode == SEEK and casts == SEEKS:
+                    mode = TRUNCATED                       # given up
+                    break
+                casts += 1
+                remaining = far - t
+                if not (remaining >= wp.float64(0.0)):
+                    mode = DONE
+                    break
+                found, face, cast_t = entry_cast(cells, o + d * t, d, remaining)
+                if not found:
+                    mode = DONE
+                    break
+                hit_t, u, v, leaving = boundary_crossing(cells, o, d, face, cast_t + t)
+                if mode == SEEK_FIRST:
+                    if leaving:                            # the ray starts inside
+                        found, back_face, back_t = entry_cast(cells, o, -d, INF)
+                        if found:
+                            face = back_face
+                            hit_t, u, v, leaving = boundary_crossing(cells, o, d, face,
+                                                                     -back_t)
+                            clip_from = hit_t
+                    leaving = False
+                if leaving:
+                    t = maximum(hit_t, t) + step
+                else:
+                    triangle = cells.boundary_triangle[face]
+                    cell = cells.boundary_cell[face]
+                    entry_face = triangle // 2
+                    t = hit_t
+                    p = rest_point(cells, cell, triangle, u, v)
+                    zero_passes = 0
+                    mode = WALK
+            continue
+        if steps >= max_steps:
+            mode = TRUNCATED
+            break
+        if written >= per_wave or out.cursor[0] >= out.capacity:
+            break                                          # paused until the next launch
+        # the exit: among outward crossings of the other faces' triangles, the nearest one
+        # beyond t + step, else the farthest one at or after t - step
+        base = cell * 12
+        ahead = wp.int32(-1)
+        ahead_t = INF
+        ahead_u = wp.float64(0.0)
+        ahead_v = wp.float64(0.0)
+        touch = wp.int32(-1)
+        touch_t = -INF
+        touch_u = wp.float64(0.0)
+        touch_v = wp.float64(0.0)
+        for k in range(12):
+            if k // 2 != entry_face:
+                tri = cells.triangles[base + k]
+                pv = cross(d, tri.e2)
+                det = dot(tri.e1, pv)
+                if det < wp.float64(0.0) and -det > USABLE_DETERMINANT * wp.max(tri.scale,
+                                                                              TINY_SCALE):
+                    inv = wp.float64(1.0) / det
+                    s = o - tri.a
+                    u = dot(s, pv) * inv
+                    if u >= -TOLERANCE:
+                        q = cross(s, tri.e1)
+                        v = dot(d, q) * inv
+                        if v >= -TOLERANCE and u + v <= ONE_PLUS_TOLERANCE:
+                            tk = dot(tri.e2, q) * inv
+                            if tk > t + step and tk < ahead_t:
+                                ahead = k
+                                ahead_t = tk
+                                ahead_u = u
+                                ahead_v = v
+                            if tk >= t - step and (touch < 0 or tk > touch_t):
+                                touch = k
+                                touch_t = tk
+                                touch_u = u
+                                touch_v = v
+        exit_k = ahead
+        exit_t = ahead_t
+        exit_u = ahead_u
+        exit_v = ahead_v
+        lost = touch < 0
+        far_side = -INF
+        if ahead < 0:
+            exit_k = touch
+            exit_t = touch_t
+            exit_u = touch_u
+            exit_v = touch_v
+            if lost:
+                # no exit: numpy's argmax over nothing picks triangle 0; and the re-seek
+                # starts past every crossing of the cell beyond t
+                exit_k = 0
+                for k in range(12):
+                    tri = cells.triangles[base + k]
+                    tk, u, v, hit, _outward = intersect(o, d, tri.a, tri.e1, tri.e2,
+                                                        tri.scale)
+                    if k == 0:
+                        exit_t = tk
+                        exit_u = u
+                        exit_v = v
+                    if hit and tk > t and tk > far_side:
+                        far_side = tk
+        t_out = maximum(exit_t, t)
+        beyond = t_out <= far
+        p_out = p
+        if not lost:
+            p_out = rest_point(cells, cell, exit_k, exit_u, exit_v)
+        if ahead >= 0 and beyond and (not (clip_from < wp.float64(0.0))
+                                      or t_out > wp.float64(0.0)):
+            t0 = t
+            p0 = p
+            if clip_from < wp.float64(0.0) and t0 < wp.float64(0.0):
+                p0 = p0 + (p_out - p0) * (-t0 / (t_out - t0))
+                t0 = wp.float64(0.0)
+            if emit(out, r, cell, t0, t_out, p0, p_out) < 0:
+                break                                      # buffer full: redo this step later
+            written += 1
+        steps += 1
+        exit_face = exit_k // 2
+        neighbour = cells.neighbours[cell, exit_face]
+        if ahead >= 0:
+            zero_passes = 0
+        else:
+            zero_passes += 1
+        if (not lost) and beyond and neighbour >= 0 and zero_passes <= ZERO_PASSES:
+            cell = neighbour
+            entry_face = exit_face + 1 - 2 * (exit_face % 2)    # the opposite face
+            t = t_out
+            p = p_out
+        elif beyond:
+            if lost:
+                t = maximum(far_side, t) + step
+            else:
+                t = t_out + step
+            mode = SEEK
+        else:
+            mode = DONE
+    rays.mode[r] = mode
+    rays.cell[r] = cell
+    rays.entry_face[r] = entry_face
+    rays.zero_passes[r] = zero_passes
+    rays.steps[r] = steps
+    rays.t[r] = t
+    rays.p[r] = p
+    rays.clip_from[r] = clip_from
+
+
+@wp.kernel
+def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32), keep: wp.array(
+        dtype=wp.int32), cursor: wp.array(dtype=wp.int32)):
+    r = active[wp.tid()]
+    if rays.mode[r] < DONE:
+        keep[wp.atomic_add(cursor, 0, 1)] = r
+
+
+@wp.kernel
+def _count_truncated(rays: RayState, count: wp.array(dtype=wp.int32)):
+    if rays.mode[wp.tid()] == TRUNCATED:
+        wp.atomic_add(count, 0, 1)
+
+
+def reusable_buffer(owner, capacity: int, device: str) -> SegmentBuffer:
+    """A SegmentBuffer of at least ``capacity`` kept on ``owner`` between calls: a fresh one
+    costs a page fault per 4 kB written (about 4 ms for a 256x256 view's segments on the
+    CPU), every time."""
+    buffer = getattr(owner, "_segment_buffer", None)
+    if buffer is None or buffer.capacity < capacity or str(buffer.ray.device) != str(device):
+        buffer = segment_buffer(capacity, device)
+        owner._segment_buffer = buffer
+    return buffer
+
+
+def segment_buffer(capacity: int, device: str) -> SegmentBuffer:
+    """An empty SegmentBuffer for ``capacity`` segments on ``device``."""
+    buffer = SegmentBuffer()
+    for name, dtype in (("ray", wp.int32), ("cell", wp.int32), ("t0", wp.float64),
+                        ("t1", wp.float64), ("p0", wp.vec3d), ("p1", wp.vec3d)):
+        setattr(buffer, name, wp.empty(capacity, dtype=dtype, device=device))
+    buffer.cursor = wp.zeros(1, dtype=wp.int32, device=device)
+    buffer.capacity = capacity
+    return buffer
+
+
+class Lane:
+    """A list of unfinished rays on the device (order kept on the CPU)."""
+
+    def __init__(self, rays: np.ndarray, device: str) -> None:
+        self.active = wp.array(np.asarray(rays, np.int32), dtype=wp.int32, device=device)
+        self._spare = wp.empty(len(rays), dtype=wp.int32, device=device)
+        self._cursor = wp.zeros(1, dtype=wp.int32, device=device)
+        self.count = len(rays)
+
+
+class RayWalk:
+    """The walker state of a set of rays through ``cells`` (a ``DeviceCells`` in its current
+    pose) on the cells' device. The unfinished rays are split into ``lanes`` (ray i in lane
+    i mod lanes) that can be walked separately: ``advance`` walks one lane on,
+    ``drop_finished`` takes its finished rays out; ``count`` is the total left."""
+
+    def __init__(self, cells, origins, directions, max_distance=None, max_steps=None,
+                 lanes=1) -> None:
+        runtime.load(sys.modules[__name__], cells.device)
+        origins = np.asarray(origins, np.float64)
+        directions = np.asarray(directions, np.float64)
+        norms = np.linalg.norm(directions, axis=1)
+        directions = directions / np.where(norms > 0, norms, 1.0)[:, None]
+        count = len(origins)
+        far = np.full(count, np.inf) if max_distance is None else np.broadcast_to(
+            np.asarray(max_distance, np.float64), (count,)).copy()
+        far[norms == 0] = -1.0                              # no direction: no hit
+        self.cells, self.device, self.rays = cells, cells.device, count
+        self.max_steps = int(max_steps or step_budget(cells.cell_count))
+        state = RayState()
+        state.origin = wp.array(origins, dtype=wp.vec3d, device=self.device)
+        state.direction = wp.array(directions, dtype=wp.vec3d, device=self.device)
+        state.far = wp.array(far, dtype=wp.float64, device=self.device)
+        for name, dtype in (("mode", wp.int32), ("cell", wp.int32), ("entry_face", wp.int32),
+                            ("zero_passes", wp.int32), ("steps", wp.int32),
+                            ("t", wp.float64), ("p", wp.vec3d), ("clip_from", wp.float64)):
+            setattr(state, name, wp.zeros(count, dtype=dtype, device=self.device))
+        self.state = state
+        self.lanes = [Lane(np.arange(lane, count, lanes), self.device) for lane in range(lanes)]
+
+    @property
+    def count(self) -> int:
+        return sum(lane.count for lane in self.lanes)
+
+    def advance(self, out: SegmentBuffer, per_wave: int = UNLIMITED, lane: int = 0) -> int:
+        """Walks every unfinished ray of ``lane`` on until done, ``per_wave`` segments
+        written, or ``out`` full; returns the number of segments now in ``out`` (written
+        from slot ``out.cursor``, which the caller zeroes)."""
+        rays = self.lanes[lane]
+        if rays.count:
+            wp.launch(walk_rays, dim=rays.count,
+                      inputs=[self.cells.arrays, self.state, rays.active, self.max_steps,
+                              per_wave, out], device=self.device)
+        return min(int(out.cursor.numpy()[0]), out.capacity)
+
+    def drop_finished(self, lane: int = 0) -> int:
+        """Keeps only the unfinished rays in ``lane``; returns their count."""
+        rays = self.lanes[lane]
+        if rays.count:
+            rays._cursor.zero_()
+            wp.launch(_still_walking, dim=rays.count,
+                      inputs=[self.state, rays.active, rays._spare, rays._cursor],
+                      device=self.device)
+            rays.active, rays._spare = rays._spare, rays.active
+            rays.count = int(rays._cursor.numpy()[0])
+        return rays.count
+
+    def truncated(self) -> int:
+        """Rays that ran out of steps or whose seek was given up."""
+        counter = wp.zeros(1, dtype=wp.int32, device=self.device)
+        if self.rays:
+            wp.launch(_count_truncated, dim=self.rays, inputs=[self.state, counter],
+                      device=self.device)
+        return int(counter.numpy()[0])
+
+
+def collect(buffer: SegmentBuffer, count: int, device: str):
+    """Host copies (ray, cell, t0, t1, p0, p1) of the first ``count`` segments of a buffer."""
+    return tuple(getattr(buffer, name).numpy()[:count].copy()
+                 for name in ("ray", "cell", "t0", "t1", "p0", "p1"))
+
+
+def segments_from(pieces, truncated: int) -> Segments:
+    """Segments from host pieces in which each ray's segments come in walk order: ordered
+    by ray, then distance, ties in walk order. A CPU launch writes them so already; a CUDA
+    launch interleaves rays (a stable sort by ray restores them: 12 ms for 124 k segments
+    on one CPU core, plus the gather)."""
+    if pieces:
+        ray, cell, t0, t1, p0, p1 = (np.concatenate(x) if len(pieces) > 1 else x[0]
+                                     for x in zip(*pieces))
+    else:
+        ray = cell = np.empty(0, np.int32)
+        t0 = t1 = np.empty(0)
+        p0 = p1 = np.empty((0, 3))
+    if np.any(np.diff(ray) < 0):
+        order = np.argsort(ray, kind="stable")
+        ray, cell, t0, t1, p0, p1 = (x[order] for x in (ray, cell, t0, t1, p0, p1))
+    if np.any((np.diff(ray) == 0) & (np.diff(t0) < 0)):    # a walk that went back: rare
+        order = np.lexsort((t0, ray))
+        ray, cell, t0, t1, p0, p1 = (x[order] for x in (ray, cell, t0, t1, p0, p1))
+    return Segments(ray=ray.astype(np.int64), cell=cell.astype(np.int64), t0=t0, t1=t1,
+                    p0=p0, p1=p1, truncated=int(truncated))
+
+
+def walk_segments(cells, origins, directions, max_distance=None, max_steps=None,
+                  capacity=None) -> Segments:
+    """All Segments of the rays through ``cells`` (``traverse.traverse``)."""
+    walk = RayWalk(cells, origins, directions, max_distance, max_steps)
+    buffer = (segment_buffer(capacity, cells.device) if capacity
+              else reusable_buffer(cells, max(8 * walk.rays, 1024), cells.device))
+    pieces = []
+    while walk.count:
+        buffer.cursor.zero_()
+        written = walk.advance(buffer)
+        if written:
+            pieces.append(collect(buffer, written, cells.device))
+        if walk.drop_finished() and written == buffer.capacity:
+            buffer = segment_buffer(2 * buffer.capacity, cells.device)    # full: grow
+    return segments_from(pieces, walk.truncated())
