@@ -42,6 +42,11 @@ LEVEL_FIELDS = 4
 MAX_LAUNCH_VECTORS = 2**31 - 1
 """Output vectors of one launch at most: the kernels index them with int32."""
 
+NON_NEGATIVE = 0x7FFFFFFF
+"""Masks an array index known to be in [0, 2^31): Warp wraps negative indices Python-style,
+and an index whose sign bit is visibly clear lets the compiler drop that test, 4 instructions
+per table read (1.05-1.08x the throughput, tools/encoder_bench.py)."""
+
 VECTOR_WIDTHS = (4, 3, 2, 1)
 """Table-row access widths compiled, widest first: a row of Fd floats is read as Fd / K
 vectors of the widest K that divides Fd."""
@@ -146,15 +151,15 @@ def _encode_point(
         rows, frac = _corners(px, py, pz, level, dense, mask, levels)
         w = _weights(frac)
         for j in range(chunks):
-            acc = table[rows[0] * chunks + j] * w[0]
-            acc = acc + table[rows[1] * chunks + j] * w[1]
-            acc = acc + table[rows[2] * chunks + j] * w[2]
-            acc = acc + table[rows[3] * chunks + j] * w[3]
-            acc = acc + table[rows[4] * chunks + j] * w[4]
-            acc = acc + table[rows[5] * chunks + j] * w[5]
-            acc = acc + table[rows[6] * chunks + j] * w[6]
-            acc = acc + table[rows[7] * chunks + j] * w[7]
-            out[column + level * chunks + j] = acc
+            acc = table[(rows[0] * chunks + j) & NON_NEGATIVE] * w[0]
+            acc = acc + table[(rows[1] * chunks + j) & NON_NEGATIVE] * w[1]
+            acc = acc + table[(rows[2] * chunks + j) & NON_NEGATIVE] * w[2]
+            acc = acc + table[(rows[3] * chunks + j) & NON_NEGATIVE] * w[3]
+            acc = acc + table[(rows[4] * chunks + j) & NON_NEGATIVE] * w[4]
+            acc = acc + table[(rows[5] * chunks + j) & NON_NEGATIVE] * w[5]
+            acc = acc + table[(rows[6] * chunks + j) & NON_NEGATIVE] * w[6]
+            acc = acc + table[(rows[7] * chunks + j) & NON_NEGATIVE] * w[7]
+            out[(column + level * chunks + j) & NON_NEGATIVE] = acc
     return 0
 
 
@@ -172,9 +177,9 @@ def _scatter_point(
         rows, frac = _corners(px, py, pz, level, dense, mask, levels)
         w = _weights(frac)
         for j in range(chunks):
-            g = grad_out[column + level * chunks + j]
+            g = grad_out[(column + level * chunks + j) & NON_NEGATIVE]
             for c in range(8):
-                wp.atomic_add(grad_table, rows[c] * chunks + j, g * w[c])
+                wp.atomic_add(grad_table, (rows[c] * chunks + j) & NON_NEGATIVE, g * w[c])
     return 0
 
 
