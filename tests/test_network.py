@@ -162,15 +162,17 @@ def test_benchmark_runs_on_tiny_sizes():
 
 
 def test_one_thread_default_for_commands_worker_and_benchmark(monkeypatch):
+    """Torch gets every core but the encoder's; the bench's --threads overrides it."""
     from vdnif_addon import threads
     from vdnif_addon.commands import build_parser
 
+    for cores, expected in (({0, 1, 2, 3}, 3), ({0, 1}, 1), ({5}, 1)):
+        monkeypatch.setattr(threads.os, "sched_getaffinity", lambda _, cores=cores: cores)
+        assert threads.default_threads() == expected
     before = torch.get_num_threads()
     try:
-        assert threads.use_threads(1) == 1 == torch.get_num_threads()
-        assert threads.use_threads() == threads.default_threads() >= 1
-        monkeypatch.setattr(threads, "TORCH_THREADS", 1)
-        assert threads.use_threads() == 1
+        assert threads.use_threads(2) == 2 == torch.get_num_threads()
+        assert threads.use_threads() == 1  # the 1-core affinity above
     finally:
         torch.set_num_threads(before)
     args = build_parser().parse_args(["bench-network", "--threads", "2"])
