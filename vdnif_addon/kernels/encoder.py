@@ -256,10 +256,17 @@ def _encode_backward(
 
 
 _VECTORS = {width: wp.types.vector(length=width, dtype=wp.float32) for width in VECTOR_WIDTHS}
-for _vector in _VECTORS.values():  # every width in the one module: a single compile
-    wp.overload(_encode, {"table": wp.array(dtype=_vector), "out": wp.array(dtype=_vector)})
-    wp.overload(_encode_backward, {"grad_out": wp.array(dtype=_vector),
-                                   "grad_table": wp.array(dtype=_vector)})
+# Every width's overload in the one module (a single compile), each launched as itself: no
+# argument-type inference per launch.
+_FORWARD = {
+    width: wp.overload(_encode, {"table": wp.array(dtype=vector), "out": wp.array(dtype=vector)})
+    for width, vector in _VECTORS.items()
+}
+_BACKWARD = {
+    width: wp.overload(_encode_backward, {"grad_out": wp.array(dtype=vector),
+                                          "grad_table": wp.array(dtype=vector)})
+    for width, vector in _VECTORS.items()
+}
 
 
 def vector_width(feature_dim: int) -> int:
@@ -299,7 +306,7 @@ def _launches(enc: Encoding, p0: torch.Tensor, p1: torch.Tensor | None, ends: in
     per_point = enc.width(ends) // vector_width(enc.feature_dim)
     step = max(1, MAX_LAUNCH_VECTORS // per_point)
     shared = [ends, enc.bands, float(enc.scale), enc.dense, wp.uint32(enc.mask),
-              wp.from_torch(enc.levels, requires_grad=False)]
+              wp.from_torch(enc.levels, requires_grad=False, return_ctype=True)]
     for first in range(0, p0.shape[0], step):
         stop = min(first + step, p0.shape[0])
         ends_ = [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
@@ -307,14 +314,15 @@ def _launches(enc: Encoding, p0: torch.Tensor, p1: torch.Tensor | None, ends: in
 
 
 def _vec3(points: torch.Tensor):
-    return wp.from_torch(points, dtype=wp.vec3, requires_grad=False)
+    """(N, 3) float32 as a Warp array descriptor (no wp.array object: cheaper per launch)."""
+    return wp.from_torch(points, dtype=wp.vec3, requires_grad=False, return_ctype=True)
 
 
 def _vectors(t: torch.Tensor, width: int):
     """A contiguous float32 tensor as a 1-D Warp array of ``width``-float vectors (through a
     flat view: a size-1 dimension may carry any stride)."""
     return wp.from_torch(t.view(-1).view(-1, width), dtype=_VECTORS[width],
-                         requires_grad=False)
+                         requires_grad=False, return_ctype=True)
 
 
 def encode(enc: Encoding, table: torch.Tensor, p0: torch.Tensor, p1: torch.Tensor | None
@@ -329,7 +337,7 @@ def encode(enc: Encoding, table: torch.Tensor, p0: torch.Tensor, p1: torch.Tenso
     rows = _vectors(table, width)
     for first, stop, args in _launches(enc, p0, p1, ends):
         args += [rows, enc.feature_dim // width, _vectors(out[first:stop], width)]
-        wp.launch(_encode, dim=(stop - first) * ends, inputs=args, device=device,
+        wp.launch(_FORWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
                   stream=stream)
     return out
 
@@ -345,6 +353,6 @@ def encode_backward(enc: Encoding, rows: int, p0: torch.Tensor, p1: torch.Tensor
     target = _vectors(grad_table, width)
     for first, stop, args in _launches(enc, p0, p1, ends):
         args += [_vectors(grad_out[first:stop], width), enc.feature_dim // width, target]
-        wp.launch(_encode_backward, dim=(stop - first) * ends, inputs=args, device=device,
+        wp.launch(_BACKWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
                   stream=stream)
     return grad_table
