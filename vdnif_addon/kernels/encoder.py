@@ -11,15 +11,20 @@ positions get no gradient.
 Layout: thread ``t`` encodes end point ``t % ends`` of segment ``t // ends`` (``ends`` is 2
 for segments, 1 for plain points), all its ``1 + 2F`` gamma points. The table is row-major,
 ``(rows, Fd)``, read as one vector of ``K`` floats per access (``K`` the largest of 4, 3, 2, 1
-dividing Fd; ``Fd / K`` chunks per row): one 12-byte load per corner at Fd = 3 instead of
-three loads from three cache lines, 1.4x the throughput of a per-float loop over a runtime
-Fd (measured, ``tools/encoder_bench.py``). Every array is 1-D, so Warp's contiguous-array
-specialization makes its strides constants.
+dividing Fd; ``Fd / K`` chunks per row): one 12-byte load per corner at Fd = 3, 1.2-1.5x the
+throughput of a per-float loop over a runtime Fd on the row-major table and 1.3-1.6x that of
+the feature-major ``(Fd, rows)`` table of model format 1 (``tools/encoder_bench.py``, paper
+setting, one CPU thread). Every array is 1-D, so Warp's contiguous-array specialization makes
+its strides constants.
 
 Arithmetic follows the torch reference (``tests/oracles/encoding_torch.py``) operation by
-operation, in float32, without fused multiply-adds (module option ``fuse_fp`` off): with no
-bands the features are bit-identical to it; a band's sin/cos comes from the C library where
-torch uses SLEEF, and the two differ by at most one unit in the last place.
+operation, in float32, without fused multiply-adds (module option ``fuse_fp`` off): features
+equal it to a unit in the last place (the order of 8 float32 additions). A band's sin and
+cos are the correctly rounded float32 values of the reference's angle; torch's float32
+sin/cos (SLEEF) are sometimes one unit in the last place off them.
+
+On the CPU a launch is serial and latency-bound on the table reads: at the paper's setting
+(two 2^16-row levels, 1.5 MB) a 2^8-row table encodes 1.3-1.5x faster.
 """
 
 from __future__ import annotations
@@ -202,7 +207,7 @@ def _next_band(s: wp.vec3d, c: wp.vec3d):
 # exactly 2^k times band 0's float32 angle. Its sin and cos follow from band 0's by the
 # double-angle formulas in float64 (error ~2^k * 1e-16, far below float32's 6e-8), so each
 # rounds to the float32 sin/cos of the reference's angle: 6 library calls per end point
-# instead of 6F (1.2x the throughput at F = 3, measured).
+# instead of 6F (1.1-1.25x the throughput at F = 3, measured on one CPU thread).
 
 
 @wp.kernel
