@@ -190,6 +190,32 @@ def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
     assert (tmp_path / "e" / "figure-vs-embedded.png").is_file()
 
 
+COUNT_MODEL_READS = """
+import sys
+from vdnif_addon import model_file
+reads = []
+read = model_file.load_model
+model_file.load_model = lambda *a, **k: reads.append(a) or read(*a, **k)
+from vdnif_addon.commands import main
+code = main(sys.argv[1:])
+print("model reads:", len(reads))
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("command", [
+    ("render", "--frame", 30, "--width", 8, "--height", 8),
+    ("evaluate", "--poses", 1, "--width", 8, "--height", 8)])
+def test_render_and_evaluate_read_the_model_file_once(quick_demo, tmp_path, command):
+    out, _ = quick_demo
+    args = [*command, "--model", out / "arm-proposed.vdnif", "--scene", "arm",
+            "--out", tmp_path / "o"]
+    result = subprocess.run([sys.executable, "-c", COUNT_MODEL_READS, *map(str, args)],
+                            capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    assert "model reads: 1" in result.stdout.splitlines()
+
+
 def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_demo, tmp_path):
     out, _ = quick_demo
     model = out / "arm-proposed.vdnif"

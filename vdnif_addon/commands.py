@@ -295,19 +295,20 @@ def _train_on_scene(args):
                              network_overrides(args), args.seed, progress=report_training)
 
 
-def _model_resolution(args):
-    """--resolution, or the model's own when not given (they must agree anyway)."""
+def _read_model(args):
+    """(network, metadata) of the --model file, read once per command."""
+    from .model_file import load_model
+
+    return load_model(args.model)
+
+
+def _model_resolution(args, extra):
+    """--resolution, or the model's own (``extra``: its metadata ``extra``) when not given
+    (they must agree anyway)."""
     if args.resolution is not None:
         check_resolution(args.resolution)
         return args.resolution
-    return int(_model_extra(args)["grid"]["resolution"])
-
-
-def _model_extra(args):
-    """The metadata ``extra`` of the --model file (grid, heads, training poses, ...)."""
-    from .model_file import load_model
-
-    return load_model(args.model)[1]["extra"]
+    return int(extra["grid"]["resolution"])
 
 
 def cmd_render(args):
@@ -319,10 +320,11 @@ def cmd_render(args):
     from .blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
     from .blender.scenes import find_camera
 
-    resolution = _model_resolution(args)
+    loaded = _read_model(args)
+    resolution = _model_resolution(args, loaded[1]["extra"])
     obj, spec = load_posed_scene(args)
     captured = capture(obj, resolution, spec, deform_corners=False)
-    model = load_scene_model(args.model, captured, args.device)
+    model = load_scene_model(args.model, captured, args.device, loaded)
     scene = bpy.context.scene
     frame = scene.frame_current if args.frame is None else args.frame
     pose = {"frame": float(frame)}
@@ -360,13 +362,15 @@ def cmd_evaluate(args):
     from .blender.jobs import evaluate_file, evaluation_poses, write_figures
     from .progress import Progress
 
-    resolution = _model_resolution(args)
-    trained = _model_extra(args).get("train_poses", [])
+    loaded = _read_model(args)
+    resolution = _model_resolution(args, loaded[1]["extra"])
+    trained = loaded[1]["extra"].get("train_poses", [])
     obj, spec = load_posed_scene(args)
     captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose, trained=trained)
     progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
-                                  args.device, lambda done, _: progress.update(done))
+                                  args.device, lambda done, _: progress.update(done),
+                                  loaded=loaded)
     if args.out is not None:
         report["figures"] = {name: str(path) for name, path in write_figures(
             args.out, views[0], args.height, args.width, captured.mesh.size).items()}
