@@ -122,6 +122,28 @@ def test_help_documents_every_command():
         assert option in out
 
 
+def test_help_states_every_default_it_has():
+    """Every option with a default shows it in --help, and help text that names a default
+    by hand names the one argparse will use."""
+    import argparse
+
+    from vdnif_addon.commands import build_parser, show_default
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    checked = 0
+    for name, command in commands.choices.items():
+        formatter = command._get_formatter()
+        for action in command._actions:
+            if not action.option_strings or action.default in (None, False, argparse.SUPPRESS):
+                continue
+            shown = formatter._expand_help(action)
+            assert "default" in shown and show_default(action.default) in shown, (
+                name, action.dest, shown)
+            checked += 1
+    assert checked > 40
+
+
 @pytest.fixture(scope="module")
 def quick_demo(tmp_path_factory):
     """``demo --quick`` run once: its folder and its JSON."""

@@ -12,8 +12,33 @@ import sys
 from .errors import VDNIFError
 
 
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Appends ``(default: X)`` to every option that has a default its help does not state
+    already; flags and options whose default is None (computed later) say it in words."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (action.option_strings and default not in (None, False, argparse.SUPPRESS)
+                and "default" not in text):
+            text += f" (default: {show_default(default)})"
+        return text
+
+
+def show_default(value):
+    """A default as --help shows it: 45.0 as 45, ["bunny", "million"] as bunny million."""
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(show_default, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage mistake on one line, like every other failure."""
+    """argparse that reports a usage mistake on one line, like every other failure, and shows
+    every option's default in --help."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _DefaultsFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         raise _UsageError(f"{self.prog}: {message} (see --help)")
