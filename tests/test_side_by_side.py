@@ -201,15 +201,17 @@ def test_the_command_writes_json_plots_and_section(extension, tmp_path, capsys):
                           "--poses", "1", "--repeats", "1", "--width", "8", "--height", "8",
                           "--json", str(tmp_path / "sbs.json"),
                           "--plots", str(tmp_path / "plots"),
+                          "--markdown", str(tmp_path / "sbs.md"),
                           "--performance", str(performance)])
     assert code == 0
     printed = capsys.readouterr().out
     assert "side by side 'Suzanne' (3,936 triangles)" in printed and "n/a" in printed
     data = json.loads((tmp_path / "sbs.json").read_text())
-    assert data["machine"]["cores"] >= 1 and data["command"].endswith(
-        "--performance " + str(performance))
+    assert data["machine"]["cores"] >= 1 and data["machine"]["warp_device"] == "cpu"
+    assert data["command"].endswith("--performance " + str(performance))
     assert data["results"][0]["speed_withheld"] == core("blender.side_by_side").NO_MODEL
     assert (tmp_path / "plots" / "side-by-side-speed.png").exists()
+    assert "Machine: " in (tmp_path / "sbs.md").read_text()
     assert "## Side by side with the classical baselines" in performance.read_text()
 
 

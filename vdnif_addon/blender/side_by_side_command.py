@@ -20,9 +20,9 @@ from .side_by_side import (
 )
 
 
-def machine(load_before):
-    """The machine and thread settings of a run, for the report (``load_before``: the load
-    average when it started)."""
+def machine(load_before, device):
+    """The machine and thread settings of a run on torch ``device``, for the report
+    (``load_before``: the load average when it started)."""
     import importlib.metadata
     import os
     import platform
@@ -41,7 +41,7 @@ def machine(load_before):
             "load_after": os.getloadavg()[0],
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
             "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
-            "warp": warp.__version__, "warp_device": "cpu",
+            "warp": warp.__version__, "warp_device": runtime.device(device),
             "embreex": importlib.metadata.version("embreex"),
             "blender": bpy.app.version_string}
 
@@ -55,7 +55,9 @@ def cmd_side_by_side(args):
 
     from ..commands import write_json
     from ..progress import Progress
+    from ..train import resolve_device
     from .side_by_side_report import (
+        machine_text,
         side_by_side_markdown,
         write_performance,
         write_plots,
@@ -65,22 +67,23 @@ def cmd_side_by_side(args):
     if args.save_blend is not None:
         return _save_blends(scenes, args.save_blend)
     models = _model_paths(args.model, scenes)
+    device = resolve_device(args.device)
     load_before = os.getloadavg()[0]
     results = []
     for name in scenes:
         obj = load_side_by_side_scene(name)
-        captured, model = _scene_capture(obj, models.get(name), args)
+        captured, model = _scene_capture(obj, models.get(name), args, device)
         progress = Progress(f"side by side '{obj.name}'", args.repeats, "repeats")
         result = compare_paths(obj, captured, model, args.width, args.height, args.repeats,
                                progress=lambda done, _: progress.update(done),
-                               device=args.device)
+                               device=device)
         result["scene"] = name
         results.append(result)
         _print_result(result)
     threads = os.environ.get("OMP_NUM_THREADS")
     command = ((f"OMP_NUM_THREADS={threads} " if threads else "")
                + shlex.join(["python", "vdnif_addon/batch.py", "--", *command_line(args)]))
-    host = machine(load_before)
+    host = machine(load_before, device)
     write_json(args.json, {"command": command, "machine": host, "results": results})
     if args.markdown is not None:
         path = pathlib.Path(args.markdown)
@@ -126,7 +129,7 @@ def _model_paths(values, scenes):
     return models
 
 
-def _scene_capture(obj, model_path, args):
+def _scene_capture(obj, model_path, args, device):
     """(capture of unseen poses, SceneModel or None) of one scene: the poses avoid the
     model's training poses; the resolution is --resolution, else the model's, else 32."""
     from ..commands import check_resolution
@@ -145,7 +148,7 @@ def _scene_capture(obj, model_path, args):
     spec = evaluation_spec(PoseSpec(count=args.poses, seed=args.seed), trained=trained)
     captured = capture(obj, resolution, spec, deform_corners=False)
     model = (None if model_path is None
-             else load_scene_model(model_path, captured, args.device))
+             else load_scene_model(model_path, captured, device))
     return captured, model
 
 
