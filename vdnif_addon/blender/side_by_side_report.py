@@ -277,7 +277,8 @@ def machine_text(machine):
 
 def write_plots(results, folder):
     """Writes the speed and bytes plots of ``results`` into ``folder``; returns
-    {"speed" | "bytes": path}."""
+    {"speed" | "bytes": path}. The Suzanne sweep (one mesh subdivided) is drawn as lines,
+    any other mesh as hollow markers on a dotted line at its triangle count."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -286,46 +287,35 @@ def write_plots(results, folder):
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     results = sorted(results, key=lambda r: r["triangles"])
-    triangles = [r["triangles"] for r in results]
     paths = {name: folder / file for name, file in PLOTS.items()}
     styles = {"neural": ("C3", "o"), "bvhtree": ("C0", "s"), "warp": ("C2", "^"),
               "embree": ("C1", "D")}
 
-    figure, axes = pyplot.subplots(1, 2, figsize=(12, 4.6))
+    figure, axes = pyplot.subplots(1, 2, figsize=(12, 5))
     for name in ("neural", *BASELINES):
-        color, marker = styles[name]
-        speed = [(t, r["rays_per_s"][name]) for t, r in zip(triangles, results)
-                 if r["rays_per_s"][name] is not None]
-        total = [(t, _pose_total(r, name)) for t, r in zip(triangles, results)
-                 if _pose_total(r, name) is not None]
-        for ax, points in ((axes[0], speed), (axes[1], total)):
-            if points:
-                ax.plot(*zip(*points), marker=marker, color=color, label=SHORT[name])
-    withheld = [r["object"] for r in results if r["rays_per_s"]["neural"] is None]
+        for ax, figure_of in ((axes[0], lambda r, n=name: r["rays_per_s"][n]),
+                              (axes[1], lambda r, n=name: _pose_total(r, n))):
+            _series(ax, results, figure_of, *styles[name], SHORT[name])
     for ax, label in ((axes[0], "rays/s (casts or neural render)"),
                       (axes[1], "pose total, ms (preparation + render)")):
-        _log_axes(ax, triangles, results, label)
-    if withheld:
-        axes[0].text(0.02, 0.02, "neural n/a (no model that predicts hits):\n"
-                     + "\n".join(withheld), transform=axes[0].transAxes, fontsize=7,
-                     va="bottom")
+        _axes(ax, results, label)
     first = results[0]
-    figure.suptitle(f"{first['width']}x{first['height']} rays per view, unseen poses; "
-                    "medians over repeats", fontsize=9)
+    withheld = [r["object"] for r in results if r["rays_per_s"]["neural"] is None]
+    figure.suptitle(f"{first['width']}x{first['height']} rays per view, unseen poses, "
+                    "medians over repeats" + (f"; neural n/a (no model that predicts hits) "
+                                              f"on {', '.join(withheld)}" if withheld else ""),
+                    fontsize=9)
     figure.tight_layout()
     figure.savefig(paths["speed"], dpi=120)
     pyplot.close(figure)
 
-    figure, ax = pyplot.subplots(figsize=(7, 4.6))
-    ax.plot(triangles, [r["bytes"]["model"] for r in results], "o-", color="C3",
-            label="model")
-    ax.plot(triangles, [r["bytes"]["mesh"] for r in results], "x--", color="0.4",
-            label="mesh alone")
+    figure, ax = pyplot.subplots(figsize=(7.5, 5))
+    _series(ax, results, lambda r: r["bytes"]["model"], "C3", "o", "model")
+    _series(ax, results, lambda r: r["bytes"]["mesh"], "0.4", "x", "mesh alone")
     for name in BASELINES:
-        color, marker = styles[name]
-        ax.plot(triangles, [r["bytes"]["mesh"] + r["bytes"]["bvh"][name] for r in results],
-                marker=marker, color=color, label=f"mesh + {SHORT[name]} BVH")
-    _log_axes(ax, triangles, results, "bytes")
+        _series(ax, results, lambda r, n=name: r["bytes"]["mesh"] + r["bytes"]["bvh"][n],
+                *styles[name], f"mesh + {SHORT[name]} BVH")
+    _axes(ax, results, "bytes")
     figure.tight_layout()
     figure.savefig(paths["bytes"], dpi=120)
     pyplot.close(figure)
@@ -333,6 +323,8 @@ def write_plots(results, folder):
 
 
 def _pose_total(result, name):
+    """Milliseconds per pose of a path (preparation + render, or rebuild / refit + casts),
+    None where not measured or withheld."""
     median = result["median"]
     keys = (("neural_pose_s", "neural_render_s") if name == "neural"
             else (f"{name}_rebuild_s", f"{name}_cast_s"))
@@ -341,15 +333,35 @@ def _pose_total(result, name):
     return 1e3 * sum(median[key] for key in keys)
 
 
-def _log_axes(ax, triangles, results, label):
+def _sweep(result):
+    """Whether ``result`` belongs to the Suzanne subdivision sweep (drawn as a line)."""
+    return result.get("scene", "").startswith("suzanne-")
+
+
+def _series(ax, results, figure_of, color, marker, label):
+    """One path's figures against triangles: a line over the sweep, hollow markers for
+    the other meshes; nothing where the figure is None."""
+    points = [(r["triangles"], figure_of(r), _sweep(r)) for r in results
+              if figure_of(r) is not None]
+    sweep = [(t, v) for t, v, in_sweep in points if in_sweep]
+    others = [(t, v) for t, v, in_sweep in points if not in_sweep]
+    if sweep:
+        ax.plot(*zip(*sweep), marker=marker, color=color, label=label)
+    if others:
+        ax.plot(*zip(*others), linestyle="none", marker=marker, color=color,
+                markerfacecolor="none", label=None if sweep else label)
+
+
+def _axes(ax, results, label):
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("triangles")
+    ax.set_xlabel("triangles (lines: Suzanne subdivided; hollow: other meshes)")
     ax.set_ylabel(label)
-    ax.set_xticks(triangles)
-    ax.set_xticklabels([f"{r['object']}\n{t:,}" for t, r in zip(triangles, results)],
-                       fontsize=6)
-    ax.minorticks_off()
+    for result in results:
+        if not _sweep(result):
+            ax.axvline(result["triangles"], linestyle=":", color="0.6", linewidth=0.8)
+            ax.text(result["triangles"], 1.0, f" {result['object']}", rotation=90, fontsize=7,
+                    va="top", ha="right", transform=ax.get_xaxis_transform())
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=7)
 
