@@ -2,6 +2,7 @@
 that predicts hits (n/a with the reason otherwise), the tables, plots and the performance
 section written from it, and the command's options."""
 
+import dataclasses
 import importlib
 import json
 import math
@@ -71,11 +72,24 @@ def tiny(extension, tmp_path_factory):
         obj, 8, poses.evaluation_spec(poses.PoseSpec(count=2)), deform_corners=False)
     folder = tmp_path_factory.mktemp("models")
     results = {"none": side.compare_paths(obj, captured, None, RAYS, RAYS, repeats=1)}
-    for name, network in (("oracle", OracleNetwork), ("never", NeverHits)):
-        model = stand_in_model(network(captured.mesh, captured.grid), captured,
-                               folder / f"{name}.vdnif")
+    networks = {"oracle": OracleNetwork(captured.mesh, captured.grid),
+                "never": NeverHits(captured.mesh, captured.grid),
+                "untrained": untrained_network(captured.mesh)}
+    for name, network in networks.items():
+        model = stand_in_model(network, captured, folder / f"{name}.vdnif")
         results[name] = side.compare_paths(obj, captured, model, RAYS, RAYS, repeats=1)
     return side, results
+
+
+def untrained_network(mesh):
+    """The product's network in the paper's configuration with the scene's heads, as
+    initialized (seed 0), never trained."""
+    network = core("network")
+    config = dataclasses.replace(network.NetworkConfig(),
+                                 heads=network.Heads.from_header(mesh.heads()))
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        return network.IntersectionNetwork(config).eval()
 
 
 def timings(result):
@@ -151,6 +165,23 @@ def test_a_model_that_predicts_no_hits_gets_no_speed_with_the_reason(tiny):
         assert result["ratios"][f"pose_neural_over_{name}"] is None
         assert result["ratios"][f"prepare_neural_over_{name}"] > 0
     # the network over every walked segment does not depend on what it predicts
+    assert result["ratios"]["walk_and_network_deformed_over_static"] > 0
+
+
+def test_an_untrained_network_gets_no_speed_with_the_reason(tiny):
+    """The real network (Warp encoder, MLP, heads) before training: whatever it happens to
+    predict, its hit IoU against the true reference is far below 0.9, so it has no speed."""
+    _, results = tiny
+    result = results["untrained"]
+    network = result["network"]
+    assert network["trained"] and network["hit_iou"] < 0.5
+    assert result["speed_withheld"] == core("metrics").speed_withheld(network["hit_iou"])
+    assert "below 0.9" in result["speed_withheld"]
+    assert result["rays_per_s"]["neural"] is None
+    assert "neural_render_s" not in result["median"]
+    assert all(result["ratios"][f"{kind}_neural_over_{name}"] is None
+               for kind in ("render", "pose") for name in core("blender.baselines").BASELINES)
+    # the network did run: over every walked segment of the rest views, untimed as a speed
     assert result["ratios"]["walk_and_network_deformed_over_static"] > 0
 
 
