@@ -115,6 +115,7 @@ def test_every_baseline_is_timed_and_hits_what_the_true_reference_hits(tiny):
                 "bvhtree_build_s", "neural_prepare_s"} <= set(seconds)
         assert all(math.isfinite(t) and t > 0 for t in seconds.values())
         assert result["segments_match"]                     # DDA walks the same cells
+        assert result["median"]["deformed_walk_segments"] == result["median"]["walk_segments"]
         assert result["ratios"]["walk_deformed_over_static"] > 0
         sizes = result["bytes"]
         assert sizes["mesh"] == 12 * (2012 + 3936)
@@ -203,6 +204,14 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
     assert speed_row.count("n/a") == 2 and f"{results['oracle']['rays_per_s']['neural']:,.0f}" \
         in speed_row
     assert "(met)" in text or "(**missed**)" in text
+    assert "| DDA and deformed walk give the same cells | yes |" in "\n".join(
+        report.side_by_side_markdown([results["oracle"]]))
+    # where the walks differ the settings say how many segments each walked
+    median = dict(results["oracle"]["median"], deformed_walk_segments=1234, walk_segments=1200)
+    differing = dict(results["oracle"], segments_match=False, median=median)
+    assert ("| DDA and deformed walk give the same cells | no: 1,234 segments walked deformed, "
+            "1,200 static (median per rest view) |") in "\n".join(
+        report.side_by_side_markdown([differing]))
 
 
 def test_plots_and_the_performance_section(tiny, tmp_path):

@@ -189,7 +189,8 @@ def _rest_record(rest, static_grid, model, grid, origins, directions):
     match = (len(deformed) == len(static) and np.array_equal(deformed.ray, static.ray)
              and np.array_equal(deformed.cell, static.cell))
     record = {"deformed_walk_s": deformed_walk_s, "static_walk_s": static_walk_s,
-              "walk_segments": len(static), "segments_match": bool(match)}
+              "walk_segments": len(static), "deformed_walk_segments": len(deformed),
+              "segments_match": bool(match)}
     if model is not None:
         start = time.perf_counter()
         if len(static):

@@ -160,7 +160,7 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
         ("poses x repeats, rays per view",
          [f"{r['poses']} x {r['repeats']}, {r['width']}x{r['height']}" for r in results]),
         ("DDA and deformed walk give the same cells",
-         ["yes" if r["segments_match"] else "no" for r in results])])
+         [_match_text(r) for r in results])])
     return lines
 
 
@@ -186,6 +186,16 @@ STEP_ROWS = (
     ("rest view: static DDA walk (`dda.StaticGrid`)", "static_walk_s"),
     ("rest view: network over every walked segment", "all_segments_network_s"),
 )
+
+
+def _match_text(result):
+    """Whether both walks gave the same (ray, cell) segments on every rest view, and where
+    not, how many each walked (median per rest view)."""
+    if result["segments_match"]:
+        return "yes"
+    median = result["median"]
+    return (f"no: {median['deformed_walk_segments']:,.0f} segments walked deformed, "
+            f"{median['walk_segments']:,.0f} static (median per rest view)")
 
 
 def _what_is_timed(result):
@@ -233,7 +243,8 @@ def _met(met):
 
 def _threads(result, name):
     if name == "neural":
-        return f"torch on {result['threads']['torch']} thread(s), the walk on one"
+        return (f"torch's MLP on {result['threads']['torch']} thread(s), the Warp encoder and "
+                "the walk on one each beside it")
     return f"{result['threads'][name]} thread(s)"
 
 
