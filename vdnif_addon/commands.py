@@ -556,7 +556,7 @@ def _model_command(commands, name, run, default_poses, notes):
 
 def build_parser():
     from .blender.extremes import add_stress_options
-    from .blender.side_by_side import add_side_by_side_parser
+    from .blender.side_by_side_command import add_side_by_side_parser
     from .blender.scenes import DEMO_SCENES
 
     parser = _Parser(prog="batch.py", description=(
