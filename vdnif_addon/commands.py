@@ -130,6 +130,7 @@ def cmd_dataset(args):
     """Generate a training dataset shard: walked segments with their ground truth."""
     from .blender.capture import capture
     from .blender.generate import generate_dataset
+    from .dataset import check_folder, grid_header
     from .progress import Progress
 
     check_resolution(args.resolution)
@@ -138,6 +139,8 @@ def cmd_dataset(args):
     obj, spec = load_posed_scene(args)
     result = capture(obj, args.resolution, spec, deform_corners=False)
     pose_range = parse_range(args.pose_range, len(result.poses))
+    check_folder(args.out, {"object": result.mesh.name, "seed": args.seed,      # before work
+                            "grid": grid_header(result.grid)})
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
     header = generate_dataset(obj, result, args.out, args.rays_per_pose,
                               args.surface_fraction, args.seed, pose_range,
