@@ -308,9 +308,11 @@ def _model_resolution(args):
 
 def _model_extra(args):
     """The metadata ``extra`` of the --model file (grid, heads, training poses, ...)."""
-    from .model_file import load_model
+    from .model_file import check_scene_metadata, load_model
 
-    return load_model(args.model)[1]["extra"]
+    extra = load_model(args.model)[1]["extra"]
+    check_scene_metadata(args.model, extra)
+    return extra
 
 
 def cmd_render(args):

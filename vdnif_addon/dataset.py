@@ -50,10 +50,18 @@ def segment_records(grid, segments, targets, pose_index):
     return {name: np.asarray(value).astype(ARRAYS[name][0]) for name, value in records.items()}
 
 
-def grid_header(grid):
-    return {"origin": grid.origin.tolist(), "voxel_size": grid.voxel_size,
-            "dims": grid.dims.tolist(), "resolution": grid.resolution, "extent": grid.extent,
-            "occupied_voxels": int(len(grid.cells))}
+def grid_header(grid, mesh=None):
+    """The grid's header entry; with the RestMesh ``mesh`` it carries the mesh's fingerprint
+    (``model_file.mesh_fingerprint``), which the model keeps with the grid, so that a mesh
+    edited within the same bounds is refused by the model trained before the edit."""
+    header = {"origin": grid.origin.tolist(), "voxel_size": grid.voxel_size,
+              "dims": grid.dims.tolist(), "resolution": grid.resolution, "extent": grid.extent,
+              "occupied_voxels": int(len(grid.cells))}
+    if mesh is not None:
+        from .model_file import mesh_fingerprint
+
+        header["mesh_fingerprint"] = mesh_fingerprint(mesh)
+    return header
 
 
 MANIFEST = "vdnif-dataset.manifest"

@@ -68,20 +68,23 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Non
 
 
 @contextlib.contextmanager
-def atomic_path(path: str | os.PathLike, what: str = "file") -> Iterator[str]:
+def atomic_path(path: str | os.PathLike, what: str = "file",
+                make_folder: bool = True) -> Iterator[str]:
     """Yields the name of a fresh empty temporary file beside ``path`` (same suffix, so that
     writers that pick a format by suffix keep it) for a writer that needs a file name; when
     the block ends without an exception it becomes ``path``, else it is removed.
 
-    Any failure (a full disk, a read-only folder, a failing writer) raises VDNIFError naming
-    ``what`` and ``path``; the target is then left as it was.
+    The folder is created when missing unless ``make_folder`` is false. Any failure (a full
+    disk, a read-only folder, a failing writer) raises VDNIFError naming ``what`` and
+    ``path``; the target is then left as it was.
     """
     path = pathlib.Path(path)
     folder = path.parent if str(path.parent) else pathlib.Path(".")
     if path.is_dir():
         raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        if make_folder:
+            folder.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix,
                                              dir=folder)
     except OSError as exc:
