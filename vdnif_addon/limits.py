@@ -9,6 +9,14 @@ MAX_IMAGE_PIXELS = 4096 * 4096
 """Pixels of one rendered image: a ray costs ~1 KiB across the walk's buffers, the passes and
 both references, so 16.8 M pixels is ~16 GiB at the worst; 100000 x 100000 would be 9 TiB."""
 
+MIN_OBJECT_SIZE = 1e-5
+MAX_OBJECT_SIZE = 1e9
+"""The supported sizes of a mesh (longest side of its rest bounds, local units; DESIGN section
+2). Inside it every figure in object units is the same at any scale (tests/test_scale.py: the
+arm, 3 units, gives the same references from --scale 1e-6 to 1e10); outside, float32 parts
+of the pipeline under- or overflow (the arm's normal error went from 1.9 deg to 27 deg at
+scale 1e-8 and 3.5 deg at 1e12), so such a mesh is refused."""
+
 MAX_IMAGE_SIDE = 16384
 MAX_POSES = 4096
 """Poses of one capture: the deformed corners are kept for every pose (``capture``)."""
