@@ -670,7 +670,6 @@ def build_parser():
 
 OUTPUT_FILES = ("json", "markdown", "results", "presets", "performance")
 """Options naming a file a command writes; ``--out`` is a file for train, else a folder."""
-INPUT_FILES = ("mesh", "blend", "model")
 IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
 """Commands whose --width/--height are an image's (train's --width is the MLP's)."""
 
@@ -684,14 +683,14 @@ def validate_arguments(args):
     def given(name):
         return getattr(args, name, None) is not None
 
-    def at_least(name, low, high=None):
+    def at_least(name, low, high=None, label=None):
         if given(name):
-            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name), low,
-                               high if high is not None else 2 ** 62)
+            limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
+                               low, high)
 
     at_least("seed", 0, limits.MAX_SEED)
     at_least("poses", 1, limits.MAX_POSES)
-    at_least("rays_per_pose", 1, limits.MAX_RAYS_PER_POSE)
+    at_least("rays_per_pose", 1, limits.MAX_RAYS_PER_POSE, "rays per pose")
     at_least("repeats", 1)
     at_least("threads", 1)
     at_least("batch", 1, limits.MAX_BATCH)
@@ -709,9 +708,6 @@ def validate_arguments(args):
         limits.check_image(args.width, args.height)
     if args.command == "train":
         _validate_network_options(args, limits)
-    for name in INPUT_FILES:
-        if given(name) and not pathlib.Path(getattr(args, name)).is_file():
-            raise VDNIFError(f"--{name} '{getattr(args, name)}' is not an existing file")
     for name in OUTPUT_FILES:
         if given(name):
             check_output_file(getattr(args, name), f"--{name}")

@@ -33,10 +33,13 @@ MAX_SEED = 2 ** 32 - 1
 """numpy's and torch's seeds are unsigned 32-bit."""
 
 
-def check_range(name, value, low, high):
-    """Raises VDNIFError unless ``low <= value <= high`` (``value`` an int)."""
-    if not low <= value <= high:
-        raise VDNIFError(f"{name} {value} is outside {low}..{high}")
+def check_range(name, value, low, high=None):
+    """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""
+    if value < low:
+        raise VDNIFError(f"{name} {value} must be at least {low}")
+    if high is not None and value > high:
+        raise VDNIFError(f"{name} {value} is more than the limit {high:,} "
+                         "(vdnif_addon/limits.py)")
 
 
 def check_image(width, height):
