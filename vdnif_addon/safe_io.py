@@ -42,17 +42,22 @@ def _nearest_existing(path: pathlib.Path) -> pathlib.Path:
     return pathlib.Path(".")
 
 
+def _check_creatable(path: pathlib.Path, what: str) -> None:
+    """The nearest existing ancestor of ``path`` is a writable folder."""
+    existing = _nearest_existing(path)
+    if not existing.is_dir():
+        raise VDNIFError(f"{what} cannot be written: '{existing}' is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise VDNIFError(f"{what} cannot be written: folder '{existing}' is not writable")
+
+
 def check_output_folder(path: str | os.PathLike, what: str = "output folder") -> None:
     """Raises VDNIFError unless ``path`` is a folder (existing, or one that can be created)
     in which files can be created."""
     path = pathlib.Path(path)
     if os.path.lexists(path) and not path.is_dir():
         raise VDNIFError(f"{what} '{path}' exists and is not a folder")
-    existing = _nearest_existing(path)
-    if not existing.is_dir():
-        raise VDNIFError(f"{what} '{path}' cannot be created: '{existing}' is not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise VDNIFError(f"{what} '{path}' cannot be written: '{existing}' is not writable")
+    _check_creatable(path, f"{what} '{path}'")
 
 
 def check_output_file(path: str | os.PathLike, what: str = "output file") -> None:
@@ -63,8 +68,8 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Non
         raise VDNIFError(f"{what} '{path}' names no file")
     if path.is_dir():
         raise VDNIFError(f"{what} '{path}' is a folder, not a file")
-    check_output_folder(path.parent if str(path.parent) else pathlib.Path("."),
-                        f"the folder of {what} '{path}'")
+    _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),
+                     f"{what} '{path}'")
 
 
 @contextlib.contextmanager
