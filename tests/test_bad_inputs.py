@@ -432,3 +432,52 @@ def test_catalogue_is_large_and_covers_every_command():
     commands = {case[1].split()[0] for case in CASES}
     assert commands >= {"capture", "dataset", "references", "train", "render", "evaluate",
                         "demo", "experiment", "bench", "side-by-side", "bench-network"}
+
+
+def test_a_blend_with_a_blocked_python_driver_does_not_hang_at_exit(files):
+    """bpy's exit handlers deadlocked after such a capture printed its results (it ran until
+    killed: checked with the old ``sys.exit`` path); batch.py now leaves with ``os._exit``."""
+    start = time.monotonic()
+    result = run_batch(["capture", "--blend", files["blend:driver"], "--object", "Cube",
+                        "--resolution", 8], timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert "captured 'Cube'" in result.stdout and time.monotonic() - start < 60
+
+
+def test_capture_json_through_planted_symlinks_overwrites_nothing(tmp_path, empty_scene, core,
+                                                                  capfd):
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious\n")
+    target = tmp_path / "c.json"
+    for name in ("c.json.tmp", ".c.json.partial"):
+        (tmp_path / name).symlink_to(victim)
+    target.symlink_to(victim)
+    code = core("commands").main(["capture", *ARM, "--json", str(target)])
+    assert code == 0, capfd.readouterr().err
+    assert victim.read_text() == "precious\n" and not target.is_symlink()
+    assert json.loads(target.read_text())["object"] == "Arm"
+
+
+def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene, core):
+    """The model keeps the rest mesh's fingerprint with its grid; a model written before it
+    (no fingerprint) still passes the old checks."""
+    import bpy
+
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2)
+    obj = bpy.context.active_object
+    capture = core("blender.capture").capture
+    first = capture(obj, 8)
+    extra = {"object": obj.name, "grid": core("dataset").grid_header(first.grid, first.mesh),
+             "heads": first.mesh.heads()}
+    check = core("evaluation").check_model_fits
+    check("m.vdnif", extra, first.mesh, first.grid)
+    inner = min(range(len(obj.data.vertices)), key=lambda i: abs(obj.data.vertices[i].co.z))
+    obj.data.vertices[inner].co *= 0.9            # inside the old bounds: the same grid
+    obj.data.update()
+    edited = capture(obj, 8)
+    assert edited.grid.dims.tolist() == first.grid.dims.tolist()
+    np.testing.assert_allclose(edited.grid.origin, first.grid.origin)
+    with pytest.raises(core("errors").VDNIFError, match="another version of the mesh"):
+        check("m.vdnif", extra, edited.mesh, edited.grid)
+    old = dict(extra, grid={k: v for k, v in extra["grid"].items() if k != "mesh_fingerprint"})
+    check("m.vdnif", old, edited.mesh, edited.grid)
