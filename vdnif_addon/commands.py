@@ -157,6 +157,7 @@ def cmd_dataset(args):
           f"{timings['evaluate_s']:.2f} s, training rays {timings['rays_s']:.2f} s, rest BVH "
           f"{timings['rest_surface_s']:.2f} s, records {timings['records_s']:.2f} s, writing "
           f"{timings['write_s']:.2f} s")
+    _truncation_warning(counts.get("truncated_rays", 0), counts["rays"])
     return 0
 
 
@@ -195,7 +196,16 @@ def cmd_references(args):
           "of walk + ground truth")
     print("  " + ", ".join(f"{name[:-2].replace('_', ' ')} {seconds:.2f} s"
                            for name, seconds in report["timings"].items()))
+    _truncation_warning(report.get("truncated_rays", 0), report["poses"] * args.width
+                        * args.height)
     return 0
+
+
+def _truncation_warning(truncated, rays):
+    """Says how many rays the walk's bounds (step budget, seek casts) stopped early."""
+    if truncated:
+        print(f"  warning: {truncated} of {rays} rays were stopped by the walk's step or "
+              "seek bound (their later segments are missing)")
 
 
 NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)

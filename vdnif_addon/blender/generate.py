@@ -24,7 +24,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
-    records, counts = [], dict(rays=0, segments=0, hits=0)
+    records, counts = [], dict(rays=0, segments=0, hits=0, truncated_rays=0)
     inverted = []
     with PosedObject(obj, capture) as posed_object:
         clock = time.perf_counter()
@@ -44,6 +44,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             segments = traverse(geometry.cells, origins, directions)
+            counts["truncated_rays"] += segments.truncated      # stopped by the walk's bounds
             timings["walk_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             targets = segment_targets(capture.mesh, rest_caster, segments)
@@ -85,7 +86,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
     truth, embedded, per_pose = [], [], []
     clock = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                  embedded_reference_s=0.0, true_reference_s=0.0)
-    segment_count = 0
+    segment_count = truncated = 0
     with PosedObject(obj, capture) as posed_object:
         start = time.perf_counter()
         rest_caster = posed_object.rest_caster
@@ -102,6 +103,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
             start = time.perf_counter()
             segments = traverse(geometry.cells, origins, rays)
             walked = time.perf_counter()
+            truncated += segments.truncated                      # stopped by the walk's bounds
             targets = segment_targets(mesh, rest_caster, segments)
             grounded = time.perf_counter()
             embedded.append(embedded_reference(geometry.cells, segments, targets, len(rays)))
@@ -128,7 +130,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
         "per_pose": per_pose,
         "rays_per_s": rays_total / neural_path_s,
         "segments_per_s": segment_count / neural_path_s,
-        "segments_per_ray": segment_count / rays_total,
+        "segments_per_ray": segment_count / rays_total, "truncated_rays": truncated,
         "timings": clock, "versions": _versions(),
     }
 
