@@ -152,6 +152,8 @@ CASES = [
      r"array 'p0' has points outside the grid", "main"),
     ("train-header-lying-voxel-size", "train --data {bad_data:lying_grid} --steps 2",
      r"voxel size .* differs from the grid's", "main"),
+    ("train-header-lying-extent", "train --data {bad_data:lying_extent} --steps 2",
+     r"grid extent .* is not its voxel size", "main"),
     ("train-header-lying-count", "train --data {bad_data:lying_count} --steps 2",
      r"its header says", "main"),
     ("train-header-nan-albedo", "train --data {bad_data:nan_albedo} --steps 2",
@@ -279,6 +281,7 @@ BAD_DATA = {
     "object_dtype": lambda f: _edit_arrays(f, lambda a: a.update(p0=a["p0"].astype(object))),
     "huge_p0": lambda f: _edit_arrays(f, lambda a: a["p0"].__setitem__(0, 3e38)),
     "lying_grid": lambda f: _edit_header(f, lambda h: h.update(voxel_size=h["voxel_size"] * 2)),
+    "lying_extent": lambda f: _edit_header(f, lambda h: h["grid"].update(extent=1e9)),
     "lying_count": lambda f: _edit_header(f, lambda h: h.update(segments=h["segments"] + 5)),
     "nan_albedo": lambda f: _edit_header(f, lambda h: h.update(albedo_table=[["NaN"] * 3])),
     "short_hit": lambda f: _edit_arrays(f, lambda a: a.update(hit=a["hit"][:-1])),
@@ -421,6 +424,10 @@ def test_bad_input_fails_on_one_line_and_changes_nothing(case, text, message, ho
         code = core("commands").main(args)
         stderr = capfd.readouterr().err
     check_failure(code, stderr, message, time.monotonic() - start)
+    if os.environ.get("VDNIF_CATALOGUE_OUT"):       # the table of messages for a report
+        with open(os.environ["VDNIF_CATALOGUE_OUT"], "a") as table:
+            line = next(x for x in stderr.splitlines() if x.startswith("vdnif: error:"))
+            table.write(json.dumps([case, text, how, line.replace(str(tmp), "{tmp}")]) + "\n")
     after = _snapshot(*watched)
     assert {path: digest for path, digest in after.items() if path in before} == before
     left = [path for path in after if path not in before]

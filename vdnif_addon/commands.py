@@ -721,6 +721,8 @@ def validate_arguments(args):
     for name in OUTPUT_FILES:
         if given(name):
             check_output_file(getattr(args, name), f"--{name}")
+    if args.command == "train" and given("data") and _names_scene(args):
+        check_output_folder(args.data, "--data folder")
     if given("out"):
         if args.command == "train":
             check_output_file(args.out, "--out model file")

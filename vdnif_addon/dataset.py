@@ -202,6 +202,9 @@ def _check_header(path, header):
     if not _finite_number(h, positive=True) or not _finite_number(grid["extent"], True):
         raise VDNIFError(f"dataset header '{path}': grid voxel size or extent is not a "
                          "positive number")
+    if abs(grid["extent"] - h * max(dims)) > 1e-6 * grid["extent"]:
+        raise VDNIFError(f"dataset header '{path}': grid extent {grid['extent']!r} is not its "
+                         f"voxel size {h!r} times its longest dims {max(dims)}")
     from .voxels import MAX_RESOLUTION, MIN_RESOLUTION
 
     if (not isinstance(resolution, int) or isinstance(resolution, bool)

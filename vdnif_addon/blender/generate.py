@@ -10,6 +10,7 @@ from .. import dataset
 from ..attributes import sample_surface
 from ..evaluation import metric_heads
 from ..groundtruth import segment_targets
+from ..limits import MAX_RAYS_PER_POSE, check_image, check_range
 from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
 from ..references import embedded_reference, true_reference
@@ -21,6 +22,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                      pose_range=None, progress=None):
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its header."""
+    check_range("rays per pose", rays_per_pose, 1, MAX_RAYS_PER_POSE)
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
@@ -80,6 +82,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
 def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
     """Renders the true and embedded references of every pose in ``capture`` from an orbit
     camera each, and returns the embedding error and throughput as a JSON-ready dict."""
+    check_image(width, height)
     mesh = capture.mesh
     heads = metric_heads(mesh)
     directions = orbit_viewpoints(len(capture.poses))
