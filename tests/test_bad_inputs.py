@@ -488,3 +488,25 @@ def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene
         check("m.vdnif", extra, edited.mesh, edited.grid)
     old = dict(extra, grid={k: v for k, v in extra["grid"].items() if k != "mesh_fingerprint"})
     check("m.vdnif", old, edited.mesh, edited.grid)
+
+
+def test_debug_shows_the_traceback_and_a_bug_says_it_is_one(core, capfd, monkeypatch):
+    commands = core("commands")
+    assert commands.main(["capture", "--seed", "-1", "--debug"]) == 1
+    err = capfd.readouterr().err
+    assert "Traceback" in err and err.strip().splitlines()[-1] == (
+        "vdnif: error: --seed -1 must be at least 0")
+
+    def broken(args):
+        return 1 / 0
+
+    monkeypatch.setattr(commands, "cmd_capture", broken)
+    monkeypatch.delenv("VDNIF_DEBUG", raising=False)
+    assert commands.main(["capture"]) == 1
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and err.splitlines() == [
+        "vdnif: error: internal error (a bug in VDNIF, please report it): ZeroDivisionError: "
+        "division by zero; run again with --debug (or VDNIF_DEBUG=1) for the traceback"]
+    monkeypatch.setenv("VDNIF_DEBUG", "1")
+    assert commands.main(["capture"]) == 1
+    assert "Traceback" in capfd.readouterr().err
