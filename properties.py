@@ -9,6 +9,7 @@ from bpy.props import (EnumProperty, FloatProperty, IntProperty, PointerProperty
                        StringProperty)
 
 from . import preferences
+from .vdnif_addon import limits
 from .vdnif_addon.blender import ui_support
 
 # Numbered: a .blend stores an enum by number, and "auto" came after the other three.
@@ -39,18 +40,20 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     pose_source: EnumProperty(name="Poses", default="random", items=[
         ("random", "Random", "Random bone rotations and lattice offsets"),
         ("frames", "Frame Range", "Frames spread over the scene's frame range")])
-    pose_count: IntProperty(name="Pose Count", default=32, min=1, max=100000, soft_max=1024)
+    pose_count: IntProperty(name="Pose Count", default=32, min=1, max=limits.MAX_POSES,
+                            soft_max=1024)
     seed: IntProperty(name="Seed", default=0, min=0)
     max_angle: FloatProperty(name="Maximum Angle", default=45.0, min=0.1, max=180.0,
                              description="Largest random bone rotation per axis in degrees, "
                                          "for bones without rotation limits")
-    rays_per_pose: IntProperty(name="Rays per Pose", default=4096, min=1, max=2**24,
-                               soft_max=65536)
+    rays_per_pose: IntProperty(name="Rays per Pose", default=4096, min=1,
+                               max=limits.MAX_RAYS_PER_POSE, soft_max=65536)
     variant: EnumProperty(name="Variant", items=VARIANTS, default="auto",
                           update=_variant_changed)
     levels: IntProperty(name="Levels", default=2, min=1, max=64, soft_max=16)
     base_resolution: IntProperty(name="Base Resolution", default=64, min=1, max=2**16)
-    log2_table_size: IntProperty(name="Table Size (log2)", default=16, min=1, max=24)
+    log2_table_size: IntProperty(name="Table Size (log2)", default=16, min=1,
+                                  max=limits.MAX_LOG2_TABLE_SIZE)
     feature_dim: IntProperty(name="Feature Dim", default=3, min=1, max=64)
     pe_bands: IntProperty(name="PE Bands", default=3, min=0, max=16,
                           description="Positional-encoding bands (0: plain hash grid)")

@@ -13,6 +13,7 @@ import shutil
 import bpy
 
 from .vdnif_addon.errors import VDNIFError
+from .vdnif_addon.safe_io import atomic_path, write_bytes_atomic
 
 PACKED = "model_data"     # the ID property of an object's settings holding the packed model
 
@@ -145,13 +146,9 @@ def _cache_path(data):
 
 
 def _copy_atomically(source, target):
-    target.parent.mkdir(parents=True, exist_ok=True)
-    partial = target.with_name(f".{target.name}.partial")
-    shutil.copyfile(source, partial)
-    os.replace(partial, target)
+    with atomic_path(target, "model file") as temporary:    # safe_io: fresh, exclusive
+        shutil.copyfile(source, temporary)
 
 
 def _write_atomically(path, data):
-    partial = path.with_name(f".{path.name}.partial")
-    partial.write_bytes(data)
-    os.replace(partial, path)
+    write_bytes_atomic(path, data, "model file")

@@ -5,9 +5,11 @@ Each command prints its summary to stdout, progress to stderr, and a failure as 
 """
 
 import argparse
-import json
+import math
+import os
 import pathlib
 import sys
+import traceback
 
 from .errors import VDNIFError
 
@@ -105,14 +107,12 @@ def pose_spec(args):
 
 
 def write_json(path, data):
-    """Writes ``data`` as JSON to ``path`` atomically (no half-written file on failure)."""
-    if path is None:
-        return
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2) + "\n")
-    tmp.replace(path)
+    """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
+    file, no write through a symlink, no NaN)."""
+    from .safe_io import write_json_atomic
+
+    if path is not None:
+        write_json_atomic(path, data)
 
 
 def check_resolution(value):
@@ -155,6 +155,7 @@ def cmd_dataset(args):
     """Generate a training dataset shard: walked segments with their ground truth."""
     from .blender.capture import capture
     from .blender.generate import generate_dataset
+    from .dataset import check_folder, grid_header
     from .progress import Progress
 
     check_resolution(args.resolution)
@@ -163,6 +164,8 @@ def cmd_dataset(args):
     obj, spec = load_posed_scene(args)
     result = capture(obj, args.resolution, spec, deform_corners=False)
     pose_range = parse_range(args.pose_range, len(result.poses))
+    check_folder(args.out, {"object": result.mesh.name, "seed": args.seed,      # before work
+                            "grid": grid_header(result.grid)})
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
     header = generate_dataset(obj, result, args.out, args.rays_per_pose,
                               args.surface_fraction, args.seed, pose_range,
@@ -179,6 +182,7 @@ def cmd_dataset(args):
           f"{timings['evaluate_s']:.2f} s, training rays {timings['rays_s']:.2f} s, rest BVH "
           f"{timings['rest_surface_s']:.2f} s, records {timings['records_s']:.2f} s, writing "
           f"{timings['write_s']:.2f} s")
+    _truncation_warning(counts.get("truncated_rays", 0), counts["rays"])
     return 0
 
 
@@ -217,7 +221,16 @@ def cmd_references(args):
           "of walk + ground truth")
     print("  " + ", ".join(f"{name[:-2].replace('_', ' ')} {seconds:.2f} s"
                            for name, seconds in report["timings"].items()))
+    _truncation_warning(report.get("truncated_rays", 0), report["poses"] * args.width
+                        * args.height)
     return 0
+
+
+def _truncation_warning(truncated, rays):
+    """Says how many rays the walk's bounds (step budget, seek casts) stopped early."""
+    if truncated:
+        print(f"  warning: {truncated} of {rays} rays were stopped by the walk's step or "
+              "seek bound (their later segments are missing)")
 
 
 NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
@@ -321,10 +334,13 @@ def _train_on_scene(args):
 
 
 def _read_model(args):
-    """(network, metadata) of the --model file, read once per command."""
-    from .model_file import load_model
+    """(network, metadata) of the --model file, read once per command, its metadata checked
+    for what a scene needs (a complete grid, an integer resolution)."""
+    from .model_file import check_scene_metadata, load_model
 
-    return load_model(args.model)
+    loaded = load_model(args.model)
+    check_scene_metadata(args.model, loaded[1]["extra"])
+    return loaded
 
 
 def _model_resolution(args, extra):
@@ -562,6 +578,8 @@ def build_parser():
     parser = _Parser(prog="batch.py", description=(
         "VDNIF batch commands. Run as: blender --background --python vdnif_addon/batch.py "
         "-- <command> [options], or python vdnif_addon/batch.py -- <command> [options]."))
+    parser.add_argument("--debug", action="store_true", help=(
+        f"show the traceback of a failure (anywhere on the line; or {DEBUG_ENV}=1)"))
     commands = parser.add_subparsers(dest="command", metavar="<command>", parser_class=_Parser)
     capture = _scene_command(commands, "capture", cmd_capture, 8, (
         "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
@@ -690,23 +708,114 @@ def build_parser():
     return parser
 
 
+OUTPUT_FILES = ("json", "markdown", "results", "presets", "performance")
+"""Options naming a file a command writes; ``--out`` is a file for train, else a folder."""
+IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
+"""Commands whose --width/--height are an image's (train's --width is the MLP's)."""
+
+
+def validate_arguments(args):
+    """Checks every option that can be wrong on its own, and every input and output place,
+    before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
+    from . import limits
+    from .safe_io import check_output_file, check_output_folder
+
+    def given(name):
+        return getattr(args, name, None) is not None
+
+    def at_least(name, low, high=None, label=None):
+        if given(name):
+            limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
+                               low, high)
+
+    at_least("seed", 0, limits.MAX_SEED)
+    at_least("poses", 1, limits.MAX_POSES)
+    at_least("rays_per_pose", 1, limits.MAX_RAYS_PER_POSE, "rays per pose")
+    at_least("repeats", 1)
+    at_least("threads", 1)
+    at_least("batch", 1, limits.MAX_BATCH)
+    at_least("steps", 1)
+    if isinstance(getattr(args, "resolution", None), int):
+        check_resolution(args.resolution)
+    for name, low, high in (("surface_fraction", 0.0, 1.0), ("max_angle", 0.0, 180.0)):
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and low <= value <= high):
+            raise VDNIFError(f"--{name.replace('_', '-')} {value} must be a number in "
+                             f"{low:g}..{high:g}")
+    if given("frame") and not math.isfinite(args.frame):
+        raise VDNIFError(f"--frame {args.frame} is not a finite number")
+    if args.command in IMAGE_COMMANDS and given("width") and given("height"):
+        limits.check_image(args.width, args.height)
+    if args.command == "train":
+        _validate_network_options(args, limits)
+    for name in OUTPUT_FILES:
+        if given(name):
+            check_output_file(getattr(args, name), f"--{name}")
+    if args.command == "train" and given("data") and _names_scene(args):
+        check_output_folder(args.data, "--data folder")
+    if given("out"):
+        if args.command == "train":
+            check_output_file(args.out, "--out model file")
+        else:
+            check_output_folder(args.out, "--out folder")
+
+
+def _validate_network_options(args, limits):
+    for name, low, high in (("levels", 1, 64), ("base_resolution", 1, 1 << 20),
+                            ("log2_table_size", 1, limits.MAX_LOG2_TABLE_SIZE),
+                            ("feature_dim", 1, 64), ("pe_bands", 0, 32), ("width", 1, 4096),
+                            ("depth", 0, 64)):
+        if getattr(args, name, None) is not None:
+            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name), low, high)
+    if args.growth is not None and not (math.isfinite(args.growth) and 1 <= args.growth <= 16):
+        raise VDNIFError(f"--growth {args.growth} must be a number in 1..16")
+    if args.pe_form is not None and args.pe_form not in ("paper", "pi"):
+        raise VDNIFError(f"--pe-form '{args.pe_form}' must be 'paper' or 'pi'")
+
+
+DEBUG_ENV = "VDNIF_DEBUG"
+
+
+def _debugging(argv):
+    """(argv without ``--debug``, whether tracebacks are wanted: --debug or VDNIF_DEBUG=1)."""
+    wanted = "--debug" in argv or os.environ.get(DEBUG_ENV, "") not in ("", "0")
+    return [arg for arg in argv if arg != "--debug"], wanted
+
+
 def main(argv):
-    """Runs one batch command; returns the process exit code."""
-    parser = build_parser()
+    """Runs one batch command; returns the process exit code: 0, or 1 after one line
+    ``vdnif: error: ...`` on stderr for any failure (the traceback only with --debug)."""
+    argv, debug = _debugging(list(argv))
     try:
+        parser = build_parser()
         args = parser.parse_args(argv)
         if args.command is None:
             parser.print_help()
             return 2
-        if getattr(args, "threads", None) is not None and args.threads < 1:
-            raise _UsageError(f"{args.command}: --threads must be at least 1")
+        validate_arguments(args)
         from .threads import use_threads
 
         use_threads(getattr(args, "threads", None))
         return args.run(args)
-    except _UsageError as exc:
-        print(f"vdnif: error: {exc}", file=sys.stderr)
-        return 2
-    except VDNIFError as exc:
-        print(f"vdnif: error: {exc}", file=sys.stderr)
+    except (_UsageError, VDNIFError) as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"vdnif: error: {_one_line(exc)}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("vdnif: error: interrupted", file=sys.stderr)
+        return 1
+    except (Exception, SystemExit) as exc:     # noqa: BLE001 - the last line of defence
+        if isinstance(exc, SystemExit) and exc.code in (0, None):
+            return 0                           # --help, --version
+        if debug:
+            traceback.print_exc()
+        where = "" if debug else f"; run again with --debug (or {DEBUG_ENV}=1) for the traceback"
+        print(f"vdnif: error: internal error (a bug in VDNIF, please report it): "
+              f"{type(exc).__name__}: {_one_line(exc)}{where}", file=sys.stderr)
+        return 1
+
+
+def _one_line(exc):
+    lines = str(exc).strip().splitlines()
+    return " ".join(line.strip() for line in lines)[:500] if lines else type(exc).__name__

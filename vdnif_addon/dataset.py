@@ -7,6 +7,7 @@ reads an array only when it is used).
 """
 
 import json
+import math
 import os
 import pathlib
 import zipfile
@@ -49,25 +50,81 @@ def segment_records(grid, segments, targets, pose_index):
     return {name: np.asarray(value).astype(ARRAYS[name][0]) for name, value in records.items()}
 
 
-def grid_header(grid):
-    return {"origin": grid.origin.tolist(), "voxel_size": grid.voxel_size,
-            "dims": grid.dims.tolist(), "resolution": grid.resolution, "extent": grid.extent,
-            "occupied_voxels": int(len(grid.cells))}
+def grid_header(grid, mesh=None):
+    """The grid's header entry; with the RestMesh ``mesh`` it carries the mesh's fingerprint
+    (``model_file.mesh_fingerprint``), which the model keeps with the grid, so that a mesh
+    edited within the same bounds is refused by the model trained before the edit."""
+    header = {"origin": grid.origin.tolist(), "voxel_size": grid.voxel_size,
+              "dims": grid.dims.tolist(), "resolution": grid.resolution, "extent": grid.extent,
+              "occupied_voxels": int(len(grid.cells))}
+    if mesh is not None:
+        from .model_file import mesh_fingerprint
+
+        header["mesh_fingerprint"] = mesh_fingerprint(mesh)
+    return header
+
+
+MANIFEST = "vdnif-dataset.manifest"
+"""The folder's manifest (JSON): the object, grid and seed its shards were made of, so that a
+shard of another object, grid or seed is refused instead of replacing one of the same pose
+range (shard names depend only on the pose range)."""
+MANIFEST_KEYS = ("object", "grid", "seed")
+
+
+def _identity(header):
+    grid = header.get("grid") if isinstance(header.get("grid"), dict) else {}
+    return {"object": header.get("object"), "seed": header.get("seed"),
+            "grid": {key: grid.get(key) for key in GRID_KEYS}}
+
+
+def check_folder(folder, header):
+    """Raises VDNIFError when dataset folder ``folder`` holds shards of another object, grid
+    or seed than ``header`` (its manifest, else the first shard header of an older folder)."""
+    folder = pathlib.Path(folder)
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise VDNIFError(f"dataset folder '{folder}' exists and is not a folder")
+    mine = _identity(header)
+    manifest = folder / MANIFEST
+    if manifest.exists():
+        try:
+            theirs = json.loads(manifest.read_text())
+        except (OSError, ValueError) as exc:
+            raise VDNIFError(f"dataset manifest '{manifest}' cannot be read: {exc}") from None
+    else:
+        existing = sorted(folder.glob("*.json")) if folder.is_dir() else []
+        if not existing:
+            return
+        theirs = _identity(_read_header(existing[0]))
+    if not isinstance(theirs, dict):
+        raise VDNIFError(f"dataset manifest '{manifest}' is not a JSON object")
+    for key in MANIFEST_KEYS:
+        if json.dumps(theirs.get(key), sort_keys=True) != json.dumps(mine[key],
+                                                                     sort_keys=True):
+            raise VDNIFError(
+                f"dataset folder '{folder}' holds shards of object '{theirs.get('object')}' "
+                f"(seed {theirs.get('seed')}, grid {(theirs.get('grid') or {}).get('dims')}), "
+                f"not of '{mine['object']}' (seed {mine['seed']}, grid "
+                f"{mine['grid'].get('dims')}): its {key} differs; use another folder")
 
 
 def write_shard(folder, name, records, header):
-    """Writes ``name.npz`` and ``name.json`` into ``folder`` atomically; returns the npz path."""
+    """Writes ``name.npz`` and ``name.json`` into ``folder`` atomically (``safe_io``), after
+    ``check_folder``; records the folder's manifest with the first shard. Returns the npz
+    path."""
+    from .safe_io import atomic_path, json_text, write_text_atomic
+
     folder = pathlib.Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    check_folder(folder, header)
     header = {"format": FORMAT, "version": VERSION, **header,
               "segments": int(len(records["pose"]))}
+    text = json_text(header, f"dataset header of shard '{name}'", indent=1)
+    if not (folder / MANIFEST).exists():
+        write_text_atomic(folder / MANIFEST, json_text(_identity(header), "dataset manifest"),
+                          "dataset manifest")
     target = folder / f"{name}.npz"
-    partial = folder / f".{name}.partial.npz"
-    np.savez(partial, **records)
-    os.replace(partial, target)
-    meta = folder / f".{name}.partial.json"
-    meta.write_text(json.dumps(header, indent=1) + "\n")
-    os.replace(meta, folder / f"{name}.json")
+    with atomic_path(target, "dataset shard") as temporary:
+        np.savez(temporary, **records)
+    write_text_atomic(folder / f"{name}.json", text, "dataset header")
     return target
 
 
@@ -83,6 +140,8 @@ def read_dataset(folder):
     for path in headers:
         header = _read_header(path)
         shards.append(_open_shard(path.with_suffix(".npz")))
+        _check_header(path, header)
+        _check_shard(path.with_suffix(".npz"), shards[-1], header)
         if merged is None:
             merged = dict(header, shards=[], poses=[])
         elif any(header["grid"][k] != merged["grid"][k] for k in GRID_KEYS) or (
@@ -117,3 +176,103 @@ def _open_shard(path):
     if missing:
         raise VDNIFError(f"dataset shard '{path}' lacks {', '.join(sorted(missing))}")
     return shard
+
+
+def _finite_number(value, positive=False):
+    return (not isinstance(value, bool) and isinstance(value, (int, float))
+            and math.isfinite(value) and (value > 0 or not positive))
+
+
+def _check_header(path, header):
+    """A shard header that agrees with itself: a complete grid of finite numbers, a voxel size
+    equal to the grid's, the poses of its pose range, a finite albedo table."""
+    grid = header.get("grid")
+    if not isinstance(grid, dict) or any(key not in grid for key in GRID_KEYS):
+        raise VDNIFError(f"dataset header '{path}' has no complete grid "
+                         f"({', '.join(GRID_KEYS)})")
+    if not isinstance(header.get("object"), str) or not header["object"]:
+        raise VDNIFError(f"dataset header '{path}' names no object")
+    origin, dims = grid["origin"], grid["dims"]
+    if not (isinstance(origin, list) and len(origin) == 3 and all(map(_finite_number, origin))):
+        raise VDNIFError(f"dataset header '{path}': grid origin {origin!r} is not 3 numbers")
+    if not (isinstance(dims, list) and len(dims) == 3
+            and all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in dims)):
+        raise VDNIFError(f"dataset header '{path}': grid dims {dims!r} are not 3 counts")
+    h, resolution = grid["voxel_size"], grid["resolution"]
+    if not _finite_number(h, positive=True) or not _finite_number(grid["extent"], True):
+        raise VDNIFError(f"dataset header '{path}': grid voxel size or extent is not a "
+                         "positive number")
+    if abs(grid["extent"] - h * max(dims)) > 1e-6 * grid["extent"]:
+        raise VDNIFError(f"dataset header '{path}': grid extent {grid['extent']!r} is not its "
+                         f"voxel size {h!r} times its longest dims {max(dims)}")
+    from .voxels import MAX_RESOLUTION, MIN_RESOLUTION
+
+    if (not isinstance(resolution, int) or isinstance(resolution, bool)
+            or not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION):
+        raise VDNIFError(f"dataset header '{path}': grid resolution {resolution!r} is not an "
+                         f"integer in {MIN_RESOLUTION}..{MAX_RESOLUTION}")
+    if "voxel_size" in header and header["voxel_size"] != h:
+        raise VDNIFError(f"dataset header '{path}': voxel size {header['voxel_size']!r} differs "
+                         f"from the grid's {h!r}")
+    if not isinstance(header.get("poses"), list):
+        raise VDNIFError(f"dataset header '{path}' has no list of poses")
+    span = header.get("pose_range")
+    if span is not None and (not isinstance(span, list) or len(span) != 2
+                             or span[1] - span[0] != len(header["poses"])):
+        raise VDNIFError(f"dataset header '{path}': pose range {span!r} does not match its "
+                         f"{len(header['poses'])} poses")
+    table = header.get("albedo_table")
+    if table is not None:
+        try:
+            finite = np.isfinite(np.asarray(table, np.float64)).all()
+        except (TypeError, ValueError):
+            finite = False
+        if not finite:
+            raise VDNIFError(f"dataset header '{path}': the albedo table is not all finite "
+                             "numbers")
+
+
+# The rows' plausible ranges: normalized points lie in the grid's unit box (a margin for
+# rounding at its walls), a hit's fraction along its segment in [0, 1].
+_POINT_MARGIN = 0.01
+
+
+def _check_shard(path, shard, header):
+    """Every array of a shard read once and checked against ``ARRAYS`` and its header: kind
+    of dtype, shape, length (the header's segment count), finite values, normalized points
+    within the grid, 0/1 hits, fractions in [0, 1], poses of the header. A bad CRC or a
+    truncated member is reported here, not in the middle of training."""
+    length = None
+    for name, (dtype, trailing) in ARRAYS.items():
+        try:
+            array = shard[name]
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise VDNIFError(f"dataset shard '{path}' array '{name}' cannot be read: "
+                             f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                             ) from None
+        if array.dtype.kind != np.dtype(dtype).kind:
+            raise VDNIFError(f"dataset shard '{path}' array '{name}' has dtype {array.dtype}, "
+                             f"expected {np.dtype(dtype)}")
+        if array.ndim < 1 or array.shape[1:] != trailing:
+            raise VDNIFError(f"dataset shard '{path}' array '{name}' has shape {array.shape}, "
+                             f"expected (N, {', '.join(map(str, trailing))})".replace(", )", ")"))
+        if length is None:
+            length = len(array)
+        if len(array) != length:
+            raise VDNIFError(f"dataset shard '{path}' array '{name}' has {len(array)} rows, "
+                             f"'p0' has {length}")
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            raise VDNIFError(f"dataset shard '{path}' array '{name}' has non-finite values")
+        if name in ("p0", "p1") and length and not (
+                array.min() >= -_POINT_MARGIN and array.max() <= 1 + _POINT_MARGIN):
+            raise VDNIFError(f"dataset shard '{path}' array '{name}' has points outside the "
+                             f"grid (normalized values {array.min():.3g}..{array.max():.3g})")
+        if name == "hit" and length and array.max() > 1:
+            raise VDNIFError(f"dataset shard '{path}' array 'hit' has values other than 0, 1")
+        if name == "hit_frac" and length and not (array.min() >= 0 and array.max() <= 1):
+            raise VDNIFError(f"dataset shard '{path}' array 'hit_frac' has values outside "
+                             "[0, 1]")
+    segments = header.get("segments")
+    if segments is not None and segments != length:
+        raise VDNIFError(f"dataset shard '{path}' has {length} rows, its header says "
+                         f"{segments}")

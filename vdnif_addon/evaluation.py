@@ -32,6 +32,13 @@ def check_model_fits(path, extra, mesh, grid):
     if not same_grid:
         raise VDNIFError(f"model '{path}' was trained on {trained_on}, but the mesh of "
                          f"'{mesh.name}' has changed since (now {here}): train it again")
+    from .model_file import mesh_fingerprint
+
+    trained_fingerprint = model_grid.get("mesh_fingerprint")    # absent in older models
+    if trained_fingerprint is not None and trained_fingerprint != mesh_fingerprint(mesh):
+        raise VDNIFError(f"model '{path}' was trained on another version of the mesh of "
+                         f"'{mesh.name}' (its vertices, faces or materials were edited "
+                         "since): train it again")
     heads = extra.get("heads") or {}
     materials = heads.get("material_count")
     if materials != mesh.material_count:

@@ -8,12 +8,10 @@ with ``weights_only=True`` only, so a foreign file cannot run code, and written 
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import io
 import os
 import pickle
-import tempfile
 from collections.abc import Mapping
 from typing import Any
 
@@ -21,6 +19,7 @@ import numpy as np
 import torch
 
 from .errors import VDNIFError
+from .safe_io import atomic_path
 from .network import IntersectionNetwork, NetworkConfig
 
 FORMAT_NAME = "vdnif-model"
@@ -29,6 +28,65 @@ FORMAT_VERSION = 2
 kernel reads it; version 1 files are migrated on load."""
 
 TABLE_KEY = "encoder.grid.table"
+MAX_WEIGHT = 1e6
+"""Trained weights stay within about +-10 (hash table entries start at 1e-4); a weight beyond
+1e6 is damage and would overflow float32 activations into inf/NaN figures."""
+GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
+
+
+def mesh_fingerprint(mesh) -> str:
+    """SHA-256 (hex) of a RestMesh's vertices, faces and materials: what a model was trained
+    on, so that a mesh edited within the same bounds is told apart (``check_model_fits``)."""
+    digest = hashlib.sha256()
+    for array in (np.asarray(mesh.vertices, np.float64), np.asarray(mesh.triangles, np.int64),
+                  np.asarray(mesh.material_index, np.int64),
+                  np.asarray(mesh.material_slots, np.int64),
+                  np.asarray(mesh.albedo_table(), np.float32)):
+        digest.update(str(array.shape).encode())
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()
+
+
+def _check_finite(path: str, value: Any, where: str) -> None:
+    """Every number and numeric array in plain metadata finite (a NaN albedo table gave NaN
+    figures downstream)."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _check_finite(path, item, f"{where}.{key}")
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_finite(path, item, f"{where}[{i}]")
+    elif isinstance(value, (float, np.ndarray)) and not isinstance(value, bool):
+        array = np.asarray(value)
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            raise VDNIFError(f"model file {path} is damaged: its metadata {where} has "
+                             "non-finite values")
+
+
+def check_scene_metadata(path: str | os.PathLike, extra: Any) -> None:
+    """Raises VDNIFError unless the metadata ``extra`` of the model file ``path`` is that of a
+    scene model as ``fit`` writes it: a complete grid of finite numbers with an integer
+    resolution, a finite albedo table (the render and evaluation read them)."""
+    path = os.fspath(path)
+    if not isinstance(extra, dict):
+        raise VDNIFError(f"model file {path} is damaged: its metadata is not a mapping")
+    grid = extra.get("grid")
+    if not isinstance(grid, dict) or any(key not in grid for key in GRID_KEYS):
+        raise VDNIFError(f"model file {path} has no complete grid in its metadata "
+                         f"({', '.join(GRID_KEYS)})")
+    resolution = grid["resolution"]
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
+        raise VDNIFError(f"model file {path}: grid resolution {resolution!r} is not an integer")
+    try:
+        numbers = np.concatenate([np.asarray(grid[key], np.float64).ravel()
+                                  for key in GRID_KEYS])
+        table = np.asarray(extra.get("albedo_table", []), np.float64)
+    except (TypeError, ValueError):
+        raise VDNIFError(f"model file {path}: its grid or albedo table is not numbers") from None
+    if not (np.isfinite(numbers).all() and np.isfinite(table).all()):
+        raise VDNIFError(f"model file {path}: its grid or albedo table has non-finite values")
+    if not (grid["voxel_size"] > 0 and grid["extent"] > 0):
+        raise VDNIFError(f"model file {path}: grid voxel size and extent must be positive")
 
 
 def _migrate(state_dict: dict[str, torch.Tensor], version: int) -> dict[str, torch.Tensor]:
@@ -114,32 +172,9 @@ def save_model(
         "sha256": hashlib.sha256(payload).hexdigest(),
         "payload": torch.frombuffer(bytearray(payload), dtype=torch.uint8),
     }
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        handle, temporary = tempfile.mkstemp(
-            prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=folder
-        )
-    except OSError as exc:
-        raise VDNIFError(f"cannot write model file {path}: {_reason(exc)}") from exc
-    try:
-        with os.fdopen(handle, "wb") as file:
-            os.fchmod(file.fileno(), 0o644)  # mkstemp makes it private; a model is shared
+    with atomic_path(path, "model file", make_folder=False) as temporary:     # safe_io
+        with open(temporary, "wb") as file:
             torch.save(archive, file)
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temporary, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(temporary)
-        if isinstance(exc, Exception):
-            raise VDNIFError(f"cannot write model file {path}: {_reason(exc)}") from exc
-        raise
-    with contextlib.suppress(OSError):  # make the rename itself durable where the OS allows
-        directory = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(directory)
-        finally:
-            os.close(directory)
 
 
 def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, Any]]:
@@ -187,12 +222,19 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, 
     except Exception as exc:
         raise VDNIFError(f"model file {path} is damaged: {_reason(exc)}") from exc
     network.eval()
+    for key, value in network.state_dict().items():
+        if value.is_floating_point() and not (torch.isfinite(value).all()
+                                              and value.abs().max() <= MAX_WEIGHT):
+            raise VDNIFError(f"model file {path} is damaged: weights '{key}' are not finite "
+                             f"numbers of magnitude at most {MAX_WEIGHT:g}")
+    extra = _as_numpy(inner.get("extra", {}))
+    _check_finite(path, extra, "extra")
     metadata = {
         "format": FORMAT_NAME,
         "version": version,
         "network_config": config,
         "train_info": _as_numpy(inner.get("train_info", {})),
-        "extra": _as_numpy(inner.get("extra", {})),
+        "extra": extra,
     }
     return network, metadata
 

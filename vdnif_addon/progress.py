@@ -8,9 +8,10 @@ class Progress:
     """Call ``update(done)``; prints ``label: done/total unit, elapsed, ETA`` at most every
     ``interval`` seconds and once at the end."""
 
-    def __init__(self, label, total, unit="", stream=sys.stderr, interval=0.5):
+    def __init__(self, label, total, unit="", stream=None, interval=0.5):
         self.label, self.total, self.unit = label, max(int(total), 1), unit
-        self.stream, self.interval = stream, interval
+        # sys.stderr of now, not of the import: a caller may have replaced it since
+        self.stream, self.interval = stream or sys.stderr, interval
         self.start = self._last = time.perf_counter()
 
     def update(self, done, extra=""):

@@ -4,6 +4,8 @@ the sections that each command rewrites in a shared document."""
 import pathlib
 import re
 
+from .safe_io import write_text_atomic
+
 # The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes.
 PAPER_PROPOSED = {"distance_mae": 0.039, "normal_error_deg": 11.8}
 
@@ -119,5 +121,4 @@ def write_section(path, key, title, body, preamble):
     pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.S)
     text = pattern.sub(lambda _: section, text) if pattern.search(text) else (
         text.rstrip("\n") + "\n\n" + section)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text + ("" if text.endswith("\n") else "\n"))
+    write_text_atomic(path, text + ("" if text.endswith("\n") else "\n"), "markdown file")

@@ -24,6 +24,7 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
     start = time.perf_counter()
     check_mesh_object(obj)
     check_deformers(obj)
+    _check_rigs_invertible(obj)
     mesh = read_rest_mesh(obj)
     read_s = time.perf_counter()
     try:
@@ -46,6 +47,20 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
                "deform_s": end - voxel_s, "total_s": end - start}
     return Capture(mesh=mesh, grid=grid, mode=mode, poses=poses, corners=corners,
                    timings=timings)
+
+
+def _check_rigs_invertible(obj):
+    """Raises VDNIFError when an armature or lattice deforming ``obj`` (or ``obj`` itself)
+    has a world matrix without inverse (scaled to 0 on an axis): poses and the rest map
+    need its inverse."""
+    for name, matrix in ((f"object '{obj.name}'", obj.matrix_world),
+                         *((f"{m.type.lower()} '{m.object.name}' of '{obj.name}'",
+                            m.object.matrix_world)
+                           for m in deform_modifiers(obj) if m.object is not None)):
+        determinant = matrix.to_3x3().determinant()
+        if not (np.isfinite(determinant) and abs(determinant) > 0):
+            raise VDNIFError(f"the {name} is scaled to zero or to a non-finite size (its "
+                             "matrix has no inverse): give it a non-zero scale")
 
 
 def _deformed_corners(obj, rest, poses, progress):

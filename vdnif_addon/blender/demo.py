@@ -38,7 +38,8 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     variant, note = choose_variant(None, captured.mode == "static")
     if note is not None:
         print(f"demo: '{obj.name}': {note}", file=sys.stderr)
-    overrides = dict(size["overrides"], steps=steps or size["steps"], device=device)
+    overrides = dict(size["overrides"], steps=size["steps"] if steps is None else steps,
+                     device=device)
     model = out / f"{scene}-{variant}.vdnif"
     with tempfile.TemporaryDirectory(prefix="data-", dir=out) as folder:
         _, summary = train_variant(obj, captured, variant, folder, size["rays_per_pose"],

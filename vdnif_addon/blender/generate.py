@@ -10,6 +10,7 @@ from .. import dataset
 from ..attributes import sample_surface
 from ..evaluation import metric_heads
 from ..groundtruth import segment_targets
+from ..limits import MAX_RAYS_PER_POSE, check_image, check_range
 from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
 from ..references import embedded_reference, true_reference
@@ -21,10 +22,11 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
                      pose_range=None, progress=None):
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its header."""
+    check_range("rays per pose", rays_per_pose, 1, MAX_RAYS_PER_POSE)
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
-    records, counts = [], dict(rays=0, segments=0, hits=0)
+    records, counts = [], dict(rays=0, segments=0, hits=0, truncated_rays=0)
     inverted = []
     with PosedObject(obj, capture) as posed_object:
         clock = time.perf_counter()
@@ -44,6 +46,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             segments = traverse(geometry.cells, origins, directions)
+            counts["truncated_rays"] += segments.truncated      # stopped by the walk's bounds
             timings["walk_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             targets = segment_targets(capture.mesh, rest_caster, segments)
@@ -63,7 +66,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
     timings["total_s"] = sum(timings.values())
     header = {
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
-        "grid": dataset.grid_header(capture.grid), "voxel_size": capture.grid.voxel_size,
+        "grid": dataset.grid_header(capture.grid, capture.mesh), "voxel_size": capture.grid.voxel_size,
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
         "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
@@ -79,13 +82,14 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
 def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
     """Renders the true and embedded references of every pose in ``capture`` from an orbit
     camera each, and returns the embedding error and throughput as a JSON-ready dict."""
+    check_image(width, height)
     mesh = capture.mesh
     heads = metric_heads(mesh)
     directions = orbit_viewpoints(len(capture.poses))
     truth, embedded, per_pose = [], [], []
     clock = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                  embedded_reference_s=0.0, true_reference_s=0.0)
-    segment_count = 0
+    segment_count = truncated = 0
     with PosedObject(obj, capture) as posed_object:
         start = time.perf_counter()
         rest_caster = posed_object.rest_caster
@@ -102,6 +106,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
             start = time.perf_counter()
             segments = traverse(geometry.cells, origins, rays)
             walked = time.perf_counter()
+            truncated += segments.truncated                      # stopped by the walk's bounds
             targets = segment_targets(mesh, rest_caster, segments)
             grounded = time.perf_counter()
             embedded.append(embedded_reference(geometry.cells, segments, targets, len(rays)))
@@ -128,7 +133,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
         "per_pose": per_pose,
         "rays_per_s": rays_total / neural_path_s,
         "segments_per_s": segment_count / neural_path_s,
-        "segments_per_ray": segment_count / rays_total,
+        "segments_per_ray": segment_count / rays_total, "truncated_rays": truncated,
         "timings": clock, "versions": _versions(),
     }
 

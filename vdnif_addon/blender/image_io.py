@@ -5,6 +5,8 @@ import pathlib
 import bpy
 import numpy as np
 
+from ..safe_io import atomic_path
+
 FORMATS = {".png": "PNG", ".exr": "OPEN_EXR"}
 
 
@@ -12,7 +14,6 @@ def save_image(path, image):
     """Saves (H, W, C) float32, row 0 at the top, C in 1..4; values are written as they are
     (Non-Color): PNG expects display-ready values in [0, 1], EXR keeps any float."""
     path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     height, width, channels = image.shape
     rgba = np.ones((height, width, 4), np.float32)
     rgba[..., :3] = image[..., :1] if channels == 1 else image[..., :3]
@@ -25,9 +26,13 @@ def save_image(path, image):
     try:
         block.colorspace_settings.name = "Non-Color"
         block.pixels.foreach_set(rgba[::-1].ravel())
-        block.filepath_raw = str(path)
         block.file_format = FORMATS[path.suffix]
-        block.save()
+        with atomic_path(path, "image") as temporary:     # safe_io: no partial image
+            block.filepath_raw = temporary
+            try:
+                block.save()
+            except RuntimeError as exc:
+                raise OSError(str(exc)) from exc
     finally:
         bpy.data.images.remove(block)
     return path

@@ -24,6 +24,7 @@ import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
+from ..limits import MAX_POSES
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
 
@@ -55,8 +56,8 @@ class PoseSpec:
         if self.source not in POSE_SOURCES:
             raise VDNIFError(f"unknown pose source '{self.source}': "
                              f"choose one of {', '.join(POSE_SOURCES)}")
-        if not 1 <= self.count <= 100_000:
-            raise VDNIFError(f"pose count {self.count} is outside 1..100000")
+        if not 1 <= self.count <= MAX_POSES:
+            raise VDNIFError(f"pose count {self.count} is outside 1..{MAX_POSES}")
         if not 0 < self.max_angle_deg <= 180:
             raise VDNIFError(f"maximum angle {self.max_angle_deg} degrees is outside (0, 180]")
         if not 0 < self.lattice_fraction <= 1:

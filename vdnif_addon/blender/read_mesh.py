@@ -7,6 +7,7 @@ import numpy as np
 
 from ..attributes import has_area
 from ..errors import VDNIFError
+from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
 from ..restmesh import Albedo, RestMesh
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
@@ -84,6 +85,11 @@ def _rest_mesh_from(obj, mesh):
     vertices = _vertices(mesh)
     if not np.isfinite(vertices).all():
         raise VDNIFError(f"mesh object '{obj.name}' has vertices at infinite or NaN positions")
+    size = float(np.ptp(vertices, axis=0).max())
+    if not MIN_OBJECT_SIZE <= size <= MAX_OBJECT_SIZE:
+        raise VDNIFError(f"mesh object '{obj.name}' is {size:.3g} units across, outside the "
+                         f"supported {MIN_OBJECT_SIZE:g}..{MAX_OBJECT_SIZE:g} (scale it, or "
+                         "change the scene's units)")
     triangles = _loop_triangle_array(mesh, "vertices", 3, np.int32)
     if not has_area(vertices[triangles]).any():
         raise VDNIFError(f"mesh object '{obj.name}' has no area: all its {len(triangles)} "
@@ -110,6 +116,11 @@ def _rest_mesh_from(obj, mesh):
     rest.albedo = [_albedo(obj.material_slots[int(slot)].material, obj, rest) for slot in used
                    ] if len(obj.material_slots) else [
         Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="no material")]
+    for albedo in rest.albedo:
+        if not (np.isfinite(albedo.color).all() and (albedo.texture is None
+                                                     or np.isfinite(albedo.texture).all())):
+            raise VDNIFError(f"'{obj.name}': the albedo of '{albedo.source}' has non-finite "
+                             "(NaN or infinite) values")
     attribute = next((a.source for a in rest.albedo if a.kind == "attribute"), None)
     if attribute is not None:
         rest.corner_colors = _corner_colors(obj, mesh, attribute, loops)

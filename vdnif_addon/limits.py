@@ -1,0 +1,51 @@
+"""The size limits of a run, one value each, read by the batch commands' validation and by
+the core where it allocates. Each keeps one run within this machine class's memory (a few
+GiB per buffer) with a clear error instead of a failed 200 GiB allocation.
+"""
+
+from .errors import VDNIFError
+
+MAX_IMAGE_PIXELS = 4096 * 4096
+"""Pixels of one rendered image: a ray costs ~1 KiB across the walk's buffers, the passes and
+both references, so 16.8 M pixels is ~16 GiB at the worst; 100000 x 100000 would be 9 TiB."""
+
+MIN_OBJECT_SIZE = 1e-5
+MAX_OBJECT_SIZE = 1e9
+"""The supported sizes of a mesh (longest side of its rest bounds, local units; DESIGN section
+2). Inside it every figure in object units is the same at any scale (tests/test_scale.py: the
+arm, 3 units, gives the same references from --scale 1e-6 to 1e10); outside, float32 parts
+of the pipeline under- or overflow (the arm's normal error went from 1.9 deg to 27 deg at
+scale 1e-8 and 3.5 deg at 1e12), so such a mesh is refused."""
+
+MAX_IMAGE_SIDE = 16384
+MAX_POSES = 4096
+"""Poses of one capture: the deformed corners are kept for every pose (``capture``)."""
+
+MAX_RAYS_PER_POSE = 1 << 22
+"""Training rays per pose: ~10 segments per ray at ~80 bytes per shard row is ~3 GiB."""
+
+MAX_LOG2_TABLE_SIZE = 24
+"""Hash table rows per level 2^T: 2^24 rows x Fd 2 x 4 bytes x 16 levels is 2 GiB, with Adam's
+two moments 6 GiB."""
+
+MAX_BATCH = 1 << 22
+MAX_SEED = 2 ** 32 - 1
+"""numpy's and torch's seeds are unsigned 32-bit."""
+
+
+def check_range(name, value, low, high=None):
+    """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""
+    if value < low:
+        raise VDNIFError(f"{name} {value} must be at least {low}")
+    if high is not None and value > high:
+        raise VDNIFError(f"{name} {value} is more than the limit {high:,} "
+                         "(vdnif_addon/limits.py)")
+
+
+def check_image(width, height):
+    """Raises VDNIFError unless a ``width`` x ``height`` image is within the limits."""
+    check_range("image width", width, 1, MAX_IMAGE_SIDE)
+    check_range("image height", height, 1, MAX_IMAGE_SIDE)
+    if width * height > MAX_IMAGE_PIXELS:
+        raise VDNIFError(f"image {width}x{height} has {width * height:,} pixels, more than "
+                         f"the limit {MAX_IMAGE_PIXELS:,} (vdnif_addon/limits.py)")

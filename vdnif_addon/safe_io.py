@@ -1,0 +1,157 @@
+"""Every file VDNIF writes goes through here: a fresh temporary file created exclusively in
+the target's folder (``tempfile.mkstemp``: a random name, ``O_CREAT | O_EXCL``, so a planted
+symlink or an existing file is never opened), renamed over the target with ``os.replace``
+only once it is complete. A run that fails leaves the target as it was and no temporary file
+behind; a symlink at the target is replaced, never written through.
+
+``check_output_file`` / ``check_output_folder`` say before any long work whether an output
+place can be written at all, so that a bad ``--json`` or ``--out`` is refused in a second,
+not after the training.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import pathlib
+import tempfile
+from typing import Any, Iterator
+
+from .errors import VDNIFError
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror.lower()
+    lines = str(exc).strip().splitlines()
+    return lines[0][:200] if lines else type(exc).__name__
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _nearest_existing(path: pathlib.Path) -> pathlib.Path:
+    for candidate in (path, *path.parents):
+        if os.path.lexists(candidate):
+            return candidate
+    return pathlib.Path(".")
+
+
+def _check_creatable(path: pathlib.Path, what: str) -> None:
+    """The nearest existing ancestor of ``path`` is a writable folder."""
+    existing = _nearest_existing(path)
+    if not existing.is_dir():
+        raise VDNIFError(f"{what} cannot be written: '{existing}' is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise VDNIFError(f"{what} cannot be written: folder '{existing}' is not writable")
+
+
+def check_output_folder(path: str | os.PathLike, what: str = "output folder") -> None:
+    """Raises VDNIFError unless ``path`` is a folder (existing, or one that can be created)
+    in which files can be created."""
+    path = pathlib.Path(path)
+    if os.path.lexists(path) and not path.is_dir():
+        raise VDNIFError(f"{what} '{path}' exists and is not a folder")
+    _check_creatable(path, f"{what} '{path}'")
+
+
+def check_output_file(path: str | os.PathLike, what: str = "output file") -> None:
+    """Raises VDNIFError unless a file can be written at ``path``: not a folder, in a folder
+    that exists or can be created and is writable."""
+    path = pathlib.Path(path)
+    if path.name in ("", ".", ".."):
+        raise VDNIFError(f"{what} '{path}' names no file")
+    if path.is_dir():
+        raise VDNIFError(f"{what} '{path}' is a folder, not a file")
+    _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),
+                     f"{what} '{path}'")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, what: str = "file",
+                make_folder: bool = True) -> Iterator[str]:
+    """Yields the name of a fresh empty temporary file beside ``path`` (same suffix, so that
+    writers that pick a format by suffix keep it) for a writer that needs a file name; when
+    the block ends without an exception it becomes ``path``, else it is removed.
+
+    The folder is created when missing unless ``make_folder`` is false. Any failure (a full
+    disk, a read-only folder, a failing writer) raises VDNIFError naming ``what`` and
+    ``path``; the target is then left as it was.
+    """
+    path = pathlib.Path(path)
+    folder = path.parent if str(path.parent) else pathlib.Path(".")
+    if path.is_dir():
+        raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
+    try:
+        if make_folder:
+            folder.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix,
+                                             dir=folder)
+    except OSError as exc:
+        raise VDNIFError(f"cannot write {what} '{path}': {_reason(exc)}") from exc
+    try:
+        os.fchmod(handle, 0o666 & ~_umask())     # mkstemp makes it private; outputs are not
+        os.close(handle)
+        yield temporary
+        with open(temporary, "rb+") as file:     # durable before it takes the target's name
+            os.fsync(file.fileno())
+        os.replace(temporary, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        if isinstance(exc, OSError):
+            raise VDNIFError(f"cannot write {what} '{path}': {_reason(exc)}") from exc
+        raise
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "file") -> pathlib.Path:
+    """Writes ``data`` to ``path`` through a temporary file (see ``atomic_path``)."""
+    with atomic_path(path, what) as temporary:
+        with open(temporary, "wb") as file:
+            file.write(data)
+    return pathlib.Path(path)
+
+
+def write_text_atomic(path: str | os.PathLike, text: str, what: str = "file") -> pathlib.Path:
+    return write_bytes_atomic(path, text.encode("utf-8"), what)
+
+
+def first_non_finite(value: Any, where: str = "") -> str | None:
+    """The JSON path of the first NaN or infinite float in plain data, or None."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else (where or "value")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            found = first_non_finite(item, f"{where}.{key}" if where else str(key))
+            if found:
+                return found
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            found = first_non_finite(item, f"{where}[{i}]")
+            if found:
+                return found
+    return None
+
+
+def json_text(data: Any, what: str, indent: int = 2) -> str:
+    """``data`` as strict JSON text (no NaN or Infinity, which JSON does not have): a
+    non-finite figure raises VDNIFError naming its key."""
+    bad = first_non_finite(data)
+    if bad is not None:
+        raise VDNIFError(f"{what}: the figure '{bad}' is not a finite number (NaN or "
+                         "infinite); nothing was written")
+    try:
+        return json.dumps(data, indent=indent, allow_nan=False) + "\n"
+    except (TypeError, ValueError) as exc:
+        raise VDNIFError(f"{what}: cannot be written as JSON: {_reason(exc)}") from exc
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any, what: str = "JSON file",
+                      indent: int = 2) -> pathlib.Path:
+    """Writes ``data`` as strict JSON to ``path`` atomically."""
+    return write_text_atomic(path, json_text(data, f"{what} '{path}'", indent), what)
