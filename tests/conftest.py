@@ -10,7 +10,6 @@ import tempfile
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
-MESHES = REPO.parent / "shared" / "meshes"
 EXTENSION_MODULE = "bl_ext.dev.vdnif"
 
 # Must be set before bpy is first imported, so user preferences never touch the real home.

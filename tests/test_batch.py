@@ -122,6 +122,28 @@ def test_help_documents_every_command():
         assert option in out
 
 
+def test_help_states_every_default_it_has():
+    """Every option with a default shows it in --help, and help text that names a default
+    by hand names the one argparse will use."""
+    import argparse
+
+    from vdnif_addon.commands import build_parser, show_default
+
+    parser = build_parser()
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    checked = 0
+    for name, command in commands.choices.items():
+        formatter = command._get_formatter()
+        for action in command._actions:
+            if not action.option_strings or action.default in (None, False, argparse.SUPPRESS):
+                continue
+            shown = formatter._expand_help(action)
+            assert "default" in shown and show_default(action.default) in shown, (
+                name, action.dest, shown)
+            checked += 1
+    assert checked > 40
+
+
 @pytest.fixture(scope="module")
 def quick_demo(tmp_path_factory):
     """``demo --quick`` run once: its folder and its JSON."""
@@ -188,6 +210,32 @@ def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
     # the demo evaluated the same unseen poses with the same cameras
     assert report["vs_true"] == demo_report["vs_true"]
     assert (tmp_path / "e" / "figure-vs-embedded.png").is_file()
+
+
+COUNT_MODEL_READS = """
+import sys
+from vdnif_addon import model_file
+reads = []
+read = model_file.load_model
+model_file.load_model = lambda *a, **k: reads.append(a) or read(*a, **k)
+from vdnif_addon.commands import main
+code = main(sys.argv[1:])
+print("model reads:", len(reads))
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("command", [
+    ("render", "--frame", 30, "--width", 8, "--height", 8),
+    ("evaluate", "--poses", 1, "--width", 8, "--height", 8)])
+def test_render_and_evaluate_read_the_model_file_once(quick_demo, tmp_path, command):
+    out, _ = quick_demo
+    args = [*command, "--model", out / "arm-proposed.vdnif", "--scene", "arm",
+            "--out", tmp_path / "o"]
+    result = subprocess.run([sys.executable, "-c", COUNT_MODEL_READS, *map(str, args)],
+                            capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    assert "model reads: 1" in result.stdout.splitlines()
 
 
 def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_demo, tmp_path):

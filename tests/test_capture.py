@@ -1,4 +1,4 @@
-"""Scene capture against Blender's own evaluation and exact cases (issue 2)."""
+"""Scene capture against Blender's own evaluation and exact cases."""
 
 import math
 
@@ -119,7 +119,7 @@ def test_random_poses_touch_only_bones_that_move_the_mesh(empty_scene, core):
 def test_lattice_points_far_from_the_mesh_are_not_sampled(empty_scene, core):
     box = sb.lattice_box((2, 2, 2), 0.5)
     lattice = sb.lattice_around(box, margin=6.0, points=7, interpolation="KEY_LINEAR")
-    moving = core("blender.poses").moving_lattice_points(box, box.modifiers["Lattice"])
+    moving = core("blender.rig").moving_lattice_points(box, box.modifiers["Lattice"])
     assert 0 < len(moving) < len(lattice.data.points)
     # The box spans a sixth of the cage, one cell of the 7x7x7 lattice, across its centre:
     # with linear interpolation exactly the 3x3x3 points around the centre reach it.

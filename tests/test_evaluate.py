@@ -1,4 +1,4 @@
-"""Rendering a model on a Blender scene (issue 5): camera rays against Blender's own projection,
+"""Rendering a model on a Blender scene: camera rays against Blender's own projection,
 world-space rendering against Blender's own ray casts, and the model/scene checks."""
 
 import numpy as np

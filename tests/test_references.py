@@ -1,4 +1,4 @@
-"""Embedded vs true reference, and training datasets, on real scenes (issue 3)."""
+"""Embedded vs true reference, and training datasets, on real scenes."""
 
 import json
 

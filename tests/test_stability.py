@@ -1,4 +1,4 @@
-"""Stability suite (issue 7): object scale, extreme poses, degenerate meshes, encoder inputs
+"""Stability suite: object scale, extreme poses, degenerate meshes, encoder inputs
 at and beyond the unit cube, and reduced precision, each against an independent reference."""
 
 import argparse

@@ -15,7 +15,7 @@ import pytest
 from vdnif_addon import voxels
 from vdnif_addon.errors import VDNIFError
 
-BUNNY = pathlib.Path("/work/shared/meshes/stanford-bunny.obj")
+BUNNY = pathlib.Path(__file__).resolve().parents[1] / "assets" / "meshes" / "stanford-bunny.obj"
 
 
 def read_obj(path):

@@ -12,8 +12,33 @@ import sys
 from .errors import VDNIFError
 
 
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Appends ``(default: X)`` to every option that has a default its help does not state
+    already; flags and options whose default is None (computed later) say it in words."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (action.option_strings and default not in (None, False, argparse.SUPPRESS)
+                and "default" not in text):
+            text += f" (default: {show_default(default)})"
+        return text
+
+
+def show_default(value):
+    """A default as --help shows it: 45.0 as 45, ["bunny", "million"] as bunny million."""
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(show_default, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports a usage mistake on one line, like every other failure."""
+    """argparse that reports a usage mistake on one line, like every other failure, and shows
+    every option's default in --help."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _DefaultsFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         raise _UsageError(f"{self.prog}: {message} (see --help)")
@@ -295,19 +320,20 @@ def _train_on_scene(args):
                              network_overrides(args), args.seed, progress=report_training)
 
 
-def _model_resolution(args):
-    """--resolution, or the model's own when not given (they must agree anyway)."""
+def _read_model(args):
+    """(network, metadata) of the --model file, read once per command."""
+    from .model_file import load_model
+
+    return load_model(args.model)
+
+
+def _model_resolution(args, extra):
+    """--resolution, or the model's own (``extra``: its metadata ``extra``) when not given
+    (they must agree anyway)."""
     if args.resolution is not None:
         check_resolution(args.resolution)
         return args.resolution
-    return int(_model_extra(args)["grid"]["resolution"])
-
-
-def _model_extra(args):
-    """The metadata ``extra`` of the --model file (grid, heads, training poses, ...)."""
-    from .model_file import load_model
-
-    return load_model(args.model)[1]["extra"]
+    return int(extra["grid"]["resolution"])
 
 
 def cmd_render(args):
@@ -319,10 +345,11 @@ def cmd_render(args):
     from .blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
     from .blender.scenes import find_camera
 
-    resolution = _model_resolution(args)
+    loaded = _read_model(args)
+    resolution = _model_resolution(args, loaded[1]["extra"])
     obj, spec = load_posed_scene(args)
     captured = capture(obj, resolution, spec, deform_corners=False)
-    model = load_scene_model(args.model, captured, args.device)
+    model = load_scene_model(args.model, captured, args.device, loaded)
     scene = bpy.context.scene
     frame = scene.frame_current if args.frame is None else args.frame
     pose = {"frame": float(frame)}
@@ -360,13 +387,15 @@ def cmd_evaluate(args):
     from .blender.jobs import evaluate_file, evaluation_poses, write_figures
     from .progress import Progress
 
-    resolution = _model_resolution(args)
-    trained = _model_extra(args).get("train_poses", [])
+    loaded = _read_model(args)
+    resolution = _model_resolution(args, loaded[1]["extra"])
+    trained = loaded[1]["extra"].get("train_poses", [])
     obj, spec = load_posed_scene(args)
     captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose, trained=trained)
     progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
-                                  args.device, lambda done, _: progress.update(done))
+                                  args.device, lambda done, _: progress.update(done),
+                                  loaded=loaded)
     if args.out is not None:
         report["figures"] = {name: str(path) for name, path in write_figures(
             args.out, views[0], args.height, args.width, captured.mesh.size).items()}

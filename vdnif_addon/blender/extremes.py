@@ -1,4 +1,4 @@
-"""Stress options (issue 7): a uniform object scale and a procedural extreme pose.
+"""Stress options: a uniform object scale and a procedural extreme pose.
 
 ``--scale S`` makes the object's rest geometry S times larger in its local space together with
 its rig, so every pose is the same shape S times larger and every figure in object units
@@ -11,7 +11,7 @@ applies last through ``set_extreme``.
   the longest chain sum to DEG; ``stretch:X`` / ``squash:X`` scale the chain's root bones by
   X along their Y axis, which the chain inherits (Blender's default Full scale inheritance).
 - lattice: the points are moved in the object's proportions, normalized so the lattice's
-  longest axis spans [-0.5, 0.5]: bend and twist by ``scenes._bend_twist`` (its bend is the
+  longest axis spans [-0.5, 0.5]: bend and twist by ``rig.bend_twist`` (its bend is the
   demo's parabolic bend: the far end is displaced by DEG/2 in radians of the axis length),
   stretch and squash by X along that axis about the lattice centre.
 
@@ -28,9 +28,8 @@ import numpy as np
 from mathutils import Matrix
 
 from ..errors import VDNIFError
-from .poses import _offset_lattice, influencing_bones, lattice_cells
 from .read_mesh import deform_modifiers
-from .scenes import _bend_twist
+from .rig import bend_twist, influencing_bones, lattice_cells, offset_lattice
 
 DEFORM_KINDS = ("bend", "twist", "stretch", "squash")
 _BONE_CHANNELS = ("location", "rotation_quaternion", "rotation_euler", "rotation_axis_angle",
@@ -225,11 +224,11 @@ def _lattice_extreme(obj, modifier, extreme):
     unit = (current - centre) * to_unit
     if extreme.kind in ("bend", "twist"):
         angle = math.radians(extreme.amount)
-        moved = _bend_twist(unit, axis, angle if extreme.kind == "bend" else 0.0,
+        moved = bend_twist(unit, axis, angle if extreme.kind == "bend" else 0.0,
                             angle if extreme.kind == "twist" else 0.0)
     else:
         moved = unit.copy()
         moved[:, axis] *= extreme.amount
     offsets = moved / to_unit + centre - current
-    return _offset_lattice({"object": lattice.name,
+    return offset_lattice({"object": lattice.name,
                             "offsets": dict(enumerate(offsets.tolist()))})

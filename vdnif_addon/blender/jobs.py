@@ -43,10 +43,11 @@ def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
-                  viewpoints=None, seen=False):
+                  viewpoints=None, seen=False, loaded=None):
     """(report, views) of the model file on the poses of ``captured``, with the model's
-    training figures and size added to the report (``seen``: see ``evaluate_model``)."""
-    model = load_scene_model(model_path, captured, device)
+    training figures and size added to the report (``seen``: see ``evaluate_model``;
+    ``loaded``: see ``neural.load_scene_model``)."""
+    model = load_scene_model(model_path, captured, device, loaded)
     report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress,
                                    seen)
     train_info = model.metadata["train_info"]

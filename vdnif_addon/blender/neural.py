@@ -43,13 +43,15 @@ class SceneModel:
         return np.asarray(self.extra["albedo_table"], np.float32).reshape(-1, 3)
 
 
-def load_scene_model(path, capture, device="auto"):
-    """Loads the model file ``path`` for ``capture``'s object; a file that is corrupt, of a
-    newer format, or trained on another object or resolution raises a one-line VDNIFError."""
+def load_scene_model(path, capture, device="auto", loaded=None):
+    """Loads the model file ``path`` for ``capture``'s object (``loaded``: its
+    ``model_file.load_model`` result when the caller read it already); a file that is
+    corrupt, of a newer format, or trained on another object or resolution raises a one-line
+    VDNIFError."""
     from ..model_file import load_model
     from ..train import resolve_device
 
-    network, metadata = load_model(path)
+    network, metadata = load_model(path) if loaded is None else loaded
     check_model_fits(path, metadata["extra"], capture.mesh, capture.grid)
     device = resolve_device(device)
     return SceneModel(network=network.to(device), metadata=metadata, grid=capture.grid,

@@ -24,6 +24,8 @@ import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
+from .extremes import set_extreme
+from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
 
 POSE_SOURCES = ("random", "frames")
 EVALUATION_SEED_OFFSET = 1_000_003
@@ -151,56 +153,6 @@ def frame_poses(start, end, count, avoid=()):
     return [{"frame": float(frame)} for frame in frames]
 
 
-def influencing_bones(obj, modifier):
-    """Bones of the armature that move ``obj``: weighted deform bones and their ancestors."""
-    armature = modifier.object
-    bones = armature.data.bones
-    weighted = set()
-    if modifier.use_bone_envelopes:
-        weighted = {b.name for b in bones if b.use_deform}
-    if modifier.use_vertex_groups:
-        weighted |= {b.name for b in bones if b.use_deform and b.name in _weighted_groups(obj)}
-    moving = set()
-    for name in weighted:
-        bone = bones[name]
-        while bone is not None:
-            moving.add(bone.name)
-            bone = bone.parent
-    return sorted(moving, key=lambda name: bones.find(name))
-
-
-def moving_lattice_points(obj, modifier):
-    """Indices of lattice points whose support reaches the mesh (the others move nothing)."""
-    lattice = modifier.object
-    rest, cell = lattice_cells(lattice.data)
-    to_lattice = np.array(lattice.matrix_world.inverted() @ obj.matrix_world)
-    vertices = np.empty(len(obj.data.vertices) * 3)
-    obj.data.vertices.foreach_get("co", vertices)
-    vertices = vertices.reshape(-1, 3) @ to_lattice[:3, :3].T + to_lattice[:3, 3]
-    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    data = lattice.data
-    interpolation = (data.interpolation_type_u, data.interpolation_type_v,
-                     data.interpolation_type_w)
-    reach = cell * np.array([1.0 if kind == "KEY_LINEAR" else 2.0 for kind in interpolation])
-    inside = np.all((rest + reach > lo) & (rest - reach < hi), axis=1)
-    return np.flatnonzero(inside).tolist()
-
-
-def lattice_cells(data):
-    """(P, 3) rest positions of the lattice points in lattice space and (3,) cell size."""
-    rest = np.array([p.co for p in data.points])
-    counts = np.array([data.points_u, data.points_v, data.points_w])
-    return rest, np.ptp(rest, axis=0) / np.maximum(counts - 1, 1)
-
-
-def _weighted_groups(obj):
-    """Names of the vertex groups that hold a non-zero weight somewhere in the mesh."""
-    used = set()
-    for vertex in obj.data.vertices:
-        used.update(g.group for g in vertex.groups if g.weight > 0)
-    return {obj.vertex_groups[i].name for i in used}
-
-
 def _bone_sampler(obj, modifier, spec):
     armature = modifier.object
     names = influencing_bones(obj, modifier)
@@ -256,10 +208,8 @@ def posed(pose):
         if "bones" in pose:
             restore.append(_set_bones(pose["bones"]))
         if "lattice" in pose:
-            restore.append(_offset_lattice(pose["lattice"]))
+            restore.append(offset_lattice(pose["lattice"]))
         if "deform" in pose:
-            from .extremes import set_extreme     # imported here: extremes builds on poses
-
             restore.append(set_extreme(pose["deform"]))
         bpy.context.view_layer.update()
         yield
@@ -300,29 +250,3 @@ def _set_bones(angles):
     return undo
 
 
-def _offset_lattice(spec):
-    """Offsets lattice points; with shape keys every key block moves, so the blend of the
-    keys moves by exactly the offset."""
-    lattice = bpy.data.objects.get(spec["object"])
-    if lattice is None or lattice.type != "LATTICE":
-        raise VDNIFError(f"pose names lattice '{spec['object']}', which is not in the scene")
-    data = lattice.data
-    keys = data.shape_keys.key_blocks if data.shape_keys else None
-    targets = [(block.data, "co") for block in keys] if keys else [(data.points, "co_deform")]
-    saved = []
-    for points, attribute in targets:
-        co = np.empty(len(points) * 3, np.float32)
-        points.foreach_get(attribute, co)
-        saved.append((points, attribute, co))
-        moved = co.reshape(-1, 3).copy()
-        for index, offset in spec["offsets"].items():
-            moved[int(index)] += offset
-        points.foreach_set(attribute, moved.ravel())
-    data.update_tag()
-
-    def undo():
-        for points, attribute, co in saved:
-            points.foreach_set(attribute, co)
-        data.update_tag()
-
-    return undo

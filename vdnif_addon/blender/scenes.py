@@ -13,6 +13,7 @@ import bpy
 import numpy as np
 
 from ..errors import VDNIFError
+from .rig import bend_twist
 
 DEMO_SCENES = ("arm", "lattice", "spot", "bunny")
 RIGS = ("armature", "lattice")
@@ -289,7 +290,7 @@ def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
     lattice.shape_key_add(name="Basis")
     key = lattice.shape_key_add(name="Bend and twist")
     unit = rest / np.ptp(rest, axis=0)
-    bent = _bend_twist(unit, axis, math.radians(bend_degrees), math.radians(twist_degrees))
+    bent = bend_twist(unit, axis, math.radians(bend_degrees), math.radians(twist_degrees))
     bent *= np.ptp(rest, axis=0)
     key.data.foreach_set("co", bent.astype(np.float32).ravel())
     for frame, value in ((FRAME_START, 0.0), (FRAME_END, 1.0)):
@@ -298,13 +299,3 @@ def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
     return lattice
 
 
-def _bend_twist(points, axis, bend, twist):
-    """Lattice-space (unit cube) points twisted about ``axis`` and bent across it."""
-    u, v = (axis + 1) % 3, (axis + 2) % 3
-    along = points[:, axis] + 0.5
-    out = points.copy()
-    angle = twist * along
-    out[:, u] = np.cos(angle) * points[:, u] - np.sin(angle) * points[:, v]
-    out[:, v] = np.sin(angle) * points[:, u] + np.cos(angle) * points[:, v]
-    out[:, u] += 0.5 * bend * along ** 2
-    return out
