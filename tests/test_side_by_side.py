@@ -209,8 +209,8 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
     # where the walks differ the settings say how many segments each walked
     median = dict(results["oracle"]["median"], deformed_walk_segments=1234, walk_segments=1200)
     differing = dict(results["oracle"], segments_match=False, median=median)
-    assert ("| DDA and deformed walk give the same cells | no: 1,234 segments walked deformed, "
-            "1,200 static (median per rest view) |") in "\n".join(
+    assert ("| DDA and deformed walk give the same cells | no, on some rest view; segments per "
+            "rest view (median): 1,234 deformed, 1,200 static |") in "\n".join(
         report.side_by_side_markdown([differing]))
 
 

@@ -194,8 +194,9 @@ def _match_text(result):
     if result["segments_match"]:
         return "yes"
     median = result["median"]
-    return (f"no: {median['deformed_walk_segments']:,.0f} segments walked deformed, "
-            f"{median['walk_segments']:,.0f} static (median per rest view)")
+    return (f"no, on some rest view; segments per rest view (median): "
+            f"{median['deformed_walk_segments']:,.0f} deformed, "
+            f"{median['walk_segments']:,.0f} static")
 
 
 def _what_is_timed(result):
