@@ -207,6 +207,46 @@ def test_renderer_reproduces_its_golden_passes(core):
     np.testing.assert_array_equal(passes.material, golden["material"])
 
 
+def test_warp_launches_never_run_from_two_threads_at_once(core, monkeypatch):
+    """The overlapped render walks one lane on a worker thread while the network encodes the
+    other lane on its own worker: every Warp launch must still run alone. Each launch is
+    stretched by a millisecond so that unserialized launches would meet."""
+    import threading
+    import time
+
+    import warp as wp
+
+    golden = np.load(GOLDEN / "arm-render.npz")
+    network, metadata = core("model_file").load_model(GOLDEN / "arm-render-model.vdnif")
+    obj = core("blender.scenes").demo_scene("arm")
+    grid = core("blender.capture").capture(obj, 12, core("blender.poses").PoseSpec(count=1),
+                                           deform_corners=False).grid
+    cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
+    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
+    launch, guard = wp.launch, threading.Lock()
+    seen = {"active": 0, "most": 0, "threads": set()}
+
+    def stretched(*args, **kwargs):
+        with guard:
+            seen["active"] += 1
+            seen["most"] = max(seen["most"], seen["active"])
+            seen["threads"].add(threading.get_ident())
+        try:
+            time.sleep(0.001)
+            return launch(*args, **kwargs)
+        finally:
+            with guard:
+                seen["active"] -= 1
+
+    monkeypatch.setattr(wp, "launch", stretched)
+    passes, _ = core("render").neural_passes(network, grid, table, cells, golden["origins"],
+                                             golden["directions"], overlap=True,
+                                             schedule=(1,))
+    assert len(seen["threads"]) >= 2, "the render did not overlap: nothing was tested"
+    assert seen["most"] == 1
+    np.testing.assert_array_equal(passes.hit, golden["hit"])
+
+
 def test_display_images_and_figure():
     passes = Passes.empty(6)
     passes.hit[:3] = True

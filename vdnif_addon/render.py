@@ -91,9 +91,10 @@ def neural_passes(network, grid, albedo_table, cells, origins, directions, devic
 
 class _Waves:
     """The three steps of a wave of one lane: ``advance`` (Warp only: the walk kernel and
-    the network inputs), ``predict`` (torch only), ``resolve`` (Warp: first hits into passes,
-    finished rays out). Launches never run from two threads at once: the renderer runs
-    ``advance`` of one lane beside ``predict`` of the other, then ``resolve`` alone."""
+    the network inputs), ``predict`` (the network: the Warp encoder and torch's MLP), ``resolve`` (Warp: first hits
+    into passes, finished rays out). The renderer runs ``advance`` of one lane beside
+    ``predict`` of the other, then ``resolve`` alone; ``runtime.LAUNCHES`` keeps the walk's
+    and the encoder's launches from running at once, so only the MLP overlaps the walk."""
 
     def __init__(self, network, grid, walk, schedule, albedo_table, stats):
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
@@ -117,13 +118,14 @@ class _Waves:
             self.inputs[lane] = [wp.empty(need, dtype=dtype, device=self.device)
                                  for dtype in (wp.vec3, wp.vec3, wp.float32)]
         buffer = self.buffers[lane]
-        buffer.cursor.zero_()
-        count = self.walk.advance(buffer, per_wave, lane)
-        if count:
-            wp.launch(kernel.network_inputs, dim=count,
-                      inputs=[buffer, wp.vec3d(*self.grid.origin),
-                              wp.float64(self.grid.extent), *self.inputs[lane]],
-                      device=self.device)
+        with runtime.LAUNCHES:          # beside predict's encoder launches on another thread
+            buffer.cursor.zero_()
+            count = self.walk.advance(buffer, per_wave, lane)
+            if count:
+                wp.launch(kernel.network_inputs, dim=count,
+                          inputs=[buffer, wp.vec3d(*self.grid.origin),
+                                  wp.float64(self.grid.extent), *self.inputs[lane]],
+                          device=self.device)
         self.stats["walk_s"] += time.perf_counter() - clock
         return count
 

@@ -340,10 +340,11 @@ def encode(enc: Encoding, table: torch.Tensor, p0: torch.Tensor, p1: torch.Tenso
     device, stream = _target(p0)
     width = vector_width(enc.feature_dim)
     rows = _vectors(table, width)
-    for first, stop, args in _launches(enc, p0, p1, ends):
-        args += [rows, enc.feature_dim // width, _vectors(out[first:stop], width)]
-        wp.launch(_FORWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
-                  stream=stream)
+    with runtime.LAUNCHES:
+        for first, stop, args in _launches(enc, p0, p1, ends):
+            args += [rows, enc.feature_dim // width, _vectors(out[first:stop], width)]
+            wp.launch(_FORWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
+                      stream=stream)
     return out
 
 
@@ -356,8 +357,9 @@ def encode_backward(enc: Encoding, rows: int, p0: torch.Tensor, p1: torch.Tensor
     width = vector_width(enc.feature_dim)
     grad_out = grad_out.to(torch.float32).contiguous()
     target = _vectors(grad_table, width)
-    for first, stop, args in _launches(enc, p0, p1, ends):
-        args += [_vectors(grad_out[first:stop], width), enc.feature_dim // width, target]
-        wp.launch(_BACKWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
-                  stream=stream)
+    with runtime.LAUNCHES:
+        for first, stop, args in _launches(enc, p0, p1, ends):
+            args += [_vectors(grad_out[first:stop], width), enc.feature_dim // width, target]
+            wp.launch(_BACKWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
+                      stream=stream)
     return grad_table

@@ -25,6 +25,12 @@ _lock = threading.Lock()
 _state = {"ready": False, "root": None}
 _loaded: set = set()
 
+LAUNCHES = threading.RLock()
+"""Held around every Warp launch that may run beside another thread's: the renderer walks one
+lane on a worker thread while ``network.predict`` encodes the other lane on its own worker,
+and Warp's launches are not made to run from two threads at once. Torch's work (the MLP)
+still overlaps either; only Warp launches take turns."""
+
 
 def set_cache_root(path: str | os.PathLike) -> None:
     """Where kernel caches live (before the first kernel is used; later calls are ignored)."""
