@@ -10,6 +10,7 @@ import torch
 
 from ..errors import VDNIFError
 from ..kernels import runtime
+from ..safe_io import write_text_atomic
 from .baselines import BASELINES
 from .side_by_side import (
     MILLION_LEVEL,
@@ -86,10 +87,8 @@ def cmd_side_by_side(args):
     host = machine(load_before, device)
     write_json(args.json, {"command": command, "machine": host, "results": results})
     if args.markdown is not None:
-        path = pathlib.Path(args.markdown)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text("\n".join(side_by_side_markdown(results, command,
-                                                         machine_text(host))) + "\n")
+        write_text_atomic(args.markdown, "\n".join(side_by_side_markdown(
+            results, command, machine_text(host))) + "\n", "markdown file")
     if args.plots is not None:
         write_plots(results, args.plots)
     if args.performance is not None:

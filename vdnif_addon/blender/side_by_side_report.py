@@ -7,6 +7,7 @@ import pathlib
 
 from ..metrics import SPEED_MIN_HIT_IOU
 from ..report import percent, write_section
+from ..safe_io import atomic_path
 from .baselines import BASELINES
 
 SECTION = "side-by-side"
@@ -320,7 +321,8 @@ def write_plots(results, folder):
                                               f"on {', '.join(withheld)}" if withheld else ""),
                     fontsize=9)
     figure.tight_layout()
-    figure.savefig(paths["speed"], dpi=120)
+    with atomic_path(paths["speed"], "plot") as temporary:
+        figure.savefig(temporary, dpi=120)
     pyplot.close(figure)
 
     figure, ax = pyplot.subplots(figsize=(7.5, 5))
@@ -331,7 +333,8 @@ def write_plots(results, folder):
                 *styles[name], f"mesh + {SHORT[name]} BVH")
     _axes(ax, results, "bytes")
     figure.tight_layout()
-    figure.savefig(paths["bytes"], dpi=120)
+    with atomic_path(paths["bytes"], "plot") as temporary:
+        figure.savefig(temporary, dpi=120)
     pyplot.close(figure)
     return paths
 
