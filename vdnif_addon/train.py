@@ -31,7 +31,7 @@ from .encoding import check_int
 from .errors import VDNIFError
 from .losses import WEIGHTINGS, make_weighting, task_losses
 from .network import Heads, IntersectionNetwork, NetworkConfig, readout
-from .settings import OCCLUSION_THRESHOLD
+from .settings import OCCLUSION_THRESHOLD, RECIPE
 
 DEVICES = ("auto", "cpu", "cuda")
 
@@ -40,8 +40,8 @@ DEVICES = ("auto", "cpu", "cuda")
 class TrainConfig:
     """Optimization settings; the two learning rates follow instant-ngp (grid) and LSNIF (MLP)."""
 
-    steps: int = 5000
-    batch_size: int = 2**14
+    steps: int = RECIPE.steps
+    batch_size: int = RECIPE.batch_size
     lr_grid: float = 1e-2
     lr_mlp: float = 1e-3
     final_lr_fraction: float = 0.1
