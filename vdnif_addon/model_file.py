@@ -21,6 +21,7 @@ import torch
 from .errors import VDNIFError
 from .safe_io import atomic_path
 from .network import IntersectionNetwork, NetworkConfig
+from .settings import OCCLUSION_THRESHOLD
 
 FORMAT_NAME = "vdnif-model"
 FORMAT_VERSION = 2
@@ -229,6 +230,8 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, 
                              f"numbers of magnitude at most {MAX_WEIGHT:g}")
     extra = _as_numpy(inner.get("extra", {}))
     _check_finite(path, extra, "extra")
+    # Files written before threshold calibration hold none: they were made for 0.5.
+    network.occlusion_threshold = float(extra.get("occlusion_threshold", OCCLUSION_THRESHOLD))
     metadata = {
         "format": FORMAT_NAME,
         "version": version,
