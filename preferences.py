@@ -1,5 +1,6 @@
-"""Add-on preferences: the default device, PyTorch's status, and PyTorch installed on request
-into the extension's user folder (never into the extension's own folder)."""
+"""Add-on preferences: the default device, the status of PyTorch and Warp (the kernel compiler),
+and both installed on request into the extension's user folder (never into the extension's
+own folder). Compiled kernels are cached in the extension's user folder as well."""
 
 import importlib
 import importlib.metadata
@@ -13,9 +14,12 @@ import bpy
 DEVICES = [("auto", "Auto", "CUDA when available, else the CPU"),
            ("cpu", "CPU", "Train and render on the CPU"),
            ("cuda", "CUDA", "Train and render on the first CUDA GPU")]
-INSTALL_HINT = "Preferences > Add-ons > VDNIF > Install PyTorch"
+INSTALL_HINT = "Preferences > Add-ons > VDNIF > Install PyTorch and Warp"
+WARP_REQUIREMENT = "warp-lang==1.19.0"
+"""The Warp release the kernels are written and tested for (as pinned in requirements.txt)."""
 
 _torch_details = None                  # cached (version, cuda available) or an error line
+_warp_details = None                   # cached version and kernel cache folder, or an error
 install = {"process": None, "message": ""}
 
 
@@ -24,9 +28,44 @@ def dependencies_folder():
     return bpy.utils.extension_path_user(__package__, path="site-packages", create=True)
 
 
+def kernel_folder():
+    """The user folder compiled kernels are cached in (per machine: see kernels.runtime)."""
+    return bpy.utils.extension_path_user(__package__, path="kernels", create=True)
+
+
 def torch_available():
     """Whether torch can be imported, found without importing it."""
     return importlib.util.find_spec("torch") is not None
+
+
+def warp_available():
+    """Whether Warp can be imported, found without importing it."""
+    return importlib.util.find_spec("warp") is not None
+
+
+def use_kernel_folder():
+    """Points the kernel cache at ``kernel_folder``, unless ``$VDNIF_KERNEL_CACHE`` names one
+    (batch runs and tests share a cache that way). Imports Warp, not torch; a no-op without
+    Warp or once a kernel was compiled."""
+    if warp_available():
+        from .vdnif_addon.kernels import runtime
+
+        if runtime.CACHE_ENV not in os.environ:
+            runtime.set_cache_root(kernel_folder())
+
+
+def warp_details():
+    """'Warp 1.x, kernels cached in FOLDER' or why it cannot be used; imports Warp (cached)."""
+    global _warp_details
+    if _warp_details is None:
+        try:
+            from .vdnif_addon.kernels import runtime
+
+            _warp_details = (f"Warp {runtime.wp.__version__}, kernels cached in "
+                             f"{runtime.cache_dir()}")
+        except Exception as exc:   # a broken install must not break the preferences
+            _warp_details = f"Warp is installed but cannot be imported: {exc}"
+    return _warp_details
 
 
 def torch_details():
@@ -48,9 +87,9 @@ def device(context):
 
 
 def install_command(folder):
-    """pip installing torch into ``folder`` with Blender's own Python."""
+    """pip installing Warp and torch into ``folder`` with Blender's own Python."""
     return [sys.executable, "-m", "pip", "install", "--upgrade", "--no-input",
-            "--target", folder, "torch"]
+            "--target", folder, WARP_REQUIREMENT, "torch"]
 
 
 def start_install(background):
@@ -66,7 +105,7 @@ def start_install(background):
     install["process"] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                           env=environment, text=True)
     install["process"].log = log
-    install["message"] = "Installing PyTorch (several minutes, several hundred MB)..."
+    install["message"] = "Installing PyTorch and Warp (several minutes, about 1 GB)..."
     bpy.app.timers.register(_watch_install, first_interval=1.0)
     return install["message"]
 
@@ -83,11 +122,13 @@ def _watch_install():
 
 
 def _installed(returncode, output):
-    global _torch_details
-    _torch_details = None
+    global _torch_details, _warp_details
+    _torch_details = _warp_details = None
     importlib.invalidate_caches()
-    if returncode == 0 and torch_available():
-        install["message"] = f"Installed PyTorch {importlib.metadata.version('torch')}"
+    if returncode == 0 and torch_available() and warp_available():
+        use_kernel_folder()
+        install["message"] = (f"Installed PyTorch {importlib.metadata.version('torch')} and "
+                              f"Warp {importlib.metadata.version('warp-lang')}")
     else:
         lines = [line for line in output.splitlines() if line.strip()]
         install["message"] = "PyTorch install failed: " + (lines[-1] if lines else
@@ -111,6 +152,12 @@ class VDNIFPreferences(bpy.types.AddonPreferences):
         else:
             box.label(text="PyTorch is not installed: VDNIF needs it to train and render",
                       icon="ERROR")
+        if warp_available():
+            box.label(text=warp_details(), icon="CHECKMARK")
+        else:
+            box.label(text="Warp is not installed: VDNIF compiles its kernels with it",
+                      icon="ERROR")
+        if not (torch_available() and warp_available()):
             box.operator("vdnif.install_dependencies", icon="IMPORT")
         if install["message"]:
             box.label(text=install["message"], icon="INFO")

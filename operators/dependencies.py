@@ -1,4 +1,5 @@
-"""Install PyTorch into the extension's user folder (from the preferences or the panel)."""
+"""Install PyTorch and Warp into the extension's user folder (from the preferences or the
+panel)."""
 
 import bpy
 
@@ -6,18 +7,19 @@ from .. import preferences
 
 
 class VDNIF_OT_install_dependencies(bpy.types.Operator):
-    """Install PyTorch with pip into the extension's user folder (internet, minutes, ~1 GB)"""
+    """Install PyTorch and Warp with pip into the extension's user folder (internet, minutes,
+    ~1 GB)"""
 
     bl_idname = "vdnif.install_dependencies"
-    bl_label = "Install PyTorch"
+    bl_label = "Install PyTorch and Warp"
 
     @classmethod
     def poll(cls, context):
         if preferences.install["process"] is not None:
-            cls.poll_message_set("PyTorch is being installed")
+            cls.poll_message_set("PyTorch and Warp are being installed")
             return False
-        if preferences.torch_available():
-            cls.poll_message_set("PyTorch is already installed")
+        if preferences.torch_available() and preferences.warp_available():
+            cls.poll_message_set("PyTorch and Warp are already installed")
             return False
         return True
 

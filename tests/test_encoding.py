@@ -2,10 +2,12 @@ import math
 
 import pytest
 import torch
+from oracles.encoding_torch import positional_points
 
 from vdnif_addon import encoding
-from vdnif_addon.encoding import HashGrid, SegmentEncoder, positional_points
+from vdnif_addon.encoding import HashGrid, SegmentEncoder
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.kernels import encoder as kernel
 
 PRIMES = (1, 2654435761, 805459861)
 
@@ -21,7 +23,8 @@ def reference_row(vertex, res, log2_table_size):
 
 
 def reference(grid, log2_table_size, points, out_weights):
-    """Brute force, a point, level and corner at a time: (N, L*Fd) features, d(sum out*w)/dtable."""
+    """Brute force, a point, level and corner at a time: (N, L*Fd) features, d(sum out*w)/dtable
+    (the table is row-major, (rows, Fd))."""
     table = grid.table.detach().double()
     features = torch.zeros(len(points), grid.output_dim, dtype=torch.float64)
     grad = torch.zeros_like(table)
@@ -37,8 +40,8 @@ def reference(grid, log2_table_size, points, out_weights):
                 weight = math.prod(f if b else 1.0 - f for f, b in zip(frac, bits))
                 for channel in range(grid.feature_dim):
                     column = level * grid.feature_dim + channel
-                    features[n, column] += weight * table[channel, row]
-                    grad[channel, row] += weight * out_weights[n, column].item()
+                    features[n, column] += weight * table[row, channel]
+                    grad[row, channel] += weight * out_weights[n, column].item()
     return features, grad
 
 
@@ -100,34 +103,49 @@ def test_vertices_and_cube_corners_read_their_own_table_rows():
         for level, res in enumerate(grid.resolutions):
             scaled = [v * res // 16 for v in vertex]
             row = grid.level_offsets[level] + reference_row(scaled, res, 12)
-            assert features[level].tolist() == grid.table[:, row].tolist()
+            assert features[level].tolist() == grid.table[row].tolist()
 
 
-def test_blocked_evaluation_equals_one_pass(monkeypatch):
+def test_launches_split_at_the_int32_limit_give_the_same_features_and_gradient(monkeypatch):
+    """Batches beyond 2^31 output vectors are encoded in several launches (the kernels index
+    in int32); a tiny limit makes this batch take 21 launches."""
     torch.manual_seed(1)
-    grid = HashGrid(2, 8, 2.0, 10, 2)
-    points = torch.rand(1000, 3)
-    whole = grid(points)
-    monkeypatch.setattr(HashGrid, "chunk_points", 97)
-    torch.testing.assert_close(
-        grid(points), whole, rtol=1e-6, atol=1e-9
-    )  # summation order may differ
+    encoder = SegmentEncoder(HashGrid(2, 8, 2.0, 10, 2), pe_bands=1)
+    p0, p1 = torch.rand(2, 1000, 3)
+    weights = torch.randn(1000, encoder.output_dim)
+    (encoder(p0, p1) * weights).sum().backward()
+    whole, whole_grad = encoder(p0, p1).detach(), encoder.grid.table.grad.clone()
+    encoder.grid.table.grad = None
+    monkeypatch.setattr(kernel, "MAX_LAUNCH_VECTORS", 599)  # 49 segments of 12 vectors
+    pieces = encoder(p0, p1)
+    (pieces * weights).sum().backward()
+    assert torch.equal(pieces, whole)
+    torch.testing.assert_close(encoder.grid.table.grad, whole_grad, rtol=1e-6, atol=1e-7)
 
 
-def test_positional_points_formula():
-    x = torch.rand(7, 3)
-    for form, scale in (("paper", 1.0), ("pi", math.pi)):
-        points = positional_points(x, 2, encoding.PE_SCALES[form])
-        assert points.shape == (7, 5, 3)
-        expected = [x]
-        for k in range(2):
-            expected += [
-                (torch.sin(2**k * scale * x) + 1) / 2,
-                (torch.cos(2**k * scale * x) + 1) / 2,
-            ]
-        torch.testing.assert_close(points, torch.stack(expected, 1))
-        assert points.min() >= 0 and points.max() <= 1
-    assert torch.equal(positional_points(x, 0), x[:, None])
+@pytest.mark.parametrize("form", ["paper", "pi"])
+def test_gamma_points_follow_the_formula(form):
+    """A dense grid whose vertex features are the vertex positions interpolates every point to
+    itself, so the encoder's features are its gamma points: x, then (sin(2^k s x) + 1) / 2 and
+    (cos(2^k s x) + 1) / 2 per band, end point by end point. The angle 2^k s x is a float32
+    product (as torch formed it); its sin and cos are taken here in float64."""
+    grid = HashGrid(levels=1, base_resolution=16, growth=1.0, log2_table_size=13, feature_dim=3)
+    assert grid.dense_levels == 1
+    vertices = torch.stack(torch.meshgrid(*[torch.arange(17.0)] * 3, indexing="ij"), -1)
+    with torch.no_grad():  # row x + 17 y + 289 z holds (x, y, z) / 16
+        grid.table.copy_(vertices.permute(2, 1, 0, 3).reshape(-1, 3) / 16)
+    encoder = SegmentEncoder(grid, pe_bands=3, pe_form=form)
+    p0, p1 = torch.rand(2, 200, 3)
+    expected = []
+    for x in (p0, p1):
+        expected.append(x.double())
+        for k in range(3):
+            angle = (x * torch.tensor(2**k * encoding.PE_SCALES[form])).double()
+            expected += [(angle.sin() + 1) / 2, (angle.cos() + 1) / 2]
+    features = encoder(p0, p1).double()
+    # interpolating the linear table rounds to within a few float32 units of 1
+    torch.testing.assert_close(features, torch.cat(expected, 1), rtol=0, atol=3e-7)
+    assert features.min() >= 0 and features.max() <= 1
 
 
 def test_segment_encoder_concatenates_encoded_points_in_documented_order():
@@ -138,9 +156,12 @@ def test_segment_encoder_concatenates_encoded_points_in_documented_order():
     out = encoder(p0, p1)
     assert out.shape == (11, 2 * 5 * 2 * 3) == (11, encoder.output_dim)
     per_point = [
-        grid(positional_points(p, 2, math.pi).reshape(-1, 3)).reshape(11, -1) for p in (p0, p1)
+        grid(positional_points(p, 2, math.pi, correctly_rounded=True).reshape(-1, 3)).reshape(
+            11, -1
+        )
+        for p in (p0, p1)
     ]
-    torch.testing.assert_close(out, torch.cat(per_point, 1))
+    assert torch.equal(out, torch.cat(per_point, 1))
 
 
 def test_zero_bands_is_the_plain_grid_encoding():
@@ -151,7 +172,7 @@ def test_zero_bands_is_the_plain_grid_encoding():
 
 def test_table_initialisation_is_small_uniform():
     table = HashGrid().table
-    assert table.shape == (3, 2 * 2**16)
+    assert table.shape == (2 * 2**16, 3) and table.is_contiguous()  # row-major
     assert table.abs().max() <= 1e-4 and table.std() > 1e-5
 
 
@@ -164,6 +185,7 @@ def test_table_initialisation_is_small_uniform():
         ({"log2_table_size": 40}, "log2_table_size"),
         ({"feature_dim": True}, "feature_dim"),
         ({"levels": 20, "base_resolution": 64}, "resolution"),
+        ({"levels": 64, "base_resolution": 1024, "growth": 1.0, "log2_table_size": 24}, "too large"),
     ],
 )
 def test_bad_grid_settings_name_the_setting(kwargs, word):

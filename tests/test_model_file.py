@@ -1,14 +1,18 @@
 import io
 import os
+import pathlib
 
 import numpy as np
 import pytest
 import torch
+from oracles import encoding_torch as oracle
 
 from vdnif_addon import model_file
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.model_file import load_model, model_bytes, save_model
-from vdnif_addon.network import Heads, IntersectionNetwork, NetworkConfig
+from vdnif_addon.network import Heads, IntersectionNetwork, NetworkConfig, readout
+
+GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"
 
 CONFIG = NetworkConfig(
     levels=2,
@@ -131,5 +135,50 @@ def test_newer_format_version_is_refused(saved):
     archive = torch.load(saved, weights_only=True)
     archive["version"] = model_file.FORMAT_VERSION + 1
     torch.save(archive, saved)
-    with pytest.raises(VDNIFError, match="model.vdnif has format version 2.*update"):
+    with pytest.raises(
+        VDNIFError, match=f"model.vdnif has format version {model_file.FORMAT_VERSION + 1}.*update"
+    ):
         load_model(saved)
+
+
+def _stored_state(path):
+    """The state dict exactly as the file holds it (no migration)."""
+    archive = torch.load(path, weights_only=True)
+    inner = torch.load(io.BytesIO(archive["payload"].numpy().tobytes()), weights_only=True)
+    return archive["version"], inner["state_dict"]
+
+
+@pytest.mark.parametrize("name", ["arm-train.vdnif", "arm-render-model.vdnif"])
+def test_format_1_files_load_and_predict_what_the_torch_encoder_predicted(name):
+    """Golden files written before the kernel (format 1, table feature-major (Fd, rows)) load
+    with the table transposed, and predict what the torch encoder predicts with their table."""
+    path = GOLDEN / name
+    version, stored = _stored_state(path)
+    assert version == 1 and model_file.FORMAT_VERSION == 2
+    network, meta = load_model(path)
+    assert meta["version"] == 1
+    old_table = stored["encoder.grid.table"]
+    assert old_table.shape[0] == network.config.feature_dim
+    assert torch.equal(network.encoder.grid.table, old_table.t())
+
+    reference = oracle.from_product(network.encoder, correctly_rounded=True)
+    assert torch.equal(reference.grid.table, old_table)
+    generator = torch.Generator().manual_seed(0)
+    p0 = torch.rand(4000, 3, generator=generator)
+    p1 = (p0 + 0.05 * torch.randn(4000, 3, generator=generator)).clamp(0, 1)
+    length = (p1 - p0).norm(dim=1)
+    predicted = network.predict(p0, p1, length, 0.05)
+    with torch.no_grad():
+        expected = readout(network.heads(reference(p0, p1)), network.config.distance_mode,
+                           0.05, length)
+    assert predicted.keys() == expected.keys()
+    for key in expected:
+        torch.testing.assert_close(predicted[key], expected[key], rtol=1e-5, atol=1e-6)
+    assert predicted["hit_probability"].std() > 1e-3  # varies from segment to segment
+
+
+def test_saving_writes_the_current_format_with_a_row_major_table(saved, network):
+    version, stored = _stored_state(saved)
+    assert version == model_file.FORMAT_VERSION == 2
+    assert torch.equal(stored["encoder.grid.table"], network.encoder.grid.table)
+    assert stored["encoder.grid.table"].shape == (network.encoder.grid.table.shape[0], 3)

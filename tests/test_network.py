@@ -148,13 +148,53 @@ def test_benchmark_runs_on_tiny_sizes():
     from vdnif_addon.network_bench import benchmark_network
 
     result = benchmark_network("cpu", segments=256, train_batch=128, repeats=1)
-    assert result["infer_segments_per_s"] > 0 and result["train_samples_per_s"] > 0
+    rates = ("infer_segments_per_s", "serial_segments_per_s", "encode_segments_per_s",
+             "mlp_segments_per_s", "train_samples_per_s")
+    assert all(result[key] > 0 for key in rates)
     assert 0 < result["encode_fraction"] < 1 and result["encode_fraction"] + result[
         "mlp_fraction"
     ] == pytest.approx(1)
+    assert 1 / result["serial_segments_per_s"] == pytest.approx(
+        1 / result["encode_segments_per_s"] + 1 / result["mlp_segments_per_s"])
     assert (
         result["device"] == "cpu" and result["threads"] >= 1 and result["config"]["pe_bands"] == 3
     )
+
+
+def test_one_thread_default_for_commands_worker_and_benchmark(monkeypatch):
+    """Torch gets every core but the encoder's; the bench's --threads overrides it."""
+    from vdnif_addon import threads
+    from vdnif_addon.commands import build_parser
+
+    for cores, expected in (({0, 1, 2, 3}, 3), ({0, 1}, 1), ({5}, 1)):
+        monkeypatch.setattr(threads.os, "sched_getaffinity", lambda _, cores=cores: cores)
+        assert threads.default_threads() == expected
+    before = torch.get_num_threads()
+    try:
+        assert threads.use_threads(2) == 2 == torch.get_num_threads()
+        assert threads.use_threads() == 1  # the 1-core affinity above
+    finally:
+        torch.set_num_threads(before)
+    args = build_parser().parse_args(["bench-network", "--threads", "2"])
+    assert args.threads == 2 and build_parser().parse_args(["bench-network"]).threads is None
+
+
+def test_predict_overlaps_batches_without_changing_them():
+    """The pipelined predict (encoder of batch k+1 in a worker thread) equals forward batch
+    by batch, and its outputs carry no autograd history."""
+    torch.manual_seed(4)
+    network = IntersectionNetwork(NetworkConfig(**SMALL, heads=Heads(albedo=True, material_count=2)))
+    with torch.no_grad():
+        network.encoder.grid.table.normal_()
+    p0, p1 = torch.rand(2, 1000, 3)
+    rest_len = torch.rand(1000) * 0.1
+    predicted = network.predict(p0, p1, rest_len, 0.05, batch=96)
+    with torch.no_grad():
+        parts = [readout(network(a, b), "log1p", 0.05, r)
+                 for a, b, r in zip(p0.split(96), p1.split(96), rest_len.split(96))]
+    for key, value in predicted.items():
+        assert torch.equal(value, torch.cat([part[key] for part in parts])), key
+        assert not value.requires_grad
 
 
 def test_empty_batches_and_non_finite_coordinates_are_safe():

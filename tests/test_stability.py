@@ -377,7 +377,7 @@ def vertex_features(grid, ijk_fraction):
     rows = []
     for level, res in enumerate(grid.resolutions):
         x, y, z = (round(c * res) for c in ijk_fraction)
-        rows.append(grid.table[:, grid.level_offsets[level] + x + y * (res + 1)
+        rows.append(grid.table[grid.level_offsets[level] + x + y * (res + 1)
                                + z * (res + 1) ** 2])
     return torch.cat(rows)
 

@@ -1,5 +1,7 @@
+import json
 import math
 import os
+import pathlib
 import socket
 import threading
 
@@ -10,12 +12,14 @@ import torch.multiprocessing as mp
 
 from vdnif_addon import train as training
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.fit import fit_model
 from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
 from vdnif_addon.network import NetworkConfig
 from vdnif_addon.train import TrainConfig, evaluate, load_segments, train
 from vdnif_addon.variants import variant_config
 
 SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
+GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"
 
 
 def sphere_shards(n=256, shards=2, poses=4, voxel_size=0.125, resolution=8, seed=0, radius=0.25):
@@ -243,6 +247,24 @@ def test_cancel_stops_before_the_next_update():
     )
     assert result.status == "cancelled" and result.steps == 10 and len(result.history) == 1
     assert finite_module(result.network) and not result.network.training
+
+
+def test_training_follows_the_torch_encoders_loss_curve(tmp_path):
+    """The golden run of the pre-kernel code (torch encoder; tests/golden/make_goldens.py):
+    the first 50 steps' total and task losses, each within 1e-3 relative."""
+    golden = json.loads((GOLDEN / "arm-train.json").read_text())
+    settings = dict(golden["settings"])
+    variant = settings.pop("variant")
+    records = []
+    fit_model(GOLDEN / "arm-dataset", variant, tmp_path / "model.vdnif",
+              dict(settings, log_interval=1), progress=records.append)
+    assert [r["step"] for r in records] == [g["step"] for g in golden["history"]] == list(
+        range(1, 51))
+    for record, expected in zip(records, golden["history"]):
+        assert record["total"] == pytest.approx(expected["total"], rel=1e-3), record["step"]
+        assert record["losses"].keys() == expected["losses"].keys()
+        for task, value in expected["losses"].items():
+            assert record["losses"][task] == pytest.approx(value, rel=1e-3), (record["step"], task)
 
 
 def test_same_seed_gives_identical_weights():

@@ -1,28 +1,33 @@
 """Input encoding psi(x) = phi(gamma(x)): sinusoidal points looked up in a multi-level hash grid.
 
-DESIGN.md section 8 and the paper's Eq. (1). ``positional_points`` (gamma) expands a rest-space
-point into ``1 + 2F`` points in [0,1]^3, ``HashGrid`` (phi) interpolates learned features at
-each, and ``SegmentEncoder`` encodes both end points of a segment with one shared grid.
+DESIGN.md section 8 and the paper's Eq. (1). ``gamma`` expands a rest-space point into
+``1 + 2F`` points in [0,1]^3, ``HashGrid`` (phi) interpolates learned features at each, and
+``SegmentEncoder`` encodes both end points of a segment with one shared grid.
 
-Layout, for CPU speed: points are processed coordinate-major, ``(3, P)``, and the table is
-feature-major, ``(Fd, rows)``, so every elementwise step runs along the long point axis (a
-point-major layout spends most of its time in small-inner-dimension kernels and transposes).
+These modules own the table parameter, its level layout and the validation; the computation
+is one Warp kernel (``kernels/encoder.py``) for the forward and one for the table gradient.
+The table is row-major, ``(rows, Fd)``: a corner's features are one contiguous read.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
 from .errors import VDNIFError
+from .kernels import encoder as kernel
 
 HASH_PRIMES = (1, 2654435761, 805459861)
 """instant-ngp's per-axis hash primes (x, y, z)."""
 
 MAX_LOG2_TABLE_SIZE = 24
 """Largest table exponent (2**24 rows of Fd floats per level is already 200 MB at Fd=3)."""
+
+MAX_TABLE_FLOATS = 2**31 - 1
+"""The kernels index the table with int32: at most this many floats (8 GB) in all levels."""
 
 PE_SCALES = {"paper": 1.0, "pi": math.pi}
 """``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
@@ -51,6 +56,13 @@ def check_grid_settings(
     finest = math.floor(base_resolution * growth ** (levels - 1))
     if finest > 2**16:
         raise VDNIFError(f"hash grid finest resolution {finest} exceeds 65536 cells per axis")
+    resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
+    floats = feature_dim * sum(min((res + 1) ** 3, 2**log2_table_size) for res in resolutions)
+    if floats > MAX_TABLE_FLOATS:
+        raise VDNIFError(
+            f"hash grid table of {floats} floats is too large: at most {MAX_TABLE_FLOATS} "
+            f"(lower log2_table_size, levels or feature_dim)"
+        )
 
 
 def check_encoding_settings(pe_bands: int, pe_form: str) -> None:
@@ -74,31 +86,34 @@ def full_precision(points: torch.Tensor, name: str) -> torch.Tensor:
     return points.to(torch.float32)
 
 
-class _Interpolate(torch.autograd.Function):
-    """``sum_c weights[c] * table[:, rows[c]]``: table (Fd, R), rows and weights (8, M) -> (Fd, M).
+def _points(points: torch.Tensor, name: str) -> torch.Tensor:
+    """(N, 3) float32, contiguous, as the kernels read positions."""
+    if points.dim() != 2 or points.shape[1] != 3:
+        raise VDNIFError(f"{name} must have shape (N, 3), got {tuple(points.shape)}")
+    return full_precision(points, name).contiguous()
 
-    Written out so the backward is one product and one scatter-add; autograd's generic
-    backward of the gather-multiply-sum chain costs about three times as much on CPU.
-    """
 
-    @staticmethod
-    def forward(
-        ctx, table: torch.Tensor, rows: torch.Tensor, weights: torch.Tensor
-    ) -> torch.Tensor:
-        index = rows.view(1, -1).expand(table.shape[0], -1)  # one gather serves every channel
-        ctx.save_for_backward(index, weights)
-        ctx.table_rows = table.shape[1]
-        return table.gather(1, index).view((table.shape[0],) + weights.shape).mul_(weights).sum(1)
+class _Encode(torch.autograd.Function):
+    """The kernel's features as a function of the table: (N, C); backward scatter-adds into
+    the table gradient (one kernel launch); positions get no gradient."""
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor) -> tuple[torch.Tensor, None, None]:
-        index, weights = ctx.saved_tensors
-        contribution = (grad[:, None] * weights).view(grad.shape[0], -1)
-        return (
-            grad.new_zeros(grad.shape[0], ctx.table_rows).scatter_add_(1, index, contribution),
-            None,
-            None,
-        )
+    def forward(ctx, table, p0, p1, encoding):
+        ctx.save_for_backward(p0, p1)
+        ctx.encoding, ctx.rows = encoding, table.shape[0]
+        return kernel.encode(encoding, table, p0, p1)
+
+    @staticmethod
+    def backward(ctx, grad):
+        p0, p1 = ctx.saved_tensors
+        return kernel.encode_backward(ctx.encoding, ctx.rows, p0, p1, grad), None, None, None
+
+
+def _encode(table, p0, p1, encoding) -> torch.Tensor:
+    """Through autograd when the table's gradient is wanted, else the bare launch."""
+    if torch.is_grad_enabled() and table.requires_grad:
+        return _Encode.apply(table, p0, p1, encoding)
+    return kernel.encode(encoding, table.detach(), p0, p1)
 
 
 class HashGrid(nn.Module):
@@ -106,13 +121,14 @@ class HashGrid(nn.Module):
 
     Level ``l`` has ``floor(N_min * b**l)`` cells per axis. A level whose ``(res+1)**3``
     vertices fit in the ``2**T`` table is indexed densely (``x + y*(res+1) + z*(res+1)**2``),
-    otherwise through the spatial hash ``(x*1 ^ y*2654435761 ^ z*805459861) mod 2**T``. The
-    hash products are taken in int64 (coordinates < 2**17, so no overflow) and masked to T
-    bits, which equals instant-ngp's wrapping uint32 product reduced mod 2**T (T <= 32).
-    """
+    otherwise through the spatial hash ``(x*1 ^ y*2654435761 ^ z*805459861) mod 2**T`` taken in
+    wrapping uint32 arithmetic, as instant-ngp does. Points are clamped to [0,1] (NaN read as
+    0); a point at exactly 1 lies in the last cell, weight 1 on its far vertex. Corner
+    ``4i + 2j + k`` of a cell is vertex ``cell + (i, j, k)``.
 
-    chunk_points = 2**15
-    """Points per block in ``features``: keeps the (8, L, block) temporaries in cache."""
+    ``table`` (rows, Fd): hashed levels first, each at a multiple of 2**T, then the dense
+    ones; ``level_offsets[l]`` is level l's first row.
+    """
 
     def __init__(
         self,
@@ -125,117 +141,58 @@ class HashGrid(nn.Module):
         super().__init__()
         check_grid_settings(levels, base_resolution, growth, log2_table_size, feature_dim)
         self.levels = levels
+        self.base_resolution = base_resolution
+        self.growth = growth
+        self.log2_table_size = log2_table_size
         self.feature_dim = feature_dim
         self.resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
         table_size = 2**log2_table_size
         hashed = [(res + 1) ** 3 > table_size for res in self.resolutions]
-        self.dense_levels = hashed.count(
-            False
-        )  # resolutions grow, so the dense levels are a prefix
+        self.dense_levels = hashed.count(False)  # resolutions grow: the dense levels lead
 
-        # Hashed levels come first in the table, at multiples of 2**T: adding such an offset
-        # commutes with XOR-ing T-bit terms, so each level's offset is added to its x terms only.
+        # Hashed levels come first in the table, at multiples of 2**T (instant-ngp's layout,
+        # kept so that model files of every version share it).
         order = sorted(range(levels), key=lambda level: not hashed[level])
         sizes = [
             table_size if hashed[level] else (self.resolutions[level] + 1) ** 3 for level in order
         ]
         starts = [sum(sizes[:i]) for i in range(levels)]
         self.level_offsets = [starts[order.index(level)] for level in range(levels)]
-        multipliers = [
-            HASH_PRIMES if hashed[level] else (1, res + 1, (res + 1) ** 2)
-            for level, res in enumerate(self.resolutions)
-        ]
+        # Drawn feature-major and stored row-major: the same initial table for a seed as the
+        # feature-major layout of model format 1 had.
+        initial = torch.empty(feature_dim, sum(sizes)).uniform_(-1e-4, 1e-4)
+        self.table = nn.Parameter(initial.t().contiguous())
 
-        self.table = nn.Parameter(torch.empty(feature_dim, sum(sizes)).uniform_(-1e-4, 1e-4))
-        res = torch.tensor(self.resolutions, dtype=torch.float32).view(1, levels, 1)
-        self.register_buffer("_res", res, persistent=False)
-        self.register_buffer("_last_cell", res - 1, persistent=False)
-        self.register_buffer(
-            "_mult", torch.tensor(multipliers).t().reshape(3, levels, 1), persistent=False
-        )
-        self.register_buffer("_mask", torch.tensor(table_size - 1), persistent=False)
-        self.register_buffer(
-            "_offsets", torch.tensor(self.level_offsets).view(levels, 1), persistent=False
-        )
+        # What the kernel reads per level (kernels.encoder.LEVEL_FIELDS): resolution, first
+        # row, y and z multipliers (hash primes or the dense strides) as int32 bit patterns.
+        fields = []
+        for level, res in enumerate(self.resolutions):
+            y, z = HASH_PRIMES[1:] if hashed[level] else (res + 1, (res + 1) ** 2)
+            fields += [res, self.level_offsets[level], y, z]
+        bits = np.array(fields, dtype=np.uint32).view(np.int32)
+        self.register_buffer("_levels", torch.from_numpy(bits.copy()), persistent=False)
 
     @property
     def output_dim(self) -> int:
         return self.levels * self.feature_dim
 
-    def corners(self, coords: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Table rows and trilinear weights of each point's 8 cell corners at every level.
-
-        coords: (3, P) float32, coordinate-major, in [0,1] (clamped, NaN read as 0: 0, 1 and
-        points outside are safe; a point at exactly 1 lies in the last cell, weight 1 on its
-        far vertex).
-        Returns rows (8, L, P) int64 into ``table`` and weights (8, L, P) float32; corner
-        ``4i + 2j + k`` is vertex ``cell + (i, j, k)``.
-        """
-        pos = torch.nan_to_num(coords).clamp_(0.0, 1.0)[:, None, :] * self._res  # (3, L, P)
-        cell = torch.minimum(pos.floor(), self._last_cell)
-        frac = pos - cell
-        low = cell.long() * self._mult
-        terms = torch.stack((low, low + self._mult), 1).bitwise_and_(
-            self._mask
-        )  # (3, 2, L, P) per-axis terms
-        terms[0] += self._offsets
-
-        tx, ty, tz = terms[0, :, None, None], terms[1, None, :, None], terms[2, None, None, :]
-        rows = torch.empty((2, 2, 2) + pos.shape[1:], dtype=torch.int64, device=coords.device)
-        d = self.dense_levels
-        torch.add(tx[..., :d, :] + ty[..., :d, :], tz[..., :d, :], out=rows[..., :d, :])
-        torch.bitwise_xor(tx[..., d:, :] ^ ty[..., d:, :], tz[..., d:, :], out=rows[..., d:, :])
-
-        w = torch.stack((1.0 - frac, frac), 1)  # (3, 2, L, P)
-        weights = w[0, :, None, None] * w[1, None, :, None] * w[2, None, None, :]
-        return rows.view(8, *pos.shape[1:]), weights.view(8, *pos.shape[1:])
-
-    def features(self, coords: torch.Tensor) -> torch.Tensor:
-        """coords: (3, P) float32 in [0,1] -> interpolated features (Fd, L, P).
-
-        Works through the points in blocks of ``chunk_points``: on CPU, cache-sized
-        temporaries are worth several times the speed of one pass over a large batch.
-        """
-        blocks = [self._interpolate(block) for block in coords.split(self.chunk_points, 1)]
-        return blocks[0] if len(blocks) == 1 else torch.cat(blocks, 2)
-
-    def _interpolate(self, coords: torch.Tensor) -> torch.Tensor:
-        rows, weights = self.corners(coords)
-        values = _Interpolate.apply(self.table, rows.view(8, -1), weights.view(8, -1))
-        return values.view(self.feature_dim, self.levels, coords.shape[1])
+    def encoding(self, pe_bands: int = 0, pe_scale: float = 1.0) -> kernel.Encoding:
+        """The launch description of this grid with ``pe_bands`` gamma bands."""
+        return kernel.Encoding(self._levels, self.dense_levels, 2**self.log2_table_size - 1,
+                        self.feature_dim, pe_bands, pe_scale)
 
     def forward(self, points: torch.Tensor) -> torch.Tensor:
         """points: (N, 3) float32 or float64 in [0,1] (clamped) -> features (N, L*Fd),
         level-major."""
-        coords = full_precision(points, "hash grid points").t().contiguous()
-        return self.features(coords).transpose(0, 1).reshape(self.output_dim, points.shape[0]).t()
-
-
-def _gamma(x: torch.Tensor, bands: int, scale: float, dim: int) -> torch.Tensor:
-    """Elementwise gamma: the 1+2F variants of x stacked along a new axis ``dim``."""
-    dim = dim % (x.dim() + 1)
-    x = x.unsqueeze(dim)
-    if bands == 0:
-        return x
-    shape = [1] * x.dim()
-    shape[dim] = bands
-    freqs = scale * 2.0 ** torch.arange(bands, dtype=x.dtype, device=x.device)
-    angles = x * freqs.view(shape)
-    waves = torch.stack((angles.sin(), angles.cos()), dim + 1).flatten(dim, dim + 1)
-    return torch.cat((x, waves.add_(1.0).mul_(0.5)), dim)
-
-
-def positional_points(x: torch.Tensor, bands: int, scale: float = 1.0) -> torch.Tensor:
-    """gamma(x) as points: x (..., 3) -> (..., 1+2F, 3).
-
-    Point 0 is x itself; points 1+2k and 2+2k are ``sin(2^k s x)`` and ``cos(2^k s x)``,
-    remapped into [0,1]^3 by ``(v+1)/2``. ``scale`` s is 1 for the paper's form, pi for PEPS.
-    """
-    return _gamma(x, bands, scale, -2)
+        return _encode(self.table, _points(points, "hash grid points"), None, self.encoding())
 
 
 class SegmentEncoder(nn.Module):
-    """psi of both segment end points through one shared hash grid, concatenated."""
+    """psi of both segment end points through one shared hash grid, concatenated.
+
+    gamma(x) = x, then per band k < F the points ``(sin(2^k s x) + 1) / 2`` and
+    ``(cos(2^k s x) + 1) / 2`` (s = 1 in the paper's form, pi in PEPS's), each in [0,1]^3.
+    """
 
     def __init__(self, grid: HashGrid, pe_bands: int = 3, pe_form: str = "paper") -> None:
         super().__init__()
@@ -249,17 +206,16 @@ class SegmentEncoder(nn.Module):
         return 2 * (1 + 2 * self.pe_bands) * self.grid.output_dim
 
     def forward(self, p0: torch.Tensor, p1: torch.Tensor) -> torch.Tensor:
-        """p0, p1: (N, 3) normalized rest coordinates -> (N, 2*(1+2F)*L*Fd).
+        """p0, p1: (N, 3) normalized rest coordinates -> (N, 2*(1+2F)*L*Fd) float32.
 
-        Feature order: end point, gamma point, level, feature. The result is a transposed
-        view of a feature-major (C, N) array, which ``nn.Linear`` consumes without a copy.
+        Feature order: end point, gamma point, level, feature. Positions stay float32 under
+        autocast (``full_precision``); the features have no gradient to them.
         """
-        n = p0.shape[0]
-        ends = [full_precision(p, "segment end points") for p in (p0, p1)]
-        coords = torch.stack(ends).permute(2, 0, 1).contiguous()  # (3, 2, N)
-        points = _gamma(coords, self.pe_bands, self.pe_scale, 2)  # (3, 2, 1+2F, N)
-        features = self.grid.features(points.view(3, -1))  # (Fd, L, 2*(1+2F)*N)
-        features = features.view(
-            self.grid.feature_dim, self.grid.levels, 2, 1 + 2 * self.pe_bands, n
-        ).permute(2, 3, 1, 0, 4)
-        return features.reshape(self.output_dim, n).t()
+        p0 = _points(p0, "segment end points")
+        p1 = _points(p1, "segment end points")
+        if p0.shape != p1.shape:
+            raise VDNIFError(
+                f"segment end points differ in shape: {tuple(p0.shape)} and {tuple(p1.shape)}"
+            )
+        encoding = self.grid.encoding(self.pe_bands, self.pe_scale)
+        return _encode(self.grid.table, p0, p1, encoding)

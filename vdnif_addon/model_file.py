@@ -24,7 +24,19 @@ from .errors import VDNIFError
 from .network import IntersectionNetwork, NetworkConfig
 
 FORMAT_NAME = "vdnif-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""1: the hash-grid table feature-major, (Fd, rows). 2: row-major, (rows, Fd), as the encoder
+kernel reads it; version 1 files are migrated on load."""
+
+TABLE_KEY = "encoder.grid.table"
+
+
+def _migrate(state_dict: dict[str, torch.Tensor], version: int) -> dict[str, torch.Tensor]:
+    """A state dict of an older format version as the current network expects it."""
+    if version < 2 and TABLE_KEY in state_dict:
+        state_dict = dict(state_dict)
+        state_dict[TABLE_KEY] = state_dict[TABLE_KEY].t().contiguous()
+    return state_dict
 
 
 def _storable(value: Any, where: str) -> Any:
@@ -171,7 +183,7 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, 
         inner = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
         config = NetworkConfig.from_dict(inner["network_config"])
         network = IntersectionNetwork(config)
-        network.load_state_dict(inner["state_dict"])
+        network.load_state_dict(_migrate(inner["state_dict"], version))
     except Exception as exc:
         raise VDNIFError(f"model file {path} is damaged: {_reason(exc)}") from exc
     network.eval()

@@ -10,6 +10,7 @@ import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -162,7 +163,11 @@ class IntersectionNetwork(nn.Module):
         per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo`` (N, 3) in [0,1];
         ``material`` (N, M) logits. Only the heads of ``config.heads`` are present.
         """
-        columns = self.mlp(self.encoder(p0, p1)).split(list(self.head_sizes.values()), dim=1)
+        return self.heads(self.encoder(p0, p1))
+
+    def heads(self, features: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Head outputs (see ``forward``) of encoded segments, features (N, encoder.output_dim)."""
+        columns = self.mlp(features).split(list(self.head_sizes.values()), dim=1)
         raw = dict(zip(self.head_sizes, columns))
         distance_activation = torch.sigmoid if self.config.distance_mode == "fraction" else F.relu
         out = {
@@ -186,11 +191,34 @@ class IntersectionNetwork(nn.Module):
         batch: int = 2**14,
     ) -> dict[str, torch.Tensor]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
-        ``forward``, without autograd, ``batch`` segments at a time to bound memory."""
-        parts = [
-            readout(self(a, b), self.config.distance_mode, voxel_size, length)
-            for a, b, length in zip(p0.split(batch), p1.split(batch), rest_len.split(batch))
-        ]
+        ``forward``, without autograd, ``batch`` segments at a time to bound memory.
+
+        On the CPU the encoder of batch k+1 runs in a worker thread (one core: a Warp CPU
+        launch is serial and releases the GIL) while this thread runs the MLP of batch k
+        (torch's threads); only the worker launches kernels meanwhile.
+        """
+        chunks = list(zip(p0.split(batch), p1.split(batch), rest_len.split(batch)))
+        if not chunks:
+            chunks = [(p0, p1, rest_len)]
+        mode = self.config.distance_mode
+
+        def encode(index: int) -> torch.Tensor:
+            with torch.inference_mode():  # inference mode is per thread
+                return self.encoder(chunks[index][0], chunks[index][1])
+
+        parts = []
+        if p0.device.type != "cpu" or len(chunks) == 1:
+            # CUDA launches are asynchronous already: the stream overlaps them with the host.
+            for index, (_, _, length) in enumerate(chunks):
+                parts.append(readout(self.heads(encode(index)), mode, voxel_size, length))
+        else:
+            with ThreadPoolExecutor(1, thread_name_prefix="vdnif-encoder") as worker:
+                pending = worker.submit(encode, 0)
+                for index, (_, _, length) in enumerate(chunks):
+                    features = pending.result()
+                    if index + 1 < len(chunks):
+                        pending = worker.submit(encode, index + 1)
+                    parts.append(readout(self.heads(features), mode, voxel_size, length))
         return {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
 
 

@@ -451,7 +451,11 @@ def _split_data(
 def _optimizer(
     objective: Objective, config: TrainConfig
 ) -> tuple[torch.optim.Adam, torch.optim.lr_scheduler.LambdaLR]:
-    """Adam with instant-ngp's settings for the grid table, and an exponential lr decay."""
+    """Adam with instant-ngp's settings for the grid table, and an exponential lr decay.
+
+    The fused Adam (one kernel over all of a group's parameters instead of a handful of
+    tensor operations per parameter) computes the same update.
+    """
     table = objective.network.encoder.grid.table
     others = [p for p in objective.parameters() if p is not table]
     optimizer = torch.optim.Adam(
@@ -460,11 +464,59 @@ def _optimizer(
             {"params": others, "lr": config.lr_mlp},
         ],
         betas=(0.9, 0.99),
+        fused=True,
     )
     decay = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: config.final_lr_fraction ** (step / config.steps)
     )
     return optimizer, decay
+
+
+class TrainingStep:
+    """One optimizer step of ``train``: forward, losses, backward, the finite check and the
+    cancel flag (one collective that every process answers alike), Adam, learning-rate decay.
+
+    ``model`` is ``objective`` or its DistributedDataParallel wrapper. Calling it with a batch
+    returns (cancelled, total loss, task losses); a non-finite loss or gradient raises
+    VDNIFError naming the step (1-based, before its update).
+    """
+
+    def __init__(self, objective: Objective, config: TrainConfig, model: nn.Module | None = None,
+                 group: _Distributed | None = None) -> None:
+        self.model = model or objective
+        self.group = group or _Distributed()
+        self.optimizer, self.decay = _optimizer(objective, config)
+        self.params = list(objective.parameters())
+        self.tasks = list(objective.network.head_sizes)
+        self.taken = 0
+
+    def __call__(self, batch: Mapping[str, torch.Tensor], cancel: threading.Event | None = None
+                 ) -> tuple[bool, torch.Tensor, torch.Tensor]:
+        total, losses = self.model(batch)
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        grad_norm = torch.nn.utils.get_total_norm(
+            [p.grad for p in self.params if p.grad is not None]
+        )
+        requested = torch.tensor(cancel is not None and cancel.is_set(), device=total.device)
+        flags = torch.stack(
+            [~(torch.isfinite(total) & torch.isfinite(grad_norm)), requested]
+        ).float()
+        diverged, cancelled = self.group.max(flags).tolist()
+        if diverged:
+            detail = ", ".join(
+                f"{task}={value:.4g}" for task, value in zip(self.tasks, losses.tolist())
+            )
+            raise VDNIFError(
+                f"training stopped at step {self.taken + 1}: "
+                f"the loss or its gradient is not finite ({detail})"
+            )
+        if cancelled:
+            return True, total, losses
+        self.optimizer.step()
+        self.decay.step()
+        self.taken += 1
+        return False, total, losses
 
 
 def _train(
@@ -490,9 +542,8 @@ def _train(
         if group.active
         else objective
     )
-    optimizer, decay = _optimizer(objective, config)
-    params = list(objective.parameters())
-    tasks = list(network.head_sizes)
+    step_once = TrainingStep(objective, config, model, group)
+    tasks = step_once.tasks
     samples_per_step = config.batch_size * group.world
 
     status, history = "completed", []
@@ -500,7 +551,7 @@ def _train(
         1 + len(tasks), device=device
     )  # summed total and task losses since the last report
     window_steps, window_seconds, train_seconds, steps_done = 0, 0.0, 0.0, 0
-    for step in range(config.steps):
+    for _ in range(config.steps):
         started = time.perf_counter()
         batch = _select(
             train_data,
@@ -508,27 +559,10 @@ def _train(
                 train_data["p0"].shape[0], (config.batch_size,), generator=sampler, device=device
             ),
         )
-        total, losses = model(batch)
-        optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        # One collective per step decides, identically on every process, whether to stop.
-        grad_norm = torch.nn.utils.get_total_norm([p.grad for p in params if p.grad is not None])
-        requested = torch.tensor(cancel is not None and cancel.is_set(), device=device)
-        flags = torch.stack(
-            [~(torch.isfinite(total) & torch.isfinite(grad_norm)), requested]
-        ).float()
-        diverged, cancelled = group.max(flags).tolist()
-        if diverged:
-            detail = ", ".join(f"{task}={value:.4g}" for task, value in zip(tasks, losses.tolist()))
-            raise VDNIFError(
-                f"training stopped at step {step + 1}: "
-                f"the loss or its gradient is not finite ({detail})"
-            )
+        cancelled, total, losses = step_once(batch, cancel)
         if cancelled:
             status = "cancelled"
             break
-        optimizer.step()
-        decay.step()
         steps_done += 1
         running += torch.cat([total.detach()[None], losses.detach()])
         elapsed = time.perf_counter() - started

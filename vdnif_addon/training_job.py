@@ -88,6 +88,9 @@ class TrainingJob:
         partial = self.out.with_name(f".{self.out.name}.training")
         try:
             from .fit import fit_model
+            from .threads import use_threads
+
+            use_threads()
 
             self.out.parent.mkdir(parents=True, exist_ok=True)
             result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
