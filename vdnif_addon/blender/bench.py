@@ -52,7 +52,7 @@ SIZES = {
         base=dict(resolution=16, levels=2, log2_table_size=12, pe_bands=3, width=64),
         axes={"resolution": [12, 16], "grid": [(2, 10), (2, 12)], "pe_bands": [0, 3],
               "width": [32, 64]},
-        convergence=dict(validate_every=50, patience=2, min_gain=0.05, max_steps=300)),
+        convergence=dict(validate_every=50, patience=3, min_gain=0.02, max_steps=600)),
 }
 # The held-out validation figures the convergence rule watches (errors: lower is better);
 # the occlusion accuracy enters as its error, the share of misclassified segments.
