@@ -179,3 +179,34 @@ def test_deformation_experiment_quick(tmp_path):
     assert "columns: deformed, proposed, reference, original, error of deformed, error of " \
            "proposed" in text
     assert "spot/original (rest pose): vs true" in printed
+
+
+def test_ablation_experiment_quick(tmp_path):
+    """The ablation end to end on one scene and seed: each run trains the configuration it
+    names (one part of proposed taken back to the baseline's) on the same data and steps."""
+    results = tmp_path / "docs" / "results.md"
+    code, printed, err = run_batch("experiment", "ablation", "--quick", "--scenes", "arm",
+                                   "--seeds", "1", "--results", results, timeout=600)
+    assert code == 0, err
+    record = json.loads((tmp_path / "docs" / "results" / "ablation.json").read_text())
+    assert record["scenes"] == ["arm"] and record["settings"]["seeds"] == [0]
+    configs = {}
+    for label in ("deformed", "proposed", "no positional encoding", "no log distance",
+                  "no uncertainty weighting", "proposed, sin(pi 2^k x)"):
+        (seed,) = record["runs"][f"arm/{label}"]["seeds"]
+        assert seed["unseen_poses"] and seed["validation_history"][-1]["step"] == 20
+        assert seed["dataset"] == record["runs"]["arm/proposed"]["seeds"][0]["dataset"]
+        config = seed["config"]
+        configs[label] = (config["network"]["pe_bands"], config["network"]["pe_form"],
+                          config["network"]["distance_mode"], config["train"]["weighting"])
+    assert configs == {
+        "deformed": (0, "paper", "fraction", "fixed"),
+        "proposed": (3, "paper", "log1p", "uncertainty"),
+        "no positional encoding": (0, "paper", "log1p", "uncertainty"),
+        "no log distance": (3, "paper", "fraction", "uncertainty"),
+        "no uncertainty weighting": (3, "paper", "log1p", "fixed"),
+        "proposed, sin(pi 2^k x)": (3, "pi", "log1p", "uncertainty")}
+    text = results.read_text()
+    assert "Command: `python vdnif_addon/batch.py -- experiment ablation --quick --scenes arm " \
+           "--seeds 1`" in text
+    assert "| arm: no log distance | true |" in text and "- arm: no positional encoding:" in text
