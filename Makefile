@@ -16,7 +16,7 @@ $(STAMP): requirements.txt
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) vdnif_addon/batch.py -- demo --scene arm --out out/demo
+	$(PY) vdnif_addon/batch.py -- demo --out out/demo
 
 test: $(STAMP)
 	$(PY) -m pytest

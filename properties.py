@@ -10,6 +10,7 @@ from bpy.props import (EnumProperty, FloatProperty, IntProperty, PointerProperty
 
 from . import preferences
 from .vdnif_addon.blender import ui_support
+from .vdnif_addon.settings import RECIPE
 
 # Numbered: a .blend stores an enum by number, and "auto" came after the other three.
 VARIANTS = [("auto", "Automatic", "LSNIF where no armature or lattice deforms the object "
@@ -34,18 +35,19 @@ def _variant_changed(settings, _context):
 
 
 class VDNIFSettings(bpy.types.PropertyGroup):
-    resolution: IntProperty(name="Voxel Resolution", default=32, min=4, max=256,
+    resolution: IntProperty(name="Voxel Resolution", default=RECIPE.resolution, min=4, max=256,
                             description="Voxels along the object's longest side")
     pose_source: EnumProperty(name="Poses", default="random", items=[
         ("random", "Random", "Random bone rotations and lattice offsets"),
         ("frames", "Frame Range", "Frames spread over the scene's frame range")])
-    pose_count: IntProperty(name="Pose Count", default=32, min=1, max=100000, soft_max=1024)
+    pose_count: IntProperty(name="Pose Count", default=RECIPE.poses, min=1, max=100000,
+                             soft_max=1024)
     seed: IntProperty(name="Seed", default=0, min=0)
     max_angle: FloatProperty(name="Maximum Angle", default=45.0, min=0.1, max=180.0,
                              description="Largest random bone rotation per axis in degrees, "
                                          "for bones without rotation limits")
-    rays_per_pose: IntProperty(name="Rays per Pose", default=4096, min=1, max=2**24,
-                               soft_max=65536)
+    rays_per_pose: IntProperty(name="Rays per Pose", default=RECIPE.rays_per_pose, min=1,
+                               max=2**24, soft_max=65536)
     variant: EnumProperty(name="Variant", items=VARIANTS, default="auto",
                           update=_variant_changed)
     levels: IntProperty(name="Levels", default=2, min=1, max=64, soft_max=16)
@@ -56,8 +58,8 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                           description="Positional-encoding bands (0: plain hash grid)")
     width: IntProperty(name="Width", default=64, min=1, max=4096)
     depth: IntProperty(name="Depth", default=3, min=1, max=64)
-    steps: IntProperty(name="Steps", default=2000, min=1, max=10**7)
-    batch_size: IntProperty(name="Batch Size", default=2**14, min=1, max=2**24)
+    steps: IntProperty(name="Steps", default=RECIPE.steps, min=1, max=10**7)
+    batch_size: IntProperty(name="Batch Size", default=RECIPE.batch_size, min=1, max=2**24)
     device: EnumProperty(name="Device", default="PREFERENCES", items=[
         ("PREFERENCES", "Preferences", "The device chosen in the add-on's preferences"),
         *preferences.DEVICES])
@@ -81,6 +83,7 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     model_info: StringProperty(options={"HIDDEN"})       # JSON: storage.model_summary
     metrics: StringProperty(options={"HIDDEN"})          # JSON: the last evaluation report
     voxel_info: StringProperty(options={"HIDDEN"})
+    resolution_info: StringProperty(options={"HIDDEN"})
     dataset_info: StringProperty(options={"HIDDEN"})     # JSON: what the dataset holds
     last_error: StringProperty(options={"HIDDEN"})
     preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview")

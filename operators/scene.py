@@ -28,6 +28,28 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
         return f"'{obj.name}': {settings.voxel_info}"
 
 
+class VDNIF_OT_suggest_resolution(VDNIFOperator, bpy.types.Operator):
+    """Set the coarsest voxel resolution whose embedding error is small beside the network's"""
+
+    bl_idname = "vdnif.suggest_resolution"
+    bl_label = "Suggest Resolution"
+    bl_options = {"REGISTER", "UNDO"}
+    needs = ("mesh", "idle")
+
+    def work(self, context, obj):
+        from ..vdnif_addon.blender.resolution import network_error, suggest_resolution
+        from ..vdnif_addon.settings import EMBEDDING_ERROR_SHARE
+
+        settings = obj.vdnif
+        target = EMBEDDING_ERROR_SHARE * network_error()
+        settings.resolution, table = suggest_resolution(obj, settings.pose_spec(), target)
+        tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}"
+                          for row in table)
+        settings.resolution_info = (f"suggested {settings.resolution}: embedding error "
+                                    f"{tried} (target {target:.2g} object units)")
+        return f"'{obj.name}': {settings.resolution_info}"
+
+
 class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
     """Walk training rays through the deformed voxels of every pose and write the dataset"""
 
@@ -58,4 +80,4 @@ class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
                 f"-> {settings.dataset_dir}")
 
 
-classes = (VDNIF_OT_voxelize, VDNIF_OT_generate_dataset)
+classes = (VDNIF_OT_voxelize, VDNIF_OT_suggest_resolution, VDNIF_OT_generate_dataset)

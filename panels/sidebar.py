@@ -12,7 +12,11 @@ from ..operators.dependencies import VDNIF_OT_install_dependencies
 from ..operators.model import VDNIF_OT_load_model, VDNIF_OT_save_model
 from ..operators.passes import VDNIF_OT_evaluate, VDNIF_OT_render_passes, metrics_line
 from ..operators.presets import VDNIF_OT_apply_preset
-from ..operators.scene import VDNIF_OT_generate_dataset, VDNIF_OT_voxelize
+from ..operators.scene import (
+    VDNIF_OT_generate_dataset,
+    VDNIF_OT_suggest_resolution,
+    VDNIF_OT_voxelize,
+)
 from ..operators.training import VDNIF_OT_cancel_training, VDNIF_OT_train
 from ..vdnif_addon.blender import ui_support
 from ..vdnif_addon.presets import PRESET_NAMES
@@ -98,7 +102,11 @@ class VDNIF_PT_voxels(StepPanel, bpy.types.Panel):
     bl_label = "Voxels and Poses"
 
     def draw_step(self, layout, context, settings):
-        layout.prop(settings, "resolution")
+        row = layout.row(align=True)
+        row.prop(settings, "resolution")
+        row.operator(VDNIF_OT_suggest_resolution.bl_idname, text="", icon="VIEWZOOM")
+        if settings.resolution_info:
+            lines(layout, settings.resolution_info)
         layout.prop(settings, "pose_source")
         names = ["pose_count"] + (["seed", "max_angle"] if settings.pose_source == "random"
                                   else [])

@@ -126,8 +126,8 @@ def test_help_documents_every_command():
 def quick_demo(tmp_path_factory):
     """``demo --quick`` run once: its folder and its JSON."""
     out = tmp_path_factory.mktemp("demo")
-    code, printed, err = run_batch("demo", "--quick", "--out", out, "--json", out / "d.json",
-                                   timeout=300)
+    code, printed, err = run_batch("demo", "--quick", "--scene", "arm", "--out", out,
+                                   "--json", out / "d.json", timeout=300)
     assert code == 0, err
     assert "vs true: distance MAE" in printed and "ETA" in err
     return out, json.loads((out / "d.json").read_text())

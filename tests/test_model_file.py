@@ -182,3 +182,19 @@ def test_saving_writes_the_current_format_with_a_row_major_table(saved, network)
     assert version == model_file.FORMAT_VERSION == 2
     assert torch.equal(stored["encoder.grid.table"], network.encoder.grid.table)
     assert stored["encoder.grid.table"].shape == (network.encoder.grid.table.shape[0], 3)
+
+
+def test_the_stored_occlusion_threshold_decides_the_predicted_hits(tmp_path, network):
+    """A calibrated threshold in ``extra`` comes back on the network and ``predict`` applies
+    it (the renderer's call); a file without one, such as the format-1 golden, gets 0.5."""
+    path = tmp_path / "calibrated.vdnif"
+    save_model(path, network, CONFIG, {}, dict(EXTRA, occlusion_threshold=0.62))
+    loaded, _ = load_model(path)
+    assert loaded.occlusion_threshold == pytest.approx(0.62)
+    p0, p1 = torch.rand(2, 400, 3)
+    rest_len = (p1 - p0).norm(dim=1)
+    probability = torch.sigmoid(loaded(p0, p1)["occlusion"])
+    predicted = loaded.predict(p0, p1, rest_len, 0.125)["hit"]
+    assert torch.equal(predicted, probability > 0.62)
+    golden, _ = load_model(GOLDEN / "arm-train.vdnif")
+    assert golden.occlusion_threshold == 0.5

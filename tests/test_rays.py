@@ -187,3 +187,54 @@ def test_training_rays_need_surface_points_for_surface_rays():
     with pytest.raises(VDNIFError, match="surface points"):
         rays.training_rays(np.zeros(3), np.ones(3), np.zeros((0, 3)), 10, 0.5,
                            np.random.default_rng(0))
+
+
+def test_grazing_training_rays_skim_the_surface_at_sampled_points():
+    """Grazing rays pass through a surface point, within the tilt of its tangent plane, from
+    outside the origin sphere; the other kinds keep their shares."""
+    lo, hi = np.array([-1.0, 0.0, 2.0]), np.array([3.0, 1.0, 2.5])
+    centre, radius = (lo + hi) / 2, 1.5 * np.linalg.norm(hi - lo) / 2
+    rng = np.random.default_rng(11)
+    surface = lo + rng.random((30, 3)) * (hi - lo)
+    normals = rng.normal(size=(30, 3)) * rng.uniform(0.1, 5.0, (30, 1))  # any length
+    origins, directions = rays.training_rays(lo, hi, surface, 1000, 0.2, rng, normals, 0.5,
+                                             grazing_tilt_deg=10.0)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=1), 1.0)
+    sphere = np.isclose(np.linalg.norm(origins - centre, axis=1), radius)
+    grazing = ~sphere
+    assert grazing.sum() == 500
+    assert np.all(np.linalg.norm(origins[grazing] - centre, axis=1) > radius)
+    gaps = distance_to_lines(surface, origins[grazing], directions[grazing])
+    point = gaps.argmin(axis=1)
+    assert np.all(gaps.min(axis=1) < 1e-9)
+    # Ahead of the origin, and at 80..90 deg to the normal of the point it passes through.
+    assert np.all(np.einsum("ni,ni->n", surface[point] - origins[grazing],
+                            directions[grazing]) > 0)
+    cosine = np.abs(np.einsum("ni,ni->n", unit(normals[point]), directions[grazing]))
+    assert cosine.max() <= np.sin(np.radians(10.0)) + 1e-9
+    assert cosine.max() > np.sin(np.radians(8.0))  # the whole tilt range is used
+    on_surface = distance_to_lines(surface, origins[sphere], directions[sphere]).min(axis=1)
+    assert (on_surface < 1e-9).sum() == 200
+
+
+def test_training_rays_without_grazing_rays_are_unchanged():
+    """A zero grazing share draws exactly the rays of the two-kind mix (same random stream)."""
+    lo, hi = np.zeros(3), np.ones(3)
+    surface = np.random.default_rng(1).random((20, 3))
+    plain = rays.training_rays(lo, hi, surface, 300, 0.6, np.random.default_rng(2))
+    mixed = rays.training_rays(lo, hi, surface, 300, 0.6, np.random.default_rng(2),
+                               np.ones((20, 3)), 0.0)
+    np.testing.assert_array_equal(plain[0], mixed[0])
+    np.testing.assert_array_equal(plain[1], mixed[1])
+
+
+@pytest.mark.parametrize("surface, grazing, normals, message", [
+    (0.6, 0.5, np.ones((1, 3)), "at most 1"),
+    (0.2, -0.1, np.ones((1, 3)), "grazing_fraction"),
+    (0.2, 0.5, None, "surface normal"),
+    (0.2, 0.5, np.ones((2, 3)), "surface normal"),
+])
+def test_training_rays_reject_a_bad_grazing_mix(surface, grazing, normals, message):
+    with pytest.raises(VDNIFError, match=message):
+        rays.training_rays(np.zeros(3), np.ones(3), np.zeros((1, 3)), 10, surface,
+                           np.random.default_rng(0), normals, grazing)

@@ -14,6 +14,7 @@ from vdnif_addon import train as training
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.fit import fit_model
 from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
+from vdnif_addon.model_file import load_model
 from vdnif_addon.network import NetworkConfig
 from vdnif_addon.train import TrainConfig, evaluate, load_segments, train
 from vdnif_addon.variants import variant_config
@@ -265,6 +266,10 @@ def test_training_follows_the_torch_encoders_loss_curve(tmp_path):
         assert record["losses"].keys() == expected["losses"].keys()
         for task, value in expected["losses"].items():
             assert record["losses"][task] == pytest.approx(value, rel=1e-3), (record["step"], task)
+    network, metadata = load_model(tmp_path / "model.vdnif")
+    threshold = metadata["extra"]["occlusion_threshold"]
+    assert threshold == metadata["train_info"]["occlusion_threshold"]
+    assert network.occlusion_threshold == threshold
 
 
 def test_same_seed_gives_identical_weights():
@@ -390,3 +395,45 @@ def test_two_cpu_processes_train_to_identical_weights(tmp_path):
     assert (first["calls"], second["calls"]) == (2, 0)  # only the main process reports
     assert all(torch.equal(first["state"][key], second["state"][key]) for key in first["state"])
     assert first["validation"] == second["validation"] and first["validation"]["segments"] > 0
+
+
+class _Logit(torch.nn.Module):
+    """Stands in for the network: occlusion logit 8 (x - 0.5) of p0's x."""
+
+    def forward(self, p0, p1):
+        return {"occlusion": 8.0 * (p0[:, 0] - 0.5)}
+
+
+def test_threshold_calibration_minimizes_held_out_errors_by_brute_force():
+    """Hits where x > 0.7 (10 % of labels flipped): the best threshold is near
+    sigmoid(8 * 0.2) = 0.83; the calibration finds the brute-force minimum among its
+    candidates, and 0.5 without held-out data."""
+    generator = torch.Generator().manual_seed(3)
+    x = torch.rand(20000, 3, generator=generator)
+    hit = (x[:, 0] > 0.7) ^ (torch.rand(20000, generator=generator) < 0.1)
+    data = {"p0": x, "p1": x, "hit": hit}
+    probability = torch.sigmoid(8.0 * (x[:, 0] - 0.5))
+    candidates = torch.arange(5, 46) / 50
+    errors = [int(((probability > t) != hit).sum()) for t in candidates.tolist()]
+    best = min(range(len(errors)), key=lambda i: (errors[i], abs(candidates[i] - 0.5)))
+    threshold = training.calibrate_threshold(_Logit(), data)
+    assert threshold == pytest.approx(candidates[best].item())
+    assert 0.78 <= threshold <= 0.88
+    empty = {key: value[:0] for key, value in data.items()}
+    assert training.calibrate_threshold(_Logit(), empty) == 0.5
+
+
+def test_training_calibrates_the_threshold_on_the_held_out_poses():
+    """train's threshold is calibrate_threshold on the held-out poses' segments (the model
+    file stores it: test_training_follows_the_torch_encoders_loss_curve)."""
+    shards = sphere_shards(n=512, poses=8)
+    result = train(shards, header(), TrainConfig(steps=30, batch_size=128, val_fraction=0.25,
+                                                 device="cpu"), NetworkConfig(**SMALL))
+    held_out = {key: value for key, value in load_segments(
+        shards, result.network_config.heads).items()}
+    chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
+    expected = training.calibrate_threshold(
+        result.network, {key: value[chosen] for key, value in held_out.items()})
+    assert result.occlusion_threshold == expected
+    assert result.network.occlusion_threshold == expected
+    assert result.info()["occlusion_threshold"] == expected

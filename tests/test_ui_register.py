@@ -37,7 +37,7 @@ def test_register_and_unregister_twice_leave_nothing_behind(extension):
     assert enabled["classes"] and enabled["object_settings"] and enabled["viewer"]
     assert {"voxelize", "generate_dataset", "train", "cancel_training", "render_passes",
             "evaluate", "save_model", "load_model", "install_dependencies",
-            "apply_preset"} == set(
+            "apply_preset", "suggest_resolution"} == set(
                 enabled["operators"])
     assert enabled["dependency_path"] and not enabled["install_timer"]
     handlers = dict(enabled["handlers"], load_post=enabled["handlers"]["load_post"] - 1)

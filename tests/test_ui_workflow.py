@@ -97,6 +97,25 @@ def session(extension, tmp_path_factory):
     return record
 
 
+def test_suggest_resolution_sets_the_suggested_one_and_says_why(empty_scene, monkeypatch):
+    """The operator sets what suggest_resolution returns for the object's pose settings (here
+    over two small candidates: the full search is test_resolution's) and shows the errors."""
+    obj = arm_scene()
+    resolution = module("vdnif_addon.blender.resolution")
+    suggest, calls = resolution.suggest_resolution, []
+
+    def small(target_obj, spec, target):
+        calls.append((target_obj, spec.count, target))
+        return suggest(target_obj, spec, target, (8, 16), poses=1, size=24)
+
+    monkeypatch.setattr(resolution, "suggest_resolution", small)
+    bpy.ops.vdnif.suggest_resolution()
+    settings = module("vdnif_addon.settings")
+    assert calls == [(obj, 4, settings.EMBEDDING_ERROR_SHARE * resolution.network_error())]
+    assert obj.vdnif.resolution == 16               # the arm's embedding at 8 misses the target
+    assert obj.vdnif.resolution_info.startswith("suggested 16: embedding error 8: ")
+
+
 def test_voxelize_shows_the_occupied_cells_deformed_at_the_current_frame(empty_scene):
     obj = arm_scene()
     scene = bpy.context.scene

@@ -10,6 +10,9 @@ import pathlib
 import sys
 
 from .errors import VDNIFError
+from .settings import DEMO_SCENE, EMBEDDING_ERROR_SHARE, RECIPE
+
+AUTO_RESOLUTION = "auto"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -57,7 +60,36 @@ def load_posed_scene(args):
     from .blender.extremes import apply_stress
 
     obj = load_scene(args)
-    return obj, apply_stress(args, obj, pose_spec(args))
+    spec = apply_stress(args, obj, pose_spec(args))
+    if getattr(args, "resolution", None) == AUTO_RESOLUTION:
+        args.resolution = suggested_resolution(obj, spec)
+    return obj, spec
+
+
+def suggested_resolution(obj, spec):
+    """``--resolution auto``: the suggested resolution of the scene (``blender/resolution``),
+    with the embedding errors that decided it on stderr."""
+    from .blender.resolution import network_error, suggest_resolution
+    from .settings import SUGGEST_PRESET
+
+    target = EMBEDDING_ERROR_SHARE * network_error()
+    resolution, table = suggest_resolution(obj, spec, target)
+    tried = ", ".join(f"R {row['resolution']}: {row['embedding_error']:.4g}" for row in table)
+    print(f"resolution auto for '{obj.name}': {resolution} (embedding error {tried}; target "
+          f"{target:.4g} object units = {EMBEDDING_ERROR_SHARE:g} x preset "
+          f"{SUGGEST_PRESET}'s network error)", file=sys.stderr)
+    return resolution
+
+
+def resolution_option(text):
+    """``--resolution``: an integer, or ``auto`` (the suggested resolution)."""
+    if text == AUTO_RESOLUTION:
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer or '{AUTO_RESOLUTION}', got {text!r}") from None
 
 
 def add_pose_options(parser, default_poses=8):
@@ -93,6 +125,8 @@ def write_json(path, data):
 def check_resolution(value):
     from .voxels import MAX_RESOLUTION, MIN_RESOLUTION
 
+    if value == AUTO_RESOLUTION:        # resolved once the scene is loaded
+        return
     if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
         raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")
 
@@ -141,7 +175,8 @@ def cmd_dataset(args):
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
     header = generate_dataset(obj, result, args.out, args.rays_per_pose,
                               args.surface_fraction, args.seed, pose_range,
-                              progress=lambda done, _: progress.update(done))
+                              progress=lambda done, _: progress.update(done),
+                              grazing_fraction=args.grazing_fraction)
     counts, timings = header["counts"], header["timings"]
     walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
     print(f"dataset '{header['object']}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
@@ -476,8 +511,11 @@ def cmd_bench_network(args):
 
 
 def add_capture_options(parser, default_poses):
-    parser.add_argument("--resolution", type=int, default=32, metavar="R",
-                        help="voxels along the longest side, 4..256 (default 32)")
+    parser.add_argument("--resolution", type=resolution_option, default=RECIPE.resolution,
+                        metavar="R", help=f"voxels along the longest side, 4..256, or "
+                        f"'{AUTO_RESOLUTION}': the coarsest whose voxel embedding error is "
+                        f"at most {EMBEDDING_ERROR_SHARE:g} x the network's (default "
+                        f"{RECIPE.resolution})")
     add_pose_options(parser, default_poses)
 
 
@@ -501,9 +539,10 @@ def add_device_option(parser, default="auto"):
 
 
 def add_training_options(parser):
-    parser.add_argument("--steps", type=int, default=2000, metavar="N")
-    parser.add_argument("--batch", type=int, default=2 ** 14, metavar="B",
-                        help="segments per step and process (default 16384)")
+    parser.add_argument("--steps", type=int, default=RECIPE.steps, metavar="N",
+                        help=f"optimizer steps (default {RECIPE.steps})")
+    parser.add_argument("--batch", type=int, default=RECIPE.batch_size, metavar="B",
+                        help=f"segments per step and process (default {RECIPE.batch_size})")
     add_device_option(parser)
 
 
@@ -541,14 +580,18 @@ def build_parser():
     capture.add_argument("--json", type=pathlib.Path, metavar="PATH",
                          help="write the summary as JSON")
 
-    data = _scene_command(commands, "dataset", cmd_dataset, 32, (
+    data = _scene_command(commands, "dataset", cmd_dataset, RECIPE.poses, (
         "Several processes may each write the shard of their --pose-range into one folder; "
         "training reads them all."))
-    data.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
-                      help="training rays per pose (default 4096)")
-    data.add_argument("--surface-fraction", type=float, default=0.6, metavar="F",
-                      help="share of rays aimed at the surface, the rest at random points "
-                           "in the bounds (default 0.6)")
+    data.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose, metavar="K",
+                      help=f"training rays per pose (default {RECIPE.rays_per_pose})")
+    data.add_argument("--surface-fraction", type=float, default=RECIPE.surface_fraction,
+                      metavar="F", help="share of rays aimed from outside at a surface point "
+                      f"(default {RECIPE.surface_fraction})")
+    data.add_argument("--grazing-fraction", type=float, default=RECIPE.grazing_fraction,
+                      metavar="F", help="share of rays tangent to the surface at a surface "
+                      "point (silhouette rays); the rest aim at random points in the bounds "
+                      f"(default {RECIPE.grazing_fraction})")
     data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
     data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
@@ -568,10 +611,11 @@ def build_parser():
         "dataset folder written by 'dataset'; with scene options the dataset is generated "
         "into it first (default then: a temporary folder)"))
     add_scene_options(training)
-    add_capture_options(training, 32)
+    add_capture_options(training, RECIPE.poses)
     add_stress_options(training)
-    training.add_argument("--rays-per-pose", type=int, default=4096, metavar="K",
-                          help="with scene options: training rays per pose (default 4096)")
+    training.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose,
+                          metavar="K", help="with scene options: training rays per pose "
+                          f"(default {RECIPE.rays_per_pose})")
     training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"), help=(
         "default: lsnif for a scene that no armature or lattice deforms (static), else "
         "proposed"))
@@ -607,7 +651,8 @@ def build_parser():
     evaluate.add_argument("--json", type=pathlib.Path, metavar="PATH")
 
     demo = commands.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
-    demo.add_argument("--scene", choices=DEMO_SCENES, default="arm")
+    demo.add_argument("--scene", choices=DEMO_SCENES, default=DEMO_SCENE,
+                      help=f"an embedded demo scene (default {DEMO_SCENE})")
     demo.add_argument("--quick", action="store_true", help="a small size, for tests")
     add_stress_options(demo)
     demo.add_argument("--steps", type=int, metavar="N", help="training steps (default: "

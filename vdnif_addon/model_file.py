@@ -22,6 +22,7 @@ import torch
 
 from .errors import VDNIFError
 from .network import IntersectionNetwork, NetworkConfig
+from .settings import OCCLUSION_THRESHOLD
 
 FORMAT_NAME = "vdnif-model"
 FORMAT_VERSION = 2
@@ -187,6 +188,9 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, 
     except Exception as exc:
         raise VDNIFError(f"model file {path} is damaged: {_reason(exc)}") from exc
     network.eval()
+    extra = inner.get("extra", {})
+    # Files written before threshold calibration hold none: they were made for 0.5.
+    network.occlusion_threshold = float(extra.get("occlusion_threshold", OCCLUSION_THRESHOLD))
     metadata = {
         "format": FORMAT_NAME,
         "version": version,

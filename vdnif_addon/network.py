@@ -26,6 +26,7 @@ from .encoding import (
     check_int,
 )
 from .errors import VDNIFError
+from .settings import OCCLUSION_THRESHOLD
 
 DISTANCE_MODES = ("fraction", "log1p")
 """``fraction``: LSNIF's sigmoid t/l. ``log1p``: the scale-invariant ReLU log1p(d/h)."""
@@ -155,6 +156,9 @@ class IntersectionNetwork(nn.Module):
                 output.bias[start] = math.log1p(0.5)
         layers.append(output)
         self.mlp = nn.Sequential(*layers)
+        # Not a parameter: training calibrates it on held-out poses (``train.calibrate_
+        # threshold``) and the model file stores it; ``predict`` applies it.
+        self.occlusion_threshold = OCCLUSION_THRESHOLD
 
     def forward(self, p0: torch.Tensor, p1: torch.Tensor) -> dict[str, torch.Tensor]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
@@ -191,7 +195,8 @@ class IntersectionNetwork(nn.Module):
         batch: int = 2**14,
     ) -> dict[str, torch.Tensor]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
-        ``forward``, without autograd, ``batch`` segments at a time to bound memory.
+        ``forward`` at the model's ``occlusion_threshold``, without autograd, ``batch``
+        segments at a time to bound memory.
 
         On the CPU the encoder of batch k+1 runs in a worker thread (one core: a Warp CPU
         launch is serial and releases the GIL) while this thread runs the MLP of batch k
@@ -210,7 +215,8 @@ class IntersectionNetwork(nn.Module):
         if p0.device.type != "cpu" or len(chunks) == 1:
             # CUDA launches are asynchronous already: the stream overlaps them with the host.
             for index, (_, _, length) in enumerate(chunks):
-                parts.append(readout(self.heads(encode(index)), mode, voxel_size, length))
+                parts.append(readout(self.heads(encode(index)), mode, voxel_size, length,
+                                     self.occlusion_threshold))
         else:
             with ThreadPoolExecutor(1, thread_name_prefix="vdnif-encoder") as worker:
                 pending = worker.submit(encode, 0)
@@ -218,7 +224,8 @@ class IntersectionNetwork(nn.Module):
                     features = pending.result()
                     if index + 1 < len(chunks):
                         pending = worker.submit(encode, index + 1)
-                    parts.append(readout(self.heads(features), mode, voxel_size, length))
+                    parts.append(readout(self.heads(features), mode, voxel_size, length,
+                                         self.occlusion_threshold))
         return {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
 
 
@@ -227,11 +234,13 @@ def readout(
     distance_mode: str,
     voxel_size: float,
     rest_len: torch.Tensor,
+    threshold: float = OCCLUSION_THRESHOLD,
 ) -> dict[str, torch.Tensor]:
     """Head outputs -> predictions.
 
     rest_len: (N,) rest-space segment length |p1 - p0|; voxel_size: h in rest units.
-    Returns ``hit_probability`` (N,), ``hit`` (N,) bool, ``distance`` (N,) rest-space local
+    Returns ``hit_probability`` (N,), ``hit`` (N,) bool (probability above ``threshold``,
+    the model's calibrated occlusion threshold), ``distance`` (N,) rest-space local
     distance d from p0, ``fraction`` (N,) d / rest_len in [0,1] (the renderer's t = fraction * l),
     ``normal`` (N, 3) unit (zero where the head output is zero), ``material`` (N,) int64
     (0 without a material head) and, with an albedo head, ``albedo`` (N, 3).
@@ -247,7 +256,7 @@ def readout(
         fraction = (distance / rest_len.clamp_min(torch.finfo(distance.dtype).tiny)).clamp(0.0, 1.0)
     predictions = {
         "hit_probability": probability,
-        "hit": probability > 0.5,
+        "hit": probability > threshold,
         "distance": distance,
         "fraction": fraction,
         "normal": F.normalize(outputs["normal"], dim=1),

@@ -43,7 +43,8 @@ def neural_passes(network, grid, albedo_table, cells, origins, directions, devic
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
-    The first segment with occlusion probability > 0.5 resolves its ray: distance
+    The first segment with occlusion probability above the model's threshold
+    (``network.occlusion_threshold``, calibrated in training) resolves its ray: distance
     ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo head or, without
     one, from ``albedo_table`` (M, 3) by material. ``device`` is the network's torch
     device; the cells' Warp device must be the same. With ``overlap`` the rays are split

@@ -31,6 +31,7 @@ from .encoding import check_int
 from .errors import VDNIFError
 from .losses import WEIGHTINGS, make_weighting, task_losses
 from .network import Heads, IntersectionNetwork, NetworkConfig, readout
+from .settings import OCCLUSION_THRESHOLD, RECIPE
 
 DEVICES = ("auto", "cpu", "cuda")
 
@@ -39,8 +40,8 @@ DEVICES = ("auto", "cpu", "cuda")
 class TrainConfig:
     """Optimization settings; the two learning rates follow instant-ngp (grid) and LSNIF (MLP)."""
 
-    steps: int = 5000
-    batch_size: int = 2**14
+    steps: int = RECIPE.steps
+    batch_size: int = RECIPE.batch_size
     lr_grid: float = 1e-2
     lr_mlp: float = 1e-3
     final_lr_fraction: float = 0.1
@@ -93,6 +94,7 @@ class TrainResult:
     seconds: float
     samples_per_s: float
     val_poses: list[int]
+    occlusion_threshold: float = OCCLUSION_THRESHOLD  # calibrated on the held-out poses
     rank: int = 0
     world_size: int = 1
 
@@ -111,6 +113,7 @@ class TrainResult:
             "seconds": self.seconds,
             "samples_per_s": self.samples_per_s,
             "val_poses": self.val_poses,
+            "occlusion_threshold": self.occlusion_threshold,
             "world_size": self.world_size,
             "config": self.config.to_dict(),
         }
@@ -222,7 +225,8 @@ def _evaluation_sums(
         part = {key: value[start : start + batch] for key, value in data.items()}
         outputs = network(part["p0"], part["p1"])
         losses = task_losses(outputs, part, mode, voxel_size)
-        predicted = readout(outputs, mode, voxel_size, part["rest_len"])
+        predicted = readout(outputs, mode, voxel_size, part["rest_len"],
+                            network.occlusion_threshold)
         hit = part["hit"]
         n, hits = hit.numel(), hit.sum()
         cos = (predicted["normal"] * part["normal"]).sum(1).clamp(-1.0, 1.0)
@@ -591,6 +595,8 @@ def _train(
             window_steps, window_seconds = 0, 0.0
 
     network.eval()
+    threshold = calibrate_threshold(network, val_data, group)
+    network.occlusion_threshold = threshold
     return TrainResult(
         network=network,
         network_config=network_config,
@@ -603,9 +609,51 @@ def _train(
         seconds=train_seconds,
         samples_per_s=steps_done * samples_per_step / max(train_seconds, 1e-9),
         val_poses=val_poses,
+        occlusion_threshold=threshold,
         rank=group.rank,
         world_size=group.world,
     )
+
+
+# Candidate thresholds: 0.02 apart, so that a probability histogram of THRESHOLD_BINS bins
+# summed over processes counts the errors of each exactly.
+THRESHOLD_BINS = 50
+THRESHOLD_RANGE = (0.1, 0.9)
+
+
+@torch.inference_mode()
+def calibrate_threshold(
+    network: IntersectionNetwork,
+    data: Mapping[str, torch.Tensor],
+    group: _Distributed | None = None,
+    batch: int = 2**16,
+) -> float:
+    """The occlusion threshold that misclassifies the fewest segments of ``data`` (the
+    held-out poses), among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to
+    the one nearest OCCLUSION_THRESHOLD, and without held-out segments it is
+    OCCLUSION_THRESHOLD. A hole is a hit segment below the threshold, an extra a miss
+    segment above it (DESIGN section 9)."""
+    group = group or _Distributed()
+    device = data["p0"].device
+    counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
+    for start in range(0, data["p0"].shape[0], batch):
+        outputs = network(data["p0"][start : start + batch], data["p1"][start : start + batch])
+        probability = torch.sigmoid(outputs["occlusion"].float())
+        bins = (probability * THRESHOLD_BINS).long().clamp(0, THRESHOLD_BINS - 1)
+        hit = data["hit"][start : start + batch].long()
+        counts.index_put_((hit, bins), torch.ones_like(probability, dtype=torch.float64),
+                          accumulate=True)
+    counts = group.sum(counts)
+    if counts.sum() == 0:
+        return OCCLUSION_THRESHOLD
+    # Threshold k / BINS: hits in bins below k are holes, misses in bins k and up extras.
+    holes = torch.cat([counts.new_zeros(1), counts[1].cumsum(0)])
+    extras = counts[0].sum() - torch.cat([counts.new_zeros(1), counts[0].cumsum(0)])
+    errors = (holes + extras).tolist()
+    low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
+    best = min(range(low, high + 1),
+               key=lambda k: (errors[k], abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)))
+    return best / THRESHOLD_BINS
 
 
 def _validate(

@@ -9,15 +9,17 @@ import sys
 import tempfile
 
 from ..report import demo_markdown
+from ..settings import RECIPE
 from ..variants import choose_variant
 from .capture import capture
 from .jobs import evaluate_file, evaluation_poses, train_variant, write_figures, write_passes
 from .poses import PoseSpec
 from .scenes import demo_scene
 
-SIZES = {   # full: the main job (minutes on 2 cores); quick: seconds, for tests
-    "full": dict(resolution=32, poses=32, rays_per_pose=4096, steps=1500, eval_poses=8,
-                 width=128, height=128, overrides={}),
+SIZES = {   # full: the main job with the default recipe (minutes on 2 cores); quick: tests
+    "full": dict(resolution=RECIPE.resolution, poses=RECIPE.poses,
+                 rays_per_pose=RECIPE.rays_per_pose, steps=RECIPE.steps, eval_poses=8,
+                 width=256, height=256, overrides={}),
     "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=300, eval_poses=2,
                   width=32, height=24, overrides=dict(log2_table_size=12, batch_size=2048)),
 }

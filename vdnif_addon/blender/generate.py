@@ -13,14 +13,20 @@ from ..groundtruth import segment_targets
 from ..metrics import Passes, compare
 from ..rays import orbit_rays, orbit_viewpoints, training_rays
 from ..references import embedded_reference, true_reference
+from ..settings import RECIPE
 from ..traverse import traverse
 from .posed import PosedObject
 
 
-def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6, seed=0,
-                     pose_range=None, progress=None):
+def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
+                     pose_range=None, progress=None, grazing_fraction=None):
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
-    ``pose_range`` = (start, stop)) and writes one shard; returns its header."""
+    ``pose_range`` = (start, stop)) and writes one shard; returns its header. The ray mix
+    (``rays.training_rays``) defaults to the recipe's (``settings.RECIPE``)."""
+    if surface_fraction is None:
+        surface_fraction = RECIPE.surface_fraction
+    if grazing_fraction is None:
+        grazing_fraction = RECIPE.grazing_fraction
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
@@ -36,11 +42,14 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
             _pose_timings(timings, geometry, time.perf_counter() - clock)
             clock = time.perf_counter()
             rng = np.random.default_rng([seed, index])
-            surface, _, _ = sample_surface(geometry.vertices, capture.mesh.triangles,
-                                           rays_per_pose, rng)
+            surface, triangle, _ = sample_surface(geometry.vertices, capture.mesh.triangles,
+                                                  rays_per_pose, rng)
+            corners = geometry.vertices[capture.mesh.triangles[triangle]]
+            normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
             origins, directions = training_rays(geometry.vertices.min(0),
                                                 geometry.vertices.max(0), surface,
-                                                rays_per_pose, surface_fraction, rng)
+                                                rays_per_pose, surface_fraction, rng,
+                                                normals, grazing_fraction)
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             segments = traverse(geometry.cells, origins, directions)
@@ -67,6 +76,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=0.6,
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
         "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
+        "grazing_fraction": grazing_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
         "versions": _versions(),
     }

@@ -41,7 +41,7 @@ class Passes:
 class Prediction:
     """What the network says of each segment of a wave (torch tensors, shared)."""
 
-    hit: wp.array(dtype=wp.int32)         # (S,) 1 where occlusion probability > 0.5
+    hit: wp.array(dtype=wp.int32)         # (S,) 1 above the model's occlusion threshold
     fraction: wp.array(dtype=wp.float64)  # (S,) hit position along the segment, 0..1
     normal: wp.array(dtype=wp.vec3d)      # (S,) rest-space normal
     material: wp.array(dtype=wp.int64)    # (S,)

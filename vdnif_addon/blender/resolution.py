@@ -1,0 +1,51 @@
+"""The suggested voxel resolution of a mesh: the coarsest R whose voxel embedding costs
+little next to the network's own error (``--resolution auto``, the panel's suggestion).
+
+The embedding error is measured, not guessed: per candidate R, the true and the embedded
+reference (``generate.reference_run``) of a few poses, compared as distance MAE in object
+units. "The network's error" is known without training from the presets: each preset stores
+the error its settings measured on a bench scene (``presets.json``, written by ``bench``).
+"""
+
+import dataclasses
+
+from ..presets import load_presets
+from ..settings import (
+    EMBEDDING_ERROR_SHARE,
+    RESOLUTION_CANDIDATES,
+    SUGGEST_POSES,
+    SUGGEST_PRESET,
+    SUGGEST_VIEW_SIZE,
+)
+from .capture import capture
+from .generate import reference_run
+
+
+def network_error(preset=SUGGEST_PRESET, presets=None):
+    """The distance MAE (object units, against the true reference) that ``preset``'s
+    settings measured in the sweep that derived the presets."""
+    chosen = (presets or load_presets())[preset]
+    return float(chosen["measured"]["vs_true_distance_mae"])
+
+
+def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
+                       poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE, progress=None):
+    """(R, table): the coarsest of ``candidates`` (ascending) whose embedding error, distance
+    MAE of the embedded against the true reference on ``poses`` poses of ``spec`` at
+    ``size`` x ``size``, is at most ``target`` (default EMBEDDING_ERROR_SHARE of the
+    preset's network error); the finest candidate when none is. ``table`` lists
+    {resolution, embedding_error} per candidate tried."""
+    if target is None:
+        target = EMBEDDING_ERROR_SHARE * network_error()
+    table = []
+    spec = dataclasses.replace(spec, count=min(spec.count, poses))
+    for resolution in candidates:
+        captured = capture(obj, resolution, spec, deform_corners=False)
+        report = reference_run(obj, captured, size, size)
+        error = report["embedded_vs_true"]["distance_mae"]
+        table.append({"resolution": resolution, "embedding_error": error})
+        if progress is not None:
+            progress(resolution, error)
+        if error is not None and error <= target:
+            return resolution, table
+    return candidates[-1], table
