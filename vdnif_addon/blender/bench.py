@@ -26,21 +26,22 @@ from ..metrics import SPEED_MIN_HIT_IOU
 from ..network import NetworkConfig
 from ..presets import SETTINGS, derive_presets, pareto_front
 from ..report import percent, value, write_section
+from ..settings import RECIPE
 from .capture import capture
-from .demo import SIZES as RECIPE
 from .jobs import evaluate_file, evaluation_poses, variant_dataset
 from .poses import PoseSpec
 from .scenes import demo_scene
 
-# The base point is the training recipe (the demo's full size: resolution, poses, rays per
-# pose) with the network's default architecture; the full sweep moves one setting at a time
-# from it. The quick size is a small one for tests.
+# The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose
+# and their mix, batch) with the network's default architecture; the full sweep moves one
+# setting at a time from it, and the convergence rule replaces the recipe's step count. The
+# quick size is a small one for tests.
 _NETWORK = NetworkConfig()
 SIZES = {
     "full": dict(
-        poses=RECIPE["full"]["poses"], rays_per_pose=RECIPE["full"]["rays_per_pose"],
-        eval_poses=4, width=96, height=96, overrides=RECIPE["full"]["overrides"],
-        base=dict(resolution=RECIPE["full"]["resolution"], levels=_NETWORK.levels,
+        poses=RECIPE.poses, rays_per_pose=RECIPE.rays_per_pose,
+        eval_poses=4, width=96, height=96, overrides=dict(batch_size=RECIPE.batch_size),
+        base=dict(resolution=RECIPE.resolution, levels=_NETWORK.levels,
                   log2_table_size=_NETWORK.log2_table_size, pe_bands=_NETWORK.pe_bands,
                   width=_NETWORK.width),
         axes={"resolution": [16, 32, 64], "grid": [(2, 14), (2, 16), (4, 18)],

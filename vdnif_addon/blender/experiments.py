@@ -39,9 +39,9 @@ from ..rays import orbit_viewpoints
 from ..references import true_reference
 from ..report import (common_pixels_line, metrics_table, spread_table, targets_line, value,
                       write_section)
+from ..settings import RECIPE
 from ..variants import ABLATIONS, variant_config
 from .capture import capture
-from .demo import SIZES as RECIPE
 from .generate import generate_dataset
 from .image_io import save_image
 from .jobs import evaluate_file, evaluation_poses, variant_dataset
@@ -50,12 +50,13 @@ from .posed import PosedObject
 from .poses import PoseSpec
 from .scenes import demo_scene
 
-# The training recipe (voxel resolution, poses, rays per pose, steps, network overrides) is
-# the demo's full size, the one place it is set; the experiments add their evaluation and
-# seeds. The quick size is a tiny one for tests.
-_TRAINING = ("resolution", "poses", "rays_per_pose", "steps", "overrides")
+# The full size trains with the default recipe (``settings.RECIPE``: voxel resolution,
+# poses, rays per pose and their mix, steps, batch), the one place it is set; the experiments
+# add their evaluation and seeds. The quick size is a tiny one for tests.
 SIZES = {
-    "full": dict({key: RECIPE["full"][key] for key in _TRAINING}, eval_poses=8, width=256,
+    "full": dict(resolution=RECIPE.resolution, poses=RECIPE.poses,
+                 rays_per_pose=RECIPE.rays_per_pose, steps=RECIPE.steps,
+                 overrides=dict(batch_size=RECIPE.batch_size), eval_poses=8, width=256,
                  height=256, seeds=(0, 1, 2)),
     "quick": dict(resolution=12, poses=3, rays_per_pose=128, steps=20, eval_poses=2,
                   width=24, height=16, seeds=(0, 1),
@@ -478,7 +479,9 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
                                                       progress, chosen))
     settings = {key: size[key] for key in ("resolution", "poses", "rays_per_pose", "steps",
                                            "eval_poses", "width", "height")}
-    settings.update(size["overrides"], seeds=list(size["seeds"]),
+    # the training rays' mix is the recipe's at every size (generate_dataset's default)
+    settings.update(size["overrides"], surface_fraction=RECIPE.surface_fraction,
+                    grazing_fraction=RECIPE.grazing_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
     (figures / f"{name}.json").write_text(json.dumps(
         {"experiment": name, "settings": settings, "scenes": list(chosen), "runs": records},
