@@ -210,3 +210,20 @@ def test_ablation_experiment_quick(tmp_path):
     assert "Command: `python vdnif_addon/batch.py -- experiment ablation --quick --scenes arm " \
            "--seeds 1`" in text
     assert "| arm: no log distance | true |" in text and "- arm: no positional encoding:" in text
+
+
+def test_full_sizes_train_with_the_default_recipe(core):
+    """The experiments' and the bench's full sizes are the recipe's (``settings.RECIPE``),
+    so a new recipe reaches them without a copied number to update."""
+    from vdnif_addon.settings import RECIPE
+
+    experiments, bench = core("blender.experiments"), core("blender.bench")
+    full = experiments.SIZES["full"]
+    assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"],
+            full["overrides"]["batch_size"]) == (RECIPE.resolution, RECIPE.poses,
+                                                 RECIPE.rays_per_pose, RECIPE.steps,
+                                                 RECIPE.batch_size)
+    full = bench.SIZES["full"]
+    assert (full["base"]["resolution"], full["poses"], full["rays_per_pose"],
+            full["overrides"]["batch_size"]) == (RECIPE.resolution, RECIPE.poses,
+                                                 RECIPE.rays_per_pose, RECIPE.batch_size)
