@@ -494,6 +494,8 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
             "Settings: " + ", ".join(f"{k} {v}" for k, v in settings.items()) +
             f". Every run's JSON: `{figures.name}/{name}.json`.", "", *lines]
     title = " ".join(EXPERIMENTS[name].__doc__.split())
+    if set(chosen) != set(SCENES[name]):     # a narrowed run says which scenes it holds
+        title += f" This run: {', '.join(chosen)}."
     write_section(results, f"experiment {name}", f"{name}: {title}", body, RESULTS_PREAMBLE)
     return records
 
