@@ -51,7 +51,7 @@ SMALL = dict(log2_table_size=12, device="cpu", seed=0)
 
 def dataset_golden(obj, captured):
     folder = HERE / "arm-dataset"
-    generate_dataset(obj, captured, folder, RAYS, FRACTION, SEED)
+    generate_dataset(obj, captured, folder, RAYS, FRACTION, SEED, grazing_fraction=0.0)
     inputs = {}
     with PosedObject(obj, captured) as posed_object:
         for index, pose in enumerate(captured.poses):
