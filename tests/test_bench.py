@@ -70,14 +70,21 @@ def test_bad_presets_files_are_refused(tmp_path):
 
 
 def test_bench_quick_writes_every_output(tmp_path):
+    from vdnif_addon.blender import bench
+
     out, presets, performance = tmp_path / "bench", tmp_path / "p.json", tmp_path / "perf.md"
     code, printed, err = run_batch("bench", "--quick", "--out", out, "--presets", presets,
                                    "--performance", performance, timeout=600)
     assert code == 0, err
     rows = list(csv.DictReader(open(out / "bench.csv")))
     records = json.loads((out / "bench.json").read_text())
-    assert len(rows) == 6 == len(records)
+    assert len(rows) == 5 == len(records)
     assert {row["resolution"] for row in rows} == {"12", "16"}
+    # every point trained to the convergence rule: its steps, and whether it converged
+    cap = bench.SIZES["quick"]["convergence"]["max_steps"]
+    for record in records:
+        assert 0 < record["steps"] <= cap
+        assert record["converged"] or record["steps"] == cap   # only the rule stops early
     assert sum(row["vs_true_distance_mae"] != "" for row in rows) >= 2    # hits to compare
     assert (out / "pareto.png").stat().st_size > 10_000
     text = performance.read_text()
@@ -119,8 +126,8 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
         timings, withheld = speed_figures({"render_rays_per_s": speed}, metrics["vs_true"])
         report = dict(metrics, timings=dict(timings, train_s=10.0 * (number + 1)),
                       speed_withheld=withheld, model_bytes=1000)
-        rows.append(bench._row(dict(bench.SIZES["quick"]["base"], width=32 * (number + 1)),
-                               report))
+        rows.append(bench._row(dict(bench.SIZES["quick"]["base"], width=32 * (number + 1),
+                                    steps=400 + 100 * number, converged=number != 1), report))
         runs.append(({"predicted": predicted, "true": reference, "embedded": reference}, 0.1))
     bench._add_common(rows, runs, mesh)
     assert [r["render_rays_per_s"] for r in rows] == [3000.0, 1000.0, None]
@@ -135,3 +142,62 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     text = "\n".join(bench.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
                                           tmp_path, None))
     assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text
+
+
+def validations(errors):
+    """Progress records every 100 steps whose held-out figures are ``errors``: a list of
+    (occlusion error, distance MAE in voxels, normal error) per validation."""
+    return [{"step": 100 * (i + 1), "validation": {
+        "occlusion_accuracy": 1 - occlusion, "distance_mae_voxels": distance,
+        "normal_error_deg": normal, "segments": 1000.0}} for i, (occlusion, distance, normal)
+        in enumerate(errors)]
+
+
+def feed(rule, records):
+    for record in records:
+        rule(record)
+        if rule.cancel.is_set():
+            return record["step"]
+    return None
+
+
+def test_convergence_stops_after_patience_validations_without_a_real_gain():
+    from vdnif_addon.blender.bench import Convergence
+
+    seen = []
+    rule = Convergence(validate_every=100, patience=3, min_gain=0.02, max_steps=5000,
+                       forward=seen.append)
+    assert rule.overrides() == {"steps": 5000, "log_interval": 100}
+    # 300: distance improves by 10 %; then 1 % gains only (below 2 %), normal flat: the
+    # third validation without a real gain (600) converges
+    errors = [(0.1, 1.0, 20.0), (0.1, 0.95, 20.0), (0.1, 0.855, 20.0), (0.1, 0.85, 20.0),
+              (0.099, 0.849, 19.9), (0.0995, 0.846, 20.1), (0.05, 0.5, 5.0)]
+    assert feed(rule, validations(errors)) == 600 == rule.converged_at
+    assert len(seen) == 6                          # every record is passed on
+    assert rule.marks["distance_mae_voxels"] == pytest.approx(0.855)
+
+
+def test_convergence_counts_a_slow_decline_once_it_adds_up():
+    from vdnif_addon.blender.bench import Convergence
+
+    rule = Convergence(validate_every=100, patience=3, min_gain=0.02, max_steps=5000)
+    # 1 % less every validation: each gain alone is below 2 %, three add up to more, so the
+    # mark moves every third validation and the rule never sees 3 in a row without a gain
+    errors = [(0.1, 0.99 ** i, 10.0) for i in range(40)]
+    assert feed(rule, validations(errors)) is None and rule.converged_at is None
+    # a metric that only rises never counts as a gain
+    rule = Convergence(validate_every=100, patience=2, min_gain=0.02, max_steps=5000)
+    assert feed(rule, validations([(0.1, 1.0 + i, 10.0) for i in range(5)])) == 300
+
+
+def test_convergence_ignores_records_without_validation():
+    from vdnif_addon.blender.bench import Convergence, watched
+
+    rule = Convergence(validate_every=100, patience=1, min_gain=0.02, max_steps=5000)
+    for step in (100, 200, 300):
+        rule({"step": step, "validation": None})
+    assert not rule.cancel.is_set()
+    figures = watched({"occlusion_accuracy": 0.9, "material_accuracy": 0.75,
+                       "distance_mae_voxels": 0.2, "loss/occlusion": 0.3})
+    assert figures == pytest.approx({"occlusion_error": 0.1, "material_error": 0.25,
+                                     "distance_mae_voxels": 0.2})

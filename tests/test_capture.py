@@ -174,7 +174,7 @@ def test_rest_mesh_attributes(empty_scene, core):
 
 @pytest.mark.parametrize("scene, expected", [
     ("spot", {"albedo": True, "material_count": 1}),
-    ("bunny", {"albedo": False, "material": True, "material_count": 2}),
+    ("bunny", {"albedo": False, "material": True, "material_count": 3}),
 ])
 def test_demo_scene_heads(empty_scene, core, scene, expected):
     obj = core("blender.scenes").demo_scene(scene)
@@ -185,6 +185,11 @@ def test_demo_scene_heads(empty_scene, core, scene, expected):
         texture = mesh.albedo[0].texture
         assert texture.shape == (1024, 1024, 3) and 0 <= texture.min() < texture.max() <= 1
         assert mesh.uvs is not None
+    if scene == "bunny":        # three slots of distinct colours, each on a third of it
+        table = mesh.albedo_table()
+        assert len(np.unique(table.round(3), axis=0)) == 3
+        shares = np.bincount(mesh.material_index, minlength=3) / len(mesh.material_index)
+        assert shares.min() > 0.1
 
 
 # --- bad input: an exception of the package's own type naming the object and the problem

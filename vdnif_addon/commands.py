@@ -507,8 +507,9 @@ def cmd_experiment(args):
     """Run one of the paper's experiments and write its section of the results file."""
     from .blender.experiments import run_experiment
 
+    scenes = args.scenes.split(",") if args.scenes else None
     records = run_experiment(args.name, args.results, quick=args.quick, device=args.device,
-                             progress=report_training)
+                             progress=report_training, scenes=scenes, seeds=args.seeds)
     for label, report in records.items():
         m = report.get("common", report)     # the table's figures: the common pixel set
         print(f"{label}: vs true distance MAE {_number(m['vs_true']['distance_mae'])} "
@@ -712,8 +713,12 @@ def build_parser():
 
     experiment = commands.add_parser("experiment", help=cmd_experiment.__doc__,
                                      description=cmd_experiment.__doc__)
-    experiment.add_argument("name", choices=("static", "deformation", "per-pose"))
+    experiment.add_argument("name", choices=("static", "deformation", "ablation", "per-pose"))
     experiment.add_argument("--quick", action="store_true", help="a tiny size, for tests")
+    experiment.add_argument("--scenes", metavar="A,B", help="only these of the experiment's "
+                            "scenes (default all; the section names them)")
+    experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
+                            "size's seeds (default all: 3, or 2 with --quick)")
     add_device_option(experiment)
     experiment.add_argument("--results", type=pathlib.Path,
                             default=pathlib.Path("docs/results.md"), metavar="PATH",

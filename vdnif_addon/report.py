@@ -6,8 +6,23 @@ import re
 
 from .safe_io import write_text_atomic
 
-# The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes.
+# The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes
+# and of Table 1: at most these, against both references.
 PAPER_PROPOSED = {"distance_mae": 0.039, "normal_error_deg": 11.8}
+# The holes and extras a proposed model may leave: at most these shares of the reference's
+# hits, against both references.
+RATE_TARGETS = {"false_negative_rate": 0.005, "false_positive_rate": 0.005}
+# What the textured and the multi-material scene must predict: at least these.
+SCENE_TARGETS = {"spot": {"albedo_psnr": 30.0}, "bunny": {"material_accuracy": 0.99}}
+# Every metric of a comparison table, with the direction in which it is better.
+HIGHER_IS_BETTER = {"distance_mae": False, "normal_error_deg": False, "hit_iou": True,
+                    "false_negative_rate": False, "false_positive_rate": False,
+                    "albedo_psnr": True, "material_accuracy": True}
+NAMES = {"distance_mae": "distance MAE", "normal_error_deg": "normal error",
+         "hit_iou": "hit IoU", "false_negative_rate": "false negatives",
+         "false_positive_rate": "false positives", "albedo_psnr": "albedo PSNR",
+         "material_accuracy": "material accuracy"}
+REFERENCES = ("true", "embedded")
 
 
 def value(number, digits=4):
@@ -40,16 +55,97 @@ def metrics_table(rows):
     return "\n".join(lines)
 
 
-def common_pixels_line(labels, metrics):
-    """What the errors of the compared models ``labels`` are taken over (DESIGN section
-    10), from one of their compare_both results on the common pixel set."""
-    counts = {name: metrics[f"vs_{name}"]["compared_rays"] for name in ("true", "embedded")}
+def common_pixels_line(labels, metrics, seeds=1):
+    """What the errors of the compared models ``labels`` (each trained with ``seeds``
+    seeds) are taken over (DESIGN section 10), from one of their compare_both results on
+    the common pixel set."""
+    counts = {name: metrics[f"vs_{name}"]["compared_rays"] for name in REFERENCES}
+    models = (f"all {len(labels)} models" if seeds == 1 else
+              f"all {len(labels)} models x {seeds} seeds ({len(labels) * seeds} trainings)")
     return (f"{', '.join(labels)}: distance, normal, albedo and material errors over the "
-            f"same pixels, where all {len(labels)} models and the reference hit (the common "
-            f"pixel set: {counts['true']:,} pixels against the true reference, "
-            f"{counts['embedded']:,} against the embedded one); hit IoU and the false-"
-            "negative and false-positive rates over every pixel, the rates as shares of the "
-            "reference's hits.")
+            f"same pixels, where {models} and the reference hit (the common pixel set: "
+            f"{counts['true']:,} pixels against the true reference, {counts['embedded']:,} "
+            "against the embedded one); hit IoU and the false-negative and false-positive "
+            "rates over every pixel, the rates as shares of the reference's hits.")
+
+
+def metric_text(key, number):
+    """One metric's value as the tables write it (rates in percent, units named)."""
+    if number is None:
+        return "n/a"
+    if key.endswith("_rate"):
+        return percent(number)
+    if key == "normal_error_deg":
+        return f"{value(number, 3)} deg"
+    if key == "albedo_psnr":
+        return f"{value(number, 3)} dB"
+    return value(number, 4 if key == "distance_mae" else 3)
+
+
+def spread_table(rows):
+    """The spread over seeds: rows of (label, [compare_both result per seed]) as the
+    smallest and largest value of the headline metrics against each reference."""
+    keys = ("distance_mae", "normal_error_deg", "false_negative_rate", "false_positive_rate")
+    lines = ["| | reference | seeds | " + " | ".join(f"{NAMES[k]} (min - max)" for k in keys)
+             + " |", "| --- | --- | --- | " + " | ".join("---" for _ in keys) + " |"]
+    for label, per_seed in rows:
+        for name in REFERENCES:
+            cells = []
+            for key in keys:
+                numbers = [m[f"vs_{name}"].get(key) for m in per_seed]
+                cells.append("n/a" if None in numbers else
+                             f"{metric_text(key, min(numbers))} - "
+                             f"{metric_text(key, max(numbers))}")
+            lines.append(f"| {label} | {name} | {len(per_seed)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def target_checks(scene, metrics, rates=True):
+    """[(text, met)]: the targets of ``scene`` for a proposed model's ``metrics``
+    ({"vs_true", "vs_embedded"}): the hole and extra rates (with ``rates``), the paper's
+    distance and normal figures, and the scene's own (SCENE_TARGETS), each against both
+    references."""
+    bounds = [(key, bound, True) for key, bound in
+              ({**RATE_TARGETS, **PAPER_PROPOSED} if rates else PAPER_PROPOSED).items()]
+    bounds += [(key, bound, False) for key, bound in SCENE_TARGETS.get(scene, {}).items()]
+    checks = []
+    for key, bound, at_most in bounds:
+        numbers = [metrics[f"vs_{name}"].get(key) for name in REFERENCES]
+        met = all(n is not None and (n <= bound if at_most else n >= bound) for n in numbers)
+        checks.append((f"{NAMES[key]} {' / '.join(metric_text(key, n) for n in numbers)} "
+                       f"{'<=' if at_most else '>='} {metric_text(key, bound)}", met))
+    return checks
+
+
+def beat_checks(proposed, baseline):
+    """[(text, beaten)]: per metric and reference where both have a value, whether
+    ``proposed`` is strictly better than ``baseline`` (compare_both results)."""
+    checks = []
+    for name in REFERENCES:
+        for key, higher in HIGHER_IS_BETTER.items():
+            a, b = proposed[f"vs_{name}"].get(key), baseline[f"vs_{name}"].get(key)
+            if a is None or b is None:
+                continue
+            checks.append((f"{NAMES[key]} vs {name} ({metric_text(key, a)} vs "
+                           f"{metric_text(key, b)})", a > b if higher else a < b))
+    return checks
+
+
+def targets_line(scene, proposed, deformed=None, rates=True):
+    """One line for ``scene``: which targets the proposed model's metrics meet and which
+    not, and, given the deformed baseline's, on which metrics proposed beats it."""
+    checks = target_checks(scene, proposed, rates)
+    met = [text for text, ok in checks if ok]
+    missed = [text for text, ok in checks if not ok]
+    line = (f"- **{scene}** (values against the true / embedded reference): targets met: "
+            f"{'; '.join(met) or 'none'}. **Not met**: {'; '.join(missed) or 'none'}.")
+    if deformed is not None:
+        beats = beat_checks(proposed, deformed)
+        lost = [text for text, ok in beats if not ok]
+        line += (f" Proposed beats deformed on {len(beats) - len(lost)} of {len(beats)} "
+                 "metric/reference pairs" + (f"; **not** on {'; '.join(lost)}." if lost
+                                              else ": **every metric**."))
+    return line
 
 
 def speed_line(report):

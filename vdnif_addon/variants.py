@@ -3,6 +3,11 @@
 ``lsnif``: static single pose, hash grid only, sigmoid t/l distance, fixed loss weights.
 ``deformed``: the same model trained on deformation-aware (many-pose) data.
 ``proposed``: deformation-aware data, F = 3 positional bands, log1p distance, uncertainty weighting.
+
+The ablations are ``proposed`` with one of its three parts taken back to the baseline's
+(``deformed``): ``proposed-no-pe`` (hash grid only, F = 0), ``proposed-no-log`` (LSNIF's
+sigmoid t/l distance instead of the ReLU log1p(d/h)), ``proposed-no-uncertainty`` (fixed
+loss weights).
 """
 
 from __future__ import annotations
@@ -28,15 +33,16 @@ class Variant:
 
 
 _BASELINE = {"pe_bands": 0, "distance_mode": "fraction", "weighting": "fixed"}
+_PROPOSED = {"pe_bands": 3, "distance_mode": "log1p", "weighting": "uncertainty"}
+# Each ablation removes one part: the proposed setting of that key goes back to the baseline's.
+ABLATIONS = {"proposed-no-pe": "pe_bands", "proposed-no-log": "distance_mode",
+             "proposed-no-uncertainty": "weighting"}
 VARIANTS: dict[str, dict[str, Any]] = {
     "lsnif": {**_BASELINE, "deformed_data": False},
     "deformed": {**_BASELINE, "deformed_data": True},
-    "proposed": {
-        "pe_bands": 3,
-        "distance_mode": "log1p",
-        "weighting": "uncertainty",
-        "deformed_data": True,
-    },
+    "proposed": {**_PROPOSED, "deformed_data": True},
+    **{name: {**_PROPOSED, key: _BASELINE[key], "deformed_data": True}
+       for name, key in ABLATIONS.items()},
 }
 
 

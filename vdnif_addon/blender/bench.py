@@ -1,46 +1,64 @@
 """The speed/accuracy sweep behind ``batch.py -- bench``: the proposed variant trained and
 evaluated on unseen poses of the arm while one setting at a time moves away from a base
-(voxel resolution, hash levels and table size, PE bands, MLP width, training steps). Writes
-CSV, JSON, Pareto plots, the presets derived from the front and a section of
-``docs/performance.md``.
+(voxel resolution, hash levels and table size, PE bands, MLP width). Every point trains to
+the same convergence rule (``Convergence``), so the front compares converged models, not
+models stopped at one step count. Writes CSV, JSON, Pareto plots, the presets derived from
+the front and a section of ``docs/performance.md``.
 
 Only points that predict hits (``metrics.speed_withheld``) have a speed, and their errors
 are compared on one common pixel set (DESIGN section 10): the front and the presets come
 from them alone."""
 
 import csv
+import dataclasses
 import json
 import pathlib
 import shlex
+import sys
 import tempfile
+import threading
 
 import torch
 
 from ..evaluation import compare_common, concatenated
 from ..fit import fit_model
 from ..metrics import SPEED_MIN_HIT_IOU
+from ..network import NetworkConfig
 from ..presets import SETTINGS, derive_presets, pareto_front
 from ..report import percent, value, write_section
+from ..settings import RECIPE
 from .capture import capture
 from .jobs import evaluate_file, evaluation_poses, variant_dataset
 from .poses import PoseSpec
 from .scenes import demo_scene
 
+# The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose
+# and their mix, batch) with the network's default architecture; the full sweep moves one
+# setting at a time from it, and the convergence rule replaces the recipe's step count. The
+# quick size is a small one for tests.
+_NETWORK = NetworkConfig()
 SIZES = {
     "full": dict(
-        poses=32, rays_per_pose=4096, eval_poses=4, width=96, height=96, overrides={},
-        base=dict(resolution=32, levels=2, log2_table_size=16, pe_bands=3, width=64,
-                  steps=500),
+        poses=RECIPE.poses, rays_per_pose=RECIPE.rays_per_pose,
+        eval_poses=4, width=96, height=96, overrides=dict(batch_size=RECIPE.batch_size),
+        base=dict(resolution=RECIPE.resolution, levels=_NETWORK.levels,
+                  log2_table_size=_NETWORK.log2_table_size, pe_bands=_NETWORK.pe_bands,
+                  width=_NETWORK.width),
         axes={"resolution": [16, 32, 64], "grid": [(2, 14), (2, 16), (4, 18)],
-              "pe_bands": [0, 3, 6], "width": [32, 64, 128], "steps": [250, 500, 1000]}),
+              "pe_bands": [0, 3, 6], "width": [32, 64, 128]},
+        convergence=dict(validate_every=100, patience=10, min_gain=0.02, max_steps=20000)),
     "quick": dict(
         poses=4, rays_per_pose=1024, eval_poses=2, width=32, height=24,
         overrides=dict(batch_size=4096),
-        base=dict(resolution=16, levels=2, log2_table_size=12, pe_bands=3, width=64,
-                  steps=400),
+        base=dict(resolution=16, levels=2, log2_table_size=12, pe_bands=3, width=64),
         axes={"resolution": [12, 16], "grid": [(2, 10), (2, 12)], "pe_bands": [0, 3],
-              "width": [32, 64], "steps": [300, 400]}),
+              "width": [32, 64]},
+        convergence=dict(validate_every=50, patience=3, min_gain=0.02, max_steps=600)),
 }
+# The held-out validation figures the convergence rule watches (errors: lower is better);
+# the occlusion accuracy enters as its error, the share of misclassified segments.
+WATCHED = ("occlusion_error", "distance_mae_voxels", "normal_error_deg", "material_error",
+           "loss/albedo")
 # The error the front and the presets minimize: against the true reference, over the common
 # pixel set of the points that predict hits.
 ERROR = "common_vs_true_distance_mae"
@@ -50,6 +68,58 @@ COMMON_METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg")
 NO_PRESETS = (f"no sweep point predicts hits (hit IoU at least {SPEED_MIN_HIT_IOU} against the "
               "true reference): nothing to compare, no presets derived")
 PERFORMANCE_PREAMBLE = "# Performance\n\nEach section names the command that measured it.\n"
+
+
+class Convergence:
+    """The convergence rule of every sweep point, fed the training's progress records.
+
+    Every ``validate_every`` steps training validates on its held-out poses (the training
+    data's own, never the evaluation poses). A validation *improves* when one of the
+    WATCHED figures falls below its mark by more than ``min_gain`` (relative); the mark is
+    then set to that value (smaller gains do not move it, so a slow steady decline still
+    counts once it adds up to ``min_gain``). After ``patience`` validations in a row
+    without an improvement the point has converged: ``cancel`` is set and training stops
+    before its next update. Training that reaches ``max_steps`` first is reported as not
+    converged. The learning rate decays over ``max_steps`` (TrainConfig.steps), the same
+    schedule for every point.
+    """
+
+    def __init__(self, validate_every, patience, min_gain, max_steps, forward=None):
+        self.validate_every, self.patience = validate_every, patience
+        self.min_gain, self.max_steps, self.forward = min_gain, max_steps, forward
+        self.cancel = threading.Event()
+        self.marks, self.stale, self.converged_at = {}, 0, None
+
+    def overrides(self):
+        """The TrainConfig settings the rule trains with."""
+        return {"steps": self.max_steps, "log_interval": self.validate_every}
+
+    def __call__(self, record):
+        if self.forward is not None:
+            self.forward(record)
+        validation = record.get("validation")
+        if validation is None or self.converged_at is not None:
+            return
+        improved = False
+        for key, error in watched(validation).items():
+            mark = self.marks.get(key)
+            if mark is None or error < mark * (1 - self.min_gain):
+                self.marks[key] = error
+                improved = True
+        self.stale = 0 if improved else self.stale + 1
+        if self.stale >= self.patience:
+            self.converged_at = record["step"]
+            self.cancel.set()
+
+
+def watched(validation):
+    """The WATCHED figures of one held-out validation (``train._metrics``), as errors."""
+    figures = dict(validation)
+    if "occlusion_accuracy" in figures:
+        figures["occlusion_error"] = 1.0 - figures["occlusion_accuracy"]
+    if "material_accuracy" in figures:
+        figures["material_error"] = 1.0 - figures["material_accuracy"]
+    return {key: figures[key] for key in WATCHED if figures.get(key) is not None}
 
 
 def sweep_points(base, axes):
@@ -87,14 +157,20 @@ def run_bench(out, presets_path, performance=None, quick=False, device="auto",
             scenes[resolution] = evaluation_poses(obj, resolution, spec,
                                                   count=size["eval_poses"])
         for number, point in enumerate(points):
+            print(f"bench: point {number + 1} of {len(points)}: {_label(point)}",
+                  file=sys.stderr, flush=True)
             model = scratch / f"point-{number}.vdnif"
             settings = {k: v for k, v in point.items() if k != "resolution"}
-            fit_model(scratch / f"r{point['resolution']}", "proposed", model,
-                      dict(size["overrides"], device=device, **settings), progress=progress)
+            rule = Convergence(**size["convergence"], forward=progress)
+            result, _ = fit_model(scratch / f"r{point['resolution']}", "proposed", model,
+                                  dict(size["overrides"], device=device, **settings,
+                                       **rule.overrides()),
+                                  progress=rule, cancel=rule.cancel)
             evaluated = scenes[point["resolution"]]
             report, views = evaluate_file(obj, evaluated, model, size["width"],
                                           size["height"], device)
-            rows.append(_row(point, report))
+            rows.append(_row(dict(point, steps=result.steps,
+                                  converged=rule.converged_at is not None), report))
             runs.append((concatenated(views), evaluated.grid.voxel_size))
         _add_common(rows, runs, evaluated.mesh)
     # No presets from models that do not predict hits: the presets file is then left as it
@@ -191,7 +267,21 @@ def _plot(path, rows):
 
 def _label(row):
     return (f"R{row['resolution']} L{row['levels']} T{row['log2_table_size']} "
-            f"F{row['pe_bands']} W{row['width']} S{row['steps']}")
+            f"F{row['pe_bands']} W{row['width']}"
+            + (f" S{row['steps']}" if "steps" in row else ""))
+
+
+def rule_text(convergence):
+    """The convergence rule of ``Convergence`` in words, with the size's numbers."""
+    return (f"Every point trains until it converges: the training validates on its "
+            f"held-out training poses every {convergence['validate_every']} steps, and stops "
+            f"once {convergence['patience']} validations in a row ("
+            f"{convergence['patience'] * convergence['validate_every']:,} steps) have not "
+            f"lowered any of the held-out occlusion error, distance MAE (voxels) and normal "
+            f"error by more than {100 * convergence['min_gain']:g} % below its last mark; "
+            f"at most {convergence['max_steps']:,} steps (a point stopped there says so), "
+            f"the learning rate decaying over those {convergence['max_steps']:,} steps for "
+            "every point. Training time is the time to converge.")
 
 
 def sweep_markdown(rows, presets, size, command, out, performance):
@@ -206,6 +296,7 @@ def sweep_markdown(rows, presets, size, command, out, performance):
              f"at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
              f"thread(s). One setting moves at a time from the base "
              + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
+             rule_text(size["convergence"]), "",
              f"Only points that predict hits (hit IoU at least {SPEED_MIN_HIT_IOU} against "
              f"the true reference) have a speed, {len(compared)} of {len(rows)} here; their "
              f"distance and normal errors are taken over one common pixel set, the {pixels:,} "
@@ -215,7 +306,7 @@ def sweep_markdown(rows, presets, size, command, out, performance):
              "false-negative / false-positive rates (shares of the true reference's hits) "
              "count every pixel.",
              "",
-             "| R | L | log2 T | F | width | steps | distance MAE true / embedded | distance "
+             "| R | L | log2 T | F | width | steps (converged) | distance MAE true / embedded | distance "
              "MAE true (voxels) | normal error true / embedded (deg) | hit IoU (true) | false "
              "neg. / pos. (true) | train (s) | render rays/s | model bytes |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
@@ -225,7 +316,8 @@ def sweep_markdown(rows, presets, size, command, out, performance):
                  else "n/a")
         lines.append(
             f"| {r['resolution']} | {r['levels']} | {r['log2_table_size']} | {r['pe_bands']} | "
-            f"{r['width']} | {r['steps']} | {value(r['common_vs_true_distance_mae'])} / "
+            f"{r['width']} | {r['steps']:,} ({'yes' if r['converged'] else 'no: cap'}) | "
+            f"{value(r['common_vs_true_distance_mae'])} / "
             f"{value(r['common_vs_embedded_distance_mae'])} | "
             f"{value(r['common_vs_true_distance_mae_voxels'], 3)} | "
             f"{value(r['common_vs_true_normal_error_deg'], 3)}"

@@ -44,7 +44,7 @@ def demo_scene(name, rig=None, meshes_dir=MESHES):
         rig = rig or "armature"
     else:
         obj = import_mesh(meshes_dir / "stanford-bunny.obj", name="Bunny")
-        _two_materials_split_by_plane(obj)
+        _materials_split_in_slabs(obj)
         rig = rig or "lattice"
     return add_rig(obj, rig)
 
@@ -212,19 +212,27 @@ def _constant_material(name, rgb):
     return material
 
 
-def _two_materials_split_by_plane(obj):
-    """Two constant materials, split by the plane through the centre across the longest
-    axis, so material prediction has something to predict."""
+# The bunny's material slots: name and constant Base Color, one slab each along its longest
+# axis (distinct hues, so a wrong material shows in the albedo pass too).
+BUNNY_MATERIALS = (("Bunny clay", (0.8, 0.55, 0.35)), ("Bunny glaze", (0.2, 0.45, 0.85)),
+                   ("Bunny moss", (0.3, 0.7, 0.25)))
+
+
+def _materials_split_in_slabs(obj, materials=BUNNY_MATERIALS):
+    """One constant material per slab of equal width across the longest axis (slot i for
+    slab i), so material prediction has several boundaries to find."""
     mesh = obj.data
     mesh.materials.clear()
-    mesh.materials.append(_constant_material("Bunny clay", (0.8, 0.55, 0.35)))
-    mesh.materials.append(_constant_material("Bunny glaze", (0.2, 0.45, 0.85)))
+    for name, rgb in materials:
+        mesh.materials.append(_constant_material(name, rgb))
     centres = np.empty(len(mesh.polygons) * 3)
     mesh.polygons.foreach_get("center", centres)
     centres = centres.reshape(-1, 3)
     axis = int(np.argmax(np.ptp(centres, axis=0)))
-    split = 0.5 * (centres[:, axis].min() + centres[:, axis].max())
-    mesh.polygons.foreach_set("material_index", (centres[:, axis] > split).astype(np.int32))
+    low, high = centres[:, axis].min(), centres[:, axis].max()
+    edges = low + (high - low) * np.arange(1, len(materials)) / len(materials)
+    mesh.polygons.foreach_set("material_index",
+                              np.searchsorted(edges, centres[:, axis]).astype(np.int32))
 
 
 def _local_bounds(obj):
