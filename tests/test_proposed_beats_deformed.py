@@ -26,7 +26,6 @@ it too, but the table above is that earlier code's.
 
 import sys
 
-import pytest
 import torch
 
 SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2, width=48,

@@ -10,7 +10,6 @@ are compared on one common pixel set (DESIGN section 10): the front and the pres
 from them alone."""
 
 import csv
-import dataclasses
 import json
 import pathlib
 import shlex

@@ -40,7 +40,7 @@ from ..references import true_reference
 from ..report import (common_pixels_line, metrics_table, spread_table, targets_line, value,
                       write_section)
 from ..settings import RECIPE
-from ..variants import ABLATIONS, variant_config
+from ..variants import variant_config
 from .capture import capture
 from .generate import generate_dataset
 from .image_io import save_image
