@@ -6,22 +6,22 @@ The size (``SIZE``) is small enough for the suite (about 25 s on a loaded 2-core
 and large enough that the baseline predicts hits (at 1,500 steps it often predicts almost
 none, and then there are no common pixels to compare on). The tolerance comes from the
 measured spread: with this size, seeds 0-4 (torch on one thread; ``python
-tests/test_proposed_beats_deformed.py`` prints them) gave, against the true reference,
+tests/test_proposed_beats_deformed.py`` prints them; measured after the encoder kernel and
+the recipe's ray mix and calibrated threshold merged) gave, against the true reference,
 
 | seed | common pixels | distance MAE ratio | normal error ratio | hit IoU deformed / proposed |
 | --- | --- | --- | --- | --- |
-| 0 | 264 | 0.176 | 0.164 | 0.482 / 0.947 |
-| 1 | 372 | 0.273 | 0.199 | 0.615 / 0.957 |
-| 2 | 301 | 0.353 | 0.301 | 0.573 / 0.955 |
-| 3 | 187 | 0.686 | 0.698 | 0.379 / 0.949 |
-| 4 | 356 | 0.274 | 0.204 | 0.636 / 0.947 |
+| 0 | 400 | 0.676 | 0.586 | 0.693 / 0.873 |
+| 1 | 368 | 0.310 | 0.243 | 0.642 / 0.941 |
+| 2 | 302 | 0.200 | 0.185 | 0.566 / 0.963 |
+| 3 | 301 | 0.506 | 0.315 | 0.554 / 0.896 |
+| 4 | 338 | 0.468 | 0.279 | 0.625 / 0.896 |
 
 (ratio: proposed / deformed on the common pixels). The test trains seed 0 and asks, against
-both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.70), a hit
-IoU gain of at least ``MIN_IOU_GAIN`` (below the smallest measured, 0.31) and at least
-``MIN_COMMON_PIXELS`` common pixels (below the fewest measured, 187). The spread was
-measured before the encoder kernel (model format 2, fused Adam) merged; seed 0 passes after
-it too, but the table above is that earlier code's.
+both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.68), a hit
+IoU gain of at least ``MIN_IOU_GAIN`` (below the smallest measured, 0.18; before the recipe
+merged the smallest was 0.31 and the bound 0.2) and at least ``MIN_COMMON_PIXELS`` common
+pixels (below the fewest measured, 301).
 """
 
 import sys
@@ -35,7 +35,7 @@ SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2
             overrides=dict(batch_size=512, log2_table_size=12, width=32, val_fraction=0.0,
                            log_interval=2000))
 MAX_RATIO = {"distance_mae": 0.85, "normal_error_deg": 0.85}
-MIN_IOU_GAIN = 0.2
+MIN_IOU_GAIN = 0.15
 MIN_COMMON_PIXELS = 100
 
 
