@@ -87,6 +87,7 @@ class Walk:
         self.ray, self.cell, self.entry_face = empty_i, empty_i, empty_i
         self.t_in, self.p_in, self.zero_passes = empty_f, np.empty((0, 3)), empty_i
         self.clip_from = np.zeros(rays)                   # < 0 for rays starting inside
+        self.behind_from = np.full(rays, -np.inf)         # seek start of the last entry behind
         self.pieces, self.taken, self.steps, self.given_up = [], 0, 0, 0
         self.seek(np.arange(rays), np.zeros(rays), first=True)
 
@@ -134,9 +135,35 @@ class Walk:
                 u[rows], v[rows] = back_u[found], back_v[found]
                 leaving[:] = False
                 first = False
+            else:
+                self._entered_behind(rays, index, t, u, v, leaving, t_from)
             self._enter(rays[~leaving], index[~leaving], t[~leaving], u[~leaving],
                         v[~leaving])
             rays, t_from = rays[leaving], np.maximum(t, t_from)[leaving] + self.step
+
+    def _entered_behind(self, rays, index, t, u, v, leaving, t_from):
+        """A leaving crossing more than step beyond the seek start means the start is inside
+        the occupied set (a cell across an edge or corner of the cell left begins within step
+        of the exit): rows whose entry the backward cast finds within 2 step are entered
+        there instead (updates index, t, u, v, leaving in place), only past the seek start
+        of the ray's last such entry (a collapsed cell would be entered forever)."""
+        inside = np.flatnonzero(leaving & (t > t_from + self.step)
+                                & (t_from > self.behind_from[rays]))
+        if not len(inside):
+            return
+        start = self.origins[rays[inside]] + t_from[inside, None] * self.directions[rays[inside]]
+        back_index, back_t = self.caster.cast(start, -self.directions[rays[inside]],
+                                              np.full(len(inside), 2.0 * self.step))
+        found = back_index >= 0
+        inside, back_index, back_t = inside[found], back_index[found], back_t[found]
+        cross_t, cross_u, cross_v, back_leaving = self._crossing(
+            rays[inside], back_index, t_from[inside] - back_t)
+        enter = ~back_leaving
+        inside = inside[enter]
+        index[inside], u[inside], v[inside] = back_index[enter], cross_u[enter], cross_v[enter]
+        t[inside] = np.maximum(cross_t[enter], t_from[inside] - self.step)
+        leaving[inside] = False
+        self.behind_from[rays[inside]] = t_from[inside]
 
     def _enter(self, rays, index, t, u, v):
         cell = self.cells.boundary_cell[index]

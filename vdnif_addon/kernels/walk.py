@@ -11,7 +11,10 @@ kernel replaced (kept as the oracle in ``tests/oracles/walk.py``):
   float32) along the ray, its crossing refined in float64; a triangle the ray leaves by is
   passed (``step`` beyond it) and the cast repeated, at most ``SEEK_LIMIT`` times per seek,
   after which the ray is given up (truncated); on the first seek it means the ray starts
-  inside, and it is walked from the backward cast's crossing and clipped at its origin;
+  inside, and it is walked from the backward cast's crossing and clipped at its origin; on
+  a later seek, a leaving hit more than ``step`` beyond the seek start means the start is
+  inside (a cell across an edge or corner of the cell left begins within ``step`` of the
+  exit): the backward cast within ``2 step`` finds its entry, walked from there;
 - in a cell: the exit is the nearest of the cell's face triangles (entry face skipped) that
   the ray crosses outward more than ``step`` beyond its entry, else the farthest one it
   touches; a zero-length pass counts, and after ``ZERO_PASS_LIMIT`` in a row, a lost walker
@@ -75,6 +78,7 @@ class RayState:
     t: wp.array(dtype=wp.float64)         # entry distance (WALK) or seek start (SEEK)
     p: wp.array(dtype=wp.vec3d)           # rest-space entry point (WALK)
     clip_from: wp.array(dtype=wp.float64)  # < 0: started inside, segments cut at 0
+    behind_from: wp.array(dtype=wp.float64)  # seek start of the last entry found behind it
 
 
 @wp.struct
@@ -122,6 +126,7 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
     t = rays.t[r]
     p = rays.p[r]
     clip_from = rays.clip_from[r]
+    behind_from = rays.behind_from[r]
     step = cells.step
     written = wp.int32(0)
     while mode < DONE:
@@ -151,6 +156,25 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
                                                                      -back_t)
                             clip_from = hit_t
                     leaving = False
+                elif leaving and hit_t > t + step and t > behind_from:
+                    # the seek starts inside the occupied set: a re-seek starts step beyond an
+                    # exit, and a cell across an edge or corner of the cell left can begin
+                    # sooner; its entry is within step behind the start (2 step: float32
+                    # slack), so it is entered there instead of passing the far face. Once
+                    # per seek start at most, and only past the last such start: a collapsed
+                    # cell entered so and left at once would otherwise be entered forever
+                    found, back_face, back_t = entry_cast(cells, o + d * t, -d,
+                                                          wp.float64(2.0) * step)
+                    if found:
+                        back_hit_t, back_u, back_v, back_leaving = boundary_crossing(
+                            cells, o, d, back_face, t - back_t)
+                        if not back_leaving:
+                            face = back_face
+                            hit_t = maximum(back_hit_t, t - step)
+                            u = back_u
+                            v = back_v
+                            leaving = False
+                            behind_from = t
                 if leaving:
                     t = maximum(hit_t, t) + step
                 else:
@@ -271,6 +295,7 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
     rays.t[r] = t
     rays.p[r] = p
     rays.clip_from[r] = clip_from
+    rays.behind_from[r] = behind_from
 
 
 @wp.kernel
@@ -346,6 +371,8 @@ class RayWalk:
                             ("zero_passes", wp.int32), ("steps", wp.int32),
                             ("t", wp.float64), ("p", wp.vec3d), ("clip_from", wp.float64)):
             setattr(state, name, wp.zeros(count, dtype=dtype, device=self.device))
+        state.behind_from = wp.array(np.full(count, -np.inf), dtype=wp.float64,
+                                     device=self.device)
         self.state = state
         self.lanes = [Lane(np.arange(lane, count, lanes), self.device) for lane in range(lanes)]
 
