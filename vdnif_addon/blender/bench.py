@@ -10,7 +10,6 @@ are compared on one common pixel set (DESIGN section 10): the front and the pres
 from them alone."""
 
 import csv
-import json
 import pathlib
 import shlex
 import sys
@@ -26,6 +25,7 @@ from ..network import NetworkConfig
 from ..presets import SETTINGS, derive_presets, pareto_front
 from ..report import percent, value, write_section
 from ..settings import RECIPE
+from ..safe_io import atomic_path, write_json_atomic
 from .capture import capture
 from .jobs import evaluate_file, evaluation_poses, variant_dataset
 from .poses import PoseSpec
@@ -178,10 +178,8 @@ def run_bench(out, presets_path, performance=None, quick=False, device="auto",
                if any(row["speed_withheld"] is None for row in rows) else None)
     write_outputs(out, rows)
     if presets is not None:
-        pathlib.Path(presets_path).parent.mkdir(parents=True, exist_ok=True)
-        pathlib.Path(presets_path).write_text(json.dumps(
-            {"source": "bench" + (" --quick" if quick else ""), "error": ERROR,
-             "presets": presets}, indent=2) + "\n")
+        write_json_atomic(presets_path, {"source": "bench" + (" --quick" if quick else ""),
+                                         "error": ERROR, "presets": presets}, "presets file")
     if performance is not None:
         command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
                                         + (["--quick"] if quick else []))
@@ -218,11 +216,12 @@ def _add_common(rows, runs, mesh):
 
 def write_outputs(out, rows):
     """bench.csv, bench.json and pareto.png (error vs render speed and vs training time)."""
-    with open(out / "bench.csv", "w", newline="") as file:
+    with atomic_path(out / "bench.csv", "CSV file") as temporary, \
+            open(temporary, "w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    (out / "bench.json").write_text(json.dumps(rows, indent=2) + "\n")
+    write_json_atomic(out / "bench.json", rows)
     _plot(out / "pareto.png", rows)
 
 
@@ -240,7 +239,8 @@ def _plot(path, rows):
             ax.set_axis_off()
         figure.text(0.5, 0.5, NO_PRESETS.replace(": ", ":\n"), ha="center", va="center",
                     fontsize=12)
-        figure.savefig(path, dpi=120)
+        with atomic_path(path, "plot") as temporary:
+            figure.savefig(temporary, dpi=120)
         pyplot.close(figure)
         return
     for ax, key, label, cost in (
@@ -260,7 +260,8 @@ def _plot(path, rows):
         ax.set_ylabel("distance MAE vs true reference (object units, common pixels)")
         ax.legend(fontsize=7)
     figure.tight_layout()
-    figure.savefig(path, dpi=120)
+    with atomic_path(path, "plot") as temporary:
+        figure.savefig(temporary, dpi=120)
     pyplot.close(figure)
 
 

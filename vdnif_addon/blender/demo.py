@@ -2,7 +2,6 @@
 static one where nothing deforms the scene), evaluate on unseen poses, write the passes, the
 figure and a short report."""
 
-import json
 import pathlib
 import shlex
 import sys
@@ -11,6 +10,7 @@ import tempfile
 from ..report import demo_markdown
 from ..settings import RECIPE
 from ..variants import choose_variant
+from ..safe_io import write_json_atomic, write_text_atomic
 from .capture import capture
 from .jobs import evaluate_file, evaluation_poses, train_variant, write_figures, write_passes
 from .poses import PoseSpec
@@ -59,6 +59,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     command = shlex.join(["python", "vdnif_addon/batch.py", "--",
                           *sys.argv[sys.argv.index("--") + 1:]] if "--" in sys.argv
                          else ["python", "vdnif_addon/batch.py", "--", "demo"])
-    (out / "report.md").write_text(demo_markdown(report, command, "figure-vs-true.png"))
-    (out / "report.json").write_text(json.dumps(report, indent=2) + "\n")
+    write_text_atomic(out / "report.md", demo_markdown(report, command, "figure-vs-true.png"),
+                      "markdown file")
+    write_json_atomic(out / "report.json", report)
     return report

@@ -18,7 +18,6 @@ each metric, all taken over one common pixel set per scene (DESIGN section 10).
 """
 
 import dataclasses
-import json
 import pathlib
 import re
 import shlex
@@ -41,6 +40,7 @@ from ..report import (common_pixels_line, metrics_table, spread_table, targets_l
                       write_section)
 from ..settings import RECIPE
 from ..variants import variant_config
+from ..safe_io import write_json_atomic
 from .capture import capture
 from .generate import generate_dataset
 from .image_io import save_image
@@ -483,9 +483,8 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
     settings.update(size["overrides"], surface_fraction=RECIPE.surface_fraction,
                     grazing_fraction=RECIPE.grazing_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
-    (figures / f"{name}.json").write_text(json.dumps(
-        {"experiment": name, "settings": settings, "scenes": list(chosen), "runs": records},
-        indent=2) + "\n")
+    write_json_atomic(figures / f"{name}.json", {"experiment": name, "settings": settings,
+                                                 "scenes": list(chosen), "runs": records})
     command = command or shlex.join(
         ["python", "vdnif_addon/batch.py", "--", "experiment", name]
         + (["--quick"] if quick else []) + (["--scenes", ",".join(chosen)] if scenes else [])

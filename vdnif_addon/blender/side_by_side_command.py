@@ -10,7 +10,7 @@ import torch
 
 from ..errors import VDNIFError
 from ..kernels import runtime
-from ..safe_io import write_text_atomic
+from ..safe_io import atomic_path, write_text_atomic
 from .baselines import BASELINES
 from .side_by_side import (
     MILLION_LEVEL,
@@ -179,7 +179,10 @@ def _save_blends(scenes, folder):
     for name in scenes:
         obj = load_side_by_side_scene(name)
         path = folder / f"{name}.blend"
-        bpy.ops.wm.save_as_mainfile(filepath=str(path.resolve()), check_existing=False)
+        with atomic_path(path, ".blend file") as temporary:    # copy: the session keeps its file
+            bpy.ops.wm.save_as_mainfile(filepath=str(pathlib.Path(temporary).resolve()),
+                                        check_existing=False, copy=True)
+            pathlib.Path(temporary + "1").unlink(missing_ok=True)  # Blender's backup of it
         print(f"saved scene '{name}' ('{obj.name}') to {path}: train with "
               f"train --blend {path} --object '{obj.name}'")
     return 0
