@@ -37,11 +37,8 @@ from ..traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
 from .posed import PosedObject
 from .poses import posed
+from .side_by_side_scenes import scene_name
 
-SUZANNE_LEVELS = (2, 3, 4, 5)     # Suzanne (968 triangles) subdivided: 15,744 .. 1,007,616
-MILLION_LEVEL = 5                 # 'million': the 1 M-triangle scene, 1,007,616 triangles
-SCENES = ("bunny", *(f"suzanne-{level}" for level in SUZANNE_LEVELS), "million", "arm",
-          "lattice", "spot")
 NO_MODEL = "no model file for this scene (--model): only a trained model has speeds"
 # Keys of a pose record that time the neural render, withheld with its speed.
 RENDER_KEYS = ("neural_render_s", "neural_walk_s", "neural_network_s", "neural_segments")
@@ -61,12 +58,6 @@ def suzanne_scene(level):
     bpy.ops.object.modifier_apply(modifier=subdivision.name)
     return add_rig(obj, "lattice")
 
-
-def scene_name(name):
-    """The scene a name in ``SCENES`` stands for ('million' is suzanne-5)."""
-    if name not in SCENES:
-        raise VDNIFError(f"unknown scene '{name}': choose one of {', '.join(SCENES)}")
-    return f"suzanne-{MILLION_LEVEL}" if name == "million" else name
 
 
 def load_side_by_side_scene(name):

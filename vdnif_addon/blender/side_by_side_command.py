@@ -6,19 +6,13 @@ tables, plots and the section of ``docs/performance.md`` (``side_by_side_report`
 import pathlib
 
 import bpy
-import torch
 
 from ..errors import VDNIFError
-from ..kernels import runtime
 from ..safe_io import atomic_path, write_text_atomic
-from .baselines import BASELINES
-from .side_by_side import (
-    MILLION_LEVEL,
-    SCENES,
-    compare_paths,
-    load_side_by_side_scene,
-    scene_name,
-)
+from .side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
+
+# torch, Warp, the baselines and the timing code are imported where they are used, so that
+# building the batch parser (every command's, a failing one's too) does not import them.
 
 
 def machine(load_before, device):
@@ -27,6 +21,10 @@ def machine(load_before, device):
     import importlib.metadata
     import os
     import platform
+
+    import torch
+
+    from ..kernels import runtime
 
     cpu = platform.processor() or platform.machine()
     try:
@@ -57,6 +55,7 @@ def cmd_side_by_side(args):
     from ..commands import write_json
     from ..progress import Progress
     from ..train import resolve_device
+    from .side_by_side import compare_paths, load_side_by_side_scene
     from .side_by_side_report import (
         machine_text,
         side_by_side_markdown,
@@ -155,6 +154,8 @@ DEFAULT_RESOLUTION = 32
 
 
 def _print_result(result):
+    from .baselines import BASELINES
+
     ratios, speeds = result["ratios"], result["rays_per_s"]
 
     def ratio(name):
@@ -174,6 +175,8 @@ def _print_result(result):
 
 def _save_blends(scenes, folder):
     """Saves each scene as ``folder/<scene>.blend`` for ``train --blend`` and says how."""
+    from .side_by_side import load_side_by_side_scene
+
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     for name in scenes:
