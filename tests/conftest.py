@@ -11,6 +11,18 @@ import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 EXTENSION_MODULE = "bl_ext.dev.vdnif"
+# The start of a script that enables the extension from this source tree in a fresh process
+# (``python -c``), with user resources in a temporary folder: tests append their checks.
+ENABLE_IN_FRESH_PROCESS = f"""
+import os, sys, tempfile
+os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
+import bpy, addon_utils
+folder = tempfile.mkdtemp()
+os.symlink({str(REPO)!r}, os.path.join(folder, "vdnif"))
+bpy.context.preferences.extensions.repos.new(name="dev", module="dev",
+                                             custom_directory=folder, source="USER")
+addon_utils.enable("{EXTENSION_MODULE}", default_set=True, handle_error=print)
+"""
 
 # Must be set before bpy is first imported, so user preferences never touch the real home.
 os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="vdnif-user-")

@@ -7,7 +7,7 @@ import sys
 
 import bpy
 
-from conftest import EXTENSION_MODULE, REPO
+from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE, REPO
 
 
 def test_the_installer_installs_the_pinned_warp_beside_torch(extension):
@@ -42,15 +42,7 @@ def test_preferences_show_the_warp_version_and_the_kernel_cache(extension, monke
 
 
 def _cache_after_enabling(environment):
-    script = f"""
-import os, sys, tempfile
-os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
-import bpy, addon_utils
-folder = tempfile.mkdtemp()
-os.symlink({str(REPO)!r}, os.path.join(folder, "vdnif"))
-bpy.context.preferences.extensions.repos.new(name="dev", module="dev",
-                                             custom_directory=folder, source="USER")
-addon_utils.enable("{EXTENSION_MODULE}", default_set=True, handle_error=print)
+    script = ENABLE_IN_FRESH_PROCESS + f"""
 runtime = sys.modules["{EXTENSION_MODULE}.vdnif_addon.kernels.runtime"]
 print("user folder:", bpy.utils.extension_path_user("{EXTENSION_MODULE}", path="kernels"))
 print("cache:", runtime.cache_dir())

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import EXTENSION_MODULE, REPO
+from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE, REPO
 
 # Rays through an edge or a vertex that float32 triangle tests of different libraries may
 # give to neither neighbour: at most this many per view may differ between two casters.
@@ -118,15 +118,8 @@ def test_warp_bvh_bytes_match_warps_own_allocation_tracker(extension):
 def test_the_extension_never_imports_embreex():
     """In a fresh process the enabled extension and every module of it import no embreex;
     in the sources only the benchmark's baselines import it, inside functions."""
-    script = f"""
-import os, pkgutil, importlib, sys, tempfile
-os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
-import bpy, addon_utils
-folder = tempfile.mkdtemp()
-os.symlink({str(REPO)!r}, os.path.join(folder, "vdnif"))
-bpy.context.preferences.extensions.repos.new(name="dev", module="dev",
-                                             custom_directory=folder, source="USER")
-addon_utils.enable("{EXTENSION_MODULE}", default_set=True, handle_error=print)
+    script = ENABLE_IN_FRESH_PROCESS + f"""
+import importlib, pkgutil
 assert addon_utils.check("{EXTENSION_MODULE}")[1], "not enabled"
 extension = sys.modules["{EXTENSION_MODULE}"]
 count = 0

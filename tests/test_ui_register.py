@@ -7,7 +7,7 @@ import sys
 import bpy
 import pytest
 
-from conftest import EXTENSION_MODULE, REPO
+from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE
 
 
 def registered_state():
@@ -53,15 +53,7 @@ def test_register_and_unregister_twice_leave_nothing_behind(extension):
 
 def test_enabling_imports_no_torch():
     """In a fresh process: the panel must be able to say that torch is missing."""
-    script = f"""
-import os, sys, tempfile
-os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
-import bpy, addon_utils
-folder = tempfile.mkdtemp()
-os.symlink({str(REPO)!r}, os.path.join(folder, "vdnif"))
-bpy.context.preferences.extensions.repos.new(name="dev", module="dev",
-                                             custom_directory=folder, source="USER")
-addon_utils.enable("{EXTENSION_MODULE}", default_set=True, handle_error=print)
+    script = ENABLE_IN_FRESH_PROCESS + f"""
 assert addon_utils.check("{EXTENSION_MODULE}")[1], "not enabled"
 print("torch imported:", "torch" in sys.modules)
 """
