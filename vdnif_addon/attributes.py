@@ -6,11 +6,20 @@ Pure numpy, vectorized over all points (DESIGN sections 6 and 7). Degenerate inp
 triangles, singular Jacobians, zero vectors) gives documented finite fallbacks, never NaN.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .errors import VDNIFError
 from .restmesh import TEXTURE_EXTENSIONS, RestMesh
 from .voxels import CORNER_OFFSETS
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float, Int
+
+    from .restmesh import Albedo
 
 # A triangle is treated as degenerate (a segment or a point) when sin^2 of its angle at
 # corner 0 is below this: the plane solve would then amplify rounding noise.
@@ -24,7 +33,9 @@ SINGULAR_COFACTOR = 1e-12
 FALLBACK_NORMAL = np.array([0.0, 0.0, 1.0])
 
 
-def normalize(vectors, fallback) -> np.ndarray:
+def normalize(vectors: Float[np.ndarray, "N 3"],
+              fallback: Float[np.ndarray, "3"] | Float[np.ndarray, "N 3"]
+              ) -> Float[np.ndarray, "N 3"]:
     """(N, 3) unit vectors; rows of zero (or non-finite) length become ``fallback`` (3,) or
     (N, 3), so the result never holds NaN."""
     vectors = np.asarray(vectors, dtype=np.float64)
@@ -34,7 +45,7 @@ def normalize(vectors, fallback) -> np.ndarray:
     return np.where(ok, unit, np.broadcast_to(fallback, vectors.shape))
 
 
-def has_area(corners) -> np.ndarray:
+def has_area(corners: Float[np.ndarray, "T 3 3"]) -> Bool[np.ndarray, " T"]:
     """(T,) bool: triangles with corners (T, 3, 3) that are not degenerate, i.e. sin^2 of
     the angle at corner 0 is at least DEGENERATE_SIN2 (|e1 x e2|^2 = d11 d22 - d12^2)."""
     corners = np.asarray(corners, dtype=np.float64)
@@ -44,12 +55,14 @@ def has_area(corners) -> np.ndarray:
     return d11 * d22 - d12 * d12 > DEGENERATE_SIN2 * d11 * d22
 
 
-def interpolate(values, weights) -> np.ndarray:
+def interpolate(values: Float[np.ndarray, "N 3 K"], weights: Float[np.ndarray, "N 3"]
+                ) -> Float[np.ndarray, "N K"]:
     """(N, K): per-corner values (N, 3, K) blended with barycentric weights (N, 3)."""
     return np.einsum("nck,nc->nk", values, weights)
 
 
-def sample_texture(texture, uv, extension: str) -> np.ndarray:
+def sample_texture(texture: Float[np.ndarray, "H W C"], uv: Float[np.ndarray, "N 2"],
+                   extension: str) -> Float[np.ndarray, "N C"]:
     """(N, C) float32 bilinear lookup of ``texture`` (H, W, C), row 0 at v = 0, at uv (N, 2).
 
     Matches Cycles' Image Texture node with Linear interpolation (kernel ``interp_linear``):
@@ -76,7 +89,8 @@ def sample_texture(texture, uv, extension: str) -> np.ndarray:
     return np.einsum("nab,nabc->nc", blend, footprint).astype(np.float32)
 
 
-def _texel_pairs(coordinate, size: int, extension: str):
+def _texel_pairs(coordinate: Float[np.ndarray, " N"], size: int, extension: str
+                 ) -> tuple[Int[np.ndarray, "N 2"], Float[np.ndarray, "N 2"]]:
     """Indices (N, 2) of the two texels around each coordinate (N,) along one axis, resolved
     per extension mode, and their linear weights (N, 2); CLIP weights texels outside the
     image by 0 (their index is clamped only to stay valid)."""
@@ -95,7 +109,9 @@ def _texel_pairs(coordinate, size: int, extension: str):
     return np.clip(index, 0, size - 1), weight
 
 
-def surface_albedo(mesh: RestMesh, triangle, weights):
+def surface_albedo(mesh: RestMesh, triangle: Int[np.ndarray, " N"],
+                   weights: Float[np.ndarray, "N 3"]
+                   ) -> tuple[Float[np.ndarray, "N 3"], Int[np.ndarray, " N"]]:
     """Albedo (N, 3) float32 and material slot (N,) int32 of surface points given by
     triangle (N,) int and barycentric weights (N, 3), from the triangle's material (DESIGN
     section 7: constant; texture at the interpolated UV; interpolated color attribute; a
@@ -118,7 +134,9 @@ def surface_albedo(mesh: RestMesh, triangle, weights):
     return albedo, material
 
 
-def _albedo(mesh: RestMesh, source, triangle, weights) -> np.ndarray:
+def _albedo(mesh: RestMesh, source: Albedo, triangle: Int[np.ndarray, " n"],
+            weights: Float[np.ndarray, "n 3"]
+            ) -> Float[np.ndarray, "n 3"] | Float[np.ndarray, "3"]:
     """(n, 3) albedo of points on triangles of one material ``source`` (an Albedo)."""
     if source.kind == "texture" and mesh.uvs is not None and source.texture is not None:
         uv = interpolate(np.asarray(mesh.uvs, dtype=np.float64)[triangle], weights)
@@ -128,20 +146,22 @@ def _albedo(mesh: RestMesh, source, triangle, weights) -> np.ndarray:
     return source.color
 
 
-def _trilinear_factors(local):
+def _trilinear_factors(local: Float[np.ndarray, "N 3"]) -> Float[np.ndarray, "N 8 3"]:
     """(N, 8, 3) per-axis linear factors of each corner's weight: u or 1 - u by the corner's
     offset along that axis."""
     local = np.asarray(local, dtype=np.float64)[:, None, :]
     return np.where(CORNER_OFFSETS == 1, local, 1.0 - local)
 
 
-def trilinear_map(cell_corners, local) -> np.ndarray:
+def trilinear_map(cell_corners: Float[np.ndarray, "N 8 3"], local: Float[np.ndarray, "N 3"]
+                  ) -> Float[np.ndarray, "N 3"]:
     """(N, 3) point x(u) = sum_c w_c(u) X_c of cells with corners (N, 8, 3) (corner
     c = dx + 2 dy + 4 dz) at local coordinates u (N, 3) in [0, 1]^3."""
     return np.einsum("nc,nci->ni", _trilinear_factors(local).prod(axis=2), cell_corners)
 
 
-def trilinear_jacobian(cell_corners, local) -> np.ndarray:
+def trilinear_jacobian(cell_corners: Float[np.ndarray, "N 8 3"],
+                       local: Float[np.ndarray, "N 3"]) -> Float[np.ndarray, "N 3 3"]:
     """(N, 3, 3) Jacobian dx/du of ``trilinear_map``; column j is the derivative along u_j."""
     factors = _trilinear_factors(local)
     others = factors[:, :, [[1, 2], [0, 2], [0, 1]]].prod(axis=3)      # (N, 8, 3)
@@ -149,7 +169,8 @@ def trilinear_jacobian(cell_corners, local) -> np.ndarray:
     return np.einsum("nci,ncj->nij", np.asarray(cell_corners, dtype=np.float64), derivative)
 
 
-def deformed_normals(rest_normals, jacobian) -> np.ndarray:
+def deformed_normals(rest_normals: Float[np.ndarray, "N 3"],
+                     jacobian: Float[np.ndarray, "N 3 3"]) -> Float[np.ndarray, "N 3"]:
     """(N, 3) unit normals normalize(J^-T n) of rest normals (N, 3) under Jacobians (N, 3, 3).
 
     Computed as sign(det J) cof(J) n, with cof(J) = det(J) J^-T built from cross products of
@@ -170,7 +191,10 @@ def deformed_normals(rest_normals, jacobian) -> np.ndarray:
     return normalize(np.where(tiny, 0.0, deformed), rest)
 
 
-def sample_surface(vertices, triangles, count: int, rng):
+def sample_surface(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
+                   count: int, rng: np.random.Generator
+                   ) -> tuple[Float[np.ndarray, "count 3"], Int[np.ndarray, " count"],
+                              Float[np.ndarray, "count 3"]]:
     """Area-weighted uniform samples on a triangle mesh.
 
     Returns points (count, 3) float64, triangle (count,) intp and barycentric weights
@@ -192,6 +216,7 @@ def sample_surface(vertices, triangles, count: int, rng):
     return interpolate(corners[triangle], weights), triangle, weights
 
 
-def _dot(a, b) -> np.ndarray:
+def _dot(a: Float[np.ndarray, "*batch 3"], b: Float[np.ndarray, "*batch 3"]
+         ) -> Float[np.ndarray, "*batch"]:
     """Row-wise dot product over the last axis."""
     return np.einsum("...i,...i->...", a, b)

@@ -1,11 +1,17 @@
 """What scene capture produces: rest mesh, voxel grid and per-pose deformed corners."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .restmesh import RestMesh
 from .voxels import VoxelGrid, inverted_cells
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
 
 
 @dataclass
@@ -19,17 +25,17 @@ class Capture:
     mesh: RestMesh
     grid: VoxelGrid
     mode: str                          # "armature", "lattice", "armature+lattice" or "static"
-    poses: list                        # JSON-ready pose descriptions
-    corners: np.ndarray                # (P, C, 3) float64
-    timings: dict = field(default_factory=dict)
+    poses: list[dict[str, Any]]        # JSON-ready pose descriptions
+    corners: Float[np.ndarray, "P C 3"]    # float64
+    timings: dict[str, float] = field(default_factory=dict)
 
     @property
-    def inverted_cells(self):
+    def inverted_cells(self) -> Int[np.ndarray, " P"]:
         """(P,) int: cells whose deformed trilinear map is inverted, per pose."""
         return np.array([int(inverted_cells(c, self.grid.cell_corners).sum())
                          for c in self.corners])
 
-    def summary(self):
+    def summary(self) -> dict[str, Any]:
         """JSON-ready figures of the capture, as written by ``batch.py capture --json``."""
         heads = self.mesh.heads()
         return {

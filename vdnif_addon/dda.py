@@ -8,9 +8,19 @@ every ray through the uniform cells inside the occupied cells' bounds with a War
 side-by-side measures the deformation-aware walk against. Never imports bpy.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .errors import VDNIFError
+
+if TYPE_CHECKING:
+    from jaxtyping import Float
+
+    from .traverse import Segments
+    from .voxels import VoxelGrid
 
 # Pieces shorter than this fraction of the occupied extent are not recorded: the deformed walk
 # skips the same corner and edge grazes (its ``step``), so both give the same cells.
@@ -24,7 +34,7 @@ class StaticGrid:
     Built once per grid (static preprocessing, not part of a walk's cost).
     """
 
-    def __init__(self, grid, device="cpu"):
+    def __init__(self, grid: VoxelGrid, device: str = "cpu") -> None:
         import warp as wp
 
         from .kernels import dda as kernel
@@ -53,7 +63,8 @@ class StaticGrid:
         arrays.min_piece = wp.float64(self.min_piece)
         self.arrays = arrays
 
-    def traverse(self, origins, directions, max_distance=None):
+    def traverse(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+                 max_distance: float | Float[np.ndarray, " N"] | None = None) -> Segments:
         """All rest-space Segments of the rays (N, 3), ordered by ray then distance.
 
         Same conventions as ``traverse.traverse``: directions are normalized here, rays that

@@ -6,12 +6,22 @@ rays) on a ``kernels.surface.SurfaceCaster``; albedo and material are read here,
 only.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .attributes import surface_albedo
 from .kernels.surface import SurfaceCaster
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float, Int
+
+    from .restmesh import RestMesh
+    from .traverse import Segments
+    from .voxels import VoxelGrid
 
 BOUNDARY_MARGIN = 1e-6
 
@@ -20,16 +30,17 @@ BOUNDARY_MARGIN = 1e-6
 class SurfaceHits:
     """What a set of rays or segments hits: attributes are zero where ``hit`` is False."""
 
-    hit: np.ndarray          # (N,) bool
-    distance: np.ndarray     # (N,) float64 along the ray or segment (0 on a miss)
-    triangle: np.ndarray     # (N,) int64, -1 on a miss
-    weights: np.ndarray      # (N, 3) float64 barycentric weights of the hit
-    normal: np.ndarray       # (N, 3) float64 unit shading normal
-    albedo: np.ndarray       # (N, 3) float32
-    material: np.ndarray     # (N,) int32
+    hit: Bool[np.ndarray, " N"]
+    distance: Float[np.ndarray, " N"]       # float64 along the ray or segment (0 on a miss)
+    triangle: Int[np.ndarray, " N"]         # int64, -1 on a miss
+    weights: Float[np.ndarray, "N 3"]      # float64 barycentric weights of the hit
+    normal: Float[np.ndarray, "N 3"]       # float64 unit shading normal
+    albedo: Float[np.ndarray, "N 3"]       # float32
+    material: Int[np.ndarray, " N"]         # int32
 
 
-def rest_surface(mesh, grid=None, device: str = "cpu") -> SurfaceCaster:
+def rest_surface(mesh: RestMesh, grid: VoxelGrid | None = None, device: str = "cpu"
+                 ) -> SurfaceCaster:
     """The rest mesh (a RestMesh) as a SurfaceCaster, built once per capture. Given the
     VoxelGrid, each cell keeps the triangles its segments can hit (their casts reach
     BOUNDARY_MARGIN of the object size beyond the cell: the lists take twice that, so float32
@@ -42,13 +53,16 @@ def rest_surface(mesh, grid=None, device: str = "cpu") -> SurfaceCaster:
                          cell_boxes=boxes, cell_margin=reach)
 
 
-def cast_surface(mesh, caster, origins, directions, max_distance):
+def cast_surface(mesh: RestMesh, caster: SurfaceCaster, origins: Float[np.ndarray, "N 3"],
+                 directions: Float[np.ndarray, "N 3"],
+                 max_distance: float | Float[np.ndarray, " N"]) -> SurfaceHits:
     """First hits of rays (N, 3) within ``max_distance`` against ``caster`` (a SurfaceCaster
     of ``mesh``'s triangles, in whichever pose it holds) with their shading attributes."""
     return _surface_hits(mesh, *caster.cast_rays(origins, directions, max_distance))
 
 
-def segment_targets(mesh, rest_caster, segments):
+def segment_targets(mesh: RestMesh, rest_caster: SurfaceCaster, segments: Segments
+                    ) -> SurfaceHits:
     """SurfaceHits of each rest segment on ``rest_caster`` (``rest_surface(mesh, grid)``,
     the grid whose cells ``segments.cell`` indexes);
     ``distance`` is the rest-space local distance d from ``p0``. The hit fraction along the
@@ -63,7 +77,9 @@ def segment_targets(mesh, rest_caster, segments):
         segments.p0, segments.p1, segments.cell, BOUNDARY_MARGIN * mesh.size))
 
 
-def _surface_hits(mesh, triangle, distance, weights, normal):
+def _surface_hits(mesh: RestMesh, triangle: Int[np.ndarray, " N"],
+                  distance: Float[np.ndarray, " N"], weights: Float[np.ndarray, "N 3"], normal: Float[np.ndarray, "N 3"]
+                  ) -> SurfaceHits:
     hit = triangle >= 0
     count = len(triangle)
     albedo = np.zeros((count, 3), np.float32)

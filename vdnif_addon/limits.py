@@ -3,6 +3,8 @@ the core where it allocates. Each keeps one run within this machine class's memo
 GiB per buffer) with a clear error instead of a failed 200 GiB allocation.
 """
 
+from __future__ import annotations
+
 from .errors import VDNIFError
 
 MAX_IMAGE_PIXELS = 4096 * 4096
@@ -33,7 +35,7 @@ MAX_SEED = 2 ** 32 - 1
 """numpy's and torch's seeds are unsigned 32-bit."""
 
 
-def check_range(name, value, low, high=None):
+def check_range(name: str, value: float, low: float, high: float | None = None) -> None:
     """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""
     if value < low:
         raise VDNIFError(f"{name} {value} must be at least {low}")
@@ -42,7 +44,7 @@ def check_range(name, value, low, high=None):
                          "(vdnif_addon/limits.py)")
 
 
-def check_image(width, height):
+def check_image(width: int, height: int) -> None:
     """Raises VDNIFError unless a ``width`` x ``height`` image is within the limits."""
     check_range("image width", width, 1, MAX_IMAGE_SIDE)
     check_range("image height", height, 1, MAX_IMAGE_SIDE)

@@ -1,8 +1,15 @@
 """The metrics of DESIGN section 10, comparing two sets of per-ray passes."""
 
+from __future__ import annotations
+
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float, Int
 
 
 PSNR_FLOOR_MSE = 1e-10     # identical albedo reports 100 dB instead of infinity (valid JSON)
@@ -16,24 +23,26 @@ SPEED_MIN_HIT_IOU = 0.9
 class Passes:
     """Per-ray (per-pixel) results: what a reference or the network says each ray sees."""
 
-    hit: np.ndarray          # (R,) bool
-    distance: np.ndarray     # (R,) float64 along the deformed ray, object-local units
-    normal: np.ndarray       # (R, 3) float64 unit, deformed space
-    albedo: np.ndarray       # (R, 3) float32
-    material: np.ndarray     # (R,) int32: index into the mesh's used materials
+    hit: Bool[np.ndarray, " R"]
+    distance: Float[np.ndarray, " R"]     # float64 along the deformed ray, object-local units
+    normal: Float[np.ndarray, "R 3"]     # float64 unit, deformed space
+    albedo: Float[np.ndarray, "R 3"]     # float32
+    material: Int[np.ndarray, " R"]       # int32: index into the mesh's used materials
 
     @classmethod
-    def empty(cls, rays):
+    def empty(cls, rays: int) -> Passes:
+        """Passes of ``rays`` rays that hit nothing (every pass zero)."""
         return cls(hit=np.zeros(rays, bool), distance=np.zeros(rays),
                    normal=np.zeros((rays, 3)), albedo=np.zeros((rays, 3), np.float32),
                    material=np.zeros(rays, np.int32))
 
     @classmethod
-    def concatenate(cls, passes):
+    def concatenate(cls, passes: Iterable[Passes]) -> Passes:
+        """The rays of ``passes`` one after the other."""
         return cls(*(np.concatenate([getattr(p, name) for p in passes])
                      for name in ("hit", "distance", "normal", "albedo", "material")))
 
-    def with_slots(self, slots):
+    def with_slots(self, slots: Int[np.ndarray, " K"]) -> Passes:
         """A copy whose material pass holds the Blender material slot the user knows:
         ``slots`` (K,) maps the used-material index to its slot (RestMesh.material_slots);
         0 where nothing is hit."""
@@ -43,11 +52,13 @@ class Passes:
                       albedo=self.albedo, material=material.astype(np.int32))
 
 
-def _share(count, total):
+def _share(count: int, total: int) -> float | None:
     return float(count / total) if total else None
 
 
-def compare(predicted, reference, object_size, heads=None, voxel_size=None, pixels=None):
+def compare(predicted: Passes, reference: Passes, object_size: float,
+            heads: dict[str, Any] | None = None, voxel_size: float | None = None,
+            pixels: Bool[np.ndarray, " R"] | None = None) -> dict[str, float | int | None]:
     """Errors of ``predicted`` against ``reference``.
 
     Hit-mask metrics count every ray: ``hit_iou`` (None when neither hits anything),
@@ -57,9 +68,9 @@ def compare(predicted, reference, object_size, heads=None, voxel_size=None, pixe
     both hit, restricted to ``pixels`` (R,) bool when given (the common pixel set of
     compared models, see ``common_pixels``): ``distance_mae`` in object units (divided by
     ``object_size``, the rest mesh's longest side), ``distance_mae_voxels`` (divided by
-    ``voxel_size``; only when it is given), ``normal_error_deg`` the mean angle; ``albedo_psnr`` and
-    ``material_accuracy`` where ``heads`` asks for them. ``compared_rays`` counts the rays
-    they are taken over.
+    ``voxel_size``; only when it is given), ``normal_error_deg`` the mean angle;
+    ``albedo_psnr`` and ``material_accuracy`` where ``heads`` asks for them.
+    ``compared_rays`` counts the rays they are taken over.
     """
     reference_hits = int(reference.hit.sum())
     union = predicted.hit | reference.hit
@@ -97,7 +108,7 @@ def compare(predicted, reference, object_size, heads=None, voxel_size=None, pixe
     return result
 
 
-def common_pixels(pairs):
+def common_pixels(pairs: Iterable[tuple[Passes, Passes]]) -> Bool[np.ndarray, " R"]:
     """(R,) bool: the rays where every (predicted, reference) Passes pair of ``pairs`` hits
     on both sides, the common pixel set over which compared models' errors are taken
     (DESIGN section 10). All pairs must be over the same rays."""
@@ -111,7 +122,7 @@ def common_pixels(pairs):
     return common
 
 
-def speed_withheld(hit_iou):
+def speed_withheld(hit_iou: float | None) -> str | None:
     """Why no speed figure may be given for a trained model whose hit IoU against the true
     reference is ``hit_iou``, or None when it may: only models that predict hits (hit IoU
     at least SPEED_MIN_HIT_IOU) have speeds (DESIGN section 10). The one place that decides

@@ -5,10 +5,20 @@ affine change of space with its distance scale (DESIGN section 2) and the traini
 distribution. Pure numpy; every direction returned is unit length.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .attributes import normalize
 from .errors import VDNIFError
+
+if TYPE_CHECKING:
+    from jaxtyping import Float
+
+    Rays = tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"]]
+    """Ray origins and unit directions, N rays (H*W for an image, row-major)."""
 
 # Orbit cameras keep this up vector unless it is parallel to the view direction.
 DEFAULT_UP = np.array([0.0, 0.0, 1.0])
@@ -24,7 +34,8 @@ GRAZING_TILT_DEG = 15.0
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
 
-def look_at_rays(eye, target, up, fov_deg: float, width: int, height: int):
+def look_at_rays(eye: Float[np.ndarray, "3"], target: Float[np.ndarray, "3"],
+                 up: Float[np.ndarray, "3"], fov_deg: float, width: int, height: int) -> Rays:
     """Pinhole camera rays through pixel centres: origins (H*W, 3), unit directions (H*W, 3).
 
     Row-major with row 0 at the top of the image and x to the right; ``fov_deg`` is the
@@ -44,7 +55,8 @@ def look_at_rays(eye, target, up, fov_deg: float, width: int, height: int):
     return _pinhole(eye, right, np.cross(right, forward), forward, fov_deg, width, height)
 
 
-def camera_rays(camera_to_world, fov_deg: float, width: int, height: int):
+def camera_rays(camera_to_world: Float[np.ndarray, "4 4"], fov_deg: float, width: int,
+                height: int) -> Rays:
     """Rays (origins, unit directions), (H*W, 3) each, of a camera looking down its local -Z
     with +Y up (Blender's convention); layout as ``look_at_rays``. The matrix's axes are
     normalized first, so a scaled camera object renders as Blender does (it ignores scale)."""
@@ -57,7 +69,9 @@ def camera_rays(camera_to_world, fov_deg: float, width: int, height: int):
     return _pinhole(matrix[:3, 3], axes[:, 0], axes[:, 1], -axes[:, 2], fov_deg, width, height)
 
 
-def _pinhole(eye, right, up, forward, fov_deg, width, height):
+def _pinhole(eye: Float[np.ndarray, "3"], right: Float[np.ndarray, "3"],
+             up: Float[np.ndarray, "3"], forward: Float[np.ndarray, "3"], fov_deg: float,
+             width: int, height: int) -> Rays:
     """Rays through the pixel centres of an image plane at distance 1 along ``forward``."""
     if width < 1 or height < 1:
         raise VDNIFError(f"image size must be at least 1x1, got {width}x{height}")
@@ -69,7 +83,7 @@ def _pinhole(eye, right, up, forward, fov_deg, width, height):
     return np.broadcast_to(eye, directions.shape).copy(), directions
 
 
-def orbit_viewpoints(count: int, seed=None) -> np.ndarray:
+def orbit_viewpoints(count: int, seed: int | None = None) -> Float[np.ndarray, "count 3"]:
     """(count, 3) unit directions: a deterministic Fibonacci sphere when ``seed`` is None,
     else uniform random on the sphere from ``np.random.default_rng(seed)``."""
     if count < 0:
@@ -80,7 +94,9 @@ def orbit_viewpoints(count: int, seed=None) -> np.ndarray:
     return _uniform_sphere(count, np.random.default_rng(seed))
 
 
-def orbit_rays(bounds_lo, bounds_hi, direction, width: int, height: int, fov_deg: float = 40):
+def orbit_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray, "3"],
+               direction: Float[np.ndarray, "3"], width: int, height: int, fov_deg: float = 40
+               ) -> Rays:
     """Rays (origins, unit directions) of a camera on ``direction`` (3,) from the bounds
     centre, looking at it, just far enough that the bounding sphere fills the view cone
     inscribed in the image (half angle of the narrower of the horizontal/vertical fov)."""
@@ -94,7 +110,10 @@ def orbit_rays(bounds_lo, bounds_hi, direction, width: int, height: int, fov_deg
     return look_at_rays(eye, centre, DEFAULT_UP, fov_deg, width, height)
 
 
-def transform_rays(origins, directions, matrix):
+def transform_rays(origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+                   matrix: Float[np.ndarray, "4 4"]
+                   ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"],
+                              Float[np.ndarray, " N"]]:
     """Rays (N, 3) through the affine 4x4 ``matrix`` (e.g. the inverse world matrix).
 
     Returns origins', unit directions' and scale (N,) = |M_3x3 d| / |d|: a distance t' along
@@ -113,9 +132,12 @@ def transform_rays(origins, directions, matrix):
     return origins, normalize(mapped, 0.0), scale
 
 
-def training_rays(bounds_lo, bounds_hi, surface_points, count: int, surface_fraction: float,
-                  rng, surface_normals=None, grazing_fraction: float = 0.0,
-                  grazing_tilt_deg: float = GRAZING_TILT_DEG):
+def training_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray, "3"],
+                  surface_points: Float[np.ndarray, "S 3"], count: int, surface_fraction: float,
+                  rng: np.random.Generator,
+                  surface_normals: Float[np.ndarray, "S 3"] | None = None,
+                  grazing_fraction: float = 0.0, grazing_tilt_deg: float = GRAZING_TILT_DEG
+                  ) -> Rays:
     """Training rays (origins, unit directions), (count, 3) each, of three kinds at random
     positions in the batch (DESIGN section 8):
 
@@ -170,7 +192,8 @@ def training_rays(bounds_lo, bounds_hi, surface_points, count: int, surface_frac
     return origins, directions
 
 
-def _grazing_directions(normals, tilt_deg: float, rng) -> np.ndarray:
+def _grazing_directions(normals: Float[np.ndarray, "N 3"], tilt_deg: float,
+                        rng: np.random.Generator) -> Float[np.ndarray, "N 3"]:
     """(N, 3) unit directions tangent to the planes of ``normals`` (N, 3) (any length; a zero
     normal gives a uniform random direction) in a uniform random azimuth, tilted towards the
     normal by an angle uniform in +-``tilt_deg``."""
@@ -198,7 +221,9 @@ def _half_tan(fov_deg: float) -> float:
     return float(np.tan(np.radians(fov_deg) / 2))
 
 
-def _bounds(bounds_lo, bounds_hi):
+def _bounds(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray, "3"]
+            ) -> tuple[Float[np.ndarray, "3"], Float[np.ndarray, "3"], Float[np.ndarray, "3"],
+                       float]:
     """lo (3,), hi (3,), centre (3,) and radius (half the diagonal) of a box; raises for an
     inverted or zero-size box."""
     lo, hi = np.asarray(bounds_lo, dtype=np.float64), np.asarray(bounds_hi, dtype=np.float64)
@@ -209,12 +234,13 @@ def _bounds(bounds_lo, bounds_hi):
     return lo, hi, (lo + hi) / 2, radius
 
 
-def _uniform_sphere(count: int, rng) -> np.ndarray:
+def _uniform_sphere(count: int, rng: np.random.Generator) -> Float[np.ndarray, "count 3"]:
     """(count, 3) unit vectors uniform on the sphere (uniform z and azimuth: Archimedes)."""
     return _sphere_points(rng.uniform(-1.0, 1.0, count), rng.uniform(0.0, 2 * np.pi, count))
 
 
-def _sphere_points(z, azimuth) -> np.ndarray:
+def _sphere_points(z: Float[np.ndarray, " N"], azimuth: Float[np.ndarray, " N"]
+                   ) -> Float[np.ndarray, "N 3"]:
     """(N, 3) unit vectors from heights z (N,) in [-1, 1] and azimuths (N,)."""
     ring = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
     return np.stack([ring * np.cos(azimuth), ring * np.sin(azimuth), z], axis=1)

@@ -5,6 +5,10 @@
   truth of each segment: what the network is trained to reproduce.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .groundtruth import cast_surface, segment_targets
@@ -12,8 +16,19 @@ from .kernels.render import write_hits
 from .metrics import Passes
 from .traverse import traverse
 
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
 
-def true_reference(mesh, deformed_caster, origins, directions):
+    from .groundtruth import SurfaceHits
+    from .kernels.cells import DeviceCells
+    from .kernels.surface import SurfaceCaster
+    from .restmesh import RestMesh
+    from .traverse import Segments
+
+
+def true_reference(mesh: RestMesh, deformed_caster: SurfaceCaster,
+                   origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"]
+                   ) -> Passes:
     """Passes of rays (N, 3) against the deformed mesh: ``deformed_caster`` is a
     ``kernels.surface.SurfaceCaster`` holding the evaluated mesh's vertices and corner normals
     (the rest mesh's topology, e.g. ``PoseGeometry.mesh_caster``)."""
@@ -22,7 +37,8 @@ def true_reference(mesh, deformed_caster, origins, directions):
                   albedo=hits.albedo, material=hits.material)
 
 
-def embedded_reference(cells, segments, targets, rays):
+def embedded_reference(cells: DeviceCells, segments: Segments, targets: SurfaceHits,
+                       rays: int) -> Passes:
     """Passes from segments and their rest ground truth: per ray the first segment with a
     hit, ``D = t0_k + s_k l_k`` (which equals the sum of gaps and lengths before it), the
     rest normal carried to deformed space by the inverse transpose Jacobian."""
@@ -38,7 +54,10 @@ def embedded_reference(cells, segments, targets, rays):
     return passes
 
 
-def set_hits(passes, ray, cells, segments, k, fraction, rest_normal, albedo, material):
+def set_hits(passes: Passes, ray: Int[np.ndarray, " H"], cells: DeviceCells, segments: Segments,
+             k: Int[np.ndarray, " H"], fraction: Float[np.ndarray, " H"],
+             rest_normal: Float[np.ndarray, "H 3"], albedo: Float[np.ndarray, "H 3"],
+             material: Int[np.ndarray, " H"]) -> None:
     """Writes hits into ``passes`` for ``ray`` from their hit segment ``k`` and the hit
     ``fraction`` along it: deformed distance ``t0 + fraction * l`` and the rest normal
     carried to deformed space by ``J^-T`` of the cell's trilinear map at the rest hit, by
@@ -48,7 +67,9 @@ def set_hits(passes, ray, cells, segments, k, fraction, rest_normal, albedo, mat
                segments.p0[k], segments.p1[k], fraction, rest_normal, albedo, material)
 
 
-def embedded_passes(cells, mesh, rest_caster, origins, directions):
+def embedded_passes(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCaster,
+                    origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"]
+                    ) -> tuple[Passes, Segments, SurfaceHits]:
     """Walk + ground truth + embedded reference in one call: (Passes, Segments, targets)."""
     segments = traverse(cells, origins, directions)
     targets = segment_targets(mesh, rest_caster, segments)

@@ -14,9 +14,17 @@ This module holds what the walk's users share: the face tables, the walk's limit
 reference geometry that tests check casters against.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float, Int
+
+    from .kernels.cells import DeviceCells
 
 # Faces in the neighbour-table order -x, +x, -y, +y, -z, +z; corner c = dx + 2 dy + 4 dz.
 FACE_AXIS = np.array([0, 0, 1, 1, 2, 2])
@@ -32,13 +40,13 @@ ZERO_PASS_LIMIT = 8              # zero-length passes in a row before re-seeking
 SEEK_LIMIT = 64
 
 
-def step_budget(cells):
+def step_budget(cells: int) -> int:
     """Cell steps one ray may make through ``cells`` occupied cells: four per cell plus 64,
     a bound that no terminating walk reaches."""
     return 4 * int(cells) + 64
 
 
-def _face_triangles():
+def _face_triangles() -> Int[np.ndarray, "6 2 3"]:
     """(6, 2, 3) corner numbers of each face's two triangles, wound so that the rest-space
     normal points out of the cell, split along the lowest-highest corner diagonal."""
     triangles = np.empty((6, 2, 3), np.int64)
@@ -46,7 +54,7 @@ def _face_triangles():
         axis, side = FACE_AXIS[face], FACE_SIDE[face]
         u, v = (axis + 1) % 3, (axis + 2) % 3
 
-        def corner(du, dv):
+        def corner(du: int, dv: int) -> int:
             offset = np.zeros(3, np.int64)
             offset[axis], offset[u], offset[v] = side, du, dv
             return int(offset @ (1, 2, 4))
@@ -70,23 +78,24 @@ class Segments:
     segment of the same ray (or ``t0`` for the first one).
     """
 
-    ray: np.ndarray        # (S,) int64
-    cell: np.ndarray       # (S,) int64 index into grid.cells
-    t0: np.ndarray         # (S,) float64
-    t1: np.ndarray         # (S,) float64
-    p0: np.ndarray         # (S, 3) float64 rest-space entry point
-    p1: np.ndarray         # (S, 3) float64 rest-space exit point
+    ray: Int[np.ndarray, " S"]        # int64
+    cell: Int[np.ndarray, " S"]       # int64 index into grid.cells
+    t0: Float[np.ndarray, " S"]       # float64
+    t1: Float[np.ndarray, " S"]       # float64
+    p0: Float[np.ndarray, "S 3"]     # float64 rest-space entry point
+    p1: Float[np.ndarray, "S 3"]     # float64 rest-space exit point
     truncated: int = 0     # rays stopped by the step limit (should stay 0)
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.ray)
 
     @property
-    def length(self):
+    def length(self) -> Float[np.ndarray, " S"]:
+        """(S,) l = t1 - t0: deformed length of each segment."""
         return self.t1 - self.t0
 
     @property
-    def gap(self):
+    def gap(self) -> Float[np.ndarray, " S"]:
         """(S,) delta: distance from the previous segment's exit (or the ray origin)."""
         previous_exit = np.zeros_like(self.t0)
         same_ray = np.zeros(len(self.ray), bool)
@@ -94,7 +103,7 @@ class Segments:
         previous_exit[1:] = np.where(same_ray[1:], self.t1[:-1], 0.0)
         return self.t0 - previous_exit
 
-    def first_per_ray(self, mask, rays):
+    def first_per_ray(self, mask: Bool[np.ndarray, " S"], rays: int) -> Int[np.ndarray, " rays"]:
         """(rays,) index of the first segment of each ray where ``mask`` holds, or -1."""
         first = np.full(rays, -1, np.int64)
         hits = np.flatnonzero(mask)[::-1]          # reversed: the earliest write wins last
@@ -102,7 +111,12 @@ class Segments:
         return first
 
 
-def ray_triangle(origins, directions, a, b, c):
+def ray_triangle(origins: Float[np.ndarray, "*batch 3"], directions: Float[np.ndarray, "*batch 3"],
+                 a: Float[np.ndarray, "*batch 3"], b: Float[np.ndarray, "*batch 3"],
+                 c: Float[np.ndarray, "*batch 3"]
+                 ) -> tuple[Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"],
+                            Float[np.ndarray, "*batch"], Bool[np.ndarray, "*batch"],
+                            Bool[np.ndarray, "*batch"]]:
     """Möller-Trumbore for matching (broadcast) rows: origins/directions (..., 3), triangle
     corners (..., 3). Returns (t, u, v, hit, outward): distance, barycentric weights of b and
     c, whether the ray's line crosses the triangle (edges inclusive; parallel rays never
@@ -142,11 +156,13 @@ class BruteForceCaster:
     """First hit of rays against a triangle soup by testing every triangle: the reference
     caster for tests and the fallback where no BVH is available."""
 
-    def __init__(self, triangles):
+    def __init__(self, triangles: Float[np.ndarray, "K 3 3"]) -> None:
         """``triangles``: (K, 3, 3) corner positions."""
         self.triangles = np.asarray(triangles, np.float64)
 
-    def cast(self, origins, directions, max_distance):
+    def cast(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+             max_distance: Float[np.ndarray, " N"]
+             ) -> tuple[Int[np.ndarray, " N"], Float[np.ndarray, " N"]]:
         """(index (N,) int64, -1 on a miss; t (N,)): first hit with 0 <= t <= max_distance."""
         n = len(origins)
         index, best = np.full(n, -1, np.int64), np.full(n, np.inf)
@@ -160,7 +176,10 @@ class BruteForceCaster:
         return index, np.where(index >= 0, best, np.inf)
 
 
-def traverse(cells, origins, directions, max_distance=None, max_steps=None):
+def traverse(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
+             directions: Float[np.ndarray, "N 3"],
+             max_distance: float | Float[np.ndarray, " N"] | None = None,
+             max_steps: int | None = None) -> Segments:
     """Walks rays (N, 3) through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose to
     walk) and returns all their rest-space Segments, ordered by ray then distance.
 

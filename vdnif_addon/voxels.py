@@ -10,11 +10,18 @@ Cell ``(i, j, k)`` spans ``origin + [i, i+1] x [j, j+1] x [k, k+1] * h``; its li
 ``i + dims[0] * (j + dims[1] * k)``. Pure numpy: never imports bpy.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .errors import VDNIFError
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float, Int
 
 MIN_RESOLUTION, MAX_RESOLUTION = 4, 256
 
@@ -56,25 +63,25 @@ class VoxelGrid:
     ``eq=False``: fields are arrays, so instances compare and hash by identity.
     """
 
-    origin: np.ndarray  # (3,) float64: the grid's min corner
+    origin: Float[np.ndarray, "3"]  # float64: the grid's min corner
     voxel_size: float  # h
-    dims: np.ndarray  # (3,) int64: cells per axis
+    dims: Int[np.ndarray, "3"]  # int64: cells per axis
     resolution: int  # R, as requested: dims.max() == R + 2
-    cells: np.ndarray  # (N, 3) int32: ijk of occupied cells, sorted by linear index
-    neighbours: np.ndarray  # (N, 6) int32: index of the -x,+x,-y,+y,-z,+z neighbour, or -1
-    corners: np.ndarray  # (C, 3) int32: ijk of the unique lattice points of occupied cells
-    cell_corners: np.ndarray  # (N, 8) int32: index into corners, corner c = dx + 2*dy + 4*dz
+    cells: Int[np.ndarray, "N 3"]  # int32: ijk of occupied cells, sorted by linear index
+    neighbours: Int[np.ndarray, "N 6"]  # int32: index of the -x,+x,-y,+y,-z,+z neighbour, or -1
+    corners: Int[np.ndarray, "C 3"]  # int32: ijk of the unique lattice points of occupied cells
+    cell_corners: Int[np.ndarray, "N 8"]  # int32: index into corners, corner c = dx + 2dy + 4dz
 
     @property
     def extent(self) -> float:
         """Edge of the cube that encloses the whole padded grid: ``h * dims.max()``."""
         return self.voxel_size * float(self.dims.max())
 
-    def corner_positions(self) -> np.ndarray:
+    def corner_positions(self) -> Float[np.ndarray, "C 3"]:
         """(C, 3) float64 rest-space positions of ``corners``."""
         return self.origin + self.corners * self.voxel_size
 
-    def normalize(self, points) -> np.ndarray:
+    def normalize(self, points: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3"]:
         """(..., 3) float64: rest-space ``points`` (..., 3) mapped so the grid fits in [0,1]^3.
 
         One scale for all axes, so the encoder sees undistorted shapes. The scale is the padded
@@ -83,13 +90,15 @@ class VoxelGrid:
         """
         return (np.asarray(points, dtype=np.float64) - self.origin) / self.extent
 
-    def cell_bounds(self, index) -> tuple[np.ndarray, np.ndarray]:
+    def cell_bounds(self, index: Int[np.ndarray, " N"]
+                    ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"]]:
         """Rest-space (lo (N, 3), hi (N, 3)) box corners of the cells ``index`` (N,) int."""
         ijk = self.cells[index]
         return self.origin + ijk * self.voxel_size, self.origin + (ijk + 1) * self.voxel_size
 
 
-def build_grid(vertices, triangles, resolution: int) -> VoxelGrid:
+def build_grid(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
+               resolution: int) -> VoxelGrid:
     """Voxelizes the mesh ``vertices`` (V, 3) float, ``triangles`` (T, 3) int at ``resolution``.
 
     ``h = longest AABB extent / resolution``; each axis gets ``floor(extent / h) + 2`` cells and
@@ -129,7 +138,9 @@ def build_grid(vertices, triangles, resolution: int) -> VoxelGrid:
     )
 
 
-def cell_jacobian_determinants(corner_positions, cell_corners) -> np.ndarray:
+def cell_jacobian_determinants(corner_positions: Float[np.ndarray, "C 3"],
+                               cell_corners: Int[np.ndarray, "N 8"]
+                               ) -> Float[np.ndarray, "N 8"]:
     """(N, 8) float64 determinant of each cell's trilinear map at each of its corners.
 
     ``corner_positions`` (C, 3) are (deformed) corner positions, ``cell_corners`` (N, 8) index
@@ -143,7 +154,8 @@ def cell_jacobian_determinants(corner_positions, cell_corners) -> np.ndarray:
         return np.sum(edges[:, :, 0] * np.cross(edges[:, :, 1], edges[:, :, 2]), axis=-1)
 
 
-def inverted_cells(corner_positions, cell_corners) -> np.ndarray:
+def inverted_cells(corner_positions: Float[np.ndarray, "C 3"],
+                   cell_corners: Int[np.ndarray, "N 8"]) -> Bool[np.ndarray, " N"]:
     """(N,) bool: cells whose determinant is not positive at some corner, or not finite.
 
     A cell with a NaN or infinite corner counts as inverted: it cannot be traversed.
@@ -155,7 +167,8 @@ def inverted_cells(corner_positions, cell_corners) -> np.ndarray:
     return ~(finite & positive)
 
 
-def _validated_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
+def _validated_mesh(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"]
+                    ) -> tuple[Float[np.ndarray, "V 3"], Int[np.ndarray, "T 3"]]:
     """(V, 3) float64 vertices and (T, 3) int64 triangles, or VDNIFError saying what is wrong."""
     vertices = np.asarray(vertices, dtype=np.float64)
     triangles = np.asarray(triangles)
@@ -179,7 +192,7 @@ def _validated_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
     return vertices, triangles.astype(np.int64)
 
 
-def _validated_resolution(resolution) -> int:
+def _validated_resolution(resolution: object) -> int:
     """``resolution`` as an int, or VDNIFError naming it and the allowed range."""
     allowed = f"{MIN_RESOLUTION}..{MAX_RESOLUTION}"
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
@@ -189,7 +202,9 @@ def _validated_resolution(resolution) -> int:
     return int(resolution)
 
 
-def _occupied_cells(vertices, triangles, origin, voxel_size, dims) -> np.ndarray:
+def _occupied_cells(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
+                    origin: Float[np.ndarray, "3"], voxel_size: float,
+                    dims: Int[np.ndarray, "3"]) -> Int[np.ndarray, " M"]:
     """Sorted unique linear indices (M,) int64 of the cells some triangle overlaps.
 
     Candidates stay inside the triangle's AABB cell range, which is exactly the separating-axis
@@ -230,13 +245,18 @@ def _occupied_cells(vertices, triangles, origin, voxel_size, dims) -> np.ndarray
     return np.unique(np.concatenate(found))
 
 
-def _cell_range(low, high, tolerance) -> tuple[np.ndarray, np.ndarray]:
-    """First and last int64 cells i whose box [i - tolerance, i+1 + tolerance] meets [low, high]."""
+def _cell_range(low: Float[np.ndarray, "*batch"], high: Float[np.ndarray, "*batch"],
+                tolerance: float
+                ) -> tuple[Int[np.ndarray, "*batch"], Int[np.ndarray, "*batch"]]:
+    """First and last int64 cells i whose box [i - tolerance, i+1 + tolerance] meets
+    [low, high]."""
     first = np.ceil(low - tolerance).astype(np.int64) - 1
     return first, np.floor(high + tolerance).astype(np.int64)
 
 
-def _height_fields(points):
+def _height_fields(points: Float[np.ndarray, "T 3 3"]
+                   ) -> tuple[Int[np.ndarray, "T 3"], Float[np.ndarray, "T 2"],
+                              Float[np.ndarray, " T"], Float[np.ndarray, " T"]]:
     """Each triangle ``points`` (T, 3, 3) as a height field over two of the axes.
 
     Returns ``axis_order`` (T, 3) int64: the height axis (the normal's largest component) then
@@ -258,7 +278,8 @@ def _height_fields(points):
     return axis_order, slope, offset.min(axis=1) - spread, offset.max(axis=1) + spread
 
 
-def _chunked_ranges(counts):
+def _chunked_ranges(counts: Int[np.ndarray, " K"]
+                    ) -> Iterator[tuple[Int[np.ndarray, " P"], Int[np.ndarray, " P"]]]:
     """Yields (owner (P,), local (P,)) int64 enumerating ``local in range(counts[owner])`` for
     every owner of ``counts`` (K,) int64, at most PAIRS_PER_CHUNK pairs at a time."""
     ends = np.cumsum(counts)
@@ -269,7 +290,8 @@ def _chunked_ranges(counts):
         yield owner, pair - (ends[owner] - counts[owner])
 
 
-def _triangle_overlaps_cell(points, cells) -> np.ndarray:
+def _triangle_overlaps_cell(points: Float[np.ndarray, "P 3 3"], cells: Int[np.ndarray, "P 3"]
+                            ) -> Bool[np.ndarray, " P"]:
     """(P,) bool: does each triangle ``points`` (P, 3, 3) overlap its cell ``cells`` (P, 3)?
 
     Both in voxel units; the box is the cell grown by BOX_TOLERANCE. Separating-axis test
@@ -292,18 +314,20 @@ def _triangle_overlaps_cell(points, cells) -> np.ndarray:
     return ~((low > radius) | (high < -radius)).any(axis=1)
 
 
-def _linear_index(ijk, dims) -> np.ndarray:
+def _linear_index(ijk: Int[np.ndarray, "*batch 3"], dims: Int[np.ndarray, "3"]
+                  ) -> Int[np.ndarray, "*batch"]:
     """(...,) int64 linear index ``i + dims[0] * (j + dims[1] * k)`` of ``ijk`` (..., 3)."""
     ijk = np.asarray(ijk, dtype=np.int64)
     return ijk[..., 0] + dims[0] * (ijk[..., 1] + dims[1] * ijk[..., 2])
 
 
-def _unravel(linear, dims) -> np.ndarray:
+def _unravel(linear: Int[np.ndarray, " M"], dims: Int[np.ndarray, "3"]) -> Int[np.ndarray, "M 3"]:
     """(M, 3) int64 ijk of the linear indices ``linear`` (M,)."""
     return np.stack(np.unravel_index(linear, tuple(dims), order="F"), axis=1).astype(np.int64)
 
 
-def _neighbour_table(cells, linear, dims) -> np.ndarray:
+def _neighbour_table(cells: Int[np.ndarray, "N 3"], linear: Int[np.ndarray, " N"],
+                     dims: Int[np.ndarray, "3"]) -> Int[np.ndarray, "N 6"]:
     """(N, 6) int32 index of each cell's face neighbour in ``cells`` (N, 3), or -1 if empty.
 
     ``linear`` (N,) are the cells' sorted linear indices; neighbours are found by binary search.
@@ -316,7 +340,8 @@ def _neighbour_table(cells, linear, dims) -> np.ndarray:
     return np.where(found, slot, -1).astype(np.int32)
 
 
-def _corner_lattice(cells, dims) -> tuple[np.ndarray, np.ndarray]:
+def _corner_lattice(cells: Int[np.ndarray, "N 3"], dims: Int[np.ndarray, "3"]
+                    ) -> tuple[Int[np.ndarray, "C 3"], Int[np.ndarray, "N 8"]]:
     """Unique corners (C, 3) int32 of ``cells`` (N, 3) and each cell's corners (N, 8) int32."""
     lattice_dims = dims + 1
     corner_linear = _linear_index(cells[:, None, :] + CORNER_OFFSETS, lattice_dims)  # (N, 8)
