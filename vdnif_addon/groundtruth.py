@@ -78,8 +78,10 @@ def segment_targets(mesh: RestMesh, rest_caster: SurfaceCaster, segments: Segmen
 
 
 def _surface_hits(mesh: RestMesh, triangle: Int[np.ndarray, " N"],
-                  distance: Float[np.ndarray, " N"], weights: Float[np.ndarray, "N 3"], normal: Float[np.ndarray, "N 3"]
-                  ) -> SurfaceHits:
+                  distance: Float[np.ndarray, " N"], weights: Float[np.ndarray, "N 3"],
+                  normal: Float[np.ndarray, "N 3"]) -> SurfaceHits:
+    """SurfaceHits of casts that found ``triangle`` (-1 on a miss), with albedo and material
+    read over the hits."""
     hit = triangle >= 0
     count = len(triangle)
     albedo = np.zeros((count, 3), np.float32)
