@@ -6,15 +6,29 @@ it (grid, heads, poses, seeds, counts, versions). Separate processes write separ
 reads an array only when it is used).
 """
 
+from __future__ import annotations
+
 import json
 import math
 import os
 import pathlib
 import zipfile
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .errors import VDNIFError
+
+if TYPE_CHECKING:
+    from .groundtruth import SurfaceHits
+    from .restmesh import RestMesh
+    from .traverse import Segments
+    from .voxels import VoxelGrid
+
+    Shard = Mapping[str, np.ndarray]
+    """One shard's arrays by ``ARRAYS`` name, each (S, ...) over its S segments (an npz
+    file, read lazily)."""
 
 FORMAT = "vdnif-dataset"
 VERSION = 1
@@ -35,8 +49,10 @@ ARRAYS = {                     # name: (dtype, trailing shape)
 GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
 
 
-def segment_records(grid, segments, targets, pose_index):
-    """The shard rows for one pose's Segments and their SurfaceHits targets."""
+def segment_records(grid: VoxelGrid, segments: Segments, targets: SurfaceHits,
+                    pose_index: int) -> dict[str, np.ndarray]:
+    """The shard rows for one pose's Segments and their SurfaceHits targets: per ``ARRAYS``
+    name an (S, ...) array of its dtype over the S segments."""
     rest_len = np.linalg.norm(segments.p1 - segments.p0, axis=1)
     fraction = np.where(targets.hit & (rest_len > 0),
                         targets.distance / np.where(rest_len > 0, rest_len, 1.0), 0.0)
@@ -50,7 +66,7 @@ def segment_records(grid, segments, targets, pose_index):
     return {name: np.asarray(value).astype(ARRAYS[name][0]) for name, value in records.items()}
 
 
-def grid_header(grid, mesh=None):
+def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> dict[str, Any]:
     """The grid's header entry; with the RestMesh ``mesh`` it carries the mesh's fingerprint
     (``model_file.mesh_fingerprint``), which the model keeps with the grid, so that a mesh
     edited within the same bounds is refused by the model trained before the edit."""
@@ -71,13 +87,13 @@ range (shard names depend only on the pose range)."""
 MANIFEST_KEYS = ("object", "grid", "seed")
 
 
-def _identity(header):
+def _identity(header: dict[str, Any]) -> dict[str, Any]:
     grid = header.get("grid") if isinstance(header.get("grid"), dict) else {}
     return {"object": header.get("object"), "seed": header.get("seed"),
             "grid": {key: grid.get(key) for key in GRID_KEYS}}
 
 
-def check_folder(folder, header):
+def check_folder(folder: str | os.PathLike, header: dict[str, Any]) -> None:
     """Raises VDNIFError when dataset folder ``folder`` holds shards of another object, grid
     or seed than ``header`` (its manifest, else the first shard header of an older folder)."""
     folder = pathlib.Path(folder)
@@ -107,7 +123,8 @@ def check_folder(folder, header):
                 f"{mine['grid'].get('dims')}): its {key} differs; use another folder")
 
 
-def write_shard(folder, name, records, header):
+def write_shard(folder: str | os.PathLike, name: str, records: dict[str, np.ndarray],
+                header: dict[str, Any]) -> pathlib.Path:
     """Writes ``name.npz`` and ``name.json`` into ``folder`` atomically (``safe_io``), after
     ``check_folder``; records the folder's manifest with the first shard. Returns the npz
     path."""
@@ -128,7 +145,7 @@ def write_shard(folder, name, records, header):
     return target
 
 
-def read_dataset(folder):
+def read_dataset(folder: str | os.PathLike) -> tuple[dict[str, Any], list[Shard]]:
     """(header, shards): the merged header and one lazy mapping of arrays per shard."""
     folder = pathlib.Path(folder)
     if not folder.is_dir():
@@ -154,7 +171,7 @@ def read_dataset(folder):
     return merged, shards
 
 
-def _read_header(path):
+def _read_header(path: pathlib.Path) -> dict[str, Any]:
     try:
         header = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
@@ -167,7 +184,7 @@ def _read_header(path):
     return header
 
 
-def _open_shard(path):
+def _open_shard(path: pathlib.Path) -> Shard:
     try:
         shard = np.load(path)
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
@@ -178,12 +195,12 @@ def _open_shard(path):
     return shard
 
 
-def _finite_number(value, positive=False):
+def _finite_number(value: object, positive: bool = False) -> bool:
     return (not isinstance(value, bool) and isinstance(value, (int, float))
             and math.isfinite(value) and (value > 0 or not positive))
 
 
-def _check_header(path, header):
+def _check_header(path: pathlib.Path, header: dict[str, Any]) -> None:
     """A shard header that agrees with itself: a complete grid of finite numbers, a voxel size
     equal to the grid's, the poses of its pose range, a finite albedo table."""
     grid = header.get("grid")
@@ -237,7 +254,7 @@ def _check_header(path, header):
 _POINT_MARGIN = 0.01
 
 
-def _check_shard(path, shard, header):
+def _check_shard(path: pathlib.Path, shard: Shard, header: dict[str, Any]) -> None:
     """Every array of a shard read once and checked against ``ARRAYS`` and its header: kind
     of dtype, shape, length (the header's segment count), finite values, normalized points
     within the grid, 0/1 hits, fractions in [0, 1], poses of the header. A bad CRC or a

@@ -1,11 +1,26 @@
 """Evaluation of a trained model on a scene (DESIGN section 10), free of Blender: does the
 model fit the captured scene, the metrics against both references, and the figures."""
 
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
 from .errors import VDNIFError
 from .images import PASSES, comparison_figure, display, error_images
 from .metrics import Passes, common_pixels, compare, speed_withheld
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float
+
+    from .restmesh import RestMesh
+    from .voxels import VoxelGrid
+
+    Metrics = dict[str, float | int | None]
+    """What ``metrics.compare`` returns."""
 
 REFERENCES = ("true", "embedded")
 # What the neural render's timings say of the model's speed: no figure unless it predicts
@@ -13,7 +28,8 @@ REFERENCES = ("true", "embedded")
 RENDER_SPEEDS = ("render_rays_per_s", "render_segments_per_s", "network_fraction")
 
 
-def check_model_fits(path, extra, mesh, grid):
+def check_model_fits(path: str | os.PathLike, extra: dict[str, Any], mesh: RestMesh,
+                     grid: VoxelGrid) -> None:
     """Raises a one-line VDNIFError unless the model in ``path`` (its metadata ``extra``)
     was trained on this rest ``mesh`` voxelized as ``grid``: same object, resolution, grid
     and materials. Rendering with another object's network would give garbage."""
@@ -52,7 +68,7 @@ def check_model_fits(path, extra, mesh, grid):
                          "train it again")
 
 
-def metric_heads(mesh):
+def metric_heads(mesh: RestMesh) -> dict[str, bool]:
     """Which optional metrics a scene has (DESIGN section 10): albedo PSNR unless one
     material of constant albedo makes it exact by construction (nothing is predicted),
     material accuracy with several materials."""
@@ -60,7 +76,10 @@ def metric_heads(mesh):
     return {"albedo_psnr": several or mesh.albedo_varies, "material": several}
 
 
-def compare_both(predicted, true, embedded, mesh, voxel_size=None, pixels=None):
+def compare_both(predicted: Passes, true: Passes, embedded: Passes, mesh: RestMesh,
+                 voxel_size: float | None = None,
+                 pixels: dict[str, Bool[np.ndarray, " R"]] | None = None
+                 ) -> dict[str, Metrics]:
     """{"vs_true": ..., "vs_embedded": ...}: ``compare`` against each reference, distance
     errors also in voxels of ``voxel_size``; continuous metrics over ``pixels``
     ({"vs_true": (R,) bool, "vs_embedded": ...}, the common pixel sets) when given."""
@@ -71,7 +90,8 @@ def compare_both(predicted, true, embedded, mesh, voxel_size=None, pixels=None):
             for name, reference in zip(REFERENCES, (true, embedded))}
 
 
-def compare_common(runs, mesh, voxel_sizes):
+def compare_common(runs: Sequence[dict[str, Passes]], mesh: RestMesh,
+                   voxel_sizes: Sequence[float]) -> list[dict[str, Metrics]]:
     """Compared models on one common pixel set per reference (DESIGN section 10).
 
     ``runs``: per model its joined {"predicted", "true", "embedded"} Passes over the same
@@ -91,7 +111,8 @@ def compare_common(runs, mesh, voxel_sizes):
             for run, h in zip(runs, voxel_sizes)]
 
 
-def speed_figures(timings, vs_true):
+def speed_figures(timings: dict[str, Any], vs_true: Metrics
+                  ) -> tuple[dict[str, Any], str | None]:
     """(timings, reason): the neural render's speed figures of ``timings`` kept only for a
     model that predicts hits (metrics.speed_withheld on its hit IoU ``vs_true``), else
     None with the reason why (None when they are kept)."""
@@ -102,20 +123,21 @@ def speed_figures(timings, vs_true):
             for key, value in timings.items()}, reason
 
 
-def concatenated(views):
+def concatenated(views: Sequence[dict[str, Passes]]) -> dict[str, Passes]:
     """Passes of every view joined: {"predicted", "true", "embedded"} -> Passes."""
     return {name: Passes.concatenate([view[name] for view in views])
             for name in ("predicted", *REFERENCES)}
 
 
-def distance_range(*passes):
+def distance_range(*passes: Passes) -> tuple[float, float]:
     """(near, far) over the hit distances of every Passes given: one brightness scale for
     images that are compared; (0, 1) without any hit."""
     hits = np.concatenate([p.distance[p.hit] for p in passes])
     return (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
 
 
-def view_images(reference, predicted, height, width, object_size):
+def view_images(reference: Passes, predicted: Passes, height: int, width: int,
+                object_size: float) -> dict[str, dict[str, Float[np.ndarray, "H W 3"]]]:
     """{"reference" | "predicted" | "error": {pass: (H, W, 3) image}} of one view: both
     passes on one distance scale, the errors of the prediction as heat maps."""
     near_far = distance_range(reference, predicted)
@@ -124,8 +146,9 @@ def view_images(reference, predicted, height, width, object_size):
             "error": error_images(predicted, reference, height, width, object_size)}
 
 
-def figure(reference, predicted, height, width, object_size):
-    """The reference | predicted | error figure, one row per pass (normal, albedo,
+def figure(reference: Passes, predicted: Passes, height: int, width: int, object_size: float
+           ) -> Float[np.ndarray, "FH FW 3"]:
+    """The reference | predicted | error figure (FH, FW, 3), one row per pass (normal, albedo,
     distance, material)."""
     shown = view_images(reference, predicted, height, width, object_size)
     return comparison_figure([[shown[source][name] for source in ("reference", "predicted",
@@ -133,7 +156,7 @@ def figure(reference, predicted, height, width, object_size):
                               for name in PASSES])
 
 
-def world_distances(passes, scale):
+def world_distances(passes: Passes, scale: Float[np.ndarray, " R"]) -> Passes:
     """A copy of ``passes`` with distances along world rays (local distance / ``scale``,
     the per-ray length of the world-to-local map of the direction)."""
     return Passes(hit=passes.hit, distance=np.where(scale > 0, passes.distance / np.where(

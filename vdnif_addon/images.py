@@ -4,7 +4,17 @@ error heat maps, and the reference | predicted | error comparison figure.
 Every image is (H, W, C) float32 with row 0 at the top, as the camera rays are ordered.
 """
 
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from jaxtyping import Float
+
+    from .metrics import Passes
 
 MISS_COLOR = np.array([0.05, 0.05, 0.06], np.float32)
 # Anchors of a perceptual dark-to-bright heat map (magma-like), sampled evenly on [0, 1].
@@ -17,7 +27,7 @@ _MATERIAL_PALETTE = np.array([[0.90, 0.60, 0.20], [0.20, 0.55, 0.90], [0.35, 0.8
 PASSES = ("normal", "albedo", "distance", "material")
 
 
-def heat(values, vmax):
+def heat(values: Float[np.ndarray, "*batch"], vmax: float) -> Float[np.ndarray, "*batch 3"]:
     """(...,) values -> (..., 3) heat-map colors, 0 dark, ``vmax`` and above bright."""
     x = np.clip(np.nan_to_num(values / vmax if vmax > 0 else values * 0), 0, 1)
     position = x * (len(_HEAT) - 1)
@@ -26,14 +36,15 @@ def heat(values, vmax):
     return ((1 - weight) * _HEAT[low] + weight * _HEAT[low + 1]).astype(np.float32)
 
 
-def srgb(linear):
+def srgb(linear: Float[np.ndarray, "*batch"]) -> Float[np.ndarray, "*batch"]:
     """Linear RGB -> sRGB-encoded display values."""
     linear = np.clip(linear, 0, 1)
     return np.where(linear <= 0.0031308, 12.92 * linear,
                     1.055 * linear ** (1 / 2.4) - 0.055).astype(np.float32)
 
 
-def display(passes, height, width, distance_range):
+def display(passes: Passes, height: int, width: int, distance_range: tuple[float, float]
+            ) -> dict[str, Float[np.ndarray, "H W 3"]]:
     """{pass name: (H, W, 3) display image} of Passes; misses are dark grey.
 
     Normals as (n + 1) / 2; albedo sRGB-encoded; distance nearer-is-brighter over
@@ -51,7 +62,7 @@ def display(passes, height, width, distance_range):
             for name, rgb in colors.items()}
 
 
-def raw(passes, height, width):
+def raw(passes: Passes, height: int, width: int) -> dict[str, Float[np.ndarray, "H W C"]]:
     """{pass name: (H, W, C) float32 data}: hit mask, distance (NaN on a miss), normal,
     albedo, material index; for EXR files and further use."""
     miss = ~passes.hit
@@ -64,8 +75,9 @@ def raw(passes, height, width):
     }
 
 
-def error_images(predicted, reference, height, width, object_size, distance_scale=0.05,
-                 angle_scale=45.0):
+def error_images(predicted: Passes, reference: Passes, height: int, width: int,
+                 object_size: float, distance_scale: float = 0.05, angle_scale: float = 45.0
+                 ) -> dict[str, Float[np.ndarray, "H W 3"]]:
     """Heat maps of the errors where both hit: distance error (bright at ``distance_scale``
     object units) and normal angle (bright at ``angle_scale`` degrees); pixels where only
     one of them hits are white, where neither hits dark."""
@@ -88,9 +100,10 @@ def error_images(predicted, reference, height, width, object_size, distance_scal
     return images
 
 
-def comparison_figure(rows, gap=4):
-    """One image from rows of equally sized images (reference | predicted | error per pass),
-    separated by ``gap`` white pixels."""
+def comparison_figure(rows: Sequence[Sequence[Float[np.ndarray, "H W C"]]], gap: int = 4
+                      ) -> Float[np.ndarray, "FH FW 3"]:
+    """One image (FH, FW, 3) from rows of equally sized images (reference | predicted | error
+    per pass), separated by ``gap`` white pixels."""
     height, width = rows[0][0].shape[:2]
     figure = np.ones((len(rows) * (height + gap) - gap,
                       len(rows[0]) * (width + gap) - gap, 3), np.float32)
@@ -101,5 +114,6 @@ def comparison_figure(rows, gap=4):
     return figure
 
 
-def _image(values, height, width):
+def _image(values: Float[np.ndarray, "HW C"], height: int, width: int
+           ) -> Float[np.ndarray, "H W C"]:
     return np.asarray(values, np.float32).reshape(height, width, -1)

@@ -13,7 +13,7 @@ import io
 import os
 import pickle
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -22,6 +22,9 @@ from .errors import VDNIFError
 from .safe_io import atomic_path
 from .network import IntersectionNetwork, NetworkConfig
 from .settings import OCCLUSION_THRESHOLD
+
+if TYPE_CHECKING:
+    from .restmesh import RestMesh
 
 FORMAT_NAME = "vdnif-model"
 FORMAT_VERSION = 2
@@ -35,7 +38,7 @@ MAX_WEIGHT = 1e6
 GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
 
 
-def mesh_fingerprint(mesh) -> str:
+def mesh_fingerprint(mesh: RestMesh) -> str:
     """SHA-256 (hex) of a RestMesh's vertices, faces and materials: what a model was trained
     on, so that a mesh edited within the same bounds is told apart (``check_model_fits``)."""
     digest = hashlib.sha256()
@@ -99,7 +102,8 @@ def _migrate(state_dict: dict[str, torch.Tensor], version: int) -> dict[str, tor
 
 
 def _storable(value: Any, where: str) -> Any:
-    """Plain data that a weights-only load accepts (numpy arrays -> tensors, scalars -> numbers)."""
+    """Plain data that a weights-only load accepts (numpy arrays -> tensors, scalars ->
+    numbers)."""
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     if isinstance(value, np.generic):
@@ -154,7 +158,8 @@ def save_model(
     path = os.fspath(path)
     if network.config != network_config:
         raise VDNIFError(
-            f"cannot save {path}: the network was built with a different config than the one given"
+            f"cannot save {path}: the network was built with a different config than the one "
+            "given"
         )
     inner = {
         "network_config": network_config.to_dict(),

@@ -8,11 +8,15 @@ segments in one batch, and a kernel turns each ray's first predicted hit into it
 two counts per wave come back to the host, to size the next launch and the network batch.
 """
 
+from __future__ import annotations
+
 import contextlib
 import os
 import sys
 import time
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -24,6 +28,18 @@ from .kernels import runtime
 from .kernels.walk import RayWalk, segment_buffer
 from .metrics import Passes
 
+if TYPE_CHECKING:
+    from jaxtyping import Float
+
+    from .kernels.cells import DeviceCells
+    from .network import IntersectionNetwork
+    from .traverse import Segments
+    from .voxels import VoxelGrid
+
+    Prediction = tuple[dict[str, torch.Tensor], bool]
+    """A wave's predictions as the resolve kernel reads them (hit, fraction, normal,
+    material, albedo: (count, ...) tensors) and whether the model has an albedo head."""
+
 # Segments per ray and wave: k for wave w (w = 0, 1, ...). A wave costs a fixed overhead
 # (launches, one network call: about 1 ms on a CPU core) and every segment past a ray's hit
 # in its wave is evaluated for nothing. Most rays that hit, hit within their first cells,
@@ -33,13 +49,16 @@ from .metrics import Passes
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
 
 
-def wave_segments(wave, schedule=WAVE_SEGMENTS):
+def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:
     """k of wave ``wave``: the schedule's entry, its last one beyond it."""
     return schedule[min(wave, len(schedule) - 1)]
 
 
-def neural_passes(network, grid, albedo_table, cells, origins, directions, device="cpu",
-                  schedule=WAVE_SEGMENTS, overlap=None):
+def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
+                  albedo_table: Float[np.ndarray, "M 3"], cells: DeviceCells,
+                  origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+                  device: str | torch.device = "cpu", schedule: Sequence[int] = WAVE_SEGMENTS,
+                  overlap: bool | None = None) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
@@ -92,12 +111,15 @@ def neural_passes(network, grid, albedo_table, cells, origins, directions, devic
 
 class _Waves:
     """The three steps of a wave of one lane: ``advance`` (Warp only: the walk kernel and
-    the network inputs), ``predict`` (the network: the Warp encoder and torch's MLP), ``resolve`` (Warp: first hits
-    into passes, finished rays out). The renderer runs ``advance`` of one lane beside
-    ``predict`` of the other, then ``resolve`` alone; ``runtime.LAUNCHES`` keeps the walk's
-    and the encoder's launches from running at once, so only the MLP overlaps the walk."""
+    the network inputs), ``predict`` (the network: the Warp encoder and torch's MLP),
+    ``resolve`` (Warp: first hits into passes, finished rays out). The renderer runs
+    ``advance`` of one lane beside ``predict`` of the other, then ``resolve`` alone;
+    ``runtime.LAUNCHES`` keeps the walk's and the encoder's launches from running at once, so
+    only the MLP overlaps the walk."""
 
-    def __init__(self, network, grid, walk, schedule, albedo_table, stats):
+    def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
+                 schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
+                 stats: dict[str, Any]) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
         self.stats, self.device = stats, walk.device
         self.passes = kernel.empty_passes(walk.rays, self.device)
@@ -108,7 +130,7 @@ class _Waves:
         self.buffers = [None] * len(walk.lanes)
         self.inputs = [None] * len(walk.lanes)
 
-    def advance(self, lane):
+    def advance(self, lane: int) -> int:
         """Walks ``lane`` on by its next wave's k segments per ray; returns how many."""
         clock = time.perf_counter()
         per_wave = wave_segments(self.waves[lane], self.schedule)
@@ -130,7 +152,7 @@ class _Waves:
         self.stats["walk_s"] += time.perf_counter() - clock
         return count
 
-    def predict(self, lane, count):
+    def predict(self, lane: int, count: int) -> Prediction | None:
         """The network's predictions for the ``count`` segments of ``lane``'s wave."""
         if not count:
             return None
@@ -147,7 +169,7 @@ class _Waves:
         return {name: value.contiguous() for name, value in tensors.items()}, \
             "albedo" in prediction
 
-    def resolve(self, lane, count, prediction):
+    def resolve(self, lane: int, count: int, prediction: Prediction | None) -> None:
         """Each ray's first predicted hit of the wave into passes (its walk ends there);
         finished rays leave the lane."""
         clock = time.perf_counter()
@@ -175,21 +197,21 @@ class _Waves:
 class _Done:
     """An already computed result, shaped like a future."""
 
-    def __init__(self, value):
+    def __init__(self, value: int) -> None:
         self.value = value
 
-    def result(self):
+    def result(self) -> int:
         return self.value
 
 
-def _core_to_spare(device):
+def _core_to_spare(device: str | torch.device) -> bool:
     """True on the CPU when torch runs on fewer threads than this process has cores."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return torch.device(device).type == "cpu" and torch.get_num_threads() < (cores or 1)
 
 
 @contextlib.contextmanager
-def _worker(overlap):
+def _worker(overlap: bool) -> Iterator[ThreadPoolExecutor | None]:
     """One worker thread for the walk when waves overlap, else None."""
     if not overlap:
         yield None
@@ -198,7 +220,7 @@ def _worker(overlap):
         yield pool
 
 
-def _torch_stream(device):
+def _torch_stream(device: str | torch.device) -> contextlib.AbstractContextManager:
     """On CUDA, Warp launches go to torch's current stream, so the network reads what the
     walk wrote and the resolve reads what the network wrote, in order."""
     if torch.device(device).type == "cuda":
@@ -206,7 +228,8 @@ def _torch_stream(device):
     return contextlib.nullcontext()
 
 
-def predict_segments(network, grid, segments, device):
+def predict_segments(network: IntersectionNetwork, grid: VoxelGrid, segments: Segments,
+                     device: str | torch.device) -> dict[str, torch.Tensor]:
     """``network.predict`` of host Segments (rest-space end points normalized to the grid)."""
     rest_length = np.linalg.norm(segments.p1 - segments.p0, axis=1)
     return network.predict(_tensor(grid.normalize(segments.p0), device),
@@ -214,5 +237,5 @@ def predict_segments(network, grid, segments, device):
                            _tensor(rest_length, device), grid.voxel_size)
 
 
-def _tensor(array, device):
+def _tensor(array: np.ndarray, device: str | torch.device) -> torch.Tensor:
     return torch.as_tensor(np.asarray(array, np.float32), device=device)
