@@ -12,6 +12,7 @@ The table is row-major, ``(rows, Fd)``: a corner's features are one contiguous r
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -19,6 +20,9 @@ from torch import nn
 
 from .errors import VDNIFError
 from .kernels import encoder as kernel
+
+if TYPE_CHECKING:
+    from jaxtyping import Float
 
 HASH_PRIMES = (1, 2654435761, 805459861)
 """instant-ngp's per-axis hash primes (x, y, z)."""
@@ -72,7 +76,8 @@ def check_encoding_settings(pe_bands: int, pe_form: str) -> None:
         raise VDNIFError(f"setting pe_form must be one of {sorted(PE_SCALES)}, got {pe_form!r}")
 
 
-def full_precision(points: torch.Tensor, name: str) -> torch.Tensor:
+def full_precision(points: Float[torch.Tensor, "*batch"], name: str
+                   ) -> Float[torch.Tensor, "*batch"]:
     """``points`` as float32, refusing floats of fewer bits: a normalized position rounded to
     bfloat16 moves by up to 2**-9 of the grid (a quarter cell of a 128-cell level), to
     float16 by up to 2**-12, which changes the looked-up features. ``torch.autocast`` leaves
@@ -86,7 +91,7 @@ def full_precision(points: torch.Tensor, name: str) -> torch.Tensor:
     return points.to(torch.float32)
 
 
-def _points(points: torch.Tensor, name: str) -> torch.Tensor:
+def _points(points: Float[torch.Tensor, "N 3"], name: str) -> Float[torch.Tensor, "N 3"]:
     """(N, 3) float32, contiguous, as the kernels read positions."""
     if points.dim() != 2 or points.shape[1] != 3:
         raise VDNIFError(f"{name} must have shape (N, 3), got {tuple(points.shape)}")
@@ -98,18 +103,23 @@ class _Encode(torch.autograd.Function):
     the table gradient (one kernel launch); positions get no gradient."""
 
     @staticmethod
-    def forward(ctx, table, p0, p1, encoding):
+    def forward(ctx: Any, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
+                p1: Float[torch.Tensor, "N 3"] | None, encoding: kernel.Encoding
+                ) -> Float[torch.Tensor, "N C"]:
         ctx.save_for_backward(p0, p1)
         ctx.encoding, ctx.rows = encoding, table.shape[0]
         return kernel.encode(encoding, table, p0, p1)
 
     @staticmethod
-    def backward(ctx, grad):
+    def backward(ctx: Any, grad: Float[torch.Tensor, "N C"]
+                 ) -> tuple[Float[torch.Tensor, "rows Fd"], None, None, None]:
         p0, p1 = ctx.saved_tensors
         return kernel.encode_backward(ctx.encoding, ctx.rows, p0, p1, grad), None, None, None
 
 
-def _encode(table, p0, p1, encoding) -> torch.Tensor:
+def _encode(table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
+            p1: Float[torch.Tensor, "N 3"] | None, encoding: kernel.Encoding
+            ) -> Float[torch.Tensor, "N C"]:
     """Through autograd when the table's gradient is wanted, else the bare launch."""
     if torch.is_grad_enabled() and table.requires_grad:
         return _Encode.apply(table, p0, p1, encoding)
@@ -181,7 +191,7 @@ class HashGrid(nn.Module):
         return kernel.Encoding(self._levels, self.dense_levels, 2**self.log2_table_size - 1,
                         self.feature_dim, pe_bands, pe_scale)
 
-    def forward(self, points: torch.Tensor) -> torch.Tensor:
+    def forward(self, points: Float[torch.Tensor, "N 3"]) -> Float[torch.Tensor, "N L*Fd"]:
         """points: (N, 3) float32 or float64 in [0,1] (clamped) -> features (N, L*Fd),
         level-major."""
         return _encode(self.table, _points(points, "hash grid points"), None, self.encoding())
@@ -205,7 +215,8 @@ class SegmentEncoder(nn.Module):
     def output_dim(self) -> int:
         return 2 * (1 + 2 * self.pe_bands) * self.grid.output_dim
 
-    def forward(self, p0: torch.Tensor, p1: torch.Tensor) -> torch.Tensor:
+    def forward(self, p0: Float[torch.Tensor, "N 3"], p1: Float[torch.Tensor, "N 3"]
+                ) -> Float[torch.Tensor, "N 2*(1+2*F)*L*Fd"]:
         """p0, p1: (N, 3) normalized rest coordinates -> (N, 2*(1+2F)*L*Fd) float32.
 
         Feature order: end point, gamma point, level, feature. Positions stay float32 under

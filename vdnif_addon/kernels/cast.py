@@ -11,11 +11,15 @@ hit on its triangle in float64.
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
 from . import runtime
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
 
 
 @wp.kernel
@@ -42,7 +46,8 @@ class MeshCaster:
     """A triangle mesh as a Warp BVH on ``device``: ``vertices`` (V, 3), ``triangles`` (T, 3)
     vertex indices; hit indices are rows of ``triangles``."""
 
-    def __init__(self, vertices, triangles, device: str = "cpu") -> None:
+    def __init__(self, vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
+                 device: str = "cpu") -> None:
         wp_ = runtime.init()
         runtime.load(sys.modules[__name__], device)
         self.device = device
@@ -55,13 +60,15 @@ class MeshCaster:
             self.indices = wp_.array(triangles.ravel(), dtype=wp_.int32, device=device)
             self.mesh = wp_.Mesh(points=self.points, indices=self.indices)
 
-    def refit(self, vertices) -> None:
+    def refit(self, vertices: Float[np.ndarray, "V 3"]) -> None:
         """Moves the vertices (same count and triangles) and updates the BVH's bounds."""
         self.points.assign(np.asarray(vertices, np.float32).reshape(-1, 3))
         if self.mesh is not None:
             self.mesh.refit()
 
-    def cast(self, origins, directions, max_distance):
+    def cast(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+             max_distance: float | Float[np.ndarray, " N"]
+             ) -> tuple[Int[np.ndarray, " N"], Float[np.ndarray, " N"]]:
         """(index (N,) int64, -1 on a miss; t (N,) float64, inf on a miss): the first hit
         with 0 <= t <= max_distance (a negative limit casts nothing)."""
         count = len(origins)

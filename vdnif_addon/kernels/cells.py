@@ -22,6 +22,7 @@ numpy does (the oracle in ``tests/oracles/walk.py`` gives the same bits).
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -30,6 +31,11 @@ from ..errors import VDNIFError
 from ..traverse import BARYCENTRIC_TOLERANCE, CELL_TRIANGLES, step_budget
 from . import runtime
 from .cast import MeshCaster
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
+
+    from ..voxels import VoxelGrid
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
@@ -184,7 +190,8 @@ class DeviceCells:
     ``boundary_cell[k]``, in the order of ``np.nonzero(grid.neighbours < 0)``.
     """
 
-    def __init__(self, grid, device: str = "cpu", corners=None) -> None:
+    def __init__(self, grid: VoxelGrid, device: str = "cpu",
+                 corners: Float[np.ndarray, "C 3"] | None = None) -> None:
         """Builds the topology and the entry BVH on ``device``, posed at ``corners`` (C, 3)
         (default: the rest corners)."""
         wp_ = runtime.init()
@@ -223,7 +230,7 @@ class DeviceCells:
         self.pose = 0                    # counts set_pose calls: geometry of older poses is gone
         self.set_pose(rest if corners is None else corners)
 
-    def set_pose(self, corners) -> DeviceCells:
+    def set_pose(self, corners: Float[np.ndarray, "C 3"]) -> DeviceCells:
         """Deforms the cells to ``corners`` (C, 3), the grid's corners in this pose: copies
         them, refits the entry BVH and stores the face triangles. Returns self."""
         corners = np.asarray(corners, np.float64)
@@ -241,7 +248,9 @@ class DeviceCells:
         self.pose += 1
         return self
 
-    def cast(self, origins, directions, max_distance):
+    def cast(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+             max_distance: Float[np.ndarray, " N"]
+             ) -> tuple[Int[np.ndarray, " N"], Float[np.ndarray, " N"]]:
         """First hits of rays (N, 3) on the entry BVH within ``max_distance`` (N,), in
         object units: (index (N,) int64, -1 on a miss; t (N,) inf on a miss). The walk
         kernel casts the same way (``entry_cast``); the walk's oracle casts with this."""
@@ -249,14 +258,14 @@ class DeviceCells:
                                    np.asarray(max_distance, np.float64) / self.frame_scale)
         return index, t * self.frame_scale
 
-    def _in_frame(self, points):
+    def _in_frame(self, points: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3"]:
         return (np.asarray(points, np.float64) - self.frame_origin) / self.frame_scale
 
-    def cell_corner_positions(self) -> np.ndarray:
+    def cell_corner_positions(self) -> Float[np.ndarray, "N 8 3"]:
         """(N, 8, 3) float64 deformed corners of every cell in the current pose."""
         return self.corners[self.grid.cell_corners]
 
-    def boundary_triangles(self) -> np.ndarray:
+    def boundary_triangles(self) -> Float[np.ndarray, "K 3 3"]:
         """(K, 3, 3) deformed corners of the entry BVH's triangles (rows of ``entry``)."""
         local = CELL_TRIANGLES[self.boundary_triangle]
         return self.cell_corner_positions()[self.boundary_cell[:, None], local]

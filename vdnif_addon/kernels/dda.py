@@ -11,6 +11,7 @@ recomputed only on the axis that stepped, and end points ``o + t d``.
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -18,6 +19,12 @@ import warp as wp
 from . import runtime
 from .walk import (SegmentBuffer, collect, emit, reusable_buffer, segment_buffer,
                    segments_from)
+
+if TYPE_CHECKING:
+    from jaxtyping import Float
+
+    from ..dda import StaticGrid
+    from ..traverse import Segments
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
@@ -158,7 +165,9 @@ def _still_walking(rays: DDAState, active: wp.array(dtype=wp.int32),
         keep[wp.atomic_add(cursor, 0, 1)] = r
 
 
-def dda_segments(static_grid, origins, directions, far, device, capacity=None):
+def dda_segments(static_grid: StaticGrid, origins: Float[np.ndarray, "N 3"],
+                 directions: Float[np.ndarray, "N 3"], far: Float[np.ndarray, " N"], device: str,
+                 capacity: int | None = None) -> Segments:
     """Segments of rays (N, 3) with unit (or zero) ``directions`` and limits ``far`` (N,)
     through a ``dda.StaticGrid`` (its ``arrays`` on ``device``)."""
     runtime.load(sys.modules[__name__], device)

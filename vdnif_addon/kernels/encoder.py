@@ -30,12 +30,16 @@ On the CPU a launch is serial and latency-bound on the table reads: at the paper
 from __future__ import annotations
 
 import sys
-from typing import Any
+from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
 
 import torch
 import warp as wp
 
 from . import runtime
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
 
 # No automatic adjoints (the backward is written by hand) and no contraction into fused
 # multiply-adds, which would round differently from the torch reference.
@@ -286,8 +290,8 @@ class Encoding:
 
     __slots__ = ("levels", "dense", "mask", "feature_dim", "bands", "scale")
 
-    def __init__(self, levels: torch.Tensor, dense: int, mask: int, feature_dim: int,
-                 bands: int, scale: float) -> None:
+    def __init__(self, levels: Int[torch.Tensor, " L*4"], dense: int, mask: int,
+                 feature_dim: int, bands: int, scale: float) -> None:
         self.levels, self.dense, self.mask = levels, dense, mask
         self.feature_dim, self.bands, self.scale = feature_dim, bands, scale
 
@@ -297,7 +301,7 @@ class Encoding:
         return ends * (1 + 2 * self.bands) * count * self.feature_dim
 
 
-def _target(tensor: torch.Tensor):
+def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
     """(Warp device, stream) of a torch tensor's device, the kernels loaded there. On CUDA the
     launch goes to torch's current stream, so it is ordered with torch's work."""
     device = runtime.device(tensor.device)
@@ -305,7 +309,9 @@ def _target(tensor: torch.Tensor):
     return device, wp.stream_from_torch(tensor.device) if tensor.device.type == "cuda" else None
 
 
-def _launches(enc: Encoding, p0: torch.Tensor, p1: torch.Tensor | None, ends: int):
+def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],
+              p1: Float[torch.Tensor, "N 3"] | None, ends: int
+              ) -> Iterator[tuple[int, int, list[Any]]]:
     """Slices ``(first, stop)`` of the points of at most ``MAX_LAUNCH_VECTORS`` output vectors
     each, with the launch arguments of the slice."""
     per_point = enc.width(ends) // vector_width(enc.feature_dim)
@@ -318,7 +324,7 @@ def _launches(enc: Encoding, p0: torch.Tensor, p1: torch.Tensor | None, ends: in
         yield first, stop, ends_ + shared
 
 
-def _vec3(points: torch.Tensor):
+def _vec3(points: Float[torch.Tensor, "N 3"]):
     """(N, 3) float32 as a Warp array descriptor (no wp.array object: cheaper per launch)."""
     return wp.from_torch(points, dtype=wp.vec3, requires_grad=False, return_ctype=True)
 
@@ -330,10 +336,10 @@ def _vectors(t: torch.Tensor, width: int):
                          requires_grad=False, return_ctype=True)
 
 
-def encode(enc: Encoding, table: torch.Tensor, p0: torch.Tensor, p1: torch.Tensor | None
-           ) -> torch.Tensor:
-    """Features of points (``p1`` None: (N, L*Fd), no gamma unless bands) or segments
-    ((N, 2*(1+2F)*L*Fd)); table (rows, Fd) float32 contiguous, p0/p1 (N, 3) contiguous
+def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
+           p1: Float[torch.Tensor, "N 3"] | None) -> Float[torch.Tensor, "N C"]:
+    """Features (N, C) of points (``p1`` None: C = L*Fd, no gamma unless bands) or segments
+    (C = 2*(1+2F)*L*Fd); table (rows, Fd) float32 contiguous, p0/p1 (N, 3) contiguous
     float32, all on one device."""
     ends = 1 if p1 is None else 2
     out = torch.empty(p0.shape[0], enc.width(ends), dtype=torch.float32, device=p0.device)
@@ -348,8 +354,9 @@ def encode(enc: Encoding, table: torch.Tensor, p0: torch.Tensor, p1: torch.Tenso
     return out
 
 
-def encode_backward(enc: Encoding, rows: int, p0: torch.Tensor, p1: torch.Tensor | None,
-                    grad_out: torch.Tensor) -> torch.Tensor:
+def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
+                    p1: Float[torch.Tensor, "N 3"] | None, grad_out: Float[torch.Tensor, "N C"]
+                    ) -> Float[torch.Tensor, "rows Fd"]:
     """d(sum grad_out * encode(...)) / d table: (rows, Fd) float32; grad_out (N, C)."""
     ends = 1 if p1 is None else 2
     grad_table = torch.zeros(rows, enc.feature_dim, dtype=torch.float32, device=p0.device)

@@ -12,6 +12,7 @@ embedded reference (``references.set_hits``) both make their passes here.
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
@@ -20,6 +21,12 @@ from ..attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
 from . import runtime
 from .cells import CellArrays, cross, dot
 from .walk import DONE, TRUNCATED, RayState, SegmentBuffer
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
+
+    from .. import metrics
+    from .cells import DeviceCells
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
@@ -183,6 +190,7 @@ def unresolved_truncated(rays: RayState, passes: Passes, count: wp.array(dtype=w
 
 
 def empty_passes(rays: int, device: str) -> Passes:
+    """Device passes of ``rays`` rays (each array (rays,) or (rays, 3)), all zero."""
     passes = Passes()
     passes.hit = wp.zeros(rays, dtype=wp.int32, device=device)
     passes.distance = wp.zeros(rays, dtype=wp.float64, device=device)
@@ -192,8 +200,12 @@ def empty_passes(rays: int, device: str) -> Passes:
     return passes
 
 
-def write_hits(cells, passes, ray, cell, t0, t1, p0, p1, fraction, rest_normal, albedo,
-               material) -> None:
+def write_hits(cells: DeviceCells, passes: metrics.Passes, ray: Int[np.ndarray, " H"],
+               cell: Int[np.ndarray, " H"], t0: Float[np.ndarray, " H"],
+               t1: Float[np.ndarray, " H"], p0: Float[np.ndarray, "H 3"],
+               p1: Float[np.ndarray, "H 3"], fraction: Float[np.ndarray, " H"],
+               rest_normal: Float[np.ndarray, "H 3"], albedo: Float[np.ndarray, "H 3"],
+               material: Int[np.ndarray, " H"]) -> None:
     """Hits of rays ``ray`` (H,) from their hit segments (cell, t0, t1, p0, p1 (H,...)) at
     ``fraction`` (H,) with rest normals (H, 3), albedo (H, 3) and material (H,) into host
     ``metrics.Passes``."""

@@ -16,8 +16,13 @@ import platform
 import sys
 import threading
 import time
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import warp as wp
+
+if TYPE_CHECKING:
+    import torch
 
 CACHE_ENV = "VDNIF_KERNEL_CACHE"
 
@@ -61,7 +66,7 @@ def cache_dir() -> pathlib.Path:
     return pathlib.Path(root) / f"warp-{wp.__version__}-{host_key()}"
 
 
-def init():
+def init() -> ModuleType:
     """Warp, initialized once with this machine's kernel cache; returns the module."""
     with _lock:
         if not _state["ready"]:
@@ -74,7 +79,7 @@ def init():
     return wp
 
 
-def device(torch_device) -> str:
+def device(torch_device: str | torch.device) -> str:
     """The Warp device name of a torch device (or of "cpu" / "cuda" / "cuda:N")."""
     text = str(torch_device)
     if text == "cuda":
@@ -84,7 +89,7 @@ def device(torch_device) -> str:
     return text
 
 
-def load(module, device_name: str) -> None:
+def load(module: ModuleType, device_name: str) -> None:
     """Compiles (first use on this machine) or loads the kernels of ``module`` for a device,
     saying on stderr when a compile takes a noticeable time."""
     init()

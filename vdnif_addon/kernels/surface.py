@@ -22,6 +22,8 @@ caster per posed object, ``refit`` to each pose's vertices and normals (same tri
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import warp as wp
@@ -29,6 +31,14 @@ import warp as wp
 from ..attributes import DEGENERATE_SIN2, FALLBACK_NORMAL
 from ..errors import VDNIFError
 from . import runtime
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
+
+    Hits = tuple[Int[np.ndarray, " N"], Float[np.ndarray, " N"], Float[np.ndarray, "N 3"],
+                 Float[np.ndarray, "N 3"]]
+    """Triangle (-1 on a miss), distance, barycentric weights and unit shading normal of N
+    casts (zeros on a miss)."""
 
 # A float32 BVH distance is replaced by the float64 distance to the hit triangle's plane when
 # the two agree within this relative tolerance (always, but for rays grazing the plane, where
@@ -258,8 +268,10 @@ class SurfaceCaster:
     belong to the vertices given here: a caster with cells is static (no ``refit``).
     """
 
-    def __init__(self, vertices, triangles, corner_normals, device: str = "cpu",
-                 cell_boxes=None, cell_margin: float = 0.0) -> None:
+    def __init__(self, vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
+                 corner_normals: Float[np.ndarray, "T 3 3"], device: str = "cpu",
+                 cell_boxes: tuple[Float[np.ndarray, "C 3"], Float[np.ndarray, "C 3"]]
+                 | None = None, cell_margin: float = 0.0) -> None:
         runtime.load(sys.modules[__name__], device)
         self.device = device
         self._on_cpu = wp.get_device(device).is_cpu
@@ -283,7 +295,8 @@ class SurfaceCaster:
                 items = self._group_by_cell(cell_boxes, cell_margin)
         self.item_triangle = wp.array(items, dtype=wp.int32, device=device)
 
-    def _group_by_cell(self, cell_boxes, cell_margin):
+    def _group_by_cell(self, cell_boxes: tuple[Float[np.ndarray, "C 3"], Float[np.ndarray, "C 3"]],
+                       cell_margin: float) -> Int[np.ndarray, " items"]:
         """Rebuilds the BVH with one subtree per cell (a triangle once per cell it may meet)
         and returns the triangle of each BVH item."""
         lows, highs = (wp.array(np.asarray(b, np.float64).reshape(-1, 3), dtype=wp.vec3d,
@@ -313,7 +326,8 @@ class SurfaceCaster:
                   device=self.device)
         return items
 
-    def refit(self, vertices, corner_normals) -> None:
+    def refit(self, vertices: Float[np.ndarray, "V 3"], corner_normals: Float[np.ndarray, "T 3 3"]
+              ) -> None:
         """Moves the vertices (same count and triangles) and replaces the shading normals:
         the same mesh in another pose. The BVH's bounds follow (a refit, no rebuild)."""
         if self.cell_root.shape[0]:
@@ -323,7 +337,8 @@ class SurfaceCaster:
         if self.mesh is not None:
             self.mesh.refit()
 
-    def _set(self, vertices, corner_normals) -> None:
+    def _set(self, vertices: Float[np.ndarray, "V 3"], corner_normals: Float[np.ndarray, "T 3 3"]
+             ) -> None:
         vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
         self.points.assign(vertices.astype(np.float32))
         self.vertices.assign(vertices)
@@ -331,7 +346,8 @@ class SurfaceCaster:
                   inputs=[self.vertices, self.corner_vertex, self.corners], device=self.device)
         self.corner_normals.assign(np.asarray(corner_normals, np.float32).reshape(-1, 3))
 
-    def cast_rays(self, origins, directions, max_distance):
+    def cast_rays(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
+                  max_distance: float | Float[np.ndarray, " N"]) -> Hits:
         """First hits with ``0 <= t < max_distance`` of rays ``origins`` + t ``directions``
         (N, 3), ``max_distance`` (N,) or scalar (inf: unlimited, < 0: no cast).
 
@@ -343,7 +359,8 @@ class SurfaceCaster:
             self._vectors(origins), self._vectors(directions),
             wp.array(np.ascontiguousarray(limits), dtype=wp.float64, device=self.device)])
 
-    def cast_segments(self, p0, p1, cell, margin: float):
+    def cast_segments(self, p0: Float[np.ndarray, "S 3"], p1: Float[np.ndarray, "S 3"],
+                      cell: Int[np.ndarray, " S"], margin: float) -> Hits:
         """First hits along the segments ``p0 -> p1`` (S, 3) lying in cells ``cell`` (S,)
         int, each cast from ``margin`` before ``p0`` to ``margin`` after ``p1``; a
         zero-length segment casts nothing.
@@ -360,12 +377,12 @@ class SurfaceCaster:
             wp.array(cell.astype(np.int32), dtype=wp.int32, device=self.device),
             wp.float64(margin)])
 
-    def _vectors(self, values):
+    def _vectors(self, values: Float[np.ndarray, "N 3"]) -> wp.array:
         # On the CPU the kernel reads float64 input in place (a copy costs a tenth of a cast).
         return wp.array(np.ascontiguousarray(values, np.float64).reshape(-1, 3),
                         dtype=wp.vec3d, device=self.device, copy=not self._on_cpu)
 
-    def _launch(self, kernel, count, inputs):
+    def _launch(self, kernel: wp.Kernel, count: int, inputs: Sequence[Any]) -> Hits:
         if self.mesh is None or count == 0:
             return (np.full(count, -1, np.int64), np.zeros(count), np.zeros((count, 3)),
                     np.zeros((count, 3)))

@@ -30,12 +30,23 @@ their order and ``collect`` sorts by ray.
 from __future__ import annotations
 
 import sys
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import warp as wp
 
 from ..traverse import SEEK_LIMIT, ZERO_PASS_LIMIT, Segments, step_budget
 from . import runtime
+
+if TYPE_CHECKING:
+    from jaxtyping import Float, Int
+
+    from .cells import DeviceCells
+
+    Piece = tuple[Int[np.ndarray, " S"], Int[np.ndarray, " S"], Float[np.ndarray, " S"],
+                  Float[np.ndarray, " S"], Float[np.ndarray, "S 3"], Float[np.ndarray, "S 3"]]
+    """Host copies (ray, cell, t0, t1, p0, p1) of S segments of a SegmentBuffer."""
 from .cells import (
     INF,
     ONE_PLUS_TOLERANCE,
@@ -312,7 +323,7 @@ def _count_truncated(rays: RayState, count: wp.array(dtype=wp.int32)):
         wp.atomic_add(count, 0, 1)
 
 
-def reusable_buffer(owner, capacity: int, device: str) -> SegmentBuffer:
+def reusable_buffer(owner: object, capacity: int, device: str) -> SegmentBuffer:
     """A SegmentBuffer of at least ``capacity`` kept on ``owner`` between calls: a fresh one
     costs a page fault per 4 kB written (about 4 ms for a 256x256 view's segments on the
     CPU), every time."""
@@ -337,7 +348,7 @@ def segment_buffer(capacity: int, device: str) -> SegmentBuffer:
 class Lane:
     """A list of unfinished rays on the device (order kept on the CPU)."""
 
-    def __init__(self, rays: np.ndarray, device: str) -> None:
+    def __init__(self, rays: Int[np.ndarray, " R"], device: str) -> None:
         self.active = wp.array(np.asarray(rays, np.int32), dtype=wp.int32, device=device)
         self._spare = wp.empty(len(rays), dtype=wp.int32, device=device)
         self._cursor = wp.zeros(1, dtype=wp.int32, device=device)
@@ -350,8 +361,10 @@ class RayWalk:
     i mod lanes) that can be walked separately: ``advance`` walks one lane on,
     ``drop_finished`` takes its finished rays out; ``count`` is the total left."""
 
-    def __init__(self, cells, origins, directions, max_distance=None, max_steps=None,
-                 lanes=1) -> None:
+    def __init__(self, cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
+                 directions: Float[np.ndarray, "N 3"],
+                 max_distance: float | Float[np.ndarray, " N"] | None = None,
+                 max_steps: int | None = None, lanes: int = 1) -> None:
         runtime.load(sys.modules[__name__], cells.device)
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)
@@ -412,13 +425,13 @@ class RayWalk:
         return int(counter.numpy()[0])
 
 
-def collect(buffer: SegmentBuffer, count: int, device: str):
+def collect(buffer: SegmentBuffer, count: int, device: str) -> Piece:
     """Host copies (ray, cell, t0, t1, p0, p1) of the first ``count`` segments of a buffer."""
     return tuple(getattr(buffer, name).numpy()[:count].copy()
                  for name in ("ray", "cell", "t0", "t1", "p0", "p1"))
 
 
-def segments_from(pieces, truncated: int) -> Segments:
+def segments_from(pieces: Sequence[Piece], truncated: int) -> Segments:
     """Segments from host pieces in which each ray's segments come in walk order: ordered
     by ray, then distance, ties in walk order. A CPU launch writes them so already; a CUDA
     launch interleaves rays (a stable sort by ray restores them: 12 ms for 124 k segments
@@ -440,8 +453,10 @@ def segments_from(pieces, truncated: int) -> Segments:
                     p0=p0, p1=p1, truncated=int(truncated))
 
 
-def walk_segments(cells, origins, directions, max_distance=None, max_steps=None,
-                  capacity=None) -> Segments:
+def walk_segments(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
+                  directions: Float[np.ndarray, "N 3"],
+                  max_distance: float | Float[np.ndarray, " N"] | None = None,
+                  max_steps: int | None = None, capacity: int | None = None) -> Segments:
     """All Segments of the rays through ``cells`` (``traverse.traverse``)."""
     walk = RayWalk(cells, origins, directions, max_distance, max_steps)
     buffer = (segment_buffer(capacity, cells.device) if capacity
