@@ -1,5 +1,6 @@
 """Every public function and method of the core carries parameter and return annotations
-(tensor shapes in jaxtyping's notation, under ``TYPE_CHECKING``: docs/DESIGN.md, code style).
+(arrays and tensors with their shapes in jaxtyping's notation, ``Float[np.ndarray, "N 3"]``,
+imported under ``TYPE_CHECKING`` with postponed annotations: no runtime dependency).
 
 Annotations are read as written (``inspect.signature`` on postponed, string annotations),
 never evaluated: jaxtyping is not a dependency, so ``typing.get_type_hints`` would fail.

@@ -237,5 +237,6 @@ def predict_segments(network: IntersectionNetwork, grid: VoxelGrid, segments: Se
                            _tensor(rest_length, device), grid.voxel_size)
 
 
-def _tensor(array: np.ndarray, device: str | torch.device) -> torch.Tensor:
+def _tensor(array: Float[np.ndarray, "*batch"], device: str | torch.device
+            ) -> Float[torch.Tensor, "*batch"]:
     return torch.as_tensor(np.asarray(array, np.float32), device=device)
