@@ -125,7 +125,12 @@ def ray_triangle(origins: Float[np.ndarray, "*batch 3"], directions: Float[np.nd
     return _crossings(o, d, a, b - a, c - a)
 
 
-def _crossings(o, d, a, e1, e2, scale=None):
+def _crossings(o: Float[np.ndarray, " 3 *batch"], d: Float[np.ndarray, " 3 *batch"],
+               a: Float[np.ndarray, " 3 *batch"], e1: Float[np.ndarray, " 3 *batch"],
+               e2: Float[np.ndarray, " 3 *batch"], scale: Float[np.ndarray, "*batch"] | None = None
+               ) -> tuple[Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"],
+                          Float[np.ndarray, "*batch"], Bool[np.ndarray, "*batch"],
+                          Bool[np.ndarray, "*batch"]]:
     """Möller-Trumbore on x, y, z components held apart (leading axis of length 3): several
     times faster than ``np.cross`` and ``sum(-1)`` on small trailing axes, which matters
     since the walk lives here. ``scale`` = |e1| |e2| may be given precomputed."""
