@@ -27,57 +27,10 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from .encoding import check_int
 from .errors import VDNIFError
-from .losses import WEIGHTINGS, make_weighting, task_losses
-from .network import Heads, IntersectionNetwork, NetworkConfig, readout
-from .settings import OCCLUSION_THRESHOLD, RECIPE
-
-DEVICES = ("auto", "cpu", "cuda")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Optimization settings; the two learning rates follow instant-ngp (grid) and LSNIF (MLP)."""
-
-    steps: int = RECIPE.steps
-    batch_size: int = RECIPE.batch_size
-    lr_grid: float = 1e-2
-    lr_mlp: float = 1e-3
-    final_lr_fraction: float = 0.1
-    weighting: str = "uncertainty"
-    seed: int = 0
-    device: str = "auto"
-    val_fraction: float = 0.1
-    val_segments: int = 2**16
-    log_interval: int = 100
-
-    def __post_init__(self) -> None:
-        for name in ("steps", "batch_size", "val_segments", "log_interval"):
-            check_int(name, getattr(self, name), 1, 2**40)
-        check_int("seed", self.seed, 0, 2**62)
-        for name in ("lr_grid", "lr_mlp", "final_lr_fraction"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= 1:
-                raise VDNIFError(f"setting {name} must be a number in (0, 1], got {value!r}")
-        if (
-            isinstance(self.val_fraction, bool)
-            or not isinstance(self.val_fraction, (int, float))
-            or not 0 <= self.val_fraction <= 0.9
-        ):
-            raise VDNIFError(
-                f"setting val_fraction must be a number in [0, 0.9], got {self.val_fraction!r}"
-            )
-        if self.weighting not in WEIGHTINGS:
-            raise VDNIFError(
-                f"setting weighting must be one of {sorted(WEIGHTINGS)}, got {self.weighting!r}"
-            )
-        if self.device not in DEVICES:
-            raise VDNIFError(f"setting device must be one of {list(DEVICES)}, got {self.device!r}")
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
+from .losses import make_weighting, task_losses
+from .network import IntersectionNetwork, readout
+from .settings import OCCLUSION_THRESHOLD, Heads, NetworkConfig, TrainConfig
 
 @dataclass
 class TrainResult:

@@ -15,8 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import VDNIFError
-
-MIN_RESOLUTION, MAX_RESOLUTION = 4, 256
+from .settings import MAX_RESOLUTION, MIN_RESOLUTION
 
 # Cell boxes are closed and grown by this fraction of a voxel on every side, so a triangle that
 # lies in a cell face or touches a cell edge or corner (up to rounding) overlaps every cell
