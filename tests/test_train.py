@@ -16,7 +16,9 @@ from vdnif_addon.fit import fit_model
 from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
 from vdnif_addon.model_file import load_model
 from vdnif_addon.settings import NetworkConfig, TrainConfig
-from vdnif_addon.train import calibrate_threshold, evaluate, load_segments, train
+from vdnif_addon.train import train
+from vdnif_addon.training_data import load_segments
+from vdnif_addon.validation import calibrate_threshold, evaluate
 from vdnif_addon.variants import variant_config
 
 SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
