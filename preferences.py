@@ -11,9 +11,13 @@ import sys
 
 import bpy
 
-DEVICES = [("auto", "Auto", "CUDA when available, else the CPU"),
-           ("cpu", "CPU", "Train and render on the CPU"),
-           ("cuda", "CUDA", "Train and render on the first CUDA GPU")]
+from .vdnif_addon import settings
+
+_DEVICE_TEXT = {"auto": ("Auto", "CUDA when available, else the CPU"),
+                "cpu": ("CPU", "Train and render on the CPU"),
+                "cuda": ("CUDA", "Train and render on the first CUDA GPU")}
+DEVICES = [(name, *_DEVICE_TEXT[name]) for name in settings.DEVICES]
+"""The device enum's items: ``settings.DEVICES`` with their labels."""
 INSTALL_HINT = "Preferences > Add-ons > VDNIF > Install PyTorch and Warp"
 WARP_REQUIREMENT = "warp-lang==1.19.0"
 """The Warp release the kernels are written and tested for (as pinned in requirements.txt)."""
@@ -23,27 +27,27 @@ _warp_details = None                   # cached version and kernel cache folder,
 install = {"process": None, "message": ""}
 
 
-def dependencies_folder():
+def dependencies_folder() -> str:
     """The user folder torch is installed into (kept across extension updates)."""
     return bpy.utils.extension_path_user(__package__, path="site-packages", create=True)
 
 
-def kernel_folder():
+def kernel_folder() -> str:
     """The user folder compiled kernels are cached in (per machine: see kernels.runtime)."""
     return bpy.utils.extension_path_user(__package__, path="kernels", create=True)
 
 
-def torch_available():
+def torch_available() -> bool:
     """Whether torch can be imported, found without importing it."""
     return importlib.util.find_spec("torch") is not None
 
 
-def warp_available():
+def warp_available() -> bool:
     """Whether Warp can be imported, found without importing it."""
     return importlib.util.find_spec("warp") is not None
 
 
-def use_kernel_folder():
+def use_kernel_folder() -> None:
     """Points the kernel cache at ``kernel_folder``, unless ``$VDNIF_KERNEL_CACHE`` names one
     (batch runs and tests share a cache that way). Imports Warp, not torch; a no-op without
     Warp or once a kernel was compiled."""
@@ -54,7 +58,7 @@ def use_kernel_folder():
             runtime.set_cache_root(kernel_folder())
 
 
-def warp_details():
+def warp_details() -> str:
     """'Warp 1.x, kernels cached in FOLDER' or why it cannot be used; imports Warp (cached)."""
     global _warp_details
     if _warp_details is None:
@@ -68,7 +72,7 @@ def warp_details():
     return _warp_details
 
 
-def torch_details():
+def torch_details() -> str:
     """'PyTorch 2.x, CUDA available' or why it cannot be used; imports torch (cached)."""
     global _torch_details
     if _torch_details is None:
@@ -82,17 +86,18 @@ def torch_details():
     return _torch_details
 
 
-def device(context):
+def device(context: bpy.types.Context) -> str:
+    """The device chosen in the preferences (one of ``settings.DEVICES``)."""
     return context.preferences.addons[__package__].preferences.device
 
 
-def install_command(folder):
+def install_command(folder: str) -> list[str]:
     """pip installing Warp and torch into ``folder`` with Blender's own Python."""
     return [sys.executable, "-m", "pip", "install", "--upgrade", "--no-input",
             "--target", folder, WARP_REQUIREMENT, "torch"]
 
 
-def start_install(background):
+def start_install(background: bool) -> str:
     """Installs torch: synchronously in background mode, else as a process watched by a
     timer so the UI keeps running. Returns a message for the user."""
     folder = dependencies_folder()
@@ -110,7 +115,7 @@ def start_install(background):
     return install["message"]
 
 
-def _watch_install():
+def _watch_install() -> float | None:
     process = install["process"]
     if process.poll() is None:
         return 1.0
@@ -121,7 +126,7 @@ def _watch_install():
     return None
 
 
-def _installed(returncode, output):
+def _installed(returncode: int, output: str) -> str:
     global _torch_details, _warp_details
     _torch_details = _warp_details = None
     importlib.invalidate_caches()
@@ -139,11 +144,12 @@ def _installed(returncode, output):
 class VDNIFPreferences(bpy.types.AddonPreferences):
     bl_idname = __package__
 
-    device: bpy.props.EnumProperty(name="Device", items=DEVICES, default="auto",
+    device: bpy.props.EnumProperty(name="Device", items=DEVICES,
+                                   default=settings.DEFAULT_DEVICE,
                                    description="Device for objects whose device setting is "
                                                "'Preferences'")
 
-    def draw(self, context):
+    def draw(self, context: bpy.types.Context) -> None:
         layout = self.layout
         layout.prop(self, "device")
         box = layout.box()
@@ -163,14 +169,14 @@ class VDNIFPreferences(bpy.types.AddonPreferences):
             box.label(text=install["message"], icon="INFO")
 
 
-def register():
+def register() -> None:
     folder = dependencies_folder()
     if folder not in sys.path:
         sys.path.append(folder)
     bpy.utils.register_class(VDNIFPreferences)
 
 
-def unregister():
+def unregister() -> None:
     bpy.utils.unregister_class(VDNIFPreferences)
     if bpy.app.timers.is_registered(_watch_install):
         bpy.app.timers.unregister(_watch_install)

@@ -9,69 +9,78 @@ from bpy.props import (EnumProperty, FloatProperty, IntProperty, PointerProperty
                        StringProperty)
 
 from . import preferences
-from .vdnif_addon import limits
+from .vdnif_addon import settings as defaults
 from .vdnif_addon.blender import ui_support
-from .vdnif_addon.settings import RECIPE
+from .vdnif_addon.settings import BOUNDS, RECIPE
 
 # Numbered: a .blend stores an enum by number, and "auto" came after the other three.
-VARIANTS = [("auto", "Automatic", "LSNIF where no armature or lattice deforms the object "
-                                  "(a static scene), else Proposed; each with its own PE "
-                                  "bands", 3),
-            ("proposed", "Proposed", "VDNIF: positional bands, log1p distance, "
-                                     "uncertainty weighting, trained on many poses", 0),
-            ("deformed", "Deformed", "The LSNIF model trained on many poses", 1),
-            ("lsnif", "LSNIF", "The static baseline: hash grid only, trained on the rest "
-                               "pose", 2)]
+_VARIANT_TEXT = {
+    defaults.AUTO_VARIANT: ("Automatic", "LSNIF where no armature or lattice deforms the "
+                            "object (a static scene), else Proposed; each with its own PE "
+                            "bands", 3),
+    "proposed": ("Proposed", "VDNIF: positional bands, log1p distance, uncertainty "
+                 "weighting, trained on many poses", 0),
+    "deformed": ("Deformed", "The LSNIF model trained on many poses", 1),
+    "lsnif": ("LSNIF", "The static baseline: hash grid only, trained on the rest pose", 2)}
+VARIANTS = [(name, *_VARIANT_TEXT[name])
+            for name in (defaults.AUTO_VARIANT, *reversed(defaults.TRAINABLE_VARIANTS))]
+"""The variant enum's items: Automatic, then ``settings.TRAINABLE_VARIANTS``."""
+_POSE_SOURCE_TEXT = {"random": ("Random", "Random bone rotations and lattice offsets"),
+                     "frames": ("Frame Range", "Frames spread over the scene's frame range")}
 NETWORK_FIELDS = ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
                   "width", "depth")
 TRAIN_FIELDS = ("steps", "batch_size")
+NETWORK = defaults.NetworkConfig()
+"""The default network, whose fields are the panel's defaults."""
 
 
-def _variant_changed(settings, _context):
+def _variant_changed(settings: "VDNIFSettings", _context: bpy.types.Context) -> None:
     """A variant brings its own positional bands (none for the hash-grid-only baselines)."""
-    if preferences.torch_available() and settings.variant != "auto":
-        from .vdnif_addon.variants import VARIANTS as DEFINITIONS
+    if settings.variant != defaults.AUTO_VARIANT:
+        settings.pe_bands = defaults.VARIANTS[settings.variant]["pe_bands"]
 
-        settings.pe_bands = DEFINITIONS[settings.variant]["pe_bands"]
+
+def _int(name: str, setting: str, default: int, **options: object) -> IntProperty:
+    """An IntProperty whose hard range is ``settings.BOUNDS[setting]``."""
+    low, high = BOUNDS[setting]
+    return IntProperty(name=name, default=default, min=low, max=high, **options)
 
 
 class VDNIFSettings(bpy.types.PropertyGroup):
-    resolution: IntProperty(name="Voxel Resolution", default=RECIPE.resolution, min=4, max=256,
-                            description="Voxels along the object's longest side")
-    pose_source: EnumProperty(name="Poses", default="random", items=[
-        ("random", "Random", "Random bone rotations and lattice offsets"),
-        ("frames", "Frame Range", "Frames spread over the scene's frame range")])
-    pose_count: IntProperty(name="Pose Count", default=RECIPE.poses, min=1,
-                            max=limits.MAX_POSES, soft_max=1024)
-    seed: IntProperty(name="Seed", default=0, min=0)
-    max_angle: FloatProperty(name="Maximum Angle", default=45.0, min=0.1, max=180.0,
+    resolution: _int("Voxel Resolution", "resolution", RECIPE.resolution,
+                     description="Voxels along the object's longest side")
+    pose_source: EnumProperty(name="Poses", default=defaults.PoseSpec.source, items=[
+        (name, *_POSE_SOURCE_TEXT[name]) for name in defaults.POSE_SOURCES])
+    pose_count: _int("Pose Count", "poses", RECIPE.poses, soft_max=1024)
+    seed: _int("Seed", "seed", defaults.PoseSpec.seed)
+    max_angle: FloatProperty(name="Maximum Angle", default=defaults.PoseSpec.max_angle_deg,
+                             min=BOUNDS["max_angle"][0], max=BOUNDS["max_angle"][1],
                              description="Largest random bone rotation per axis in degrees, "
                                          "for bones without rotation limits")
-    rays_per_pose: IntProperty(name="Rays per Pose", default=RECIPE.rays_per_pose, min=1,
-                               max=limits.MAX_RAYS_PER_POSE, soft_max=65536)
-    variant: EnumProperty(name="Variant", items=VARIANTS, default="auto",
+    rays_per_pose: _int("Rays per Pose", "rays_per_pose", RECIPE.rays_per_pose,
+                        soft_max=65536)
+    variant: EnumProperty(name="Variant", items=VARIANTS, default=defaults.AUTO_VARIANT,
                           update=_variant_changed)
-    levels: IntProperty(name="Levels", default=2, min=1, max=64, soft_max=16)
-    base_resolution: IntProperty(name="Base Resolution", default=64, min=1, max=2**16)
-    log2_table_size: IntProperty(name="Table Size (log2)", default=16, min=1,
-                                  max=limits.MAX_LOG2_TABLE_SIZE)
-    feature_dim: IntProperty(name="Feature Dim", default=3, min=1, max=64)
-    pe_bands: IntProperty(name="PE Bands", default=3, min=0, max=16,
-                          description="Positional-encoding bands (0: plain hash grid)")
-    width: IntProperty(name="Width", default=64, min=1, max=4096)
-    depth: IntProperty(name="Depth", default=3, min=1, max=64)
-    steps: IntProperty(name="Steps", default=RECIPE.steps, min=1, max=10**7)
-    batch_size: IntProperty(name="Batch Size", default=RECIPE.batch_size, min=1, max=2**24)
+    levels: _int("Levels", "levels", NETWORK.levels, soft_max=16)
+    base_resolution: _int("Base Resolution", "base_resolution", NETWORK.base_resolution)
+    log2_table_size: _int("Table Size (log2)", "log2_table_size", NETWORK.log2_table_size)
+    feature_dim: _int("Feature Dim", "feature_dim", NETWORK.feature_dim)
+    pe_bands: _int("PE Bands", "pe_bands", NETWORK.pe_bands,
+                   description="Positional-encoding bands (0: plain hash grid)")
+    width: _int("Width", "width", NETWORK.width)
+    depth: _int("Depth", "depth", NETWORK.depth)
+    steps: _int("Steps", "steps", RECIPE.steps)
+    batch_size: _int("Batch Size", "batch_size", RECIPE.batch_size)
     device: EnumProperty(name="Device", default="PREFERENCES", items=[
         ("PREFERENCES", "Preferences", "The device chosen in the add-on's preferences"),
         *preferences.DEVICES])
     view: EnumProperty(name="View", default="CAMERA", items=[
         ("CAMERA", "Camera", "Render through the scene's active camera"),
         ("VIEWPORT", "Viewport", "Render the 3D Viewport's view")])
-    image_width: IntProperty(name="Width", default=320, min=1, max=8192, subtype="PIXEL")
-    image_height: IntProperty(name="Height", default=240, min=1, max=8192, subtype="PIXEL")
-    eval_poses: IntProperty(name="Evaluation Poses", default=8, min=1, max=1000,
-                            description="Unseen poses the model is evaluated on")
+    image_width: _int("Width", "image_side", defaults.PANEL_IMAGE[0], subtype="PIXEL")
+    image_height: _int("Height", "image_side", defaults.PANEL_IMAGE[1], subtype="PIXEL")
+    eval_poses: _int("Evaluation Poses", "poses", defaults.EVALUATION_POSES,
+                     description="Unseen poses the model is evaluated on")
     dataset_dir: StringProperty(name="Dataset Folder", subtype="DIR_PATH",
                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                                 description="Empty: beside the .blend (or in the user folder "
@@ -90,33 +99,33 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     last_error: StringProperty(options={"HIDDEN"})
     preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview")
 
-    def pose_spec(self, count=None):
-        from .vdnif_addon.blender.poses import PoseSpec
+    def pose_spec(self, count: int | None = None) -> defaults.PoseSpec:
+        """The poses these settings choose (``count`` of them, default ``pose_count``)."""
+        return defaults.PoseSpec(source=self.pose_source, count=count or self.pose_count,
+                                 seed=self.seed, max_angle_deg=self.max_angle)
 
-        return PoseSpec(source=self.pose_source, count=count or self.pose_count,
-                        seed=self.seed, max_angle_deg=self.max_angle)
-
-    def device_name(self, context):
+    def device_name(self, context: bpy.types.Context) -> str:
+        """The device to run on: this object's choice or the preferences' one."""
         return preferences.device(context) if self.device == "PREFERENCES" else self.device
 
-    def overrides(self, context):
+    def overrides(self, context: bpy.types.Context) -> dict[str, object]:
         """The NetworkConfig / TrainConfig fields these settings choose (the automatic
         variant keeps its own PE bands)."""
         fields = {name: getattr(self, name) for name in NETWORK_FIELDS + TRAIN_FIELDS
-                  if not (name == "pe_bands" and self.variant == "auto")}
+                  if not (name == "pe_bands" and self.variant == defaults.AUTO_VARIANT)}
         return dict(fields, seed=self.seed, device=self.device_name(context))
 
-    def chosen_variant(self):
+    def chosen_variant(self) -> tuple[str, str | None]:
         """(variant, note) to generate data for and train: the chosen one, or for
         Automatic the static variant where no armature or lattice deforms the object
         (``variants.choose_variant``; the note says what was decided, or None)."""
         from .vdnif_addon.blender.read_mesh import deform_modifiers
         from .vdnif_addon.variants import choose_variant
 
-        return choose_variant(None if self.variant == "auto" else self.variant,
+        return choose_variant(None if self.variant == defaults.AUTO_VARIANT else self.variant,
                               not deform_modifiers(self.id_data))
 
-    def adopt(self, metadata):
+    def adopt(self, metadata: dict[str, object]) -> None:
         """Takes the variant, resolution and network settings of a loaded model."""
         self.variant = metadata["extra"]["variant"]
         self.resolution = metadata["extra"]["grid"]["resolution"]
@@ -124,7 +133,7 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         for name in NETWORK_FIELDS:
             setattr(self, name, getattr(network, name))
 
-    def parsed(self, name):
+    def parsed(self, name: str) -> dict[str, object]:
         """The JSON property ``name`` as a dict (empty when unset)."""
         text = getattr(self, name)
         return json.loads(text) if text else {}
@@ -145,7 +154,7 @@ classes = (VDNIFSettings, VDNIFViewer)
 forget_view = bpy.app.handlers.persistent(ui_support.forget_view)
 
 
-def register():
+def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.Object.vdnif = PointerProperty(type=VDNIFSettings)
@@ -153,7 +162,7 @@ def register():
     bpy.app.handlers.load_post.append(forget_view)
 
 
-def unregister():
+def unregister() -> None:
     bpy.app.handlers.load_post.remove(forget_view)
     del bpy.types.Scene.vdnif_viewer
     del bpy.types.Object.vdnif

@@ -99,7 +99,8 @@ def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed
 
 
 def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline():
-    from vdnif_addon.variants import ABLATIONS, VARIANTS, variant_config
+    from vdnif_addon.settings import ABLATIONS, VARIANTS
+    from vdnif_addon.variants import variant_config
 
     proposed, deformed = variant_config("proposed"), variant_config("deformed")
     parts = {"pe_bands": "network", "distance_mode": "network", "weighting": "train"}

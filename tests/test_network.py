@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.network import Heads, IntersectionNetwork, NetworkConfig, readout
+from vdnif_addon.network import IntersectionNetwork, readout
+from vdnif_addon.settings import Heads, NetworkConfig
 
 SMALL = {"levels": 2, "base_resolution": 8, "log2_table_size": 10, "width": 16, "depth": 2}
 

@@ -14,7 +14,8 @@ from vdnif_addon.encoding import HashGrid
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.metrics import compare
-from vdnif_addon.network import IntersectionNetwork, NetworkConfig
+from vdnif_addon.network import IntersectionNetwork
+from vdnif_addon.settings import NetworkConfig
 from vdnif_addon.restmesh import Albedo, RestMesh
 
 EXTREMES = ("bend:170", "twist:360", "stretch:4", "squash:0.1")

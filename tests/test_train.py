@@ -15,8 +15,10 @@ from vdnif_addon.errors import VDNIFError
 from vdnif_addon.fit import fit_model
 from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
 from vdnif_addon.model_file import load_model
-from vdnif_addon.network import NetworkConfig
-from vdnif_addon.train import TrainConfig, evaluate, load_segments, train
+from vdnif_addon.settings import NetworkConfig, TrainConfig
+from vdnif_addon.train import train
+from vdnif_addon.training_data import load_segments
+from vdnif_addon.validation import calibrate_threshold, evaluate
 from vdnif_addon.variants import variant_config
 
 SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
@@ -416,11 +418,11 @@ def test_threshold_calibration_minimizes_held_out_errors_by_brute_force():
     candidates = torch.arange(5, 46) / 50
     errors = [int(((probability > t) != hit).sum()) for t in candidates.tolist()]
     best = min(range(len(errors)), key=lambda i: (errors[i], abs(candidates[i] - 0.5)))
-    threshold = training.calibrate_threshold(_Logit(), data)
+    threshold = calibrate_threshold(_Logit(), data)
     assert threshold == pytest.approx(candidates[best].item())
     assert 0.78 <= threshold <= 0.88
     empty = {key: value[:0] for key, value in data.items()}
-    assert training.calibrate_threshold(_Logit(), empty) == 0.5
+    assert calibrate_threshold(_Logit(), empty) == 0.5
 
 
 def test_training_calibrates_the_threshold_on_the_held_out_poses():
@@ -432,7 +434,7 @@ def test_training_calibrates_the_threshold_on_the_held_out_poses():
     held_out = {key: value for key, value in load_segments(
         shards, result.network_config.heads).items()}
     chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
-    expected = training.calibrate_threshold(
+    expected = calibrate_threshold(
         result.network, {key: value[chosen] for key, value in held_out.items()})
     assert result.occlusion_threshold == expected
     assert result.network.occlusion_threshold == expected

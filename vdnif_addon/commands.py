@@ -12,9 +12,10 @@ import sys
 import traceback
 
 from .errors import VDNIFError
-from .settings import DEMO_SCENE, EMBEDDING_ERROR_SHARE, RECIPE
-
-AUTO_RESOLUTION = "auto"
+from .settings import (AUTO_RESOLUTION, BOUNDS, COMMAND_IMAGE, DEFAULT_DEVICE, DEMO_SCENE,
+                       DEVICES, EMBEDDING_ERROR_SHARE, EVALUATION_POSES, MAX_RESOLUTION,
+                       MIN_RESOLUTION, PE_SCALES, POSE_SOURCES, RECIPE, TRAINABLE_VARIANTS,
+                       PoseSpec)
 
 
 class _DefaultsFormatter(argparse.HelpFormatter):
@@ -123,17 +124,15 @@ def add_pose_options(parser, default_poses=8):
     group = parser.add_argument_group("poses")
     group.add_argument("--poses", type=int, default=default_poses, metavar="N",
                        help=f"number of poses (default {default_poses})")
-    group.add_argument("--pose-source", choices=("random", "frames"), default="random",
+    group.add_argument("--pose-source", choices=POSE_SOURCES, default=PoseSpec.source,
                        help="random bone rotations / lattice offsets, or timeline frames")
-    group.add_argument("--seed", type=int, default=0, help="random pose seed (default 0)")
-    group.add_argument("--max-angle", type=float, default=45.0, metavar="DEG",
+    group.add_argument("--seed", type=int, default=PoseSpec.seed, help="random pose seed")
+    group.add_argument("--max-angle", type=float, default=PoseSpec.max_angle_deg, metavar="DEG",
                        help="largest random bone rotation per axis where the bone has no "
-                            "rotation limits (default 45)")
+                            "rotation limits")
 
 
 def pose_spec(args):
-    from .blender.poses import PoseSpec
-
     return PoseSpec(source=args.pose_source, count=args.poses, seed=args.seed,
                     max_angle_deg=args.max_angle)
 
@@ -148,8 +147,6 @@ def write_json(path, data):
 
 
 def check_resolution(value):
-    from .voxels import MAX_RESOLUTION, MIN_RESOLUTION
-
     if value == AUTO_RESOLUTION:        # resolved once the scene is loaded
         return
     if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
@@ -557,7 +554,8 @@ def cmd_bench_network(args):
 
 def add_capture_options(parser, default_poses):
     parser.add_argument("--resolution", type=resolution_option, default=RECIPE.resolution,
-                        metavar="R", help=f"voxels along the longest side, 4..256, or "
+                        metavar="R", help=f"voxels along the longest side, "
+                        f"{MIN_RESOLUTION}..{MAX_RESOLUTION}, or "
                         f"'{AUTO_RESOLUTION}': the coarsest whose voxel embedding error is "
                         f"at most {EMBEDDING_ERROR_SHARE:g} x the network's (default "
                         f"{RECIPE.resolution})")
@@ -576,10 +574,9 @@ def _scene_command(commands, name, run, default_poses, notes):
     return parser
 
 
-def add_device_option(parser, default="auto"):
-    """``--device auto|cpu|cuda`` (train.DEVICES, named here so that parsing never imports
-    torch): auto takes CUDA where torch has it."""
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default=default,
+def add_device_option(parser, default=DEFAULT_DEVICE):
+    """``--device auto|cpu|cuda`` (settings.DEVICES): auto takes CUDA where torch has it."""
+    parser.add_argument("--device", choices=DEVICES, default=default,
                         help=f"where the network runs (default {default})")
 
 
@@ -603,8 +600,8 @@ def _model_command(commands, name, run, default_poses, notes):
                         help="voxel resolution (default: the model's; must match it)")
     add_pose_options(parser, default_poses)
     add_stress_options(parser)
-    parser.add_argument("--width", type=int, default=128, metavar="W")
-    parser.add_argument("--height", type=int, default=128, metavar="H")
+    parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
+    parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
     add_device_option(parser)
     parser.set_defaults(run=run)
     return parser
@@ -647,8 +644,8 @@ def build_parser():
         "Writes --json with embedded_vs_true (distance_mae in object units, "
         "normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
     refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
-    refs.add_argument("--width", type=int, default=128, metavar="W")
-    refs.add_argument("--height", type=int, default=128, metavar="H")
+    refs.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
+    refs.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
     refs.add_argument("--json", type=pathlib.Path, metavar="PATH", help="write the report")
 
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
@@ -663,7 +660,7 @@ def build_parser():
     training.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose,
                           metavar="K", help="with scene options: training rays per pose "
                           f"(default {RECIPE.rays_per_pose})")
-    training.add_argument("--variant", choices=("lsnif", "deformed", "proposed"), help=(
+    training.add_argument("--variant", choices=TRAINABLE_VARIANTS, help=(
         "default: lsnif for a scene that no armature or lattice deforms (static), else "
         "proposed"))
     training.add_argument("--out", type=pathlib.Path, metavar="MODEL", help=(
@@ -686,7 +683,7 @@ def build_parser():
                         help="also render the true and embedded references")
     render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
 
-    evaluate = _model_command(commands, "evaluate", cmd_evaluate, 8, (
+    evaluate = _model_command(commands, "evaluate", cmd_evaluate, EVALUATION_POSES, (
         "Poses are the evaluation poses of --seed: another random seed or frames between "
         "the training frames, never trained on. Writes --json with variant, config, vs_true "
         "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
@@ -778,16 +775,17 @@ def validate_arguments(args):
             limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
                                low, high)
 
-    at_least("seed", 0, limits.MAX_SEED)
-    at_least("poses", 1, limits.MAX_POSES)
-    at_least("rays_per_pose", 1, limits.MAX_RAYS_PER_POSE, "rays per pose")
+    at_least("seed", *BOUNDS["seed"])
+    at_least("poses", *BOUNDS["poses"])
+    at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
     at_least("repeats", 1)
     at_least("threads", 1)
-    at_least("batch", 1, limits.MAX_BATCH)
-    at_least("steps", 1)
+    at_least("batch", *BOUNDS["batch_size"])
+    at_least("steps", *BOUNDS["steps"])
     if isinstance(getattr(args, "resolution", None), int):
         check_resolution(args.resolution)
-    for name, low, high in (("surface_fraction", 0.0, 1.0), ("max_angle", 0.0, 180.0)):
+    for name in ("surface_fraction", "grazing_fraction", "max_angle"):
+        low, high = BOUNDS[name]
         value = getattr(args, name, None)
         if value is not None and not (math.isfinite(value) and low <= value <= high):
             raise VDNIFError(f"--{name.replace('_', '-')} {value} must be a number in "
@@ -811,16 +809,18 @@ def validate_arguments(args):
 
 
 def _validate_network_options(args, limits):
-    for name, low, high in (("levels", 1, 64), ("base_resolution", 1, 1 << 20),
-                            ("log2_table_size", 1, limits.MAX_LOG2_TABLE_SIZE),
-                            ("feature_dim", 1, 64), ("pe_bands", 0, 32), ("width", 1, 4096),
-                            ("depth", 0, 64)):
+    for name in ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
+                 "width", "depth"):
         if getattr(args, name, None) is not None:
-            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name), low, high)
-    if args.growth is not None and not (math.isfinite(args.growth) and 1 <= args.growth <= 16):
-        raise VDNIFError(f"--growth {args.growth} must be a number in 1..16")
-    if args.pe_form is not None and args.pe_form not in ("paper", "pi"):
-        raise VDNIFError(f"--pe-form '{args.pe_form}' must be 'paper' or 'pi'")
+            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name),
+                               *BOUNDS[name])
+    low, high = BOUNDS["growth"]
+    if args.growth is not None and not (math.isfinite(args.growth)
+                                        and low <= args.growth <= high):
+        raise VDNIFError(f"--growth {args.growth} must be a number in {low:g}..{high:g}")
+    if args.pe_form is not None and args.pe_form not in PE_SCALES:
+        raise VDNIFError(f"--pe-form '{args.pe_form}' must be one of "
+                         f"{', '.join(map(repr, PE_SCALES))}")
 
 
 DEBUG_ENV = "VDNIF_DEBUG"

@@ -20,60 +20,13 @@ from torch import nn
 
 from .errors import VDNIFError
 from .kernels import encoder as kernel
+from .settings import PE_SCALES, check_encoding_settings, check_grid_settings
 
 if TYPE_CHECKING:
     from jaxtyping import Float
 
 HASH_PRIMES = (1, 2654435761, 805459861)
 """instant-ngp's per-axis hash primes (x, y, z)."""
-
-MAX_LOG2_TABLE_SIZE = 24
-"""Largest table exponent (2**24 rows of Fd floats per level is already 200 MB at Fd=3)."""
-
-MAX_TABLE_FLOATS = 2**31 - 1
-"""The kernels index the table with int32: at most this many floats (8 GB) in all levels."""
-
-PE_SCALES = {"paper": 1.0, "pi": math.pi}
-"""``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
-
-
-def check_int(name: str, value: int, low: int, high: int) -> None:
-    """Raise a VDNIFError naming the setting unless ``value`` is an int in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise VDNIFError(f"setting {name} must be an integer in [{low}, {high}], got {value!r}")
-
-
-def check_grid_settings(
-    levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int
-) -> None:
-    """Validate hash grid settings with messages that name the setting."""
-    check_int("levels", levels, 1, 64)
-    check_int("base_resolution", base_resolution, 1, 2**16)
-    check_int("log2_table_size", log2_table_size, 1, MAX_LOG2_TABLE_SIZE)
-    check_int("feature_dim", feature_dim, 1, 64)
-    if (
-        isinstance(growth, bool)
-        or not isinstance(growth, (int, float))
-        or not 1.0 <= growth <= 16.0
-    ):
-        raise VDNIFError(f"setting growth must be a number in [1, 16], got {growth!r}")
-    finest = math.floor(base_resolution * growth ** (levels - 1))
-    if finest > 2**16:
-        raise VDNIFError(f"hash grid finest resolution {finest} exceeds 65536 cells per axis")
-    resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
-    floats = feature_dim * sum(min((res + 1) ** 3, 2**log2_table_size) for res in resolutions)
-    if floats > MAX_TABLE_FLOATS:
-        raise VDNIFError(
-            f"hash grid table of {floats} floats is too large: at most {MAX_TABLE_FLOATS} "
-            f"(lower log2_table_size, levels or feature_dim)"
-        )
-
-
-def check_encoding_settings(pe_bands: int, pe_form: str) -> None:
-    """Validate positional-encoding settings with messages that name the setting."""
-    check_int("pe_bands", pe_bands, 0, 16)
-    if pe_form not in PE_SCALES:
-        raise VDNIFError(f"setting pe_form must be one of {sorted(PE_SCALES)}, got {pe_form!r}")
 
 
 def full_precision(points: Float[torch.Tensor, "*batch"], name: str

@@ -30,9 +30,14 @@ MAX_LOG2_TABLE_SIZE = 24
 """Hash table rows per level 2^T: 2^24 rows x Fd 2 x 4 bytes x 16 levels is 2 GiB, with Adam's
 two moments 6 GiB."""
 
+MAX_TABLE_FLOATS = 2**31 - 1
+"""The encoder kernels index the table with int32: at most this many floats (8 GB) in all
+levels."""
+
 MAX_BATCH = 1 << 22
-MAX_SEED = 2 ** 32 - 1
-"""numpy's and torch's seeds are unsigned 32-bit."""
+MAX_SEED = 2**31 - 1
+"""numpy's and torch's seeds are unsigned 32-bit, the panel's IntProperty a signed 32-bit
+int: the smaller of the two."""
 
 
 def check_range(name: str, value: float, low: float, high: float | None = None) -> None:
@@ -41,7 +46,7 @@ def check_range(name: str, value: float, low: float, high: float | None = None) 
         raise VDNIFError(f"{name} {value} must be at least {low}")
     if high is not None and value > high:
         raise VDNIFError(f"{name} {value} is more than the limit {high:,} "
-                         "(vdnif_addon/limits.py)")
+                         "(vdnif_addon/settings.py)")
 
 
 def check_image(width: int, height: int) -> None:

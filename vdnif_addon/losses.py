@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .errors import VDNIFError
+from .settings import WEIGHTINGS, check_choice
 
 CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 """Tasks weighted as classification, exp(-s) L + s/2; the others are regression tasks."""
@@ -109,11 +109,11 @@ class FixedWeighting(nn.Module):
         return {}
 
 
-WEIGHTINGS = {"uncertainty": UncertaintyWeighting, "fixed": FixedWeighting}
+WEIGHTING_CLASSES = dict(zip(WEIGHTINGS, (UncertaintyWeighting, FixedWeighting), strict=True))
+"""``settings.WEIGHTINGS`` name -> its module, in that tuple's order."""
 
 
 def make_weighting(kind: str, tasks: Sequence[str]) -> UncertaintyWeighting | FixedWeighting:
-    """``kind`` "uncertainty" or "fixed" over ``tasks``."""
-    if kind not in WEIGHTINGS:
-        raise VDNIFError(f"setting weighting must be one of {sorted(WEIGHTINGS)}, got {kind!r}")
-    return WEIGHTINGS[kind](tasks)
+    """``kind`` (one of ``settings.WEIGHTINGS``) over ``tasks``."""
+    check_choice("weighting", kind, WEIGHTINGS)
+    return WEIGHTING_CLASSES[kind](tasks)

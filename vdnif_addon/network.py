@@ -6,120 +6,22 @@ consume; ``readout`` turns them into predictions in rest-space units.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .encoding import (
-    HashGrid,
-    SegmentEncoder,
-    check_encoding_settings,
-    check_grid_settings,
-    check_int,
-)
+from .encoding import HashGrid, SegmentEncoder
 from .errors import VDNIFError
-from .settings import OCCLUSION_THRESHOLD
+from .settings import OCCLUSION_THRESHOLD, NetworkConfig
 
-DISTANCE_MODES = ("fraction", "log1p")
-"""``fraction``: LSNIF's sigmoid t/l. ``log1p``: the scale-invariant ReLU log1p(d/h)."""
-
-
-@dataclass(frozen=True)
-class Heads:
-    """Which outputs the scene needs (DESIGN.md section 7).
-
-    Occlusion, distance and normal are always present; albedo only when it is not constant
-    per material (else a lookup table replaces it); material only when there are several.
-    """
-
-    albedo: bool = True
-    material_count: int = 1
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.albedo, bool):
-            raise VDNIFError(f"heads setting albedo must be true or false, got {self.albedo!r}")
-        check_int("material_count", self.material_count, 1, 2**15)
-
-    @property
-    def material(self) -> bool:
-        return self.material_count > 1
-
-    def sizes(self) -> dict[str, int]:
-        """Head name -> output width, in output-column order."""
-        sizes = {"occlusion": 1, "distance": 1, "normal": 3}
-        if self.albedo:
-            sizes["albedo"] = 3
-        if self.material:
-            sizes["material"] = self.material_count
-        return sizes
-
-    @classmethod
-    def from_header(cls, heads: Mapping[str, Any]) -> Heads:
-        """From a dataset header's ``heads`` entry: {"albedo": bool, "material_count": int, ...}."""
-        if not isinstance(heads, Mapping) or not {"albedo", "material_count"} <= set(heads):
-            raise VDNIFError(
-                f"dataset header 'heads' must give 'albedo' and 'material_count', got {heads!r}"
-            )
-        return cls(albedo=heads["albedo"], material_count=heads["material_count"])
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """Architecture of one intersection network; defaults are the paper's setting."""
-
-    levels: int = 2
-    base_resolution: int = 64
-    growth: float = 2.0
-    log2_table_size: int = 16
-    feature_dim: int = 3
-    pe_bands: int = 3
-    pe_form: str = "paper"
-    width: int = 64
-    depth: int = 3
-    distance_mode: str = "log1p"
-    heads: Heads = field(default_factory=Heads)
-
-    def __post_init__(self) -> None:
-        check_grid_settings(
-            self.levels, self.base_resolution, self.growth, self.log2_table_size, self.feature_dim
-        )
-        check_encoding_settings(self.pe_bands, self.pe_form)
-        check_int("width", self.width, 1, 4096)
-        check_int("depth", self.depth, 1, 64)
-        if self.distance_mode not in DISTANCE_MODES:
-            modes = list(DISTANCE_MODES)
-            raise VDNIFError(
-                f"setting distance_mode must be one of {modes}, got {self.distance_mode!r}"
-            )
-        if not isinstance(self.heads, Heads):
-            raise VDNIFError(f"setting heads must be a Heads, got {self.heads!r}")
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> NetworkConfig:
-        """Inverse of ``to_dict``; unknown or malformed entries raise VDNIFError."""
-        if not isinstance(data, Mapping):
-            raise VDNIFError(f"network config must be a mapping, got {type(data).__name__}")
-        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
-        if unknown:
-            raise VDNIFError(f"network config has unknown entries {sorted(unknown)}")
-        values = dict(data)
-        if "heads" in values:
-            heads = values["heads"]
-            if not isinstance(heads, Mapping) or not set(heads) <= {"albedo", "material_count"}:
-                raise VDNIFError(f"network config has malformed heads: {heads!r}")
-            values["heads"] = Heads(**heads)
-        return cls(**values)
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float, Int64
 
 
 class IntersectionNetwork(nn.Module):
@@ -160,7 +62,9 @@ class IntersectionNetwork(nn.Module):
         # threshold``) and the model file stores it; ``predict`` applies it.
         self.occlusion_threshold = OCCLUSION_THRESHOLD
 
-    def forward(self, p0: torch.Tensor, p1: torch.Tensor) -> dict[str, torch.Tensor]:
+    def forward(
+        self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"]
+    ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
 
         ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l or ReLU log1p(d/h)
@@ -169,7 +73,9 @@ class IntersectionNetwork(nn.Module):
         """
         return self.heads(self.encoder(p0, p1))
 
-    def heads(self, features: torch.Tensor) -> dict[str, torch.Tensor]:
+    def heads(
+        self, features: Float[torch.Tensor, "batch features"]
+    ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """Head outputs (see ``forward``) of encoded segments, features (N, encoder.output_dim)."""
         columns = self.mlp(features).split(list(self.head_sizes.values()), dim=1)
         raw = dict(zip(self.head_sizes, columns))
@@ -188,12 +94,13 @@ class IntersectionNetwork(nn.Module):
     @torch.inference_mode()
     def predict(
         self,
-        p0: torch.Tensor,
-        p1: torch.Tensor,
-        rest_len: torch.Tensor,
+        p0: Float[torch.Tensor, "batch 3"],
+        p1: Float[torch.Tensor, "batch 3"],
+        rest_len: Float[torch.Tensor, " batch"],
         voxel_size: float,
         batch: int = 2**14,
-    ) -> dict[str, torch.Tensor]:
+    ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
+              | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
         ``forward`` at the model's ``occlusion_threshold``, without autograd, ``batch``
         segments at a time to bound memory.
@@ -207,7 +114,7 @@ class IntersectionNetwork(nn.Module):
             chunks = [(p0, p1, rest_len)]
         mode = self.config.distance_mode
 
-        def encode(index: int) -> torch.Tensor:
+        def encode(index: int) -> Float[torch.Tensor, "chunk features"]:
             with torch.inference_mode():  # inference mode is per thread
                 return self.encoder(chunks[index][0], chunks[index][1])
 
@@ -230,12 +137,13 @@ class IntersectionNetwork(nn.Module):
 
 
 def readout(
-    outputs: Mapping[str, torch.Tensor],
+    outputs: Mapping[str, Float[torch.Tensor, "batch ..."]],
     distance_mode: str,
     voxel_size: float,
-    rest_len: torch.Tensor,
+    rest_len: Float[torch.Tensor, " batch"],
     threshold: float = OCCLUSION_THRESHOLD,
-) -> dict[str, torch.Tensor]:
+) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
+          | Int64[torch.Tensor, " batch"]]:
     """Head outputs -> predictions.
 
     rest_len: (N,) rest-space segment length |p1 - p0|; voxel_size: h in rest units.
@@ -253,7 +161,8 @@ def readout(
         distance = fraction * rest_len
     else:
         distance = voxel_size * torch.expm1(outputs["distance"])
-        fraction = (distance / rest_len.clamp_min(torch.finfo(distance.dtype).tiny)).clamp(0.0, 1.0)
+        tiny = torch.finfo(distance.dtype).tiny
+        fraction = (distance / rest_len.clamp_min(tiny)).clamp(0.0, 1.0)
     predictions = {
         "hit_probability": probability,
         "hit": probability > threshold,

@@ -15,7 +15,8 @@ from typing import Any
 import torch
 
 from .losses import make_weighting
-from .network import Heads, IntersectionNetwork, NetworkConfig, readout
+from .network import IntersectionNetwork, readout
+from .settings import Heads, NetworkConfig
 from .train import Objective, TrainConfig, TrainingStep, resolve_device
 
 PAPER_CONFIG = NetworkConfig(heads=Heads(albedo=True, material_count=4))

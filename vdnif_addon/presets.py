@@ -1,8 +1,13 @@
 """Speed/accuracy presets: the Pareto front of a measured sweep, and the fast / balanced /
 accurate settings derived from it (written by the ``bench`` command, read by the panel)."""
 
+from __future__ import annotations
+
 import json
 import pathlib
+
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -14,7 +19,7 @@ PRESET_NAMES = ("fast", "balanced", "accurate")
 SETTINGS = ("resolution", "levels", "log2_table_size", "pe_bands", "width", "steps")
 
 
-def pareto_front(error, cost):
+def pareto_front(error: Sequence[float], cost: Sequence[float]) -> list[int]:
     """Indices of the points no other point beats on both ``error`` and ``cost`` (both
     lower is better; ties keep the first), ordered by increasing cost."""
     error, cost = np.asarray(error, np.float64), np.asarray(cost, np.float64)
@@ -27,8 +32,9 @@ def pareto_front(error, cost):
     return front
 
 
-def derive_presets(points, error_key="error", speed_key="render_rays_per_s",
-                   iou_key="vs_true_hit_iou"):
+def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
+                   speed_key: str = "render_rays_per_s",
+                   iou_key: str = "vs_true_hit_iou") -> dict[str, dict[str, Any]]:
     """{fast, balanced, accurate} from the sweep ``points`` (dicts with SETTINGS, the error,
     the speed and the hit IoU against the true reference): on the front of error vs
     1/speed of the points that predict hits (metrics.speed_withheld), the fastest point,
@@ -56,7 +62,7 @@ def derive_presets(points, error_key="error", speed_key="render_rays_per_s",
             for name, i in chosen.items()}
 
 
-def load_presets(path=None):
+def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, Any]]:
     """The presets written by ``bench`` (default: the shipped file); a missing or malformed
     file raises VDNIFError."""
     path = pathlib.Path(path or PRESETS_FILE)

@@ -1,11 +1,22 @@
-"""The default training recipe: the one place that holds how much data and training a model
-gets unless the user says otherwise (DESIGN section 8). The batch commands, the demo, the
-panel's defaults, ``TrainConfig`` and the presets read it.
+"""Every setting's one home: the names a setting may take, its default, its range and its
+validation, read by the batch commands' parser, the panel's properties and the core alike
+(DESIGN section 8 for the recipe). Holds the configurations of a run: ``NetworkConfig``
+(with ``Heads``), ``TrainConfig``, ``PoseSpec`` (with ``ExtremeDeform``) and the variants.
 
-Imports neither torch nor bpy, so the UI and the command-line parser can read it cheaply.
+Imports neither torch, nor bpy, nor Warp, nor numpy, so the UI and the command-line parser can
+read it cheaply. Hard memory caps live in ``limits``; the ranges here are read from them.
 """
 
-from dataclasses import dataclass
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from . import limits
+from .errors import VDNIFError
 
 
 @dataclass(frozen=True)
@@ -46,3 +57,337 @@ EMBEDDING_ERROR_SHARE = 0.1
 SUGGEST_PRESET = "balanced"
 SUGGEST_POSES = 4
 SUGGEST_VIEW_SIZE = 96
+
+# --------------------------------------------------------------------------- names
+
+DEVICES = ("auto", "cpu", "cuda")
+"""Where the network runs: auto is CUDA where torch has it, else the CPU."""
+DEFAULT_DEVICE = "auto"
+POSE_SOURCES = ("random", "frames")
+"""Random bone rotations and lattice offsets, or frames of the scene's frame range."""
+DISTANCE_MODES = ("fraction", "log1p")
+"""``fraction``: LSNIF's sigmoid t/l. ``log1p``: the scale-invariant ReLU log1p(d/h)."""
+WEIGHTINGS = ("uncertainty", "fixed")
+"""Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
+PE_SCALES = {"paper": 1.0, "pi": math.pi}
+"""``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
+DEFORM_KINDS = ("bend", "twist", "stretch", "squash")
+"""The extreme poses of ``--deform`` (``blender/extremes.py``)."""
+AUTO_RESOLUTION = "auto"
+"""``--resolution auto``: the suggested resolution of the scene."""
+
+# --------------------------------------------------------------------------- ranges
+
+MIN_RESOLUTION, MAX_RESOLUTION = 4, 256
+"""Voxels along the object's longest side."""
+MAX_GRID_RESOLUTION = 2**16
+"""Cells per axis of the hash grid's finest level."""
+MAX_STEPS = 10**7
+"""The panel's IntProperty holds a signed 32-bit int; 10^7 is 3000 x the recipe's steps."""
+EVALUATION_POSES = 8
+"""Unseen poses a model is evaluated on unless told otherwise (panel and ``evaluate``)."""
+COMMAND_IMAGE = (128, 128)
+"""Width and height of the batch commands' images (references, render, evaluate)."""
+PANEL_IMAGE = (320, 240)
+"""Width and height of the panel's renders: a 4:3 picture worth looking at."""
+
+BOUNDS: dict[str, tuple[float, float]] = {
+    "resolution": (MIN_RESOLUTION, MAX_RESOLUTION),
+    "poses": (1, limits.MAX_POSES),
+    "seed": (0, limits.MAX_SEED),
+    "max_angle": (0.1, 180.0),
+    "rays_per_pose": (1, limits.MAX_RAYS_PER_POSE),
+    "surface_fraction": (0.0, 1.0),
+    "grazing_fraction": (0.0, 1.0),
+    "levels": (1, 64),
+    "base_resolution": (1, MAX_GRID_RESOLUTION),
+    "growth": (1.0, 16.0),
+    "log2_table_size": (1, limits.MAX_LOG2_TABLE_SIZE),
+    "feature_dim": (1, 64),
+    "pe_bands": (0, 16),
+    "width": (1, 4096),
+    "depth": (1, 64),
+    "steps": (1, MAX_STEPS),
+    "batch_size": (1, limits.MAX_BATCH),
+    "image_side": (1, limits.MAX_IMAGE_SIDE),
+}
+"""Closed range [low, high] of each numeric setting, by its field name. max_angle: degrees of
+the largest random bone rotation per axis (0.1: the panel's smallest, and a rotation of 0 or
+less makes no random pose)."""
+
+_COUNT = (1, 2**40)
+"""Range of the core-only counts (val_segments, log_interval): positive."""
+MAX_MATERIALS = 2**15
+"""Material slots of a material head (``capture`` stores indices as int16)."""
+
+
+def check_int(name: str, value: int, low: int, high: int) -> None:
+    """Raise a VDNIFError naming the setting unless ``value`` is an int in [low, high]."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise VDNIFError(f"setting {name} must be an integer in [{low}, {high}], got {value!r}")
+
+
+def check_number(name: str, value: float, low: float, high: float) -> None:
+    """Raise a VDNIFError naming the setting unless ``value`` is a real number in [low, high]
+    (NaN never is)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+        raise VDNIFError(f"setting {name} must be a number in [{low:g}, {high:g}], "
+                         f"got {value!r}")
+
+
+def check_choice(name: str, value: str, choices: Any) -> None:
+    """Raise a VDNIFError naming the setting unless ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise VDNIFError(f"setting {name} must be one of {list(choices)}, got {value!r}")
+
+
+def check_grid_settings(
+    levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int
+) -> None:
+    """Validate hash grid settings with messages that name the setting."""
+    for name, value in (("levels", levels), ("base_resolution", base_resolution),
+                        ("log2_table_size", log2_table_size), ("feature_dim", feature_dim)):
+        check_int(name, value, *BOUNDS[name])
+    check_number("growth", growth, *BOUNDS["growth"])
+    finest = math.floor(base_resolution * growth ** (levels - 1))
+    if finest > MAX_GRID_RESOLUTION:
+        raise VDNIFError(f"hash grid finest resolution {finest} exceeds "
+                         f"{MAX_GRID_RESOLUTION} cells per axis")
+    resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
+    floats = feature_dim * sum(min((res + 1) ** 3, 2**log2_table_size) for res in resolutions)
+    if floats > limits.MAX_TABLE_FLOATS:
+        raise VDNIFError(
+            f"hash grid table of {floats} floats is too large: at most {limits.MAX_TABLE_FLOATS}"
+            f" (lower log2_table_size, levels or feature_dim)"
+        )
+
+
+def check_encoding_settings(pe_bands: int, pe_form: str) -> None:
+    """Validate positional-encoding settings with messages that name the setting."""
+    check_int("pe_bands", pe_bands, *BOUNDS["pe_bands"])
+    if pe_form not in PE_SCALES:
+        raise VDNIFError(f"setting pe_form must be one of {sorted(PE_SCALES)}, got {pe_form!r}")
+
+
+# --------------------------------------------------------------------------- network
+
+
+@dataclass(frozen=True)
+class Heads:
+    """Which outputs the scene needs (DESIGN.md section 7).
+
+    Occlusion, distance and normal are always present; albedo only when it is not constant
+    per material (else a lookup table replaces it); material only when there are several.
+    """
+
+    albedo: bool = True
+    material_count: int = 1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.albedo, bool):
+            raise VDNIFError(f"heads setting albedo must be true or false, got {self.albedo!r}")
+        check_int("material_count", self.material_count, 1, MAX_MATERIALS)
+
+    @property
+    def material(self) -> bool:
+        return self.material_count > 1
+
+    def sizes(self) -> dict[str, int]:
+        """Head name -> output width, in output-column order."""
+        sizes = {"occlusion": 1, "distance": 1, "normal": 3}
+        if self.albedo:
+            sizes["albedo"] = 3
+        if self.material:
+            sizes["material"] = self.material_count
+        return sizes
+
+    @classmethod
+    def from_header(cls, heads: Mapping[str, Any]) -> Heads:
+        """From a dataset header's ``heads`` entry:
+        {"albedo": bool, "material_count": int, ...}."""
+        if not isinstance(heads, Mapping) or not {"albedo", "material_count"} <= set(heads):
+            raise VDNIFError(
+                f"dataset header 'heads' must give 'albedo' and 'material_count', got {heads!r}"
+            )
+        return cls(albedo=heads["albedo"], material_count=heads["material_count"])
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Architecture of one intersection network; defaults are the paper's setting. Model
+    files store ``to_dict()``: renaming a field breaks every stored model."""
+
+    levels: int = 2
+    base_resolution: int = 64
+    growth: float = 2.0
+    log2_table_size: int = 16
+    feature_dim: int = 3
+    pe_bands: int = 3
+    pe_form: str = "paper"
+    width: int = 64
+    depth: int = 3
+    distance_mode: str = "log1p"
+    heads: Heads = field(default_factory=Heads)
+
+    def __post_init__(self) -> None:
+        check_grid_settings(
+            self.levels, self.base_resolution, self.growth, self.log2_table_size, self.feature_dim
+        )
+        check_encoding_settings(self.pe_bands, self.pe_form)
+        check_int("width", self.width, *BOUNDS["width"])
+        check_int("depth", self.depth, *BOUNDS["depth"])
+        check_choice("distance_mode", self.distance_mode, DISTANCE_MODES)
+        if not isinstance(self.heads, Heads):
+            raise VDNIFError(f"setting heads must be a Heads, got {self.heads!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> NetworkConfig:
+        """Inverse of ``to_dict``; unknown or malformed entries raise VDNIFError."""
+        if not isinstance(data, Mapping):
+            raise VDNIFError(f"network config must be a mapping, got {type(data).__name__}")
+        unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise VDNIFError(f"network config has unknown entries {sorted(unknown)}")
+        values = dict(data)
+        if "heads" in values:
+            heads = values["heads"]
+            if not isinstance(heads, Mapping) or not set(heads) <= {"albedo", "material_count"}:
+                raise VDNIFError(f"network config has malformed heads: {heads!r}")
+            values["heads"] = Heads(**heads)
+        return cls(**values)
+
+
+# --------------------------------------------------------------------------- training
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimization settings; the two learning rates follow instant-ngp (grid) and LSNIF (MLP)."""
+
+    steps: int = RECIPE.steps
+    batch_size: int = RECIPE.batch_size
+    lr_grid: float = 1e-2
+    lr_mlp: float = 1e-3
+    final_lr_fraction: float = 0.1
+    weighting: str = "uncertainty"
+    seed: int = 0
+    device: str = DEFAULT_DEVICE
+    val_fraction: float = 0.1
+    val_segments: int = 2**16
+    log_interval: int = 100
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "seed"):
+            check_int(name, getattr(self, name), *BOUNDS[name])
+        for name in ("val_segments", "log_interval"):
+            check_int(name, getattr(self, name), *_COUNT)
+        for name in ("lr_grid", "lr_mlp", "final_lr_fraction"):
+            value = getattr(self, name)
+            if (isinstance(value, bool) or not isinstance(value, (int, float))
+                    or not 0 < value <= 1):
+                raise VDNIFError(f"setting {name} must be a number in (0, 1], got {value!r}")
+        check_number("val_fraction", self.val_fraction, 0.0, 0.9)
+        check_choice("weighting", self.weighting, WEIGHTINGS)
+        check_choice("device", self.device, DEVICES)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+# --------------------------------------------------------------------------- variants
+
+_BASELINE = {"pe_bands": 0, "distance_mode": "fraction", "weighting": "fixed"}
+_PROPOSED = {"pe_bands": 3, "distance_mode": "log1p", "weighting": "uncertainty"}
+ABLATIONS = {"proposed-no-pe": "pe_bands", "proposed-no-log": "distance_mode",
+             "proposed-no-uncertainty": "weighting"}
+"""Each ablation removes one part: the proposed setting of that key goes back to the
+baseline's (``variants`` module docstring)."""
+VARIANTS: dict[str, dict[str, Any]] = {
+    "lsnif": {**_BASELINE, "deformed_data": False},
+    "deformed": {**_BASELINE, "deformed_data": True},
+    "proposed": {**_PROPOSED, "deformed_data": True},
+    **{name: {**_PROPOSED, key: _BASELINE[key], "deformed_data": True}
+       for name, key in ABLATIONS.items()},
+}
+"""Variant name -> its NetworkConfig / TrainConfig fields and whether it trains on many
+deformed poses (``deformed_data``) or the rest pose alone."""
+TRAINABLE_VARIANTS = ("lsnif", "deformed", "proposed")
+"""The methods a user trains (``train --variant``, the panel); the ablations are studies'."""
+DEFAULT_VARIANT = "proposed"
+STATIC_VARIANT = "lsnif"
+AUTO_VARIANT = "auto"
+"""The panel's choice of DEFAULT_VARIANT or STATIC_VARIANT by the scene (``choose_variant``)."""
+
+# --------------------------------------------------------------------------- poses
+
+
+@dataclass(frozen=True)
+class ExtremeDeform:
+    """An extreme pose: ``amount`` is degrees for bend and twist, a factor for stretch
+    (>= 1) and squash (in (0, 1])."""
+
+    kind: str
+    amount: float
+
+    def __post_init__(self) -> None:
+        if self.kind not in DEFORM_KINDS:
+            raise VDNIFError(f"unknown deform kind '{self.kind}': choose one of "
+                             f"{', '.join(DEFORM_KINDS)}")
+        if not math.isfinite(self.amount):
+            raise VDNIFError(f"deform {self.kind} amount {self.amount} is not finite")
+        if self.kind == "stretch" and self.amount < 1:
+            hint = f" (use squash:{self.amount:g} to shorten)" if self.amount > 0 else ""
+            raise VDNIFError(f"stretch factor {self.amount:g} must be at least 1{hint}")
+        if self.kind == "squash" and not 0 < self.amount <= 1:
+            raise VDNIFError(f"squash factor {self.amount:g} must be in (0, 1]")
+
+    @classmethod
+    def parse(cls, text: str) -> ExtremeDeform:
+        """From ``KIND:VALUE`` text, e.g. ``bend:170`` or ``squash:0.1``."""
+        kind, _, value = str(text).partition(":")
+        try:
+            amount = float(value)
+        except ValueError:
+            raise VDNIFError(f"deform '{text}' is not KIND:VALUE with a number VALUE "
+                             f"(e.g. bend:170, twist:360, stretch:4, squash:0.1)") from None
+        return cls(kind.strip().lower(), amount)
+
+    def pose_key(self, obj: Any) -> dict[str, Any]:
+        """The JSON-ready ``"deform"`` entry of a pose of mesh object ``obj`` (a bpy Object)."""
+        return {"object": obj.name, "kind": self.kind, "amount": self.amount}
+
+
+@dataclass(frozen=True)
+class PoseSpec:
+    """How to choose poses: ``count`` random poses from ``seed`` or frames of the range
+    (``blender/poses.py`` draws them).
+
+    ``avoid``, set by ``poses.evaluation_spec``: the training poses these must be disjoint
+    from, as the PoseSpec that chose them or as a tuple of pose dicts (a model's training
+    poses). ``deform``: an ExtremeDeform added on top of every pose.
+    """
+
+    source: str = "random"
+    count: int = EVALUATION_POSES
+    seed: int = 0
+    max_angle_deg: float = 45.0
+    lattice_fraction: float = 0.3
+    deform: ExtremeDeform | None = None
+    avoid: PoseSpec | tuple[dict[str, Any], ...] | None = None
+
+    def __post_init__(self) -> None:
+        if self.source not in POSE_SOURCES:
+            raise VDNIFError(f"unknown pose source '{self.source}': "
+                             f"choose one of {', '.join(POSE_SOURCES)}")
+        low, high = BOUNDS["poses"]
+        if not low <= self.count <= high:
+            raise VDNIFError(f"pose count {self.count} is outside {low}..{high}")
+        low, high = BOUNDS["max_angle"]
+        if not low <= self.max_angle_deg <= high:
+            raise VDNIFError(f"maximum angle {self.max_angle_deg} degrees is outside "
+                             f"{low:g}..{high:g}")
+        if not 0 < self.lattice_fraction <= 1:
+            raise VDNIFError(f"lattice offset fraction {self.lattice_fraction} is outside (0, 1]")

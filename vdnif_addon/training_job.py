@@ -9,16 +9,20 @@ Importing this module does not import torch (``fit`` is imported by the worker),
 UI can show a job's state without it.
 """
 
+from __future__ import annotations
+
 import os
 import pathlib
 import queue
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from .errors import VDNIFError
 
 
-def progress_interval(steps):
+def progress_interval(steps: int) -> int:
     """Steps between progress records: about 50 per run (each validates a probe subset)."""
     return max(1, min(100, steps // 50))
 
@@ -30,22 +34,22 @@ class JobState:
     steps: int
     status: str = "running"        # running, completed, cancelled or failed
     step: int = 0
-    loss: float = None
-    eta_s: float = None
-    samples_per_s: float = None
+    loss: float | None = None
+    eta_s: float | None = None
+    samples_per_s: float | None = None
     cancelling: bool = False
     message: str = ""              # the error of a failed job, or what happened
-    model: str = None              # the model file written, None if none was
+    model: str | None = None             # the model file written, None if none was
 
     @property
-    def done(self):
+    def done(self) -> bool:
         return self.status != "running"
 
     @property
-    def fraction(self):
+    def fraction(self) -> float:
         return self.step / self.steps if self.steps else 0.0
 
-    def line(self):
+    def line(self) -> str:
         """One line for the panel and the status bar."""
         if self.done:
             return self.message
@@ -66,7 +70,8 @@ class TrainingJob:
     worker to stop after its current step.
     """
 
-    def __init__(self, data_dir, variant, out, overrides):
+    def __init__(self, data_dir: str | pathlib.Path, variant: str, out: str | pathlib.Path,
+                 overrides: Mapping[str, Any]) -> None:
         if "steps" not in overrides:
             raise VDNIFError("training settings lack the number of steps")
         self.data_dir, self.variant = pathlib.Path(data_dir), variant
@@ -77,13 +82,13 @@ class TrainingJob:
         self._cancel = threading.Event()
         self._thread = None
 
-    def start(self):
+    def start(self) -> None:
         """Trains in a daemon worker thread."""
         self._thread = threading.Thread(target=self.run, name=f"vdnif-train-{self.out.stem}",
                                         daemon=True)
         self._thread.start()
 
-    def run(self):
+    def run(self) -> None:
         """Trains, writes the model and queues the outcome; never raises."""
         partial = self.out.with_name(f".{self.out.name}.training")
         try:
@@ -110,11 +115,11 @@ class TrainingJob:
             if partial.exists():
                 partial.unlink()
 
-    def cancel(self):
+    def cancel(self) -> None:
         self._cancel.set()
         self.state.cancelling = not self.state.done
 
-    def poll(self):
+    def poll(self) -> JobState:
         """Applies the queued records and outcome to ``state`` and returns it."""
         while True:
             try:
@@ -123,13 +128,13 @@ class TrainingJob:
                 return self.state
             self._apply(kind, payload)
 
-    def join(self, timeout=None):
+    def join(self, timeout: float | None = None) -> JobState:
         """Waits for the worker (if any) and returns the final ``poll()``."""
         if self._thread is not None:
             self._thread.join(timeout)
         return self.poll()
 
-    def _apply(self, kind, payload):
+    def _apply(self, kind: str, payload: Any) -> None:
         state = self.state
         if kind == "progress":
             state.step, state.loss = payload["step"], payload["total"]
@@ -147,7 +152,7 @@ class TrainingJob:
                              f"{_duration(payload['train']['seconds'])}")
 
 
-def _duration(seconds):
+def _duration(seconds: float | None) -> str:
     if seconds is None:
         return "?"
     seconds = round(seconds)

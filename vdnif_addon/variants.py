@@ -2,12 +2,16 @@
 
 ``lsnif``: static single pose, hash grid only, sigmoid t/l distance, fixed loss weights.
 ``deformed``: the same model trained on deformation-aware (many-pose) data.
-``proposed``: deformation-aware data, F = 3 positional bands, log1p distance, uncertainty weighting.
+``proposed``: deformation-aware data, F = 3 positional bands, log1p distance, uncertainty
+weighting.
 
 The ablations are ``proposed`` with one of its three parts taken back to the baseline's
 (``deformed``): ``proposed-no-pe`` (hash grid only, F = 0), ``proposed-no-log`` (LSNIF's
 sigmoid t/l distance instead of the ReLU log1p(d/h)), ``proposed-no-uncertainty`` (fixed
 loss weights).
+
+The table of variants is ``settings.VARIANTS`` (torch-free: the panel and the parser read it);
+this module builds their configurations and chooses one for a scene.
 """
 
 from __future__ import annotations
@@ -17,8 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .errors import VDNIFError
-from .network import NetworkConfig
-from .train import TrainConfig
+from .settings import DEFAULT_VARIANT, STATIC_VARIANT, VARIANTS, NetworkConfig, TrainConfig
 
 
 @dataclass(frozen=True)
@@ -30,24 +33,6 @@ class Variant:
     train: TrainConfig
     deformed_data: bool
     """Train on many deformed poses (True) or on the single rest pose (False)."""
-
-
-_BASELINE = {"pe_bands": 0, "distance_mode": "fraction", "weighting": "fixed"}
-_PROPOSED = {"pe_bands": 3, "distance_mode": "log1p", "weighting": "uncertainty"}
-# Each ablation removes one part: the proposed setting of that key goes back to the baseline's.
-ABLATIONS = {"proposed-no-pe": "pe_bands", "proposed-no-log": "distance_mode",
-             "proposed-no-uncertainty": "weighting"}
-VARIANTS: dict[str, dict[str, Any]] = {
-    "lsnif": {**_BASELINE, "deformed_data": False},
-    "deformed": {**_BASELINE, "deformed_data": True},
-    "proposed": {**_PROPOSED, "deformed_data": True},
-    **{name: {**_PROPOSED, key: _BASELINE[key], "deformed_data": True}
-       for name, key in ABLATIONS.items()},
-}
-
-
-DEFAULT_VARIANT = "proposed"
-STATIC_VARIANT = "lsnif"
 
 
 def choose_variant(requested: str | None, static: bool) -> tuple[str, str | None]:

@@ -19,11 +19,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import VDNIFError
+from .settings import MAX_RESOLUTION, MIN_RESOLUTION
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int
-
-MIN_RESOLUTION, MAX_RESOLUTION = 4, 256
 
 # Cell boxes are closed and grown by this fraction of a voxel on every side, so a triangle that
 # lies in a cell face or touches a cell edge or corner (up to rounding) overlaps every cell

@@ -21,55 +21,19 @@ own Preserve Volume setting is left as it is.
 """
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import bpy
 import numpy as np
 from mathutils import Matrix
 
 from ..errors import VDNIFError
+from ..settings import ExtremeDeform
 from .read_mesh import deform_modifiers
 from .rig import bend_twist, influencing_bones, lattice_cells, offset_lattice
 
-DEFORM_KINDS = ("bend", "twist", "stretch", "squash")
 _BONE_CHANNELS = ("location", "rotation_quaternion", "rotation_euler", "rotation_axis_angle",
                   "scale")
-
-
-@dataclass(frozen=True)
-class ExtremeDeform:
-    """An extreme pose: ``amount`` is degrees for bend and twist, a factor for stretch
-    (>= 1) and squash (in (0, 1])."""
-
-    kind: str
-    amount: float
-
-    def __post_init__(self):
-        if self.kind not in DEFORM_KINDS:
-            raise VDNIFError(f"unknown deform kind '{self.kind}': choose one of "
-                             f"{', '.join(DEFORM_KINDS)}")
-        if not math.isfinite(self.amount):
-            raise VDNIFError(f"deform {self.kind} amount {self.amount} is not finite")
-        if self.kind == "stretch" and self.amount < 1:
-            hint = f" (use squash:{self.amount:g} to shorten)" if self.amount > 0 else ""
-            raise VDNIFError(f"stretch factor {self.amount:g} must be at least 1{hint}")
-        if self.kind == "squash" and not 0 < self.amount <= 1:
-            raise VDNIFError(f"squash factor {self.amount:g} must be in (0, 1]")
-
-    @classmethod
-    def parse(cls, text):
-        """From ``KIND:VALUE`` text, e.g. ``bend:170`` or ``squash:0.1``."""
-        kind, _, value = str(text).partition(":")
-        try:
-            amount = float(value)
-        except ValueError:
-            raise VDNIFError(f"deform '{text}' is not KIND:VALUE with a number VALUE "
-                             f"(e.g. bend:170, twist:360, stretch:4, squash:0.1)") from None
-        return cls(kind.strip().lower(), amount)
-
-    def pose_key(self, obj):
-        """The JSON-ready ``"deform"`` entry of a pose of mesh object ``obj``."""
-        return {"object": obj.name, "kind": self.kind, "amount": self.amount}
 
 
 def parse_scale(text):

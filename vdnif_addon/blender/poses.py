@@ -17,51 +17,22 @@ cannot be met is refused.
 import contextlib
 import json
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import bpy
 import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
-from ..limits import MAX_POSES
+from ..settings import PoseSpec
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
 
-POSE_SOURCES = ("random", "frames")
 EVALUATION_SEED_OFFSET = 1_000_003
 REST_POSE = {"rest": True}
 # Frames closer than this are not distinct poses: Blender keeps the subframe as a float32
 # (about 7 digits), and a thousandth of a frame is far below any animation's detail.
 MIN_FRAME_SPACING = 1e-3
-
-
-@dataclass(frozen=True)
-class PoseSpec:
-    """How to choose poses: ``count`` random poses from ``seed`` or frames of the range.
-
-    ``avoid``, set by ``evaluation_spec``: the training poses these must be disjoint from,
-    as the PoseSpec that chose them or as a tuple of pose dicts (a model's training poses).
-    """
-
-    source: str = "random"
-    count: int = 8
-    seed: int = 0
-    max_angle_deg: float = 45.0
-    lattice_fraction: float = 0.3
-    deform: object = None           # an extremes.ExtremeDeform added on top of every pose
-    avoid: object = None
-
-    def __post_init__(self):
-        if self.source not in POSE_SOURCES:
-            raise VDNIFError(f"unknown pose source '{self.source}': "
-                             f"choose one of {', '.join(POSE_SOURCES)}")
-        if not 1 <= self.count <= MAX_POSES:
-            raise VDNIFError(f"pose count {self.count} is outside 1..{MAX_POSES}")
-        if not 0 < self.max_angle_deg <= 180:
-            raise VDNIFError(f"maximum angle {self.max_angle_deg} degrees is outside (0, 180]")
-        if not 0 < self.lattice_fraction <= 1:
-            raise VDNIFError(f"lattice offset fraction {self.lattice_fraction} is outside (0, 1]")
 
 
 def evaluation_spec(spec, count=None, trained=None):

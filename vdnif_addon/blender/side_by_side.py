@@ -29,10 +29,11 @@ from ..dda import StaticGrid
 from ..errors import VDNIFError
 from ..kernels import runtime
 from ..metrics import Passes, compare, speed_withheld
-from ..network import Heads, IntersectionNetwork, NetworkConfig
+from ..network import IntersectionNetwork
 from ..rays import orbit_rays, orbit_viewpoints
 from ..references import true_reference
 from ..render import neural_passes, predict_segments
+from ..settings import Heads, NetworkConfig
 from ..traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
 from .posed import PosedObject

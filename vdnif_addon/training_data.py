@@ -1,0 +1,179 @@
+"""Training data: dataset shards -> validated tensors on the training device, this process's
+share of them, the held-out poses, and the random batches the loop draws.
+
+Data contract (the dataset module produces it): ``segments`` is a sequence of shards, each a
+mapping of equal-length numpy arrays: ``p0``, ``p1`` (S, 3) normalized rest coordinates;
+``seg_len``, ``rest_len`` (S,); ``hit`` (S,) uint8; ``hit_frac`` (S,) in [0,1]; ``normal``,
+``albedo`` (S, 3); ``material`` (S,) int16; ``pose`` (S,) int32. ``header`` gives ``voxel_size``
+(h, rest units) and ``heads`` = {"albedo": bool, "material_count": int}.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+
+from .distributed import ProcessGroup
+from .errors import VDNIFError
+from .settings import Heads, TrainConfig
+
+if TYPE_CHECKING:
+    from jaxtyping import Int64, Shaped
+
+Segments = dict[str, "Shaped[torch.Tensor, 'segments ...']"]
+"""Field name -> tensor of one row per segment (``FIELDS`` gives dtype and trailing shape)."""
+
+FIELDS = {  # key -> (torch dtype, trailing shape)
+    "p0": (torch.float32, (3,)),
+    "p1": (torch.float32, (3,)),
+    "rest_len": (torch.float32, ()),
+    "hit": (torch.bool, ()),
+    "hit_frac": (torch.float32, ()),
+    "normal": (torch.float32, (3,)),
+    "albedo": (torch.float32, (3,)),
+    "material": (torch.int64, ()),
+    "pose": (torch.int64, ()),
+}
+
+
+def load_segments(
+    shards: Sequence[Mapping[str, np.ndarray]], heads: Heads, device: str | torch.device = "cpu"
+) -> Segments:
+    """Validate shards and concatenate the fields training uses into tensors on ``device``.
+
+    Errors name the shard and field: missing or misshapen arrays, non-finite values,
+    ``hit_frac`` outside [0,1], negative ``rest_len``, material indices outside [0, M) on hits.
+    """
+    keys = [
+        key
+        for key in FIELDS
+        if (key != "albedo" or heads.albedo) and (key != "material" or heads.material)
+    ]
+    if len(shards) == 0:
+        raise VDNIFError("no training segments: the dataset has no shards")
+    columns: dict[str, list[np.ndarray]] = {key: [] for key in keys}
+    for number, shard in enumerate(shards):
+        missing = [key for key in keys if key not in shard]
+        if missing:
+            raise VDNIFError(
+                f"dataset shard {number} lacks {', '.join(repr(key) for key in missing)}"
+            )
+        arrays = {
+            key: np.asarray(shard[key]) for key in keys
+        }  # each read once (npz shards load lazily)
+        length = arrays["p0"].shape[0] if arrays["p0"].ndim else 0
+        for key, array in arrays.items():
+            expected = (length,) + FIELDS[key][1]
+            if array.shape != expected:
+                raise VDNIFError(
+                    f"dataset shard {number} field '{key}' has shape {array.shape}, "
+                    f"expected {expected}"
+                )
+            if array.dtype.kind == "f" and not np.isfinite(array).all():
+                raise VDNIFError(f"dataset shard {number} field '{key}' has non-finite values")
+            columns[key].append(array)
+    data = {key: np.concatenate(arrays) for key, arrays in columns.items()}
+    if data["p0"].shape[0] == 0:
+        raise VDNIFError("no training segments: every shard is empty")
+    hit = data["hit"] != 0
+    if ((data["hit_frac"] < 0) | (data["hit_frac"] > 1)).any():
+        raise VDNIFError("dataset field 'hit_frac' has values outside [0, 1]")
+    if (data["rest_len"] < 0).any():
+        raise VDNIFError("dataset field 'rest_len' has negative values")
+    if (
+        heads.material
+        and ((data["material"][hit] < 0) | (data["material"][hit] >= heads.material_count)).any()
+    ):
+        raise VDNIFError(
+            f"dataset field 'material' has indices outside [0, {heads.material_count}) on hits"
+        )
+    return {
+        key: torch.from_numpy(np.ascontiguousarray(data[key])).to(
+            device=device, dtype=FIELDS[key][0]
+        )
+        for key in keys
+    }
+
+
+def select(data: Mapping[str, torch.Tensor], index: Int64[torch.Tensor, " chosen"]) -> Segments:
+    """The rows ``index`` of every field."""
+    return {key: value[index] for key, value in data.items()}
+
+
+def voxel_size(header: Mapping[str, Any]) -> float:
+    """h from ``header['voxel_size']``, or ``header['grid']`` as the dataset module merges it."""
+    if not isinstance(header, Mapping):
+        raise VDNIFError(f"dataset header must be a mapping, got {type(header).__name__}")
+    grid = header.get("grid")
+    h = header.get("voxel_size", grid.get("voxel_size") if isinstance(grid, Mapping) else None)
+    if isinstance(h, bool) or not isinstance(h, (int, float)) or not math.isfinite(h) or h <= 0:
+        raise VDNIFError(f"dataset header 'voxel_size' must be a positive number, got {h!r}")
+    return float(h)
+
+
+def split_poses(
+    poses: Int64[torch.Tensor, " segments"], fraction: float, seed: int, group: ProcessGroup
+) -> list[int]:
+    """Held-out poses over all ranks: a seeded choice of round(fraction * poses), at least one."""
+    everything = group.union(torch.unique(poses).tolist())
+    if fraction == 0 or len(everything) < 2:
+        return []
+    count = min(max(round(fraction * len(everything)), 1), len(everything) - 1)
+    order = torch.randperm(len(everything), generator=torch.Generator().manual_seed(seed))
+    return sorted(everything[i] for i in order[:count].tolist())
+
+
+def split_data(
+    segments: Sequence[Mapping[str, np.ndarray]],
+    config: TrainConfig,
+    heads: Heads,
+    device: torch.device,
+    group: ProcessGroup,
+) -> tuple[Segments, Segments, list[int]]:
+    """(training data, validation data, held-out poses): this process's shards
+    (``segments[rank::world]``) loaded and split by the held-out poses."""
+    if len(segments) == 0:
+        raise VDNIFError("no training segments: the dataset has no shards")
+    shards = list(segments)[group.rank :: group.world]
+    if not shards:
+        raise VDNIFError(
+            f"process {group.rank} has no dataset shard: "
+            f"{len(segments)} shards for {group.world} processes"
+        )
+    data = load_segments(shards, heads, device)
+    val_poses = split_poses(data["pose"], config.val_fraction, config.seed, group)
+    held_out = torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64, device=device))
+    train_data, val_data = select(data, ~held_out), select(data, held_out)
+    if train_data["p0"].shape[0] == 0:
+        raise VDNIFError(
+            f"process {group.rank} has no training segments after holding out poses {val_poses}"
+        )
+    return train_data, val_data, val_poses
+
+
+class Batches:
+    """Random batches of one process's training data, from its own seeded generator on the
+    data's device (seed + rank: each process draws its own batches)."""
+
+    def __init__(self, data: Segments, batch_size: int, seed: int) -> None:
+        self.data = data
+        self.batch_size = batch_size
+        self.count = data["p0"].shape[0]
+        self.generator = torch.Generator(device=data["p0"].device).manual_seed(seed)
+
+    def subset(self, data: Segments, size: int) -> Segments:
+        """At most ``size`` rows of ``data`` drawn without replacement (the validation
+        probe), from this generator."""
+        order = torch.randperm(data["p0"].shape[0], generator=self.generator,
+                               device=data["p0"].device)
+        return select(data, order[:size])
+
+    def next(self) -> Segments:
+        """``batch_size`` rows drawn with replacement."""
+        index = torch.randint(self.count, (self.batch_size,), generator=self.generator,
+                              device=self.generator.device)
+        return select(self.data, index)

@@ -1,0 +1,172 @@
+"""How a network does on held-out segments: task losses and metrics (``evaluate``, summed
+over processes by ``validate``) and the calibrated occlusion threshold
+(``calibrate_threshold``, DESIGN section 9)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import torch
+
+from .distributed import ProcessGroup
+from .losses import task_losses
+from .network import IntersectionNetwork, readout
+from .settings import OCCLUSION_THRESHOLD, Heads
+
+if TYPE_CHECKING:
+    from jaxtyping import Float64
+
+    from .training_data import Segments
+
+SUMS = (
+    "segments",
+    "hits",
+    "occlusion_loss",
+    "occlusion_correct",
+    "distance_loss",
+    "distance_abs",
+    "normal_loss",
+    "normal_angle",
+    "albedo_loss",
+    "material_loss",
+    "material_correct",
+)
+"""The summable quantities of an evaluation, in ``evaluation_sums`` order."""
+
+THRESHOLD_BINS = 50
+THRESHOLD_RANGE = (0.1, 0.9)
+"""Candidate thresholds: 0.02 apart, so that a probability histogram of THRESHOLD_BINS bins
+summed over processes counts the errors of each exactly; only those in THRESHOLD_RANGE."""
+
+
+@torch.inference_mode()
+def evaluation_sums(
+    network: IntersectionNetwork, data: Segments, voxel_size: float, batch: int
+) -> Float64[torch.Tensor, " quantities"]:
+    """Per-quantity sums (len(SUMS),) float64 over ``data`` (``training_data.Segments``),
+    summable across processes."""
+    mode = network.config.distance_mode
+    sums = torch.zeros(len(SUMS), dtype=torch.float64, device=data["p0"].device)
+    for start in range(0, data["p0"].shape[0], batch):
+        part = {key: value[start : start + batch] for key, value in data.items()}
+        outputs = network(part["p0"], part["p1"])
+        losses = task_losses(outputs, part, mode, voxel_size)
+        predicted = readout(outputs, mode, voxel_size, part["rest_len"],
+                            network.occlusion_threshold)
+        hit = part["hit"]
+        n, hits = hit.numel(), hit.sum()
+        cos = (predicted["normal"] * part["normal"]).sum(1).clamp(-1.0, 1.0)
+        terms = {
+            "segments": torch.tensor(float(n)),
+            "hits": hits,
+            "occlusion_loss": losses["occlusion"] * n,
+            "occlusion_correct": (predicted["hit"] == hit).sum(),
+            "distance_loss": losses["distance"] * hits,
+            "distance_abs": torch.where(
+                hit, (predicted["distance"] - part["hit_frac"] * part["rest_len"]).abs(), 0.0
+            ).sum(),
+            "normal_loss": losses["normal"] * hits,
+            "normal_angle": torch.where(hit, torch.rad2deg(torch.arccos(cos)), 0.0).sum(),
+            "albedo_loss": losses["albedo"] * hits if "albedo" in losses else torch.tensor(0.0),
+            "material_loss": losses["material"] * hits
+            if "material" in losses
+            else torch.tensor(0.0),
+            "material_correct": torch.where(
+                hit, predicted["material"] == part["material"], False
+            ).sum()
+            if "material" in losses
+            else torch.tensor(0.0),
+        }
+        sums += torch.stack([terms[name].to(sums) for name in SUMS])
+    return sums
+
+
+def metrics(
+    sums: Float64[torch.Tensor, " quantities"], voxel_size: float, heads: Heads
+) -> dict[str, float]:
+    """Means of ``evaluation_sums`` (len(SUMS),): losses per segment or per hit, accuracies,
+    distance MAE (rest units and voxels), normal error in degrees."""
+    s = dict(zip(SUMS, sums.tolist()))
+    hits = max(s["hits"], 1.0)
+    result = {
+        "segments": s["segments"],
+        "hits": s["hits"],
+        "loss/occlusion": s["occlusion_loss"] / max(s["segments"], 1.0),
+        "loss/distance": s["distance_loss"] / hits,
+        "loss/normal": s["normal_loss"] / hits,
+        "occlusion_accuracy": s["occlusion_correct"] / max(s["segments"], 1.0),
+        "distance_mae": s["distance_abs"] / hits,
+        "distance_mae_voxels": s["distance_abs"] / hits / voxel_size,
+        "normal_error_deg": s["normal_angle"] / hits,
+    }
+    if heads.albedo:
+        result["loss/albedo"] = s["albedo_loss"] / hits
+    if heads.material:
+        result["loss/material"] = s["material_loss"] / hits
+        result["material_accuracy"] = s["material_correct"] / hits
+    return result
+
+
+def evaluate(
+    network: IntersectionNetwork,
+    data: Segments,
+    voxel_size: float,
+    batch: int = 2**16,
+) -> dict[str, float]:
+    """Task losses and metrics of ``network`` on ``training_data.load_segments`` tensors.
+
+    Hit-dependent metrics use the true hits: ``distance_mae`` (rest units; also in voxels),
+    ``normal_error_deg``, ``material_accuracy``; ``occlusion_accuracy`` uses every segment.
+    """
+    return metrics(
+        evaluation_sums(network, data, voxel_size, batch), voxel_size, network.config.heads
+    )
+
+
+def validate(
+    network: IntersectionNetwork,
+    data: Segments,
+    voxel_size: float,
+    group: ProcessGroup,
+) -> dict[str, float] | None:
+    """Metrics on held-out data summed over processes; None when no process holds any."""
+    was_training = network.training
+    network.eval()
+    sums = group.sum(evaluation_sums(network, data, voxel_size, 2**16))
+    network.train(was_training)
+    return metrics(sums, voxel_size, network.config.heads) if sums[0] > 0 else None
+
+
+@torch.inference_mode()
+def calibrate_threshold(
+    network: IntersectionNetwork,
+    data: Segments,
+    group: ProcessGroup | None = None,
+    batch: int = 2**16,
+) -> float:
+    """The occlusion threshold that misclassifies the fewest segments of ``data`` (the
+    held-out poses), among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to
+    the one nearest OCCLUSION_THRESHOLD, and without held-out segments it is
+    OCCLUSION_THRESHOLD. A hole is a hit segment below the threshold, an extra a miss
+    segment above it (DESIGN section 9)."""
+    group = group or ProcessGroup()
+    device = data["p0"].device
+    counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
+    for start in range(0, data["p0"].shape[0], batch):
+        outputs = network(data["p0"][start : start + batch], data["p1"][start : start + batch])
+        probability = torch.sigmoid(outputs["occlusion"].float())
+        bins = (probability * THRESHOLD_BINS).long().clamp(0, THRESHOLD_BINS - 1)
+        hit = data["hit"][start : start + batch].long()
+        counts.index_put_((hit, bins), torch.ones_like(probability, dtype=torch.float64),
+                          accumulate=True)
+    counts = group.sum(counts)
+    if counts.sum() == 0:
+        return OCCLUSION_THRESHOLD
+    # Threshold k / BINS: hits in bins below k are holes, misses in bins k and up extras.
+    holes = torch.cat([counts.new_zeros(1), counts[1].cumsum(0)])
+    extras = counts[0].sum() - torch.cat([counts.new_zeros(1), counts[0].cumsum(0)])
+    errors = (holes + extras).tolist()
+    low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
+    best = min(range(low, high + 1),
+               key=lambda k: (errors[k], abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)))
+    return best / THRESHOLD_BINS
