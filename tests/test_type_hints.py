@@ -20,16 +20,8 @@ import vdnif_addon.kernels
 SKIPPED = {
     "vdnif_addon.batch",
     "vdnif_addon.commands",
-    "vdnif_addon.fit",
-    "vdnif_addon.losses",
-    "vdnif_addon.network",
     "vdnif_addon.network_bench",
-    "vdnif_addon.presets",
     "vdnif_addon.report",
-    "vdnif_addon.settings",
-    "vdnif_addon.train",
-    "vdnif_addon.training_job",
-    "vdnif_addon.variants",
 }
 
 # Parameters that take no annotation by convention.
