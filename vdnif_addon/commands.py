@@ -25,7 +25,9 @@ class _DefaultsFormatter(argparse.HelpFormatter):
     def _get_help_string(self, action):
         text = action.help or ""
         default = action.default
-        if (action.option_strings and default not in (None, False, argparse.SUPPRESS)
+        # Identity, not equality: 0 == False, and a default of 0 is still shown.
+        if (action.option_strings and all(default is not hidden for hidden in
+                                          (None, False, argparse.SUPPRESS))
                 and "default" not in text):
             text += f" (default: {show_default(default)})"
         return text
