@@ -101,7 +101,7 @@ class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
 def metrics_line(metrics):
     """Distance MAE (object units and voxels), normal error, hit IoU and the false-negative
     and false-positive rates in one line."""
-    from ..vdnif_addon.report import percent
+    from ..vdnif_addon.text import percent
 
     def number(value, digits=3):
         return "n/a" if value is None else f"{value:.{digits}g}"

@@ -145,7 +145,7 @@ def test_config_round_trip_and_validation():
 
 
 def test_benchmark_runs_on_tiny_sizes():
-    from vdnif_addon.network_bench import benchmark_network
+    from vdnif_addon.studies.network_bench import benchmark_network
 
     result = benchmark_network("cpu", segments=256, train_batch=128, repeats=1)
     rates = ("infer_segments_per_s", "serial_segments_per_s", "encode_segments_per_s",

@@ -55,7 +55,7 @@ def compare(experiments, tmp_path, seed):
 
 
 def test_proposed_beats_deformed_on_the_common_pixels(empty_scene, core, tmp_path):
-    proposed, deformed = compare(core("blender.experiments"), tmp_path, seed=0)
+    proposed, deformed = compare(core("studies.experiments"), tmp_path, seed=0)
     for reference in ("vs_true", "vs_embedded"):
         p, d = proposed[reference], deformed[reference]
         assert p["compared_rays"] == d["compared_rays"] >= MIN_COMMON_PIXELS
@@ -71,7 +71,7 @@ if __name__ == "__main__":      # the spread over seeds behind the tolerance
     import tempfile
 
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-    experiments = importlib.import_module("vdnif_addon.blender.experiments")
+    experiments = importlib.import_module("vdnif_addon.studies.experiments")
     for seed in map(int, sys.argv[1:] or range(5)):
         with tempfile.TemporaryDirectory() as folder:
             proposed, deformed = compare(experiments, pathlib.Path(folder), seed)

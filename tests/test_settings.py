@@ -47,7 +47,7 @@ def test_resolution_takes_a_number_or_auto(text, expected):
 
 
 def test_the_demo_runs_the_recipe_at_256_pixels():
-    from vdnif_addon.blender.demo import SIZES
+    from vdnif_addon.studies.demo import SIZES
 
     full = SIZES["full"]
     assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"]) == (

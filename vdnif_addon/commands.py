@@ -456,7 +456,7 @@ def cmd_evaluate(args):
 
 
 def print_evaluation(report):
-    from .report import speed_line
+    from .studies.report import speed_line
 
     print(f"evaluated {report['variant']} on '{report['object']}' R={report['resolution']}, "
           f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
@@ -472,7 +472,7 @@ def metrics_text(m):
     """One line of compare's metrics: distance error in object units and voxels, normal
     error, the hit-mask metrics and the scene's optional metrics (n/a where the scene has
     nothing to predict: one material without texture)."""
-    from .report import percent
+    from .text import percent
 
     voxels = m.get("distance_mae_voxels")
     extra = "".join(f", {name} {_number(m.get(key))}" for key, name in (
@@ -491,7 +491,7 @@ def _number(value):
 def cmd_demo(args):
     """The main job on an embedded scene: capture, dataset, train (proposed), render and
     evaluate on unseen poses, and a short report with the figure."""
-    from .blender.demo import run_demo
+    from .studies.demo import run_demo
     from .blender.extremes import apply_stress
 
     report = run_demo(args.scene, args.out, quick=args.quick, device=args.device,
@@ -505,7 +505,7 @@ def cmd_demo(args):
 
 def cmd_experiment(args):
     """Run one of the paper's experiments and write its section of the results file."""
-    from .blender.experiments import run_experiment
+    from .studies.experiments import run_experiment
 
     scenes = args.scenes.split(",") if args.scenes else None
     records = run_experiment(args.name, args.results, quick=args.quick, device=args.device,
@@ -524,7 +524,7 @@ def cmd_experiment(args):
 
 def cmd_bench(args):
     """Sweep resolution, hash grid, PE bands, width and steps; derive the presets."""
-    from .blender.bench import NO_PRESETS, run_bench
+    from .studies.bench import NO_PRESETS, run_bench
     from .presets import PRESETS_FILE
 
     quick_dir = pathlib.Path("out/bench-quick")
@@ -543,7 +543,7 @@ def cmd_bench(args):
 
 def cmd_bench_network(args):
     """Measure encoder+MLP inference segments/s and training samples/s (paper setting)."""
-    from .network_bench import benchmark_network
+    from .studies.network_bench import benchmark_network
 
     result = benchmark_network(device=args.device, repeats=args.repeats)
     write_json(args.json, result)
@@ -612,7 +612,7 @@ def _model_command(commands, name, run, default_poses, notes):
 
 def build_parser():
     from .blender.extremes import add_stress_options
-    from .blender.side_by_side_command import add_side_by_side_parser
+    from .studies.side_by_side_command import add_side_by_side_parser
     from .blender.scenes import DEMO_SCENES
 
     parser = _Parser(prog="batch.py", description=(

@@ -29,26 +29,27 @@ import numpy as np
 import torch
 
 from .. import images
+from ..blender.capture import capture
+from ..blender.generate import generate_dataset
+from ..blender.image_io import save_image
+from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
+from ..blender.neural import orbit_view
+from ..blender.posed import PosedObject
+from ..blender.poses import PoseSpec
+from ..blender.scenes import demo_scene
+from ..errors import VDNIFError
 from ..evaluation import (REFERENCES, compare_both, compare_common, concatenated,
                           distance_range)
-from ..errors import VDNIFError
 from ..fit import fit_model
 from ..metrics import Passes
 from ..rays import orbit_viewpoints
 from ..references import true_reference
-from ..report import (common_pixels_line, metrics_table, spread_table, targets_line, value,
-                      write_section)
-from ..settings import RECIPE
-from ..variants import variant_config
 from ..safe_io import write_json_atomic
-from .capture import capture
-from .generate import generate_dataset
-from .image_io import save_image
-from .jobs import evaluate_file, evaluation_poses, variant_dataset
-from .neural import orbit_view
-from .posed import PosedObject
-from .poses import PoseSpec
-from .scenes import demo_scene
+from ..settings import RECIPE
+from ..text import value
+from ..variants import variant_config
+from .report import (common_pixels_line, metrics_table, spread_table, targets_line,
+                     write_section)
 
 # The full size trains with the default recipe (``settings.RECIPE``: voxel resolution,
 # poses, rays per pose and their mix, steps, batch), the one place it is set; the experiments

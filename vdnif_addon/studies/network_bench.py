@@ -14,9 +14,9 @@ from typing import Any
 
 import torch
 
-from .losses import make_weighting
-from .network import Heads, IntersectionNetwork, NetworkConfig, readout
-from .train import Objective, TrainConfig, TrainingStep, resolve_device
+from ..losses import make_weighting
+from ..network import Heads, IntersectionNetwork, NetworkConfig, readout
+from ..train import Objective, TrainConfig, TrainingStep, resolve_device
 
 PAPER_CONFIG = NetworkConfig(heads=Heads(albedo=True, material_count=4))
 """L=2, N_min=64, Fd=3, F=3, width 64, depth 3; albedo and a 4-material head."""

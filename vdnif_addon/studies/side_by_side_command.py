@@ -132,9 +132,9 @@ def _scene_capture(obj, model_path, args, device):
     model's training poses; the resolution is --resolution, else the model's, else 32."""
     from ..commands import check_resolution
     from ..model_file import load_model
-    from .capture import capture
-    from .neural import load_scene_model
-    from .poses import PoseSpec, evaluation_spec
+    from ..blender.capture import capture
+    from ..blender.neural import load_scene_model
+    from ..blender.poses import PoseSpec, evaluation_spec
 
     trained, resolution = None, args.resolution
     if model_path is not None:

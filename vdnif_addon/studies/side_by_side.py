@@ -25,6 +25,8 @@ import bpy
 import numpy as np
 import torch
 
+from ..blender.posed import PosedObject
+from ..blender.poses import posed
 from ..dda import StaticGrid
 from ..errors import VDNIFError
 from ..kernels import runtime
@@ -35,8 +37,6 @@ from ..references import true_reference
 from ..render import neural_passes, predict_segments
 from ..traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
-from .posed import PosedObject
-from .poses import posed
 from .side_by_side_scenes import scene_name
 
 NO_MODEL = "no model file for this scene (--model): only a trained model has speeds"
@@ -47,7 +47,7 @@ RENDER_KEYS = ("neural_render_s", "neural_walk_s", "neural_network_s", "neural_s
 def suzanne_scene(level):
     """Blender's Suzanne subdivided ``level`` times (Subdivision applied, flat faces) with the
     procedural lattice rig, in an emptied file: the scenes of the triangle-count sweep."""
-    from .scenes import add_rig
+    from ..blender.scenes import add_rig
 
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.mesh.primitive_monkey_add()
@@ -62,7 +62,7 @@ def suzanne_scene(level):
 
 def load_side_by_side_scene(name):
     """The mesh object of a scene name in ``SCENES``, built in an emptied file."""
-    from .scenes import demo_scene
+    from ..blender.scenes import demo_scene
 
     name = scene_name(name)
     if name.startswith("suzanne-"):
