@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from vdnif_addon import settings
-from vdnif_addon.commands import build_parser
+from vdnif_addon.cli import build_parser
 from vdnif_addon.settings import RECIPE
 from vdnif_addon.train import TrainConfig
 

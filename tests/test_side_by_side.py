@@ -235,9 +235,9 @@ def test_plots_and_the_performance_section(tiny, tmp_path):
 
 
 def test_the_command_writes_json_plots_and_section(extension, tmp_path, capsys):
-    commands = core("commands")
+    cli = core("cli")
     performance = tmp_path / "performance.md"
-    code = commands.main(["side-by-side", "--scene", "lattice", "--resolution", "8",
+    code = cli.main(["side-by-side", "--scene", "lattice", "--resolution", "8",
                           "--poses", "1", "--repeats", "1", "--width", "8", "--height", "8",
                           "--json", str(tmp_path / "sbs.json"),
                           "--plots", str(tmp_path / "plots"),
@@ -261,11 +261,11 @@ def test_bad_settings_are_one_line(extension, tmp_path, capsys):
     with pytest.raises(errors.VDNIFError, match="unknown scene 'teapot'"):
         side.load_side_by_side_scene("teapot")
     assert side.scene_name("million") == "suzanne-5"
-    commands = core("commands")
+    cli = core("cli")
     for argv, message in (
             (["--scene", "bunny", "lattice", "--model", "m.vdnif"], "name the scene of each"),
             (["--scene", "bunny", "--model", "lattice=m.vdnif"], "'lattice' is not among"),
             (["--scene", "lattice", "--repeats", "0", "--resolution", "8", "--poses", "1"],
              "repeats 0 must be at least 1")):
-        assert commands.main(["side-by-side", *argv]) == 1
+        assert cli.main(["side-by-side", *argv]) == 1
         assert message in capsys.readouterr().err

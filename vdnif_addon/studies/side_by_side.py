@@ -16,8 +16,11 @@ they are n/a with the reason. The tables and plots are written by ``side_by_side
 """
 
 import dataclasses
+import importlib.metadata
 import io
+import os
 import pathlib
+import platform
 import statistics
 import time
 
@@ -34,6 +37,7 @@ from ..metrics import Passes, compare, speed_withheld
 from ..network import Heads, IntersectionNetwork, NetworkConfig
 from ..rays import orbit_rays, orbit_viewpoints
 from ..references import true_reference
+from ..safe_io import atomic_path
 from ..render import neural_passes, predict_segments
 from ..traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
@@ -314,3 +318,40 @@ def _bytes(capture, model, baselines):
             "model_over_mesh_and_bvh": {name: model_bytes / (mesh_bytes + size)
                                         for name, size in bvh.items()}}
 
+
+def machine(load_before, device):
+    """The machine and thread settings of a run on torch ``device``, for the report
+    (``load_before``: the load average when it started)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
+            cpu = next((line.split(":", 1)[1].strip() for line in info
+                        if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+             else os.cpu_count())
+    warp = runtime.init()
+    return {"cpu": cpu, "cores": cores, "load_before": load_before,
+            "load_after": os.getloadavg()[0],
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+            "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
+            "warp": warp.__version__, "warp_device": runtime.device(device),
+            "embreex": importlib.metadata.version("embreex"),
+            "blender": bpy.app.version_string}
+
+
+def save_blends(scenes, folder):
+    """Saves each scene as ``folder/<scene>.blend`` for ``train --blend`` and says how."""
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in scenes:
+        obj = load_side_by_side_scene(name)
+        path = folder / f"{name}.blend"
+        with atomic_path(path, ".blend file") as temporary:    # copy: the session keeps its file
+            bpy.ops.wm.save_as_mainfile(filepath=str(pathlib.Path(temporary).resolve()),
+                                        check_existing=False, copy=True)
+            pathlib.Path(temporary + "1").unlink(missing_ok=True)  # Blender's backup of it
+        print(f"saved scene '{name}' ('{obj.name}') to {path}: train with "
+              f"train --blend {path} --object '{obj.name}'")
+    return 0
