@@ -8,9 +8,8 @@ import bpy
 from bpy.props import (EnumProperty, FloatProperty, IntProperty, PointerProperty,
                        StringProperty)
 
-from . import preferences
+from . import preferences, viewer
 from .vdnif_addon import settings as defaults
-from .vdnif_addon.blender import ui_support
 from .vdnif_addon.settings import BOUNDS, RECIPE
 
 # Numbered: a .blend stores an enum by number, and "auto" came after the other three.
@@ -141,17 +140,16 @@ class VDNIFSettings(bpy.types.PropertyGroup):
 
 class VDNIFViewer(bpy.types.PropertyGroup):
     pass_name: EnumProperty(name="Pass", items=[(name, name.title(), "")
-                                                for name in ui_support.PASSES],
-                            update=lambda viewer, context: ui_support.show(context, viewer))
+                                                for name in viewer.PASSES],
+                            update=lambda choice, context: viewer.show(context, choice))
     source: EnumProperty(name="Show", items=[(name, name.title(), text) for name, text in (
         ("reference", "Blender's deformed mesh"), ("predicted", "The network"),
         ("error", "Error of the prediction against the reference"))],
         default="predicted",
-        update=lambda viewer, context: ui_support.show(context, viewer))
+        update=lambda choice, context: viewer.show(context, choice))
 
 
 classes = (VDNIFSettings, VDNIFViewer)
-forget_view = bpy.app.handlers.persistent(ui_support.forget_view)
 
 
 def register() -> None:
@@ -159,11 +157,9 @@ def register() -> None:
         bpy.utils.register_class(cls)
     bpy.types.Object.vdnif = PointerProperty(type=VDNIFSettings)
     bpy.types.Scene.vdnif_viewer = PointerProperty(type=VDNIFViewer)
-    bpy.app.handlers.load_post.append(forget_view)
 
 
 def unregister() -> None:
-    bpy.app.handlers.load_post.remove(forget_view)
     del bpy.types.Scene.vdnif_viewer
     del bpy.types.Object.vdnif
     for cls in reversed(classes):

@@ -4,8 +4,7 @@ import json
 
 import bpy
 
-from .. import storage
-from ..vdnif_addon.blender import ui_support
+from .. import storage, viewer
 from ..vdnif_addon.errors import VDNIFError
 from .common import VDNIFOperator, progress
 
@@ -62,16 +61,16 @@ class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
         if settings.view == "CAMERA":
             origins, directions = camera_rays(scene.camera, width, height)
         else:
-            origins, directions = ui_support.view_rays(region_3d(context), width, height)
+            origins, directions = viewer.view_rays(region_3d(context), width, height)
         captured = model_capture(obj)
         model = load_scene_model(storage.model_path(obj), captured, settings.device_name(context))
         pose = {"frame": scene.frame_current + scene.frame_subframe}
         result = render_rays(obj, captured, model, pose, origins, directions, references=True)
         slots = captured.mesh.material_slots          # the material pass shows the slots
-        ui_support.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
+        viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size)
-        image = ui_support.show(context, scene.vdnif_viewer)
-        where = ("" if ui_support.image_editor(context.screen) is not None
+        image = viewer.show(context, scene.vdnif_viewer)
+        where = ("" if viewer.image_editor(context.screen) is not None
                  else " (open an Image Editor to see it)")
         return (f"'{obj.name}' at frame {pose['frame']:g}: {int(result.predicted.hit.sum())} "
                 f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}), "
@@ -101,7 +100,7 @@ class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
 def metrics_line(metrics):
     """Distance MAE (object units and voxels), normal error, hit IoU and the false-negative
     and false-positive rates in one line."""
-    from ..vdnif_addon.report import percent
+    from ..vdnif_addon.text import percent
 
     def number(value, digits=3):
         return "n/a" if value is None else f"{value:.{digits}g}"

@@ -4,8 +4,7 @@ import json
 
 import bpy
 
-from .. import storage
-from ..vdnif_addon.blender import ui_support
+from .. import storage, viewer
 from .common import VDNIFOperator, progress
 
 
@@ -19,7 +18,7 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
 
     def work(self, context, obj):
         settings = obj.vdnif
-        settings.preview, figures = ui_support.voxel_preview(obj, settings.resolution,
+        settings.preview, figures = viewer.voxel_preview(obj, settings.resolution,
                                                              settings.preview)
         settings.voxel_info = (f"grid {'x'.join(map(str, figures['dims']))}, "
                                f"{figures['cells']} occupied cells, "

@@ -6,7 +6,7 @@ import textwrap
 
 import bpy
 
-from .. import preferences, storage
+from .. import preferences, storage, viewer
 from ..operators import common
 from ..operators.dependencies import VDNIF_OT_install_dependencies
 from ..operators.model import VDNIF_OT_load_model, VDNIF_OT_save_model
@@ -18,7 +18,6 @@ from ..operators.scene import (
     VDNIF_OT_voxelize,
 )
 from ..operators.training import VDNIF_OT_cancel_training, VDNIF_OT_train
-from ..vdnif_addon.blender import ui_support
 from ..vdnif_addon.presets import PRESET_NAMES
 
 WRAP = 42   # characters per line of wrapped messages
@@ -186,12 +185,12 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
         layout.prop(settings, "view")
         properties(layout, settings, ("image_width", "image_height"))
         button(layout, context, VDNIF_OT_render_passes, "RENDER_STILL")
-        viewer = context.scene.vdnif_viewer
+        choice = context.scene.vdnif_viewer
         layout.use_property_split = False
-        layout.row().prop(viewer, "pass_name", expand=True)
-        layout.row().prop(viewer, "source", expand=True)
-        if ui_support.viewed():
-            layout.label(text=f"Image: {ui_support.image_name(viewer.pass_name, viewer.source)}"
+        layout.row().prop(choice, "pass_name", expand=True)
+        layout.row().prop(choice, "source", expand=True)
+        if viewer.viewed():
+            layout.label(text=f"Image: {viewer.image_name(choice.pass_name, choice.source)}"
                          " (Image Editor)", icon="IMAGE_DATA")
         else:
             layout.label(text="Render the passes to fill the images", icon="INFO")

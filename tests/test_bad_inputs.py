@@ -9,7 +9,7 @@ existing_dir/), {data} (a dataset folder of the arm at R 8), {model} (a model tr
 
 How it runs: every case runs as users run it, ``batch.py`` in a subprocess (under a second
 each when it fails before any work: the batch parser imports neither torch nor Warp). The
-fourth column says so; "main" (``commands.main(argv)`` in this process, what ``batch.py``
+fourth column says so; "main" (``cli.main(argv)`` in this process, what ``batch.py``
 calls) remains for a case that needs to look inside the process.
 """
 
@@ -422,7 +422,7 @@ def test_bad_input_fails_on_one_line_and_changes_nothing(case, text, message, ho
         code, stderr = result.returncode, result.stderr
     else:
         capfd.readouterr()
-        code = core("commands").main(args)
+        code = core("cli").main(args)
         stderr = capfd.readouterr().err
     check_failure(code, stderr, message, time.monotonic() - start)
     if os.environ.get("VDNIF_CATALOGUE_OUT"):       # the table of messages for a report
@@ -461,7 +461,7 @@ def test_capture_json_through_planted_symlinks_overwrites_nothing(tmp_path, empt
     for name in ("c.json.tmp", ".c.json.partial"):
         (tmp_path / name).symlink_to(victim)
     target.symlink_to(victim)
-    code = core("commands").main(["capture", *ARM, "--json", str(target)])
+    code = core("cli").main(["capture", *ARM, "--json", str(target)])
     assert code == 0, capfd.readouterr().err
     assert victim.read_text() == "precious\n" and not target.is_symlink()
     assert json.loads(target.read_text())["object"] == "Arm"
@@ -493,8 +493,8 @@ def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene
 
 
 def test_debug_shows_the_traceback_and_a_bug_says_it_is_one(core, capfd, monkeypatch):
-    commands = core("commands")
-    assert commands.main(["capture", "--seed", "-1", "--debug"]) == 1
+    cli = core("cli")
+    assert cli.main(["capture", "--seed", "-1", "--debug"]) == 1
     err = capfd.readouterr().err
     assert "Traceback" in err and err.strip().splitlines()[-1] == (
         "vdnif: error: --seed -1 must be at least 0")
@@ -502,13 +502,13 @@ def test_debug_shows_the_traceback_and_a_bug_says_it_is_one(core, capfd, monkeyp
     def broken(args):
         return 1 / 0
 
-    monkeypatch.setattr(commands, "cmd_capture", broken)
+    monkeypatch.setattr(core("cli.pipeline"), "cmd_capture", broken)
     monkeypatch.delenv("VDNIF_DEBUG", raising=False)
-    assert commands.main(["capture"]) == 1
+    assert cli.main(["capture"]) == 1
     err = capfd.readouterr().err
     assert "Traceback" not in err and err.splitlines() == [
         "vdnif: error: internal error (a bug in VDNIF, please report it): ZeroDivisionError: "
         "division by zero; run again with --debug (or VDNIF_DEBUG=1) for the traceback"]
     monkeypatch.setenv("VDNIF_DEBUG", "1")
-    assert commands.main(["capture"]) == 1
+    assert cli.main(["capture"]) == 1
     assert "Traceback" in capfd.readouterr().err

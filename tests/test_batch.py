@@ -127,7 +127,7 @@ def test_help_states_every_default_it_has():
     by hand names the one argparse will use."""
     import argparse
 
-    from vdnif_addon.commands import build_parser, show_default
+    from vdnif_addon.cli import build_parser, show_default
 
     parser = build_parser()
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -218,7 +218,7 @@ from vdnif_addon import model_file
 reads = []
 read = model_file.load_model
 model_file.load_model = lambda *a, **k: reads.append(a) or read(*a, **k)
-from vdnif_addon.commands import main
+from vdnif_addon.cli import main
 code = main(sys.argv[1:])
 print("model reads:", len(reads))
 sys.exit(code)

@@ -70,7 +70,7 @@ def test_bad_presets_files_are_refused(tmp_path):
 
 
 def test_bench_quick_writes_every_output(tmp_path):
-    from vdnif_addon.blender import bench
+    from vdnif_addon.studies import bench
 
     out, presets, performance = tmp_path / "bench", tmp_path / "p.json", tmp_path / "perf.md"
     code, printed, err = run_batch("bench", "--quick", "--out", out, "--presets", presets,
@@ -110,7 +110,7 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     not. The two are compared over the pixels both hit; the third has no speed, no
     common-set error and no say in the presets."""
     from test_metrics import image, one_material_mesh
-    from vdnif_addon.blender import bench
+    from vdnif_addon.studies import bench
     from vdnif_addon.evaluation import compare_both, speed_figures
 
     mesh = one_material_mesh()
@@ -162,7 +162,7 @@ def feed(rule, records):
 
 
 def test_convergence_stops_after_patience_validations_without_a_real_gain():
-    from vdnif_addon.blender.bench import Convergence
+    from vdnif_addon.studies.bench import Convergence
 
     seen = []
     rule = Convergence(validate_every=100, patience=3, min_gain=0.02, max_steps=5000,
@@ -178,7 +178,7 @@ def test_convergence_stops_after_patience_validations_without_a_real_gain():
 
 
 def test_convergence_counts_a_slow_decline_once_it_adds_up():
-    from vdnif_addon.blender.bench import Convergence
+    from vdnif_addon.studies.bench import Convergence
 
     rule = Convergence(validate_every=100, patience=3, min_gain=0.02, max_steps=5000)
     # 1 % less every validation: each gain alone is below 2 %, three add up to more, so the
@@ -191,7 +191,7 @@ def test_convergence_counts_a_slow_decline_once_it_adds_up():
 
 
 def test_convergence_ignores_records_without_validation():
-    from vdnif_addon.blender.bench import Convergence, watched
+    from vdnif_addon.studies.bench import Convergence, watched
 
     rule = Convergence(validate_every=100, patience=1, min_gain=0.02, max_steps=5000)
     for step in (100, 200, 300):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from test_batch import run_batch
-from vdnif_addon.report import write_section
+from vdnif_addon.studies.report import write_section
 
 
 def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path):
@@ -51,7 +51,7 @@ def metrics(**values):
 
 
 def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none():
-    from vdnif_addon.blender.experiments import median_metrics
+    from vdnif_addon.studies.experiment_runs import median_metrics
 
     seeds = [metrics(distance_mae=0.3, hit_iou=0.9), metrics(distance_mae=0.1, hit_iou=0.7),
              metrics(distance_mae=0.2, hit_iou=0.95)]
@@ -64,7 +64,7 @@ def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none():
 
 
 def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed():
-    from vdnif_addon.report import beat_checks, target_checks, targets_line
+    from vdnif_addon.studies.report import beat_checks, target_checks, targets_line
 
     proposed = metrics(distance_mae=0.02, normal_error_deg=12.5, hit_iou=0.99,
                        false_negative_rate=0.004, false_positive_rate=0.006,
@@ -116,13 +116,13 @@ def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline():
 def test_original_is_the_rest_mesh_cast_with_the_rays_of_the_deformed_view(empty_scene, core):
     """The "original" column: Blender's BVHTree on the rest mesh, cast with the evaluation
     view's rays (the orbit camera framing the deformed pose), gives the same hits."""
-    experiments = core("blender.experiments")
-    size = dict(experiments.SIZES["quick"], eval_poses=2, width=20, height=20)
-    run = experiments.Experiment(size, "/nonexistent", None, "cpu", None, ("lattice",))
+    experiment_runs = core("studies.experiment_runs")
+    size = dict(experiment_runs.SIZES["quick"], eval_poses=2, width=20, height=20)
+    run = experiment_runs.Experiment(size, "/nonexistent", None, "cpu", None, ("lattice",))
     obj, captured = run.scene("lattice")
     evaluated = run.evaluation(obj)
     runs = types.SimpleNamespace(obj=obj, evaluated=evaluated, captured=captured)
-    original = experiments.original_views(run, runs)
+    original = experiment_runs.original_views(run, runs)
     mesh = captured.mesh
     tree = core("blender.bvh").BVHCaster(mesh.vertices, mesh.triangles)
     neural, rays = core("blender.neural"), core("rays")
@@ -218,8 +218,8 @@ def test_full_sizes_train_with_the_default_recipe(core):
     so a new recipe reaches them without a copied number to update."""
     from vdnif_addon.settings import RECIPE
 
-    experiments, bench = core("blender.experiments"), core("blender.bench")
-    full = experiments.SIZES["full"]
+    experiment_runs, bench = core("studies.experiment_runs"), core("studies.bench")
+    full = experiment_runs.SIZES["full"]
     assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"],
             full["overrides"]["batch_size"]) == (RECIPE.resolution, RECIPE.poses,
                                                  RECIPE.rays_per_pose, RECIPE.steps,

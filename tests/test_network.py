@@ -146,7 +146,7 @@ def test_config_round_trip_and_validation():
 
 
 def test_benchmark_runs_on_tiny_sizes():
-    from vdnif_addon.network_bench import benchmark_network
+    from vdnif_addon.studies.network_bench import benchmark_network
 
     result = benchmark_network("cpu", segments=256, train_batch=128, repeats=1)
     rates = ("infer_segments_per_s", "serial_segments_per_s", "encode_segments_per_s",
@@ -165,7 +165,7 @@ def test_benchmark_runs_on_tiny_sizes():
 def test_one_thread_default_for_commands_worker_and_benchmark(monkeypatch):
     """Torch gets every core but the encoder's; the bench's --threads overrides it."""
     from vdnif_addon import threads
-    from vdnif_addon.commands import build_parser
+    from vdnif_addon.cli import build_parser
 
     for cores, expected in (({0, 1, 2, 3}, 3), ({0, 1}, 1), ({5}, 1)):
         monkeypatch.setattr(threads.os, "sched_getaffinity", lambda _, cores=cores: cores)

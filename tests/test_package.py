@@ -57,7 +57,7 @@ def test_broken_manifests_are_refused(change, message):
 @pytest.mark.parametrize("path, expected", [
     ("tests/test_x.py", True), ("vdnif_addon/__pycache__/a.pyc", True),
     ("vdnif_addon/tests.py", False), ("deep/build/x", False), ("build/x", True),
-    ("Makefile", True), ("vdnif_addon/commands.py", False),
+    ("Makefile", True), ("vdnif_addon/cli/__init__.py", False),
 ])
 def test_exclude_patterns_follow_gitignore_rules(path, expected):
     patterns = tomllib.loads((REPO / "blender_manifest.toml").read_text())["build"][

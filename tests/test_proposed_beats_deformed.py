@@ -1,6 +1,6 @@
 """Regression: on a small deforming scene the proposed variant beats the deformed baseline on
 the common pixel set (DESIGN section 10), through the experiments' own code path
-(``experiments.run_scene``: same data, same steps, evaluation on unseen poses).
+(``experiment_runs.run_scene``: same data, same steps, evaluation on unseen poses).
 
 The size (``SIZE``) is small enough for the suite (about 25 s on a loaded 2-core machine)
 and large enough that the baseline predicts hits (at 1,500 steps it often predicts almost
@@ -39,23 +39,23 @@ MIN_IOU_GAIN = 0.15
 MIN_COMMON_PIXELS = 100
 
 
-def compare(experiments, tmp_path, seed):
+def compare(experiment_runs, tmp_path, seed):
     """(proposed, deformed) medians on their common pixel set, trained with ``seed``."""
     size = dict(SIZE, seeds=(seed,))
-    run = experiments.Experiment(size, tmp_path, tmp_path, "cpu", None, ("arm",))
+    run = experiment_runs.Experiment(size, tmp_path, tmp_path, "cpu", None, ("arm",))
     # One torch thread: on a loaded 2-core machine two threads oversubscribe the cores
     # (7-25x slower, docs/performance.md); the figures do not depend on it beyond rounding.
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        runs = experiments.run_scene(run, "arm", ("deformed", "proposed"))
+        runs = experiment_runs.run_scene(run, "arm", ("deformed", "proposed"))
     finally:
         torch.set_num_threads(threads)
     return runs.medians["proposed"], runs.medians["deformed"]
 
 
 def test_proposed_beats_deformed_on_the_common_pixels(empty_scene, core, tmp_path):
-    proposed, deformed = compare(core("blender.experiments"), tmp_path, seed=0)
+    proposed, deformed = compare(core("studies.experiment_runs"), tmp_path, seed=0)
     for reference in ("vs_true", "vs_embedded"):
         p, d = proposed[reference], deformed[reference]
         assert p["compared_rays"] == d["compared_rays"] >= MIN_COMMON_PIXELS
@@ -71,10 +71,10 @@ if __name__ == "__main__":      # the spread over seeds behind the tolerance
     import tempfile
 
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-    experiments = importlib.import_module("vdnif_addon.blender.experiments")
+    experiment_runs = importlib.import_module("vdnif_addon.studies.experiment_runs")
     for seed in map(int, sys.argv[1:] or range(5)):
         with tempfile.TemporaryDirectory() as folder:
-            proposed, deformed = compare(experiments, pathlib.Path(folder), seed)
+            proposed, deformed = compare(experiment_runs, pathlib.Path(folder), seed)
         p, d = proposed["vs_true"], deformed["vs_true"]
         print(f"seed {seed}: common pixels {p['compared_rays']}, ratio distance MAE "
               f"{p['distance_mae'] / d['distance_mae']:.3f}, normal error "

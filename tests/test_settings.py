@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from vdnif_addon import settings
-from vdnif_addon.commands import build_parser
+from vdnif_addon.cli import build_parser
 from vdnif_addon.settings import RECIPE
 from vdnif_addon.settings import TrainConfig
 
@@ -47,7 +47,7 @@ def test_resolution_takes_a_number_or_auto(text, expected):
 
 
 def test_the_demo_runs_the_recipe_at_256_pixels():
-    from vdnif_addon.blender.demo import SIZES
+    from vdnif_addon.studies.demo import SIZES
 
     full = SIZES["full"]
     assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"]) == (

@@ -13,7 +13,8 @@ import dataclasses
 import pytest
 
 from vdnif_addon import limits, settings
-from vdnif_addon.commands import build_parser, validate_arguments
+from vdnif_addon.cli import build_parser
+from vdnif_addon.cli.options import validate_arguments
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.settings import BOUNDS, RECIPE, NetworkConfig, PoseSpec, TrainConfig
 

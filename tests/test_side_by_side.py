@@ -65,7 +65,7 @@ def stand_in_model(network, capture, path):
 def tiny(extension, tmp_path_factory):
     """compare_paths on the lattice demo's Suzanne (3,936 triangles) at R 8, 2 unseen poses,
     16x16 rays, one repeat: without a model, with the oracle, with one that never hits."""
-    side = core("blender.side_by_side")
+    side = core("studies.side_by_side")
     poses = core("blender.poses")
     obj = side.load_side_by_side_scene("lattice")
     captured = core("blender.capture").capture(
@@ -99,7 +99,7 @@ def timings(result):
 
 def test_every_baseline_is_timed_and_hits_what_the_true_reference_hits(tiny):
     side, results = tiny
-    baselines = core("blender.baselines").BASELINES
+    baselines = core("studies.baselines").BASELINES
     for result in results.values():
         assert result["repeats"] == 1 and result["poses"] == 2 and result["rays"] == RAYS ** 2
         seconds = timings(result)
@@ -161,7 +161,7 @@ def test_a_model_that_predicts_no_hits_gets_no_speed_with_the_reason(tiny):
     assert not any(key.startswith(("neural_render", "neural_walk", "neural_network"))
                    for key in timings(result))
     assert "neural_render_s" not in result["median"]
-    for name in core("blender.baselines").BASELINES:
+    for name in core("studies.baselines").BASELINES:
         assert result["ratios"][f"render_neural_over_{name}"] is None
         assert result["ratios"][f"pose_neural_over_{name}"] is None
         assert result["ratios"][f"prepare_neural_over_{name}"] > 0
@@ -181,14 +181,14 @@ def test_an_untrained_network_gets_no_speed_with_the_reason(tiny):
     assert result["rays_per_s"]["neural"] is None
     assert "neural_render_s" not in result["median"]
     assert all(result["ratios"][f"{kind}_neural_over_{name}"] is None
-               for kind in ("render", "pose") for name in core("blender.baselines").BASELINES)
+               for kind in ("render", "pose") for name in core("studies.baselines").BASELINES)
     # the network did run: over every walked segment of the rest views, untimed as a speed
     assert result["ratios"]["walk_and_network_deformed_over_static"] > 0
 
 
 def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
     _, results = tiny
-    report = core("blender.side_by_side_report")
+    report = core("studies.side_by_side_report")
     rows = [results["oracle"], results["never"], results["none"]]
     text = "\n".join(report.side_by_side_markdown(rows, command="python batch.py -- x"))
     assert "Command: `python batch.py -- x`" in text
@@ -216,7 +216,7 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
 
 def test_plots_and_the_performance_section(tiny, tmp_path):
     _, results = tiny
-    report = core("blender.side_by_side_report")
+    report = core("studies.side_by_side_report")
     performance = tmp_path / "performance.md"
     performance.write_text("# Performance\n\n<!-- bench -->\n## Sweep\nkept\n<!-- end bench -->\n")
     machine = {"cpu": "test CPU", "cores": 2, "load_before": 0.5, "load_after": 0.7,
@@ -235,9 +235,9 @@ def test_plots_and_the_performance_section(tiny, tmp_path):
 
 
 def test_the_command_writes_json_plots_and_section(extension, tmp_path, capsys):
-    commands = core("commands")
+    cli = core("cli")
     performance = tmp_path / "performance.md"
-    code = commands.main(["side-by-side", "--scene", "lattice", "--resolution", "8",
+    code = cli.main(["side-by-side", "--scene", "lattice", "--resolution", "8",
                           "--poses", "1", "--repeats", "1", "--width", "8", "--height", "8",
                           "--json", str(tmp_path / "sbs.json"),
                           "--plots", str(tmp_path / "plots"),
@@ -249,23 +249,23 @@ def test_the_command_writes_json_plots_and_section(extension, tmp_path, capsys):
     data = json.loads((tmp_path / "sbs.json").read_text())
     assert data["machine"]["cores"] >= 1 and data["machine"]["warp_device"] == "cpu"
     assert data["command"].endswith("--performance " + str(performance))
-    assert data["results"][0]["speed_withheld"] == core("blender.side_by_side").NO_MODEL
+    assert data["results"][0]["speed_withheld"] == core("studies.side_by_side").NO_MODEL
     assert (tmp_path / "plots" / "side-by-side-speed.png").exists()
     assert "Machine: " in (tmp_path / "sbs.md").read_text()
     assert "## Side by side with the classical baselines" in performance.read_text()
 
 
 def test_bad_settings_are_one_line(extension, tmp_path, capsys):
-    side = core("blender.side_by_side")
+    side = core("studies.side_by_side")
     errors = core("errors")
     with pytest.raises(errors.VDNIFError, match="unknown scene 'teapot'"):
         side.load_side_by_side_scene("teapot")
     assert side.scene_name("million") == "suzanne-5"
-    commands = core("commands")
+    cli = core("cli")
     for argv, message in (
             (["--scene", "bunny", "lattice", "--model", "m.vdnif"], "name the scene of each"),
             (["--scene", "bunny", "--model", "lattice=m.vdnif"], "'lattice' is not among"),
             (["--scene", "lattice", "--repeats", "0", "--resolution", "8", "--poses", "1"],
              "repeats 0 must be at least 1")):
-        assert commands.main(["side-by-side", *argv]) == 1
+        assert cli.main(["side-by-side", *argv]) == 1
         assert message in capsys.readouterr().err

@@ -27,14 +27,14 @@ def core(name):
 def posed_casts(extension):
     """Every baseline and the true reference on one unseen pose of the lattice demo's
     Suzanne, three 32x32 orbit views: {name: (hit, distance)} and the object size."""
-    side = core("blender.side_by_side")
+    side = core("studies.side_by_side")
     poses = core("blender.poses")
     rays = core("rays")
     obj = side.load_side_by_side_scene("lattice")
     captured = core("blender.capture").capture(
         obj, 8, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
     mesh = captured.mesh
-    baselines = core("blender.baselines").make_baselines(mesh)
+    baselines = core("studies.baselines").make_baselines(mesh)
     try:
         with poses.posed(captured.poses[0]):
             for baseline in baselines:
@@ -79,7 +79,7 @@ def _grid_mesh(rows):
 
 
 def test_embree_bytes_come_from_embrees_own_memory_monitor(extension):
-    baselines = core("blender.baselines")
+    baselines = core("studies.baselines")
     sizes = []
     for rows in (40, 80):
         vertices, triangles = _grid_mesh(rows)
@@ -97,7 +97,7 @@ def test_warp_bvh_bytes_match_warps_own_allocation_tracker(extension):
     ('native:mesh') and its BVH ('native:bvh'), besides two small structs."""
     import warp as wp
 
-    baselines = core("blender.baselines")
+    baselines = core("studies.baselines")
     core("kernels.runtime").init()
     units = {"B": 1, "KB": 1024, "MB": 1024 ** 2}
     for rows in (30, 90):
@@ -148,5 +148,5 @@ print("modules:", count, "embreex imported:", "embreex" in sys.modules)
             if any(name.split(".")[0] == "embreex" for name in names):
                 importers.setdefault(path.relative_to(REPO).as_posix(), []).append(
                     id(node) in top_level)
-    assert set(importers) == {"vdnif_addon/blender/baselines.py"}
-    assert not any(importers["vdnif_addon/blender/baselines.py"])      # never at import
+    assert set(importers) == {"vdnif_addon/studies/baselines.py"}
+    assert not any(importers["vdnif_addon/studies/baselines.py"])      # never at import

@@ -129,7 +129,7 @@ def test_voxelize_shows_the_occupied_cells_deformed_at_the_current_frame(empty_s
     edges = np.array([e.vertices for e in mesh.edges])
     lengths = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
     assert np.allclose(lengths, grid.voxel_size, rtol=1e-5), "edges join neighbouring corners"
-    assert len(edges) == len(module("vdnif_addon.blender.ui_support").cell_edges(
+    assert len(edges) == len(module("viewer").cell_edges(
         grid.cell_corners)) > len(grid.cells)
     assert np.allclose(rest, grid.corner_positions(), atol=1e-5), "frame 1 is the rest pose"
     scene.frame_set(30)
@@ -211,7 +211,7 @@ def test_pass_viewer_switches_pass_and_source(session):
     editor = next(a for a in screen.areas if a.type != "VIEW_3D")
     editor.type = "IMAGE_EDITOR"
     bpy.context.view_layer.objects.active = bpy.data.objects["Arm"]
-    viewed = module("vdnif_addon.blender.ui_support").viewed()
+    viewed = module("viewer").viewed()
     assert not viewed, "the view rendered in another file was kept"
     bpy.ops.vdnif.render_passes()
     viewer = bpy.context.scene.vdnif_viewer
@@ -241,7 +241,7 @@ def test_viewport_view_renders_the_3d_viewports_perspective(session):
         bpy.ops.vdnif.render_passes()
     obj.vdnif.view = "VIEWPORT"
     bpy.ops.vdnif.render_passes()
-    viewed = module("vdnif_addon.blender.ui_support").viewed()
+    viewed = module("viewer").viewed()
     hit = viewed["reference"]["normal"][..., 3] > 0.5
     assert hit.sum() > 10
     centre = sum((obj.matrix_world @ Vector(c) for c in obj.bound_box), Vector()) / 8

@@ -34,7 +34,7 @@ from vdnif_addon.attributes import sample_surface  # noqa: E402
 from vdnif_addon.blender.bvh import BVHCaster  # noqa: E402
 from vdnif_addon.blender.capture import capture  # noqa: E402
 from vdnif_addon.blender.posed import PosedObject  # noqa: E402
-from vdnif_addon.blender.poses import PoseSpec  # noqa: E402
+from vdnif_addon.settings import PoseSpec  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.rays import orbit_rays, orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.traverse import traverse  # noqa: E402

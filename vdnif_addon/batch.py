@@ -31,6 +31,6 @@ def _leave(code):
 
 if __name__ == "__main__":
     sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-    from vdnif_addon.commands import main
+    from vdnif_addon.cli import main
 
     _leave(main(_arguments(sys.argv)))

@@ -20,7 +20,8 @@ import torch
 
 from .errors import VDNIFError
 from .safe_io import atomic_path
-from .network import IntersectionNetwork, NetworkConfig
+from .network import IntersectionNetwork
+from .settings import NetworkConfig
 from .settings import OCCLUSION_THRESHOLD
 
 if TYPE_CHECKING:

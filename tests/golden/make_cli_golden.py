@@ -1,8 +1,8 @@
 """Writes ``cli.json``: the batch CLI's behaviour as users see it, recorded before the CLI
 moved out of ``vdnif_addon/commands.py`` into ``vdnif_addon/cli/`` (the commit "before the
 move"), so that ``tests/test_cli_golden.py`` can show the move changed nothing. Not meant to
-be regenerated: a later parser must reproduce it exactly. Run from the repository root with
-the bpy module:
+be regenerated: a later parser must reproduce it exactly (``record`` reads today's parser,
+``vdnif_addon.cli``). Run from the repository root with the bpy module:
 
     python tests/golden/make_cli_golden.py
 
@@ -54,7 +54,7 @@ def record():
     """{command: {"help": text, "help_exit": code, "parsed": {dest: value}}} of today's CLI."""
     if str(REPO) not in sys.path:
         sys.path.insert(0, str(REPO))
-    from vdnif_addon.commands import build_parser, main
+    from vdnif_addon.cli import build_parser, main
 
     previous = os.environ.get("COLUMNS")
     os.environ["COLUMNS"] = COLUMNS

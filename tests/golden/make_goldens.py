@@ -39,7 +39,8 @@ from vdnif_addon.blender.generate import generate_dataset, reference_run  # noqa
 from vdnif_addon.blender.jobs import evaluation_poses  # noqa: E402
 from vdnif_addon.blender.neural import load_scene_model, orbit_view  # noqa: E402
 from vdnif_addon.blender.posed import PosedObject  # noqa: E402
-from vdnif_addon.blender.poses import PoseSpec, posed  # noqa: E402
+from vdnif_addon.blender.poses import posed  # noqa: E402
+from vdnif_addon.settings import PoseSpec  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.fit import fit_model  # noqa: E402
 from vdnif_addon.rays import orbit_viewpoints, training_rays  # noqa: E402

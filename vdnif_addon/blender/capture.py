@@ -9,7 +9,8 @@ from .. import voxels
 from ..capture import Capture
 from ..errors import VDNIFError
 from .deform import CornerDeformer, check_deformers
-from .poses import PoseSpec, make_poses, posed
+from ..settings import PoseSpec
+from .poses import make_poses, posed
 from .read_mesh import check_mesh_object, deform_modifiers, read_rest_mesh
 
 

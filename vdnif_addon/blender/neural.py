@@ -49,7 +49,7 @@ def load_scene_model(path, capture, device="auto", loaded=None):
     corrupt, of a newer format, or trained on another object or resolution raises a one-line
     VDNIFError."""
     from ..model_file import check_scene_metadata, load_model
-    from ..train import resolve_device
+    from ..distributed import resolve_device
 
     network, metadata = load_model(path) if loaded is None else loaded
     check_scene_metadata(path, metadata["extra"])

@@ -16,8 +16,11 @@ they are n/a with the reason. The tables and plots are written by ``side_by_side
 """
 
 import dataclasses
+import importlib.metadata
 import io
+import os
 import pathlib
+import platform
 import statistics
 import time
 
@@ -25,6 +28,8 @@ import bpy
 import numpy as np
 import torch
 
+from ..blender.posed import PosedObject
+from ..blender.poses import posed
 from ..dda import StaticGrid
 from ..errors import VDNIFError
 from ..kernels import runtime
@@ -32,12 +37,11 @@ from ..metrics import Passes, compare, speed_withheld
 from ..network import IntersectionNetwork
 from ..rays import orbit_rays, orbit_viewpoints
 from ..references import true_reference
+from ..safe_io import atomic_path
 from ..render import neural_passes, predict_segments
 from ..settings import Heads, NetworkConfig
 from ..traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
-from .posed import PosedObject
-from .poses import posed
 from .side_by_side_scenes import scene_name
 
 NO_MODEL = "no model file for this scene (--model): only a trained model has speeds"
@@ -48,7 +52,7 @@ RENDER_KEYS = ("neural_render_s", "neural_walk_s", "neural_network_s", "neural_s
 def suzanne_scene(level):
     """Blender's Suzanne subdivided ``level`` times (Subdivision applied, flat faces) with the
     procedural lattice rig, in an emptied file: the scenes of the triangle-count sweep."""
-    from .scenes import add_rig
+    from ..blender.scenes import add_rig
 
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.mesh.primitive_monkey_add()
@@ -63,7 +67,7 @@ def suzanne_scene(level):
 
 def load_side_by_side_scene(name):
     """The mesh object of a scene name in ``SCENES``, built in an emptied file."""
-    from .scenes import demo_scene
+    from ..blender.scenes import demo_scene
 
     name = scene_name(name)
     if name.startswith("suzanne-"):
@@ -315,3 +319,40 @@ def _bytes(capture, model, baselines):
             "model_over_mesh_and_bvh": {name: model_bytes / (mesh_bytes + size)
                                         for name, size in bvh.items()}}
 
+
+def machine(load_before, device):
+    """The machine and thread settings of a run on torch ``device``, for the report
+    (``load_before``: the load average when it started)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
+            cpu = next((line.split(":", 1)[1].strip() for line in info
+                        if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+             else os.cpu_count())
+    warp = runtime.init()
+    return {"cpu": cpu, "cores": cores, "load_before": load_before,
+            "load_after": os.getloadavg()[0],
+            "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
+            "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
+            "warp": warp.__version__, "warp_device": runtime.device(device),
+            "embreex": importlib.metadata.version("embreex"),
+            "blender": bpy.app.version_string}
+
+
+def save_blends(scenes, folder):
+    """Saves each scene as ``folder/<scene>.blend`` for ``train --blend`` and says how."""
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in scenes:
+        obj = load_side_by_side_scene(name)
+        path = folder / f"{name}.blend"
+        with atomic_path(path, ".blend file") as temporary:    # copy: the session keeps its file
+            bpy.ops.wm.save_as_mainfile(filepath=str(pathlib.Path(temporary).resolve()),
+                                        check_existing=False, copy=True)
+            pathlib.Path(temporary + "1").unlink(missing_ok=True)  # Blender's backup of it
+        print(f"saved scene '{name}' ('{obj.name}') to {path}: train with "
+              f"train --blend {path} --object '{obj.name}'")
+    return 0

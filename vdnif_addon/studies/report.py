@@ -4,7 +4,8 @@ the sections that each command rewrites in a shared document."""
 import pathlib
 import re
 
-from .safe_io import write_text_atomic
+from ..safe_io import write_text_atomic
+from ..text import percent, value
 
 # The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes
 # and of Table 1: at most these, against both references.
@@ -23,15 +24,6 @@ NAMES = {"distance_mae": "distance MAE", "normal_error_deg": "normal error",
          "false_positive_rate": "false positives", "albedo_psnr": "albedo PSNR",
          "material_accuracy": "material accuracy"}
 REFERENCES = ("true", "embedded")
-
-
-def value(number, digits=4):
-    return "n/a" if number is None else f"{number:.{digits}g}"
-
-
-def percent(share, digits=3):
-    """A share in [0, 1] as a percentage, "n/a" for None."""
-    return "n/a" if share is None else f"{100 * share:.{digits}g} %"
 
 
 def metrics_table(rows):

@@ -18,18 +18,19 @@ import threading
 
 import torch
 
+from ..blender.capture import capture
+from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
+from ..settings import PoseSpec
+from ..blender.scenes import demo_scene
 from ..evaluation import compare_common, concatenated
 from ..fit import fit_model
 from ..metrics import SPEED_MIN_HIT_IOU
-from ..network import NetworkConfig
+from ..settings import NetworkConfig
 from ..presets import SETTINGS, derive_presets, pareto_front
-from ..report import percent, value, write_section
-from ..settings import RECIPE
 from ..safe_io import atomic_path, write_json_atomic
-from .capture import capture
-from .jobs import evaluate_file, evaluation_poses, variant_dataset
-from .poses import PoseSpec
-from .scenes import demo_scene
+from ..settings import RECIPE
+from ..text import percent, value
+from .report import write_section
 
 # The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose
 # and their mix, batch) with the network's default architecture; the full sweep moves one

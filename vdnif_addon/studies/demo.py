@@ -7,14 +7,15 @@ import shlex
 import sys
 import tempfile
 
-from ..report import demo_markdown
+from ..blender.capture import capture
+from ..blender.jobs import (evaluate_file, evaluation_poses, train_variant, write_figures,
+                           write_passes)
+from ..settings import PoseSpec
+from ..blender.scenes import demo_scene
+from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import RECIPE
 from ..variants import choose_variant
-from ..safe_io import write_json_atomic, write_text_atomic
-from .capture import capture
-from .jobs import evaluate_file, evaluation_poses, train_variant, write_figures, write_passes
-from .poses import PoseSpec
-from .scenes import demo_scene
+from .report import demo_markdown
 
 SIZES = {   # full: the main job with the default recipe (minutes on 2 cores); quick: tests
     "full": dict(resolution=RECIPE.resolution, poses=RECIPE.poses,

@@ -31,10 +31,10 @@ import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
+from ..blender.bvh import BVHCaster
 from ..errors import VDNIFError
 from ..kernels import runtime
 from ..kernels.cast import MeshCaster
-from .bvh import BVHCaster
 
 EMBREE_THREADS = 2            # the casts of one pose, split over both cores of the machine
 BASELINES = ("bvhtree", "warp", "embree")

@@ -6,9 +6,10 @@ results alone (JSON-ready dicts): no bpy, no timing."""
 import pathlib
 
 from ..metrics import SPEED_MIN_HIT_IOU
-from ..report import percent, write_section
 from ..safe_io import atomic_path
+from ..text import percent
 from .baselines import BASELINES
+from .report import write_section
 
 SECTION = "side-by-side"
 TITLE = "Side by side with the classical baselines"

@@ -1,19 +1,22 @@
-"""Blender helpers of the UI that are not operators: the voxel preview object, rays of the 3D
-Viewport's view, and the pass viewer's float images."""
+"""The UI's helpers that are not operators: the voxel preview object, rays of the 3D
+Viewport's view, and the pass viewer: the kept view (module state, dropped by this module's
+own load_post handler when another file is opened) and its float images. The operators,
+panels and properties use it; the Blender adapters it needs stay in
+``vdnif_addon/blender/``."""
 
 import math
 
 import bpy
 import numpy as np
 
-from .. import rays
-from ..errors import VDNIFError
-from ..evaluation import view_images
-from ..images import PASSES
-from ..voxels import inverted_cells
-from .capture import capture
-from .deform import CornerDeformer
-from .poses import PoseSpec
+from .vdnif_addon import rays
+from .vdnif_addon.blender.capture import capture
+from .vdnif_addon.blender.deform import CornerDeformer
+from .vdnif_addon.settings import PoseSpec
+from .vdnif_addon.errors import VDNIFError
+from .vdnif_addon.evaluation import view_images
+from .vdnif_addon.images import PASSES
+from .vdnif_addon.voxels import inverted_cells
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}
@@ -101,9 +104,18 @@ def viewed():
     return _view
 
 
+@bpy.app.handlers.persistent
 def forget_view(*_):
     """Drops the kept view (a load_post handler: it belongs to the file it was made in)."""
     _view.clear()
+
+
+def register():
+    bpy.app.handlers.load_post.append(forget_view)
+
+
+def unregister():
+    bpy.app.handlers.load_post.remove(forget_view)
 
 
 def image_editor(screen):

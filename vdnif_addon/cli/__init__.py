@@ -1,0 +1,113 @@
+"""The batch commands behind ``batch.py``: the parser and ``main``; the commands are in
+``pipeline`` and ``studies``, their shared options in ``options``.
+
+Each command prints its summary to stdout, progress to stderr, and a failure as one line
+``vdnif: error: ...`` with a non-zero exit code.
+"""
+
+import argparse
+import os
+import sys
+import traceback
+
+from ..errors import VDNIFError
+from . import pipeline, studies
+from .options import validate_arguments
+
+
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Appends ``(default: X)`` to every option that has a default its help does not state
+    already; flags and options whose default is None (computed later) say it in words."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        # Identity, not equality: 0 == False, and a default of 0 is still shown.
+        if (action.option_strings and all(default is not hidden for hidden in
+                                          (None, False, argparse.SUPPRESS))
+                and "default" not in text):
+            text += f" (default: {show_default(default)})"
+        return text
+
+
+def show_default(value):
+    """A default as --help shows it: 45.0 as 45, ["bunny", "million"] as bunny million."""
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(show_default, value))
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports a usage mistake on one line, like every other failure, and shows
+    every option's default in --help."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _DefaultsFormatter)
+        super().__init__(*args, **kwargs)
+
+    def error(self, message):
+        raise _UsageError(f"{self.prog}: {message} (see --help)")
+
+
+class _UsageError(Exception):
+    pass
+
+
+def build_parser():
+    parser = _Parser(prog="batch.py", description=(
+        "VDNIF batch commands. Run as: blender --background --python vdnif_addon/batch.py "
+        "-- <command> [options], or python vdnif_addon/batch.py -- <command> [options]."))
+    parser.add_argument("--debug", action="store_true", help=(
+        f"show the traceback of a failure (anywhere on the line; or {DEBUG_ENV}=1)"))
+    commands = parser.add_subparsers(dest="command", metavar="<command>", parser_class=_Parser)
+    pipeline.add_commands(commands)
+    studies.add_commands(commands)
+    return parser
+
+
+DEBUG_ENV = "VDNIF_DEBUG"
+
+
+def _debugging(argv):
+    """(argv without ``--debug``, whether tracebacks are wanted: --debug or VDNIF_DEBUG=1)."""
+    wanted = "--debug" in argv or os.environ.get(DEBUG_ENV, "") not in ("", "0")
+    return [arg for arg in argv if arg != "--debug"], wanted
+
+
+def main(argv):
+    """Runs one batch command; returns the process exit code: 0, or 1 after one line
+    ``vdnif: error: ...`` on stderr for any failure (the traceback only with --debug)."""
+    argv, debug = _debugging(list(argv))
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help()
+            return 2
+        validate_arguments(args)
+        from ..threads import use_threads
+
+        use_threads(getattr(args, "threads", None))
+        return args.run(args)
+    except (_UsageError, VDNIFError) as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"vdnif: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("vdnif: error: interrupted", file=sys.stderr)
+        return 1
+    except (Exception, SystemExit) as exc:     # noqa: BLE001 - the last line of defence
+        if isinstance(exc, SystemExit) and exc.code in (0, None):
+            return 0                           # --help, --version
+        if debug:
+            traceback.print_exc()
+        where = "" if debug else f"; run again with --debug (or {DEBUG_ENV}=1) for the traceback"
+        print(f"vdnif: error: internal error (a bug in VDNIF, please report it): "
+              f"{type(exc).__name__}: {_one_line(exc)}{where}", file=sys.stderr)
+        return 1
+
+
+def _one_line(exc):
+    lines = str(exc).strip().splitlines()
+    return " ".join(line.strip() for line in lines)[:500] if lines else type(exc).__name__

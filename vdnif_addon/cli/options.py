@@ -1,0 +1,269 @@
+"""The batch commands' shared option groups (scene, poses, capture, device, training,
+network) and what turns them into work: the scene they name, the pose spec, the resolution
+(``auto`` included), the checks of every option before any work, and the summary lines that
+several commands print."""
+
+import argparse
+import math
+import pathlib
+import sys
+
+from ..errors import VDNIFError
+from ..settings import (AUTO_RESOLUTION, BOUNDS, DEFAULT_DEVICE, DEVICES,
+                        EMBEDDING_ERROR_SHARE, MAX_RESOLUTION, MIN_RESOLUTION, PE_SCALES,
+                        POSE_SOURCES, RECIPE, PoseSpec)
+
+
+def add_scene_options(parser):
+    """``--scene NAME | --mesh FILE --rig R | --blend FILE --object NAME``."""
+    from ..blender.scenes import DEMO_SCENES, RIGS
+
+    group = parser.add_argument_group("scene (one of)")
+    source = group.add_mutually_exclusive_group()
+    source.add_argument("--scene", choices=DEMO_SCENES,
+                        help="an embedded demo scene (default: arm)")
+    source.add_argument("--mesh", type=pathlib.Path, metavar="FILE",
+                        help="an OBJ, PLY or glTF file, rigged procedurally (see --rig)")
+    source.add_argument("--blend", type=pathlib.Path, metavar="FILE",
+                        help="a .blend file; the object is --object or the active one")
+    group.add_argument("--rig", choices=RIGS,
+                       help="procedural rig for --mesh (default armature) or a demo scene")
+    group.add_argument("--object", metavar="NAME", help="the mesh object in --blend")
+
+
+def load_scene(args):
+    """Builds or opens the scene the options name and returns the mesh object."""
+    from ..blender import scenes
+
+    if args.mesh is not None:
+        return scenes.mesh_scene(args.mesh, args.rig or "armature")
+    if args.blend is not None:
+        return scenes.blend_scene(args.blend, args.object)
+    return scenes.demo_scene(args.scene or "arm", rig=args.rig)
+
+
+def load_posed_scene(args):
+    """(mesh object, PoseSpec): the scene of the options with ``--scale`` applied and
+    ``--deform`` carried by the pose spec."""
+    from ..blender.extremes import apply_stress
+
+    obj = load_scene(args)
+    spec = apply_stress(args, obj, pose_spec(args))
+    if getattr(args, "resolution", None) == AUTO_RESOLUTION:
+        args.resolution = suggested_resolution(obj, spec)
+    return obj, spec
+
+
+def suggested_resolution(obj, spec):
+    """``--resolution auto``: the suggested resolution of the scene (``blender/resolution``),
+    with the embedding errors that decided it on stderr."""
+    from ..blender.resolution import network_error, suggest_resolution
+    from ..settings import SUGGEST_PRESET
+
+    target = EMBEDDING_ERROR_SHARE * network_error()
+    resolution, table = suggest_resolution(obj, spec, target)
+    tried = ", ".join(f"R {row['resolution']}: {row['embedding_error']:.4g}" for row in table)
+    print(f"resolution auto for '{obj.name}': {resolution} (embedding error {tried}; target "
+          f"{target:.4g} object units = {EMBEDDING_ERROR_SHARE:g} x preset "
+          f"{SUGGEST_PRESET}'s network error)", file=sys.stderr)
+    return resolution
+
+
+def resolution_option(text):
+    """``--resolution``: an integer, or ``auto`` (the suggested resolution)."""
+    if text == AUTO_RESOLUTION:
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer or '{AUTO_RESOLUTION}', got {text!r}") from None
+
+
+def add_pose_options(parser, default_poses=8):
+    group = parser.add_argument_group("poses")
+    group.add_argument("--poses", type=int, default=default_poses, metavar="N",
+                       help=f"number of poses (default {default_poses})")
+    group.add_argument("--pose-source", choices=POSE_SOURCES, default=PoseSpec.source,
+                       help="random bone rotations / lattice offsets, or timeline frames")
+    group.add_argument("--seed", type=int, default=PoseSpec.seed, help="random pose seed")
+    group.add_argument("--max-angle", type=float, default=PoseSpec.max_angle_deg, metavar="DEG",
+                       help="largest random bone rotation per axis where the bone has no "
+                            "rotation limits")
+
+
+def pose_spec(args):
+    return PoseSpec(source=args.pose_source, count=args.poses, seed=args.seed,
+                    max_angle_deg=args.max_angle)
+
+
+def add_capture_options(parser, default_poses):
+    parser.add_argument("--resolution", type=resolution_option, default=RECIPE.resolution,
+                        metavar="R", help=f"voxels along the longest side, "
+                        f"{MIN_RESOLUTION}..{MAX_RESOLUTION}, or "
+                        f"'{AUTO_RESOLUTION}': the coarsest whose voxel embedding error is "
+                        f"at most {EMBEDDING_ERROR_SHARE:g} x the network's (default "
+                        f"{RECIPE.resolution})")
+    add_pose_options(parser, default_poses)
+
+
+def add_device_option(parser, default=DEFAULT_DEVICE):
+    """``--device auto|cpu|cuda`` (settings.DEVICES): auto takes CUDA where torch has it."""
+    parser.add_argument("--device", choices=DEVICES, default=default,
+                        help=f"where the network runs (default {default})")
+
+
+def add_training_options(parser):
+    parser.add_argument("--steps", type=int, default=RECIPE.steps, metavar="N",
+                        help=f"optimizer steps (default {RECIPE.steps})")
+    parser.add_argument("--batch", type=int, default=RECIPE.batch_size, metavar="B",
+                        help=f"segments per step and process (default {RECIPE.batch_size})")
+    add_device_option(parser)
+
+
+def write_json(path, data):
+    """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
+    file, no write through a symlink, no NaN)."""
+    from ..safe_io import write_json_atomic
+
+    if path is not None:
+        write_json_atomic(path, data)
+
+
+def check_resolution(value):
+    if value == AUTO_RESOLUTION:        # resolved once the scene is loaded
+        return
+    if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
+        raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")
+
+
+NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
+    "--levels": ("levels", int, "hash-grid levels L"),
+    "--base-resolution": ("base_resolution", int, "coarsest hash-grid resolution N_min"),
+    "--growth": ("growth", float, "resolution growth factor b between levels"),
+    "--log2-table-size": ("log2_table_size", int, "hash table size 2^T per level"),
+    "--feature-dim": ("feature_dim", int, "features per hash-grid entry Fd"),
+    "--pe-bands": ("pe_bands", int, "positional-encoding bands F (0: plain LSNIF grid)"),
+    "--pe-form": ("pe_form", str, "sin(2^k x) ('paper') or sin(pi 2^k x) ('pi')"),
+    "--width": ("width", int, "MLP width"),
+    "--depth": ("depth", int, "MLP hidden layers"),
+}
+
+
+def network_overrides(args):
+    """NetworkConfig / TrainConfig fields set on the command line."""
+    overrides = {field: getattr(args, option[2:].replace("-", "_"))
+                 for option, (field, _, _) in NETWORK_OPTIONS.items()
+                 if getattr(args, option[2:].replace("-", "_")) is not None}
+    overrides.update(steps=args.steps, batch_size=args.batch, device=args.device,
+                     seed=args.seed)
+    return overrides
+
+
+def report_training(record):
+    losses = ", ".join(f"{k} {v:.4f}" for k, v in record["losses"].items())
+    print(f"train: step {record['step']}/{record['steps']}, loss {record['total']:.4f} "
+          f"({losses}), {record['samples_per_s']:,.0f} samples/s, "
+          f"ETA {record['eta_s']:.0f} s", file=sys.stderr, flush=True)
+
+
+def print_evaluation(report):
+    from ..studies.report import speed_line
+
+    print(f"evaluated {report['variant']} on '{report['object']}' R={report['resolution']}, "
+          f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
+          f"{report['width']}x{report['height']}")
+    for name in ("vs_true", "vs_embedded"):
+        print(f"  {name.replace('_', ' ')}: {metrics_text(report[name])}")
+    t = report["timings"]
+    print(f"  pose preparation {t['prepare_pose_s'] * 1e3:.1f} ms, model "
+          f"{report['model_bytes']:,} bytes, render {speed_line(report)}")
+
+
+def metrics_text(m):
+    """One line of compare's metrics: distance error in object units and voxels, normal
+    error, the hit-mask metrics and the scene's optional metrics (n/a where the scene has
+    nothing to predict: one material without texture)."""
+    from ..text import percent, value
+
+    voxels = m.get("distance_mae_voxels")
+    extra = "".join(f", {name} {value(m.get(key))}" for key, name in (
+        ("albedo_psnr", "albedo PSNR"), ("material_accuracy", "material accuracy")))
+    return (f"distance MAE {value(m['distance_mae'])} object units"
+            + ("" if voxels is None else f" ({value(voxels)} voxels)")
+            + f", normal error {value(m['normal_error_deg'])} deg, hit IoU "
+            f"{value(m['hit_iou'])}, false negatives {percent(m.get('false_negative_rate'))}"
+            f", false positives {percent(m.get('false_positive_rate'))}{extra}")
+
+
+def names_scene(args):
+    """Whether the options name a scene (--scene, --mesh or --blend)."""
+    return any(getattr(args, name) is not None for name in ("scene", "mesh", "blend"))
+
+
+OUTPUT_FILES = ("json", "markdown", "results", "presets", "performance")
+"""Options naming a file a command writes; ``--out`` is a file for train, else a folder."""
+IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
+"""Commands whose --width/--height are an image's (train's --width is the MLP's)."""
+
+
+def validate_arguments(args):
+    """Checks every option that can be wrong on its own, and every input and output place,
+    before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
+    from .. import limits
+    from ..safe_io import check_output_file, check_output_folder
+
+    def given(name):
+        return getattr(args, name, None) is not None
+
+    def at_least(name, low, high=None, label=None):
+        if given(name):
+            limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
+                               low, high)
+
+    at_least("seed", *BOUNDS["seed"])
+    at_least("poses", *BOUNDS["poses"])
+    at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
+    at_least("repeats", 1)
+    at_least("threads", 1)
+    at_least("batch", *BOUNDS["batch_size"])
+    at_least("steps", *BOUNDS["steps"])
+    if isinstance(getattr(args, "resolution", None), int):
+        check_resolution(args.resolution)
+    for name in ("surface_fraction", "grazing_fraction", "max_angle"):
+        low, high = BOUNDS[name]
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and low <= value <= high):
+            raise VDNIFError(f"--{name.replace('_', '-')} {value} must be a number in "
+                             f"{low:g}..{high:g}")
+    if given("frame") and not math.isfinite(args.frame):
+        raise VDNIFError(f"--frame {args.frame} is not a finite number")
+    if args.command in IMAGE_COMMANDS and given("width") and given("height"):
+        limits.check_image(args.width, args.height)
+    if args.command == "train":
+        _validate_network_options(args, limits)
+    for name in OUTPUT_FILES:
+        if given(name):
+            check_output_file(getattr(args, name), f"--{name}")
+    if args.command == "train" and given("data") and names_scene(args):
+        check_output_folder(args.data, "--data folder")
+    if given("out"):
+        if args.command == "train":
+            check_output_file(args.out, "--out model file")
+        else:
+            check_output_folder(args.out, "--out folder")
+
+
+def _validate_network_options(args, limits):
+    for name in ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
+                 "width", "depth"):
+        if getattr(args, name, None) is not None:
+            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name),
+                               *BOUNDS[name])
+    low, high = BOUNDS["growth"]
+    if args.growth is not None and not (math.isfinite(args.growth)
+                                        and low <= args.growth <= high):
+        raise VDNIFError(f"--growth {args.growth} must be a number in {low:g}..{high:g}")
+    if args.pe_form is not None and args.pe_form not in PE_SCALES:
+        raise VDNIFError(f"--pe-form '{args.pe_form}' must be one of "
+                         f"{', '.join(map(repr, PE_SCALES))}")

@@ -1,0 +1,388 @@
+"""The pipeline's batch commands: capture, dataset, references, train, render, evaluate;
+one function per command and the parsers that name them (``add_commands``)."""
+
+import pathlib
+import sys
+
+from ..errors import VDNIFError
+from ..settings import COMMAND_IMAGE, EVALUATION_POSES, RECIPE, TRAINABLE_VARIANTS
+from .options import (NETWORK_OPTIONS, add_capture_options, add_device_option, add_pose_options,
+                      add_scene_options, add_training_options, check_resolution,
+                      load_posed_scene, names_scene, network_overrides, print_evaluation,
+                      metrics_text, report_training, write_json)
+
+def cmd_capture(args):
+    """Capture a scene: rest mesh, voxels, deformed corners per pose."""
+    from ..blender.capture import capture
+    from ..progress import Progress
+
+    check_resolution(args.resolution)
+    obj, spec = load_posed_scene(args)
+    progress = Progress(f"capture '{obj.name}'", spec.count, "poses")
+    result = capture(obj, args.resolution, spec, progress=lambda done, _: progress.update(done))
+    summary = result.summary()
+    summary["pose_source"] = "static" if result.mode == "static" else spec.source
+    write_json(args.json, summary)
+    inverted = summary["inverted_cells"]
+    print(f"captured '{summary['object']}' ({summary['mode']}"
+          + (": no deform modifier, one pose" if result.mode == "static" else "") + ")")
+    print(f"  triangles {summary['triangles']}, object size {summary['object_size']:.4g}")
+    print(f"  grid {'x'.join(map(str, summary['grid_dims']))}, voxel size "
+          f"{summary['voxel_size']:.4g}, occupied voxels {summary['occupied_voxels']}, "
+          f"corners {summary['corners']}")
+    print(f"  poses {summary['poses']}, inverted cells per pose: max {max(inverted)}, "
+          f"total {sum(inverted)}")
+    print(f"  heads {', '.join(k for k, v in summary['heads'].items() if v is True)}"
+          f", materials {summary['heads']['material_count']}")
+    for warning in summary["warnings"]:
+        print(f"  warning: {warning}")
+    print(f"  capture {summary['capture_s']:.2f} s")
+    return 0
+
+
+def cmd_dataset(args):
+    """Generate a training dataset shard: walked segments with their ground truth."""
+    from ..blender.capture import capture
+    from ..blender.generate import generate_dataset
+    from ..dataset import check_folder, grid_header
+    from ..progress import Progress
+
+    check_resolution(args.resolution)
+    if args.rays_per_pose < 1:
+        raise VDNIFError(f"rays per pose {args.rays_per_pose} must be at least 1")
+    obj, spec = load_posed_scene(args)
+    result = capture(obj, args.resolution, spec, deform_corners=False)
+    pose_range = parse_range(args.pose_range, len(result.poses))
+    check_folder(args.out, {"object": result.mesh.name, "seed": args.seed,      # before work
+                            "grid": grid_header(result.grid)})
+    progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
+    header = generate_dataset(obj, result, args.out, args.rays_per_pose,
+                              args.surface_fraction, args.seed, pose_range,
+                              progress=lambda done, _: progress.update(done),
+                              grazing_fraction=args.grazing_fraction)
+    counts, timings = header["counts"], header["timings"]
+    walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
+    print(f"dataset '{header['object']}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
+    print(f"  rays {counts['rays']}, segments {counts['segments']}, hits {counts['hits']}")
+    print(f"  {counts['segments'] / walk_and_truth:,.0f} segments/s, "
+          f"{counts['rays'] / walk_and_truth:,.0f} rays/s of walk + ground truth; walk "
+          f"{timings['walk_s']:.2f} s (kernel, entry BVH included), ground truth "
+          f"{timings['ground_truth_s']:.2f} s")
+    print(f"  also: pose preparation {timings['prepare_s']:.2f} s, Blender evaluation "
+          f"{timings['evaluate_s']:.2f} s, training rays {timings['rays_s']:.2f} s, rest BVH "
+          f"{timings['rest_surface_s']:.2f} s, records {timings['records_s']:.2f} s, writing "
+          f"{timings['write_s']:.2f} s")
+    _truncation_warning(counts.get("truncated_rays", 0), counts["rays"])
+    return 0
+
+
+def parse_range(text, count):
+    """``A:B`` -> (A, B) within 0..count; None -> the whole range."""
+    if text is None:
+        return 0, count
+    try:
+        start, stop = (int(part) for part in text.split(":"))
+    except ValueError:
+        raise VDNIFError(f"pose range '{text}' is not of the form A:B") from None
+    if not 0 <= start < stop <= count:
+        raise VDNIFError(f"pose range {start}:{stop} is outside 0:{count}")
+    return start, stop
+
+
+def cmd_references(args):
+    """Render the true and embedded references on unseen poses; report the embedding error."""
+    from ..blender.capture import capture
+    from ..blender.generate import reference_run
+    from ..blender.poses import evaluation_spec
+    from ..progress import Progress
+
+    check_resolution(args.resolution)
+    obj, spec = load_posed_scene(args)
+    result = capture(obj, args.resolution, evaluation_spec(spec), deform_corners=False)
+    progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
+    report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
+                           progress=lambda done, _: progress.update(done))
+    write_json(args.json, report)
+    error = report["embedded_vs_true"]
+    print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
+          f"{'rest' if args.rest_pose else 'unseen'} poses, {args.width}x{args.height}")
+    print(f"  embedded vs true: {metrics_text(error)}")
+    print(f"  {report['rays_per_s']:,.0f} rays/s, {report['segments_per_s']:,.0f} segments/s "
+          "of walk + ground truth")
+    print("  " + ", ".join(f"{name[:-2].replace('_', ' ')} {seconds:.2f} s"
+                           for name, seconds in report["timings"].items()))
+    _truncation_warning(report.get("truncated_rays", 0), report["poses"] * args.width
+                        * args.height)
+    return 0
+
+
+def _truncation_warning(truncated, rays):
+    """Says how many rays the walk's bounds (step budget, seek casts) stopped early."""
+    if truncated:
+        print(f"  warning: {truncated} of {rays} rays were stopped by the walk's step or "
+              "seek bound (their later segments are missing)")
+
+
+def cmd_train(args):
+    """Train a network on a dataset folder (or on a scene, generating its dataset first)
+    and write the model file."""
+    from ..dataset import read_dataset
+    from ..fit import fit_model
+
+    if names_scene(args):
+        result, summary = _train_on_scene(args)
+    else:
+        if args.data is None:
+            raise VDNIFError("give --data DIR (a dataset folder) or scene options "
+                             "(--scene, --mesh or --blend)")
+        header, _ = read_dataset(args.data)
+        variant = _variant(args, header["object"], header.get("mode") == "static")
+        out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
+        result, summary = fit_model(args.data, variant, out, network_overrides(args),
+                                    progress=report_training)
+    if not result.is_main:
+        return 0
+    write_json(args.json, summary)
+    print(f"trained {summary['variant']} on '{summary['object']}' ({summary['segments']} "
+          f"segments): "
+          f"{result.status} after {result.steps} steps in {result.seconds:.1f} s, "
+          f"{result.samples_per_s:,.0f} samples/s")
+    if result.validation:
+        print("  validation on held-out poses: " + ", ".join(
+            f"{k} {v:.4g}" for k, v in result.validation.items()))
+    print(f"  model {summary['model']} ({summary['model_bytes']:,} bytes)")
+    return 0
+
+
+def _variant(args, name, static):
+    """The variant to train on object ``name``: --variant, or the scene's own (static or
+    deforming, ``variants.choose_variant``); what was decided is said on stderr."""
+    from ..variants import choose_variant
+
+    variant, note = choose_variant(args.variant, static)
+    if note is not None:
+        print(f"train: '{name}': {note}", file=sys.stderr)
+    return variant
+
+
+def _train_on_scene(args):
+    """Capture, dataset (into --data, or a temporary folder) and training in one go."""
+    import tempfile
+
+    from ..blender.capture import capture
+    from ..blender.jobs import train_variant
+
+    check_resolution(args.resolution)
+    if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):
+        raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
+                         "folder with scene options, or train on it with --data alone")
+    obj, spec = load_posed_scene(args)
+    captured = capture(obj, args.resolution, spec, deform_corners=False)
+    variant = _variant(args, obj.name, captured.mode == "static")
+    out = args.out or pathlib.Path("out") / f"{obj.name.lower()}-{variant}.vdnif"
+    pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
+        folder = args.data or pathlib.Path(scratch)
+        print(f"dataset '{obj.name}': {len(captured.poses)} poses, {args.rays_per_pose} "
+              f"rays per pose -> {args.data or 'a temporary folder'}", file=sys.stderr)
+        return train_variant(obj, captured, variant, folder, args.rays_per_pose, out,
+                             network_overrides(args), args.seed, progress=report_training)
+
+
+def _read_model(args):
+    """(network, metadata) of the --model file, read once per command, its metadata checked
+    for what a scene needs (a complete grid, an integer resolution)."""
+    from ..model_file import check_scene_metadata, load_model
+
+    loaded = load_model(args.model)
+    check_scene_metadata(args.model, loaded[1]["extra"])
+    return loaded
+
+
+def _model_resolution(args, extra):
+    """--resolution, or the model's own (``extra``: its metadata ``extra``) when not given
+    (they must agree anyway)."""
+    if args.resolution is not None:
+        check_resolution(args.resolution)
+        return args.resolution
+    return int(extra["grid"]["resolution"])
+
+
+def cmd_render(args):
+    """Render the predicted passes of a pose through a camera with a trained model."""
+    import bpy
+
+    from ..blender.capture import capture
+    from ..blender.jobs import write_passes
+    from ..blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
+    from ..blender.scenes import find_camera
+
+    loaded = _read_model(args)
+    resolution = _model_resolution(args, loaded[1]["extra"])
+    obj, spec = load_posed_scene(args)
+    captured = capture(obj, resolution, spec, deform_corners=False)
+    model = load_scene_model(args.model, captured, args.device, loaded)
+    scene = bpy.context.scene
+    frame = scene.frame_current if args.frame is None else args.frame
+    pose = {"frame": float(frame)}
+    camera = find_camera(args.camera)
+    if camera is not None:
+        origins, directions = camera_rays(camera, args.width, args.height)
+        view = f"camera '{camera.name}'"
+        result = render_rays(obj, captured, model, pose, origins, directions,
+                             references=args.references)
+    else:
+        view = "an orbit viewpoint (the scene has no camera)"
+        result = render_orbit(obj, captured, model, pose, args.width, args.height,
+                              references=args.references)
+    slots = captured.mesh.material_slots
+    written = write_passes(args.out, result.predicted, args.height, args.width,
+                           result.world_scale, slots=slots)
+    if args.references:
+        for name in ("true", "embedded"):
+            written += write_passes(args.out, getattr(result, name), args.height, args.width,
+                                    result.world_scale, prefix=f"{name}-", slots=slots)
+    summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
+               "width": args.width, "height": args.height,
+               "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
+               "rays_per_s": result.timings["rays"] / result.timings["render_s"],
+               "files": [str(path) for path in written]}
+    write_json(pathlib.Path(args.out) / "render.json", summary)
+    print(f"rendered '{obj.name}' at frame {frame:g} through {view}, {args.width}x"
+          f"{args.height}: {summary['hit_pixels']} hit pixels, "
+          f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
+    return 0
+
+
+def cmd_evaluate(args):
+    """Evaluate a trained model on unseen poses against the true and embedded references."""
+    from ..blender.jobs import evaluate_file, evaluation_poses, write_figures
+    from ..progress import Progress
+
+    loaded = _read_model(args)
+    resolution = _model_resolution(args, loaded[1]["extra"])
+    trained = loaded[1]["extra"].get("train_poses", [])
+    obj, spec = load_posed_scene(args)
+    captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose, trained=trained)
+    progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
+    report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
+                                  args.device, lambda done, _: progress.update(done),
+                                  loaded=loaded)
+    if args.out is not None:
+        report["figures"] = {name: str(path) for name, path in write_figures(
+            args.out, views[0], args.height, args.width, captured.mesh.size).items()}
+    write_json(args.json, report)
+    print_evaluation(report)
+    return 0
+
+
+def _scene_command(commands, name, run, default_poses, notes):
+    """A command that reads a scene: scene, resolution, pose and stress options."""
+    from ..blender.extremes import add_stress_options
+
+    parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
+    add_scene_options(parser)
+    add_capture_options(parser, default_poses)
+    add_stress_options(parser)
+    parser.set_defaults(run=run)
+    return parser
+
+
+def _model_command(commands, name, run, default_poses, notes):
+    """A command that uses a trained model on a scene; the resolution is the model's."""
+    from ..blender.extremes import add_stress_options
+
+    parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
+    parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
+                        help="a model file written by 'train' or 'demo'")
+    add_scene_options(parser)
+    parser.add_argument("--resolution", type=int, metavar="R",
+                        help="voxel resolution (default: the model's; must match it)")
+    add_pose_options(parser, default_poses)
+    add_stress_options(parser)
+    parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
+    parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
+    add_device_option(parser)
+    parser.set_defaults(run=run)
+    return parser
+
+
+def add_commands(commands):
+    """Adds the pipeline's commands to the batch parser's subcommands ``commands``."""
+    from ..blender.extremes import add_stress_options
+
+    capture = _scene_command(commands, "capture", cmd_capture, 8, (
+        "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
+        "inverted_cells (per pose), heads and capture_s."))
+    capture.add_argument("--json", type=pathlib.Path, metavar="PATH",
+                         help="write the summary as JSON")
+
+    data = _scene_command(commands, "dataset", cmd_dataset, RECIPE.poses, (
+        "Several processes may each write the shard of their --pose-range into one folder; "
+        "training reads them all."))
+    data.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose, metavar="K",
+                      help=f"training rays per pose (default {RECIPE.rays_per_pose})")
+    data.add_argument("--surface-fraction", type=float, default=RECIPE.surface_fraction,
+                      metavar="F", help="share of rays aimed from outside at a surface point "
+                      f"(default {RECIPE.surface_fraction})")
+    data.add_argument("--grazing-fraction", type=float, default=RECIPE.grazing_fraction,
+                      metavar="F", help="share of rays tangent to the surface at a surface "
+                      "point (silhouette rays); the rest aim at random points in the bounds "
+                      f"(default {RECIPE.grazing_fraction})")
+    data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
+    data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                      help="dataset folder (shards are added to it)")
+
+    refs = _scene_command(commands, "references", cmd_references, 4, (
+        "Writes --json with embedded_vs_true (distance_mae in object units, "
+        "normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
+    refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
+    refs.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
+    refs.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
+    refs.add_argument("--json", type=pathlib.Path, metavar="PATH", help="write the report")
+
+    training = commands.add_parser("train", help=cmd_train.__doc__, description=(
+        cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
+        "(DistributedDataParallel) and the first one writes the model."))
+    training.add_argument("--data", type=pathlib.Path, metavar="DIR", help=(
+        "dataset folder written by 'dataset'; with scene options the dataset is generated "
+        "into it first (default then: a temporary folder)"))
+    add_scene_options(training)
+    add_capture_options(training, RECIPE.poses)
+    add_stress_options(training)
+    training.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose,
+                          metavar="K", help="with scene options: training rays per pose "
+                          f"(default {RECIPE.rays_per_pose})")
+    training.add_argument("--variant", choices=TRAINABLE_VARIANTS, help=(
+        "default: lsnif for a scene that no armature or lattice deforms (static), else "
+        "proposed"))
+    training.add_argument("--out", type=pathlib.Path, metavar="MODEL", help=(
+        "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
+    add_training_options(training)
+    training.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    group = training.add_argument_group("encoding and network (default: the variant's)")
+    for option, (_, kind, text) in NETWORK_OPTIONS.items():
+        group.add_argument(option, type=kind, help=text)
+    training.set_defaults(run=cmd_train)
+
+    render = _model_command(commands, "render", cmd_render, 1, (
+        "Writes per pass (hit, distance, normal, albedo, material) a PNG for looking and an "
+        "EXR for use (distance in world units) and render.json into --out."))
+    render.add_argument("--frame", type=float, metavar="F",
+                        help="the timeline frame to pose the scene at (default: current)")
+    render.add_argument("--camera", metavar="NAME", help=(
+        "camera object (default: the scene's camera, else an orbit viewpoint)"))
+    render.add_argument("--references", action="store_true",
+                        help="also render the true and embedded references")
+    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
+
+    evaluate = _model_command(commands, "evaluate", cmd_evaluate, EVALUATION_POSES, (
+        "Poses are the evaluation poses of --seed: another random seed or frames between "
+        "the training frames, never trained on. Writes --json with variant, config, vs_true "
+        "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
+        "albedo_psnr, material_accuracy), timings and model_bytes."))
+    evaluate.add_argument("--rest-pose", action="store_true",
+                          help="evaluate on views of the undeformed rest pose instead")
+    evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
+                          help="write the comparison figures and error images here")
+    evaluate.add_argument("--json", type=pathlib.Path, metavar="PATH")

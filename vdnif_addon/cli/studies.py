@@ -1,0 +1,311 @@
+"""The studies' batch commands: demo, experiment, bench, side-by-side, bench-network; each
+maps its options onto a study of ``vdnif_addon/studies`` and prints its summary
+(``add_commands`` adds their parsers)."""
+
+import pathlib
+
+from ..errors import VDNIFError
+from ..safe_io import write_text_atomic
+from ..settings import DEMO_SCENE
+from ..studies.side_by_side_scenes import DEFAULT_RESOLUTION, MILLION_LEVEL, SCENES, scene_name
+from .options import (add_device_option, check_resolution, print_evaluation, report_training,
+                      write_json)
+
+# torch, Warp, the baselines and the timing code are imported where they are used, so that
+# building the batch parser (every command's, a failing one's too) does not import them.
+
+
+def cmd_demo(args):
+    """The main job on an embedded scene: capture, dataset, train (proposed), render and
+    evaluate on unseen poses, and a short report with the figure."""
+    from ..blender.extremes import apply_stress
+    from ..studies.demo import run_demo
+
+    report = run_demo(args.scene, args.out, quick=args.quick, device=args.device,
+                      steps=args.steps, progress=report_training,
+                      stress=lambda obj, spec: apply_stress(args, obj, spec))
+    write_json(args.json, report)
+    print_evaluation(report)
+    print(f"  report {report['report']}")
+    return 0
+
+
+def cmd_experiment(args):
+    """Run one of the paper's experiments and write its section of the results file."""
+    from ..studies.experiments import run_experiment
+    from ..text import value
+
+    scenes = args.scenes.split(",") if args.scenes else None
+    records = run_experiment(args.name, args.results, quick=args.quick, device=args.device,
+                             progress=report_training, scenes=scenes, seeds=args.seeds)
+    for label, report in records.items():
+        m = report.get("common", report)     # the table's figures: the common pixel set
+        print(f"{label}: vs true distance MAE {value(m['vs_true']['distance_mae'])} "
+              f"({value(m['vs_true'].get('distance_mae_voxels'))} voxels), normal error "
+              f"{value(m['vs_true']['normal_error_deg'])} deg, hit IoU "
+              f"{value(m['vs_true']['hit_iou'])}; vs embedded "
+              f"{value(m['vs_embedded']['distance_mae'])}, "
+              f"{value(m['vs_embedded']['normal_error_deg'])} deg")
+    print(f"  written to {args.results}")
+    return 0
+
+
+def cmd_bench(args):
+    """Sweep resolution, hash grid, PE bands, width and steps; derive the presets."""
+    from ..presets import PRESETS_FILE
+    from ..studies.bench import NO_PRESETS, run_bench
+
+    quick_dir = pathlib.Path("out/bench-quick")
+    out = args.out or (quick_dir if args.quick else pathlib.Path("docs/bench"))
+    presets = args.presets or (quick_dir / "presets.json" if args.quick else PRESETS_FILE)
+    performance = args.performance or (None if args.quick else pathlib.Path(
+        "docs/performance.md"))
+    rows, derived = run_bench(out, presets, performance, quick=args.quick,
+                              device=args.device, progress=report_training)
+    print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
+          + (f"-> {presets}" if derived is not None else f"n/a ({NO_PRESETS}; {presets} "
+             "left as it was)")
+          + (f"; section of {performance}" if performance else ""))
+    return 0
+
+
+def cmd_bench_network(args):
+    """Measure encoder+MLP inference segments/s and training samples/s (paper setting)."""
+    from ..studies.network_bench import benchmark_network
+
+    result = benchmark_network(device=args.device, repeats=args.repeats)
+    write_json(args.json, result)
+    print(f"network ({result['device']}, {result['threads']} torch threads): "
+          f"{result['infer_segments_per_s']:,.0f} segments/s inference "
+          f"({result['serial_segments_per_s']:,.0f} with the encoder and the MLP one after "
+          f"the other: encoder {result['encode_fraction']:.0%}, MLP {result['mlp_fraction']:.0%}"
+          f"), {result['train_samples_per_s']:,.0f} samples/s training")
+    return 0
+
+
+def cmd_side_by_side(args):
+    """Time the neural path against Blender's BVHTree, Warp's refit BVH and Embree per
+    pose, the deformed walk against a static DDA walk, and model bytes against mesh + BVH
+    bytes."""
+    import os
+    import shlex
+
+    from ..progress import Progress
+    from ..studies.side_by_side import (compare_paths, load_side_by_side_scene, machine,
+                                        save_blends)
+    from ..studies.side_by_side_report import (
+        machine_text,
+        side_by_side_markdown,
+        write_performance,
+        write_plots,
+    )
+    from ..distributed import resolve_device
+
+    scenes = list(dict.fromkeys(scene_name(name) for name in args.scene))
+    if args.save_blend is not None:
+        return save_blends(scenes, args.save_blend)
+    models = _model_paths(args.model, scenes)
+    device = resolve_device(args.device)
+    load_before = os.getloadavg()[0]
+    results = []
+    for name in scenes:
+        obj = load_side_by_side_scene(name)
+        captured, model = _scene_capture(obj, models.get(name), args, device)
+        progress = Progress(f"side by side '{obj.name}'", args.repeats, "repeats")
+        result = compare_paths(obj, captured, model, args.width, args.height, args.repeats,
+                               progress=lambda done, _: progress.update(done),
+                               device=device)
+        result["scene"] = name
+        results.append(result)
+        _print_result(result)
+    threads = os.environ.get("OMP_NUM_THREADS")
+    command = ((f"OMP_NUM_THREADS={threads} " if threads else "")
+               + shlex.join(["python", "vdnif_addon/batch.py", "--", *command_line(args)]))
+    host = machine(load_before, device)
+    write_json(args.json, {"command": command, "machine": host, "results": results})
+    if args.markdown is not None:
+        write_text_atomic(args.markdown, "\n".join(side_by_side_markdown(
+            results, command, machine_text(host))) + "\n", "markdown file")
+    if args.plots is not None:
+        write_plots(results, args.plots)
+    if args.performance is not None:
+        write_performance(args.performance, results, command, host)
+    return 0
+
+
+def command_line(args):
+    """The arguments of ``side-by-side`` that reproduce a run of ``args``, every setting
+    spelled out."""
+    line = ["side-by-side", "--scene", *args.scene]
+    line += ["--model", *args.model] if args.model else []
+    line += ["--resolution", str(args.resolution)] if args.resolution else []
+    line += ["--poses", str(args.poses), "--seed", str(args.seed), "--repeats",
+             str(args.repeats), "--width", str(args.width), "--height", str(args.height),
+             "--device", args.device]
+    for option in ("json", "markdown", "plots", "performance"):
+        value = getattr(args, option)
+        line += [f"--{option}", str(value)] if value is not None else []
+    return line
+
+
+def _model_paths(values, scenes):
+    """{scene: model path} from ``--model PATH`` (one scene) or ``SCENE=PATH`` pairs."""
+    models = {}
+    for value in values or []:
+        scene, separator, path = value.rpartition("=")
+        if not separator:
+            if len(scenes) > 1:
+                raise VDNIFError(f"--model {value}: with several scenes name the scene of "
+                                 "each model as SCENE=PATH")
+            scene = scenes[0]
+        scene = scene_name(scene)
+        if scene not in scenes:
+            raise VDNIFError(f"--model {value}: scene '{scene}' is not among --scene")
+        models[scene] = pathlib.Path(path)
+    return models
+
+
+def _scene_capture(obj, model_path, args, device):
+    """(capture of unseen poses, SceneModel or None) of one scene: the poses avoid the
+    model's training poses; the resolution is --resolution, else the model's, else 32."""
+    from ..blender.capture import capture
+    from ..blender.neural import load_scene_model
+    from ..blender.poses import evaluation_spec
+    from ..settings import PoseSpec
+    from ..model_file import load_model
+
+    trained, resolution = None, args.resolution
+    if model_path is not None:
+        extra = load_model(model_path)[1]["extra"]
+        trained = extra.get("train_poses") or None
+        resolution = resolution or int(extra["grid"]["resolution"])
+    resolution = resolution or DEFAULT_RESOLUTION
+    check_resolution(resolution)
+    spec = evaluation_spec(PoseSpec(count=args.poses, seed=args.seed), trained=trained)
+    captured = capture(obj, resolution, spec, deform_corners=False)
+    model = (None if model_path is None
+             else load_scene_model(model_path, captured, device))
+    return captured, model
+
+
+def _print_result(result):
+    from ..studies.baselines import BASELINES
+
+    ratios, speeds = result["ratios"], result["rays_per_s"]
+
+    def ratio(name):
+        return "n/a" if ratios[name] is None else f"{ratios[name]:.3g}x"
+
+    neural = ("n/a" if speeds["neural"] is None else f"{speeds['neural']:,.0f} rays/s")
+    print(f"side by side '{result['object']}' ({result['triangles']:,} triangles), medians "
+          f"of {result['repeats']} repeats: neural render {neural}"
+          + (f" ({result['speed_withheld']})" if result["speed_withheld"] else "")
+          + "; pose total " + ", ".join(f"{ratio(f'pose_neural_over_{b}')} {b}"
+                                        for b in BASELINES)
+          + "; preparation " + ", ".join(f"{ratio(f'prepare_neural_over_{b}')} {b}"
+                                         for b in BASELINES)
+          + f"; deformed walk {ratio('walk_deformed_over_static')} the static DDA walk, "
+          f"{ratio('walk_and_network_deformed_over_static')} with the network")
+
+
+def add_commands(commands):
+    """Adds the studies' commands to the batch parser's subcommands ``commands``."""
+    from ..blender.extremes import add_stress_options
+    from ..blender.scenes import DEMO_SCENES
+
+    demo = commands.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
+    demo.add_argument("--scene", choices=DEMO_SCENES, default=DEMO_SCENE,
+                      help=f"an embedded demo scene (default {DEMO_SCENE})")
+    demo.add_argument("--quick", action="store_true", help="a small size, for tests")
+    add_stress_options(demo)
+    demo.add_argument("--steps", type=int, metavar="N", help="training steps (default: "
+                      "the demo's own)")
+    add_device_option(demo)
+    demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
+                      metavar="DIR", help="default out/demo")
+    demo.add_argument("--json", type=pathlib.Path, metavar="PATH",
+                      help="also write the report JSON here (it is always in DIR)")
+    demo.set_defaults(run=cmd_demo)
+
+    experiment = commands.add_parser("experiment", help=cmd_experiment.__doc__,
+                                     description=cmd_experiment.__doc__)
+    experiment.add_argument("name", choices=("static", "deformation", "ablation", "per-pose"))
+    experiment.add_argument("--quick", action="store_true", help="a tiny size, for tests")
+    experiment.add_argument("--scenes", metavar="A,B", help="only these of the experiment's "
+                            "scenes (default all; the section names them)")
+    experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
+                            "size's seeds (default all: 3, or 2 with --quick)")
+    add_device_option(experiment)
+    experiment.add_argument("--results", type=pathlib.Path,
+                            default=pathlib.Path("docs/results.md"), metavar="PATH",
+                            help="markdown file whose section is rewritten (default "
+                                 "docs/results.md; figures and JSON beside it in results/)")
+    experiment.set_defaults(run=cmd_experiment)
+
+    sweep = commands.add_parser("bench", help=cmd_bench.__doc__, description=(
+        cmd_bench.__doc__ + " Each point trains the proposed variant on the arm and evaluates "
+        "it on unseen poses (accuracy against both references, training time, render rays/s, "
+        "model bytes)."))
+    sweep.add_argument("--quick", action="store_true",
+                       help="a small sweep (minutes) into out/bench-quick, presets not shipped")
+    sweep.add_argument("--out", type=pathlib.Path, metavar="DIR",
+                       help="bench.csv, bench.json, pareto.png (default docs/bench)")
+    sweep.add_argument("--presets", type=pathlib.Path, metavar="PATH",
+                       help="presets JSON (default: the one the panel reads)")
+    sweep.add_argument("--performance", type=pathlib.Path, metavar="PATH",
+                       help="markdown whose sweep section is rewritten "
+                            "(default docs/performance.md; none with --quick)")
+    add_device_option(sweep)
+    sweep.set_defaults(run=cmd_bench)
+
+    _add_side_by_side(commands)
+
+    bench = commands.add_parser("bench-network", help=cmd_bench_network.__doc__,
+                                description=cmd_bench_network.__doc__ + " JSON keys "
+                                "infer_segments_per_s, serial_segments_per_s, "
+                                "encode_segments_per_s, mlp_segments_per_s, encode_fraction, "
+                                "mlp_fraction, train_samples_per_s, threads.")
+    add_device_option(bench)
+    bench.add_argument("--threads", type=int, metavar="N",
+                       help="torch threads (default: the product's, vdnif_addon/threads.py)")
+    bench.add_argument("--repeats", type=int, default=5)
+    bench.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    bench.set_defaults(run=cmd_bench_network)
+
+
+def _add_side_by_side(commands):
+    parser = commands.add_parser("side-by-side", help=cmd_side_by_side.__doc__,
+                                 description=cmd_side_by_side.__doc__ + (
+                                     " Poses are unseen evaluation poses. suzanne-N is "
+                                     "Suzanne subdivided N times with a lattice rig; "
+                                     f"'million' is suzanne-{MILLION_LEVEL} (1,007,616 "
+                                     "triangles)."))
+    parser.add_argument("--scene", nargs="+", choices=SCENES, default=["bunny"],
+                        help="one or more scenes (default bunny)")
+    parser.add_argument("--model", nargs="+", metavar="[SCENE=]MODEL", help=(
+        "a model file trained on the scene, or SCENE=MODEL per scene: neural speeds need a "
+        "model that predicts hits (hit IoU >= 0.9 against the true reference); without one "
+        "they are n/a"))
+    parser.add_argument("--repeats", type=int, default=3, metavar="N",
+                        help="timed repeats; medians are reported (default 3)")
+    parser.add_argument("--resolution", type=int, metavar="R", help=(
+        f"voxel resolution (default: the model's, else {DEFAULT_RESOLUTION})"))
+    parser.add_argument("--poses", type=int, default=4, metavar="N",
+                        help="unseen poses per repeat (default 4)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="training pose seed; the evaluation poses of it are used")
+    parser.add_argument("--width", type=int, default=256, metavar="W")
+    parser.add_argument("--height", type=int, default=256, metavar="H")
+    add_device_option(parser, default="cpu")
+    parser.add_argument("--json", type=pathlib.Path, metavar="PATH",
+                        help="write every repeat's timings, the medians and ratios as JSON")
+    parser.add_argument("--markdown", type=pathlib.Path, metavar="PATH",
+                        help="write the tables as markdown")
+    parser.add_argument("--plots", type=pathlib.Path, metavar="DIR",
+                        help="write the rays/s and bytes plots into DIR")
+    parser.add_argument("--performance", type=pathlib.Path, metavar="PATH", help=(
+        "rewrite the side-by-side section of PATH (docs/performance.md), plots in "
+        "side-by-side/ beside it"))
+    parser.add_argument("--save-blend", type=pathlib.Path, metavar="DIR", help=(
+        "only save each scene as DIR/<scene>.blend (for 'train --blend') and stop"))
+    parser.set_defaults(run=cmd_side_by_side)
