@@ -84,9 +84,9 @@ def tiny(extension, tmp_path_factory):
 def untrained_network(mesh):
     """The product's network in the paper's configuration with the scene's heads, as
     initialized (seed 0), never trained."""
-    network = core("network")
-    config = dataclasses.replace(network.NetworkConfig(),
-                                 heads=network.Heads.from_header(mesh.heads()))
+    network, settings = core("network"), core("settings")
+    config = dataclasses.replace(settings.NetworkConfig(),
+                                 heads=settings.Heads.from_header(mesh.heads()))
     with torch.random.fork_rng():
         torch.manual_seed(0)
         return network.IntersectionNetwork(config).eval()
