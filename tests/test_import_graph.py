@@ -29,14 +29,6 @@ OVERSIZED = {
                                "wrapper in one module, being annotated by the type-hint work; "
                                "split the host wrapper off after it",
 }
-# Import cycles left, each with the reason; like OVERSIZED, an entry that is gone must go.
-KNOWN_CYCLES = {
-    frozenset({"traverse", "kernels.walk", "kernels.cells"}):
-        "traverse.py holds the walk's constants and Segments, which kernels/walk.py and "
-        "kernels/cells.py import, and traverse() calls kernels.walk inside the function; "
-        "moving the constants and Segments into a module of their own breaks it (both files "
-        "are being annotated by the type-hint work)",
-}
 
 
 def source_files(repo):
@@ -189,10 +181,7 @@ def test_the_graph_is_read(graph):
 
 def test_no_import_cycle(graph):
     _, edges, _ = graph
-    found = {frozenset(name.removeprefix(f"{CORE}.") for name in component)
-             for component in cycles(edges)}
-    assert found - set(KNOWN_CYCLES) == set()
-    assert set(KNOWN_CYCLES) - found == set(), "gone: remove them from KNOWN_CYCLES"
+    assert cycles(edges) == []
 
 
 def test_nothing_below_imports_the_commands_or_studies_and_bpy_stays_in_blender(graph):

@@ -9,7 +9,7 @@ from oracles import encoding_torch as encoding_oracle
 from oracles import render as old_render
 from oracles import walk as old_walk
 
-from vdnif_addon import groundtruth, images, rays, references, render, traverse, voxels
+from vdnif_addon import groundtruth, images, rays, references, render, voxels, walk_rules
 from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.metrics import Passes
 from vdnif_addon.restmesh import Albedo, RestMesh
@@ -57,7 +57,7 @@ class OracleNetwork:
 
     def predict(self, p0, p1, rest_len, voxel_size):
         to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa
-        segments = traverse.Segments(ray=np.arange(len(p0)), cell=np.zeros(len(p0), int),
+        segments = walk_rules.Segments(ray=np.arange(len(p0)), cell=np.zeros(len(p0), int),
                                      t0=np.zeros(len(p0)), t1=np.ones(len(p0)),
                                      p0=to_rest(p0), p1=to_rest(p1))
         hits = groundtruth.segment_targets(self.mesh, self.caster, segments)

@@ -34,7 +34,7 @@ class OracleNetwork:
     def predict(self, p0, p1, rest_len, voxel_size):
         to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa
         count = len(p0)
-        segments = core("traverse").Segments(
+        segments = core("walk_rules").Segments(
             ray=np.arange(count), cell=np.zeros(count, int), t0=np.zeros(count),
             t1=np.ones(count), p0=to_rest(p0), p1=to_rest(p1))
         hits = self.targets(self.mesh, self.caster, segments)

@@ -9,7 +9,7 @@ import pytest
 import warp as wp
 
 from oracles import surface_casts as oracle
-from vdnif_addon import groundtruth, references, traverse, voxels
+from vdnif_addon import groundtruth, references, traverse, voxels, walk_rules
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.kernels import runtime, surface
 from vdnif_addon.restmesh import Albedo, RestMesh
@@ -219,7 +219,7 @@ def cell_segments(grid, rng, count):
                     high[np.arange(count), axis])
     p0[rows, axis[rows]] = side[rows]
     p1[:5] = p0[:5]
-    return traverse.Segments(ray=np.arange(count), cell=cell, t0=np.zeros(count),
+    return walk_rules.Segments(ray=np.arange(count), cell=cell, t0=np.zeros(count),
                              t1=np.ones(count), p0=p0, p1=p1)
 
 

@@ -6,6 +6,7 @@ from oracles import walk as oracle
 
 from vdnif_addon import traverse as tv
 from vdnif_addon import voxels
+from vdnif_addon import walk_rules as rules
 from vdnif_addon.kernels.cells import DeviceCells
 
 
@@ -191,7 +192,7 @@ def test_zero_direction_and_limited_distance():
 
 
 def test_first_per_ray():
-    segments = tv.Segments(ray=np.array([0, 0, 1, 1, 1]), cell=np.zeros(5, int),
+    segments = rules.Segments(ray=np.array([0, 0, 1, 1, 1]), cell=np.zeros(5, int),
                            t0=np.arange(5.0), t1=np.arange(5.0) + 1,
                            p0=np.zeros((5, 3)), p1=np.zeros((5, 3)))
     mask = np.array([False, True, False, True, True])
@@ -201,19 +202,19 @@ def test_first_per_ray():
 def test_face_triangles_cover_each_face_and_point_outward():
     rest = voxels.CORNER_OFFSETS.astype(float)
     for face in range(6):
-        tri = rest[tv.FACE_TRIANGLES[face]]                       # (2, 3, 3)
+        tri = rest[rules.FACE_TRIANGLES[face]]                       # (2, 3, 3)
         normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         outward = np.zeros(3)
-        outward[tv.FACE_AXIS[face]] = 1 if tv.FACE_SIDE[face] else -1
+        outward[rules.FACE_AXIS[face]] = 1 if rules.FACE_SIDE[face] else -1
         assert np.allclose(normal, outward[None])     # |normal| = 2 x area 1/2, outward
-        corners = set(tv.FACE_TRIANGLES[face].ravel())
-        assert len(corners) == 4 and all(rest[c][tv.FACE_AXIS[face]] ==
-                                         tv.FACE_SIDE[face] for c in corners)
+        corners = set(rules.FACE_TRIANGLES[face].ravel())
+        assert len(corners) == 4 and all(rest[c][rules.FACE_AXIS[face]] ==
+                                         rules.FACE_SIDE[face] for c in corners)
     # a shared face is split along the same diagonal from both cells (watertight)
     for minus, plus in ((0, 1), (2, 3), (4, 5)):
-        axis = tv.FACE_AXIS[minus]
-        from_plus = rest[tv.FACE_TRIANGLES[plus]].copy()
-        from_minus = rest[tv.FACE_TRIANGLES[minus]].copy()
+        axis = rules.FACE_AXIS[minus]
+        from_plus = rest[rules.FACE_TRIANGLES[plus]].copy()
+        from_minus = rest[rules.FACE_TRIANGLES[minus]].copy()
         from_minus[..., axis] += 1                               # the neighbour's -face
         assert {frozenset(map(tuple, t)) for t in from_plus} == \
             {frozenset(map(tuple, t)) for t in from_minus}

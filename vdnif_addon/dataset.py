@@ -23,7 +23,7 @@ from .errors import VDNIFError
 if TYPE_CHECKING:
     from .groundtruth import SurfaceHits
     from .restmesh import RestMesh
-    from .traverse import Segments
+    from .walk_rules import Segments
     from .voxels import VoxelGrid
 
     Shard = Mapping[str, np.ndarray]

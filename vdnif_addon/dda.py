@@ -4,7 +4,7 @@ Without deformation the cells are uniform, so a ray's cells follow from its dire
 (Amanatides and Woo's DDA): no entry BVH and no face intersections. ``StaticGrid`` walks
 every ray through the uniform cells inside the occupied cells' bounds with a Warp kernel
 (``kernels/dda.py``, one thread per ray) and records the occupied ones as the same
-``traverse.Segments`` that ``traverse.traverse`` produces on the undeformed cells: the cost
+``walk_rules.Segments`` that ``traverse.traverse`` produces on the undeformed cells: the cost
 side-by-side measures the deformation-aware walk against. Never imports bpy.
 """
 
@@ -19,7 +19,7 @@ from .errors import VDNIFError
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from .traverse import Segments
+    from .walk_rules import Segments
     from .voxels import VoxelGrid
 
 # Pieces shorter than this fraction of the occupied extent are not recorded: the deformed walk

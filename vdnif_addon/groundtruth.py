@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int
 
     from .restmesh import RestMesh
-    from .traverse import Segments
+    from .walk_rules import Segments
     from .voxels import VoxelGrid
 
 BOUNDARY_MARGIN = 1e-6

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from .kernels.cells import DeviceCells
     from .kernels.surface import SurfaceCaster
     from .restmesh import RestMesh
-    from .traverse import Segments
+    from .walk_rules import Segments
 
 
 def true_reference(mesh: RestMesh, deformed_caster: SurfaceCaster,

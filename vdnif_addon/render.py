@@ -33,7 +33,7 @@ if TYPE_CHECKING:
 
     from .kernels.cells import DeviceCells
     from .network import IntersectionNetwork
-    from .traverse import Segments
+    from .walk_rules import Segments
     from .voxels import VoxelGrid
 
     Prediction = tuple[dict[str, torch.Tensor], bool]

@@ -9,7 +9,7 @@ import numpy as np
 
 from vdnif_addon.dda import MIN_PIECE
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.traverse import Segments
+from vdnif_addon.walk_rules import Segments
 
 
 class StaticGrid:

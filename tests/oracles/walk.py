@@ -3,22 +3,20 @@
 
 This is the walk the product ran before the kernel replaced it, with the same rules (DESIGN
 section 5), plus the bound on re-seeks the kernel has too: a seek that meets more than
-``traverse.SEEK_LIMIT`` faces in a row that the ray leaves by gives the ray up, and rays
+``walk_rules.SEEK_LIMIT`` faces in a row that the ray leaves by gives the ray up, and rays
 given up count as truncated. Every walker advances one cell per ``advance()`` (rays all start
 together, so the global step count is every ray's own step count).
 """
 
 import numpy as np
 
-from vdnif_addon.traverse import (
+from vdnif_addon.traverse import _crossings, _dot, ray_triangle
+from vdnif_addon.walk_rules import (
     CELL_TRIANGLES,
     OPPOSITE_FACE,
     SEEK_LIMIT,
     ZERO_PASS_LIMIT,
     Segments,
-    _crossings,
-    _dot,
-    ray_triangle,
     step_budget,
 )
 

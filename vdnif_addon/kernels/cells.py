@@ -28,7 +28,7 @@ import numpy as np
 import warp as wp
 
 from ..errors import VDNIFError
-from ..traverse import BARYCENTRIC_TOLERANCE, CELL_TRIANGLES, step_budget
+from ..walk_rules import BARYCENTRIC_TOLERANCE, CELL_TRIANGLES, step_budget
 from . import runtime
 from .cast import MeshCaster
 
@@ -186,7 +186,7 @@ class DeviceCells:
     """The occupied cells of ``grid`` on a Warp device; ``set_pose`` deforms them.
 
     Boundary triangle k (row k of ``entry``, the entry BVH) is triangle
-    ``boundary_triangle[k]`` (0..11, see ``traverse.CELL_TRIANGLES``) of cell
+    ``boundary_triangle[k]`` (0..11, see ``walk_rules.CELL_TRIANGLES``) of cell
     ``boundary_cell[k]``, in the order of ``np.nonzero(grid.neighbours < 0)``.
     """
 

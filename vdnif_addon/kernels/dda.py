@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from jaxtyping import Float
 
     from ..dda import StaticGrid
-    from ..traverse import Segments
+    from ..walk_rules import Segments
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from ..traverse import SEEK_LIMIT, ZERO_PASS_LIMIT, Segments, step_budget
+from ..walk_rules import SEEK_LIMIT, ZERO_PASS_LIMIT, Segments, step_budget
 from . import runtime
 
 if TYPE_CHECKING:
