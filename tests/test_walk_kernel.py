@@ -10,7 +10,8 @@ from oracles import walk as oracle
 from vdnif_addon import dda, traverse, voxels
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.kernels.cells import DeviceCells
-from vdnif_addon.kernels.walk import RayWalk, segment_buffer, segments_from, walk_segments
+from vdnif_addon.kernels.segments import segment_buffer, segments_from
+from vdnif_addon.kernels.walk import RayWalk, walk_segments
 
 
 @pytest.fixture(scope="module")

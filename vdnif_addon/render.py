@@ -25,7 +25,8 @@ import warp as wp
 from .errors import VDNIFError
 from .kernels import render as kernel
 from .kernels import runtime
-from .kernels.walk import RayWalk, segment_buffer
+from .kernels.segments import segment_buffer
+from .kernels.walk import RayWalk
 from .metrics import Passes
 
 if TYPE_CHECKING:

@@ -20,7 +20,8 @@ import warp as wp
 from ..attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
 from . import runtime
 from .cells import CellArrays, cross, dot
-from .walk import DONE, TRUNCATED, RayState, SegmentBuffer
+from .segments import SegmentBuffer
+from .walk import DONE, TRUNCATED, RayState
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
