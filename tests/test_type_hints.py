@@ -15,22 +15,14 @@ import pytest
 import vdnif_addon
 import vdnif_addon.kernels
 
-# Modules not annotated yet (owned by work in progress elsewhere); each is removed from here
-# once it is annotated. bpy code (vdnif_addon/blender/) is not core and is not walked.
-SKIPPED = {
-    "vdnif_addon.batch",
-    "vdnif_addon.commands",
-    "vdnif_addon.network_bench",
-    "vdnif_addon.report",
-}
-
 # Parameters that take no annotation by convention.
 UNANNOTATED_KINDS = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
 IMPLICIT = ("self", "cls")
 
 
 def core_modules() -> list[str]:
-    """Module names of the core: vdnif_addon's top level and vdnif_addon.kernels."""
+    """Module names of the core: vdnif_addon's top level and vdnif_addon.kernels (bpy code,
+    vdnif_addon/blender/, and the studies and commands above the core are not walked)."""
     names = []
     for package in (vdnif_addon, vdnif_addon.kernels):
         for info in pkgutil.iter_modules(package.__path__, package.__name__ + "."):
@@ -73,7 +65,7 @@ def missing_annotations(function) -> list[str]:
     return missing
 
 
-@pytest.mark.parametrize("name", [n for n in core_modules() if n not in SKIPPED])
+@pytest.mark.parametrize("name", core_modules())
 def test_public_api_annotated(name):
     module = importlib.import_module(name)
     gaps = {qualified: missing for qualified, function in _public_callables(module)

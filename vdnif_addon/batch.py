@@ -9,14 +9,15 @@
 import os
 import pathlib
 import sys
+from typing import NoReturn
 
 
-def _arguments(argv):
+def _arguments(argv: list[str]) -> list[str]:
     """The arguments after ``--`` (Blender's own come before it), or all of them."""
     return argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
 
 
-def _leave(code):
+def _leave(code: int) -> NoReturn:
     """Ends the process with ``code`` once stdout and stderr are flushed, without the
     interpreter's exit handlers: bpy's can deadlock on the content of a loaded .blend (a
     driver whose Python expression Blender blocked hung at exit after the results were
