@@ -5,7 +5,6 @@ import tomllib
 import zipfile
 
 import pytest
-
 from conftest import REPO
 
 sys.path.insert(0, str(REPO / "tools"))
@@ -21,7 +20,8 @@ def test_zip_holds_the_extension_and_no_dev_files(tmp_path):
                    "assets/meshes/spot.obj", "assets/meshes/README.md"):
         assert needed in names
     for name in names:
-        assert not name.startswith(("tests/", ".venv/", ".git/", "tools/", ".ci/"))
+        assert not name.startswith(("tests/", ".venv/", ".git/", "tools/", ".ci/",
+                                    ".kernel-cache/", "pyproject.toml"))
         assert "__pycache__" not in name and not name.endswith(".pyc")
 
 
