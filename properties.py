@@ -5,8 +5,7 @@ choice (``Scene.vdnif_viewer``)."""
 import json
 
 import bpy
-from bpy.props import (EnumProperty, FloatProperty, IntProperty, PointerProperty,
-                       StringProperty)
+from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 from . import preferences, viewer
 from .vdnif_addon import settings as defaults

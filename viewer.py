@@ -12,10 +12,10 @@ import numpy as np
 from .vdnif_addon import rays
 from .vdnif_addon.blender.capture import capture
 from .vdnif_addon.blender.deform import CornerDeformer
-from .vdnif_addon.settings import PoseSpec
 from .vdnif_addon.errors import VDNIFError
 from .vdnif_addon.evaluation import view_images
 from .vdnif_addon.images import PASSES
+from .vdnif_addon.settings import PoseSpec
 from .vdnif_addon.voxels import inverted_cells
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.

@@ -39,7 +39,7 @@ def region_3d(context):
 
 
 class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
-    """Render the current frame's passes with the network and the deformed mesh into VDNIF images"""
+    """Render this frame's passes with the network and the deformed mesh into VDNIF images"""
 
     bl_idname = "vdnif.render_passes"
     bl_label = "Render Passes"

@@ -33,7 +33,9 @@ os.environ.setdefault("VDNIF_KERNEL_CACHE", str(REPO / ".kernel-cache"))
 @pytest.fixture(scope="session")
 def extension():
     """The extension enabled the way Blender enables it, from this source tree."""
-    import bpy
+    import bpy  # first: it puts Blender's script modules (addon_utils) on sys.path
+
+    # isort: split
     import addon_utils
 
     repo_dir = tempfile.mkdtemp(prefix="vdnif-repo-")

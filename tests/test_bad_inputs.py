@@ -26,7 +26,6 @@ import zipfile
 
 import numpy as np
 import pytest
-
 from conftest import REPO
 
 BATCH = REPO / "vdnif_addon" / "batch.py"

@@ -5,8 +5,8 @@ import subprocess
 import sys
 
 import pytest
-
 from conftest import REPO
+
 from vdnif_addon.metrics import SPEED_MIN_HIT_IOU, speed_withheld
 
 BATCH = REPO / "vdnif_addon" / "batch.py"
@@ -250,7 +250,8 @@ def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_dem
     torch.save(dict(archive, version=99), future)
     cases = [
         (["--model", model, "--scene", "lattice"], "was trained on 'Arm' at resolution 16"),
-        (["--model", model, "--scene", "arm", "--resolution", 32], "not on 'Arm' at resolution 32"),
+        (["--model", model, "--scene", "arm", "--resolution", 32],
+         "not on 'Arm' at resolution 32"),
         (["--model", model, "--scene", "arm", "--camera", "Ghost"], "no camera named 'Ghost'"),
         (["--model", future, "--scene", "arm"], "format version 99, newer than this add-on"),
         (["--model", tmp_path / "none.vdnif", "--scene", "arm"], "does not exist"),

@@ -5,13 +5,12 @@ import csv
 import json
 
 import pytest
-
 from conftest import REPO
 from test_batch import run_batch
+
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.metrics import speed_withheld
-from vdnif_addon.presets import (PRESETS_FILE, SETTINGS, derive_presets, load_presets,
-                                  pareto_front)
+from vdnif_addon.presets import PRESETS_FILE, SETTINGS, derive_presets, load_presets, pareto_front
 
 
 def test_pareto_front_keeps_only_undominated_points():
@@ -110,8 +109,9 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     not. The two are compared over the pixels both hit; the third has no speed, no
     common-set error and no say in the presets."""
     from test_metrics import image, one_material_mesh
-    from vdnif_addon.studies import bench
+
     from vdnif_addon.evaluation import compare_both, speed_figures
+    from vdnif_addon.studies import bench
 
     mesh = one_material_mesh()
     reference = image(["##########"] * 2)

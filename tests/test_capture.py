@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pytest
-
 import scene_builders as sb
 
 TOLERANCE = 1e-5   # of the object size

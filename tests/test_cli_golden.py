@@ -9,7 +9,8 @@ import pathlib
 import pytest
 
 HERE = pathlib.Path(__file__).resolve().parent
-_spec = importlib.util.spec_from_file_location("make_cli_golden", HERE / "golden" / "make_cli_golden.py")
+_spec = importlib.util.spec_from_file_location("make_cli_golden",
+                                               HERE / "golden" / "make_cli_golden.py")
 make_cli_golden = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(make_cli_golden)
 

@@ -185,7 +185,8 @@ def test_table_initialisation_is_small_uniform():
         ({"log2_table_size": 40}, "log2_table_size"),
         ({"feature_dim": True}, "feature_dim"),
         ({"levels": 20, "base_resolution": 64}, "resolution"),
-        ({"levels": 64, "base_resolution": 1024, "growth": 1.0, "log2_table_size": 24}, "too large"),
+        ({"levels": 64, "base_resolution": 1024, "growth": 1.0, "log2_table_size": 24},
+         "too large"),
     ],
 )
 def test_bad_grid_settings_name_the_setting(kwargs, word):

@@ -6,7 +6,6 @@ import subprocess
 import sys
 
 import bpy
-
 from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE, REPO
 
 
@@ -21,10 +20,9 @@ def test_the_installer_installs_the_pinned_warp_beside_torch(extension):
 
 
 def test_preferences_show_the_warp_version_and_the_kernel_cache(extension, monkeypatch):
+    import warp
     from test_ui_panels import RecordingLayout, texts
     from test_ui_register import PreferencesStandIn
-
-    import warp
 
     preferences = bpy.context.preferences.addons[EXTENSION_MODULE].preferences
     cls = extension.preferences.VDNIFPreferences

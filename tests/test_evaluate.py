@@ -3,7 +3,6 @@ world-space rendering against Blender's own ray casts, and the model/scene check
 
 import numpy as np
 import pytest
-
 from test_render import OracleNetwork
 
 

@@ -5,8 +5,8 @@ import types
 
 import numpy as np
 import pytest
-
 from test_batch import run_batch
+
 from vdnif_addon.studies.report import write_section
 
 

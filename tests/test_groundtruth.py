@@ -23,7 +23,6 @@ import pathlib
 
 import numpy as np
 import pytest
-
 from oracles import surface_casts as oracle
 
 GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"

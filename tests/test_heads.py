@@ -8,7 +8,6 @@ import sys
 
 import numpy as np
 import pytest
-
 import scene_builders as sb
 from test_batch import error_lines, run_batch
 

@@ -7,8 +7,7 @@ import pytest
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.evaluation import compare_both, compare_common, metric_heads, speed_figures
-from vdnif_addon.metrics import (SPEED_MIN_HIT_IOU, Passes, common_pixels, compare,
-                                 speed_withheld)
+from vdnif_addon.metrics import SPEED_MIN_HIT_IOU, Passes, common_pixels, compare, speed_withheld
 from vdnif_addon.presets import SETTINGS, derive_presets
 from vdnif_addon.restmesh import Albedo, RestMesh
 

@@ -25,7 +25,8 @@ CONFIG = NetworkConfig(
 )
 EXTRA = {
     "grid": {"min": np.array([-1.0, -2.0, 0.5]), "voxel_size": 0.125, "resolution": (8, 8, 4)},
-    "albedo_table": np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.7, 0.8, 0.9]], dtype=np.float32),
+    "albedo_table": np.array([[0.1, 0.2, 0.3], [0.4, 0.5, 0.6], [0.7, 0.8, 0.9]],
+                             dtype=np.float32),
     "materials": ["skin", "cloth", "metal"],
     "occupied": np.array([True, False, True]),
 }

@@ -184,7 +184,8 @@ def test_predict_overlaps_batches_without_changing_them():
     """The pipelined predict (encoder of batch k+1 in a worker thread) equals forward batch
     by batch, and its outputs carry no autograd history."""
     torch.manual_seed(4)
-    network = IntersectionNetwork(NetworkConfig(**SMALL, heads=Heads(albedo=True, material_count=2)))
+    network = IntersectionNetwork(
+        NetworkConfig(**SMALL, heads=Heads(albedo=True, material_count=2)))
     with torch.no_grad():
         network.encoder.grid.table.normal_()
     p0, p1 = torch.rand(2, 1000, 3)

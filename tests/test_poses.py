@@ -6,7 +6,6 @@ import itertools
 
 import numpy as np
 import pytest
-
 import scene_builders as sb
 
 

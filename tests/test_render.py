@@ -56,7 +56,7 @@ class OracleNetwork:
         self.queries = 0
 
     def predict(self, p0, p1, rest_len, voxel_size):
-        to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa
+        to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa: E731
         segments = walk_rules.Segments(ray=np.arange(len(p0)), cell=np.zeros(len(p0), int),
                                      t0=np.zeros(len(p0)), t1=np.ones(len(p0)),
                                      p0=to_rest(p0), p1=to_rest(p1))

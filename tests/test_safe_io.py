@@ -9,8 +9,13 @@ import pytest
 
 from vdnif_addon import dataset
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.safe_io import (atomic_path, check_output_file, check_output_folder,
-                                 write_bytes_atomic, write_json_atomic)
+from vdnif_addon.safe_io import (
+    atomic_path,
+    check_output_file,
+    check_output_folder,
+    write_bytes_atomic,
+    write_json_atomic,
+)
 
 
 def _listing(folder):

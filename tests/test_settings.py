@@ -8,8 +8,7 @@ import pytest
 
 from vdnif_addon import settings
 from vdnif_addon.cli import build_parser
-from vdnif_addon.settings import RECIPE
-from vdnif_addon.settings import TrainConfig
+from vdnif_addon.settings import RECIPE, TrainConfig
 
 
 def test_settings_import_neither_torch_nor_bpy():

@@ -11,7 +11,6 @@ import types
 import numpy as np
 import pytest
 import torch
-
 from conftest import EXTENSION_MODULE
 
 RAYS = 16
@@ -32,7 +31,7 @@ class OracleNetwork:
         self.caster = groundtruth.rest_surface(mesh)
 
     def predict(self, p0, p1, rest_len, voxel_size):
-        to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa
+        to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa: E731
         count = len(p0)
         segments = core("walk_rules").Segments(
             ray=np.arange(count), cell=np.zeros(count, int), t0=np.zeros(count),
@@ -200,7 +199,8 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
     assert len(tables) == 9 and all(line.count("Suzanne (3,936 triangles)") == 3
                                     for line in tables)
     assert results["never"]["speed_withheld"] in text and results["none"]["speed_withheld"] in text
-    speed_row = next(line for line in text.splitlines() if line.startswith("| neural render (walk"))
+    speed_row = next(line for line in text.splitlines()
+                     if line.startswith("| neural render (walk"))
     assert speed_row.count("n/a") == 2 and f"{results['oracle']['rays_per_s']['neural']:,.0f}" \
         in speed_row
     assert "(met)" in text or "(**missed**)" in text

@@ -10,7 +10,6 @@ import sys
 
 import numpy as np
 import pytest
-
 from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE, REPO
 
 # Rays through an edge or a vertex that float32 triangle tests of different libraries may

@@ -15,8 +15,8 @@ from vdnif_addon.errors import VDNIFError
 from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.metrics import compare
 from vdnif_addon.network import IntersectionNetwork
-from vdnif_addon.settings import NetworkConfig
 from vdnif_addon.restmesh import Albedo, RestMesh
+from vdnif_addon.settings import NetworkConfig
 
 EXTREMES = ("bend:170", "twist:360", "stretch:4", "squash:0.1")
 
@@ -163,7 +163,8 @@ def test_lattice_extremes_move_the_points_as_defined(empty_scene, core):
     for text in ("twist:360", "stretch:4"):
         with posed({"frame": 1.0, "deform": extremes.ExtremeDeform.parse(text).pose_key(obj)}):
             depsgraph = bpy.context.evaluated_depsgraph_get()
-            moved = np.array([p.co_deform[:] for p in lattice.evaluated_get(depsgraph).data.points])
+            moved = np.array([p.co_deform[:]
+                              for p in lattice.evaluated_get(depsgraph).data.points])
         expected = rest.copy()
         if text.startswith("twist"):
             expected[np.ix_(middle, across)] *= -1

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 import warp as wp
-
 from oracles import surface_casts as oracle
+
 from vdnif_addon import groundtruth, references, traverse, voxels, walk_rules
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.kernels import runtime, surface

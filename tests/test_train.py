@@ -156,7 +156,8 @@ def test_uncertainty_weighting_formula_and_bounds():
 
 def test_overfits_every_head():
     shards = sphere_shards(n=256, poses=1)
-    config = TrainConfig(steps=500, batch_size=256, val_fraction=0.0, log_interval=50, device="cpu")
+    config = TrainConfig(steps=500, batch_size=256, val_fraction=0.0, log_interval=50,
+                         device="cpu")
     result = train(shards, header(), config, NetworkConfig(**SMALL))
     first, last = result.history[0]["losses"], result.history[-1]["losses"]
     assert set(first) == {"occlusion", "distance", "normal", "albedo", "material"}
@@ -277,7 +278,8 @@ def test_training_follows_the_torch_encoders_loss_curve(tmp_path):
 def test_same_seed_gives_identical_weights():
     def weights(seed):
         config = TrainConfig(steps=30, batch_size=64, seed=seed, log_interval=30, device="cpu")
-        return train(sphere_shards(), header(), config, NetworkConfig(**SMALL)).network.state_dict()
+        result = train(sphere_shards(), header(), config, NetworkConfig(**SMALL))
+        return result.network.state_dict()
 
     first, second, other = weights(7), weights(7), weights(8)
     assert all(torch.equal(first[key], second[key]) for key in first)
@@ -328,7 +330,8 @@ def test_bad_datasets_are_reported():
 
 
 def test_variants():
-    lsnif, deformed, proposed = (variant_config(name) for name in ("lsnif", "deformed", "proposed"))
+    lsnif, deformed, proposed = (variant_config(name)
+                                 for name in ("lsnif", "deformed", "proposed"))
     assert (lsnif.network.pe_bands, lsnif.network.distance_mode, lsnif.train.weighting) == (
         0,
         "fraction",

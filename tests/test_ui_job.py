@@ -6,8 +6,8 @@ import time
 
 import numpy as np
 import pytest
-
 from test_train import SMALL, sphere_shards
+
 from vdnif_addon import dataset
 from vdnif_addon.model_file import load_model
 from vdnif_addon.training_job import JobState, TrainingJob, progress_interval

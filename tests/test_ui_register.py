@@ -6,7 +6,6 @@ import sys
 
 import bpy
 import pytest
-
 from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE
 
 

@@ -10,9 +10,8 @@ import time
 import bpy
 import numpy as np
 import pytest
-from mathutils import Vector
-
 from conftest import EXTENSION_MODULE
+from mathutils import Vector
 
 SMALL = dict(resolution=12, pose_count=4, rays_per_pose=128, steps=30, batch_size=256,
              log2_table_size=12, base_resolution=16, width=32, depth=2, image_width=32,

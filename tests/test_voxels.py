@@ -320,7 +320,8 @@ def small_grid():
 
 
 def test_undeformed_cells_have_determinant_h_cubed(small_grid):
-    dets = voxels.cell_jacobian_determinants(small_grid.corner_positions(), small_grid.cell_corners)
+    dets = voxels.cell_jacobian_determinants(small_grid.corner_positions(),
+                                             small_grid.cell_corners)
     assert dets.shape == (len(small_grid.cells), 8)
     np.testing.assert_allclose(dets, small_grid.voxel_size**3, rtol=1e-9)
     assert not voxels.inverted_cells(small_grid.corner_positions(), small_grid.cell_corners).any()
@@ -341,7 +342,8 @@ def test_affine_map_scales_determinants_by_its_determinant(small_grid):
 def test_determinants_match_finite_differences_of_the_trilinear_map(small_grid):
     rng = np.random.default_rng(9)
     h = small_grid.voxel_size
-    moved = small_grid.corner_positions() + rng.normal(scale=0.3 * h, size=small_grid.corners.shape)
+    moved = small_grid.corner_positions() + rng.normal(scale=0.3 * h,
+                                                       size=small_grid.corners.shape)
     dets = voxels.cell_jacobian_determinants(moved, small_grid.cell_corners)
     expected = trilinear_jacobian_determinants(moved[small_grid.cell_corners])
     np.testing.assert_allclose(dets, expected, rtol=1e-6, atol=1e-9 * h**3)

@@ -23,8 +23,8 @@ from .errors import VDNIFError
 if TYPE_CHECKING:
     from .groundtruth import SurfaceHits
     from .restmesh import RestMesh
-    from .walk_rules import Segments
     from .voxels import VoxelGrid
+    from .walk_rules import Segments
 
     Shard = Mapping[str, np.ndarray]
     """One shard's arrays by ``ARRAYS`` name, each (S, ...) over its S segments (an npz

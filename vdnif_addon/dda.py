@@ -19,8 +19,8 @@ from .errors import VDNIFError
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from .walk_rules import Segments
     from .voxels import VoxelGrid
+    from .walk_rules import Segments
 
 # Pieces shorter than this fraction of the occupied extent are not recorded: the deformed walk
 # skips the same corner and edge grazes (its ``step``), so both give the same cells.

@@ -20,8 +20,8 @@ if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int
 
     from .restmesh import RestMesh
-    from .walk_rules import Segments
     from .voxels import VoxelGrid
+    from .walk_rules import Segments
 
 BOUNDARY_MARGIN = 1e-6
 

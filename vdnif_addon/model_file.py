@@ -19,10 +19,9 @@ import numpy as np
 import torch
 
 from .errors import VDNIFError
-from .safe_io import atomic_path
 from .network import IntersectionNetwork
-from .settings import NetworkConfig
-from .settings import OCCLUSION_THRESHOLD
+from .safe_io import atomic_path
+from .settings import OCCLUSION_THRESHOLD, NetworkConfig
 
 if TYPE_CHECKING:
     from .restmesh import RestMesh

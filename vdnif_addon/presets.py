@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import pathlib
-
 from collections.abc import Sequence
 from typing import Any
 

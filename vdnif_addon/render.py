@@ -34,8 +34,8 @@ if TYPE_CHECKING:
 
     from .kernels.cells import DeviceCells
     from .network import IntersectionNetwork
-    from .walk_rules import Segments
     from .voxels import VoxelGrid
+    from .walk_rules import Segments
 
     Prediction = tuple[dict[str, torch.Tensor], bool]
     """A wave's predictions as the resolve kernel reads them (hit, fraction, normal,

@@ -9,8 +9,13 @@ pipeline did before the kernel: the point ``origin + t direction`` with the cast
 
 import numpy as np
 
-from vdnif_addon.attributes import (FALLBACK_NORMAL, has_area, interpolate, normalize,
-                                    surface_albedo)
+from vdnif_addon.attributes import (
+    FALLBACK_NORMAL,
+    has_area,
+    interpolate,
+    normalize,
+    surface_albedo,
+)
 from vdnif_addon.groundtruth import BOUNDARY_MARGIN, SurfaceHits
 
 

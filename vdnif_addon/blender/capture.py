@@ -8,8 +8,8 @@ import numpy as np
 from .. import voxels
 from ..capture import Capture
 from ..errors import VDNIFError
-from .deform import CornerDeformer, check_deformers
 from ..settings import PoseSpec
+from .deform import CornerDeformer, check_deformers
 from .poses import make_poses, posed
 from .read_mesh import check_mesh_object, deform_modifiers, read_rest_mesh
 

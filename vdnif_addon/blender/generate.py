@@ -75,7 +75,8 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     timings["total_s"] = sum(timings.values())
     header = {
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
-        "grid": dataset.grid_header(capture.grid, capture.mesh), "voxel_size": capture.grid.voxel_size,
+        "grid": dataset.grid_header(capture.grid, capture.mesh),
+        "voxel_size": capture.grid.voxel_size,
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
         "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,

@@ -48,8 +48,8 @@ def load_scene_model(path, capture, device="auto", loaded=None):
     ``model_file.load_model`` result when the caller read it already); a file that is
     corrupt, of a newer format, or trained on another object or resolution raises a one-line
     VDNIFError."""
-    from ..model_file import check_scene_metadata, load_model
     from ..distributed import resolve_device
+    from ..model_file import check_scene_metadata, load_model
 
     network, metadata = load_model(path) if loaded is None else loaded
     check_scene_metadata(path, metadata["extra"])

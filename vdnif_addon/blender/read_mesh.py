@@ -55,7 +55,8 @@ def evaluated_surface(obj, rest):
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     mesh = evaluated.to_mesh()
     try:
-        if len(mesh.vertices) != len(rest.vertices) or len(mesh.loops) <= rest.triangle_loops.max():
+        if (len(mesh.vertices) != len(rest.vertices)
+                or len(mesh.loops) <= rest.triangle_loops.max()):
             raise VDNIFError(f"'{obj.name}': a modifier changes the mesh topology between rest "
                              f"and pose; only deform modifiers are supported")
         normals = np.empty(len(mesh.loops) * 3, np.float32)
@@ -155,7 +156,8 @@ def _albedo(material, obj, rest):
     if node.type == "TEX_IMAGE" and node.image is not None:
         return Albedo("texture", constant, texture=_image_pixels(node.image, material),
                       extension=node.extension, source=node.image.name)
-    if node.type == "VERTEX_COLOR" or (node.type == "ATTRIBUTE" and node.attribute_type == "GEOMETRY"):
+    if node.type == "VERTEX_COLOR" or (node.type == "ATTRIBUTE"
+                                       and node.attribute_type == "GEOMETRY"):
         name = node.layer_name if node.type == "VERTEX_COLOR" else node.attribute_name
         name = name or (obj.data.color_attributes.active_color_name or "")
         if name in obj.data.color_attributes:

@@ -9,9 +9,19 @@ import pathlib
 import sys
 
 from ..errors import VDNIFError
-from ..settings import (AUTO_RESOLUTION, BOUNDS, DEFAULT_DEVICE, DEVICES,
-                        EMBEDDING_ERROR_SHARE, MAX_RESOLUTION, MIN_RESOLUTION, PE_SCALES,
-                        POSE_SOURCES, RECIPE, PoseSpec)
+from ..settings import (
+    AUTO_RESOLUTION,
+    BOUNDS,
+    DEFAULT_DEVICE,
+    DEVICES,
+    EMBEDDING_ERROR_SHARE,
+    MAX_RESOLUTION,
+    MIN_RESOLUTION,
+    PE_SCALES,
+    POSE_SOURCES,
+    RECIPE,
+    PoseSpec,
+)
 
 
 def add_scene_options(parser):

@@ -6,10 +6,23 @@ import sys
 
 from ..errors import VDNIFError
 from ..settings import COMMAND_IMAGE, EVALUATION_POSES, RECIPE, TRAINABLE_VARIANTS
-from .options import (NETWORK_OPTIONS, add_capture_options, add_device_option, add_pose_options,
-                      add_scene_options, add_training_options, check_resolution,
-                      load_posed_scene, names_scene, network_overrides, print_evaluation,
-                      metrics_text, report_training, write_json)
+from .options import (
+    NETWORK_OPTIONS,
+    add_capture_options,
+    add_device_option,
+    add_pose_options,
+    add_scene_options,
+    add_training_options,
+    check_resolution,
+    load_posed_scene,
+    metrics_text,
+    names_scene,
+    network_overrides,
+    print_evaluation,
+    report_training,
+    write_json,
+)
+
 
 def cmd_capture(args):
     """Capture a scene: rest mesh, voxels, deformed corners per pose."""

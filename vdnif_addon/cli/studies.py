@@ -8,8 +8,13 @@ from ..errors import VDNIFError
 from ..safe_io import write_text_atomic
 from ..settings import DEMO_SCENE
 from ..studies.side_by_side_scenes import DEFAULT_RESOLUTION, MILLION_LEVEL, SCENES, scene_name
-from .options import (add_device_option, check_resolution, print_evaluation, report_training,
-                      write_json)
+from .options import (
+    add_device_option,
+    check_resolution,
+    print_evaluation,
+    report_training,
+    write_json,
+)
 
 # torch, Warp, the baselines and the timing code are imported where they are used, so that
 # building the batch parser (every command's, a failing one's too) does not import them.
@@ -90,16 +95,15 @@ def cmd_side_by_side(args):
     import os
     import shlex
 
+    from ..distributed import resolve_device
     from ..progress import Progress
-    from ..studies.side_by_side import (compare_paths, load_side_by_side_scene, machine,
-                                        save_blends)
+    from ..studies.side_by_side import compare_paths, load_side_by_side_scene, machine, save_blends
     from ..studies.side_by_side_report import (
         machine_text,
         side_by_side_markdown,
         write_performance,
         write_plots,
     )
-    from ..distributed import resolve_device
 
     scenes = list(dict.fromkeys(scene_name(name) for name in args.scene))
     if args.save_blend is not None:
@@ -171,8 +175,8 @@ def _scene_capture(obj, model_path, args, device):
     from ..blender.capture import capture
     from ..blender.neural import load_scene_model
     from ..blender.poses import evaluation_spec
-    from ..settings import PoseSpec
     from ..model_file import load_model
+    from ..settings import PoseSpec
 
     trained, resolution = None, args.resolution
     if model_path is not None:

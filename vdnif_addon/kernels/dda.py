@@ -3,9 +3,9 @@
 Amanatides and Woo's walk through the uniform cells inside the occupied cells' bounds (no
 entry BVH, no face intersections), recording the occupied cells as segments through the same
 buffers (``kernels/segments.py``) and with the same per-ray state, launches and collection as
-the deformed walk (``kernels/walk.py``), so the two compare like with like. The numbers are the numpy DDA's
-that this kernel replaced (``tests/oracles/dda.py``): crossing distances ``(wall - o) / d``,
-recomputed only on the axis that stepped, and end points ``o + t d``.
+the deformed walk (``kernels/walk.py``), so the two compare like with like. The numbers are
+the numpy DDA's that this kernel replaced (``tests/oracles/dda.py``): crossing distances
+``(wall - o) / d``, recomputed only on the axis that stepped, and end points ``o + t d``.
 """
 
 from __future__ import annotations
@@ -17,8 +17,7 @@ import numpy as np
 import warp as wp
 
 from . import runtime
-from .segments import (SegmentBuffer, collect, emit, reusable_buffer, segment_buffer,
-                       segments_from)
+from .segments import SegmentBuffer, collect, emit, reusable_buffer, segment_buffer, segments_from
 
 if TYPE_CHECKING:
     from jaxtyping import Float

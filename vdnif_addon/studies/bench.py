@@ -20,15 +20,13 @@ import torch
 
 from ..blender.capture import capture
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
-from ..settings import PoseSpec
 from ..blender.scenes import demo_scene
 from ..evaluation import compare_common, concatenated
 from ..fit import fit_model
 from ..metrics import SPEED_MIN_HIT_IOU
-from ..settings import NetworkConfig
 from ..presets import SETTINGS, derive_presets, pareto_front
 from ..safe_io import atomic_path, write_json_atomic
-from ..settings import RECIPE
+from ..settings import RECIPE, NetworkConfig, PoseSpec
 from ..text import percent, value
 from .report import write_section
 
@@ -307,9 +305,10 @@ def sweep_markdown(rows, presets, size, command, out, performance):
              "false-negative / false-positive rates (shares of the true reference's hits) "
              "count every pixel.",
              "",
-             "| R | L | log2 T | F | width | steps (converged) | distance MAE true / embedded | distance "
-             "MAE true (voxels) | normal error true / embedded (deg) | hit IoU (true) | false "
-             "neg. / pos. (true) | train (s) | render rays/s | model bytes |",
+             "| R | L | log2 T | F | width | steps (converged) | distance MAE true / embedded "
+             "| distance MAE true (voxels) | normal error true / embedded (deg) "
+             "| hit IoU (true) | false neg. / pos. (true) | train (s) | render rays/s "
+             "| model bytes |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
              "| --- |"]
     for r in rows:

@@ -8,12 +8,16 @@ import sys
 import tempfile
 
 from ..blender.capture import capture
-from ..blender.jobs import (evaluate_file, evaluation_poses, train_variant, write_figures,
-                           write_passes)
-from ..settings import PoseSpec
+from ..blender.jobs import (
+    evaluate_file,
+    evaluation_poses,
+    train_variant,
+    write_figures,
+    write_passes,
+)
 from ..blender.scenes import demo_scene
 from ..safe_io import write_json_atomic, write_text_atomic
-from ..settings import RECIPE
+from ..settings import RECIPE, PoseSpec
 from ..variants import choose_variant
 from .report import demo_markdown
 

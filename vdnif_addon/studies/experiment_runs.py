@@ -16,13 +16,12 @@ from ..blender.image_io import save_image
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.neural import orbit_view
 from ..blender.posed import PosedObject
-from ..settings import PoseSpec
 from ..blender.scenes import demo_scene
 from ..evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..fit import fit_model
 from ..rays import orbit_viewpoints
 from ..references import true_reference
-from ..settings import RECIPE
+from ..settings import RECIPE, PoseSpec
 from ..variants import variant_config
 from .report import common_pixels_line
 

@@ -35,10 +35,18 @@ from ..rays import orbit_viewpoints
 from ..safe_io import write_json_atomic
 from ..settings import RECIPE
 from ..text import value
-from .experiment_runs import (PI_FORM, RUNS, SIZES, Experiment, original_views, run_scene,
-                              scene_figure, scene_record, table_rows)
-from .report import (common_pixels_line, metrics_table, spread_table, targets_line,
-                     write_section)
+from .experiment_runs import (
+    PI_FORM,
+    RUNS,
+    SIZES,
+    Experiment,
+    original_views,
+    run_scene,
+    scene_figure,
+    scene_record,
+    table_rows,
+)
+from .report import common_pixels_line, metrics_table, spread_table, targets_line, write_section
 
 RESULTS_PREAMBLE = ("# Results of the paper's experiments\n\nEach section is written by the "
                     "command it names; numbers are measured, not copied.\n")

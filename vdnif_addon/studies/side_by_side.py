@@ -37,8 +37,8 @@ from ..metrics import Passes, compare, speed_withheld
 from ..network import IntersectionNetwork
 from ..rays import orbit_rays, orbit_viewpoints
 from ..references import true_reference
-from ..safe_io import atomic_path
 from ..render import neural_passes, predict_segments
+from ..safe_io import atomic_path
 from ..settings import Heads, NetworkConfig
 from ..traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
