@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.requirements-installed
 
-.PHONY: demo test package venv clean
+.PHONY: demo test lint package venv clean
 
 venv: $(STAMP)
 
@@ -21,8 +21,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest
 
+lint: $(STAMP)
+	$(PY) -m ruff check .
+
 package: $(STAMP)
 	$(PY) tools/package.py --out build
 
 clean:
-	rm -rf build out .pytest_cache
+	rm -rf build out .pytest_cache .ruff_cache
