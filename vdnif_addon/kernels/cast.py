@@ -33,6 +33,7 @@ def _first_hits(
 ):
     i = wp.tid()
     face[i] = -1
+    distance[i] = wp.inf    # written on a miss too: the host reads every entry
     limit = max_distance[i]
     if limit < 0.0:
         return
@@ -82,5 +83,4 @@ class MeshCaster:
         distance = wp.empty(count, dtype=wp.float32, device=self.device)
         wp.launch(_first_hits, dim=count, inputs=[self.mesh.id, *arrays, face, distance],
                   device=self.device)
-        index = face.numpy().astype(np.int64)
-        return index, np.where(index >= 0, distance.numpy().astype(np.float64), np.inf)
+        return face.numpy().astype(np.int64), distance.numpy().astype(np.float64)
