@@ -25,6 +25,7 @@ from torch import nn  # noqa: E402
 
 from vdnif_addon.dataset import read_dataset  # noqa: E402
 from vdnif_addon.encoding import HashGrid  # noqa: E402
+from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model_file import load_model  # noqa: E402
 
 SHIFTS = (0.02, 0.05, 0.1, 0.2, 0.4)
@@ -49,7 +50,11 @@ def main():
     parser.add_argument("--log2-table-size", type=int, default=20)
     args = parser.parse_args()
     torch.manual_seed(0)
+    network, _ = load_model(args.model)
     header, shards = read_dataset(args.data)
+    if not header["heads"]["albedo"] or "albedo" not in network.head_sizes:
+        raise VDNIFError(f"dataset '{args.data}' and model '{args.model}' must both have an "
+                         "albedo head (a textured or multi-coloured object)")
     data = {key: np.concatenate([shard[key] for shard in shards]) for key in shards[0]}
     hit = data["hit"] > 0
     point = data["p0"] + data["hit_frac"][:, None] * (data["p1"] - data["p0"])
@@ -59,7 +64,6 @@ def main():
     p0, p1 = data["p0"][held], data["p1"][held]
     print(f"hits: {train.sum():,} to fit, {held.sum():,} held out (poses > {last})")
 
-    network, _ = load_model(args.model)
     with torch.inference_mode():
         predicted = network.predict(tensor(p0), tensor(p1), tensor(data["rest_len"][held]),
                                     header["voxel_size"])
@@ -96,4 +100,7 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except VDNIFError as error:
+        sys.exit(f"albedo_ceiling: error: {error}")
