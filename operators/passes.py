@@ -6,6 +6,7 @@ import bpy
 
 from .. import storage, viewer
 from ..vdnif_addon.errors import VDNIFError
+from ..vdnif_addon.text import metrics_line
 from .common import VDNIFOperator, progress
 
 
@@ -95,21 +96,6 @@ class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
                                       settings.device_name(context), progress=update)
         settings.metrics = json.dumps(report)
         return f"'{obj.name}': {metrics_line(report['vs_true'])} on {report['poses']} poses"
-
-
-def metrics_line(metrics):
-    """Distance MAE (object units and voxels), normal error, hit IoU and the false-negative
-    and false-positive rates in one line."""
-    from ..vdnif_addon.text import percent
-
-    def number(value, digits=3):
-        return "n/a" if value is None else f"{value:.{digits}g}"
-
-    return (f"distance MAE {number(metrics['distance_mae'])} object units "
-            f"({number(metrics.get('distance_mae_voxels'))} voxels), normal error "
-            f"{number(metrics['normal_error_deg'])} deg, hit IoU {number(metrics['hit_iou'])}, "
-            f"false negatives {percent(metrics.get('false_negative_rate'))}, false positives "
-            f"{percent(metrics.get('false_positive_rate'))}")
 
 
 classes = (VDNIF_OT_render_passes, VDNIF_OT_evaluate)

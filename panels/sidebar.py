@@ -10,7 +10,7 @@ from .. import preferences, storage, viewer
 from ..operators import common
 from ..operators.dependencies import VDNIF_OT_install_dependencies
 from ..operators.model import VDNIF_OT_load_model, VDNIF_OT_save_model
-from ..operators.passes import VDNIF_OT_evaluate, VDNIF_OT_render_passes, metrics_line
+from ..operators.passes import VDNIF_OT_evaluate, VDNIF_OT_render_passes
 from ..operators.presets import VDNIF_OT_apply_preset
 from ..operators.scene import (
     VDNIF_OT_generate_dataset,
@@ -19,6 +19,7 @@ from ..operators.scene import (
 )
 from ..operators.training import VDNIF_OT_cancel_training, VDNIF_OT_train
 from ..vdnif_addon.presets import PRESET_NAMES
+from ..vdnif_addon.text import metrics_line
 
 WRAP = 42   # characters per line of wrapped messages
 

@@ -442,3 +442,12 @@ def test_training_calibrates_the_threshold_on_the_held_out_poses():
     assert result.occlusion_threshold == expected
     assert result.network.occlusion_threshold == expected
     assert result.info()["occlusion_threshold"] == expected
+
+
+def test_device_names():
+    from vdnif_addon.distributed import resolve_device
+
+    assert resolve_device("cpu") == torch.device("cpu")
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(VDNIFError, match="unknown device 'gpu': expected one of auto, cpu, cuda"):
+        resolve_device("gpu")

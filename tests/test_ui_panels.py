@@ -162,7 +162,8 @@ def test_trained_and_evaluated(arm, extension):
                                       "validation": {"distance_mae_voxels": 0.25,
                                                      "normal_error_deg": 9.5}})
     metrics = {"distance_mae": 0.02, "distance_mae_voxels": 0.64, "normal_error_deg": 12.0,
-               "hit_iou": 0.9, "false_negative_rate": 0.0046, "false_positive_rate": 0.088}
+               "hit_iou": 0.9, "false_negative_rate": 0.0046, "false_positive_rate": 0.088,
+               "albedo_psnr": 31.25, "material_accuracy": None}
     settings.metrics = json.dumps({"poses": 2, "unseen_poses": True, "width": 32,
                                    "height": 24, "variant": "proposed", "vs_true": metrics,
                                    "vs_embedded": dict(metrics, distance_mae=None),
@@ -173,7 +174,8 @@ def test_trained_and_evaluated(arm, extension):
     assert "distance error 0.25 voxels, normal error 9.5 deg" in everything
     assert "2 unseen poses, 32x24, proposed" in everything
     assert ("distance MAE 0.02 object units (0.64 voxels), normal error 12 deg, hit IoU 0.9, "
-            "false negatives 0.46 %, false positives 8.8 %") in everything
+            "false negatives 0.46 %, false positives 8.8 %, albedo PSNR 31.25, "
+            "material accuracy n/a") in everything, "the panel prints the batch line"
     assert "distance MAE n/a" in everything and "12,345 rays/s" in everything
     assert "has no trained model" not in everything
     report = json.loads(settings.metrics)

@@ -11,6 +11,7 @@ import torch
 import torch.distributed as dist
 
 from .errors import VDNIFError
+from .settings import DEVICES
 
 if TYPE_CHECKING:
     from jaxtyping import Shaped
@@ -78,7 +79,9 @@ class ProcessGroup:
 
 def resolve_device(kind: str) -> torch.device:
     """ "auto" (CUDA if available, else CPU), "cpu" or "cuda" (this process's LOCAL_RANK
-    device); ``settings.DEVICES`` names them."""
+    device); ``settings.DEVICES`` names them, and any other name is refused."""
+    if kind not in DEVICES:
+        raise VDNIFError(f"unknown device '{kind}': expected one of {', '.join(DEVICES)}")
     if kind == "auto":
         kind = "cuda" if torch.cuda.is_available() else "cpu"
     if kind == "cuda":

@@ -12,3 +12,18 @@ def value(number: float | None, digits: int = 4) -> str:
 def percent(share: float | None, digits: int = 3) -> str:
     """A share in [0, 1] as a percentage, "n/a" for None."""
     return "n/a" if share is None else f"{100 * share:.{digits}g} %"
+
+
+def metrics_line(m: dict) -> str:
+    """One line of an evaluation's metrics, as the batch commands and the panel print it:
+    distance error in object units and voxels, normal error, the hit-mask metrics and the
+    scene's optional metrics ("n/a" where the scene has nothing to predict: one material
+    without texture, DESIGN section 10)."""
+    voxels = m.get("distance_mae_voxels")
+    extra = "".join(f", {name} {value(m.get(key))}" for key, name in (
+        ("albedo_psnr", "albedo PSNR"), ("material_accuracy", "material accuracy")))
+    return (f"distance MAE {value(m['distance_mae'])} object units"
+            + ("" if voxels is None else f" ({value(voxels)} voxels)")
+            + f", normal error {value(m['normal_error_deg'])} deg, hit IoU "
+            f"{value(m['hit_iou'])}, false negatives {percent(m.get('false_negative_rate'))}"
+            f", false positives {percent(m.get('false_positive_rate'))}{extra}")

@@ -22,6 +22,7 @@ from ..settings import (
     RECIPE,
     PoseSpec,
 )
+from ..text import metrics_line
 
 
 def add_scene_options(parser):
@@ -184,26 +185,10 @@ def print_evaluation(report):
           f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
           f"{report['width']}x{report['height']}")
     for name in ("vs_true", "vs_embedded"):
-        print(f"  {name.replace('_', ' ')}: {metrics_text(report[name])}")
+        print(f"  {name.replace('_', ' ')}: {metrics_line(report[name])}")
     t = report["timings"]
     print(f"  pose preparation {t['prepare_pose_s'] * 1e3:.1f} ms, model "
           f"{report['model_bytes']:,} bytes, render {speed_line(report)}")
-
-
-def metrics_text(m):
-    """One line of compare's metrics: distance error in object units and voxels, normal
-    error, the hit-mask metrics and the scene's optional metrics (n/a where the scene has
-    nothing to predict: one material without texture)."""
-    from ..text import percent, value
-
-    voxels = m.get("distance_mae_voxels")
-    extra = "".join(f", {name} {value(m.get(key))}" for key, name in (
-        ("albedo_psnr", "albedo PSNR"), ("material_accuracy", "material accuracy")))
-    return (f"distance MAE {value(m['distance_mae'])} object units"
-            + ("" if voxels is None else f" ({value(voxels)} voxels)")
-            + f", normal error {value(m['normal_error_deg'])} deg, hit IoU "
-            f"{value(m['hit_iou'])}, false negatives {percent(m.get('false_negative_rate'))}"
-            f", false positives {percent(m.get('false_positive_rate'))}{extra}")
 
 
 def names_scene(args):

@@ -6,6 +6,7 @@ import sys
 
 from ..errors import VDNIFError
 from ..settings import COMMAND_IMAGE, EVALUATION_POSES, RECIPE, TRAINABLE_VARIANTS
+from ..text import metrics_line
 from .options import (
     NETWORK_OPTIONS,
     add_capture_options,
@@ -15,7 +16,6 @@ from .options import (
     add_training_options,
     check_resolution,
     load_posed_scene,
-    metrics_text,
     names_scene,
     network_overrides,
     print_evaluation,
@@ -119,7 +119,7 @@ def cmd_references(args):
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
           f"{'rest' if args.rest_pose else 'unseen'} poses, {args.width}x{args.height}")
-    print(f"  embedded vs true: {metrics_text(error)}")
+    print(f"  embedded vs true: {metrics_line(error)}")
     print(f"  {report['rays_per_s']:,.0f} rays/s, {report['segments_per_s']:,.0f} segments/s "
           "of walk + ground truth")
     print("  " + ", ".join(f"{name[:-2].replace('_', ' ')} {seconds:.2f} s"
