@@ -18,12 +18,6 @@ class BVHCaster:
         self.tree = BVHTree.FromPolygons(np.asarray(vertices, np.float64).tolist(),
                                          np.asarray(triangles).tolist(), all_triangles=True)
 
-    @classmethod
-    def from_soup(cls, triangles):
-        """From (K, 3, 3) corner positions (no shared vertices needed)."""
-        triangles = np.asarray(triangles, np.float64)
-        return cls(triangles.reshape(-1, 3), np.arange(3 * len(triangles)).reshape(-1, 3))
-
     def cast(self, origins, directions, max_distance):
         """(index (N,) int64, -1 on a miss; t (N,) inf on a miss)."""
         limits = np.minimum(np.asarray(max_distance, np.float64), 1e30).tolist()
