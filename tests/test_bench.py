@@ -72,12 +72,25 @@ def test_bench_quick_writes_every_output(tmp_path):
     from vdnif_addon.studies import bench
 
     out, presets, performance = tmp_path / "bench", tmp_path / "p.json", tmp_path / "perf.md"
+    work = tmp_path / "work"
     code, printed, err = run_batch("bench", "--quick", "--out", out, "--presets", presets,
-                                   "--performance", performance, timeout=600)
+                                   "--performance", performance, "--work", work, timeout=600)
     assert code == 0, err
     rows = list(csv.DictReader(open(out / "bench.csv")))
     records = json.loads((out / "bench.json").read_text())
     assert len(rows) == 5 == len(records)
+    assert sorted(p.name for p in work.glob("point-*.vdnif")) == [
+        f"point-{n}.vdnif" for n in range(5)]
+    # run again on the same work folder: nothing trains, every point is evaluated again
+    # and scores as before (the speeds are measured anew)
+    code, _, again = run_batch("bench", "--quick", "--out", out, "--presets", presets,
+                               "--work", work, timeout=600)
+    assert code == 0, again
+    assert "train: step" not in again and again.count("resumed from") == 5
+    for before, after in zip(records, json.loads((out / "bench.json").read_text())):
+        for key in ("steps", "converged", "vs_true_hit_iou", "vs_true_distance_mae",
+                    "vs_embedded_normal_error_deg", "vs_true_false_negative_rate"):
+            assert after[key] == before[key], key
     assert {row["resolution"] for row in rows} == {"12", "16"}
     # every point trained to the convergence rule: its steps, and whether it converged
     cap = bench.SIZES["quick"]["convergence"]["max_steps"]
@@ -102,6 +115,25 @@ def test_bench_quick_writes_every_output(tmp_path):
     else:         # the quick size's small networks (hit IoU 0.0-0.7 here) predict no hits
         assert not presets.exists() and "presets n/a (no sweep point predicts hits" in printed
         assert "Presets: n/a, no sweep point predicts hits" in text
+
+
+def test_a_point_trains_again_unless_its_record_and_model_match(tmp_path):
+    from vdnif_addon.studies import bench
+
+    size, point = bench.SIZES["quick"], dict(bench.SIZES["quick"]["base"])
+    model, path = tmp_path / "point-0.vdnif", tmp_path / "point-0.json"
+    record = {"key": bench.point_key(size, point), "steps": 300, "converged": True}
+    path.write_text(json.dumps(record))
+    assert bench.finished_point(path, model, size, point) is None       # no model beside it
+    model.write_bytes(b"model")
+    assert bench.finished_point(path, model, size, point) == record
+    assert bench.finished_point(path, model, size, dict(point, width=32)) is None
+    other = dict(size, convergence=dict(size["convergence"], max_steps=900))
+    assert bench.finished_point(path, model, other, point) is None     # another rule
+    for text in ("{", "[]", json.dumps(dict(record, key=None))):
+        path.write_text(text)
+        assert bench.finished_point(path, model, size, point) is None
+    assert bench.finished_point(tmp_path / "missing.json", model, size, point) is None
 
 
 def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):

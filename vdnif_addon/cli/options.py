@@ -247,6 +247,8 @@ def validate_arguments(args):
             check_output_file(args.out, "--out model file")
         else:
             check_output_folder(args.out, "--out folder")
+    if given("work"):
+        check_output_folder(args.work, "--work folder")
 
 
 def _validate_network_options(args, limits):

@@ -65,7 +65,8 @@ def cmd_bench(args):
     presets = args.presets or (quick_dir / "presets.json" if args.quick else PRESETS_FILE)
     performance = args.performance or (None if args.quick else pathlib.Path(
         "docs/performance.md"))
-    rows, derived = run_bench(out, presets, performance, quick=args.quick,
+    work = args.work or pathlib.Path("out/bench-quick-work" if args.quick else "out/bench-work")
+    rows, derived = run_bench(out, presets, work, performance, quick=args.quick,
                               device=args.device, progress=report_training)
     print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
           + (f"-> {presets}" if derived is not None else f"n/a ({NO_PRESETS}; {presets} "
@@ -259,6 +260,10 @@ def add_commands(commands):
     sweep.add_argument("--performance", type=pathlib.Path, metavar="PATH",
                        help="markdown whose sweep section is rewritten "
                             "(default docs/performance.md; none with --quick)")
+    sweep.add_argument("--work", type=pathlib.Path, metavar="DIR",
+                       help="each point's model and training record; a stopped bench run "
+                            "again with the same folder trains only the unfinished points "
+                            "(default out/bench-work, out/bench-quick-work with --quick)")
     add_device_option(sweep)
     sweep.set_defaults(run=cmd_bench)
 

@@ -10,6 +10,7 @@ are compared on one common pixel set (DESIGN section 10): the front and the pres
 from them alone."""
 
 import csv
+import json
 import pathlib
 import shlex
 import sys
@@ -133,14 +134,19 @@ def sweep_points(base, axes):
     return points
 
 
-def run_bench(out, presets_path, performance=None, quick=False, device="auto",
+def run_bench(out, presets_path, work, performance=None, quick=False, device="auto",
               progress=None, command=None):
     """Runs the sweep; writes ``bench.csv``, ``bench.json`` and ``pareto.png`` into ``out``,
     the presets to ``presets_path`` (only when a point predicts hits) and, if given, its
-    section of ``performance``. Returns (rows, presets or None)."""
+    section of ``performance``. Each point's model and training record stay in ``work``:
+    a sweep that stopped (the full one trains for hours on a CPU) resumes there, training
+    only the points not yet finished with the same settings, and evaluates every point again
+    in this run, so that the speeds are compared within one process. Returns (rows,
+    presets or None)."""
     size = SIZES["quick" if quick else "full"]
-    out = pathlib.Path(out)
+    out, work = pathlib.Path(out), pathlib.Path(work)
     out.mkdir(parents=True, exist_ok=True)
+    work.mkdir(parents=True, exist_ok=True)
     obj = demo_scene("arm")
     spec = PoseSpec(count=size["poses"])
     points = sweep_points(size["base"], size["axes"])
@@ -157,18 +163,19 @@ def run_bench(out, presets_path, performance=None, quick=False, device="auto",
         for number, point in enumerate(points):
             print(f"bench: point {number + 1} of {len(points)}: {_label(point)}",
                   file=sys.stderr, flush=True)
-            model = scratch / f"point-{number}.vdnif"
-            settings = {k: v for k, v in point.items() if k != "resolution"}
-            rule = Convergence(**size["convergence"], forward=progress)
-            result, _ = fit_model(scratch / f"r{point['resolution']}", "proposed", model,
-                                  dict(size["overrides"], device=device, **settings,
-                                       **rule.overrides()),
-                                  progress=rule, cancel=rule.cancel)
+            model = work / f"point-{number}.vdnif"
+            record = finished_point(work / f"point-{number}.json", model, size, point)
+            if record is None:
+                record = _train_point(scratch, model, size, point, device, progress)
+                write_json_atomic(work / f"point-{number}.json", record)
+            else:
+                print(f"bench: point {number + 1} resumed from {model} ({record['steps']:,} "
+                      "steps)", file=sys.stderr, flush=True)
             evaluated = scenes[point["resolution"]]
             report, views = evaluate_file(obj, evaluated, model, size["width"],
                                           size["height"], device)
-            rows.append(_row(dict(point, steps=result.steps,
-                                  converged=rule.converged_at is not None), report))
+            rows.append(_row(dict(point, steps=record["steps"],
+                                  converged=record["converged"]), report))
             runs.append((concatenated(views), evaluated.grid.voxel_size))
         _add_common(rows, runs, evaluated.mesh)
     # No presets from models that do not predict hits: the presets file is then left as it
@@ -186,6 +193,38 @@ def run_bench(out, presets_path, performance=None, quick=False, device="auto",
                       sweep_markdown(rows, presets, size, command, out, performance),
                       PERFORMANCE_PREAMBLE)
     return rows, presets
+
+
+def _train_point(scratch, model, size, point, device, progress):
+    """Trains one sweep point to the convergence rule into ``model``; its record."""
+    settings = {k: v for k, v in point.items() if k != "resolution"}
+    rule = Convergence(**size["convergence"], forward=progress)
+    result, _ = fit_model(scratch / f"r{point['resolution']}", "proposed", model,
+                          dict(size["overrides"], device=device, **settings,
+                               **rule.overrides()),
+                          progress=rule, cancel=rule.cancel)
+    return {"key": point_key(size, point), "steps": result.steps,
+            "converged": rule.converged_at is not None}
+
+
+def point_key(size, point):
+    """What a point's training depends on: its settings and the size's data, batch and
+    convergence rule (JSON-normal, so that a record read back compares equal)."""
+    fixed = {k: size[k] for k in ("poses", "rays_per_pose", "overrides", "convergence")}
+    return json.loads(json.dumps({"point": point, **fixed}))
+
+
+def finished_point(path, model, size, point):
+    """The record of a point an earlier run finished with the same key (its model beside
+    it), else None: a missing, unreadable or foreign record means the point trains again."""
+    try:
+        record = json.loads(pathlib.Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict) or record.get("key") != point_key(size, point) \
+            or not pathlib.Path(model).is_file():
+        return None
+    return record
 
 
 def _row(point, report):
