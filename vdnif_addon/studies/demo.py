@@ -17,13 +17,14 @@ from ..blender.jobs import (
 )
 from ..blender.scenes import demo_scene
 from ..safe_io import write_json_atomic, write_text_atomic
-from ..settings import RECIPE, PoseSpec
+from ..settings import DEMO_STEPS, RECIPE, PoseSpec
 from ..variants import choose_variant
 from .report import demo_markdown
 
-SIZES = {   # full: the main job with the default recipe (minutes on 2 cores); quick: tests
+SIZES = {   # full: the main job with the default recipe but DEMO_STEPS (under 10 minutes on
+    # 2 cores); quick: tests
     "full": dict(resolution=RECIPE.resolution, poses=RECIPE.poses,
-                 rays_per_pose=RECIPE.rays_per_pose, steps=RECIPE.steps, eval_poses=8,
+                 rays_per_pose=RECIPE.rays_per_pose, steps=DEMO_STEPS, eval_poses=8,
                  width=256, height=256, overrides={}),
     "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=300, eval_poses=2,
                   width=32, height=24, overrides=dict(log2_table_size=12, batch_size=2048)),
