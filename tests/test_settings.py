@@ -45,10 +45,12 @@ def test_resolution_takes_a_number_or_auto(text, expected):
     assert args.resolution == expected
 
 
-def test_the_demo_runs_the_recipe_at_256_pixels():
+def test_the_demo_runs_the_recipe_with_its_own_steps_at_256_pixels():
+    from vdnif_addon.settings import DEMO_STEPS
     from vdnif_addon.studies.demo import SIZES
 
     full = SIZES["full"]
     assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"]) == (
-        RECIPE.resolution, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.steps)
+        RECIPE.resolution, RECIPE.poses, RECIPE.rays_per_pose, DEMO_STEPS)
+    assert DEMO_STEPS <= RECIPE.steps
     assert full["width"] >= 256 and full["height"] >= 256 and full["eval_poses"] == 8

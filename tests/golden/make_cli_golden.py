@@ -1,9 +1,10 @@
 """Writes ``cli.json``: the batch CLI's behaviour as users see it, recorded before the CLI
 moved out of ``vdnif_addon/commands.py`` into ``vdnif_addon/cli/`` (the commit "before the
 move"), so that ``tests/test_cli_golden.py`` can show the move changed nothing. Regenerate
-it only for an option added or changed on purpose, and check that the diff touches only that
-command (``bench --work`` was the first such change); otherwise a later parser must reproduce
-it exactly (``record`` reads today's parser, ``vdnif_addon.cli``). Run from the repository root with the bpy module:
+it only for an option or default changed on purpose, and check that the diff touches only
+that (``bench --work`` and the recipe's 9,000 steps were such changes); otherwise a later
+parser must reproduce it exactly (``record`` reads today's parser, ``vdnif_addon.cli``). Run
+from the repository root with the bpy module:
 
     python tests/golden/make_cli_golden.py
 
