@@ -153,21 +153,22 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     rows, runs = [], []
     with tempfile.TemporaryDirectory(prefix="vdnif-bench-") as scratch:
         scratch = pathlib.Path(scratch)
-        scenes = {}
-        for resolution in sorted({p["resolution"] for p in points}):
-            captured = capture(obj, resolution, spec, deform_corners=False)
-            variant_dataset(obj, captured, "proposed", scratch / f"r{resolution}",
-                            size["rays_per_pose"])
-            scenes[resolution] = evaluation_poses(obj, resolution, spec,
-                                                  count=size["eval_poses"])
+        scenes = {resolution: evaluation_poses(obj, resolution, spec, count=size["eval_poses"])
+                  for resolution in sorted({p["resolution"] for p in points})}
         for number, point in enumerate(points):
             print(f"bench: point {number + 1} of {len(points)}: {_label(point)}",
                   file=sys.stderr, flush=True)
-            model = work / f"point-{number}.vdnif"
-            record = finished_point(work / f"point-{number}.json", model, size, point)
+            model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
+            record = finished_point(path, model, size, point)
             if record is None:
-                record = _train_point(scratch, model, size, point, device, progress)
-                write_json_atomic(work / f"point-{number}.json", record)
+                # a resolution's dataset is built when its first point trains, so that a
+                # resumed sweep builds none for the points it only evaluates
+                data = scratch / f"r{point['resolution']}"
+                if not data.exists():
+                    captured = capture(obj, point["resolution"], spec, deform_corners=False)
+                    variant_dataset(obj, captured, "proposed", data, size["rays_per_pose"])
+                record = _train_point(data, model, size, point, device, progress)
+                write_json_atomic(path, record)
             else:
                 print(f"bench: point {number + 1} resumed from {model} ({record['steps']:,} "
                       "steps)", file=sys.stderr, flush=True)
@@ -195,11 +196,12 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     return rows, presets
 
 
-def _train_point(scratch, model, size, point, device, progress):
-    """Trains one sweep point to the convergence rule into ``model``; its record."""
+def _train_point(data, model, size, point, device, progress):
+    """Trains one sweep point on the dataset folder ``data`` to the convergence rule into
+    ``model``; its record."""
     settings = {k: v for k, v in point.items() if k != "resolution"}
     rule = Convergence(**size["convergence"], forward=progress)
-    result, _ = fit_model(scratch / f"r{point['resolution']}", "proposed", model,
+    result, _ = fit_model(data, "proposed", model,
                           dict(size["overrides"], device=device, **settings,
                                **rule.overrides()),
                           progress=rule, cancel=rule.cancel)
