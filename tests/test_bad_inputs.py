@@ -209,6 +209,8 @@ CASES = [
      "proc"),
     ("bench-presets-is-folder", "bench --quick --presets {tmp}/existing_dir",
      r"--presets '.*' is a folder", "proc"),
+    ("bench-work-is-file", "bench --quick --work {tmp}/file.txt",
+     r"--work folder '.*file.txt' exists and is not a folder", "proc"),
     ("side-by-side-repeats-zero", "side-by-side --repeats 0", r"--repeats 0 must be at least 1",
      "proc"),
     ("side-by-side-markdown-is-folder", "side-by-side --markdown {tmp}/existing_dir",
