@@ -200,3 +200,22 @@ def test_the_stored_occlusion_threshold_decides_the_predicted_hits(tmp_path, net
     assert torch.equal(predicted, probability > 0.62)
     golden, _ = load_model(GOLDEN / "arm-train.vdnif")
     assert golden.occlusion_threshold == 0.5
+
+
+def test_the_stored_candidate_threshold_decides_the_candidates(tmp_path, network):
+    """A candidate threshold in ``extra`` comes back and ``predict`` marks the segments above
+    it; a file without one places hits as before (candidates are the hits), and one above
+    the occlusion threshold is taken at that threshold."""
+    p0, p1 = torch.rand(2, 400, 3)
+    rest_len = (p1 - p0).norm(dim=1)
+    probability = torch.sigmoid(network(p0, p1)["occlusion"])
+    for extra, expected in ((dict(occlusion_threshold=0.62, candidate_threshold=0.05), 0.05),
+                            (dict(occlusion_threshold=0.62), 0.62),
+                            (dict(occlusion_threshold=0.4, candidate_threshold=0.7), 0.4)):
+        path = tmp_path / "candidate.vdnif"
+        save_model(path, network, CONFIG, {}, dict(EXTRA, **extra))
+        loaded, _ = load_model(path)
+        assert loaded.candidate_threshold == pytest.approx(expected)
+        predicted = loaded.predict(p0, p1, rest_len, 0.125)
+        assert torch.equal(predicted["candidate"], probability > expected)
+        assert torch.equal(predicted["hit"], probability > extra["occlusion_threshold"])

@@ -63,7 +63,7 @@ class OracleNetwork:
         hits = groundtruth.segment_targets(self.mesh, self.caster, segments)
         self.queries += len(p0)
         length = rest_len.double().numpy()
-        return {"hit": torch.as_tensor(hits.hit),
+        return {"hit": torch.as_tensor(hits.hit), "candidate": torch.as_tensor(hits.hit),
                 "fraction": torch.as_tensor(hits.distance / np.maximum(length, 1e-30)),
                 "normal": torch.as_tensor(hits.normal),
                 "material": torch.as_tensor(hits.material.astype(np.int64))}
@@ -114,8 +114,9 @@ def test_oracle_network_renders_the_embedded_reference():
 
 class RandomNetwork:
     """Deterministic pseudo-random answers from the segment's end points (no training
-    needed): hits, fractions, normals, materials and optionally albedo, in integer
-    arithmetic on the quantized end points, so that every device gives the same bits."""
+    needed): hits, candidates (the hits and a share of the others), fractions, normals,
+    materials and optionally albedo, in integer arithmetic on the quantized end points, so
+    that every device gives the same bits."""
 
     def __init__(self, materials=2, albedo=False):
         self.materials, self.albedo = materials, albedo
@@ -126,7 +127,8 @@ class RandomNetwork:
                               device=p0.device)
         code = (q * primes).sum(1) % 10007                                   # 0..10006
         unit = (code.double() / 10007.0).float()
-        out = {"hit": code % 3 == 0, "fraction": unit,
+        out = {"hit": code % 3 == 0, "candidate": (code % 3 == 0) | (code % 4 == 1),
+               "fraction": unit,
                "normal": torch.nn.functional.normalize(torch.stack(
                    [unit - 0.5, ((code % 7) - 3).float(), ((code % 11) - 5).float()], 1), dim=1),
                "material": code % self.materials}

@@ -38,7 +38,7 @@ class OracleNetwork:
             t1=np.ones(count), p0=to_rest(p0), p1=to_rest(p1))
         hits = self.targets(self.mesh, self.caster, segments)
         length = rest_len.double().numpy()
-        return {"hit": torch.as_tensor(hits.hit),
+        return {"hit": torch.as_tensor(hits.hit), "candidate": torch.as_tensor(hits.hit),
                 "fraction": torch.as_tensor(hits.distance / np.maximum(length, 1e-30)),
                 "normal": torch.as_tensor(hits.normal),
                 "material": torch.as_tensor(hits.material.astype(np.int64))}
@@ -49,7 +49,8 @@ class NeverHits(OracleNetwork):
 
     def predict(self, p0, p1, rest_len, voxel_size):
         prediction = super().predict(p0, p1, rest_len, voxel_size)
-        return dict(prediction, hit=torch.zeros_like(prediction["hit"]))
+        return dict(prediction, hit=torch.zeros_like(prediction["hit"]),
+                    candidate=torch.zeros_like(prediction["hit"]))
 
 
 def stand_in_model(network, capture, path):

@@ -18,7 +18,12 @@ from vdnif_addon.model_file import load_model
 from vdnif_addon.settings import NetworkConfig, TrainConfig
 from vdnif_addon.train import train
 from vdnif_addon.training_data import load_segments
-from vdnif_addon.validation import calibrate_threshold, evaluate
+from vdnif_addon.validation import (
+    CANDIDATE_THRESHOLDS,
+    calibrate_candidate_threshold,
+    calibrate_threshold,
+    evaluate,
+)
 from vdnif_addon.variants import variant_config
 
 SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
@@ -59,6 +64,8 @@ def sphere_shards(n=256, shards=2, poses=4, voxel_size=0.125, resolution=8, seed
         "albedo": np.where(hit[:, None], np.clip(point, 0.0, 1.0), 0.0),
         "material": np.where(hit & (point[:, 2] > 0.5), 1, 0).astype(np.int16),
         "pose": rng.integers(0, poses, n).astype(np.int32),
+        "ray": np.arange(n, dtype=np.int32),      # one segment per ray
+        "t0": rng.uniform(0.0, 2.0, n),
     }
     data = {
         key: value.astype(np.float32) if value.dtype == np.float64 else value
@@ -442,6 +449,88 @@ def test_training_calibrates_the_threshold_on_the_held_out_poses():
     assert result.occlusion_threshold == expected
     assert result.network.occlusion_threshold == expected
     assert result.info()["occlusion_threshold"] == expected
+
+
+class _Table(torch.nn.Module):
+    """Stands in for the network: each segment's occlusion logit and log-distance output
+    read from p0's x (the row's index) in fixed tables."""
+
+    def __init__(self, logit, distance):
+        super().__init__()
+        self.logit, self.distance = logit, distance
+        self.config = NetworkConfig(**SMALL)
+        self.occlusion_threshold = 0.5
+
+    def forward(self, p0, p1):
+        row = p0[:, 0].long()
+        return {"occlusion": self.logit[row], "distance": self.distance[row],
+                "normal": torch.ones(len(row), 3)}
+
+
+def test_candidate_calibration_places_hits_best_by_brute_force():
+    """Random rays of 6 segments (two interleaved poses, rows in walk order) through a
+    front surface and a back one two segments on, probabilities that are confident on the
+    back, fall short on the front at random and stray before it: the candidate threshold
+    is the brute-force best among those tried below the occlusion threshold (and that
+    threshold itself), judged on the distance of each ray's first segment above it, over
+    the rays that reference and network both hit."""
+    generator = torch.Generator().manual_seed(5)
+    rays, per_ray, h = 400, 6, 0.1
+    n = rays * per_ray
+    ray = torch.arange(rays).repeat_interleave(per_ray)
+    slot = torch.arange(per_ray).repeat(rays)
+    surface = torch.randint(0, per_ray + 2, (rays,), generator=generator)  # >= 6: no hit
+    front, back = slot == surface[ray], slot == surface[ray] + 2   # the back: confident
+    hit = front | back
+    probability = torch.where(front, torch.rand(n, generator=generator),
+                              0.3 * torch.rand(n, generator=generator) ** 4)
+    probability = torch.where(back, torch.full((n,), 0.95), probability)
+    logit = torch.log(probability / (1 - probability))
+    fraction = torch.rand(n, generator=generator)
+    seg_len = torch.full((n,), 1.0)
+    rest_len = torch.full((n,), 1.0)
+    predicted = torch.rand(n, generator=generator)
+    data = {"p0": torch.stack([torch.arange(n, dtype=torch.float32)] * 3, 1),
+            "hit": hit, "hit_frac": torch.where(hit, fraction, torch.zeros(n)),
+            "rest_len": rest_len, "seg_len": seg_len, "t0": slot.float(),
+            "pose": ray % 2, "ray": ray // 2}
+    data["p1"] = data["p0"]
+    network = _Table(logit, torch.log1p(predicted / h))
+    distance = data["t0"].double() + predicted.double()     # the readout's fraction x 1.0
+
+    def first(mask, value):
+        out = torch.full((rays,), float("nan"), dtype=torch.float64)
+        for r in range(rays):
+            rows = torch.nonzero(mask & (ray == r)).flatten()
+            if len(rows):
+                out[r] = value[rows[0]]
+        return out
+
+    reference = first(hit, data["t0"].double() + data["hit_frac"].double())
+    both = ~reference.isnan() & ~first(probability > 0.5, distance).isnan()
+    tried = [t for t in CANDIDATE_THRESHOLDS if t < 0.5] + [0.5]
+    errors = [(first(probability > t, distance) - reference)[both].abs().sum().item()
+              for t in tried]
+    best = min(range(len(tried)), key=lambda k: (errors[k], -k))
+    assert errors[best] < errors[-1]          # the case is one where a lower threshold helps
+    assert calibrate_candidate_threshold(network, data, h) == pytest.approx(tried[best])
+    empty = {key: value[:0] for key, value in data.items()}
+    assert calibrate_candidate_threshold(network, empty, h) == 0.5
+
+
+def test_training_calibrates_the_candidate_threshold_on_the_held_out_poses():
+    """train's candidate threshold is calibrate_candidate_threshold on the held-out poses'
+    segments, after the occlusion threshold, and never above it."""
+    shards = sphere_shards(n=512, poses=8)
+    result = train(shards, header(), TrainConfig(steps=30, batch_size=128, val_fraction=0.25,
+                                                 device="cpu"), NetworkConfig(**SMALL))
+    held_out = load_segments(shards, result.network_config.heads)
+    chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
+    expected = calibrate_candidate_threshold(
+        result.network, {key: value[chosen] for key, value in held_out.items()}, 0.125)
+    assert result.candidate_threshold == expected <= result.occlusion_threshold
+    assert result.network.candidate_threshold == expected
+    assert result.info()["candidate_threshold"] == expected
 
 
 def test_device_names():

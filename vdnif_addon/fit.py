@@ -45,6 +45,7 @@ def fit_model(
              "albedo_table": header["albedo_table"], "variant": variant,
              "vdnif_version": __version__, "train_poses": header["poses"],
              "occlusion_threshold": result.occlusion_threshold,
+             "candidate_threshold": result.candidate_threshold,
              "dataset": {"folder": str(data_dir), "shards": header["shards"],
                          "poses": len(header["poses"]), "segments": header["segments"]}}
     save_model(out, result.network, result.network_config, result.info(), extra)

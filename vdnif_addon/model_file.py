@@ -237,6 +237,10 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, 
     _check_finite(path, extra, "extra")
     # Files written before threshold calibration hold none: they were made for 0.5.
     network.occlusion_threshold = float(extra.get("occlusion_threshold", OCCLUSION_THRESHOLD))
+    # Files written before the candidate threshold place the hit on the first segment above
+    # the occlusion threshold, as they were evaluated.
+    network.candidate_threshold = min(float(extra.get("candidate_threshold", 1.0)),
+                                      network.occlusion_threshold)
     metadata = {
         "format": FORMAT_NAME,
         "version": version,

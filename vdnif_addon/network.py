@@ -61,6 +61,10 @@ class IntersectionNetwork(nn.Module):
         # Not a parameter: training calibrates it on held-out poses (``train.calibrate_
         # threshold``) and the model file stores it; ``predict`` applies it.
         self.occlusion_threshold = OCCLUSION_THRESHOLD
+        # The hit is placed on a ray's first segment above this lower threshold (DESIGN
+        # section 9); equal to the occlusion threshold until training calibrates it, as in
+        # files without one.
+        self.candidate_threshold = OCCLUSION_THRESHOLD
 
     def forward(
         self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"]
@@ -123,7 +127,7 @@ class IntersectionNetwork(nn.Module):
             # CUDA launches are asynchronous already: the stream overlaps them with the host.
             for index, (_, _, length) in enumerate(chunks):
                 parts.append(readout(self.heads(encode(index)), mode, voxel_size, length,
-                                     self.occlusion_threshold))
+                                     self.occlusion_threshold, self.candidate_threshold))
         else:
             with ThreadPoolExecutor(1, thread_name_prefix="vdnif-encoder") as worker:
                 pending = worker.submit(encode, 0)
@@ -132,7 +136,7 @@ class IntersectionNetwork(nn.Module):
                     if index + 1 < len(chunks):
                         pending = worker.submit(encode, index + 1)
                     parts.append(readout(self.heads(features), mode, voxel_size, length,
-                                         self.occlusion_threshold))
+                                         self.occlusion_threshold, self.candidate_threshold))
         return {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
 
 
@@ -142,14 +146,17 @@ def readout(
     voxel_size: float,
     rest_len: Float[torch.Tensor, " batch"],
     threshold: float = OCCLUSION_THRESHOLD,
+    candidate_threshold: float | None = None,
 ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
           | Int64[torch.Tensor, " batch"]]:
     """Head outputs -> predictions.
 
     rest_len: (N,) rest-space segment length |p1 - p0|; voxel_size: h in rest units.
     Returns ``hit_probability`` (N,), ``hit`` (N,) bool (probability above ``threshold``,
-    the model's calibrated occlusion threshold), ``distance`` (N,) rest-space local
-    distance d from p0, ``fraction`` (N,) d / rest_len in [0,1] (the renderer's t = fraction * l),
+    the model's calibrated occlusion threshold), ``candidate`` (N,) bool (probability above
+    ``candidate_threshold``, taken at most ``threshold``; ``threshold`` when None),
+    ``distance`` (N,) rest-space local distance d from p0, ``fraction`` (N,) d / rest_len in
+    [0,1] (the renderer's t = fraction * l),
     ``normal`` (N, 3) unit (zero where the head output is zero), ``material`` (N,) int64
     (0 without a material head) and, with an albedo head, ``albedo`` (N, 3).
     """
@@ -166,6 +173,8 @@ def readout(
     predictions = {
         "hit_probability": probability,
         "hit": probability > threshold,
+        "candidate": probability > (threshold if candidate_threshold is None
+                                    else min(candidate_threshold, threshold)),
         "distance": distance,
         "fraction": fraction,
         "normal": F.normalize(outputs["normal"], dim=1),

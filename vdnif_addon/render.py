@@ -3,9 +3,10 @@ waves, so that a ray is walked and evaluated only up to its first predicted hit.
 
 Every ray keeps its walker state on the device (``kernels.walk.RayWalk``). A wave walks each
 unresolved ray on by at most k segments (one kernel launch), the network evaluates the wave's
-segments in one batch, and a kernel turns each ray's first predicted hit into its passes
-(``kernels/render.py``) and ends its walk; finished rays leave the list on the device. Only
-two counts per wave come back to the host, to size the next launch and the network batch.
+segments in one batch, and a kernel places each ray's hit on its first candidate segment and
+makes it a hit at its first confident one (``kernels/render.py``), ending its walk; finished
+rays leave the list on the device. Only two counts per wave come back to the host, to size
+the next launch and the network batch.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ if TYPE_CHECKING:
     from .walk_rules import Segments
 
     Prediction = tuple[dict[str, torch.Tensor], bool]
-    """A wave's predictions as the resolve kernel reads them (hit, fraction, normal,
+    """A wave's predictions as the resolve kernel reads them (hit, candidate, fraction, normal,
     material, albedo: (count, ...) tensors) and whether the model has an albedo head."""
 
 # Segments per ray and wave: k for wave w (w = 0, 1, ...). A wave costs a fixed overhead
@@ -63,14 +64,16 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
-    The first segment with occlusion probability above the model's threshold
-    (``network.occlusion_threshold``, calibrated in training) resolves its ray: distance
-    ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo head or, without
-    one, from ``albedo_table`` (M, 3) by material. ``device`` is the network's torch
-    device; the cells' Warp device must be the same. With ``overlap`` the rays are split
-    into two lanes and one lane's walk (a Warp launch, one core) runs while the network
-    evaluates the other lane's wave; by default only on the CPU with a core that torch's
-    threads leave free (else the walk would slow the network down as much as it saves).
+    A ray hits when one of its segments has an occlusion probability above the model's
+    threshold (``network.occlusion_threshold``); its hit lies on its first segment above
+    the lower candidate threshold (``network.candidate_threshold``; both calibrated in
+    training): distance ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo
+    head or, without one, from ``albedo_table`` (M, 3) by material. ``device`` is the
+    network's torch device; the cells' Warp device must be the same. With ``overlap`` the
+    rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
+    the network evaluates the other lane's wave; by default only on the CPU with a core that
+    torch's threads leave free (else the walk would slow the network down as much as it
+    saves).
     """
     warp_device = cells.device
     if runtime.device(device) != runtime.device(warp_device):
@@ -101,6 +104,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                 waves.resolve(to_evaluate, ready.pop(to_evaluate), prediction)
         counter = wp.zeros(1, dtype=wp.int32, device=warp_device)
         if rays:
+            wp.launch(kernel.clear_misses, dim=rays, inputs=[waves.passes], device=warp_device)
             wp.launch(kernel.unresolved_truncated, dim=rays,
                       inputs=[walk.state, waves.passes, counter], device=warp_device)
         stats["truncated"] = int(counter.numpy()[0])
@@ -125,6 +129,9 @@ class _Waves:
         self.stats, self.device = stats, walk.device
         self.passes = kernel.empty_passes(walk.rays, self.device)
         self.first = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32, device=self.device)
+        self.candidate = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32,
+                                 device=self.device)
+        self.placed = wp.zeros(walk.rays, dtype=wp.int32, device=self.device)
         self.table = wp.array(np.asarray(albedo_table, np.float32).reshape(-1, 3),
                               dtype=wp.vec3, device=self.device)
         self.waves = [0] * len(walk.lanes)
@@ -161,6 +168,7 @@ class _Waves:
         p0, p1, rest_length = (wp.to_torch(x)[:count] for x in self.inputs[lane])
         prediction = self.network.predict(p0, p1, rest_length, self.grid.voxel_size)
         tensors = {"hit": prediction["hit"].to(torch.int32),
+                   "candidate": prediction["candidate"].to(torch.int32),
                    "fraction": prediction["fraction"].to(torch.float64),
                    "normal": prediction["normal"].to(torch.float64),
                    "material": prediction["material"].to(torch.int64)}
@@ -177,17 +185,19 @@ class _Waves:
         if count:
             tensors, has_albedo = prediction
             view = kernel.Prediction()
-            for name, dtype in (("hit", wp.int32), ("fraction", wp.float64),
+            for name, dtype in (("hit", wp.int32), ("candidate", wp.int32),
+                                ("fraction", wp.float64),
                                 ("normal", wp.vec3d), ("material", wp.int64),
                                 ("albedo", wp.vec3)):
                 setattr(view, name, wp.from_torch(tensors[name], dtype=dtype))
             view.table = self.table
             buffer, rays = self.buffers[lane], self.walk.lanes[lane]
-            wp.launch(kernel.first_hits, dim=count, inputs=[buffer, view, self.first],
-                      device=self.device)
+            wp.launch(kernel.first_hits, dim=count,
+                      inputs=[buffer, view, self.first, self.candidate], device=self.device)
             wp.launch(kernel.resolve, dim=rays.count,
                       inputs=[self.walk.cells.arrays, self.walk.state, rays.active, buffer,
-                              view, self.first, int(has_albedo), self.passes],
+                              view, self.first, self.candidate, self.placed,
+                              int(has_albedo), self.passes],
                       device=self.device)
             self.stats["segments"] += count
         self.walk.drop_finished(lane)

@@ -29,7 +29,7 @@ from .network import IntersectionNetwork
 from .settings import OCCLUSION_THRESHOLD, Heads, NetworkConfig, TrainConfig
 from .training_data import Batches, Segments, split_data, voxel_size
 from .training_log import ProgressLog
-from .validation import calibrate_threshold, validate
+from .validation import calibrate_candidate_threshold, calibrate_threshold, validate
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -51,6 +51,7 @@ class TrainResult:
     samples_per_s: float
     val_poses: list[int]
     occlusion_threshold: float = OCCLUSION_THRESHOLD  # calibrated on the held-out poses
+    candidate_threshold: float = OCCLUSION_THRESHOLD  # likewise, at most the one above
     rank: int = 0
     world_size: int = 1
 
@@ -70,6 +71,7 @@ class TrainResult:
             "samples_per_s": self.samples_per_s,
             "val_poses": self.val_poses,
             "occlusion_threshold": self.occlusion_threshold,
+            "candidate_threshold": self.candidate_threshold,
             "world_size": self.world_size,
             "config": self.config.to_dict(),
         }
@@ -242,6 +244,8 @@ def _train(
     network.eval()
     threshold = calibrate_threshold(network, val_data, group)
     network.occlusion_threshold = threshold
+    candidate = calibrate_candidate_threshold(network, val_data, h, group)
+    network.candidate_threshold = candidate
     return TrainResult(
         network=network,
         network_config=network_config,
@@ -255,6 +259,7 @@ def _train(
         samples_per_s=log.samples_per_s,
         val_poses=val_poses,
         occlusion_threshold=threshold,
+        candidate_threshold=candidate,
         rank=group.rank,
         world_size=group.world,
     )

@@ -4,8 +4,9 @@ share of them, the held-out poses, and the random batches the loop draws.
 Data contract (the dataset module produces it): ``segments`` is a sequence of shards, each a
 mapping of equal-length numpy arrays: ``p0``, ``p1`` (S, 3) normalized rest coordinates;
 ``seg_len``, ``rest_len`` (S,); ``hit`` (S,) uint8; ``hit_frac`` (S,) in [0,1]; ``normal``,
-``albedo`` (S, 3); ``material`` (S,) int16; ``pose`` (S,) int32. ``header`` gives ``voxel_size``
-(h, rest units) and ``heads`` = {"albedo": bool, "material_count": int}.
+``albedo`` (S, 3); ``material`` (S,) int16; ``pose``, ``ray`` (S,) int32; ``t0`` (S,) the
+deformed distance to the segment's entry; a ray's segments in walk order. ``header`` gives
+``voxel_size`` (h, rest units) and ``heads`` = {"albedo": bool, "material_count": int}.
 """
 
 from __future__ import annotations
@@ -37,7 +38,13 @@ FIELDS = {  # key -> (torch dtype, trailing shape)
     "albedo": (torch.float32, (3,)),
     "material": (torch.int64, ()),
     "pose": (torch.int64, ()),
+    "ray": (torch.int64, ()),
+    "t0": (torch.float32, ()),
+    "seg_len": (torch.float32, ()),
 }
+RAY_FIELDS = ("ray", "t0", "seg_len")
+"""Where a segment lies on its ray: only the held-out data keeps them, for calibrating where
+hits are placed (``validation.calibrate_candidate_threshold``)."""
 
 
 def load_segments(
@@ -147,7 +154,9 @@ def split_data(
     data = load_segments(shards, heads, device)
     val_poses = split_poses(data["pose"], config.val_fraction, config.seed, group)
     held_out = torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64, device=device))
-    train_data, val_data = select(data, ~held_out), select(data, held_out)
+    train_data = select({key: value for key, value in data.items() if key not in RAY_FIELDS},
+                        ~held_out)
+    val_data = select(data, held_out)
     if train_data["p0"].shape[0] == 0:
         raise VDNIFError(
             f"process {group.rank} has no training segments after holding out poses {val_poses}"

@@ -2,7 +2,8 @@
 kernels (``vdnif_addon/render.py``, ``kernels/render.py``), as the product ran them before.
 
 The numpy walk (``oracles.walk.Walk``) advances every ray one cell per wave; the network
-evaluates each wave's segments; a ray stops at its first predicted hit.
+evaluates each wave's segments; a ray's hit is placed on its first candidate segment and
+made a hit, ending its walk, by its first segment predicted hit (DESIGN section 9).
 """
 
 import numpy as np
@@ -18,7 +19,7 @@ def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, dir
                   device="cpu"):
     """(Passes, stats) as the old renderer: ``cells`` an ``oracles.walk.DeformedCells``."""
     rays = len(origins)
-    passes = Passes.empty(rays)
+    passes, placed = Passes.empty(rays), Passes.empty(rays)
     walk = Walk(cells, entry_caster, origins, directions)
     stats = dict(segments=0, waves=0)
     table = torch.as_tensor(np.asarray(albedo_table, np.float32), device=device)
@@ -29,14 +30,19 @@ def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, dir
             continue
         prediction = predict_segments(network, grid, wave, device)
         hit = prediction["hit"].cpu().numpy()
-        index = np.flatnonzero(hit)
-        material = prediction["material"][hit]
-        albedo = prediction["albedo"][hit] if "albedo" in prediction else table[material]
-        set_hits(passes, wave.ray[index], cells, wave, index,
-                 prediction["fraction"][hit].cpu().double().numpy(),
-                 prediction["normal"][hit].cpu().double().numpy(),
+        candidate = prediction["candidate"].cpu().numpy() & ~placed.hit[wave.ray]
+        index = np.flatnonzero(candidate)
+        material = prediction["material"][candidate]
+        albedo = (prediction["albedo"][candidate] if "albedo" in prediction
+                  else table[material])
+        set_hits(placed, wave.ray[index], cells, wave, index,
+                 prediction["fraction"][candidate].cpu().double().numpy(),
+                 prediction["normal"][candidate].cpu().double().numpy(),
                  albedo.cpu().numpy(), material.cpu().numpy())
-        walk.stop(wave.ray[index])
+        done = wave.ray[np.flatnonzero(hit)]
+        for name in ("hit", "distance", "normal", "albedo", "material"):
+            getattr(passes, name)[done] = getattr(placed, name)[done]
+        walk.stop(done)
         stats["segments"] += len(wave)
         stats["waves"] += 1
     stats["truncated"] = walk.active()

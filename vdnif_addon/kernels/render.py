@@ -50,6 +50,7 @@ class Prediction:
     """What the network says of each segment of a wave (torch tensors, shared)."""
 
     hit: wp.array(dtype=wp.int32)         # (S,) 1 above the model's occlusion threshold
+    candidate: wp.array(dtype=wp.int32)   # (S,) 1 above its candidate threshold (<= the above)
     fraction: wp.array(dtype=wp.float64)  # (S,) hit position along the segment, 0..1
     normal: wp.array(dtype=wp.vec3d)      # (S,) rest-space normal
     material: wp.array(dtype=wp.int64)    # (S,)
@@ -115,7 +116,7 @@ def write_hit(cells: CellArrays, passes: Passes, ray: wp.int32, cell: wp.int32,
               t0: wp.float64, t1: wp.float64, p0: wp.vec3d, p1: wp.vec3d,
               fraction: wp.float64, rest_normal: wp.vec3d, albedo: wp.vec3,
               material: wp.int32):
-    passes.hit[ray] = 1
+    """The hit's passes of ``ray`` except its hit flag, which the caller sets."""
     passes.distance[ray] = t0 + fraction * (t1 - t0)
     point = p0 + (p1 - p0) * fraction
     passes.normal[ray] = deformed_normal(cells, cell, point, rest_normal)
@@ -133,6 +134,7 @@ def _hits(cells: CellArrays, passes: Passes, ray: wp.array(dtype=wp.int32),
     i = wp.tid()
     write_hit(cells, passes, ray[i], cell[i], t0[i], t1[i], p0[i], p1[i], fraction[i],
               rest_normal[i], albedo[i], material[i])
+    passes.hit[ray[i]] = 1
 
 
 @wp.kernel
@@ -152,11 +154,13 @@ def network_inputs(out: SegmentBuffer, origin: wp.vec3d, extent: wp.float64,
 
 
 @wp.kernel
-def first_hits(out: SegmentBuffer, prediction: Prediction,
-               first: wp.array(dtype=wp.int32)):
-    """The earliest segment of each ray that the network says is hit (a ray's segments
-    take increasing slots in walk order)."""
+def first_hits(out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype=wp.int32),
+               candidate: wp.array(dtype=wp.int32)):
+    """The earliest segment of each ray that the network says is hit, and the earliest
+    candidate (a ray's segments take increasing slots in walk order)."""
     s = wp.tid()
+    if prediction.candidate[s] != 0:
+        wp.atomic_min(candidate, out.ray[s], s)
     if prediction.hit[s] != 0:
         wp.atomic_min(first, out.ray[s], s)
 
@@ -164,22 +168,43 @@ def first_hits(out: SegmentBuffer, prediction: Prediction,
 @wp.kernel
 def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
             out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype=wp.int32),
+            candidate: wp.array(dtype=wp.int32), placed: wp.array(dtype=wp.int32),
             has_albedo: wp.int32, passes: Passes):
-    """Rays with a hit in this wave: their passes, and their walk ends."""
+    """The hit is placed on a ray's first candidate segment, in this wave or an earlier one
+    (``placed``), and made a hit, ending the walk, by its first segment above the occlusion
+    threshold (a candidate too, so never before the placed one)."""
     r = active[wp.tid()]
+    c = candidate[r]
     s = first[r]
-    if s == NO_HIT:
+    if c == NO_HIT:
         return
+    candidate[r] = NO_HIT
     first[r] = NO_HIT
-    material = wp.int32(prediction.material[s])
-    albedo = wp.vec3()
-    if has_albedo != 0:
-        albedo = prediction.albedo[s]
-    else:
-        albedo = prediction.table[material]
-    write_hit(cells, passes, r, out.cell[s], out.t0[s], out.t1[s], out.p0[s], out.p1[s],
-              prediction.fraction[s], prediction.normal[s], albedo, material)
-    rays.mode[r] = DONE
+    if placed[r] == 0:
+        material = wp.int32(prediction.material[c])
+        albedo = wp.vec3()
+        if has_albedo != 0:
+            albedo = prediction.albedo[c]
+        else:
+            albedo = prediction.table[material]
+        write_hit(cells, passes, r, out.cell[c], out.t0[c], out.t1[c], out.p0[c], out.p1[c],
+                  prediction.fraction[c], prediction.normal[c], albedo, material)
+        placed[r] = 1
+    if s != NO_HIT:
+        passes.hit[r] = 1
+        rays.mode[r] = DONE
+
+
+@wp.kernel
+def clear_misses(passes: Passes):
+    """Rays that end with no segment above the occlusion threshold are misses: their
+    passes lose what a candidate placed."""
+    r = wp.tid()
+    if passes.hit[r] == 0:
+        passes.distance[r] = wp.float64(0.0)
+        passes.normal[r] = wp.vec3d()
+        passes.albedo[r] = wp.vec3()
+        passes.material[r] = 0
 
 
 @wp.kernel
