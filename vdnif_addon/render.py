@@ -117,7 +117,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
 class _Waves:
     """The three steps of a wave of one lane: ``advance`` (Warp only: the walk kernel and
     the network inputs), ``predict`` (the network: the Warp encoder and torch's MLP),
-    ``resolve`` (Warp: first hits into passes, finished rays out). The renderer runs
+    ``resolve`` (Warp: hits placed and made, finished rays out). The renderer runs
     ``advance`` of one lane beside ``predict`` of the other, then ``resolve`` alone;
     ``runtime.LAUNCHES`` keeps the walk's and the encoder's launches from running at once, so
     only the MLP overlaps the walk."""
@@ -179,8 +179,9 @@ class _Waves:
             "albedo" in prediction
 
     def resolve(self, lane: int, count: int, prediction: Prediction | None) -> None:
-        """Each ray's first predicted hit of the wave into passes (its walk ends there);
-        finished rays leave the lane."""
+        """Each ray's first candidate segment, unless one is placed already, into its passes,
+        and a ray with a segment above the occlusion threshold made a hit (its walk ends
+        there); finished rays leave the lane."""
         clock = time.perf_counter()
         if count:
             tensors, has_albedo = prediction
