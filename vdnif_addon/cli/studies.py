@@ -56,7 +56,8 @@ def cmd_experiment(args):
 
 
 def cmd_bench(args):
-    """Sweep resolution, hash grid, PE bands, width and steps; derive the presets."""
+    """Sweep resolution, hash grid, PE bands and width, each point trained until it
+    converges; derive the presets."""
     from ..presets import PRESETS_FILE
     from ..studies.bench import NO_PRESETS, run_bench
 
