@@ -16,7 +16,7 @@ _VARIANT_TEXT = {
     defaults.AUTO_VARIANT: ("Automatic", "LSNIF where no armature or lattice deforms the "
                             "object (a static scene), else Proposed; each with its own PE "
                             "bands", 3),
-    "proposed": ("Proposed", "VDNIF: positional bands, log1p distance, uncertainty "
+    "proposed": ("Proposed", "VDNIF: positional bands, log-space distance, uncertainty "
                  "weighting, trained on many poses", 0),
     "deformed": ("Deformed", "The LSNIF model trained on many poses", 1),
     "lsnif": ("LSNIF", "The static baseline: hash grid only, trained on the rest pose", 2)}

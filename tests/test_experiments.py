@@ -202,11 +202,11 @@ def test_ablation_experiment_quick(tmp_path):
                           config["network"]["distance_mode"], config["train"]["weighting"])
     assert configs == {
         "deformed": (0, "paper", "fraction", "fixed"),
-        "proposed": (3, "paper", "log1p", "uncertainty"),
-        "no positional encoding": (0, "paper", "log1p", "uncertainty"),
+        "proposed": (3, "paper", "log1p-fraction", "uncertainty"),
+        "no positional encoding": (0, "paper", "log1p-fraction", "uncertainty"),
         "no log distance": (3, "paper", "fraction", "uncertainty"),
-        "no uncertainty weighting": (3, "paper", "log1p", "fixed"),
-        "proposed, sin(pi 2^k x)": (3, "pi", "log1p", "uncertainty")}
+        "no uncertainty weighting": (3, "paper", "log1p-fraction", "fixed"),
+        "proposed, sin(pi 2^k x)": (3, "pi", "log1p-fraction", "uncertainty")}
     text = results.read_text()
     assert "Command: `python vdnif_addon/batch.py -- experiment ablation --quick --scenes arm " \
            "--seeds 1`" in text

@@ -47,7 +47,7 @@ def test_paper_architecture():
     assert sum(isinstance(layer, torch.nn.ReLU) for layer in network.mlp) == 3
 
 
-@pytest.mark.parametrize("mode", ["fraction", "log1p"])
+@pytest.mark.parametrize("mode", ["fraction", "log1p-fraction", "log1p"])
 def test_distance_activation(mode):
     torch.manual_seed(0)
     network = IntersectionNetwork(NetworkConfig(**SMALL, distance_mode=mode))
@@ -110,6 +110,23 @@ def test_readout_log1p_mode_gives_rest_units():
         )
 
 
+def test_readout_log1p_fraction_mode_gives_the_segment_fraction():
+    """log1p-fraction: the head regresses log1p(t/l); the fraction is expm1 of it, kept in
+    the segment, and the rest distance that fraction of the segment's rest length, at any
+    voxel size."""
+    y = torch.tensor([0.0, math.log1p(0.25), math.log1p(1.0), 3.0])
+    rest_len = torch.tensor([2.0, 2.0, 0.5, 1e-9])
+    for h in (1e-6, 1.0, 1e6):
+        p = readout({"occlusion": torch.zeros(4), "distance": y, "normal": torch.ones(4, 3)},
+                    "log1p-fraction", h, rest_len)
+        torch.testing.assert_close(p["fraction"], torch.tensor([0.0, 0.25, 1.0, 1.0]))
+        torch.testing.assert_close(p["distance"], torch.tensor([0.0, 0.5, 0.5, 1e-9]))
+    zero_length = readout(
+        {"occlusion": torch.zeros(1), "distance": torch.ones(1), "normal": torch.ones(1, 3)},
+        "log1p-fraction", 1.0, torch.zeros(1))
+    assert torch.isfinite(zero_length["fraction"]).all() and zero_length["distance"] == 0
+
+
 def test_predict_is_readout_of_forward_in_batches():
     torch.manual_seed(3)
     network = IntersectionNetwork(
@@ -119,7 +136,7 @@ def test_predict_is_readout_of_forward_in_batches():
     rest_len = torch.rand(100) * 0.1
     batched = network.predict(p0, p1, rest_len, 0.05, batch=7)
     with torch.no_grad():
-        whole = readout(network(p0, p1), "log1p", 0.05, rest_len)
+        whole = readout(network(p0, p1), network.config.distance_mode, 0.05, rest_len)
     assert batched.keys() == whole.keys()
     for key in whole:
         torch.testing.assert_close(batched[key], whole[key], rtol=1e-5, atol=1e-6)
@@ -212,10 +229,11 @@ def test_empty_batches_and_non_finite_coordinates_are_safe():
     assert all(torch.isfinite(value).all() for value in network(odd, torch.rand(2, 3)).values())
 
 
-def test_log1p_distance_head_starts_alive():
+@pytest.mark.parametrize("mode", ["log1p-fraction", "log1p"])
+def test_log1p_distance_head_starts_alive(mode):
     """A ReLU distance head whose outputs all start at 0 never learns (dead ReLU)."""
     torch.manual_seed(0)
-    network = IntersectionNetwork(NetworkConfig(distance_mode="log1p"))
+    network = IntersectionNetwork(NetworkConfig(distance_mode=mode))
     p0, p1 = torch.rand(2, 4096, 3)
     distance = network(p0, p1)["distance"]
     assert (distance > 0).float().mean() > 0.9

@@ -17,13 +17,17 @@ CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 def distance_target(
     hit_frac: torch.Tensor, rest_len: torch.Tensor, distance_mode: str, voxel_size: float
 ) -> torch.Tensor:
-    """What the distance head regresses: t/l (``fraction``) or log1p(d/h) (``log1p``).
+    """What the distance head regresses: t/l (``fraction``), log1p(t/l) (``log1p-fraction``)
+    or log1p(d/h) (``log1p``, model files before log1p-fraction).
 
-    hit_frac, rest_len: (N,); d = hit_frac * rest_len is the rest-space local distance and h
-    the voxel size, so the log1p target is scale-invariant.
+    hit_frac, rest_len: (N,); hit_frac = t/l is the hit's fraction of the segment, d =
+    hit_frac * rest_len the rest-space local distance and h the voxel size: every target is
+    scale-invariant.
     """
     if distance_mode == "fraction":
         return hit_frac
+    if distance_mode == "log1p-fraction":
+        return torch.log1p(hit_frac)
     return torch.log1p(hit_frac * rest_len / voxel_size)
 
 

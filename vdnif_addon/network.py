@@ -49,9 +49,10 @@ class IntersectionNetwork(nn.Module):
             layers += [nn.Linear(width_in, config.width), nn.ReLU()]
             width_in = config.width
         output = nn.Linear(width_in, sum(self.head_sizes.values()))
-        if config.distance_mode == "log1p":
-            # ReLU output: start it in its active range (log1p of half a voxel), or a head
-            # whose first outputs are all negative never gets a gradient (a dead ReLU).
+        if config.distance_mode in ("log1p", "log1p-fraction"):
+            # ReLU output: start it in its active range (log1p of half a voxel or of half
+            # the segment), or a head whose first outputs are all negative never gets a
+            # gradient (a dead ReLU).
             distance_column = list(self.head_sizes).index("distance")
             start = sum(list(self.head_sizes.values())[:distance_column])
             with torch.no_grad():
@@ -71,9 +72,10 @@ class IntersectionNetwork(nn.Module):
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
 
-        ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l or ReLU log1p(d/h)
-        per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo`` (N, 3) in [0,1];
-        ``material`` (N, M) logits. Only the heads of ``config.heads`` are present.
+        ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l, ReLU log1p(t/l) or
+        ReLU log1p(d/h) per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
+        (N, 3) in [0,1]; ``material`` (N, M) logits. Only the heads of ``config.heads`` are
+        present.
         """
         return self.heads(self.encoder(p0, p1))
 
@@ -165,6 +167,9 @@ def readout(
     probability = torch.sigmoid(outputs["occlusion"])
     if distance_mode == "fraction":
         fraction = outputs["distance"]
+        distance = fraction * rest_len
+    elif distance_mode == "log1p-fraction":
+        fraction = torch.expm1(outputs["distance"]).clamp(0.0, 1.0)
         distance = fraction * rest_len
     else:
         distance = voxel_size * torch.expm1(outputs["distance"])

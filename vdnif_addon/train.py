@@ -106,12 +106,15 @@ def _optimizer(
     tensor operations per parameter) computes the same update.
     """
     table = objective.network.encoder.grid.table
-    others = [p for p in objective.parameters() if p is not table]
+    weights = list(objective.weighting.parameters())
+    others = [p for p in objective.parameters()
+              if p is not table and all(p is not w for w in weights)]
+    groups = [{"params": [table], "lr": config.lr_grid, "eps": 1e-15},
+              {"params": others, "lr": config.lr_mlp}]
+    if weights:
+        groups.append({"params": weights, "lr": config.lr_weighting})
     optimizer = torch.optim.Adam(
-        [
-            {"params": [table], "lr": config.lr_grid, "eps": 1e-15},
-            {"params": others, "lr": config.lr_mlp},
-        ],
+        groups,
         betas=(0.9, 0.99),
         fused=True,
     )

@@ -2,12 +2,12 @@
 
 ``lsnif``: static single pose, hash grid only, sigmoid t/l distance, fixed loss weights.
 ``deformed``: the same model trained on deformation-aware (many-pose) data.
-``proposed``: deformation-aware data, F = 3 positional bands, log1p distance, uncertainty
+``proposed``: deformation-aware data, F = 3 positional bands, log1p(t/l) distance, uncertainty
 weighting.
 
 The ablations are ``proposed`` with one of its three parts taken back to the baseline's
 (``deformed``): ``proposed-no-pe`` (hash grid only, F = 0), ``proposed-no-log`` (LSNIF's
-sigmoid t/l distance instead of the ReLU log1p(d/h)), ``proposed-no-uncertainty`` (fixed
+sigmoid t/l distance instead of the ReLU log1p(t/l)), ``proposed-no-uncertainty`` (fixed
 loss weights).
 
 The table of variants is ``settings.VARIANTS`` (torch-free: the panel and the parser read it);
