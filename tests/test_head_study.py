@@ -1,0 +1,42 @@
+"""tools/head_study.py: its run syntax, and bad input ending in one error line."""
+
+import importlib.util
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+from vdnif_addon.errors import VDNIFError
+
+TOOL = pathlib.Path(__file__).resolve().parents[1] / "tools" / "head_study.py"
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("head_study", TOOL)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_run_names_a_variant_and_its_settings():
+    parse = _tool().parse_run
+    assert parse("deformed") == ("deformed", {})
+    assert parse("proposed:distance_mode=log1p,lr_weighting=0.01") == (
+        "proposed", {"distance_mode": "log1p", "lr_weighting": 0.01})
+    assert parse("proposed:pe_bands=0") == ("proposed", {"pe_bands": 0})
+    with pytest.raises(VDNIFError, match="not KEY=VALUE"):
+        parse("proposed:distance_mode")
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--data", "{tmp}/missing", "deformed"], "does not exist"),
+    (["--data", "{tmp}", "proposed:width"], "not KEY=VALUE"),
+])
+def test_bad_input_ends_in_one_error_line(tmp_path, arguments, message):
+    done = subprocess.run([sys.executable, str(TOOL),
+                           *(a.format(tmp=tmp_path) for a in arguments)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0]
