@@ -209,7 +209,7 @@ def test_predict_overlaps_batches_without_changing_them():
     rest_len = torch.rand(1000) * 0.1
     predicted = network.predict(p0, p1, rest_len, 0.05, batch=96)
     with torch.no_grad():
-        parts = [readout(network(a, b), "log1p", 0.05, r)
+        parts = [readout(network(a, b), network.config.distance_mode, 0.05, r)
                  for a, b, r in zip(p0.split(96), p1.split(96), rest_len.split(96))]
     for key, value in predicted.items():
         assert torch.equal(value, torch.cat([part[key] for part in parts])), key

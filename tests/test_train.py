@@ -490,12 +490,12 @@ def test_training_calibrates_the_threshold_on_the_held_out_poses():
 
 class _Table(torch.nn.Module):
     """Stands in for the network: each segment's occlusion logit and log-distance output
-    read from p0's x (the row's index) in fixed tables."""
+    read from p0's x (the row's index) in fixed tables; the distance table holds log1p(d/h)."""
 
     def __init__(self, logit, distance):
         super().__init__()
         self.logit, self.distance = logit, distance
-        self.config = NetworkConfig(**SMALL)
+        self.config = NetworkConfig(**SMALL, distance_mode="log1p")
         self.occlusion_threshold = 0.5
 
     def forward(self, p0, p1):
