@@ -53,8 +53,9 @@ DEMO_SCENE = "spot"
 
 DEMO_STEPS = 3000
 """The main job's training steps: a third of the recipe's, so that ``make demo`` stays under
-10 minutes on 2 CPU cores (3,000 steps took 337 s of its wall time there; 9,000 would take
-about 15 minutes). On spot they already meet every target but albedo PSNR (docs/results.md)."""
+10 minutes on 2 CPU cores (the whole job took 247 s of wall time there with 3,000 steps,
+beside another training; 9,000 steps would take about 11 minutes). On spot they meet every
+hole, extra, distance and normal target (README, docs/results.md)."""
 
 # The suggested resolution (``blender/resolution.py``): the coarsest candidate whose
 # embedding error (true vs embedded reference, distance MAE in object units) is at most
