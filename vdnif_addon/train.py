@@ -107,10 +107,9 @@ def _optimizer(
     """
     table = objective.network.encoder.grid.table
     weights = list(objective.weighting.parameters())
-    others = [p for p in objective.parameters()
-              if p is not table and all(p is not w for w in weights)]
+    mlp = [p for p in objective.network.parameters() if p is not table]
     groups = [{"params": [table], "lr": config.lr_grid, "eps": 1e-15},
-              {"params": others, "lr": config.lr_mlp}]
+              {"params": mlp, "lr": config.lr_mlp}]
     if weights:
         groups.append({"params": weights, "lr": config.lr_weighting})
     optimizer = torch.optim.Adam(
