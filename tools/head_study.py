@@ -22,6 +22,7 @@ sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.fit import fit_model  # noqa: E402
+from vdnif_addon.settings import DEFAULT_DEVICE, DEVICES  # noqa: E402
 
 FIGURES = ("distance_mae_voxels", "normal_error_deg", "occlusion_accuracy")
 
@@ -47,7 +48,7 @@ def main():
     parser.add_argument("--data", type=pathlib.Path, required=True)
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", choices=DEVICES, default=DEFAULT_DEVICE)
     parser.add_argument("runs", nargs="+", metavar="VARIANT[:KEY=VALUE,...]")
     args = parser.parse_args()
     runs = [parse_run(text) for text in args.runs]
