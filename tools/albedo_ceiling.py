@@ -8,6 +8,10 @@ tenths of a voxel; beside them, the PSNR of the model's own albedo head on the s
     python vdnif_addon/batch.py -- train --data out/spot-data --out out/spot.vdnif
     python tools/albedo_ceiling.py --data out/spot-data --model out/spot.vdnif
 
+Without ``--model`` only the field's figures are printed. ``--shell S`` fits the field at
+points moved off the surface along its rest normal by N(0, S voxels), each with its hit's
+albedo: whether an albedo field that is constant near the surface tolerates a misplaced hit.
+
 Held out: the last ``--held-out`` poses of the dataset (the model trained on them too unless
 its training held them out: the figures compare the two on the same hits either way).
 """
@@ -43,16 +47,22 @@ def tensor(array):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=pathlib.Path, required=True)
-    parser.add_argument("--model", type=pathlib.Path, required=True)
+    parser.add_argument("--model", type=pathlib.Path,
+                        help="a model trained on the dataset (without: the field alone)")
     parser.add_argument("--held-out", type=int, default=4)
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--levels", type=int, default=2)
     parser.add_argument("--log2-table-size", type=int, default=20)
+    parser.add_argument("--shell", type=float, default=0.0,
+                        help="fit the field at points moved along the rest-space normal by "
+                             "N(0, SHELL voxels), each with its true hit's albedo")
     args = parser.parse_args()
+    if not 0 <= args.shell < float("inf"):
+        raise VDNIFError(f"--shell must be a finite number of voxels >= 0, got {args.shell}")
     torch.manual_seed(0)
-    network, _ = load_model(args.model)
+    network = load_model(args.model)[0] if args.model else None
     header, shards = read_dataset(args.data)
-    if not header["heads"]["albedo"] or "albedo" not in network.head_sizes:
+    if not header["heads"]["albedo"] or (network and "albedo" not in network.head_sizes):
         raise VDNIFError(f"dataset '{args.data}' and model '{args.model}' must both have an "
                          "albedo head (a textured or multi-coloured object)")
     data = {key: np.concatenate([shard[key] for shard in shards]) for key in shards[0]}
@@ -64,10 +74,11 @@ def main():
     p0, p1 = data["p0"][held], data["p1"][held]
     print(f"hits: {train.sum():,} to fit, {held.sum():,} held out (poses > {last})")
 
-    with torch.inference_mode():
-        predicted = network.predict(tensor(p0), tensor(p1), tensor(data["rest_len"][held]),
-                                    header["voxel_size"])
-    print(f"the model's albedo head: {psnr(predicted['albedo'].numpy(), reference):.2f} dB")
+    if network:
+        with torch.inference_mode():
+            predicted = network.predict(tensor(p0), tensor(p1),
+                                        tensor(data["rest_len"][held]), header["voxel_size"])
+        print(f"the model's albedo head: {psnr(predicted['albedo'].numpy(), reference):.2f} dB")
 
     grid = HashGrid(args.levels, 64, 2.0, args.log2_table_size, 2)
     mlp = nn.Sequential(nn.Linear(grid.output_dim, 64), nn.ReLU(), nn.Linear(64, 64),
@@ -75,9 +86,16 @@ def main():
     optimizer = torch.optim.Adam([{"params": grid.parameters(), "lr": 1e-2},
                                   {"params": mlp.parameters(), "lr": 1e-3}], eps=1e-15)
     points, albedo = tensor(point[train]), tensor(data["albedo"][train])
+    normals = tensor(data["normal"][train])
+    # the dataset's points are in normalized rest coordinates: one voxel is 1 / resolution
+    voxel_unit = float(np.median(np.linalg.norm(data["p1"] - data["p0"], axis=1)[hit]
+                                 / data["rest_len"][hit])) * header["voxel_size"]
     for _ in range(args.steps):
         batch = torch.randint(0, len(points), (16384,))
-        loss = (torch.sigmoid(mlp(grid(points[batch]))) - albedo[batch]).abs().mean()
+        at = points[batch]
+        if args.shell > 0:
+            at = at + torch.randn(len(batch), 1) * (args.shell * voxel_unit) * normals[batch]
+        loss = (torch.sigmoid(mlp(grid(at))) - albedo[batch]).abs().mean()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -87,8 +105,9 @@ def main():
             return torch.sigmoid(mlp(grid(tensor(at)))).numpy()
 
     print(f"field at the true hit point: {psnr(field(point[held]), reference):.2f} dB")
-    guess = p0 + predicted["fraction"].numpy()[:, None] * (p1 - p0)
-    print(f"field at the model's hit point: {psnr(field(guess), reference):.2f} dB")
+    if network:
+        guess = p0 + predicted["fraction"].numpy()[:, None] * (p1 - p0)
+        print(f"field at the model's hit point: {psnr(field(guess), reference):.2f} dB")
     direction = (p1 - p0) / np.linalg.norm(p1 - p0, axis=1, keepdims=True)
     voxel = header["voxel_size"] * np.linalg.norm(p1 - p0, axis=1) / data["rest_len"][held]
     rng = np.random.default_rng(0)

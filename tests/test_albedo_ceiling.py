@@ -1,0 +1,23 @@
+"""tools/albedo_ceiling.py: bad input ends in one error line, before any fitting."""
+
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+TOOL = pathlib.Path(__file__).resolve().parents[1] / "tools" / "albedo_ceiling.py"
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--data", "{tmp}/missing"], "does not exist"),
+    (["--data", "{tmp}", "--shell", "-0.1"], "--shell must be"),
+    (["--data", "{tmp}", "--shell", "nan"], "--shell must be"),
+])
+def test_bad_input_ends_in_one_error_line(tmp_path, arguments, message):
+    done = subprocess.run([sys.executable, str(TOOL),
+                           *(a.format(tmp=tmp_path) for a in arguments)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "error: " in lines[0] and message in lines[0], done.stderr
