@@ -137,6 +137,24 @@ def test_distance_targets_follow_the_mode():
     assert task_losses(outputs, batch, "fraction", 2.0)["normal"] == 0
 
 
+def test_uncertainty_weighting_equal_start_is_the_plain_sum_plus_its_log_variances():
+    """start="equal": every task weighs 1 at the start, as in the fixed weighting, and the
+    log-variances start at log 0.5 (regression) and 0 (classification)."""
+    losses = {"occlusion": torch.tensor(0.7), "distance": torch.tensor(0.2),
+              "normal": torch.tensor(0.1), "albedo": torch.tensor(0.3),
+              "material": torch.tensor(1.5)}
+    weighting = make_weighting("uncertainty", list(losses), "equal")
+    s = weighting.log_variances()
+    assert s["occlusion"] == s["material"] == 0.0
+    for task in ("distance", "normal", "albedo"):
+        assert s[task] == pytest.approx(math.log(0.5), abs=1e-6)
+    plain = FixedWeighting(list(losses))(losses)
+    torch.testing.assert_close(weighting(losses), plain + 0.5 * 3 * math.log(0.5))
+    assert make_weighting("uncertainty", list(losses)).log_variances() == dict.fromkeys(losses, 0.0)
+    with pytest.raises(VDNIFError, match="weighting_start"):
+        TrainConfig(weighting_start="equals")
+
+
 def test_uncertainty_weighting_formula_and_bounds():
     losses = {
         "occlusion": torch.tensor(0.7),

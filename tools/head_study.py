@@ -1,6 +1,7 @@
 """How a variant's settings change what its heads learn: trains each named run on one dataset
 folder, the same steps and seed, and prints the held-out poses' validation figures (local
-distance error in voxels, normal error, segment occlusion accuracy) and the loss weighting's
+distance error in voxels, normal error, segment occlusion accuracy, and the albedo loss and
+material accuracy where the object has them) and the loss weighting's
 learned log-variances. Cheaper than an experiment (no rendering): it measures the heads,
 not the passes.
 
@@ -24,7 +25,9 @@ from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.fit import fit_model  # noqa: E402
 from vdnif_addon.settings import DEFAULT_DEVICE, DEVICES  # noqa: E402
 
-FIGURES = ("distance_mae_voxels", "normal_error_deg", "occlusion_accuracy")
+FIGURES = ("distance_mae_voxels", "normal_error_deg", "occlusion_accuracy", "loss/albedo",
+           "material_accuracy")
+"""Printed where the run has them: albedo (its L1 loss over hits) and material need those heads."""
 
 
 def parse_run(text):

@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .settings import WEIGHTINGS, check_choice
+from .settings import WEIGHTING_STARTS, WEIGHTINGS, check_choice
 
 CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 """Tasks weighted as classification, exp(-s) L + s/2; the others are regression tasks."""
@@ -72,18 +72,23 @@ class UncertaintyWeighting(nn.Module):
     """Kendall et al. (2018) multi-task weighting with learned log-variances s_i = log sigma_i^2.
 
     Total = sum over tasks of ``0.5 exp(-s) L + 0.5 s`` (regression) or ``exp(-s) L + 0.5 s``
-    (classification); it may be negative. s starts at 0 and is bounded softly,
+    (classification); it may be negative. s starts at 0 (``start="zero"``) or at the log of
+    the task's scale, so that every task starts at weight 1 (``"equal"``,
+    ``settings.WEIGHTING_STARTS``), and is bounded softly,
     ``s = bound * tanh(raw / bound)``: unlike a hard clamp, whose gradient vanishes once s
     reaches the bound (leaving it stuck there), this keeps s in (-bound, bound) and trainable.
     """
 
-    def __init__(self, tasks: Sequence[str], bound: float = 6.0) -> None:
+    def __init__(self, tasks: Sequence[str], bound: float = 6.0, start: str = "zero") -> None:
         super().__init__()
+        check_choice("weighting start", start, WEIGHTING_STARTS)
         self.tasks = tuple(tasks)
         self.bound = bound
-        self.raw = nn.Parameter(torch.zeros(len(self.tasks)))
-        scale = [1.0 if task in CLASSIFICATION_TASKS else 0.5 for task in self.tasks]
-        self.register_buffer("_scale", torch.tensor(scale), persistent=False)
+        scale = torch.tensor([1.0 if task in CLASSIFICATION_TASKS else 0.5
+                              for task in self.tasks])
+        s = torch.log(scale) if start == "equal" else torch.zeros(len(self.tasks))
+        self.raw = nn.Parameter(bound * torch.atanh(s / bound))
+        self.register_buffer("_scale", scale, persistent=False)
 
     def log_variance_tensor(self) -> torch.Tensor:
         """s per task, (K,), in ``tasks`` order."""
@@ -117,7 +122,11 @@ WEIGHTING_CLASSES = dict(zip(WEIGHTINGS, (UncertaintyWeighting, FixedWeighting),
 """``settings.WEIGHTINGS`` name -> its module, in that tuple's order."""
 
 
-def make_weighting(kind: str, tasks: Sequence[str]) -> UncertaintyWeighting | FixedWeighting:
-    """``kind`` (one of ``settings.WEIGHTINGS``) over ``tasks``."""
+def make_weighting(kind: str, tasks: Sequence[str], start: str = "zero"
+                   ) -> UncertaintyWeighting | FixedWeighting:
+    """``kind`` (one of ``settings.WEIGHTINGS``) over ``tasks``; the uncertainty weighting's
+    log-variances start at ``start`` (one of ``settings.WEIGHTING_STARTS``)."""
     check_choice("weighting", kind, WEIGHTINGS)
+    if kind == "uncertainty":
+        return UncertaintyWeighting(tasks, start=start)
     return WEIGHTING_CLASSES[kind](tasks)

@@ -80,6 +80,10 @@ log space and scale-invariant. ``log1p``: ReLU log1p(d/h), the proposed form of 
 written before log1p-fraction (DESIGN section 8 says why it was replaced)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
+WEIGHTING_STARTS = ("zero", "equal")
+"""Where the uncertainty weighting's log-variances start: ``zero``, every s_i = 0 (a
+classification task weighs 1, a regression task 0.5), or ``equal``, s_i = log of the task's
+scale (every task weighs 1, the fixed weighting's plain sum)."""
 PE_SCALES = {"paper": 1.0, "pi": math.pi}
 """``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
 DEFORM_KINDS = ("bend", "twist", "stretch", "squash")
@@ -293,6 +297,7 @@ class TrainConfig:
     lr_weighting: float = 1e-3
     final_lr_fraction: float = 0.1
     weighting: str = "uncertainty"
+    weighting_start: str = "zero"
     seed: int = 0
     device: str = DEFAULT_DEVICE
     val_fraction: float = 0.1
@@ -311,6 +316,7 @@ class TrainConfig:
                 raise VDNIFError(f"setting {name} must be a number in (0, 1], got {value!r}")
         check_number("val_fraction", self.val_fraction, 0.0, 0.9)
         check_choice("weighting", self.weighting, WEIGHTINGS)
+        check_choice("weighting_start", self.weighting_start, WEIGHTING_STARTS)
         check_choice("device", self.device, DEVICES)
 
     def to_dict(self) -> dict[str, Any]:

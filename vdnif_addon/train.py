@@ -219,7 +219,8 @@ def _train(
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         network = IntersectionNetwork(network_config)
-    weighting = make_weighting(config.weighting, list(network.head_sizes))
+    weighting = make_weighting(config.weighting, list(network.head_sizes),
+                               config.weighting_start)
     objective = Objective(network, weighting, h).to(device)
     model = (
         nn.parallel.DistributedDataParallel(objective, broadcast_buffers=False)
