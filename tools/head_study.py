@@ -27,7 +27,8 @@ from vdnif_addon.settings import DEFAULT_DEVICE, DEVICES  # noqa: E402
 
 FIGURES = ("distance_mae_voxels", "normal_error_deg", "occlusion_accuracy", "loss/albedo",
            "material_accuracy")
-"""Printed where the run has them: albedo (its L1 loss over hits) and material need those heads."""
+"""Printed where the run has them: the albedo (L1 loss over hits) and material figures need
+those heads."""
 
 
 def parse_run(text):

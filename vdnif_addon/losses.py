@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .settings import WEIGHTING_STARTS, WEIGHTINGS, check_choice
+from .settings import DEFAULT_WEIGHTING_START, WEIGHTING_STARTS, WEIGHTINGS, check_choice
 
 CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 """Tasks weighted as classification, exp(-s) L + s/2; the others are regression tasks."""
@@ -79,7 +79,8 @@ class UncertaintyWeighting(nn.Module):
     reaches the bound (leaving it stuck there), this keeps s in (-bound, bound) and trainable.
     """
 
-    def __init__(self, tasks: Sequence[str], bound: float = 6.0, start: str = "zero") -> None:
+    def __init__(self, tasks: Sequence[str], bound: float = 6.0,
+                 start: str = DEFAULT_WEIGHTING_START) -> None:
         super().__init__()
         check_choice("weighting start", start, WEIGHTING_STARTS)
         self.tasks = tuple(tasks)
@@ -122,7 +123,7 @@ WEIGHTING_CLASSES = dict(zip(WEIGHTINGS, (UncertaintyWeighting, FixedWeighting),
 """``settings.WEIGHTINGS`` name -> its module, in that tuple's order."""
 
 
-def make_weighting(kind: str, tasks: Sequence[str], start: str = "zero"
+def make_weighting(kind: str, tasks: Sequence[str], start: str = DEFAULT_WEIGHTING_START
                    ) -> UncertaintyWeighting | FixedWeighting:
     """``kind`` (one of ``settings.WEIGHTINGS``) over ``tasks``; the uncertainty weighting's
     log-variances start at ``start`` (one of ``settings.WEIGHTING_STARTS``)."""
