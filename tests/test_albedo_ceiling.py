@@ -7,12 +7,14 @@ import sys
 import pytest
 
 TOOL = pathlib.Path(__file__).resolve().parents[1] / "tools" / "albedo_ceiling.py"
+ARM_DATA = pathlib.Path(__file__).resolve().parent / "golden" / "arm-dataset"
 
 
 @pytest.mark.parametrize("arguments, message", [
     (["--data", "{tmp}/missing"], "does not exist"),
     (["--data", "{tmp}", "--shell", "-0.1"], "--shell must be"),
     (["--data", "{tmp}", "--shell", "nan"], "--shell must be"),
+    (["--data", str(ARM_DATA)], "has no albedo head"),    # one material, no texture
 ])
 def test_bad_input_ends_in_one_error_line(tmp_path, arguments, message):
     done = subprocess.run([sys.executable, str(TOOL),

@@ -62,9 +62,11 @@ def main():
     torch.manual_seed(0)
     network = load_model(args.model)[0] if args.model else None
     header, shards = read_dataset(args.data)
-    if not header["heads"]["albedo"] or (network and "albedo" not in network.head_sizes):
-        raise VDNIFError(f"dataset '{args.data}' and model '{args.model}' must both have an "
-                         "albedo head (a textured or multi-coloured object)")
+    if not header["heads"]["albedo"]:
+        raise VDNIFError(f"dataset '{args.data}' has no albedo head: it needs a textured or "
+                         "multi-coloured object")
+    if network and "albedo" not in network.head_sizes:
+        raise VDNIFError(f"model '{args.model}' has no albedo head: train it on '{args.data}'")
     data = {key: np.concatenate([shard[key] for shard in shards]) for key in shards[0]}
     hit = data["hit"] > 0
     point = data["p0"] + data["hit_frac"][:, None] * (data["p1"] - data["p0"])
@@ -73,6 +75,9 @@ def main():
     reference = data["albedo"][held]
     p0, p1 = data["p0"][held], data["p1"][held]
     print(f"hits: {train.sum():,} to fit, {held.sum():,} held out (poses > {last})")
+    # The dataset's points are normalized rest coordinates (``VoxelGrid.normalize``): one
+    # voxel is the voxel size over the grid's extent there.
+    voxel = header["grid"]["voxel_size"] / header["grid"]["extent"]
 
     if network:
         with torch.inference_mode():
@@ -87,14 +92,11 @@ def main():
                                   {"params": mlp.parameters(), "lr": 1e-3}], eps=1e-15)
     points, albedo = tensor(point[train]), tensor(data["albedo"][train])
     normals = tensor(data["normal"][train])
-    # the dataset's points are in normalized rest coordinates: one voxel is 1 / resolution
-    voxel_unit = float(np.median(np.linalg.norm(data["p1"] - data["p0"], axis=1)[hit]
-                                 / data["rest_len"][hit])) * header["voxel_size"]
     for _ in range(args.steps):
         batch = torch.randint(0, len(points), (16384,))
         at = points[batch]
         if args.shell > 0:
-            at = at + torch.randn(len(batch), 1) * (args.shell * voxel_unit) * normals[batch]
+            at = at + torch.randn(len(batch), 1) * (args.shell * voxel) * normals[batch]
         loss = (torch.sigmoid(mlp(grid(at))) - albedo[batch]).abs().mean()
         optimizer.zero_grad()
         loss.backward()
@@ -109,7 +111,6 @@ def main():
         guess = p0 + predicted["fraction"].numpy()[:, None] * (p1 - p0)
         print(f"field at the model's hit point: {psnr(field(guess), reference):.2f} dB")
     direction = (p1 - p0) / np.linalg.norm(p1 - p0, axis=1, keepdims=True)
-    voxel = header["voxel_size"] * np.linalg.norm(p1 - p0, axis=1) / data["rest_len"][held]
     rng = np.random.default_rng(0)
     for sigma in SHIFTS:
         shift = rng.normal(0.0, sigma, len(reference)) * voxel
