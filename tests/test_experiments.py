@@ -1,6 +1,7 @@
 """The paper's experiments as commands that write their own section of the results file."""
 
 import json
+import re
 import types
 
 import numpy as np
@@ -152,7 +153,10 @@ def test_deformation_experiment_quick(tmp_path):
     text = results.read_text()
     assert "Command: `python vdnif_addon/batch.py -- experiment deformation --quick --scenes " \
            "spot,bunny`" in text
-    record = json.loads((tmp_path / "docs" / "results" / "deformation.json").read_text())
+    # narrowed to two of its four scenes: its own section and JSON beside the whole run's
+    assert "<!-- experiment deformation, spot, bunny -->" in text
+    record = json.loads((tmp_path / "docs" / "results" / "deformation-spot-bunny.json")
+                        .read_text())
     runs = record["runs"]
     assert record["settings"]["seeds"] == [0, 1] and record["scenes"] == ["spot", "bunny"]
     assert set(runs) == {f"{scene}/{label}" for scene in ("spot", "bunny")
@@ -189,7 +193,8 @@ def test_ablation_experiment_quick(tmp_path):
     code, printed, err = run_batch("experiment", "ablation", "--quick", "--scenes", "arm",
                                    "--seeds", "1", "--results", results, timeout=600)
     assert code == 0, err
-    record = json.loads((tmp_path / "docs" / "results" / "ablation.json").read_text())
+    record = json.loads((tmp_path / "docs" / "results" / "ablation-arm-1-seed.json")
+                        .read_text())
     assert record["scenes"] == ["arm"] and record["settings"]["seeds"] == [0]
     configs = {}
     for label in ("deformed", "proposed", "no positional encoding", "no log distance",
@@ -211,6 +216,28 @@ def test_ablation_experiment_quick(tmp_path):
     assert "Command: `python vdnif_addon/batch.py -- experiment ablation --quick --scenes arm " \
            "--seeds 1`" in text
     assert "| arm: no log distance | true |" in text and "- arm: no positional encoding:" in text
+    assert "<!-- experiment ablation, arm, 1 seed -->" in text
+    assert re.search(r"Ran on \d{4}-\d\d-\d\d from \d\d:\d\d to \d\d:\d\d UTC \(wall "
+                     r"\d+ min, torch on \d+ threads?, \d+ CPU cores\)\.", text)
+
+
+def test_a_narrowed_run_names_its_scenes_and_seeds(core):
+    """A run of some scenes or fewer seeds writes its own section, JSON and figures, so a
+    one-seed run never replaces the section of the run over every seed."""
+    experiments = core("studies.experiments")
+    name = experiments.run_name
+    assert name("deformation", ("arm", "lattice", "spot", "bunny"), (0, 1, 2), (0, 1, 2)) == (
+        "experiment deformation", "deformation", "")
+    assert name("deformation", ("spot",), (0, 1, 2), (0, 1, 2)) == (
+        "experiment deformation, spot", "deformation-spot", "")
+    assert name("deformation", ("spot",), (0,), (0, 1, 2)) == (
+        "experiment deformation, spot, 1 seed", "deformation-spot-1-seed", "-1-seed")
+    assert name("static", ("bunny", "spot"), (0, 1), (0, 1, 2)) == (
+        "experiment static, 2 seeds", "static-2-seeds", "-2-seeds")
+    started = experiments.datetime.datetime(2026, 11, 24, 23, 50,
+                                            tzinfo=experiments.datetime.timezone.utc)
+    assert experiments.ran_line(started, 50 * 60, 1).startswith(
+        "Ran on 2026-11-24/25 from 23:50 to 00:40 UTC (wall 50 min, torch on 1 thread, ")
 
 
 def test_full_sizes_train_with_the_default_recipe(core):

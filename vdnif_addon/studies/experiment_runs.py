@@ -51,11 +51,13 @@ RUNS = {   # label: (variant, extra settings)
 
 class Experiment:
     """Shared set-up of one experiment run: sizes, seeds, scenes, scratch and figures
-    folders."""
+    folders, and the ``suffix`` of its figures' names (a narrowed run's seeds, so that a
+    one-seed run does not replace the figure of a run over every seed)."""
 
-    def __init__(self, size, scratch, figures, device, progress, scenes):
+    def __init__(self, size, scratch, figures, device, progress, scenes, suffix=""):
         self.size, self.scratch, self.figures = size, pathlib.Path(scratch), figures
         self.device, self.progress, self.scenes = device, progress, scenes
+        self.suffix = suffix
 
     def overrides(self, extra=None, seed=0):
         return dict(self.size["overrides"], steps=self.size["steps"], device=self.device,

@@ -19,9 +19,13 @@ themselves (training, evaluation, medians, figures) are in ``experiment_runs``.
 """
 
 import dataclasses
+import datetime
+import os
 import pathlib
+import re
 import shlex
 import tempfile
+import time
 
 import torch
 
@@ -72,7 +76,7 @@ def static(run):
         goals.append(targets_line(scene, runs.medians["proposed"], rates=False))
         view = runs.first_views
         figures.append(scene_figure(
-            run, f"static-{scene}.png", view["proposed"]["true"],
+            run, f"static-{scene}{run.suffix}.png", view["proposed"]["true"],
             [("reference", view["proposed"]["true"])]
             + [(label, view[label]["predicted"]) for label in labels],
             [(label, view[label]["predicted"]) for label in labels],
@@ -114,7 +118,7 @@ def deformation(run):
         goals.append(targets_line(scene, runs.medians["proposed"], runs.medians["deformed"]))
         view = runs.first_views
         figures.append(scene_figure(
-            run, f"deformation-{scene}.png", view["proposed"]["true"],
+            run, f"deformation-{scene}{run.suffix}.png", view["proposed"]["true"],
             [("deformed", view["deformed"]["predicted"]),
              ("proposed", view["proposed"]["predicted"]),
              ("reference", view["proposed"]["true"]), ("original", original[0])],
@@ -241,33 +245,67 @@ EXPERIMENTS = {"static": static, "deformation": deformation, "ablation": ablatio
                "per-pose": per_pose}
 
 
+def _slug(text):
+    return re.sub(r"\W+", "-", text).strip("-")
+
+
+def run_name(name, scenes, seeds, all_seeds):
+    """(section key, file name stem, figure suffix) of a run of experiment ``name``: a run
+    narrowed to some of its ``scenes`` or to fewer ``seeds`` than the size's ``all_seeds``
+    names them, so that it writes its own section, JSON and figures beside a run of the
+    whole experiment (``experiment deformation, spot, 1 seed``: ``deformation-spot-1-seed``
+    and ``deformation-spot-1-seed.png``; figure names hold their scene already)."""
+    scene_part = list(scenes) if set(scenes) != set(SCENES[name]) else []
+    seed_part = ([f"{len(seeds)} seed{'s' if len(seeds) > 1 else ''}"]
+                 if len(seeds) < len(all_seeds) else [])
+    parts = [name, *scene_part, *seed_part]
+    return ("experiment " + ", ".join(parts), _slug("-".join(parts)),
+            "".join(f"-{_slug(part)}" for part in seed_part))
+
+
+def ran_line(started, wall_s, threads):
+    """When and how a run ran: its UTC date and times, its wall time and the threads."""
+    end = started + datetime.timedelta(seconds=wall_s)
+    day = started.strftime("%Y-%m-%d") + ("" if end.date() == started.date()
+                                          else end.strftime("/%d"))
+    return (f"Ran on {day} from {started:%H:%M} to {end:%H:%M} UTC (wall "
+            f"{wall_s / 60:.0f} min, torch on {threads} thread{'s' if threads > 1 else ''}, "
+            f"{os.cpu_count()} CPU cores).")
+
+
 def run_experiment(name, results, quick=False, device="auto", progress=None, command=None,
                    scenes=None, seeds=None):
     """Runs experiment ``name`` and rewrites its section of the markdown file ``results``;
     figures and the JSON of every run go to the folder ``results/../results/``. ``scenes``
     (default: all of the experiment's) and ``seeds`` (how many of the size's seeds,
-    default all) narrow a run; the section says what ran."""
+    default all) narrow a run; a narrowed run has its own section and files
+    (``run_name``)."""
     size = dict(SIZES["quick" if quick else "full"])
     chosen = tuple(scenes or SCENES[name])
     unknown = sorted(set(chosen) - set(SCENES[name]))
     if unknown:
         raise VDNIFError(f"experiment {name} has no scene {', '.join(unknown)}: choose from "
                          f"{', '.join(SCENES[name])}")
+    if name == "per-pose":      # trains its models with seed 0 alone
+        size["seeds"] = size["seeds"][:1]
+    all_seeds = size["seeds"]
     if seeds is not None:
         size["seeds"] = size["seeds"][:max(1, seeds)]
+    section, stem, figure_suffix = run_name(name, chosen, size["seeds"], all_seeds)
     results = pathlib.Path(results)
     figures = results.parent / "results"
     figures.mkdir(parents=True, exist_ok=True)
+    started, clock = datetime.datetime.now(datetime.timezone.utc), time.monotonic()
     with tempfile.TemporaryDirectory(prefix="vdnif-experiment-") as scratch:
         records, lines = EXPERIMENTS[name](Experiment(size, scratch, figures, device,
-                                                      progress, chosen))
+                                                      progress, chosen, figure_suffix))
     settings = {key: size[key] for key in ("resolution", "poses", "rays_per_pose", "steps",
                                            "eval_poses", "width", "height")}
     # the training rays' mix is the recipe's at every size (generate_dataset's default)
     settings.update(size["overrides"], surface_fraction=RECIPE.surface_fraction,
                     grazing_fraction=RECIPE.grazing_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
-    write_json_atomic(figures / f"{name}.json", {"experiment": name, "settings": settings,
+    write_json_atomic(figures / f"{stem}.json", {"experiment": name, "settings": settings,
                                                  "scenes": list(chosen), "runs": records})
     command = command or shlex.join(
         ["python", "vdnif_addon/batch.py", "--", "experiment", name]
@@ -275,11 +313,13 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
         + (["--seeds", str(seeds)] if seeds is not None else []))
     body = [f"Command: `{command}`", "",
             "Settings: " + ", ".join(f"{k} {v}" for k, v in settings.items()) +
-            f". Every run's JSON: `{figures.name}/{name}.json`.", "", *lines]
+            f". Every run's JSON: `{figures.name}/{stem}.json`. "
+            + ran_line(started, time.monotonic() - clock, torch.get_num_threads()), "",
+            *lines]
     title = " ".join(EXPERIMENTS[name].__doc__.split())
     if set(chosen) != set(SCENES[name]):     # a narrowed run says which scenes it holds
         title += f" This run: {', '.join(chosen)}."
-    write_section(results, f"experiment {name}", f"{name}: {title}", body, RESULTS_PREAMBLE)
+    write_section(results, section, f"{name}: {title}", body, RESULTS_PREAMBLE)
     return records
 
 
