@@ -129,12 +129,34 @@ def test_distance_targets_follow_the_mode():
     torch.testing.assert_close(
         task_losses(outputs, batch, "fraction", 2.0)["distance"], torch.tensor(0.125)
     )
-    # log1p(t/l): the hit's fraction of its segment, whatever the voxel size
+    # log1p(t/l): the output is log1p of the hit's fraction of its segment, its error taken
+    # in that fraction (expm1(0) = 0 against 0.5), whatever the voxel size
     for h in (1e-3, 2.0, 1e3):
         torch.testing.assert_close(
             task_losses(outputs, batch, "log1p-fraction", h)["distance"],
-            torch.tensor(math.log1p(0.5) ** 2 / 2))
+            torch.tensor(0.5 ** 2 / 2))
+    exact = dict(outputs, distance=torch.tensor([math.log1p(0.5), 0.0, 9.0]))
+    assert task_losses(exact, batch, "log1p-fraction", 2.0)["distance"] < 1e-12
     assert task_losses(outputs, batch, "fraction", 2.0)["normal"] == 0
+
+
+def test_log_distance_error_weighs_far_and_near_hits_alike():
+    """An output 0.02 off in t/l costs the same near the segment's start and near its end,
+    where the error in log space would cost about a quarter as much; a miss's untrained
+    output, however large, leaves finite gradients."""
+    def loss(fraction, output_fraction):
+        batch = {"hit": torch.tensor([True, False]), "hit_frac": torch.tensor([fraction, 0.0]),
+                 "rest_len": torch.ones(2), "normal": torch.tensor([[0.0, 0.0, 1.0]] * 2)}
+        distance = torch.tensor([math.log1p(output_fraction), 500.0], requires_grad=True)
+        outputs = {"occlusion": torch.zeros(2), "distance": distance,
+                   "normal": torch.tensor([[0.0, 0.0, 1.0]] * 2)}
+        value = task_losses(outputs, batch, "log1p-fraction", 1.0)["distance"]
+        value.backward()
+        assert torch.isfinite(distance.grad).all()
+        return value.item()
+
+    near, far = loss(0.05, 0.07), loss(0.95, 0.97)
+    assert near == pytest.approx(far, rel=1e-4) and near == pytest.approx(0.02 ** 2, rel=1e-3)
 
 
 def test_uncertainty_weighting_equal_start_is_the_plain_sum_plus_its_log_variances():
