@@ -115,10 +115,12 @@ class UncertaintyWeighting(nn.Module):
 
 
 class FixedWeighting(nn.Module):
-    """The baselines' objective: the plain sum of the task losses (all weights 1)."""
+    """The baselines' objective: the plain sum of the task losses (all weights 1). It learns
+    no weights, so every ``start`` (checked, as for ``UncertaintyWeighting``) is the same."""
 
-    def __init__(self, tasks: Sequence[str]) -> None:
+    def __init__(self, tasks: Sequence[str], start: str = DEFAULT_WEIGHTING_START) -> None:
         super().__init__()
+        check_choice("weighting start", start, WEIGHTING_STARTS)
         self.tasks = tuple(tasks)
 
     def forward(self, losses: Mapping[str, torch.Tensor]) -> torch.Tensor:
@@ -137,6 +139,4 @@ def make_weighting(kind: str, tasks: Sequence[str], start: str = DEFAULT_WEIGHTI
     """``kind`` (one of ``settings.WEIGHTINGS``) over ``tasks``; the uncertainty weighting's
     log-variances start at ``start`` (one of ``settings.WEIGHTING_STARTS``)."""
     check_choice("weighting", kind, WEIGHTINGS)
-    if kind == "uncertainty":
-        return UncertaintyWeighting(tasks, start=start)
-    return WEIGHTING_CLASSES[kind](tasks)
+    return WEIGHTING_CLASSES[kind](tasks, start=start)
