@@ -72,4 +72,4 @@ if __name__ == "__main__":
     try:
         main()
     except VDNIFError as error:
-        sys.exit(f"error: {error}")
+        sys.exit(f"head_study: error: {error}")

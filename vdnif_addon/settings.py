@@ -76,8 +76,9 @@ POSE_SOURCES = ("random", "frames")
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
 DISTANCE_MODES = ("fraction", "log1p-fraction", "log1p")
 """``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l),
-scale-invariant, its error taken in t/l (``losses.distance_error``). ``log1p``: ReLU log1p(d/h), the proposed form of model files
-written before log1p-fraction (DESIGN section 8 says why it was replaced)."""
+scale-invariant, its error taken in t/l (``losses.distance_error``). ``log1p``: ReLU
+log1p(d/h), the proposed form of model files written before log1p-fraction (DESIGN section 8
+says why it was replaced)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
 WEIGHTING_STARTS = ("zero", "equal")
