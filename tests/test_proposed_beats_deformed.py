@@ -7,21 +7,21 @@ and large enough that the baseline predicts hits (at 1,500 steps it often predic
 none, and then there are no common pixels to compare on). The tolerance comes from the
 measured spread: with this size, seeds 0-4 (torch on one thread; ``python
 tests/test_proposed_beats_deformed.py`` prints them; measured after proposed's distance
-became log1p(t/l)) gave, against the true reference,
+error came to be taken in t/l) gave, against the true reference,
 
 | seed | common pixels | distance MAE ratio | normal error ratio | hit IoU deformed / proposed |
 | --- | --- | --- | --- | --- |
-| 0 | 394 | 0.585 | 0.571 | 0.693 / 0.859 |
-| 1 | 367 | 0.299 | 0.261 | 0.642 / 0.945 |
-| 2 | 302 | 0.189 | 0.181 | 0.566 / 0.957 |
-| 3 | 302 | 0.526 | 0.368 | 0.554 / 0.904 |
-| 4 | 338 | 0.359 | 0.312 | 0.625 / 0.897 |
+| 0 | 405 | 0.342 | 0.392 | 0.693 / 0.920 |
+| 1 | 368 | 0.186 | 0.263 | 0.642 / 0.934 |
+| 2 | 303 | 0.126 | 0.188 | 0.566 / 0.961 |
+| 3 | 303 | 0.312 | 0.309 | 0.554 / 0.914 |
+| 4 | 342 | 0.291 | 0.279 | 0.625 / 0.903 |
 
 (ratio: proposed / deformed on the common pixels). The test trains seed 0 and asks, against
-both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.59; with
-log1p(d/h) it was 0.68), a hit IoU gain of at least ``MIN_IOU_GAIN`` (below the smallest
-measured, 0.17; before the recipe merged the smallest was 0.31 and the bound 0.2) and at
-least ``MIN_COMMON_PIXELS`` common pixels (below the fewest measured, 302).
+both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.39; with
+the error in log space it was 0.59 and the bound 0.85) and a hit IoU gain of at least
+``MIN_IOU_GAIN`` (below the smallest measured, 0.23; in log space 0.17 and the bound 0.15)
+and at least ``MIN_COMMON_PIXELS`` common pixels (below the fewest measured, 303).
 """
 
 import sys
@@ -34,8 +34,8 @@ SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2
             # and no validation passes cost time.
             overrides=dict(batch_size=512, log2_table_size=12, width=32, val_fraction=0.0,
                            log_interval=2000))
-MAX_RATIO = {"distance_mae": 0.85, "normal_error_deg": 0.85}
-MIN_IOU_GAIN = 0.15
+MAX_RATIO = {"distance_mae": 0.6, "normal_error_deg": 0.6}
+MIN_IOU_GAIN = 0.2
 MIN_COMMON_PIXELS = 100
 
 
