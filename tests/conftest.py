@@ -2,9 +2,11 @@
 extension (``bl_ext.dev.vdnif``) with user resources in a temporary folder and an empty scene
 per test (BLENDER_NOTES.md)."""
 
+import atexit
 import importlib
 import os
 import pathlib
+import shutil
 import tempfile
 
 import pytest
@@ -14,18 +16,22 @@ EXTENSION_MODULE = "bl_ext.dev.vdnif"
 # The start of a script that enables the extension from this source tree in a fresh process
 # (``python -c``), with user resources in a temporary folder: tests append their checks.
 ENABLE_IN_FRESH_PROCESS = f"""
-import os, sys, tempfile
-os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp()
+import atexit, os, shutil, sys, tempfile
+os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="vdnif-user-")
+folder = tempfile.mkdtemp(prefix="vdnif-repo-")
+atexit.register(shutil.rmtree, os.environ["BLENDER_USER_RESOURCES"], True)
+atexit.register(shutil.rmtree, folder, True)  # unlinks the symlink, never follows it
 import bpy, addon_utils
-folder = tempfile.mkdtemp()
 os.symlink({str(REPO)!r}, os.path.join(folder, "vdnif"))
 bpy.context.preferences.extensions.repos.new(name="dev", module="dev",
                                              custom_directory=folder, source="USER")
 addon_utils.enable("{EXTENSION_MODULE}", default_set=True, handle_error=print)
 """
 
-# Must be set before bpy is first imported, so user preferences never touch the real home.
+# Must be set before bpy is first imported, so user preferences never touch the real home;
+# removed when the test process exits (every run left one behind in /tmp before).
 os.environ["BLENDER_USER_RESOURCES"] = tempfile.mkdtemp(prefix="vdnif-user-")
+atexit.register(shutil.rmtree, os.environ["BLENDER_USER_RESOURCES"], True)
 # Compiled kernels are cached inside the checkout (ignored by git), not in the user's home.
 os.environ.setdefault("VDNIF_KERNEL_CACHE", str(REPO / ".kernel-cache"))
 
@@ -39,6 +45,7 @@ def extension():
     import addon_utils
 
     repo_dir = tempfile.mkdtemp(prefix="vdnif-repo-")
+    atexit.register(shutil.rmtree, repo_dir, True)  # unlinks the symlink, never follows it
     os.symlink(REPO, os.path.join(repo_dir, "vdnif"))
     bpy.context.preferences.extensions.repos.new(
         name="dev", module="dev", custom_directory=repo_dir, source="USER")
