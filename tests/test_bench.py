@@ -73,9 +73,27 @@ def test_bench_quick_writes_every_output(tmp_path):
 
     out, presets, performance = tmp_path / "bench", tmp_path / "p.json", tmp_path / "perf.md"
     work = tmp_path / "work"
+    work.mkdir()
+    # another bench run on the same work folder is training point 3 (this process holds its
+    # lock): this run trains the other four, passes point 3 by and leaves the evaluation
+    # to the run that finishes last
+    other = bench.point_lock(work / "point-2.lock")
+    assert other is not None
+    with other:
+        code, printed, err = run_batch("bench", "--quick", "--out", out, "--presets", presets,
+                                       "--performance", performance, "--work", work,
+                                       timeout=600)
+    assert code == 0, err
+    assert sorted(p.name for p in work.glob("point-*.vdnif")) == [
+        f"point-{n}.vdnif" for n in (0, 1, 3, 4)]
+    assert "point 3 of 5 is training in another bench run" in err
+    assert "no outputs written by this run" in printed and not out.exists()
+    # the lock is free again (as when the other run stops): the next run trains point 3
+    # alone and evaluates every point
     code, printed, err = run_batch("bench", "--quick", "--out", out, "--presets", presets,
                                    "--performance", performance, "--work", work, timeout=600)
     assert code == 0, err
+    assert err.count("bench: point 3 of 5: ") == 1 and err.count("bench: point ") == 6
     rows = list(csv.DictReader(open(out / "bench.csv")))
     records = json.loads((out / "bench.json").read_text())
     assert len(rows) == 5 == len(records)
@@ -86,7 +104,7 @@ def test_bench_quick_writes_every_output(tmp_path):
     code, _, again = run_batch("bench", "--quick", "--out", out, "--presets", presets,
                                "--work", work, timeout=600)
     assert code == 0, again
-    assert "train: step" not in again and again.count("resumed from") == 5
+    assert "train: step" not in again and again.count("evaluated from") == 5
     for before, after in zip(records, json.loads((out / "bench.json").read_text())):
         for key in ("steps", "converged", "vs_true_hit_iou", "vs_true_distance_mae",
                     "vs_embedded_normal_error_deg", "vs_true_false_negative_rate"):

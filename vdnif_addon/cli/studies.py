@@ -69,6 +69,10 @@ def cmd_bench(args):
     work = args.work or pathlib.Path("out/bench-quick-work" if args.quick else "out/bench-work")
     rows, derived = run_bench(out, presets, work, performance, quick=args.quick,
                               device=args.device, progress=report_training)
+    if rows is None:        # another run on the same work folder evaluates every point
+        print(f"bench: trained this run's share of the points in {work}; no outputs written "
+              "by this run")
+        return 0
     print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
           + (f"-> {presets}" if derived is not None else f"n/a ({NO_PRESETS}; {presets} "
              "left as it was)")
@@ -263,8 +267,9 @@ def add_commands(commands):
                             "(default docs/performance.md; none with --quick)")
     sweep.add_argument("--work", type=pathlib.Path, metavar="DIR",
                        help="each point's model and training record; a stopped bench run "
-                            "again with the same folder trains only the unfinished points "
-                            "(default out/bench-work, out/bench-quick-work with --quick)")
+                            "again with the same folder trains only the unfinished points, "
+                            "and runs side by side on one folder share the points (default "
+                            "out/bench-work, out/bench-quick-work with --quick)")
     add_device_option(sweep)
     sweep.set_defaults(run=cmd_bench)
 

@@ -11,6 +11,7 @@ from them alone."""
 
 import csv
 import json
+import os
 import pathlib
 import shlex
 import sys
@@ -141,48 +142,44 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     section of ``performance``. Each point's model and training record stay in ``work``:
     a sweep that stopped (the full one trains for hours on a CPU) resumes there, training
     only the points not yet finished with the same settings, and evaluates every point again
-    in this run, so that the speeds are compared within one process. Returns (rows,
-    presets or None)."""
+    in this run, so that the speeds are compared within one process.
+
+    Several runs on one ``work`` folder share the training: a point being trained holds
+    its lock (``point_lock``), and the others pass it by. A run that finds, after its own
+    points, one still training in another run stops there; the run that finishes last
+    evaluates every point, alone. Returns (rows, presets or None), or (None, None) when this
+    run left the evaluation to another."""
     size = SIZES["quick" if quick else "full"]
     out, work = pathlib.Path(out), pathlib.Path(work)
-    out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     obj = demo_scene("arm")
     spec = PoseSpec(count=size["poses"])
     points = sweep_points(size["base"], size["axes"])
-    rows, runs = [], []
     with tempfile.TemporaryDirectory(prefix="vdnif-bench-") as scratch:
-        scratch = pathlib.Path(scratch)
-        scenes = {resolution: evaluation_poses(obj, resolution, spec, count=size["eval_poses"])
-                  for resolution in sorted({p["resolution"] for p in points})}
-        for number, point in enumerate(points):
-            print(f"bench: point {number + 1} of {len(points)}: {_label(point)}",
-                  file=sys.stderr, flush=True)
-            model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
-            record = finished_point(path, model, size, point)
-            if record is None:
-                # a resolution's dataset is built when its first point trains, so that a
-                # resumed sweep builds none for the points it only evaluates
-                data = scratch / f"r{point['resolution']}"
-                if not data.exists():
-                    captured = capture(obj, point["resolution"], spec, deform_corners=False)
-                    variant_dataset(obj, captured, "proposed", data, size["rays_per_pose"])
-                record = _train_point(data, model, size, point, device, progress)
-                write_json_atomic(path, record)
-            else:
-                print(f"bench: point {number + 1} resumed from {model} ({record['steps']:,} "
-                      "steps)", file=sys.stderr, flush=True)
-            evaluated = scenes[point["resolution"]]
-            report, views = evaluate_file(obj, evaluated, model, size["width"],
-                                          size["height"], device)
-            rows.append(_row(dict(point, steps=record["steps"],
-                                  converged=record["converged"]), report))
-            runs.append((concatenated(views), evaluated.grid.voxel_size))
-        _add_common(rows, runs, evaluated.mesh)
+        busy = _train_points(obj, spec, size, points, range(len(points)), work,
+                             pathlib.Path(scratch), device, progress)
+        # a point another run was training when this one passed it: finished since, or
+        # left by a run that stopped (its lock went with it), which this run trains now
+        busy = _train_points(obj, spec, size, points, busy, work, pathlib.Path(scratch),
+                             device, progress)
+    if busy:
+        print(f"bench: point{'s' if len(busy) > 1 else ''} "
+              f"{', '.join(str(n + 1) for n in busy)} still training in another bench run on "
+              f"{work}; this run trained its share and stops: the run that finishes last "
+              "evaluates every point", file=sys.stderr, flush=True)
+        return None, None
+    evaluation = point_lock(work / "evaluate.lock")
+    if evaluation is None:
+        print(f"bench: another bench run on {work} is evaluating every point; this run stops",
+              file=sys.stderr, flush=True)
+        return None, None
+    with evaluation:
+        rows = _evaluate_points(obj, spec, size, points, work, device)
     # No presets from models that do not predict hits: the presets file is then left as it
     # was, and the section says why.
     presets = (derive_presets(rows, ERROR)
                if any(row["speed_withheld"] is None for row in rows) else None)
+    out.mkdir(parents=True, exist_ok=True)
     write_outputs(out, rows)
     if presets is not None:
         write_json_atomic(presets_path, {"source": "bench" + (" --quick" if quick else ""),
@@ -194,6 +191,78 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
                       sweep_markdown(rows, presets, size, command, out, performance),
                       PERFORMANCE_PREAMBLE)
     return rows, presets
+
+
+def _train_points(obj, spec, size, points, numbers, work, scratch, device, progress):
+    """Trains the points ``numbers`` not yet finished in ``work`` whose lock this run gets;
+    returns the numbers of those another run holds (being trained there)."""
+    busy = []
+    for number in numbers:
+        point = points[number]
+        model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
+        if finished_point(path, model, size, point) is not None:
+            continue
+        lock = point_lock(work / f"point-{number}.lock")
+        if lock is None:
+            print(f"bench: point {number + 1} of {len(points)} is training in another bench "
+                  "run; passed by", file=sys.stderr, flush=True)
+            busy.append(number)
+            continue
+        with lock:
+            if finished_point(path, model, size, point) is not None:
+                continue        # another run finished it between the two looks
+            print(f"bench: point {number + 1} of {len(points)}: {_label(point)}",
+                  file=sys.stderr, flush=True)
+            # a resolution's dataset is built when its first point trains here, so that a
+            # resumed sweep builds none for the points it only evaluates
+            data = scratch / f"r{point['resolution']}"
+            if not data.exists():
+                captured = capture(obj, point["resolution"], spec, deform_corners=False)
+                variant_dataset(obj, captured, "proposed", data, size["rays_per_pose"])
+            write_json_atomic(path, _train_point(data, model, size, point, device, progress))
+    return busy
+
+
+def _evaluate_points(obj, spec, size, points, work, device):
+    """Every point's model evaluated on the unseen poses of its resolution, in this one
+    process; the rows of the CSV with the common-set errors added."""
+    scenes = {resolution: evaluation_poses(obj, resolution, spec, count=size["eval_poses"])
+              for resolution in sorted({p["resolution"] for p in points})}
+    rows, runs = [], []
+    for number, point in enumerate(points):
+        model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
+        record = finished_point(path, model, size, point)
+        print(f"bench: point {number + 1} of {len(points)} evaluated from {model} "
+              f"({record['steps']:,} steps)", file=sys.stderr, flush=True)
+        evaluated = scenes[point["resolution"]]
+        report, views = evaluate_file(obj, evaluated, model, size["width"], size["height"],
+                                      device)
+        rows.append(_row(dict(point, steps=record["steps"], converged=record["converged"]),
+                         report))
+        runs.append((concatenated(views), evaluated.grid.voxel_size))
+    _add_common(rows, runs, evaluated.mesh)
+    return rows
+
+
+def point_lock(path):
+    """The open lock file ``path`` when this process gets its exclusive lock (a context
+    manager: closing the file releases it), else None while another process holds it. The
+    operating system drops the lock when its process ends, however it ends, so a stopped
+    run leaves no stale lock; the file itself stays (removing a locked file would let a
+    third process lock a new file of the same name)."""
+    file = open(path, "a+b")
+    try:
+        if os.name == "nt":
+            import msvcrt
+            file.seek(0)
+            msvcrt.locking(file.fileno(), msvcrt.LK_NBLCK, 1)
+        else:
+            import fcntl
+            fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        file.close()
+        return None
+    return file
 
 
 def _train_point(data, model, size, point, device, progress):
