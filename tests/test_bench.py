@@ -11,6 +11,7 @@ from test_batch import run_batch
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.metrics import speed_withheld
 from vdnif_addon.presets import PRESETS_FILE, SETTINGS, derive_presets, load_presets, pareto_front
+from vdnif_addon.safe_io import exclusive_lock
 
 
 def test_pareto_front_keeps_only_undominated_points():
@@ -77,7 +78,7 @@ def test_bench_quick_writes_every_output(tmp_path):
     # another bench run on the same work folder is training point 3 (this process holds its
     # lock): this run trains the other four, passes point 3 by and leaves the evaluation
     # to the run that finishes last
-    other = bench.point_lock(work / "point-2.lock")
+    other = exclusive_lock(work / "point-2.lock")
     assert other is not None
     with other:
         code, printed, err = run_batch("bench", "--quick", "--out", out, "--presets", presets,

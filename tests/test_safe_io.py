@@ -3,9 +3,12 @@ nothing replaced by a failing write, strict JSON; the dataset folder's manifest.
 
 import json
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from conftest import REPO
 
 from vdnif_addon import dataset
 from vdnif_addon.errors import VDNIFError
@@ -13,6 +16,7 @@ from vdnif_addon.safe_io import (
     atomic_path,
     check_output_file,
     check_output_folder,
+    exclusive_lock,
     write_bytes_atomic,
     write_json_atomic,
 )
@@ -104,6 +108,34 @@ def _header(name="Ball", seed=0):
             "extent": 1.0}
     return {"object": name, "grid": grid, "voxel_size": 0.125, "seed": seed,
             "poses": [{"frame": 1.0}], "pose_range": [0, 1]}
+
+
+def test_an_exclusive_lock_has_one_holder_until_it_is_closed_or_its_process_ends(tmp_path):
+    path = tmp_path / "point-0.lock"
+    first = exclusive_lock(path)
+    assert first is not None
+    assert exclusive_lock(path) is None            # held: another open file cannot take it
+    with first:
+        pass
+    second = exclusive_lock(path)                  # closing released it
+    assert second is not None
+    second.close()
+    # a process that holds it and is killed leaves no stale lock
+    script = (f"import sys; sys.path.insert(0, {str(REPO)!r}); "
+              "from vdnif_addon.safe_io import exclusive_lock; "
+              f"lock = exclusive_lock({str(path)!r}); print(lock is not None, flush=True); "
+              "import time; time.sleep(60)")
+    holder = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "True"
+        assert exclusive_lock(path) is None
+    finally:
+        holder.kill()
+        holder.wait()
+    third = exclusive_lock(path)
+    assert third is not None
+    third.close()
+    assert path.exists()                            # the file stays; only the lock goes
 
 
 def test_a_dataset_folder_refuses_a_shard_of_another_object_or_seed(tmp_path):

@@ -7,6 +7,9 @@ behind; a symlink at the target is replaced, never written through.
 ``check_output_file`` / ``check_output_folder`` say before any long work whether an output
 place can be written at all, so that a bad ``--json`` or ``--out`` is refused in a second,
 not after the training.
+
+``exclusive_lock`` lets processes that share a work folder (``bench`` runs side by side) each
+take a different piece of the work.
 """
 
 from __future__ import annotations
@@ -155,3 +158,24 @@ def write_json_atomic(path: str | os.PathLike, data: Any, what: str = "JSON file
                       indent: int = 2) -> pathlib.Path:
     """Writes ``data`` as strict JSON to ``path`` atomically."""
     return write_text_atomic(path, json_text(data, f"{what} '{path}'", indent), what)
+
+
+def exclusive_lock(path: str | os.PathLike):
+    """The open lock file ``path`` when this process gets its exclusive lock (a context
+    manager: closing the file releases it), else None while another open file holds it.
+    The operating system drops the lock when its process ends, however it ends, so a
+    stopped run leaves no stale lock; the file itself stays (removing a locked file would
+    let a third process lock a new file of the same name)."""
+    file = open(path, "a+b")
+    try:
+        if os.name == "nt":
+            import msvcrt
+            file.seek(0)
+            msvcrt.locking(file.fileno(), msvcrt.LK_NBLCK, 1)
+        else:
+            import fcntl
+            fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        file.close()
+        return None
+    return file

@@ -11,7 +11,6 @@ from them alone."""
 
 import csv
 import json
-import os
 import pathlib
 import shlex
 import sys
@@ -27,7 +26,7 @@ from ..evaluation import compare_common, concatenated
 from ..fit import fit_model
 from ..metrics import SPEED_MIN_HIT_IOU
 from ..presets import SETTINGS, derive_presets, pareto_front
-from ..safe_io import atomic_path, write_json_atomic
+from ..safe_io import atomic_path, exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig, PoseSpec
 from ..text import percent, value
 from .report import write_section
@@ -145,10 +144,10 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     in this run, so that the speeds are compared within one process.
 
     Several runs on one ``work`` folder share the training: a point being trained holds
-    its lock (``point_lock``), and the others pass it by. A run that finds, after its own
-    points, one still training in another run stops there; the run that finishes last
-    evaluates every point, alone. Returns (rows, presets or None), or (None, None) when this
-    run left the evaluation to another."""
+    its lock (``safe_io.exclusive_lock``), and the others pass it by. A run that finds,
+    after its own points, one still training in another run stops there; the run that
+    finishes last evaluates every point, alone. Returns (rows, presets or None), or
+    (None, None) when this run left the evaluation to another."""
     size = SIZES["quick" if quick else "full"]
     out, work = pathlib.Path(out), pathlib.Path(work)
     work.mkdir(parents=True, exist_ok=True)
@@ -168,7 +167,7 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
               f"{work}; this run trained its share and stops: the run that finishes last "
               "evaluates every point", file=sys.stderr, flush=True)
         return None, None
-    evaluation = point_lock(work / "evaluate.lock")
+    evaluation = exclusive_lock(work / "evaluate.lock")
     if evaluation is None:
         print(f"bench: another bench run on {work} is evaluating every point; this run stops",
               file=sys.stderr, flush=True)
@@ -202,7 +201,7 @@ def _train_points(obj, spec, size, points, numbers, work, scratch, device, progr
         model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
         if finished_point(path, model, size, point) is not None:
             continue
-        lock = point_lock(work / f"point-{number}.lock")
+        lock = exclusive_lock(work / f"point-{number}.lock")
         if lock is None:
             print(f"bench: point {number + 1} of {len(points)} is training in another bench "
                   "run; passed by", file=sys.stderr, flush=True)
@@ -242,27 +241,6 @@ def _evaluate_points(obj, spec, size, points, work, device):
         runs.append((concatenated(views), evaluated.grid.voxel_size))
     _add_common(rows, runs, evaluated.mesh)
     return rows
-
-
-def point_lock(path):
-    """The open lock file ``path`` when this process gets its exclusive lock (a context
-    manager: closing the file releases it), else None while another process holds it. The
-    operating system drops the lock when its process ends, however it ends, so a stopped
-    run leaves no stale lock; the file itself stays (removing a locked file would let a
-    third process lock a new file of the same name)."""
-    file = open(path, "a+b")
-    try:
-        if os.name == "nt":
-            import msvcrt
-            file.seek(0)
-            msvcrt.locking(file.fileno(), msvcrt.LK_NBLCK, 1)
-        else:
-            import fcntl
-            fcntl.flock(file.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        file.close()
-        return None
-    return file
 
 
 def _train_point(data, model, size, point, device, progress):
