@@ -15,6 +15,7 @@ take a different piece of the work.
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import math
 import os
@@ -160,7 +161,7 @@ def write_json_atomic(path: str | os.PathLike, data: Any, what: str = "JSON file
     return write_text_atomic(path, json_text(data, f"{what} '{path}'", indent), what)
 
 
-def exclusive_lock(path: str | os.PathLike):
+def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
     """The open lock file ``path`` when this process gets its exclusive lock (a context
     manager: closing the file releases it), else None while another open file holds it.
     The operating system drops the lock when its process ends, however it ends, so a
