@@ -155,12 +155,12 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     spec = PoseSpec(count=size["poses"])
     points = sweep_points(size["base"], size["axes"])
     with tempfile.TemporaryDirectory(prefix="vdnif-bench-") as scratch:
-        busy = _train_points(obj, spec, size, points, range(len(points)), work,
-                             pathlib.Path(scratch), device, progress)
+        scratch = pathlib.Path(scratch)
+        busy = _train_points(obj, spec, size, points, range(len(points)), work, scratch,
+                             device, progress)
         # a point another run was training when this one passed it: finished since, or
         # left by a run that stopped (its lock went with it), which this run trains now
-        busy = _train_points(obj, spec, size, points, busy, work, pathlib.Path(scratch),
-                             device, progress)
+        busy = _train_points(obj, spec, size, points, busy, work, scratch, device, progress)
     if busy:
         print(f"bench: point{'s' if len(busy) > 1 else ''} "
               f"{', '.join(str(n + 1) for n in busy)} still training in another bench run on "
@@ -192,13 +192,18 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     return rows, presets
 
 
+def _point_files(work, number):
+    """(model file, training record) of sweep point ``number`` in ``work``."""
+    return work / f"point-{number}.vdnif", work / f"point-{number}.json"
+
+
 def _train_points(obj, spec, size, points, numbers, work, scratch, device, progress):
     """Trains the points ``numbers`` not yet finished in ``work`` whose lock this run gets;
     returns the numbers of those another run holds (being trained there)."""
     busy = []
     for number in numbers:
         point = points[number]
-        model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
+        model, path = _point_files(work, number)
         if finished_point(path, model, size, point) is not None:
             continue
         lock = exclusive_lock(work / f"point-{number}.lock")
@@ -229,7 +234,7 @@ def _evaluate_points(obj, spec, size, points, work, device):
               for resolution in sorted({p["resolution"] for p in points})}
     rows, runs = [], []
     for number, point in enumerate(points):
-        model, path = work / f"point-{number}.vdnif", work / f"point-{number}.json"
+        model, path = _point_files(work, number)
         record = finished_point(path, model, size, point)
         print(f"bench: point {number + 1} of {len(points)} evaluated from {model} "
               f"({record['steps']:,} steps)", file=sys.stderr, flush=True)
