@@ -36,7 +36,7 @@ class Recipe:
     grazing_fraction: float = 0.3
     # 9,000, not 3,000: on the three-material bunny (8 unseen poses at 256x256, seed 0, vs
     # true) 3,000 steps left holes 0.79 %, extras 0.66 %, 0.0267 object units and 15.3 deg;
-    # 9,000 give 0.26 % / 0.38 % / 0.0109 / 9.9 deg with the same data (docs/results.md).
+    # 9,000 give 0.26 % / 0.38 % / 0.0109 / 9.9 deg with the same data (docs/results-history.md).
     steps: int = 9000
     batch_size: int = 2**14
 
