@@ -10,7 +10,14 @@ from test_batch import run_batch
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.metrics import speed_withheld
-from vdnif_addon.presets import PRESETS_FILE, SETTINGS, derive_presets, load_presets, pareto_front
+from vdnif_addon.presets import (
+    PRESET_ERROR,
+    PRESETS_FILE,
+    SETTINGS,
+    derive_presets,
+    load_presets,
+    pareto_front,
+)
 from vdnif_addon.safe_io import exclusive_lock
 
 
@@ -46,8 +53,7 @@ def test_shipped_presets_come_from_a_full_sweep():
     assert presets["fast"]["measured"]["render_rays_per_s"] >= \
         presets["balanced"]["measured"]["render_rays_per_s"] >= \
         presets["accurate"]["measured"]["render_rays_per_s"]
-    errors = [presets[name]["measured"]["vs_true_distance_mae"]
-              for name in ("fast", "balanced", "accurate")]
+    errors = [presets[name]["measured"][PRESET_ERROR] for name in ("fast", "balanced", "accurate")]
     assert errors == sorted(errors, reverse=True)
 
 
@@ -56,8 +62,16 @@ def test_shipped_presets_are_the_front_of_the_points_that_predict_hits():
     predict hits (hit IoU >= 0.9 against the true reference) have a speed."""
     shipped = json.loads(PRESETS_FILE.read_text())
     rows = json.loads((REPO / "docs" / "bench" / "bench.json").read_text())
-    assert any(speed_withheld(row["vs_true_hit_iou"]) for row in rows), "a point is left out"
-    assert derive_presets(rows, shipped["error"]) == shipped["presets"]
+    assert shipped["error"] == PRESET_ERROR
+    assert derive_presets(rows, PRESET_ERROR) == shipped["presets"]
+    # the same sweep with its most accurate point no longer predicting hits: that point
+    # drops out of the presets (every point of the converged sweep predicts hits)
+    best = min((row for row in rows if speed_withheld(row["vs_true_hit_iou"]) is None),
+               key=lambda row: row[PRESET_ERROR])
+    best["vs_true_hit_iou"] = 0.5
+    accurate = derive_presets(rows, PRESET_ERROR)["accurate"]
+    assert accurate["measured"][PRESET_ERROR] > shipped["presets"]["accurate"]["measured"][
+        PRESET_ERROR]
 
 
 def test_bad_presets_files_are_refused(tmp_path):
@@ -67,6 +81,19 @@ def test_bad_presets_files_are_refused(tmp_path):
         load_presets(broken)
     with pytest.raises(VDNIFError, match="cannot be read"):
         load_presets(tmp_path / "missing.json")
+    # a file an older bench wrote, its presets measured by another error
+    older = json.loads(PRESETS_FILE.read_text())
+    older["error"] = "vs_true_distance_mae"
+    for preset in older["presets"].values():
+        preset["measured"] = {"vs_true_distance_mae": 0.01, "render_rays_per_s": 1e5}
+    broken.write_text(json.dumps(older))
+    with pytest.raises(VDNIFError, match="measured common_vs_true_distance_mae"):
+        load_presets(broken)
+    older["presets"] = json.loads(PRESETS_FILE.read_text())["presets"]
+    broken.write_text(json.dumps(older))
+    with pytest.raises(VDNIFError, match="by 'vs_true_distance_mae', not "
+                                         "'common_vs_true_distance_mae': run bench again"):
+        load_presets(broken)
 
 
 def test_bench_quick_writes_every_output(tmp_path):

@@ -36,4 +36,4 @@ def test_the_target_is_a_share_of_a_presets_measured_error(core):
     presets = core("presets").load_presets()
     resolution = core("blender.resolution")
     assert resolution.network_error("fast") == (
-        presets["fast"]["measured"]["vs_true_distance_mae"])
+        presets["fast"]["measured"][core("presets").PRESET_ERROR])

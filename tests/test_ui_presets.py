@@ -12,10 +12,12 @@ def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene
     presets = core("presets")
     settings = dict(resolution=16, levels=4, log2_table_size=18, pe_bands=6, width=128,
                     steps=3000)
-    chosen = {name: dict(settings, width=16 * (i + 1), measured={"error": 0.1})
+    measured = {presets.PRESET_ERROR: 0.1, "render_rays_per_s": 1e5}
+    chosen = {name: dict(settings, width=16 * (i + 1), measured=measured)
               for i, name in enumerate(presets.PRESET_NAMES)}
     path = tmp_path / "presets.json"
-    path.write_text(json.dumps({"presets": chosen}))
+    path.write_text(json.dumps({"source": "bench", "error": presets.PRESET_ERROR,
+                                "presets": chosen}))
     monkeypatch.setattr(presets, "PRESETS_FILE", path)
     bpy.ops.mesh.primitive_cube_add()
     obj = bpy.context.active_object

@@ -16,6 +16,10 @@ from .metrics import speed_withheld
 PRESETS_FILE = pathlib.Path(__file__).with_name("presets.json")
 PRESET_NAMES = ("fast", "balanced", "accurate")
 SETTINGS = ("resolution", "levels", "log2_table_size", "pe_bands", "width", "steps")
+PRESET_ERROR = "common_vs_true_distance_mae"
+"""The error the presets' front minimizes and each preset's ``measured`` holds: distance MAE
+against the true reference (object units) over the common pixel set of the sweep's points
+that predict hits (DESIGN section 10). A presets file names it as its ``error``."""
 
 
 def pareto_front(error: Sequence[float], cost: Sequence[float]) -> list[int]:
@@ -63,14 +67,21 @@ def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
 
 def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, Any]]:
     """The presets written by ``bench`` (default: the shipped file); a missing or malformed
-    file raises VDNIFError."""
+    file, or one whose presets measured another error than PRESET_ERROR (an older bench's),
+    raises VDNIFError."""
     path = pathlib.Path(path or PRESETS_FILE)
     try:
-        presets = json.loads(path.read_text())["presets"]
+        data = json.loads(path.read_text())
+        presets = data["presets"]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise VDNIFError(f"presets file '{path}' cannot be read: {exc}") from None
-    if set(presets) != set(PRESET_NAMES) or any(
-            set(SETTINGS) - set(preset) for preset in presets.values()):
+    if not isinstance(presets, dict) or set(presets) != set(PRESET_NAMES) or any(
+            not isinstance(preset, dict) or set(SETTINGS) - set(preset)
+            or not isinstance(preset.get("measured"), dict)
+            or PRESET_ERROR not in preset["measured"] for preset in presets.values()):
         raise VDNIFError(f"presets file '{path}' does not hold {', '.join(PRESET_NAMES)} "
-                         f"with {', '.join(SETTINGS)}")
+                         f"with {', '.join(SETTINGS)} and a measured {PRESET_ERROR}")
+    if data.get("error") != PRESET_ERROR:
+        raise VDNIFError(f"presets file '{path}' measures its presets by "
+                         f"{data.get('error')!r}, not {PRESET_ERROR!r}: run bench again")
     return presets

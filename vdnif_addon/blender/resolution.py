@@ -9,7 +9,7 @@ the error its settings measured on a bench scene (``presets.json``, written by `
 
 import dataclasses
 
-from ..presets import load_presets
+from ..presets import PRESET_ERROR, load_presets
 from ..settings import (
     EMBEDDING_ERROR_SHARE,
     RESOLUTION_CANDIDATES,
@@ -22,10 +22,10 @@ from .generate import reference_run
 
 
 def network_error(preset=SUGGEST_PRESET, presets=None):
-    """The distance MAE (object units, against the true reference) that ``preset``'s
-    settings measured in the sweep that derived the presets."""
+    """The distance MAE (object units, against the true reference, ``PRESET_ERROR``) that
+    ``preset``'s settings measured in the sweep that derived the presets."""
     chosen = (presets or load_presets())[preset]
-    return float(chosen["measured"]["vs_true_distance_mae"])
+    return float(chosen["measured"][PRESET_ERROR])
 
 
 def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,

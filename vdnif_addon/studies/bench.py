@@ -25,7 +25,7 @@ from ..blender.scenes import demo_scene
 from ..evaluation import compare_common, concatenated
 from ..fit import fit_model
 from ..metrics import SPEED_MIN_HIT_IOU
-from ..presets import SETTINGS, derive_presets, pareto_front
+from ..presets import PRESET_ERROR, SETTINGS, derive_presets, pareto_front
 from ..safe_io import atomic_path, exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig, PoseSpec
 from ..text import percent, value
@@ -58,9 +58,7 @@ SIZES = {
 # the occlusion accuracy enters as its error, the share of misclassified segments.
 WATCHED = ("occlusion_error", "distance_mae_voxels", "normal_error_deg", "material_error",
            "loss/albedo")
-# The error the front and the presets minimize: against the true reference, over the common
-# pixel set of the points that predict hits.
-ERROR = "common_vs_true_distance_mae"
+ERROR = PRESET_ERROR      # what the front and the presets minimize
 METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
            "false_negative_rate", "false_positive_rate")
 COMMON_METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg")
