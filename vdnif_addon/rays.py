@@ -146,7 +146,7 @@ def training_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray
       ``surface_normals`` (S, 3)), tilted out of the tangent plane by an angle uniform in
       +-``grazing_tilt_deg``; they start outside the sphere below. Silhouette rays: the
       holes and extras of a network trained without them are grazing rays that dip into, or
-      pass just by, an edge (/work/shared/docs/HOLES.md measured 77 % of holes at more than
+      pass just by, an edge (docs/HOLES.md measured 77 % of holes at more than
       75 deg to the normal);
     - round(count * surface_fraction) rays from the sphere aimed at a random surface point;
     - the rest from the sphere aimed at a uniform random point in the box.
