@@ -211,9 +211,9 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     assert [r["render_rays_per_s"] for r in rows] == [3000.0, 1000.0, None]
     assert [r["common_vs_true_compared_rays"] for r in rows] == [18, 18, None]
     assert rows[1]["vs_true_distance_mae"] == pytest.approx(0.08)      # its own pixels
-    assert [r[bench.ERROR] for r in rows[:2]] == pytest.approx([0.1, 0.05])
-    assert rows[2][bench.ERROR] is None
-    presets = derive_presets(rows, bench.ERROR)
+    assert [r[PRESET_ERROR] for r in rows[:2]] == pytest.approx([0.1, 0.05])
+    assert rows[2][PRESET_ERROR] is None
+    presets = derive_presets(rows, PRESET_ERROR)
     assert presets["fast"]["width"] == 32 and presets["accurate"]["width"] == 64
     bench.write_outputs(tmp_path, rows)
     assert (tmp_path / "pareto.png").stat().st_size > 10_000

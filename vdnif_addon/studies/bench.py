@@ -58,7 +58,6 @@ SIZES = {
 # the occlusion accuracy enters as its error, the share of misclassified segments.
 WATCHED = ("occlusion_error", "distance_mae_voxels", "normal_error_deg", "material_error",
            "loss/albedo")
-ERROR = PRESET_ERROR      # what the front and the presets minimize
 METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
            "false_negative_rate", "false_positive_rate")
 COMMON_METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg")
@@ -174,13 +173,14 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
         rows = _evaluate_points(obj, spec, size, points, work, device)
     # No presets from models that do not predict hits: the presets file is then left as it
     # was, and the section says why.
-    presets = (derive_presets(rows, ERROR)
+    presets = (derive_presets(rows, PRESET_ERROR)
                if any(row["speed_withheld"] is None for row in rows) else None)
     out.mkdir(parents=True, exist_ok=True)
     write_outputs(out, rows)
     if presets is not None:
         write_json_atomic(presets_path, {"source": "bench" + (" --quick" if quick else ""),
-                                         "error": ERROR, "presets": presets}, "presets file")
+                                         "error": PRESET_ERROR, "presets": presets},
+                          "presets file")
     if performance is not None:
         command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
                                         + (["--quick"] if quick else []))
@@ -321,8 +321,9 @@ def _plot(path, rows):
     matplotlib.use("Agg")
     from matplotlib import pyplot
 
-    usable = [r for r in rows if r[ERROR] is not None and r["render_rays_per_s"] is not None]
-    error = [r[ERROR] for r in usable]
+    usable = [r for r in rows
+              if r[PRESET_ERROR] is not None and r["render_rays_per_s"] is not None]
+    error = [r[PRESET_ERROR] for r in usable]
     figure, axes = pyplot.subplots(1, 2, figsize=(11, 4.2))
     if not usable:                      # no point to put on a log scale: say why
         for ax in axes:
@@ -420,13 +421,14 @@ def sweep_markdown(rows, presets, size, command, out, performance):
     if presets is None:
         return lines + [f"Presets: n/a, {NO_PRESETS}.", "",
                         f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
-    lines += [f"Presets (the panel's preset menu), from the front of {ERROR} vs render speed:",
+    lines += [f"Presets (the panel's preset menu), from the front of {PRESET_ERROR} vs render "
+              "speed:",
               "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s |",
               "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
     for name, preset in presets.items():
         measured = preset["measured"]
         lines.append(f"| {name} | " + " | ".join(str(preset[k]) for k in SETTINGS)
-                     + f" | {value(measured[ERROR])} | "
+                     + f" | {value(measured[PRESET_ERROR])} | "
                      f"{measured['render_rays_per_s']:,.0f} |")
     lines += ["", f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
     return lines
