@@ -3,7 +3,8 @@
 import bpy
 from bpy.props import EnumProperty
 
-from ..vdnif_addon.presets import PRESET_NAMES, SETTINGS, load_presets
+from ..vdnif_addon.errors import VDNIFError
+from ..vdnif_addon.presets import PRESET_NAMES, SETTINGS, describe_preset, load_presets
 from .common import VDNIFOperator
 
 
@@ -17,12 +18,19 @@ class VDNIF_OT_apply_preset(VDNIFOperator, bpy.types.Operator):
 
     preset: EnumProperty(name="Preset", items=[(name, name.title(), "") for name in PRESET_NAMES])
 
+    @classmethod
+    def description(cls, context, properties):
+        """The tooltip: the preset's settings and what bench measured with them."""
+        try:
+            return describe_preset(properties.preset, load_presets()[properties.preset])
+        except VDNIFError as error:
+            return f"{cls.__doc__}. {error}"
+
     def work(self, context, obj):
         chosen = load_presets()[self.preset]
         for name in SETTINGS:
             setattr(obj.vdnif, name, chosen[name])
-        measured = ", ".join(f"{key} {value:.4g}" for key, value in chosen["measured"].items())
-        return f"'{obj.name}': preset {self.preset} ({measured})"
+        return f"'{obj.name}': {describe_preset(self.preset, chosen)}"
 
 
 classes = (VDNIF_OT_apply_preset,)

@@ -1,6 +1,7 @@
 """The panel's preset menu applies the presets the bench command measured."""
 
 import json
+import types
 
 import pytest
 
@@ -25,7 +26,16 @@ def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene
     for name, value in chosen["balanced"].items():
         if name != "measured":
             assert getattr(obj.vdnif, name) == value, name
+    # The button's tooltip gives the settings and bench's figures, in the panel's words.
+    tooltip = bpy.types.VDNIF_OT_apply_preset.description(
+        bpy.context, types.SimpleNamespace(preset="balanced"))
+    assert tooltip == ("Balanced: resolution 16, 4 hash-grid levels of 2^18 entries, 6 "
+                       "positional-encoding bands, width 32, 3,000 steps; bench measured a "
+                       "distance error of 0.1 object units and 100,000 rays/s")
     path.write_text("{}")
     with pytest.raises(RuntimeError, match="presets file .* cannot be read"):
         bpy.ops.vdnif.apply_preset(preset="fast")
     assert "'Cube'" in obj.vdnif.last_error and obj.vdnif.width == 32
+    tooltip = bpy.types.VDNIF_OT_apply_preset.description(
+        bpy.context, types.SimpleNamespace(preset="fast"))
+    assert tooltip.startswith("Set resolution") and "cannot be read" in tooltip

@@ -65,6 +65,18 @@ def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
             for name, i in chosen.items()}
 
 
+def describe_preset(name: str, preset: dict[str, Any]) -> str:
+    """One line for the panel's tooltip and the Apply Preset report: ``preset``'s settings in
+    the panel's words and what ``bench`` measured with them (PRESET_ERROR, rays/s)."""
+    measured = preset["measured"]
+    speed = measured.get("render_rays_per_s")
+    return (f"{name.title()}: resolution {preset['resolution']}, {preset['levels']} hash-grid "
+            f"levels of 2^{preset['log2_table_size']} entries, {preset['pe_bands']} "
+            f"positional-encoding bands, width {preset['width']}, {preset['steps']:,} steps; "
+            f"bench measured a distance error of {measured[PRESET_ERROR]:.3g} object units"
+            + (f" and {speed:,.0f} rays/s" if speed else ""))
+
+
 def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, Any]]:
     """The presets written by ``bench`` (default: the shipped file); a missing or malformed
     file, or one whose presets measured another error than PRESET_ERROR (an older bench's),
