@@ -17,6 +17,7 @@ import sys
 import tempfile
 import threading
 
+import numpy as np
 import torch
 
 from ..blender.capture import capture
@@ -342,13 +343,17 @@ def _plot(path, rows):
         ax.scatter(x, error, color="0.6", label="sweep point")
         ax.plot([x[i] for i in front], [error[i] for i in front], "o-", color="C3",
                 label="Pareto front")
+        # A label runs to the right of its point, or to the left in the right third of the
+        # (log) axis: about 30 characters at 6 pt would otherwise leave the figure.
+        lo, hi = np.log(min(x)), np.log(max(x))
         for r, xv, yv in zip(usable, x, error):
-            ax.annotate(_label(r), (xv, yv), fontsize=6, xytext=(3, 3),
-                        textcoords="offset points")
+            left = hi > lo and (np.log(xv) - lo) / (hi - lo) > 2 / 3
+            ax.annotate(_label(r), (xv, yv), fontsize=6, xytext=(-3 if left else 3, 3),
+                        textcoords="offset points", ha="right" if left else "left")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel(label)
-        ax.set_ylabel("distance MAE vs true reference (object units, common pixels)")
+        ax.set_ylabel("distance MAE vs true reference\n(object units, common pixels)")
         ax.legend(fontsize=7)
     figure.tight_layout()
     with atomic_path(path, "plot") as temporary:
