@@ -1,6 +1,7 @@
 """The batch script as users run it: a subprocess with arguments after ``--``."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -12,9 +13,9 @@ from vdnif_addon.metrics import SPEED_MIN_HIT_IOU, speed_withheld
 BATCH = REPO / "vdnif_addon" / "batch.py"
 
 
-def run_batch(*args, timeout=120):
+def run_batch(*args, timeout=120, env=None):
     result = subprocess.run([sys.executable, str(BATCH), "--", *map(str, args)],
-                            capture_output=True, text=True, timeout=timeout, cwd=REPO)
+                            capture_output=True, text=True, timeout=timeout, cwd=REPO, env=env)
     return result.returncode, result.stdout, result.stderr
 
 
@@ -35,6 +36,20 @@ def test_capture_writes_the_summary_json(tmp_path):
     assert summary["grid_dims"][2] == 18 and summary["voxel_size"] == pytest.approx(3 / 16)
     assert summary["occupied_voxels"] > 0 and summary["mode"] == "armature"
     assert "captured 'Arm'" in out and "ETA" in err
+
+
+def test_runs_leave_no_blender_session_folder(tmp_path):
+    """Blender makes a session folder (blender_XXXXXX) in the temporary folder; a batch run
+    deletes it when it ends, after a success and after an error alike."""
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    env = dict(os.environ, TMPDIR=str(temporary))
+    code, _, err = run_batch("capture", "--scene", "arm", "--resolution", 8, "--poses", 2,
+                             env=env)
+    assert code == 0, err
+    code, _, err = run_batch("capture", "--scene", "arm", "--resolution", 3, env=env)
+    assert code == 1 and len(error_lines(err)) == 1, err
+    assert list(temporary.iterdir()) == []
 
 
 def test_static_mesh_file_is_reported_as_static(tmp_path):

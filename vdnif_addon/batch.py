@@ -8,6 +8,7 @@
 
 import os
 import pathlib
+import shutil
 import sys
 from typing import NoReturn
 
@@ -27,7 +28,18 @@ def _leave(code: int) -> NoReturn:
             stream.flush()
         except (OSError, ValueError):
             code = code or 1          # the output could not be delivered: not a success
+    _remove_blender_session_folder()
     os._exit(code)
+
+
+def _remove_blender_session_folder() -> None:
+    """Deletes Blender's session temporary folder (``bpy.app.tempdir``, ``blender_XXXXXX``
+    in the system's temporary folder), as Blender's own exit handlers would: ``os._exit``
+    skips them, and every batch run left one behind."""
+    bpy = sys.modules.get("bpy")
+    folder = pathlib.Path(bpy.app.tempdir) if bpy is not None and bpy.app.tempdir else None
+    if folder is not None and folder.name.startswith("blender_"):
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 if __name__ == "__main__":
