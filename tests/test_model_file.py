@@ -1,3 +1,4 @@
+import dataclasses
 import io
 import os
 import pathlib
@@ -64,6 +65,24 @@ def test_round_trip_gives_identical_outputs_and_metadata(saved, network):
     assert extra["grid"]["resolution"] == (8, 8, 4) and extra["materials"] == EXTRA["materials"]
     assert model_bytes(saved) == os.path.getsize(saved) > 0
     assert os.stat(saved).st_mode & 0o777 == 0o644     # readable by the farm, like any file
+
+
+def test_an_albedo_field_round_trips(tmp_path):
+    """A network whose albedo is a field at the hit (``albedo_mode`` "hit") keeps its mode
+    and the field's table and MLP: the loaded one predicts the same albedo."""
+    torch.manual_seed(1)
+    config = dataclasses.replace(CONFIG, heads=Heads(albedo=True), albedo_mode="hit")
+    network = IntersectionNetwork(config)
+    with torch.no_grad():
+        network.albedo_field.grid.table.normal_()
+    path = tmp_path / "field.vdnif"
+    save_model(path, network, config, {}, EXTRA)
+    loaded, meta = load_model(path)
+    assert meta["network_config"].albedo_mode == "hit" and loaded.albedo_field is not None
+    p0, p1 = torch.rand(2, 50, 3)
+    rest_len = torch.rand(50) * 0.1
+    expected = network.predict(p0, p1, rest_len, 0.1)["albedo"]
+    assert torch.equal(loaded.predict(p0, p1, rest_len, 0.1)["albedo"], expected)
 
 
 def test_write_is_atomic_and_leaves_no_temporary_files(tmp_path, saved, network, monkeypatch):

@@ -237,3 +237,41 @@ def test_log1p_distance_head_starts_alive(mode):
     p0, p1 = torch.rand(2, 4096, 3)
     distance = network(p0, p1)["distance"]
     assert (distance > 0).float().mean() > 0.9
+
+
+def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
+    """``albedo_mode`` "hit": the MLP loses its albedo columns (the task stays); forward gives
+    the field's albedo at p0 + hit_frac (p1 - p0), and predict, batch by batch in the worker
+    pipeline, the field's at p0 + fraction (p1 - p0), the fraction it predicts."""
+    torch.manual_seed(5)
+    config = NetworkConfig(**SMALL, albedo_mode="hit", heads=Heads(albedo=True, material_count=2))
+    network = IntersectionNetwork(config)
+    with torch.no_grad():
+        for grid in (network.encoder.grid, network.albedo_field.grid):
+            grid.table.normal_()
+    assert network.head_sizes == Heads(albedo=True, material_count=2).sizes()
+    assert network.mlp[-1].out_features == 1 + 1 + 3 + 2
+    p0, p1 = torch.rand(2, 500, 3)
+    hit_frac, rest_len = torch.rand(500), torch.rand(500) * 0.1
+    assert "albedo" not in network(p0, p1)
+    with torch.no_grad():
+        outputs = network(p0, p1, hit_frac)
+        at_hit = torch.sigmoid(network.albedo_field.mlp(
+            network.albedo_field.grid(p0 + hit_frac[:, None] * (p1 - p0))))
+    torch.testing.assert_close(outputs["albedo"], at_hit)
+    predicted = network.predict(p0, p1, rest_len, 0.05, batch=64)
+    point = p0 + predicted["fraction"][:, None] * (p1 - p0)
+    with torch.no_grad():
+        torch.testing.assert_close(predicted["albedo"], network.albedo_at(point))
+        whole = readout(network(p0, p1), config.distance_mode, 0.05, rest_len)
+    assert whole.keys() | {"albedo"} == predicted.keys()
+    for key in whole:
+        torch.testing.assert_close(predicted[key], whole[key], rtol=1e-5, atol=1e-6)
+    # The albedo varies with the point: a field, not a constant.
+    assert predicted["albedo"].std(0).min() > 1e-3
+    # Without an albedo head there is no field, whatever the mode.
+    plain = IntersectionNetwork(NetworkConfig(**SMALL, albedo_mode="hit",
+                                              heads=Heads(albedo=False, material_count=1)))
+    assert plain.albedo_field is None and "albedo" not in plain(p0, p1, hit_frac)
+    with pytest.raises(VDNIFError, match="albedo_mode"):
+        NetworkConfig(albedo_mode="texture")

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 import math
 import os
@@ -16,7 +17,7 @@ from vdnif_addon.fit import fit_model
 from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
 from vdnif_addon.model_file import load_model
 from vdnif_addon.network import IntersectionNetwork
-from vdnif_addon.settings import NetworkConfig, TrainConfig
+from vdnif_addon.settings import Heads, NetworkConfig, TrainConfig
 from vdnif_addon.train import train
 from vdnif_addon.training_data import load_segments
 from vdnif_addon.validation import (
@@ -225,6 +226,34 @@ def test_overfits_every_head():
     assert metrics["loss/albedo"] < 0.02
     assert metrics["material_accuracy"] >= 0.99
     assert result.status == "completed" and result.steps == 500 and result.validation is None
+
+
+def test_an_albedo_field_learns_the_albedo_of_the_hit_point():
+    """``albedo_mode`` "hit": the field's table trains at the grid's rate beside the
+    encoder's, and the field learns the sphere's albedo (its hit position) at the reference's
+    hit; read at the hit the network places, it stays close."""
+    shards = sphere_shards(n=256, poses=1)
+    config = TrainConfig(steps=500, batch_size=256, val_fraction=0.0, log_interval=50,
+                         device="cpu")
+    network_config = NetworkConfig(**SMALL, albedo_mode="hit")
+    network = IntersectionNetwork(dataclasses.replace(network_config, heads=Heads(albedo=True)))
+    objective = training.Objective(network, make_weighting("fixed", list(network.head_sizes)),
+                                   1.0)
+    groups = training._optimizer(objective, config)[0].param_groups
+    grid_group = next(g for g in groups if g["lr"] == config.lr_grid)
+    assert {id(p) for p in grid_group["params"]} == {
+        id(network.encoder.grid.table), id(network.albedo_field.grid.table)}
+    result = train(shards, header(), config, network_config)
+    assert result.network.albedo_field is not None
+    first, last = result.history[0]["losses"], result.history[-1]["losses"]
+    assert last["albedo"] < 0.1 * first["albedo"]
+    data = load_segments(shards, result.network_config.heads)
+    metrics = evaluate(result.network, data, 0.125)
+    assert metrics["loss/albedo"] < 0.02
+    hit = data["hit"]
+    predicted = result.network.predict(data["p0"][hit], data["p1"][hit], data["rest_len"][hit],
+                                       0.125)
+    assert (predicted["albedo"] - data["albedo"][hit]).abs().mean() < 0.03
 
 
 def _all_miss(shards):

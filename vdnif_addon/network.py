@@ -42,19 +42,25 @@ class IntersectionNetwork(nn.Module):
             config.feature_dim,
         )
         self.encoder = SegmentEncoder(grid, config.pe_bands, config.pe_form)
+        # The tasks (the losses' and the weighting's), and the MLP's output columns: the
+        # same heads, less the albedo when an albedo field at the hit point gives it.
         self.head_sizes = config.heads.sizes()
+        self.albedo_field = (AlbedoField(config) if "albedo" in self.head_sizes
+                             and config.albedo_mode == "hit" else None)
+        self.mlp_heads = {name: size for name, size in self.head_sizes.items()
+                          if not (name == "albedo" and self.albedo_field is not None)}
         layers: list[nn.Module] = []
         width_in = self.encoder.output_dim
         for _ in range(config.depth):
             layers += [nn.Linear(width_in, config.width), nn.ReLU()]
             width_in = config.width
-        output = nn.Linear(width_in, sum(self.head_sizes.values()))
+        output = nn.Linear(width_in, sum(self.mlp_heads.values()))
         if config.distance_mode in ("log1p", "log1p-fraction"):
             # ReLU output: start it in its active range (log1p of half a voxel or of half
             # the segment), or a head whose first outputs are all negative never gets a
             # gradient (a dead ReLU).
-            distance_column = list(self.head_sizes).index("distance")
-            start = sum(list(self.head_sizes.values())[:distance_column])
+            distance_column = list(self.mlp_heads).index("distance")
+            start = sum(list(self.mlp_heads.values())[:distance_column])
             with torch.no_grad():
                 output.bias[start] = math.log1p(0.5)
         layers.append(output)
@@ -68,23 +74,32 @@ class IntersectionNetwork(nn.Module):
         self.candidate_threshold = OCCLUSION_THRESHOLD
 
     def forward(
-        self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"]
+        self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"],
+        hit_frac: Float[torch.Tensor, " batch"] | None = None,
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
 
         ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l, ReLU log1p(t/l) or
         ReLU log1p(d/h) per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
         (N, 3) in [0,1]; ``material`` (N, M) logits. Only the heads of ``config.heads`` are
-        present.
+        present. With an albedo field (``albedo_mode`` "hit") the albedo is the field's at
+        ``p0 + hit_frac (p1 - p0)``, the reference's hit (N,) t/l, and absent without it.
         """
-        return self.heads(self.encoder(p0, p1))
+        outputs = self.heads(self.encoder(p0, p1))
+        if self.albedo_field is not None and hit_frac is not None:
+            outputs["albedo"] = self.albedo_at(p0 + hit_frac.unsqueeze(1) * (p1 - p0))
+        return outputs
+
+    def albedo_at(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
+        """The albedo field (``albedo_mode`` "hit") at normalized rest points (N, 3), in [0,1]."""
+        return self.albedo_field(points)
 
     def heads(
         self, features: Float[torch.Tensor, "batch features"]
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """Head outputs (see ``forward``) of encoded segments, features (N, encoder.output_dim)."""
-        columns = self.mlp(features).split(list(self.head_sizes.values()), dim=1)
-        raw = dict(zip(self.head_sizes, columns))
+        columns = self.mlp(features).split(list(self.mlp_heads.values()), dim=1)
+        raw = dict(zip(self.mlp_heads, columns))
         distance_activation = torch.sigmoid if self.config.distance_mode == "fraction" else F.relu
         out = {
             "occlusion": raw["occlusion"].squeeze(1),
@@ -109,7 +124,8 @@ class IntersectionNetwork(nn.Module):
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
         ``forward`` at the model's ``occlusion_threshold``, without autograd, ``batch``
-        segments at a time to bound memory.
+        segments at a time to bound memory. An albedo field is read at each segment's
+        predicted hit, ``p0 + fraction (p1 - p0)``.
 
         On the CPU the encoder of batch k+1 runs in a worker thread (one core: a Warp CPU
         launch is serial and releases the GIL) while this thread runs the MLP of batch k
@@ -124,22 +140,48 @@ class IntersectionNetwork(nn.Module):
             with torch.inference_mode():  # inference mode is per thread
                 return self.encoder(chunks[index][0], chunks[index][1])
 
+        def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
+                        ) -> dict[str, torch.Tensor]:
+            q0, q1, length = chunks[index]
+            part = readout(self.heads(features), mode, voxel_size, length,
+                           self.occlusion_threshold, self.candidate_threshold)
+            if self.albedo_field is not None:
+                # The field's encoder launch waits for the worker's (runtime.LAUNCHES).
+                part["albedo"] = self.albedo_at(
+                    q0 + part["fraction"].to(q0.dtype).unsqueeze(1) * (q1 - q0))
+            return part
+
         parts = []
         if p0.device.type != "cpu" or len(chunks) == 1:
             # CUDA launches are asynchronous already: the stream overlaps them with the host.
-            for index, (_, _, length) in enumerate(chunks):
-                parts.append(readout(self.heads(encode(index)), mode, voxel_size, length,
-                                     self.occlusion_threshold, self.candidate_threshold))
+            for index in range(len(chunks)):
+                parts.append(predictions(index, encode(index)))
         else:
             with ThreadPoolExecutor(1, thread_name_prefix="vdnif-encoder") as worker:
                 pending = worker.submit(encode, 0)
-                for index, (_, _, length) in enumerate(chunks):
+                for index in range(len(chunks)):
                     features = pending.result()
                     if index + 1 < len(chunks):
                         pending = worker.submit(encode, index + 1)
-                    parts.append(readout(self.heads(features), mode, voxel_size, length,
-                                         self.occlusion_threshold, self.candidate_threshold))
+                    parts.append(predictions(index, features))
         return {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
+
+
+class AlbedoField(nn.Module):
+    """Albedo of a normalized rest-space point (N, 3) -> (N, 3) in [0,1]: a hash grid of the
+    network's grid settings and a ReLU MLP of its width, two hidden layers (the field that
+    ``tools/albedo_ceiling.py`` measures: 46.6 dB at the true hit point on spot)."""
+
+    def __init__(self, config: NetworkConfig) -> None:
+        super().__init__()
+        self.grid = HashGrid(config.levels, config.base_resolution, config.growth,
+                             config.log2_table_size, config.feature_dim)
+        self.mlp = nn.Sequential(nn.Linear(self.grid.output_dim, config.width), nn.ReLU(),
+                                 nn.Linear(config.width, config.width), nn.ReLU(),
+                                 nn.Linear(config.width, 3))
+
+    def forward(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
+        return torch.sigmoid(self.mlp(self.grid(points)))
 
 
 def readout(

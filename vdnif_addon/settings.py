@@ -79,6 +79,12 @@ DISTANCE_MODES = ("fraction", "log1p-fraction", "log1p")
 scale-invariant, its error taken in t/l (``losses.distance_error``). ``log1p``: ReLU
 log1p(d/h), the proposed form of model files written before log1p-fraction (DESIGN section 8
 says why it was replaced)."""
+ALBEDO_MODES = ("segment", "hit")
+"""``segment``: the paper's albedo head, one more output of the MLP over the segment's two
+end points. ``hit``: an albedo field of the rest-space point alone (its own hash grid and a
+small MLP), read at the hit the network places (``IntersectionNetwork.albedo_at``): on
+spot the head reads the texture no sharper than 24.5 dB however well the hit is placed,
+while a field at the placed hit follows the placement (DESIGN section 8)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
 WEIGHTING_STARTS = ("zero", "equal")
@@ -245,6 +251,7 @@ class NetworkConfig:
     width: int = 64
     depth: int = 3
     distance_mode: str = "log1p-fraction"
+    albedo_mode: str = "segment"
     heads: Heads = field(default_factory=Heads)
 
     def __post_init__(self) -> None:
@@ -255,6 +262,7 @@ class NetworkConfig:
         check_int("width", self.width, *BOUNDS["width"])
         check_int("depth", self.depth, *BOUNDS["depth"])
         check_choice("distance_mode", self.distance_mode, DISTANCE_MODES)
+        check_choice("albedo_mode", self.albedo_mode, ALBEDO_MODES)
         if not isinstance(self.heads, Heads):
             raise VDNIFError(f"setting heads must be a Heads, got {self.heads!r}")
 

@@ -23,6 +23,7 @@ import torch
 from torch import nn
 
 from .distributed import ProcessGroup, resolve_device
+from .encoding import HashGrid
 from .errors import VDNIFError
 from .losses import make_weighting, task_losses
 from .network import IntersectionNetwork
@@ -92,7 +93,7 @@ class Objective(nn.Module):
         self, batch: Segments
     ) -> tuple[Float[torch.Tensor, ""], Float[torch.Tensor, " tasks"]]:
         """(total loss, task losses in head order) of ``batch``."""
-        outputs = self.network(batch["p0"], batch["p1"])
+        outputs = self.network(batch["p0"], batch["p1"], batch["hit_frac"])
         losses = task_losses(outputs, batch, self.network.config.distance_mode, self.voxel_size)
         return self.weighting(losses), torch.stack(list(losses.values()))
 
@@ -105,10 +106,10 @@ def _optimizer(
     The fused Adam (one kernel over all of a group's parameters instead of a handful of
     tensor operations per parameter) computes the same update.
     """
-    table = objective.network.encoder.grid.table
+    tables = [grid.table for grid in objective.network.modules() if isinstance(grid, HashGrid)]
     weights = list(objective.weighting.parameters())
-    mlp = [p for p in objective.network.parameters() if p is not table]
-    groups = [{"params": [table], "lr": config.lr_grid, "eps": 1e-15},
+    mlp = [p for p in objective.network.parameters() if all(p is not t for t in tables)]
+    groups = [{"params": tables, "lr": config.lr_grid, "eps": 1e-15},
               {"params": mlp, "lr": config.lr_mlp}]
     if weights:
         groups.append({"params": weights, "lr": config.lr_weighting})

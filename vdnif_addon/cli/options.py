@@ -10,6 +10,7 @@ import sys
 
 from ..errors import VDNIFError
 from ..settings import (
+    ALBEDO_MODES,
     AUTO_RESOLUTION,
     BOUNDS,
     DEFAULT_DEVICE,
@@ -158,6 +159,8 @@ NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
     "--pe-form": ("pe_form", str, "sin(2^k x) ('paper') or sin(pi 2^k x) ('pi')"),
     "--width": ("width", int, "MLP width"),
     "--depth": ("depth", int, "MLP hidden layers"),
+    "--albedo-mode": ("albedo_mode", str, "albedo from the MLP over the segment ('segment') "
+                      "or from a field of the rest point read at the placed hit ('hit')"),
 }
 
 
@@ -264,3 +267,6 @@ def _validate_network_options(args, limits):
     if args.pe_form is not None and args.pe_form not in PE_SCALES:
         raise VDNIFError(f"--pe-form '{args.pe_form}' must be one of "
                          f"{', '.join(map(repr, PE_SCALES))}")
+    if args.albedo_mode is not None and args.albedo_mode not in ALBEDO_MODES:
+        raise VDNIFError(f"--albedo-mode '{args.albedo_mode}' must be one of "
+                         f"{', '.join(map(repr, ALBEDO_MODES))}")
