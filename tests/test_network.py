@@ -242,7 +242,8 @@ def test_log1p_distance_head_starts_alive(mode):
 def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     """``albedo_mode`` "hit": the MLP loses its albedo columns (the task stays); forward gives
     the field's albedo at p0 + hit_frac (p1 - p0), and predict, batch by batch in the worker
-    pipeline, the field's at p0 + fraction (p1 - p0), the fraction it predicts."""
+    pipeline, the field's at p0 + fraction (p1 - p0), the fraction it predicts, on the
+    candidate segments (the only ones that can place a hit), 0 on the others."""
     torch.manual_seed(5)
     config = NetworkConfig(**SMALL, albedo_mode="hit", heads=Heads(albedo=True, material_count=2))
     network = IntersectionNetwork(config)
@@ -259,16 +260,24 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
         at_hit = torch.sigmoid(network.albedo_field.mlp(
             network.albedo_field.grid(p0 + hit_frac[:, None] * (p1 - p0))))
     torch.testing.assert_close(outputs["albedo"], at_hit)
+    with torch.no_grad():                   # half the segments are candidates
+        probability = torch.sigmoid(outputs["occlusion"])
+    network.candidate_threshold = network.occlusion_threshold = float(probability.median())
     predicted = network.predict(p0, p1, rest_len, 0.05, batch=64)
     point = p0 + predicted["fraction"][:, None] * (p1 - p0)
+    candidate = predicted["candidate"]
+    assert 0 < candidate.sum() < len(candidate)
     with torch.no_grad():
-        torch.testing.assert_close(predicted["albedo"], network.albedo_at(point))
-        whole = readout(network(p0, p1), config.distance_mode, 0.05, rest_len)
+        torch.testing.assert_close(predicted["albedo"][candidate],
+                                   network.albedo_at(point[candidate]))
+        assert (predicted["albedo"][~candidate] == 0).all()
+        whole = readout(network(p0, p1), config.distance_mode, 0.05, rest_len,
+                        network.occlusion_threshold, network.candidate_threshold)
     assert whole.keys() | {"albedo"} == predicted.keys()
     for key in whole:
         torch.testing.assert_close(predicted[key], whole[key], rtol=1e-5, atol=1e-6)
     # The albedo varies with the point: a field, not a constant.
-    assert predicted["albedo"].std(0).min() > 1e-3
+    assert predicted["albedo"][candidate].std(0).min() > 1e-3
     # Without an albedo head there is no field, whatever the mode.
     plain = IntersectionNetwork(NetworkConfig(**SMALL, albedo_mode="hit",
                                               heads=Heads(albedo=False, material_count=1)))

@@ -124,8 +124,8 @@ class IntersectionNetwork(nn.Module):
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
         ``forward`` at the model's ``occlusion_threshold``, without autograd, ``batch``
-        segments at a time to bound memory. An albedo field is read at each segment's
-        predicted hit, ``p0 + fraction (p1 - p0)``.
+        segments at a time to bound memory. An albedo field is read at each candidate
+        segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of the others is 0).
 
         On the CPU the encoder of batch k+1 runs in a worker thread (one core: a Warp CPU
         launch is serial and releases the GIL) while this thread runs the MLP of batch k
@@ -146,9 +146,14 @@ class IntersectionNetwork(nn.Module):
             part = readout(self.heads(features), mode, voxel_size, length,
                            self.occlusion_threshold, self.candidate_threshold)
             if self.albedo_field is not None:
-                # The field's encoder launch waits for the worker's (runtime.LAUNCHES).
-                part["albedo"] = self.albedo_at(
-                    q0 + part["fraction"].to(q0.dtype).unsqueeze(1) * (q1 - q0))
+                # Only candidates can place a hit (hits are candidates too): most of a
+                # wave's segments are not, and skip the field. Its encoder launch waits for
+                # the worker's (runtime.LAUNCHES).
+                chosen = part["candidate"].nonzero().squeeze(1)
+                point = q0[chosen] + part["fraction"][chosen].to(q0.dtype).unsqueeze(1) * (
+                    q1[chosen] - q0[chosen])
+                part["albedo"] = q0.new_zeros(len(q0), 3).index_copy(
+                    0, chosen, self.albedo_at(point))
             return part
 
         parts = []
