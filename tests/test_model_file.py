@@ -1,4 +1,5 @@
 import dataclasses
+import hashlib
 import io
 import os
 import pathlib
@@ -83,6 +84,31 @@ def test_an_albedo_field_round_trips(tmp_path):
     rest_len = torch.rand(50) * 0.1
     expected = network.predict(p0, p1, rest_len, 0.1)["albedo"]
     assert torch.equal(loaded.predict(p0, p1, rest_len, 0.1)["albedo"], expected)
+
+
+def test_files_written_before_the_albedo_field_keep_their_albedo_head(tmp_path):
+    """A stored config without ``albedo_mode`` (files written before it existed) loads as
+    the head over the segment it was trained with, whatever today's default."""
+    torch.manual_seed(2)
+    config = dataclasses.replace(CONFIG, heads=Heads(albedo=True), albedo_mode="segment")
+    network = IntersectionNetwork(config)
+    path = tmp_path / "old.vdnif"
+    save_model(path, network, config, {}, EXTRA)
+    archive = torch.load(path, weights_only=True)
+    inner = torch.load(io.BytesIO(archive["payload"].numpy().tobytes()), weights_only=True)
+    del inner["network_config"]["albedo_mode"]
+    buffer = io.BytesIO()
+    torch.save(inner, buffer)
+    data = buffer.getvalue()
+    archive["payload"] = torch.frombuffer(bytearray(data), dtype=torch.uint8)
+    archive["sha256"] = hashlib.sha256(data).hexdigest()
+    torch.save(archive, path)
+    loaded, meta = load_model(path)
+    assert meta["network_config"].albedo_mode == "segment" and loaded.albedo_field is None
+    p0, p1 = torch.rand(2, 50, 3)
+    rest_len = torch.rand(50) * 0.1
+    assert torch.equal(loaded.predict(p0, p1, rest_len, 0.1)["albedo"],
+                       network.predict(p0, p1, rest_len, 0.1)["albedo"])
 
 
 def test_write_is_atomic_and_leaves_no_temporary_files(tmp_path, saved, network, monkeypatch):

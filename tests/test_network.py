@@ -7,7 +7,9 @@ from vdnif_addon.errors import VDNIFError
 from vdnif_addon.network import IntersectionNetwork, readout
 from vdnif_addon.settings import Heads, NetworkConfig
 
-SMALL = {"levels": 2, "base_resolution": 8, "log2_table_size": 10, "width": 16, "depth": 2}
+# The paper's albedo head over the segment; the albedo field has tests of its own.
+SMALL = {"levels": 2, "base_resolution": 8, "log2_table_size": 10, "width": 16, "depth": 2,
+         "albedo_mode": "segment"}
 
 
 @pytest.mark.parametrize(
@@ -36,7 +38,7 @@ def test_heads_present_only_when_the_scene_needs_them(heads, expected):
 
 
 def test_paper_architecture():
-    network = IntersectionNetwork(NetworkConfig())
+    network = IntersectionNetwork(NetworkConfig(albedo_mode="segment"))
     linears = [layer for layer in network.mlp if isinstance(layer, torch.nn.Linear)]
     assert [(layer.in_features, layer.out_features) for layer in linears] == [
         (84, 64),
@@ -245,7 +247,8 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     pipeline, the field's at p0 + fraction (p1 - p0), the fraction it predicts, on the
     candidate segments (the only ones that can place a hit), 0 on the others."""
     torch.manual_seed(5)
-    config = NetworkConfig(**SMALL, albedo_mode="hit", heads=Heads(albedo=True, material_count=2))
+    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
+                           heads=Heads(albedo=True, material_count=2))
     network = IntersectionNetwork(config)
     with torch.no_grad():
         for grid in (network.encoder.grid, network.albedo_field.grid):
@@ -279,7 +282,7 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     # The albedo varies with the point: a field, not a constant.
     assert predicted["albedo"][candidate].std(0).min() > 1e-3
     # Without an albedo head there is no field, whatever the mode.
-    plain = IntersectionNetwork(NetworkConfig(**SMALL, albedo_mode="hit",
+    plain = IntersectionNetwork(NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
                                               heads=Heads(albedo=False, material_count=1)))
     assert plain.albedo_field is None and "albedo" not in plain(p0, p1, hit_frac)
     with pytest.raises(VDNIFError, match="albedo_mode"):

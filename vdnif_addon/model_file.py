@@ -222,7 +222,11 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, dict[str, 
         raise VDNIFError(f"model file {path} is corrupt: its checksum does not match")
     try:
         inner = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
-        config = NetworkConfig.from_dict(inner["network_config"])
+        stored = inner["network_config"]
+        if isinstance(stored, dict) and "albedo_mode" not in stored:
+            # Written before the albedo field: an albedo came from the head over the segment.
+            stored = {**stored, "albedo_mode": "segment"}
+        config = NetworkConfig.from_dict(stored)
         network = IntersectionNetwork(config)
         network.load_state_dict(_migrate(inner["state_dict"], version))
     except Exception as exc:

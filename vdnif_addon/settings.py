@@ -251,7 +251,9 @@ class NetworkConfig:
     width: int = 64
     depth: int = 3
     distance_mode: str = "log1p-fraction"
-    albedo_mode: str = "segment"
+    # The field at the placed hit: on spot (R 32, recipe, seed 0, 8 unseen poses, vs true)
+    # 28.2 dB against the head's 24.2, distance 0.00231 against 0.00270 (ALBEDO_MODES).
+    albedo_mode: str = "hit"
     heads: Heads = field(default_factory=Heads)
 
     def __post_init__(self) -> None:
