@@ -2,7 +2,8 @@
 field of the rest-space hit point (a hash grid and a small MLP, nothing else) to a dataset's
 hits and measures PSNR on its held-out poses' hits, at the true hit point, at the hit point
 the model predicts, and at the true one moved along the ray by Gaussian noise of a few
-tenths of a voxel; beside them, the PSNR of the model's own albedo head on the same hits.
+tenths of a voxel; beside them, the PSNR of the model's own albedo on the same hits (its
+head over the segment, or its field at the hit it places: ``albedo_mode``).
 
     python vdnif_addon/batch.py -- dataset --scene spot --out out/spot-data
     python vdnif_addon/batch.py -- train --data out/spot-data --out out/spot.vdnif
@@ -83,7 +84,8 @@ def main():
         with torch.inference_mode():
             predicted = network.predict(tensor(p0), tensor(p1),
                                         tensor(data["rest_len"][held]), header["voxel_size"])
-        print(f"the model's albedo head: {psnr(predicted['albedo'].numpy(), reference):.2f} dB")
+        own = psnr(predicted["albedo"].numpy(), reference)
+        print(f"the model's albedo ({network.config.albedo_mode}): {own:.2f} dB")
 
     grid = HashGrid(args.levels, 64, 2.0, args.log2_table_size, 2)
     mlp = nn.Sequential(nn.Linear(grid.output_dim, 64), nn.ReLU(), nn.Linear(64, 64),
