@@ -24,6 +24,12 @@ if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int64
 
 
+def hash_grid(config: NetworkConfig) -> HashGrid:
+    """A hash grid of ``config``'s grid settings (the encoder's, and the albedo field's)."""
+    return HashGrid(config.levels, config.base_resolution, config.growth,
+                    config.log2_table_size, config.feature_dim)
+
+
 class IntersectionNetwork(nn.Module):
     """(p0, p1) rest-space segments -> per-head outputs.
 
@@ -34,14 +40,7 @@ class IntersectionNetwork(nn.Module):
     def __init__(self, config: NetworkConfig) -> None:
         super().__init__()
         self.config = config
-        grid = HashGrid(
-            config.levels,
-            config.base_resolution,
-            config.growth,
-            config.log2_table_size,
-            config.feature_dim,
-        )
-        self.encoder = SegmentEncoder(grid, config.pe_bands, config.pe_form)
+        self.encoder = SegmentEncoder(hash_grid(config), config.pe_bands, config.pe_form)
         # The tasks (the losses' and the weighting's), and the MLP's output columns: the
         # same heads, less the albedo when an albedo field at the hit point gives it.
         self.head_sizes = config.heads.sizes()
@@ -179,8 +178,7 @@ class AlbedoField(nn.Module):
 
     def __init__(self, config: NetworkConfig) -> None:
         super().__init__()
-        self.grid = HashGrid(config.levels, config.base_resolution, config.growth,
-                             config.log2_table_size, config.feature_dim)
+        self.grid = hash_grid(config)
         self.mlp = nn.Sequential(nn.Linear(self.grid.output_dim, config.width), nn.ReLU(),
                                  nn.Linear(config.width, config.width), nn.ReLU(),
                                  nn.Linear(config.width, 3))
