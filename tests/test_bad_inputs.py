@@ -135,6 +135,8 @@ CASES = [
      "proc"),
     ("train-pe-form", "train --data {data} --pe-form sine", r"--pe-form 'sine' must be",
      "proc"),
+    ("train-albedo-mode", "train --data {data} --albedo-mode texture",
+     r"--albedo-mode 'texture' must be one of 'segment', 'hit'", "proc"),
     ("train-out-is-folder", "train --data {data} --out {tmp}/existing_dir",
      r"--out model file '.*existing_dir' is a folder", "proc"),
     ("train-json-is-folder", "train --data {data} --json {tmp}/existing_dir",
