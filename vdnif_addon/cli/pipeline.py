@@ -267,9 +267,11 @@ def cmd_render(args):
     return 0
 
 
-def cmd_evaluate(args):
-    """Evaluate a trained model on unseen poses against the true and embedded references."""
-    from ..blender.jobs import evaluate_file, evaluation_poses, write_figures
+def evaluated(args):
+    """(report, views, captured) of the evaluate command's ``args``: its JSON report, per
+    pose the predicted, true and embedded Passes (``neural.evaluate_model``), and the
+    evaluation poses' capture. ``tools/wrong_surface.py`` reads the views as well."""
+    from ..blender.jobs import evaluate_file, evaluation_poses
     from ..progress import Progress
 
     loaded = _read_model(args)
@@ -281,6 +283,14 @@ def cmd_evaluate(args):
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
                                   args.device, lambda done, _: progress.update(done),
                                   loaded=loaded)
+    return report, views, captured
+
+
+def cmd_evaluate(args):
+    """Evaluate a trained model on unseen poses against the true and embedded references."""
+    from ..blender.jobs import write_figures
+
+    report, views, captured = evaluated(args)
     if args.out is not None:
         report["figures"] = {name: str(path) for name, path in write_figures(
             args.out, views[0], args.height, args.width, captured.mesh.size).items()}
