@@ -227,6 +227,27 @@ def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
     assert (tmp_path / "e" / "figure-vs-embedded.png").is_file()
 
 
+def test_wrong_surface_tool_evaluates_as_evaluate_does(quick_demo, tmp_path):
+    """tools/wrong_surface.py takes evaluate's options and evaluates the same poses and
+    pixels: its figure over every both-hit pixel is evaluate's own."""
+    out, _ = quick_demo
+    model = out / "arm-proposed.vdnif"
+    options = ("--model", model, "--scene", "arm", "--poses", 2, "--width", 32, "--height", 24)
+    code, _, err = run_batch("evaluate", *options, "--json", tmp_path / "e.json")
+    assert code == 0, err
+    report = json.loads((tmp_path / "e.json").read_text())
+    done = subprocess.run([sys.executable, str(REPO / "tools" / "wrong_surface.py"),
+                           *map(str, options)], capture_output=True, text=True, timeout=120,
+                          cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    heads = [line.split(":")[0] for line in lines if not line.startswith(" ")]
+    assert heads == ["predicted vs true", "predicted vs embedded", "embedded vs true"]
+    figure = next(line for line in lines if line.startswith("  distance_mae:"))
+    assert float(figure.split()[1]) == pytest.approx(report["vs_true"]["distance_mae"],
+                                                     rel=1e-3)
+
+
 COUNT_MODEL_READS = """
 import sys
 from vdnif_addon import model_file
