@@ -35,7 +35,7 @@ class Recipe:
     # silhouettes (docs/HOLES.md). On spot (seed 0, 8 unseen poses at 256x256, vs true) 4x
     # the rays gave distance 0.00195 against 0.00231, 5.70 deg against 6.01, holes + extras
     # 0.37 % against 0.45 % and albedo 29.1 dB against 28.2; 8x and 16x gave 29.4 / 29.5 dB
-    # and the same distance for 2x / 4x the memory (about 2.7 GB of segments at 4x).
+    # and the same distance, with training processes of 5.5 / 10.9 GB (3.4 GB at 4x).
     rays_per_pose: int = 65536
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
