@@ -35,7 +35,8 @@ class Recipe:
     # silhouettes (docs/HOLES.md). On spot (seed 0, 8 unseen poses at 256x256, vs true) 4x
     # the rays gave distance 0.00195 against 0.00231, 5.70 deg against 6.01, holes + extras
     # 0.37 % against 0.45 % and albedo 29.1 dB against 28.2; 8x and 16x gave 29.4 / 29.5 dB
-    # and the same distance, with training processes of 5.5 / 10.9 GB (3.4 GB at 4x).
+    # and the same distance for twice / four times the memory (resident sizes seen while
+    # training: 3.4 GB at 4x, 5.5 / 10.9 GB at 8x / 16x; ``make demo`` peaks at 4.9 GB).
     rays_per_pose: int = 65536
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
@@ -58,9 +59,9 @@ DEMO_SCENE = "spot"
 
 DEMO_STEPS = 3000
 """The main job's training steps: a third of the recipe's, so that ``make demo`` stays under
-10 minutes on 2 CPU cores (the whole job took 247 s of wall time there with 3,000 steps,
-beside another training; 9,000 steps would take about 11 minutes). On spot they meet every
-hole, extra, distance and normal target (README, docs/results.md)."""
+10 minutes on 2 CPU cores (the whole job took 302 s of wall time there with 3,000 steps and
+65,536 rays per pose, beside another training; 9,000 steps would take about 13 minutes). On
+spot they meet every hole, extra, distance and normal target (README, docs/results.md)."""
 
 # The suggested resolution (``blender/resolution.py``): the coarsest candidate whose
 # embedding error (true vs embedded reference, distance MAE in object units) is at most
