@@ -1,25 +1,17 @@
 """tools/head_study.py: its run syntax, and bad input ending in one error line."""
 
-import importlib.util
 import pathlib
 
 import pytest
-from tool_errors import one_error_line
+from tool_errors import load_tool, one_error_line
 
 from vdnif_addon.errors import VDNIFError
 
 TOOL = pathlib.Path(__file__).resolve().parents[1] / "tools" / "head_study.py"
 
 
-def _tool():
-    spec = importlib.util.spec_from_file_location("head_study", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_a_run_names_a_variant_and_its_settings():
-    parse = _tool().parse_run
+    parse = load_tool(TOOL).parse_run
     assert parse("deformed") == ("deformed", {})
     assert parse("proposed:distance_mode=log1p,lr_weighting=0.01") == (
         "proposed", {"distance_mode": "log1p", "lr_weighting": 0.01})

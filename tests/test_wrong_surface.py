@@ -1,23 +1,15 @@
 """tools/wrong_surface.py: the split of the both-hit pixels on hand-made passes, and bad
 input ending in one error line."""
 
-import importlib.util
 import pathlib
 
 import numpy as np
 import pytest
-from tool_errors import one_error_line
+from tool_errors import load_tool, one_error_line
 
 from vdnif_addon.metrics import Passes
 
 TOOL = pathlib.Path(__file__).resolve().parents[1] / "tools" / "wrong_surface.py"
-
-
-def _tool():
-    spec = importlib.util.spec_from_file_location("wrong_surface", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _passes(hit, distance, albedo):
@@ -33,7 +25,7 @@ def test_a_hit_on_another_surface_is_split_from_the_rest():
                         [[0.5, 0.5, 0.5]] * 4)
     predicted = _passes([True, True, False, True], [1.01, 3.0, 0.0, 1.0],
                         [[0.6, 0.5, 0.5], [0.0, 0.0, 0.0], [0.5] * 3, [0.5] * 3])
-    split = _tool().wrong_surface(predicted, reference, voxel_size=0.1, voxels=0.5,
+    split = load_tool(TOOL).wrong_surface(predicted, reference, voxel_size=0.1, voxels=0.5,
                                   object_size=2.0, heads={"albedo_psnr": True})
     assert (split["pixels"], split["wrong"]) == (2, 1)
     assert split["distance_share"] == pytest.approx(2.0 / 2.01)
@@ -48,7 +40,8 @@ def test_a_hit_on_another_surface_is_split_from_the_rest():
 def test_without_an_albedo_metric_there_is_no_albedo_share():
     reference = _passes([True], [1.0], [[0.5] * 3])
     predicted = _passes([True], [1.0], [[0.1] * 3])
-    split = _tool().wrong_surface(predicted, reference, 0.1, 0.5, 1.0, {"albedo_psnr": False})
+    split = load_tool(TOOL).wrong_surface(predicted, reference, 0.1, 0.5, 1.0,
+                                          {"albedo_psnr": False})
     assert split["albedo_share"] is None and split["distance_share"] is None
     assert split["wrong"] == 0
 

@@ -1,8 +1,18 @@
-"""Shared by the tests of the scripts in tools/: run one with bad input and check that it ends
-in one error line."""
+"""Shared by the tests of the scripts in tools/: load one as a module, or run one with bad
+input and check that it ends in one error line."""
 
+import importlib.util
 import subprocess
 import sys
+
+
+def load_tool(tool):
+    """The script ``tool`` (a path) imported as a module named after it (its ``main`` not
+    run), to test its functions."""
+    spec = importlib.util.spec_from_file_location(tool.stem, tool)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def one_error_line(tool, arguments):
