@@ -49,6 +49,8 @@ def test_without_an_albedo_metric_there_is_no_albedo_share():
 @pytest.mark.parametrize("arguments, message", [
     (["--voxels", "0"], "--voxels must be"),
     (["--voxels", "nan"], "--voxels must be"),
+    (["--scene", "nope"], "argument --scene: invalid choice: 'nope'"),
+    (["--scene", "spot"], "the following arguments are required: --model"),
 ])
 def test_bad_input_ends_in_one_error_line(arguments, message):
     assert message in one_error_line(TOOL, arguments)

@@ -49,8 +49,9 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(f"{self.prog}: {message} (see --help)")
 
 
-class _UsageError(Exception):
-    pass
+class _UsageError(VDNIFError):
+    """A usage mistake on the command line; a VDNIFError, so that a script that parses a
+    command's arguments (``tools/wrong_surface.py``) reports it as its other failures."""
 
 
 def build_parser():
@@ -89,7 +90,7 @@ def main(argv):
 
         use_threads(getattr(args, "threads", None))
         return args.run(args)
-    except (_UsageError, VDNIFError) as exc:
+    except VDNIFError as exc:           # usage mistakes (_UsageError) too
         if debug:
             traceback.print_exc()
         print(f"vdnif: error: {_one_line(exc)}", file=sys.stderr)
