@@ -197,6 +197,11 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
         assert report["speed_withheld"] == speed_withheld(iou)
         assert f"n/a ({speed_withheld(iou)})" in (out / "report.md").read_text()
     assert report["model_bytes"] == (out / "arm-proposed.vdnif").stat().st_size
+    # the arm's tasks within the weighting's bound; a regression loss below 1 lowers its s
+    weights = report["log_variances"]
+    assert set(weights) == {"occlusion", "distance", "normal"}
+    assert all(-6 < s < 6 for s in weights.values()), weights
+    assert weights["distance"] < 0 and weights["normal"] < 0, weights
     assert len(report["per_pose"]) == report["poses"] == 2
     assert "![reference, predicted, error per pass](figure-vs-true.png)" in (
         out / "report.md").read_text()

@@ -56,6 +56,9 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     report["timings"].update(train_s=train_info.get("seconds"),
                              train_samples_per_s=train_info.get("samples_per_s"),
                              train_steps=train_info.get("steps"))
+    # The loss weighting's final s_i: at the recipe they show whether it balanced the tasks or
+    # only followed its learning rate (DESIGN.md section 8, uncertainty weighting).
+    report["log_variances"] = train_info.get("log_variances")
     report["model_bytes"] = pathlib.Path(model_path).stat().st_size
     return report, views
 
