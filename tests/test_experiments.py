@@ -247,8 +247,9 @@ def test_full_sizes_train_with_the_default_recipe(core):
 
     experiment_runs, bench = core("studies.experiment_runs"), core("studies.bench")
     full = experiment_runs.SIZES["full"]
+    # Resolution None: the recipe's of each scene's mesh (Recipe.resolution_for).
     assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"],
-            full["overrides"]["batch_size"]) == (RECIPE.resolution, RECIPE.poses,
+            full["overrides"]["batch_size"]) == (None, RECIPE.poses,
                                                  RECIPE.rays_per_pose, RECIPE.steps,
                                                  RECIPE.batch_size)
     full = bench.SIZES["full"]

@@ -37,3 +37,49 @@ def test_the_target_is_a_share_of_a_presets_measured_error(core):
     resolution = core("blender.resolution")
     assert resolution.network_error("fast") == (
         presets["fast"]["measured"][core("presets").PRESET_ERROR])
+
+
+@pytest.fixture
+def spot(empty_scene, core):
+    return core("blender.scenes").demo_scene("spot")
+
+
+def test_a_textured_mesh_trains_at_the_recipes_textured_resolution(spot, core):
+    from vdnif_addon.cli import build_parser
+    from vdnif_addon.cli.options import load_posed_scene
+    from vdnif_addon.settings import RECIPE
+
+    kinds = {albedo.kind for albedo in core("blender.read_mesh").read_rest_mesh(spot).albedo}
+    assert "texture" in kinds and RECIPE.textured_resolution > RECIPE.resolution
+    assert core("blender.resolution").recipe_resolution(spot) == RECIPE.textured_resolution
+    # A command without --resolution takes it once the mesh is read; a given one stays.
+    # (The command builds the scene again: ``spot`` is gone after it.)
+    name, args = spot.name, build_parser().parse_args(["capture", "--scene", "spot"])
+    assert args.resolution is None
+    spot = load_posed_scene(args)[0]
+    assert spot.name == name
+    assert args.resolution == RECIPE.textured_resolution
+    args = build_parser().parse_args(["capture", "--scene", "spot", "--resolution", "24"])
+    spot = load_posed_scene(args)[0]
+    assert args.resolution == 24
+    # The suggestion never goes below it: candidates under it are not even tried.
+    spec = core("blender.poses").PoseSpec(count=1)
+    chosen, tried = core("blender.resolution").suggest_resolution(spot, spec, 1.0, (8, 16),
+                                                                  poses=1, size=24)
+    assert chosen == 16 and [row["resolution"] for row in tried] == [16]
+
+
+def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
+    from vdnif_addon.cli import build_parser
+    from vdnif_addon.cli.options import load_posed_scene
+    from vdnif_addon.settings import RECIPE
+
+    assert core("blender.resolution").recipe_resolution(arm) == RECIPE.resolution
+    args = build_parser().parse_args(["capture", "--scene", "arm"])
+    arm = load_posed_scene(args)[0]                      # the scene built again
+    assert args.resolution == RECIPE.resolution
+    # No floor: a target every candidate meets stops at the coarsest; a given floor holds.
+    spec = core("blender.poses").PoseSpec(count=1)
+    suggest = core("blender.resolution").suggest_resolution
+    assert suggest(arm, spec, 1.0, (8, 12, 16), poses=1, size=24)[0] == 8
+    assert suggest(arm, spec, 1.0, (8, 12, 16), poses=1, size=24, floor=12)[0] == 12

@@ -30,11 +30,12 @@ def test_training_config_and_commands_default_to_the_recipe():
     assert (config.steps, config.batch_size) == (RECIPE.steps, RECIPE.batch_size)
     parser = build_parser()
     train = parser.parse_args(["train", "--scene", "arm"])
+    # No resolution: the recipe's of the mesh, resolved once it is read (test_resolution.py).
     assert (train.resolution, train.poses, train.rays_per_pose, train.steps, train.batch) == (
-        RECIPE.resolution, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.steps, RECIPE.batch_size)
+        None, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.steps, RECIPE.batch_size)
     data = parser.parse_args(["dataset", "--scene", "arm", "--out", "d"])
     assert (data.resolution, data.poses, data.rays_per_pose, data.surface_fraction,
-            data.grazing_fraction) == (RECIPE.resolution, RECIPE.poses, RECIPE.rays_per_pose,
+            data.grazing_fraction) == (None, RECIPE.poses, RECIPE.rays_per_pose,
                                        RECIPE.surface_fraction, RECIPE.grazing_fraction)
     assert parser.parse_args(["demo"]).scene == settings.DEMO_SCENE == "spot"
 
@@ -51,6 +52,6 @@ def test_the_demo_runs_the_recipe_with_its_own_steps_at_256_pixels():
 
     full = SIZES["full"]
     assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"]) == (
-        RECIPE.resolution, RECIPE.poses, RECIPE.rays_per_pose, DEMO_STEPS)
+        None, RECIPE.poses, RECIPE.rays_per_pose, DEMO_STEPS)   # None: the mesh's recipe
     assert DEMO_STEPS <= RECIPE.steps
     assert full["width"] >= 256 and full["height"] >= 256 and full["eval_poses"] == 8

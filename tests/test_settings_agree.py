@@ -24,7 +24,8 @@ SPEC = PoseSpec()
 
 # setting: (panel property, command and its option's dest, the core's default or None)
 DEFAULTS = {
-    "resolution": ("resolution", ("train", "resolution"), RECIPE.resolution),
+    # The commands' default is None, the recipe's of the mesh (test_resolution.py).
+    "resolution": ("resolution", None, RECIPE.resolution),
     "poses": ("pose_count", ("train", "poses"), RECIPE.poses),
     "evaluation poses": ("eval_poses", ("evaluate", "poses"), settings.EVALUATION_POSES),
     "pose source": ("pose_source", ("train", "pose_source"), SPEC.source),

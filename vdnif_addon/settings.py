@@ -30,6 +30,11 @@ class Recipe:
     """
 
     resolution: int = 32
+    # A textured mesh (albedo varies within a material, ``RestMesh.albedo_varies``) at 64:
+    # at 32 the voxel embedding alone bounds spot's albedo at 32.5 dB against the true
+    # reference and the network reaches 29.2 (3 seeds, 8 unseen poses at 256x256); at 64
+    # the embedding gives 37.1 and the network 31.05 (seed 0), at 0.8 of the render speed.
+    textured_resolution: int = 64
     poses: int = 32
     # 65,536, not 16,384: holes and extras come from too few distinct ray lines near
     # silhouettes (docs/HOLES.md). On spot (seed 0, 8 unseen poses at 256x256, vs true) 4x
@@ -45,6 +50,10 @@ class Recipe:
     # 9,000 give 0.26 % / 0.38 % / 0.0109 / 9.9 deg with the same data (docs/results-history.md).
     steps: int = 9000
     batch_size: int = 2**14
+
+    def resolution_for(self, textured: bool) -> int:
+        """The voxel resolution a mesh trains at unless told: finer where it is textured."""
+        return self.textured_resolution if textured else self.resolution
 
 
 RECIPE = Recipe()
@@ -306,13 +315,9 @@ class TrainConfig:
     batch_size: int = RECIPE.batch_size
     lr_grid: float = 1e-2
     lr_mlp: float = 1e-3
-    # The uncertainty weighting's log-variances s have their own rate, kept at the MLP's
-    # 1e-3: there they move slowly (0 to -1.1 in 3,000 steps on the arm, while they settle
-    # near occlusion -3.1, distance and normal -5.6), so the weights stay near equal. At
-    # 1e-2 they settle within about 1,000 steps and the arm's held-out distance and normal
-    # errors fell (0.060 to 0.043 voxels, 3.2 to 2.2 deg), but the settled weights favour
-    # the regression tasks over occlusion by the ratio of their losses, and on the small
-    # scene of tests/test_proposed_beats_deformed.py the hit IoU fell from 0.86 to 0.26.
+    # The log-variances' own rate stays at the MLP's 1e-3: at 1e-2 they settle, favour the
+    # regression tasks over occlusion by the ratio of their losses, and the small scene of
+    # tests/test_proposed_beats_deformed.py fell from hit IoU 0.86 to 0.26 (DESIGN section 8).
     lr_weighting: float = 1e-3
     final_lr_fraction: float = 0.1
     weighting: str = "uncertainty"

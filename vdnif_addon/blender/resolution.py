@@ -5,6 +5,8 @@ The embedding error is measured, not guessed: per candidate R, the true and the 
 reference (``generate.reference_run``) of a few poses, compared as distance MAE in object
 units. "The network's error" is known without training from the presets: each preset stores
 the error its settings measured on a bench scene (``presets.json``, written by ``bench``).
+A textured mesh is never suggested coarser than the recipe trains it (``recipe_resolution``):
+its albedo needs the finer embedding however small the distance error is.
 """
 
 import dataclasses
@@ -12,6 +14,7 @@ import dataclasses
 from ..presets import PRESET_ERROR, load_presets
 from ..settings import (
     EMBEDDING_ERROR_SHARE,
+    RECIPE,
     RESOLUTION_CANDIDATES,
     SUGGEST_POSES,
     SUGGEST_PRESET,
@@ -19,6 +22,13 @@ from ..settings import (
 )
 from .capture import capture
 from .generate import reference_run
+from .read_mesh import read_rest_mesh
+
+
+def recipe_resolution(obj):
+    """The voxel resolution mesh object ``obj`` trains at unless told (``Recipe.resolution_for``):
+    the recipe's, finer for a textured mesh."""
+    return RECIPE.resolution_for(read_rest_mesh(obj).albedo_varies)
 
 
 def network_error(preset=SUGGEST_PRESET, presets=None):
@@ -29,14 +39,18 @@ def network_error(preset=SUGGEST_PRESET, presets=None):
 
 
 def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
-                       poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE, progress=None):
-    """(R, table): the coarsest of ``candidates`` (ascending) whose embedding error, distance
+                       poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE, progress=None, floor=None):
+    """(R, table): the coarsest of ``candidates`` (ascending) from ``floor`` on (default: the
+    textured resolution for a textured mesh, else none) whose embedding error, distance
     MAE of the embedded against the true reference on ``poses`` poses of ``spec`` at
     ``size`` x ``size``, is at most ``target`` (default EMBEDDING_ERROR_SHARE of the
     preset's network error); the finest candidate when none is. ``table`` lists
     {resolution, embedding_error} per candidate tried."""
     if target is None:
         target = EMBEDDING_ERROR_SHARE * network_error()
+    if floor is None:
+        floor = RECIPE.textured_resolution if read_rest_mesh(obj).albedo_varies else 0
+    candidates = [r for r in candidates if r >= floor] or list(candidates[-1:])
     table = []
     spec = dataclasses.replace(spec, count=min(spec.count, poses))
     for resolution in candidates:

@@ -63,6 +63,10 @@ def load_posed_scene(args):
     spec = apply_stress(args, obj, pose_spec(args))
     if getattr(args, "resolution", None) == AUTO_RESOLUTION:
         args.resolution = suggested_resolution(obj, spec)
+    elif hasattr(args, "resolution") and args.resolution is None:   # not given, no model
+        from ..blender.resolution import recipe_resolution
+
+        args.resolution = recipe_resolution(obj)
     return obj, spec
 
 
@@ -110,12 +114,13 @@ def pose_spec(args):
 
 
 def add_capture_options(parser, default_poses):
-    parser.add_argument("--resolution", type=resolution_option, default=RECIPE.resolution,
-                        metavar="R", help=f"voxels along the longest side, "
+    parser.add_argument("--resolution", type=resolution_option, metavar="R",
+                        help=f"voxels along the longest side, "
                         f"{MIN_RESOLUTION}..{MAX_RESOLUTION}, or "
                         f"'{AUTO_RESOLUTION}': the coarsest whose voxel embedding error is "
                         f"at most {EMBEDDING_ERROR_SHARE:g} x the network's (default "
-                        f"{RECIPE.resolution})")
+                        f"{RECIPE.resolution}, {RECIPE.textured_resolution} for a textured "
+                        "mesh)")
     add_pose_options(parser, default_poses)
 
 
@@ -143,7 +148,7 @@ def write_json(path, data):
 
 
 def check_resolution(value):
-    if value == AUTO_RESOLUTION:        # resolved once the scene is loaded
+    if value in (AUTO_RESOLUTION, None):   # resolved once the scene is loaded
         return
     if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
         raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")

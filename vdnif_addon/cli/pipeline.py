@@ -231,7 +231,7 @@ def cmd_render(args):
     from ..blender.scenes import find_camera
 
     loaded = _read_model(args)
-    resolution = _model_resolution(args, loaded[1]["extra"])
+    resolution = args.resolution = _model_resolution(args, loaded[1]["extra"])
     obj, spec = load_posed_scene(args)
     captured = capture(obj, resolution, spec, deform_corners=False)
     model = load_scene_model(args.model, captured, args.device, loaded)
@@ -275,7 +275,7 @@ def evaluated(args):
     from ..progress import Progress
 
     loaded = _read_model(args)
-    resolution = _model_resolution(args, loaded[1]["extra"])
+    resolution = args.resolution = _model_resolution(args, loaded[1]["extra"])
     trained = loaded[1]["extra"].get("train_poses", [])
     obj, spec = load_posed_scene(args)
     captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose, trained=trained)

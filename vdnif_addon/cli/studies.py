@@ -6,8 +6,8 @@ import pathlib
 
 from ..errors import VDNIFError
 from ..safe_io import write_text_atomic
-from ..settings import DEMO_SCENE
-from ..studies.side_by_side_scenes import DEFAULT_RESOLUTION, MILLION_LEVEL, SCENES, scene_name
+from ..settings import DEMO_SCENE, RECIPE
+from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
     add_device_option,
     check_resolution,
@@ -177,10 +177,12 @@ def _model_paths(values, scenes):
 
 def _scene_capture(obj, model_path, args, device):
     """(capture of unseen poses, SceneModel or None) of one scene: the poses avoid the
-    model's training poses; the resolution is --resolution, else the model's, else 32."""
+    model's training poses; the resolution is --resolution, else the model's, else the
+    recipe's of the mesh."""
     from ..blender.capture import capture
     from ..blender.neural import load_scene_model
     from ..blender.poses import evaluation_spec
+    from ..blender.resolution import recipe_resolution
     from ..model_file import load_model
     from ..settings import PoseSpec
 
@@ -189,7 +191,7 @@ def _scene_capture(obj, model_path, args, device):
         extra = load_model(model_path)[1]["extra"]
         trained = extra.get("train_poses") or None
         resolution = resolution or int(extra["grid"]["resolution"])
-    resolution = resolution or DEFAULT_RESOLUTION
+    resolution = resolution or recipe_resolution(obj)
     check_resolution(resolution)
     spec = evaluation_spec(PoseSpec(count=args.poses, seed=args.seed), trained=trained)
     captured = capture(obj, resolution, spec, deform_corners=False)
@@ -304,7 +306,8 @@ def _add_side_by_side(commands):
     parser.add_argument("--repeats", type=int, default=3, metavar="N",
                         help="timed repeats; medians are reported (default 3)")
     parser.add_argument("--resolution", type=int, metavar="R", help=(
-        f"voxel resolution (default: the model's, else {DEFAULT_RESOLUTION})"))
+        f"voxel resolution (default: the model's, else {RECIPE.resolution}, "
+        f"{RECIPE.textured_resolution} for a textured mesh)"))
     parser.add_argument("--poses", type=int, default=4, metavar="N",
                         help="unseen poses per repeat (default 4)")
     parser.add_argument("--seed", type=int, default=0,

@@ -15,6 +15,7 @@ from ..blender.jobs import (
     write_figures,
     write_passes,
 )
+from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import DEMO_STEPS, RECIPE, PoseSpec
@@ -22,8 +23,8 @@ from ..variants import choose_variant
 from .report import demo_markdown
 
 SIZES = {   # full: the main job with the default recipe but DEMO_STEPS (under 10 minutes on
-    # 2 cores); quick: tests
-    "full": dict(resolution=RECIPE.resolution, poses=RECIPE.poses,
+    # 2 cores), at the recipe's resolution of the scene's mesh (None); quick: tests
+    "full": dict(resolution=None, poses=RECIPE.poses,
                  rays_per_pose=RECIPE.rays_per_pose, steps=DEMO_STEPS, eval_poses=8,
                  width=256, height=256, overrides={}),
     "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=300, eval_poses=2,
@@ -42,7 +43,8 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     out.mkdir(parents=True, exist_ok=True)
     obj = demo_scene(scene)
     spec = stress(obj, PoseSpec(count=size["poses"]))
-    captured = capture(obj, size["resolution"], spec, deform_corners=False)
+    resolution = size["resolution"] or recipe_resolution(obj)
+    captured = capture(obj, resolution, spec, deform_corners=False)
     variant, note = choose_variant(None, captured.mode == "static")
     if note is not None:
         print(f"demo: '{obj.name}': {note}", file=sys.stderr)
@@ -52,7 +54,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     with tempfile.TemporaryDirectory(prefix="data-", dir=out) as folder:
         _, summary = train_variant(obj, captured, variant, folder, size["rays_per_pose"],
                                    model, overrides, progress=progress)
-    evaluated = evaluation_poses(obj, size["resolution"], spec, count=size["eval_poses"])
+    evaluated = evaluation_poses(obj, resolution, spec, count=size["eval_poses"])
     width, height = size["width"], size["height"]
     report, views = evaluate_file(obj, evaluated, model, width, height, device)
     figures = write_figures(out, views[0], height, width, captured.mesh.size)

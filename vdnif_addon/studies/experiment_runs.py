@@ -16,6 +16,7 @@ from ..blender.image_io import save_image
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.neural import orbit_view
 from ..blender.posed import PosedObject
+from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..fit import fit_model
@@ -27,9 +28,10 @@ from .report import common_pixels_line
 
 # The full size trains with the default recipe (``settings.RECIPE``: voxel resolution,
 # poses, rays per pose and their mix, steps, batch), the one place it is set; the experiments
-# add their evaluation and seeds. The quick size is a tiny one for tests.
+# add their evaluation and seeds. Its resolution None is the recipe's for each scene's mesh
+# (``Recipe.resolution_for``). The quick size is a tiny one for tests.
 SIZES = {
-    "full": dict(resolution=RECIPE.resolution, poses=RECIPE.poses,
+    "full": dict(resolution=None, poses=RECIPE.poses,
                  rays_per_pose=RECIPE.rays_per_pose, steps=RECIPE.steps,
                  overrides=dict(batch_size=RECIPE.batch_size), eval_poses=8, width=256,
                  height=256, seeds=(0, 1, 2)),
@@ -58,6 +60,7 @@ class Experiment:
         self.size, self.scratch, self.figures = size, pathlib.Path(scratch), figures
         self.device, self.progress, self.scenes = device, progress, scenes
         self.suffix = suffix
+        self.resolutions = {}   # scene object's name -> voxel resolution it ran at
 
     def overrides(self, extra=None, seed=0):
         return dict(self.size["overrides"], steps=self.size["steps"], device=self.device,
@@ -71,11 +74,17 @@ class Experiment:
     def scene(self, name):
         """(object, training capture) of a demo scene."""
         obj = demo_scene(name)
-        return obj, capture(obj, self.size["resolution"], self.spec, deform_corners=False)
+        return obj, capture(obj, self.resolution(obj), self.spec, deform_corners=False)
+
+    def resolution(self, obj):
+        """The size's voxel resolution, or the recipe's for ``obj``'s mesh."""
+        if obj.name not in self.resolutions:
+            self.resolutions[obj.name] = self.size["resolution"] or recipe_resolution(obj)
+        return self.resolutions[obj.name]
 
     def evaluation(self, obj, rest=False):
         """Evaluation poses disjoint from the training poses (or views of the rest pose)."""
-        return evaluation_poses(obj, self.size["resolution"], self.spec, rest=rest,
+        return evaluation_poses(obj, self.resolution(obj), self.spec, rest=rest,
                                 count=self.size["eval_poses"])
 
     def evaluate(self, obj, evaluated, model, viewpoints=None, seen=False):

@@ -297,10 +297,13 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
     figures.mkdir(parents=True, exist_ok=True)
     started, clock = datetime.datetime.now(datetime.timezone.utc), time.monotonic()
     with tempfile.TemporaryDirectory(prefix="vdnif-experiment-") as scratch:
-        records, lines = EXPERIMENTS[name](Experiment(size, scratch, figures, device,
-                                                      progress, chosen, figure_suffix))
+        run = Experiment(size, scratch, figures, device, progress, chosen, figure_suffix)
+        records, lines = EXPERIMENTS[name](run)
     settings = {key: size[key] for key in ("resolution", "poses", "rays_per_pose", "steps",
                                            "eval_poses", "width", "height")}
+    if settings["resolution"] is None:      # the recipe's of each scene's mesh
+        used = set(run.resolutions.values())
+        settings["resolution"] = used.pop() if len(used) == 1 else dict(run.resolutions)
     # the training rays' mix is the recipe's at every size (generate_dataset's default)
     settings.update(size["overrides"], surface_fraction=RECIPE.surface_fraction,
                     grazing_fraction=RECIPE.grazing_fraction, seeds=list(size["seeds"]),

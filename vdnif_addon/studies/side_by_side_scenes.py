@@ -7,7 +7,6 @@ SUZANNE_LEVELS = (2, 3, 4, 5)     # Suzanne (968 triangles) subdivided: 15,744 .
 MILLION_LEVEL = 5                 # 'million': the 1 M-triangle scene, 1,007,616 triangles
 SCENES = ("bunny", *(f"suzanne-{level}" for level in SUZANNE_LEVELS), "million", "arm",
           "lattice", "spot")
-DEFAULT_RESOLUTION = 32           # voxel resolution of a scene without a model or --resolution
 
 
 def scene_name(name):
