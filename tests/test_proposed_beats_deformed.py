@@ -6,22 +6,25 @@ The size (``SIZE``) is small enough for the suite (about 25 s on a loaded 2-core
 and large enough that the baseline predicts hits (at 1,500 steps it often predicts almost
 none, and then there are no common pixels to compare on). The tolerance comes from the
 measured spread: with this size, seeds 0-4 (torch on one thread; ``python
-tests/test_proposed_beats_deformed.py`` prints them; measured after proposed's distance
-error came to be taken in t/l) gave, against the true reference,
+tests/test_proposed_beats_deformed.py`` prints them; measured after the uncertainty
+weighting came to start every task at weight 1, ``TrainConfig.weighting_start``) gave,
+against the true reference,
 
 | seed | common pixels | distance MAE ratio | normal error ratio | hit IoU deformed / proposed |
 | --- | --- | --- | --- | --- |
-| 0 | 405 | 0.342 | 0.392 | 0.693 / 0.920 |
-| 1 | 368 | 0.186 | 0.263 | 0.642 / 0.934 |
-| 2 | 303 | 0.126 | 0.188 | 0.566 / 0.961 |
-| 3 | 303 | 0.312 | 0.309 | 0.554 / 0.914 |
-| 4 | 342 | 0.291 | 0.279 | 0.625 / 0.903 |
+| 0 | 404 | 0.403 | 0.417 | 0.693 / 0.920 |
+| 1 | 368 | 0.203 | 0.270 | 0.642 / 0.936 |
+| 2 | 298 | 0.186 | 0.211 | 0.566 / 0.906 |
+| 3 | 303 | 0.275 | 0.292 | 0.554 / 0.890 |
+| 4 | 336 | 0.380 | 0.434 | 0.625 / 0.825 |
 
 (ratio: proposed / deformed on the common pixels). The test trains seed 0 and asks, against
-both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.39; with
+both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.43; with
 the error in log space it was 0.59 and the bound 0.85) and a hit IoU gain of at least
-``MIN_IOU_GAIN`` (below the smallest measured, 0.23; in log space 0.17 and the bound 0.15)
-and at least ``MIN_COMMON_PIXELS`` common pixels (below the fewest measured, 303).
+``MIN_IOU_GAIN`` (seed 0 gains 0.227; the smallest measured, seed 4's 0.200, sits at the
+bound, which was set below the 0.23 that the earlier start, occlusion at twice a regression
+task's weight, gave at worst) and at least ``MIN_COMMON_PIXELS`` common pixels (below the
+fewest measured, 298).
 """
 
 import sys

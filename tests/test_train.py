@@ -173,8 +173,9 @@ def test_uncertainty_weighting_equal_start_is_the_plain_sum_plus_its_log_varianc
         assert s[task] == pytest.approx(math.log(0.5), abs=1e-6)
     plain = FixedWeighting(list(losses))(losses)
     torch.testing.assert_close(weighting(losses), plain + 0.5 * 3 * math.log(0.5))
-    zero = make_weighting("uncertainty", list(losses)).log_variances()
+    zero = make_weighting("uncertainty", list(losses), "zero").log_variances()
     assert zero == dict.fromkeys(losses, 0.0)
+    assert make_weighting("uncertainty", list(losses)).log_variances() == s  # the default
     with pytest.raises(VDNIFError, match="weighting_start"):
         TrainConfig(weighting_start="equals")
 
@@ -185,7 +186,7 @@ def test_uncertainty_weighting_formula_and_bounds():
         "distance": torch.tensor(0.2),
         "material": torch.tensor(1.5),
     }
-    weighting = UncertaintyWeighting(list(losses))
+    weighting = UncertaintyWeighting(list(losses), start="zero")
     assert weighting.log_variances() == {"occlusion": 0.0, "distance": 0.0, "material": 0.0}
     torch.testing.assert_close(weighting(losses), torch.tensor(0.7 + 0.5 * 0.2 + 1.5))
     with torch.no_grad():
@@ -319,7 +320,10 @@ def test_uncertainty_weights_learn_at_their_own_rate():
                    any(p is objective.weighting.raw for p in g["params"])]
         assert len(weights) == 1 and len(weights[0]["params"]) == 1
         result = train(sphere_shards(n=256, poses=4), header(), config.train, config.network)
-        moved[rate] = max(abs(s) for s in result.history[-1]["log_variances"].values())
+        start = make_weighting("uncertainty", list(result.history[-1]["log_variances"]),
+                               config.train.weighting_start).log_variances()
+        moved[rate] = max(abs(s - start[task])
+                          for task, s in result.history[-1]["log_variances"].items())
     assert moved[1e-2] > 5 * moved[1e-3] > 0
     fixed = variant_config("deformed", **SMALL, device="cpu")
     objective = training.Objective(IntersectionNetwork(fixed.network),
@@ -370,8 +374,10 @@ def test_training_follows_the_torch_encoders_loss_curve(tmp_path):
     the first 50 steps' total and task losses, each within 1e-3 relative."""
     golden = json.loads((GOLDEN / "arm-train.json").read_text())
     # The proposed variant as it was when the golden was recorded: distance log1p(d/h) and
-    # the weighting's log-variances at the MLP's rate. What is compared is the encoder.
-    settings = {"distance_mode": "log1p", "lr_weighting": 1e-3, **golden["settings"]}
+    # the weighting's log-variances at the MLP's rate, starting at 0. What is compared is
+    # the encoder.
+    settings = {"distance_mode": "log1p", "lr_weighting": 1e-3, "weighting_start": "zero",
+                **golden["settings"]}
     variant = settings.pop("variant")
     records = []
     fit_model(GOLDEN / "arm-dataset", variant, tmp_path / "model.vdnif",
