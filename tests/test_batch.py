@@ -176,7 +176,7 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
     assert report == json.loads((out / "report.json").read_text())
     assert report["variant"] == "proposed" and report["unseen_poses"] is True
     assert report["config"]["network"]["pe_bands"] == 3
-    assert report["config"]["train"]["steps"] == 300
+    assert report["config"]["train"]["steps"] == 600
     for reference in ("vs_true", "vs_embedded"):
         metrics = report[reference]
         assert 0.2 < metrics["hit_iou"] <= 1, metrics
