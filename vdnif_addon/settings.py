@@ -321,14 +321,12 @@ class TrainConfig:
     lr_weighting: float = 1e-3
     final_lr_fraction: float = 0.1
     weighting: str = "uncertainty"
-    # "equal" (every task at weight 1, as the fixed sum), not "zero" (occlusion at twice a
-    # regression task's weight): at the recipe the log-variances move at Adam's full step
-    # and never settle, so the start fixes the balance for the whole run (DESIGN section 8).
-    # On the arm (one recipe dataset, seed 0, 8 unseen poses at 256x256, vs true, each model
-    # over its own pixels) "zero" left proposed's distance error at 0.00109 object units
-    # against deformed's 0.00103, "equal" 0.00094; normal error 2.26 deg against 2.47
-    # (deformed 2.80), holes / extras 0.15 / 0.35 % against 0.12 / 0.36 %. Occlusion's
-    # double weight cost the head-on hits that fill the passes (DESIGN section 8).
+    # "equal" (every task at weight 1), not "zero" (occlusion at twice a regression task's
+    # weight): the log-variances never settle at the recipe, so the start sets the balance of
+    # the whole run (DESIGN section 8). On the arm (seed 0, 8 unseen poses at 256x256, vs
+    # true, own pixels) "zero" left proposed's distance error at 0.00109 object units against
+    # deformed's 0.00103, "equal" 0.00094; normal error 2.26 deg against 2.47 (deformed 2.80),
+    # holes / extras 0.15 / 0.35 % against 0.12 / 0.36 %: the head-on hits of the passes.
     weighting_start: str = DEFAULT_WEIGHTING_START
     seed: int = 0
     device: str = DEFAULT_DEVICE
