@@ -279,3 +279,43 @@ def test_convergence_ignores_records_without_validation():
                        "distance_mae_voxels": 0.2, "loss/occlusion": 0.3})
     assert figures == pytest.approx({"occlusion_error": 0.1, "material_error": 0.25,
                                      "distance_mae_voxels": 0.2})
+
+
+def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rounds(
+        tmp_path, monkeypatch):
+    """One render times a point only roughly: every point renders once per round and its
+    speed is the median of its rounds. The renders are stand-ins whose speeds are given, the
+    rounds interleaved (point 1, point 2, point 1, ...)."""
+    from types import SimpleNamespace
+
+    from vdnif_addon.studies import bench
+
+    size = dict(bench.SIZES["quick"], speed_rounds=5)
+    points = [dict(resolution=16, width=32), dict(resolution=12, width=64)]
+    given = {0: [9.0, 1.0, 4.0, 2.0, 3.0], 1: [None] * 5}      # point 2 predicts no hits
+    calls = []
+
+    def evaluate_file(obj, evaluated, model, width, height, device):
+        number = int(model.stem.split("-")[1])
+        speed = given[number][sum(1 for c in calls if c == number)]
+        calls.append(number)
+        metrics = {key: 0.1 * len(calls) for key in bench.METRICS}
+        report = {"vs_true": metrics, "vs_embedded": metrics, "speed_withheld": None,
+                  "model_bytes": 1, "timings": {"train_s": 1.0, "render_rays_per_s": speed}}
+        return report, [len(calls)]
+
+    monkeypatch.setattr(bench, "evaluate_file", evaluate_file)
+    monkeypatch.setattr(bench, "evaluation_poses", lambda obj, resolution, spec, count:
+                        SimpleNamespace(grid=SimpleNamespace(voxel_size=0.1), mesh=None))
+    monkeypatch.setattr(bench, "finished_point", lambda path, model, size, point:
+                        {"steps": 10, "converged": True})
+    monkeypatch.setattr(bench, "concatenated", lambda views: views)
+    common = []
+    monkeypatch.setattr(bench, "_add_common", lambda rows, runs, mesh: common.append(runs))
+    rows = bench._evaluate_points(None, None, size, points, tmp_path, "cpu")
+    assert calls == [0, 1] * 5
+    assert rows[0]["render_rays_per_s"] == 3.0 and rows[1]["render_rays_per_s"] is None
+    # the errors and the views compared on the common pixels are the first round's
+    assert rows[0]["vs_true_distance_mae"] == pytest.approx(0.1)
+    assert rows[1]["vs_true_distance_mae"] == pytest.approx(0.2)
+    assert common == [[([1], 0.1), ([2], 0.1)]]
