@@ -32,8 +32,8 @@ class Recipe:
     resolution: int = 32
     # A textured mesh (albedo varies within a material, ``RestMesh.albedo_varies``) at 64:
     # at 32 the voxel embedding alone bounds spot's albedo at 32.5 dB against the true
-    # reference and the network reaches 29.2 (3 seeds, 8 unseen poses at 256x256); at 64 the
-    # embedding gives 37.1 and the network 33.6 (3 seeds), at 0.8 of the render speed.
+    # reference and the network 29.2 (3 seeds, 8 unseen poses at 256x256, zero start); at 64
+    # the embedding gives 37.1 and the network 33.2 (33.6 at the equal start), at 0.8 speed.
     textured_resolution: int = 64
     poses: int = 32
     # 65,536, not 16,384: holes and extras come from too few distinct ray lines near
