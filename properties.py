@@ -118,7 +118,7 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         Automatic the static variant where no armature or lattice deforms the object
         (``variants.choose_variant``; the note says what was decided, or None)."""
         from .vdnif_addon.blender.read_mesh import deform_modifiers
-        from .vdnif_addon.variants import choose_variant
+        from .vdnif_addon.model.variants import choose_variant
 
         return choose_variant(None if self.variant == defaults.AUTO_VARIANT else self.variant,
                               not deform_modifiers(self.id_data))

@@ -9,14 +9,14 @@ import math
 import bpy
 import numpy as np
 
-from .vdnif_addon import rays
-from .vdnif_addon.blender.capture import capture
+from .vdnif_addon.blender.capture_scene import capture
 from .vdnif_addon.blender.deform import CornerDeformer
 from .vdnif_addon.errors import VDNIFError
-from .vdnif_addon.evaluation import view_images
-from .vdnif_addon.images import PASSES
+from .vdnif_addon.geometry.voxels import inverted_cells
+from .vdnif_addon.inference.evaluation import view_images
+from .vdnif_addon.inference.images import PASSES
 from .vdnif_addon.settings import PoseSpec
-from .vdnif_addon.voxels import inverted_cells
+from .vdnif_addon.tracing import rays
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}

@@ -34,9 +34,9 @@ class VDNIF_OT_load_model(VDNIFOperator, bpy.types.Operator, ImportHelper):
     filter_glob: FILE_FILTER
 
     def work(self, context, obj):
-        from ..vdnif_addon.blender.capture import capture
-        from ..vdnif_addon.evaluation import check_model_fits
-        from ..vdnif_addon.model_file import load_model
+        from ..vdnif_addon.blender.capture_scene import capture
+        from ..vdnif_addon.inference.evaluation import check_model_fits
+        from ..vdnif_addon.model.model_file import load_model
 
         _, metadata = load_model(self.filepath)
         settings = obj.vdnif

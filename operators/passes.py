@@ -14,9 +14,9 @@ def model_capture(obj, evaluation_count=None):
     """The object captured at its model's resolution, with ``evaluation_count`` evaluation
     poses when given: from the object's pose settings, disjoint from the poses its model
     was trained on."""
-    from ..vdnif_addon.blender.capture import capture
+    from ..vdnif_addon.blender.capture_scene import capture
     from ..vdnif_addon.blender.jobs import evaluation_poses
-    from ..vdnif_addon.model_file import load_model
+    from ..vdnif_addon.model.model_file import load_model
 
     settings = obj.vdnif
     resolution = settings.parsed("model_info").get("resolution")

@@ -57,7 +57,7 @@ class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
     needs = ("mesh", "torch", "idle")
 
     def work(self, context, obj):
-        from ..vdnif_addon.blender.capture import capture
+        from ..vdnif_addon.blender.capture_scene import capture
         from ..vdnif_addon.blender.jobs import variant_dataset
 
         settings = obj.vdnif

@@ -74,8 +74,8 @@ class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
         self._stop(context)
 
     def _job(self, context, obj):
-        from ..vdnif_addon.training_job import TrainingJob
-        from ..vdnif_addon.variants import variant_config
+        from ..vdnif_addon.model.variants import variant_config
+        from ..vdnif_addon.training.job import TrainingJob
 
         settings = obj.vdnif
         variant, _ = settings.chosen_variant()
@@ -94,7 +94,7 @@ class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
         if state.status == "failed":
             raise VDNIFError(state.message)
         if state.model is not None:
-            from ..vdnif_addon.model_file import load_model
+            from ..vdnif_addon.model.model_file import load_model
 
             _, metadata = load_model(state.model)
             storage.keep_model(obj, state.model, storage.model_summary(metadata, state.model))

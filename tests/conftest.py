@@ -60,7 +60,7 @@ def _raise(exc):
 
 @pytest.fixture
 def core(extension):
-    """Imports a core module as the extension sees it: ``core("blender.capture")``."""
+    """Imports a core module as the extension sees it: ``core("blender.capture_scene")``."""
     return lambda name: importlib.import_module(f"{EXTENSION_MODULE}.vdnif_addon.{name}")
 
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from vdnif_addon import attributes
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.restmesh import Albedo, RestMesh
+from vdnif_addon.geometry import attributes
+from vdnif_addon.geometry.restmesh import Albedo, RestMesh
 
 # Degenerate input must be handled explicitly: any numpy floating-point warning fails a test.
 pytestmark = pytest.mark.filterwarnings("error")

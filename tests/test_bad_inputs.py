@@ -293,7 +293,7 @@ BAD_DATA = {
 
 
 def _bad_model(good, target, kind):
-    from vdnif_addon.model_file import load_model, save_model
+    from vdnif_addon.model.model_file import load_model, save_model
 
     network, meta = load_model(good)
     extra = dict(meta["extra"])
@@ -477,11 +477,12 @@ def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene
 
     bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2)
     obj = bpy.context.active_object
-    capture = core("blender.capture").capture
+    capture = core("blender.capture_scene").capture
     first = capture(obj, 8)
-    extra = {"object": obj.name, "grid": core("dataset").grid_header(first.grid, first.mesh),
+    grid_header = core("training.dataset").grid_header
+    extra = {"object": obj.name, "grid": grid_header(first.grid, first.mesh),
              "heads": first.mesh.heads()}
-    check = core("evaluation").check_model_fits
+    check = core("inference.evaluation").check_model_fits
     check("m.vdnif", extra, first.mesh, first.grid)
     inner = min(range(len(obj.data.vertices)), key=lambda i: abs(obj.data.vertices[i].co.z))
     obj.data.vertices[inner].co *= 0.9            # inside the old bounds: the same grid

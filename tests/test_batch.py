@@ -9,7 +9,7 @@ import sys
 import pytest
 from conftest import REPO
 
-from vdnif_addon.metrics import SPEED_MIN_HIT_IOU, speed_withheld
+from vdnif_addon.inference.metrics import SPEED_MIN_HIT_IOU, speed_withheld
 
 BATCH = REPO / "vdnif_addon" / "batch.py"
 

@@ -9,16 +9,10 @@ from conftest import REPO
 from test_batch import run_batch
 
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.metrics import speed_withheld
-from vdnif_addon.presets import (
-    PRESET_ERROR,
-    PRESETS_FILE,
-    SETTINGS,
-    derive_presets,
-    load_presets,
-    pareto_front,
-)
+from vdnif_addon.inference.metrics import speed_withheld
+from vdnif_addon.presets import PRESET_ERROR, PRESETS_FILE, SETTINGS, load_presets
 from vdnif_addon.safe_io import exclusive_lock
+from vdnif_addon.studies.pareto import derive_presets, pareto_front
 
 
 def test_pareto_front_keeps_only_undominated_points():
@@ -188,7 +182,7 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     common-set error and no say in the presets."""
     from test_metrics import image, one_material_mesh
 
-    from vdnif_addon.evaluation import compare_both, speed_figures
+    from vdnif_addon.inference.evaluation import compare_both, speed_figures
     from vdnif_addon.studies import bench
 
     mesh = one_material_mesh()

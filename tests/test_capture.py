@@ -19,7 +19,7 @@ def corner_index_of_vertices(grid, vertices):
 
 def captured_vs_blender(core, obj, spec):
     """Max distance, per pose, between captured corners and Blender's evaluated vertices."""
-    capture = core("blender.capture").capture(obj, resolution=8, spec=spec)
+    capture = core("blender.capture_scene").capture(obj, resolution=8, spec=spec)
     corner_of_vertex = corner_index_of_vertices(capture.grid, sb.mesh_vertices(obj))
     posed = core("blender.poses").posed
     errors = []
@@ -65,7 +65,7 @@ def test_demo_animation_frames_match_blender(empty_scene, core):
 @pytest.mark.parametrize("scene", ["arm", "lattice"])
 def test_rest_pose_leaves_corners_unchanged(empty_scene, core, scene):
     obj = core("blender.scenes").demo_scene(scene)
-    capture = core("blender.capture").capture(obj, resolution=16, spec=core(
+    capture = core("blender.capture_scene").capture(obj, resolution=16, spec=core(
         "blender.poses").PoseSpec(source="frames", count=1))
     rest_pose = {"frame": 1.0}
     with core("blender.deform").CornerDeformer(obj, capture.grid.corner_positions()) as deformer:
@@ -86,7 +86,7 @@ def test_affine_lattice_moves_corners_affinely(empty_scene, core):
     for point, co in zip(lattice.data.points, rest @ linear.T + shift):
         point.co_deform = co
     bpy.context.view_layer.update()
-    capture = core("blender.capture").capture(box, resolution=8, spec=core(
+    capture = core("blender.capture_scene").capture(box, resolution=8, spec=core(
         "blender.poses").PoseSpec(source="frames", count=1))
     to_lattice = np.array(lattice.matrix_world.inverted() @ box.matrix_world)
     from_lattice = np.linalg.inv(to_lattice)
@@ -108,7 +108,7 @@ def test_random_poses_touch_only_bones_that_move_the_mesh(empty_scene, core):
     bpy.ops.object.mode_set(mode="OBJECT")
     rig.pose.bones["Second"].lock_rotation = (True, False, True)
     spec = core("blender.poses").PoseSpec(count=16, seed=1, max_angle_deg=30)
-    capture = core("blender.capture").capture(box, resolution=8, spec=spec)
+    capture = core("blender.capture_scene").capture(box, resolution=8, spec=spec)
     angles = np.array([[p["bones"][b] for b in ("First", "Second")] for p in capture.poses])
     assert all(set(p["bones"]) == {"First", "Second"} for p in capture.poses)
     assert np.abs(angles).max() <= math.radians(30) + 1e-9
@@ -132,7 +132,7 @@ def test_inverted_cells_are_counted_per_pose(empty_scene, core):
     lattice = sb.lattice_around(box, interpolation="KEY_LINEAR")
     for point in lattice.data.points:   # mirror x: every cell turns inside out
         point.co_deform = (-point.co[0], point.co[1], point.co[2])
-    capture = core("blender.capture").capture(box, resolution=8, spec=core(
+    capture = core("blender.capture_scene").capture(box, resolution=8, spec=core(
         "blender.poses").PoseSpec(source="frames", count=2))
     assert capture.inverted_cells.tolist() == [len(capture.grid.cells)] * 2
     assert capture.summary()["inverted_cells"] == [len(capture.grid.cells)] * 2
@@ -140,7 +140,7 @@ def test_inverted_cells_are_counted_per_pose(empty_scene, core):
 
 def test_static_mesh_is_one_rest_pose(empty_scene, core):
     box = sb.lattice_box((2, 2, 2), 0.5)
-    capture = core("blender.capture").capture(box, resolution=8)
+    capture = core("blender.capture_scene").capture(box, resolution=8)
     assert capture.mode == "static" and len(capture.poses) == 1
     np.testing.assert_array_equal(capture.corners[0], capture.grid.corner_positions())
 
@@ -200,7 +200,7 @@ def test_non_mesh_object_is_refused(empty_scene, core):
     camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
     empty_scene.collection.objects.link(camera)
     with pytest.raises(core("errors").VDNIFError, match="'Cam' is a camera, not a mesh"):
-        core("blender.capture").capture(camera)
+        core("blender.capture_scene").capture(camera)
 
 
 def test_empty_mesh_is_refused(empty_scene, core):
@@ -209,7 +209,7 @@ def test_empty_mesh_is_refused(empty_scene, core):
     obj = bpy.data.objects.new("Nothing", bpy.data.meshes.new("Nothing"))
     empty_scene.collection.objects.link(obj)
     with pytest.raises(core("errors").VDNIFError, match="'Nothing' is empty"):
-        core("blender.capture").capture(obj)
+        core("blender.capture_scene").capture(obj)
 
 
 def test_armature_without_weights_is_refused(empty_scene, core):
@@ -218,7 +218,7 @@ def test_armature_without_weights_is_refused(empty_scene, core):
     box.vertex_groups.clear()
     with pytest.raises(core("errors").VDNIFError,
                        match="armature 'Rig' has no bone weighting mesh 'Box'"):
-        core("blender.capture").capture(box)
+        core("blender.capture_scene").capture(box)
 
 
 def test_modifier_without_deformer_object_is_refused(empty_scene, core):
@@ -226,14 +226,14 @@ def test_modifier_without_deformer_object_is_refused(empty_scene, core):
     box.modifiers.new("Lattice", "LATTICE")
     with pytest.raises(core("errors").VDNIFError,
                        match="lattice modifier 'Lattice' of 'Box' has no lattice object"):
-        core("blender.capture").capture(box)
+        core("blender.capture_scene").capture(box)
 
 
 @pytest.mark.parametrize("resolution", [3, 257])
 def test_resolution_out_of_range_is_refused(empty_scene, core, resolution):
     box = sb.lattice_box((2, 2, 2), 0.5)
     with pytest.raises(core("errors").VDNIFError, match=f"'Box'.*{resolution}.*4..256"):
-        core("blender.capture").capture(box, resolution=resolution)
+        core("blender.capture_scene").capture(box, resolution=resolution)
 
 
 def test_missing_objects_and_files_are_refused(empty_scene, core, tmp_path):

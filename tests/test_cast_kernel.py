@@ -3,7 +3,7 @@
 import numpy as np
 
 from vdnif_addon.kernels.cast import MeshCaster
-from vdnif_addon.traverse import BruteForceCaster
+from vdnif_addon.tracing.traverse import BruteForceCaster
 
 
 def random_soup(rng, count=150):

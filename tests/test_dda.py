@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 from oracles import dda as oracle
 
-from vdnif_addon import dda, traverse, voxels
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry import voxels
 from vdnif_addon.kernels.cells import DeviceCells
+from vdnif_addon.tracing import static_grid as dda
+from vdnif_addon.tracing import traverse
 
 
 @pytest.fixture(scope="module")

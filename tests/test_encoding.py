@@ -4,10 +4,10 @@ import pytest
 import torch
 from oracles.encoding_torch import positional_points
 
-from vdnif_addon import encoding
-from vdnif_addon.encoding import HashGrid, SegmentEncoder
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.kernels import encoder as kernel
+from vdnif_addon.model import encoding
+from vdnif_addon.model.encoding import HashGrid, SegmentEncoder
 
 PRIMES = (1, 2654435761, 805459861)
 

@@ -10,8 +10,8 @@ import pytest
 import torch
 from oracles import encoding_torch as oracle
 
-from vdnif_addon.encoding import HashGrid, SegmentEncoder
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.model.encoding import HashGrid, SegmentEncoder
 
 CONFIGS = [  # levels, base, growth, log2 table size, Fd, bands, form, dense levels expected
     pytest.param(2, 64, 2.0, 16, 3, 3, "paper", 0, id="paper-setting"),

@@ -58,7 +58,7 @@ def test_world_rays_of_a_moved_scaled_object_match_blenders_ray_cast(empty_scene
     obj = bpy.context.active_object
     obj.location, obj.rotation_euler, obj.scale = (1.0, -2.0, 0.5), (0.3, 0.2, 0.9), (2.0,) * 3
     bpy.context.view_layer.update()
-    capture = core("blender.capture").capture(obj, 12)
+    capture = core("blender.capture_scene").capture(obj, 12)
     neural = core("blender.neural")
     model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid), metadata={
         "extra": {"albedo_table": capture.mesh.albedo_table().tolist()}}, grid=capture.grid,
@@ -86,14 +86,14 @@ def test_world_rays_of_a_moved_scaled_object_match_blenders_ray_cast(empty_scene
 
 
 def test_a_model_for_another_object_or_resolution_is_refused(empty_scene, core):
-    capture = core("blender.capture").capture(core("blender.scenes").demo_scene("arm"), 16,
+    capture = core("blender.capture_scene").capture(core("blender.scenes").demo_scene("arm"), 16,
                                               core("blender.poses").PoseSpec(count=1))
     grid = capture.grid
     extra = {"object": "Arm", "grid": {"resolution": 16, "dims": grid.dims.tolist(),
                                        "origin": grid.origin.tolist(),
                                        "voxel_size": grid.voxel_size},
              "heads": {"material_count": 1}}
-    fits = core("evaluation").check_model_fits
+    fits = core("inference.evaluation").check_model_fits
     fits("m.vdnif", extra, capture.mesh, grid)
     errors = core("errors")
     cases = [
@@ -112,15 +112,15 @@ def test_a_ray_leaving_through_the_other_half_of_its_folded_entry_face_walks_on(
     """Regression: on this unseen arm pose one orbit ray enters a cell through one triangle
     of a non-planar face and leaves through the other; the walk re-seeked from just past
     its entry, where the float32 BVH found the entry again, forever."""
-    jobs, rays = core("blender.jobs"), core("rays")
+    jobs, rays = core("blender.jobs"), core("tracing.rays")
     obj = core("blender.scenes").demo_scene("arm")
     evaluated = jobs.evaluation_poses(obj, 32, core("blender.poses").PoseSpec(count=4))
-    with core("blender.posed").PosedObject(obj, evaluated) as posed_object:
+    with core("blender.pose_geometry").PosedObject(obj, evaluated) as posed_object:
         geometry = posed_object.geometry(evaluated.poses[1])
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),
                                               geometry.vertices.max(0),
                                               rays.orbit_viewpoints(4)[1], 128, 128)
-        segments = core("traverse").traverse(geometry.cells, origins[5680:5685],
+        segments = core("tracing.traverse").traverse(geometry.cells, origins[5680:5685],
                                              directions[5680:5685], max_steps=100)
     assert segments.truncated == 0
     assert len(segments) > 5 and (segments.t1 >= segments.t0).all()

@@ -100,8 +100,8 @@ def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed
 
 
 def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline():
+    from vdnif_addon.model.variants import variant_config
     from vdnif_addon.settings import ABLATIONS, VARIANTS
-    from vdnif_addon.variants import variant_config
 
     proposed, deformed = variant_config("proposed"), variant_config("deformed")
     parts = {"pe_bands": "network", "distance_mode": "network", "weighting": "train"}
@@ -126,9 +126,9 @@ def test_original_is_the_rest_mesh_cast_with_the_rays_of_the_deformed_view(empty
     original = experiment_runs.original_views(run, runs)
     mesh = captured.mesh
     tree = core("blender.bvh").BVHCaster(mesh.vertices, mesh.triangles)
-    neural, rays = core("blender.neural"), core("rays")
+    neural, rays = core("blender.neural"), core("tracing.rays")
     viewpoints = rays.orbit_viewpoints(2)
-    with core("blender.posed").PosedObject(obj, evaluated) as posed_object:
+    with core("blender.pose_geometry").PosedObject(obj, evaluated) as posed_object:
         for pose, viewpoint, passes in zip(evaluated.poses, viewpoints, original):
             geometry = posed_object.geometry(pose)
             origins, directions = neural.orbit_view(geometry, viewpoint, 20, 20)
@@ -136,7 +136,7 @@ def test_original_is_the_rest_mesh_cast_with_the_rays_of_the_deformed_view(empty
             assert 50 < passes.hit.sum() < 400
             np.testing.assert_array_equal(passes.hit, index >= 0)
             np.testing.assert_allclose(passes.distance[passes.hit], t[index >= 0], rtol=1e-5)
-            deformed = core("references").true_reference(
+            deformed = core("tracing.references").true_reference(
                 mesh, geometry.mesh_caster(mesh.triangles), origins, directions)
             both = deformed.hit & passes.hit            # the pose moved the object
             assert (deformed.hit != passes.hit).any()

@@ -93,10 +93,10 @@ def walked_segments(core, obj, resolution, size):
     """A capture of ``obj`` and the segments of an orbit view of its first evaluation pose,
     walked as the references do."""
     poses = core("blender.poses")
-    capture = core("blender.capture").capture(
+    capture = core("blender.capture_scene").capture(
         obj, resolution, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
-    rays, traverse = core("rays"), core("traverse")
-    with core("blender.posed").PosedObject(obj, capture) as posed_object:
+    rays, traverse = core("tracing.rays"), core("tracing.traverse")
+    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
         geometry = posed_object.geometry(capture.poses[0])
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),
                                               geometry.vertices.max(0),
@@ -110,7 +110,7 @@ def test_segment_ground_truth_equals_blender_bvhtree(empty_scene, core, scene):
     obj = core("blender.scenes").demo_scene(scene)
     capture, segments, rest_caster = walked_segments(core, obj, 24, 96)
     mesh = capture.mesh
-    found = core("groundtruth").segment_targets(mesh, rest_caster, segments)
+    found = core("tracing.groundtruth").segment_targets(mesh, rest_caster, segments)
     tree = core("blender.bvh").BVHCaster(mesh.vertices, mesh.triangles)
     expected = oracle.segment_targets(mesh, tree, segments)
     assert expected.hit.sum() > 1000 and len(segments) > 10000
@@ -127,10 +127,10 @@ def test_dataset_equals_the_golden_shard(empty_scene, core, tmp_path):
     float32 round-off, the ground truth within the module's rules."""
     obj = core("blender.scenes").demo_scene("arm")
     spec = core("blender.poses").PoseSpec(count=3, seed=0)
-    capture = core("blender.capture").capture(obj, 12, spec, deform_corners=False)
+    capture = core("blender.capture_scene").capture(obj, 12, spec, deform_corners=False)
     header = core("blender.generate").generate_dataset(obj, capture, tmp_path, 256, 0.6, 0,
                                                        grazing_fraction=0.0)
-    dataset = core("dataset")
+    dataset = core("training.dataset")
     (_, [new]), (golden_header, [old]) = (dataset.read_dataset(tmp_path),
                                           dataset.read_dataset(GOLDEN / "arm-dataset"))
     for key in ("object", "grid", "albedo_table", "poses", "inverted_cells"):
@@ -162,10 +162,10 @@ def test_dataset_equals_the_golden_shard(empty_scene, core, tmp_path):
     # The new hits' triangles, for the angles: the kernel's on the records' segments, or
     # where float32 records moved a grazing segment off its surface, a float64 cast of them
     # grown by two margins at each end.
-    groundtruth = core("groundtruth")
+    groundtruth = core("tracing.groundtruth")
     triangle, *_ = groundtruth.rest_surface(mesh).cast_segments(
         p0, p1, np.zeros(len(p0), int), groundtruth.BOUNDARY_MARGIN * mesh.size)
-    brute = core("traverse").BruteForceCaster(mesh.vertices[mesh.triangles])
+    brute = core("tracing.traverse").BruteForceCaster(mesh.vertices[mesh.triangles])
     length = np.linalg.norm(p1 - p0, axis=1)
     direction = (p1 - p0) / np.where(length > 0, length, 1.0)[:, None]
     grow = 2 * groundtruth.BOUNDARY_MARGIN * mesh.size
@@ -200,11 +200,11 @@ def test_one_deformed_caster_per_posed_object_follows_the_pose_asked_for(empty_s
     """Built once, refit to whichever pose's ``mesh_caster`` is asked for, equal to a caster
     built on that pose alone; the rest pose uses the rest caster."""
     obj = core("blender.scenes").demo_scene("arm")
-    capture = core("blender.capture").capture(
+    capture = core("blender.capture_scene").capture(
         obj, 12, core("blender.poses").PoseSpec(count=2, seed=1), deform_corners=False)
-    rays, references = core("rays"), core("references")
+    rays, references = core("tracing.rays"), core("tracing.references")
     surface = core("kernels.surface")
-    with core("blender.posed").PosedObject(obj, capture) as posed_object:
+    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
         first, second = (posed_object.geometry(pose) for pose in capture.poses)
         origins, directions = rays.orbit_rays(first.vertices.min(0), first.vertices.max(0),
                                               rays.orbit_viewpoints(1)[0], 32, 32)

@@ -43,18 +43,18 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     assert heads["material"] and heads["material_count"] == 2
     assert heads["material_slots"] == [1, 3]
 
-    captured = core("blender.capture").capture(box, 8)
+    captured = core("blender.capture_scene").capture(box, 8)
     header = core("blender.generate").generate_dataset(box, captured, tmp_path / "data", 512)
     assert header["heads"]["material_slots"] == [1, 3]
     shard = np.load(next((tmp_path / "data").glob("*.npz")))
     assert set(np.unique(shard["material"][shard["hit"] == 1])) == {0, 1}
     model = tmp_path / "box.vdnif"
-    core("fit").fit_model(tmp_path / "data", "lsnif", model, TINY)
-    network, metadata = core("model_file").load_model(model)
+    core("training.fit").fit_model(tmp_path / "data", "lsnif", model, TINY)
+    network, metadata = core("model.model_file").load_model(model)
     assert network.config.heads.sizes()["material"] == 2       # not 4 slots
     assert metadata["extra"]["heads"]["material_slots"] == [1, 3]
 
-    evaluation = core("evaluation")
+    evaluation = core("inference.evaluation")
     evaluation.check_model_fits(model, metadata["extra"], captured.mesh, captured.grid)
     stale = dict(metadata["extra"], heads=dict(metadata["extra"]["heads"],
                                                material_slots=[0, 1]))
@@ -93,7 +93,7 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
 
 
 def test_choose_variant(core):
-    choose = core("variants").choose_variant
+    choose = core("model.variants").choose_variant
     assert choose(None, False) == ("proposed", None)
     variant, note = choose(None, True)
     assert variant == "lsnif" and "static variant lsnif" in note
@@ -151,7 +151,7 @@ def test_ui_trains_the_static_variant_automatically(empty_scene, extension):
     bpy.ops.vdnif.train()
     assert settings.parsed("model_info")["variant"] == "lsnif"
     storage = extension.storage
-    _, metadata = extension.vdnif_addon.model_file.load_model(storage.model_path(cube))
+    _, metadata = extension.vdnif_addon.model.model_file.load_model(storage.model_path(cube))
     assert metadata["network_config"].pe_bands == 0          # the variant's own bands
     settings.variant = "proposed"                             # asked: it wins
     assert settings.chosen_variant() == ("proposed", "no armature or lattice deforms it: "

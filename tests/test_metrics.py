@@ -6,10 +6,22 @@ import numpy as np
 import pytest
 
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.evaluation import compare_both, compare_common, metric_heads, speed_figures
-from vdnif_addon.metrics import SPEED_MIN_HIT_IOU, Passes, common_pixels, compare, speed_withheld
-from vdnif_addon.presets import SETTINGS, derive_presets
-from vdnif_addon.restmesh import Albedo, RestMesh
+from vdnif_addon.geometry.restmesh import Albedo, RestMesh
+from vdnif_addon.inference.evaluation import (
+    compare_both,
+    compare_common,
+    metric_heads,
+    speed_figures,
+)
+from vdnif_addon.inference.metrics import (
+    SPEED_MIN_HIT_IOU,
+    Passes,
+    common_pixels,
+    compare,
+    speed_withheld,
+)
+from vdnif_addon.presets import SETTINGS
+from vdnif_addon.studies.pareto import derive_presets
 
 UP = np.array([0.0, 0.0, 1.0])
 

@@ -9,10 +9,10 @@ import pytest
 import torch
 from oracles import encoding_torch as oracle
 
-from vdnif_addon import model_file
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.model_file import load_model, model_bytes, save_model
-from vdnif_addon.network import IntersectionNetwork, readout
+from vdnif_addon.model import model_file
+from vdnif_addon.model.model_file import load_model, model_bytes, save_model
+from vdnif_addon.model.network import IntersectionNetwork, readout
 from vdnif_addon.settings import Heads, NetworkConfig
 
 GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.network import IntersectionNetwork, readout
+from vdnif_addon.model.network import IntersectionNetwork, readout
 from vdnif_addon.settings import Heads, NetworkConfig
 
 # The paper's albedo head over the segment; the albedo field has tests of its own.

@@ -73,7 +73,7 @@ def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_pose
         empty_scene, core):
     """A model trained on the stream that evaluation uses (training seed = evaluation seed):
     the evaluation poses skip the repeated ones and are still as many."""
-    poses, capture = core("blender.poses"), core("blender.capture").capture
+    poses, capture = core("blender.poses"), core("blender.capture_scene").capture
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
     unlucky = poses.PoseSpec(count=3, seed=poses.EVALUATION_SEED_OFFSET)
@@ -117,8 +117,8 @@ def test_evaluating_on_training_poses_is_refused(empty_scene, core):
 
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
-    capture = core("blender.capture").capture(box, 8, core("blender.poses").PoseSpec(count=2),
-                                              deform_corners=False)
+    capture = core("blender.capture_scene").capture(
+        box, 8, core("blender.poses").PoseSpec(count=2), deform_corners=False)
     neural = core("blender.neural")
     model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid), metadata={
         "extra": {"albedo_table": capture.mesh.albedo_table().tolist(),

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from vdnif_addon import rays
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.tracing import rays
 
 pytestmark = pytest.mark.filterwarnings("error")
 

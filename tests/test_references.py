@@ -10,7 +10,7 @@ import scene_builders as sb
 def references(core, obj, resolution, poses=1, rest_pose=False, size=48, spec=None):
     poses_module = core("blender.poses")
     spec = spec or poses_module.evaluation_spec(poses_module.PoseSpec(count=poses))
-    capture = core("blender.capture").capture(obj, resolution, spec, deform_corners=False)
+    capture = core("blender.capture_scene").capture(obj, resolution, spec, deform_corners=False)
     return core("blender.generate").reference_run(obj, capture, size, size, rest_pose=rest_pose)
 
 
@@ -67,12 +67,12 @@ def test_inverted_cells_do_not_break_the_references(empty_scene, core):
 def test_dataset_shards_split_by_pose_range_equal_one_run(empty_scene, core, tmp_path):
     obj = core("blender.scenes").demo_scene("arm")
     spec = core("blender.poses").PoseSpec(count=4, seed=2)
-    capture = core("blender.capture").capture(obj, 16, spec, deform_corners=False)
+    capture = core("blender.capture_scene").capture(obj, 16, spec, deform_corners=False)
     generate = core("blender.generate").generate_dataset
     generate(obj, capture, tmp_path / "whole", 256, seed=5)
     for pose_range in ((0, 1), (1, 4)):
         generate(obj, capture, tmp_path / "split", 256, seed=5, pose_range=pose_range)
-    dataset = core("dataset")
+    dataset = core("training.dataset")
     (whole_header, whole), (split_header, split) = (
         dataset.read_dataset(tmp_path / "whole"), dataset.read_dataset(tmp_path / "split"))
     assert len(split) == 2 and split_header["poses"] == whole_header["poses"]
@@ -88,7 +88,7 @@ def test_dataset_shards_split_by_pose_range_equal_one_run(empty_scene, core, tmp
 
 
 def test_dataset_reader_refuses_bad_folders(empty_scene, core, tmp_path):
-    dataset, error = core("dataset"), core("errors").VDNIFError
+    dataset, error = core("training.dataset"), core("errors").VDNIFError
     with pytest.raises(error, match="does not exist"):
         dataset.read_dataset(tmp_path / "missing")
     (tmp_path / "empty").mkdir()

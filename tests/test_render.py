@@ -9,10 +9,13 @@ from oracles import encoding_torch as encoding_oracle
 from oracles import render as old_render
 from oracles import walk as old_walk
 
-from vdnif_addon import groundtruth, images, rays, references, render, voxels, walk_rules
+from vdnif_addon.geometry import voxels, walk_rules
+from vdnif_addon.geometry.restmesh import Albedo, RestMesh
+from vdnif_addon.inference import images
+from vdnif_addon.inference import neural_render as render
 from vdnif_addon.kernels.cells import DeviceCells
-from vdnif_addon.metrics import Passes
-from vdnif_addon.restmesh import Albedo, RestMesh
+from vdnif_addon.passes import Passes
+from vdnif_addon.tracing import groundtruth, rays, references
 
 GOLDEN = __import__("pathlib").Path(__file__).parent / "golden"
 
@@ -192,14 +195,14 @@ def test_renderer_reproduces_its_golden_passes(core):
     the last place off the kernel's (test_encoding_kernel.py): that moved one normal of 2,304
     by 1.2e-5. The oracle twin of the encoder keeps this a test of the render kernels alone."""
     golden = np.load(GOLDEN / "arm-render.npz")
-    network, metadata = core("model_file").load_model(GOLDEN / "arm-render-model.vdnif")
+    network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
     network.encoder = encoding_oracle.from_product(network.encoder)
     obj = core("blender.scenes").demo_scene("arm")
     spec = core("blender.poses").PoseSpec(count=1)
-    grid = core("blender.capture").capture(obj, 12, spec, deform_corners=False).grid
+    grid = core("blender.capture_scene").capture(obj, 12, spec, deform_corners=False).grid
     cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
     table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
-    passes, stats = core("render").neural_passes(network, grid, table, cells,
+    passes, stats = core("inference.neural_render").neural_passes(network, grid, table, cells,
                                                  golden["origins"], golden["directions"])
     assert golden["hit"].sum() > 10 and stats["truncated"] == 0
     np.testing.assert_array_equal(passes.hit, golden["hit"])
@@ -219,9 +222,9 @@ def test_warp_launches_never_run_from_two_threads_at_once(core, monkeypatch):
     import warp as wp
 
     golden = np.load(GOLDEN / "arm-render.npz")
-    network, metadata = core("model_file").load_model(GOLDEN / "arm-render-model.vdnif")
+    network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
     obj = core("blender.scenes").demo_scene("arm")
-    grid = core("blender.capture").capture(obj, 12, core("blender.poses").PoseSpec(count=1),
+    grid = core("blender.capture_scene").capture(obj, 12, core("blender.poses").PoseSpec(count=1),
                                            deform_corners=False).grid
     cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
     table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
@@ -241,9 +244,9 @@ def test_warp_launches_never_run_from_two_threads_at_once(core, monkeypatch):
                 seen["active"] -= 1
 
     monkeypatch.setattr(wp, "launch", stretched)
-    passes, _ = core("render").neural_passes(network, grid, table, cells, golden["origins"],
-                                             golden["directions"], overlap=True,
-                                             schedule=(1,))
+    render = core("inference.neural_render")
+    passes, _ = render.neural_passes(network, grid, table, cells, golden["origins"],
+                                     golden["directions"], overlap=True, schedule=(1,))
     assert len(seen["threads"]) >= 2, "the render did not overlap: nothing was tested"
     assert seen["most"] == 1
     np.testing.assert_array_equal(passes.hit, golden["hit"])

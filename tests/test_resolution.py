@@ -16,8 +16,8 @@ def test_the_coarsest_resolution_that_meets_the_target_is_suggested(arm, core):
     _, table = resolution.suggest_resolution(arm, spec, 0.0, candidates, poses=1, size=24)
     assert [row["resolution"] for row in table] == [8, 16]
     # The table's figures are reference_run's embedding errors at each resolution.
-    capture = core("blender.capture").capture(arm, 16, core("blender.poses").PoseSpec(count=1),
-                                              deform_corners=False)
+    capture = core("blender.capture_scene").capture(
+        arm, 16, core("blender.poses").PoseSpec(count=1), deform_corners=False)
     direct = core("blender.generate").reference_run(arm, capture, 24, 24)
     assert table[1]["embedding_error"] == pytest.approx(
         direct["embedded_vs_true"]["distance_mae"])

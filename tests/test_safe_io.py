@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from conftest import REPO
 
-from vdnif_addon import dataset
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.safe_io import (
     atomic_path,
@@ -20,6 +19,7 @@ from vdnif_addon.safe_io import (
     write_bytes_atomic,
     write_json_atomic,
 )
+from vdnif_addon.training import dataset
 
 
 def _listing(folder):

@@ -203,7 +203,7 @@ def command_defaults_device(parser, command):
 
 def test_the_core_refuses_what_settings_does_not_name():
     """Core choices come from settings: a name outside them is refused, each inside taken."""
-    from vdnif_addon.losses import WEIGHTING_CLASSES
+    from vdnif_addon.training.losses import WEIGHTING_CLASSES
 
     assert list(WEIGHTING_CLASSES) == list(settings.WEIGHTINGS)
     for name in settings.DEVICES:

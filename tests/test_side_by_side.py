@@ -26,14 +26,14 @@ class OracleNetwork:
     that of the embedded reference)."""
 
     def __init__(self, mesh, grid):
-        groundtruth = core("groundtruth")
+        groundtruth = core("tracing.groundtruth")
         self.mesh, self.grid, self.targets = mesh, grid, groundtruth.segment_targets
         self.caster = groundtruth.rest_surface(mesh)
 
     def predict(self, p0, p1, rest_len, voxel_size):
         to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa: E731
         count = len(p0)
-        segments = core("walk_rules").Segments(
+        segments = core("geometry.walk_rules").Segments(
             ray=np.arange(count), cell=np.zeros(count, int), t0=np.zeros(count),
             t1=np.ones(count), p0=to_rest(p0), p1=to_rest(p1))
         hits = self.targets(self.mesh, self.caster, segments)
@@ -68,7 +68,7 @@ def tiny(extension, tmp_path_factory):
     side = core("studies.side_by_side")
     poses = core("blender.poses")
     obj = side.load_side_by_side_scene("lattice")
-    captured = core("blender.capture").capture(
+    captured = core("blender.capture_scene").capture(
         obj, 8, poses.evaluation_spec(poses.PoseSpec(count=2)), deform_corners=False)
     folder = tmp_path_factory.mktemp("models")
     results = {"none": side.compare_paths(obj, captured, None, RAYS, RAYS, repeats=1)}
@@ -84,7 +84,7 @@ def tiny(extension, tmp_path_factory):
 def untrained_network(mesh):
     """The product's network in the paper's configuration with the scene's heads, as
     initialized (seed 0), never trained."""
-    network, settings = core("network"), core("settings")
+    network, settings = core("model.network"), core("settings")
     config = dataclasses.replace(settings.NetworkConfig(),
                                  heads=settings.Heads.from_header(mesh.heads()))
     with torch.random.fork_rng():
@@ -155,7 +155,7 @@ def test_a_model_that_predicts_no_hits_gets_no_speed_with_the_reason(tiny):
     _, results = tiny
     result = results["never"]
     assert result["network"]["hit_iou"] == 0.0
-    assert result["speed_withheld"] == core("metrics").speed_withheld(0.0)
+    assert result["speed_withheld"] == core("inference.metrics").speed_withheld(0.0)
     assert "below 0.9" in result["speed_withheld"]
     assert result["rays_per_s"]["neural"] is None
     assert not any(key.startswith(("neural_render", "neural_walk", "neural_network"))
@@ -176,7 +176,7 @@ def test_an_untrained_network_gets_no_speed_with_the_reason(tiny):
     result = results["untrained"]
     network = result["network"]
     assert network["trained"] and network["hit_iou"] < 0.5
-    assert result["speed_withheld"] == core("metrics").speed_withheld(network["hit_iou"])
+    assert result["speed_withheld"] == core("inference.metrics").speed_withheld(network["hit_iou"])
     assert "below 0.9" in result["speed_withheld"]
     assert result["rays_per_s"]["neural"] is None
     assert "neural_render_s" not in result["median"]

@@ -28,9 +28,9 @@ def posed_casts(extension):
     Suzanne, three 32x32 orbit views: {name: (hit, distance)} and the object size."""
     side = core("studies.side_by_side")
     poses = core("blender.poses")
-    rays = core("rays")
+    rays = core("tracing.rays")
     obj = side.load_side_by_side_scene("lattice")
-    captured = core("blender.capture").capture(
+    captured = core("blender.capture_scene").capture(
         obj, 8, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
     mesh = captured.mesh
     baselines = core("studies.baselines").make_baselines(mesh)
@@ -47,7 +47,7 @@ def posed_casts(extension):
     finally:
         for baseline in baselines:
             baseline.close()
-    reference = core("references").true_reference
+    reference = core("tracing.references").true_reference
     casts["true"] = [(passes.hit, np.where(passes.hit, passes.distance, np.inf))
                      for passes in (reference(mesh, true, *view) for view in views)]
     return casts, mesh.size

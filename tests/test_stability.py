@@ -8,15 +8,16 @@ import numpy as np
 import pytest
 import torch
 
-from vdnif_addon import groundtruth, references, voxels
-from vdnif_addon.attributes import FALLBACK_NORMAL, normalize
-from vdnif_addon.encoding import HashGrid
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry import voxels
+from vdnif_addon.geometry.attributes import FALLBACK_NORMAL, normalize
+from vdnif_addon.geometry.restmesh import Albedo, RestMesh
+from vdnif_addon.inference.metrics import compare
 from vdnif_addon.kernels.cells import DeviceCells
-from vdnif_addon.metrics import compare
-from vdnif_addon.network import IntersectionNetwork
-from vdnif_addon.restmesh import Albedo, RestMesh
+from vdnif_addon.model.encoding import HashGrid
+from vdnif_addon.model.network import IntersectionNetwork
 from vdnif_addon.settings import NetworkConfig
+from vdnif_addon.tracing import groundtruth, references
 
 EXTREMES = ("bend:170", "twist:360", "stretch:4", "squash:0.1")
 
@@ -33,13 +34,13 @@ def stressed_capture(core, scene, argv, spec, deform_corners=False):
     """A demo scene with the stress options ``argv`` applied, captured at R = 16."""
     obj = core("blender.scenes").demo_scene(scene)
     spec = core("blender.extremes").apply_stress(stress_args(core, *argv), obj, spec)
-    return obj, core("blender.capture").capture(obj, 16, spec, deform_corners=deform_corners)
+    return obj, core("blender.capture_scene").capture(obj, 16, spec, deform_corners=deform_corners)
 
 
 def walk_pose(core, obj, capture, pose, size=32):
     """Walk, ground truth, both references and the inverted-cell count of one pose."""
-    refs, rays = core("references"), core("rays")
-    with core("blender.posed").PosedObject(obj, capture) as posed_object:
+    refs, rays = core("tracing.references"), core("tracing.rays")
+    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
         geometry = posed_object.geometry(pose)
         lo, hi = geometry.vertices.min(0), geometry.vertices.max(0)
         origins, directions = rays.orbit_rays(lo, hi, rays.orbit_viewpoints(1)[0], size, size)
@@ -48,10 +49,11 @@ def walk_pose(core, obj, capture, pose, size=32):
         truth = refs.true_reference(
             capture.mesh, geometry.mesh_caster(capture.mesh.triangles), origins, directions)
         corners = geometry.cells.cell_corner_positions().reshape(-1, 3)
-        inverted = core("voxels").inverted_cells(corners, np.arange(len(corners)).reshape(-1, 8))
+        inverted = core("geometry.voxels").inverted_cells(
+            corners, np.arange(len(corners)).reshape(-1, 8))
     return dict(segments=segments, targets=targets, embedded=embedded, truth=truth,
                 inverted=int(inverted.sum()), vertices=geometry.vertices,
-                error=core("metrics").compare(embedded, truth, capture.mesh.size))
+                error=core("inference.metrics").compare(embedded, truth, capture.mesh.size))
 
 
 @pytest.mark.parametrize("scene", ["arm", "lattice"])
@@ -118,7 +120,7 @@ def test_armature_extremes_follow_their_definition_on_the_rest_pose(empty_scene,
     first, last = armature.pose.bones[0], armature.pose.bones[-1]     # a chain of 3 bones
     rest_axis = np.array(last.bone.matrix_local)[:3, :3]
     spec = core("blender.poses").PoseSpec(count=1)
-    capture = core("blender.capture").capture(obj, 16, spec, deform_corners=False)
+    capture = core("blender.capture_scene").capture(obj, 16, spec, deform_corners=False)
     channels = ("location", "rotation_euler", "rotation_quaternion", "scale")
     before = [[tuple(getattr(b, c)) for c in channels] for b in armature.pose.bones]
     for text in EXTREMES:
@@ -359,7 +361,7 @@ def test_a_mesh_without_area_walks_to_misses_and_a_scene_refuses_it(empty_scene,
     with pytest.raises(core("errors").VDNIFError,
                        match="mesh object 'Needle' has no area: all its 2 triangles are "
                              "degenerate"):
-        core("blender.capture").capture(needle, 8)
+        core("blender.capture_scene").capture(needle, 8)
 
 
 # --- Encoder inputs at and beyond [0, 1] -------------------------------------------------

@@ -9,10 +9,11 @@ import pytest
 import warp as wp
 from oracles import surface_casts as oracle
 
-from vdnif_addon import groundtruth, references, traverse, voxels, walk_rules
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry import voxels, walk_rules
+from vdnif_addon.geometry.restmesh import Albedo, RestMesh
 from vdnif_addon.kernels import runtime, surface
-from vdnif_addon.restmesh import Albedo, RestMesh
+from vdnif_addon.tracing import groundtruth, references, traverse
 
 # Degenerate input must be handled explicitly: any numpy floating-point warning fails a test.
 pytestmark = pytest.mark.filterwarnings("error")

@@ -11,22 +11,27 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from vdnif_addon import train as training
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.fit import fit_model
-from vdnif_addon.losses import FixedWeighting, UncertaintyWeighting, make_weighting, task_losses
-from vdnif_addon.model_file import load_model
-from vdnif_addon.network import IntersectionNetwork
+from vdnif_addon.model.model_file import load_model
+from vdnif_addon.model.network import IntersectionNetwork
+from vdnif_addon.model.variants import variant_config
 from vdnif_addon.settings import Heads, NetworkConfig, TrainConfig
-from vdnif_addon.train import train
-from vdnif_addon.training_data import load_segments
-from vdnif_addon.validation import (
+from vdnif_addon.training import train as training
+from vdnif_addon.training.data import load_segments
+from vdnif_addon.training.fit import fit_model
+from vdnif_addon.training.losses import (
+    FixedWeighting,
+    UncertaintyWeighting,
+    make_weighting,
+    task_losses,
+)
+from vdnif_addon.training.train import train
+from vdnif_addon.training.validation import (
     CANDIDATE_THRESHOLDS,
     calibrate_candidate_threshold,
     calibrate_threshold,
     evaluate,
 )
-from vdnif_addon.variants import variant_config
 
 SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
 GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"
@@ -644,7 +649,7 @@ def test_training_calibrates_the_candidate_threshold_on_the_held_out_poses():
 
 
 def test_device_names():
-    from vdnif_addon.distributed import resolve_device
+    from vdnif_addon.training.distributed import resolve_device
 
     assert resolve_device("cpu") == torch.device("cpu")
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from oracles import walk as oracle
 
-from vdnif_addon import traverse as tv
-from vdnif_addon import voxels
-from vdnif_addon import walk_rules as rules
+from vdnif_addon.geometry import voxels
+from vdnif_addon.geometry import walk_rules as rules
 from vdnif_addon.kernels.cells import DeviceCells
+from vdnif_addon.tracing import traverse as tv
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,10 @@ import pkgutil
 import pytest
 
 import vdnif_addon
-import vdnif_addon.kernels
+
+# The pipeline's stage packages (bpy code, vdnif_addon/blender/, and the studies and commands
+# above the core are not walked).
+STAGES = ("geometry", "kernels", "tracing", "model", "training", "inference")
 
 # Parameters that take no annotation by convention.
 UNANNOTATED_KINDS = (inspect.Parameter.VAR_POSITIONAL, inspect.Parameter.VAR_KEYWORD)
@@ -21,10 +24,11 @@ IMPLICIT = ("self", "cls")
 
 
 def core_modules() -> list[str]:
-    """Module names of the core: vdnif_addon's top level and vdnif_addon.kernels (bpy code,
-    vdnif_addon/blender/, and the studies and commands above the core are not walked)."""
+    """Module names of the core: vdnif_addon's foundations and its stage packages."""
     names = []
-    for package in (vdnif_addon, vdnif_addon.kernels):
+    packages = [vdnif_addon, *(importlib.import_module(f"vdnif_addon.{stage}")
+                               for stage in STAGES)]
+    for package in packages:
         for info in pkgutil.iter_modules(package.__path__, package.__name__ + "."):
             if not info.ispkg:
                 names.append(info.name)
@@ -76,7 +80,7 @@ def test_public_api_annotated(name):
 def test_walk_finds_functions():
     """The walk sees module functions, methods, properties and constructors, and flags an
     unannotated one: the check above cannot pass by finding nothing."""
-    from vdnif_addon import restmesh, voxels
+    from vdnif_addon.geometry import restmesh, voxels
 
     names = {qualified for qualified, _ in _public_callables(restmesh)}
     assert {"RestMesh.size", "RestMesh.heads", "Albedo.__init__"} <= names

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from test_train import SMALL, sphere_shards
 
-from vdnif_addon import dataset
-from vdnif_addon.model_file import load_model
-from vdnif_addon.training_job import JobState, TrainingJob, progress_interval
+from vdnif_addon.model.model_file import load_model
+from vdnif_addon.training import dataset
+from vdnif_addon.training.job import JobState, TrainingJob, progress_interval
 
 OVERRIDES = dict(SMALL, batch_size=64, device="cpu")
 

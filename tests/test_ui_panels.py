@@ -136,7 +136,7 @@ def test_no_model_yet(arm, extension):
 
 
 def test_training_shows_progress_and_cancel(arm, extension, core, tmp_path):
-    job = core("training_job").TrainingJob(tmp_path, "proposed", tmp_path / "m.vdnif",
+    job = core("training.job").TrainingJob(tmp_path, "proposed", tmp_path / "m.vdnif",
                                            {"steps": 200})
     job.state.step, job.state.loss, job.state.eta_s = 50, 0.5, 30
     extension.operators.common.JOBS["Arm"] = job

@@ -52,7 +52,7 @@ def pixels(name):
 def eager_model(source, target):
     """The model file ``source`` changed to answer 'hit' for every segment, so a barely
     trained network still yields hit pixels and metrics over them."""
-    model_file = module("vdnif_addon.model_file")
+    model_file = module("vdnif_addon.model.model_file")
     network, metadata = model_file.load_model(source)
     output = network.mlp[-1]
     with __import__("torch").no_grad():
@@ -120,7 +120,7 @@ def test_voxelize_shows_the_occupied_cells_deformed_at_the_current_frame(empty_s
     scene = bpy.context.scene
     bpy.ops.vdnif.voxelize()
     preview = obj.vdnif.preview
-    grid = module("vdnif_addon.blender.capture").capture(obj, 12, deform_corners=False).grid
+    grid = module("vdnif_addon.blender.capture_scene").capture(obj, 12, deform_corners=False).grid
     mesh = preview.data
     assert preview.parent == obj and preview.display_type == "WIRE" and preview.hide_render
     assert len(mesh.vertices) == len(grid.corners) and not mesh.polygons
@@ -147,7 +147,7 @@ def test_dataset_and_training_write_their_results(session):
     assert len(header["poses"]) == 4 and header["grid"]["resolution"] == 12
     info = session["trained_info"]
     assert info["status"] == "completed" and info["steps"] == 30 and info["resolution"] == 12
-    _, metadata = module("vdnif_addon.model_file").load_model(session["trained_path"])
+    _, metadata = module("vdnif_addon.model.model_file").load_model(session["trained_path"])
     assert metadata["train_info"]["steps"] == 30 and metadata["extra"]["object"] == "Arm"
     assert math.isfinite(info["validation"]["distance_mae"])
 
@@ -178,7 +178,7 @@ def test_evaluate_keeps_finite_metrics(session):
     iou = report["vs_true"]["hit_iou"]
     assert iou < 0.9 and report["vs_true"]["false_positive_rate"] > 0.1
     assert report["timings"]["render_rays_per_s"] is None
-    assert report["speed_withheld"] == module("vdnif_addon.metrics").speed_withheld(iou)
+    assert report["speed_withheld"] == module("vdnif_addon.inference.metrics").speed_withheld(iou)
     assert report["timings"]["prepare_pose_s"] > 0
 
 
@@ -192,7 +192,7 @@ def test_reopened_blend_restores_settings_model_and_metrics(session, extension):
     assert {name: getattr(settings, name) for name in SMALL} == session["settings"]
     assert settings.metrics == session["metrics"] and settings.parsed("model_info")["steps"] == 30
     assert hashlib.sha256(settings[storage.PACKED]).hexdigest() == session["packed_sha"]
-    network, _ = module("vdnif_addon.model_file").load_model(storage.model_path(obj))
+    network, _ = module("vdnif_addon.model.model_file").load_model(storage.model_path(obj))
     assert network.mlp[-1].bias[0].item() == 20.0, "not the model that was kept"
     assert settings.dataset_dir.startswith("//"), "the dataset path follows the .blend"
     shown = texts(draw_all(extension))                     # the panels show what was kept
@@ -356,6 +356,6 @@ def test_modal_train_shows_progress_and_esc_keeps_the_last_step(session):
     assert info["status"] == "cancelled" and 20 <= info["steps"] < 1000
     assert len(operator.reports) == 1 and operator.reports[0][0] == {"INFO"}
     assert f"'Arm': cancelled after {info['steps']} steps" in operator.reports[0][1]
-    network, _ = module("vdnif_addon.model_file").load_model(
+    network, _ = module("vdnif_addon.model.model_file").load_model(
         module("storage").model_path(obj))
     assert network.mlp[-1].bias[0].item() != 20.0, "the new model replaced the old one"

@@ -12,8 +12,8 @@ import warnings
 import numpy as np
 import pytest
 
-from vdnif_addon import voxels
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry import voxels
 
 BUNNY = pathlib.Path(__file__).resolve().parents[1] / "assets" / "meshes" / "stanford-bunny.obj"
 

@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 from oracles import walk as oracle
 
-from vdnif_addon import dda, traverse, voxels
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry import voxels
 from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.kernels.segments import segment_buffer, segments_from
 from vdnif_addon.kernels.walk import RayWalk, walk_segments
+from vdnif_addon.tracing import static_grid as dda
+from vdnif_addon.tracing import traverse
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from tool_errors import load_tool, one_error_line
 
-from vdnif_addon.metrics import Passes
+from vdnif_addon.passes import Passes
 
 TOOL = pathlib.Path(__file__).resolve().parents[1] / "tools" / "wrong_surface.py"
 

@@ -28,10 +28,10 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from torch import nn  # noqa: E402
 
-from vdnif_addon.dataset import read_dataset  # noqa: E402
-from vdnif_addon.encoding import HashGrid  # noqa: E402
 from vdnif_addon.errors import VDNIFError  # noqa: E402
-from vdnif_addon.model_file import load_model  # noqa: E402
+from vdnif_addon.model.encoding import HashGrid  # noqa: E402
+from vdnif_addon.model.model_file import load_model  # noqa: E402
+from vdnif_addon.training.dataset import read_dataset  # noqa: E402
 
 SHIFTS = (0.02, 0.05, 0.1, 0.2, 0.4)
 """Standard deviations, in voxels, of the noise the true hit point is moved by."""

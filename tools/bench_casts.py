@@ -29,15 +29,15 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from oracles import surface_casts as oracle  # noqa: E402
 
-from vdnif_addon import groundtruth, references  # noqa: E402
-from vdnif_addon.attributes import sample_surface  # noqa: E402
 from vdnif_addon.blender.bvh import BVHCaster  # noqa: E402
-from vdnif_addon.blender.capture import capture  # noqa: E402
-from vdnif_addon.blender.posed import PosedObject  # noqa: E402
+from vdnif_addon.blender.capture_scene import capture  # noqa: E402
+from vdnif_addon.blender.pose_geometry import PosedObject  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
-from vdnif_addon.rays import orbit_rays, orbit_viewpoints, training_rays  # noqa: E402
+from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.settings import PoseSpec  # noqa: E402
-from vdnif_addon.traverse import traverse  # noqa: E402
+from vdnif_addon.tracing import groundtruth, references  # noqa: E402
+from vdnif_addon.tracing.rays import orbit_rays, orbit_viewpoints, training_rays  # noqa: E402
+from vdnif_addon.tracing.traverse import traverse  # noqa: E402
 
 
 def poses_of(args):

@@ -21,9 +21,8 @@ import warp as wp
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from vdnif_addon.encoding import HashGrid  # noqa: E402
 from vdnif_addon.kernels import encoder, runtime  # noqa: E402
-from vdnif_addon.kernels.encoder import (  # noqa: E402
+from vdnif_addon.kernels.encoder import (
     LEVEL_FIELDS,
     _corners,
     _first_band,
@@ -32,6 +31,7 @@ from vdnif_addon.kernels.encoder import (  # noqa: E402
     _wave,
     _weights,
 )
+from vdnif_addon.model.encoding import HashGrid  # noqa: E402
 
 wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 

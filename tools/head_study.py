@@ -22,8 +22,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
-from vdnif_addon.fit import fit_model  # noqa: E402
 from vdnif_addon.settings import DEFAULT_DEVICE, DEVICES  # noqa: E402
+from vdnif_addon.training.fit import fit_model  # noqa: E402
 
 FIGURES = ("distance_mae_voxels", "normal_error_deg", "occlusion_accuracy", "loss/albedo",
            "material_accuracy")

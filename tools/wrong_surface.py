@@ -23,7 +23,8 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
-from vdnif_addon.metrics import Passes, compare  # noqa: E402
+from vdnif_addon.inference.metrics import compare  # noqa: E402
+from vdnif_addon.passes import Passes  # noqa: E402
 
 FIGURES = ("distance_mae", "normal_error_deg", "albedo_psnr", "material_accuracy")
 
@@ -65,7 +66,7 @@ def main():
     from vdnif_addon.cli import build_parser
     from vdnif_addon.cli.options import validate_arguments
     from vdnif_addon.cli.pipeline import evaluated
-    from vdnif_addon.evaluation import metric_heads
+    from vdnif_addon.inference.evaluation import metric_heads
 
     args = build_parser().parse_args(["evaluate", *rest])
     validate_arguments(args)

@@ -7,9 +7,9 @@ rays at once (one vectorized step per cell boundary crossed), recording the occu
 
 import numpy as np
 
-from vdnif_addon.dda import MIN_PIECE
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.walk_rules import Segments
+from vdnif_addon.geometry.walk_rules import Segments
+from vdnif_addon.tracing.static_grid import MIN_PIECE
 
 
 class StaticGrid:

@@ -17,7 +17,7 @@ import math
 import torch
 from torch import nn
 
-from vdnif_addon.encoding import HASH_PRIMES, full_precision
+from vdnif_addon.model.encoding import HASH_PRIMES, full_precision
 from vdnif_addon.settings import PE_SCALES, check_encoding_settings, check_grid_settings
 
 

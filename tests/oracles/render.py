@@ -10,9 +10,9 @@ import numpy as np
 import torch
 
 from oracles.walk import Walk
-from vdnif_addon.attributes import deformed_normals, trilinear_jacobian
-from vdnif_addon.metrics import Passes
-from vdnif_addon.render import predict_segments
+from vdnif_addon.geometry.attributes import deformed_normals, trilinear_jacobian
+from vdnif_addon.inference.neural_render import predict_segments
+from vdnif_addon.passes import Passes
 
 
 def neural_passes(network, grid, albedo_table, cells, entry_caster, origins, directions,

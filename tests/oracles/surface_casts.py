@@ -9,14 +9,14 @@ pipeline did before the kernel: the point ``origin + t direction`` with the cast
 
 import numpy as np
 
-from vdnif_addon.attributes import (
+from vdnif_addon.geometry.attributes import (
     FALLBACK_NORMAL,
     has_area,
     interpolate,
     normalize,
     surface_albedo,
 )
-from vdnif_addon.groundtruth import BOUNDARY_MARGIN, SurfaceHits
+from vdnif_addon.tracing.groundtruth import BOUNDARY_MARGIN, SurfaceHits
 
 
 def barycentric(points, corners) -> np.ndarray:

@@ -10,8 +10,7 @@ together, so the global step count is every ray's own step count).
 
 import numpy as np
 
-from vdnif_addon.traverse import _crossings, _dot, ray_triangle
-from vdnif_addon.walk_rules import (
+from vdnif_addon.geometry.walk_rules import (
     CELL_TRIANGLES,
     OPPOSITE_FACE,
     SEEK_LIMIT,
@@ -19,6 +18,7 @@ from vdnif_addon.walk_rules import (
     Segments,
     step_budget,
 )
+from vdnif_addon.tracing.traverse import _crossings, _dot, ray_triangle
 
 WALK_CHUNK = 1 << 14             # walkers per vectorized intersection batch (bounds memory)
 

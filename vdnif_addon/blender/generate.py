@@ -6,17 +6,18 @@ import time
 import bpy
 import numpy as np
 
-from .. import dataset
-from ..attributes import sample_surface
-from ..evaluation import metric_heads
-from ..groundtruth import segment_targets
+from ..geometry.attributes import sample_surface
+from ..inference.evaluation import metric_heads
+from ..inference.metrics import compare
 from ..limits import MAX_RAYS_PER_POSE, check_image, check_range
-from ..metrics import Passes, compare
-from ..rays import orbit_rays, orbit_viewpoints, training_rays
-from ..references import embedded_reference, true_reference
+from ..passes import Passes
 from ..settings import RECIPE
-from ..traverse import traverse
-from .posed import PosedObject
+from ..tracing.groundtruth import segment_targets
+from ..tracing.rays import orbit_rays, orbit_viewpoints, training_rays
+from ..tracing.references import embedded_reference, true_reference
+from ..tracing.traverse import traverse
+from ..training import dataset
+from .pose_geometry import PosedObject
 
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,

@@ -6,11 +6,11 @@ import pathlib
 
 import numpy as np
 
-from .. import images
-from ..evaluation import distance_range, figure, world_distances
-from ..fit import fit_model
-from ..variants import variant_config
-from .capture import capture
+from ..inference import images
+from ..inference.evaluation import distance_range, figure, world_distances
+from ..model.variants import variant_config
+from ..training.fit import fit_model
+from .capture_scene import capture
 from .generate import generate_dataset
 from .image_io import save_image
 from .neural import evaluate_model, load_scene_model

@@ -10,13 +10,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import VDNIFError
-from ..evaluation import check_model_fits, compare_both, concatenated, speed_figures
-from ..metrics import Passes
-from ..rays import camera_rays as pinhole_rays
-from ..rays import orbit_rays, orbit_viewpoints, transform_rays
-from ..references import embedded_passes, true_reference
-from ..render import neural_passes
-from .posed import PosedObject
+from ..inference.evaluation import check_model_fits, compare_both, concatenated, speed_figures
+from ..inference.neural_render import neural_passes
+from ..passes import Passes
+from ..tracing.rays import camera_rays as pinhole_rays
+from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
+from ..tracing.references import embedded_passes, true_reference
+from .pose_geometry import PosedObject
 from .poses import pose_key
 
 
@@ -48,8 +48,8 @@ def load_scene_model(path, capture, device="auto", loaded=None):
     ``model_file.load_model`` result when the caller read it already); a file that is
     corrupt, of a newer format, or trained on another object or resolution raises a one-line
     VDNIFError."""
-    from ..distributed import resolve_device
-    from ..model_file import check_scene_metadata, load_model
+    from ..model.model_file import check_scene_metadata, load_model
+    from ..training.distributed import resolve_device
 
     network, metadata = load_model(path) if loaded is None else loaded
     check_scene_metadata(path, metadata["extra"])

@@ -5,10 +5,10 @@ import contextlib
 import bpy
 import numpy as np
 
-from ..attributes import has_area
 from ..errors import VDNIFError
+from ..geometry.attributes import has_area
+from ..geometry.restmesh import Albedo, RestMesh
 from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
-from ..restmesh import Albedo, RestMesh
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)

@@ -20,7 +20,7 @@ from ..settings import (
     SUGGEST_PRESET,
     SUGGEST_VIEW_SIZE,
 )
-from .capture import capture
+from .capture_scene import capture
 from .generate import reference_run
 from .read_mesh import read_rest_mesh
 

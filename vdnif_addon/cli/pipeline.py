@@ -26,7 +26,7 @@ from .options import (
 
 def cmd_capture(args):
     """Capture a scene: rest mesh, voxels, deformed corners per pose."""
-    from ..blender.capture import capture
+    from ..blender.capture_scene import capture
     from ..progress import Progress
 
     check_resolution(args.resolution)
@@ -55,10 +55,10 @@ def cmd_capture(args):
 
 def cmd_dataset(args):
     """Generate a training dataset shard: walked segments with their ground truth."""
-    from ..blender.capture import capture
+    from ..blender.capture_scene import capture
     from ..blender.generate import generate_dataset
-    from ..dataset import check_folder, grid_header
     from ..progress import Progress
+    from ..training.dataset import check_folder, grid_header
 
     check_resolution(args.resolution)
     if args.rays_per_pose < 1:
@@ -104,7 +104,7 @@ def parse_range(text, count):
 
 def cmd_references(args):
     """Render the true and embedded references on unseen poses; report the embedding error."""
-    from ..blender.capture import capture
+    from ..blender.capture_scene import capture
     from ..blender.generate import reference_run
     from ..blender.poses import evaluation_spec
     from ..progress import Progress
@@ -139,8 +139,8 @@ def _truncation_warning(truncated, rays):
 def cmd_train(args):
     """Train a network on a dataset folder (or on a scene, generating its dataset first)
     and write the model file."""
-    from ..dataset import read_dataset
-    from ..fit import fit_model
+    from ..training.dataset import read_dataset
+    from ..training.fit import fit_model
 
     if names_scene(args):
         result, summary = _train_on_scene(args)
@@ -170,7 +170,7 @@ def cmd_train(args):
 def _variant(args, name, static):
     """The variant to train on object ``name``: --variant, or the scene's own (static or
     deforming, ``variants.choose_variant``); what was decided is said on stderr."""
-    from ..variants import choose_variant
+    from ..model.variants import choose_variant
 
     variant, note = choose_variant(args.variant, static)
     if note is not None:
@@ -182,7 +182,7 @@ def _train_on_scene(args):
     """Capture, dataset (into --data, or a temporary folder) and training in one go."""
     import tempfile
 
-    from ..blender.capture import capture
+    from ..blender.capture_scene import capture
     from ..blender.jobs import train_variant
 
     check_resolution(args.resolution)
@@ -205,7 +205,7 @@ def _train_on_scene(args):
 def _read_model(args):
     """(network, metadata) of the --model file, read once per command, its metadata checked
     for what a scene needs (a complete grid, an integer resolution)."""
-    from ..model_file import check_scene_metadata, load_model
+    from ..model.model_file import check_scene_metadata, load_model
 
     loaded = load_model(args.model)
     check_scene_metadata(args.model, loaded[1]["extra"])
@@ -225,7 +225,7 @@ def cmd_render(args):
     """Render the predicted passes of a pose through a camera with a trained model."""
     import bpy
 
-    from ..blender.capture import capture
+    from ..blender.capture_scene import capture
     from ..blender.jobs import write_passes
     from ..blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
     from ..blender.scenes import find_camera

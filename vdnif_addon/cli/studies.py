@@ -101,7 +101,6 @@ def cmd_side_by_side(args):
     import os
     import shlex
 
-    from ..distributed import resolve_device
     from ..progress import Progress
     from ..studies.side_by_side import compare_paths, load_side_by_side_scene, machine, save_blends
     from ..studies.side_by_side_report import (
@@ -110,6 +109,7 @@ def cmd_side_by_side(args):
         write_performance,
         write_plots,
     )
+    from ..training.distributed import resolve_device
 
     scenes = list(dict.fromkeys(scene_name(name) for name in args.scene))
     if args.save_blend is not None:
@@ -179,11 +179,11 @@ def _scene_capture(obj, model_path, args, device):
     """(capture of unseen poses, SceneModel or None) of one scene: the poses avoid the
     model's training poses; the resolution is --resolution, else the model's, else the
     recipe's of the mesh."""
-    from ..blender.capture import capture
+    from ..blender.capture_scene import capture
     from ..blender.neural import load_scene_model
     from ..blender.poses import evaluation_spec
     from ..blender.resolution import recipe_resolution
-    from ..model_file import load_model
+    from ..model.model_file import load_model
     from ..settings import PoseSpec
 
     trained, resolution = None, args.resolution

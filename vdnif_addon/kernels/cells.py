@@ -28,14 +28,14 @@ import numpy as np
 import warp as wp
 
 from ..errors import VDNIFError
-from ..walk_rules import BARYCENTRIC_TOLERANCE, CELL_TRIANGLES, step_budget
+from ..geometry.walk_rules import BARYCENTRIC_TOLERANCE, CELL_TRIANGLES, step_budget
 from . import runtime
 from .cast import MeshCaster
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
-    from ..voxels import VoxelGrid
+    from ..geometry.voxels import VoxelGrid
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 

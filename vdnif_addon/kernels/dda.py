@@ -11,7 +11,7 @@ the numpy DDA's that this kernel replaced (``tests/oracles/dda.py``): crossing d
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import warp as wp
@@ -22,8 +22,7 @@ from .segments import SegmentBuffer, collect, emit, reusable_buffer, segment_buf
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from ..dda import StaticGrid
-    from ..walk_rules import Segments
+    from ..geometry.walk_rules import Segments
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
@@ -164,11 +163,18 @@ def _still_walking(rays: DDAState, active: wp.array(dtype=wp.int32),
         keep[wp.atomic_add(cursor, 0, 1)] = r
 
 
-def dda_segments(static_grid: StaticGrid, origins: Float[np.ndarray, "N 3"],
+class GridOwner(Protocol):
+    """What the walk needs of a static grid (``tracing.static_grid.StaticGrid``): its device
+    arrays; it also keeps the walk's segment buffer between calls."""
+
+    arrays: Grid
+
+
+def dda_segments(static_grid: GridOwner, origins: Float[np.ndarray, "N 3"],
                  directions: Float[np.ndarray, "N 3"], far: Float[np.ndarray, " N"], device: str,
                  capacity: int | None = None) -> Segments:
     """Segments of rays (N, 3) with unit (or zero) ``directions`` and limits ``far`` (N,)
-    through a ``dda.StaticGrid`` (its ``arrays`` on ``device``)."""
+    through a static grid (its ``arrays`` on ``device``)."""
     runtime.load(sys.modules[__name__], device)
     count = len(origins)
     state = DDAState()

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from ..attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
+from ..geometry.attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
 from . import runtime
 from .cells import CellArrays, cross, dot
 from .segments import SegmentBuffer
@@ -26,7 +26,6 @@ from .walk import DONE, TRUNCATED, RayState
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
-    from .. import metrics
     from .cells import DeviceCells
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
@@ -226,7 +225,7 @@ def empty_passes(rays: int, device: str) -> Passes:
     return passes
 
 
-def write_hits(cells: DeviceCells, passes: metrics.Passes, ray: Int[np.ndarray, " H"],
+def write_hits(cells: DeviceCells, passes: Passes, ray: Int[np.ndarray, " H"],
                cell: Int[np.ndarray, " H"], t0: Float[np.ndarray, " H"],
                t1: Float[np.ndarray, " H"], p0: Float[np.ndarray, "H 3"],
                p1: Float[np.ndarray, "H 3"], fraction: Float[np.ndarray, " H"],
@@ -234,7 +233,7 @@ def write_hits(cells: DeviceCells, passes: metrics.Passes, ray: Int[np.ndarray, 
                material: Int[np.ndarray, " H"]) -> None:
     """Hits of rays ``ray`` (H,) from their hit segments (cell, t0, t1, p0, p1 (H,...)) at
     ``fraction`` (H,) with rest normals (H, 3), albedo (H, 3) and material (H,) into host
-    ``metrics.Passes``."""
+    ``Passes``."""
     count = len(ray)
     if count == 0:
         return

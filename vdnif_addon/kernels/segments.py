@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from ..walk_rules import Segments
+from ..geometry.walk_rules import Segments
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int

@@ -28,8 +28,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import warp as wp
 
-from ..attributes import DEGENERATE_SIN2, FALLBACK_NORMAL
 from ..errors import VDNIFError
+from ..geometry.attributes import DEGENERATE_SIN2, FALLBACK_NORMAL
 from . import runtime
 
 if TYPE_CHECKING:

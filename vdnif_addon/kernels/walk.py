@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from ..walk_rules import SEEK_LIMIT, ZERO_PASS_LIMIT, step_budget
+from ..geometry.walk_rules import SEEK_LIMIT, ZERO_PASS_LIMIT, step_budget
 from . import runtime
 from .cells import (
     INF,
@@ -55,7 +55,7 @@ from .segments import SegmentBuffer, collect, emit, reusable_buffer, segment_buf
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
-    from ..walk_rules import Segments
+    from ..geometry.walk_rules import Segments
     from .cells import DeviceCells
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})

@@ -20,16 +20,17 @@ import threading
 import numpy as np
 import torch
 
-from ..blender.capture import capture
+from ..blender.capture_scene import capture
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.scenes import demo_scene
-from ..evaluation import compare_common, concatenated
-from ..fit import fit_model
-from ..metrics import SPEED_MIN_HIT_IOU
-from ..presets import PRESET_ERROR, SETTINGS, derive_presets, pareto_front
+from ..inference.evaluation import compare_common, concatenated
+from ..inference.metrics import SPEED_MIN_HIT_IOU
+from ..presets import PRESET_ERROR, SETTINGS
 from ..safe_io import atomic_path, exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig, PoseSpec
 from ..text import percent, value
+from ..training.fit import fit_model
+from .pareto import derive_presets, pareto_front
 from .report import write_section
 
 # The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose

@@ -7,7 +7,7 @@ import shlex
 import sys
 import tempfile
 
-from ..blender.capture import capture
+from ..blender.capture_scene import capture
 from ..blender.jobs import (
     evaluate_file,
     evaluation_poses,
@@ -17,9 +17,9 @@ from ..blender.jobs import (
 )
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
+from ..model.variants import choose_variant
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import DEMO_STEPS, RECIPE, PoseSpec
-from ..variants import choose_variant
 from .report import demo_markdown
 
 SIZES = {   # full: the main job with the default recipe but DEMO_STEPS (under 10 minutes on

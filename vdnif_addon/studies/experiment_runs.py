@@ -10,20 +10,20 @@ import sys
 
 import numpy as np
 
-from .. import images
-from ..blender.capture import capture
+from ..blender.capture_scene import capture
 from ..blender.image_io import save_image
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.neural import orbit_view
-from ..blender.posed import PosedObject
+from ..blender.pose_geometry import PosedObject
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
-from ..evaluation import REFERENCES, compare_common, concatenated, distance_range
-from ..fit import fit_model
-from ..rays import orbit_viewpoints
-from ..references import true_reference
+from ..inference import images
+from ..inference.evaluation import REFERENCES, compare_common, concatenated, distance_range
+from ..model.variants import variant_config
 from ..settings import RECIPE, PoseSpec
-from ..variants import variant_config
+from ..tracing.rays import orbit_viewpoints
+from ..tracing.references import true_reference
+from ..training.fit import fit_model
 from .report import common_pixels_line
 
 # The full size trains with the default recipe (``settings.RECIPE``: voxel resolution,

@@ -32,13 +32,13 @@ import torch
 from ..blender.generate import generate_dataset
 from ..blender.jobs import variant_dataset
 from ..errors import VDNIFError
-from ..evaluation import compare_both, compare_common, concatenated
-from ..fit import fit_model
-from ..metrics import Passes
-from ..rays import orbit_viewpoints
+from ..inference.evaluation import compare_both, compare_common, concatenated
+from ..passes import Passes
 from ..safe_io import write_json_atomic
 from ..settings import RECIPE
 from ..text import value
+from ..tracing.rays import orbit_viewpoints
+from ..training.fit import fit_model
 from .experiment_runs import (
     PI_FORM,
     RUNS,

@@ -14,11 +14,11 @@ from typing import Any
 
 import torch
 
-from ..distributed import resolve_device
-from ..losses import make_weighting
-from ..network import IntersectionNetwork, readout
+from ..model.network import IntersectionNetwork, readout
 from ..settings import Heads, NetworkConfig, TrainConfig
-from ..train import Objective, TrainingStep
+from ..training.distributed import resolve_device
+from ..training.losses import make_weighting
+from ..training.train import Objective, TrainingStep
 
 PAPER_CONFIG = NetworkConfig(heads=Heads(albedo=True, material_count=4))
 """L=2, N_min=64, Fd=3, F=3, width 64, depth 3; albedo and a 4-material head."""

@@ -28,19 +28,20 @@ import bpy
 import numpy as np
 import torch
 
-from ..blender.posed import PosedObject
+from ..blender.pose_geometry import PosedObject
 from ..blender.poses import posed
-from ..dda import StaticGrid
 from ..errors import VDNIFError
+from ..inference.metrics import compare, speed_withheld
+from ..inference.neural_render import neural_passes, predict_segments
 from ..kernels import runtime
-from ..metrics import Passes, compare, speed_withheld
-from ..network import IntersectionNetwork
-from ..rays import orbit_rays, orbit_viewpoints
-from ..references import true_reference
-from ..render import neural_passes, predict_segments
+from ..model.network import IntersectionNetwork
+from ..passes import Passes
 from ..safe_io import atomic_path
 from ..settings import Heads, NetworkConfig
-from ..traverse import traverse
+from ..tracing.rays import orbit_rays, orbit_viewpoints
+from ..tracing.references import true_reference
+from ..tracing.static_grid import StaticGrid
+from ..tracing.traverse import traverse
 from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
 from .side_by_side_scenes import scene_name
 

@@ -5,7 +5,7 @@ results alone (JSON-ready dicts): no bpy, no timing."""
 
 import pathlib
 
-from ..metrics import SPEED_MIN_HIT_IOU
+from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..safe_io import atomic_path
 from ..text import percent
 from .baselines import BASELINES

@@ -14,7 +14,7 @@ import numpy as np
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from .metrics import Passes
+    from ..passes import Passes
 
 MISS_COLOR = np.array([0.05, 0.05, 0.06], np.float32)
 # Anchors of a perceptual dark-to-bright heat map (magma-like), sampled evenly on [0, 1].

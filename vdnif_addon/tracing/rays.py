@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .attributes import normalize
-from .errors import VDNIFError
+from ..errors import VDNIFError
+from ..geometry.attributes import normalize
 
 if TYPE_CHECKING:
     from jaxtyping import Float

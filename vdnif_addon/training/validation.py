@@ -9,15 +9,15 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from ..model.network import IntersectionNetwork, readout
+from ..settings import OCCLUSION_THRESHOLD, Heads
 from .distributed import ProcessGroup
 from .losses import task_losses
-from .network import IntersectionNetwork, readout
-from .settings import OCCLUSION_THRESHOLD, Heads
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float64, Int64
 
-    from .training_data import Segments
+    from .data import Segments
 
 SUMS = (
     "segments",

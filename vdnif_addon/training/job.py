@@ -19,7 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import VDNIFError
+from ..errors import VDNIFError
 
 
 def progress_interval(steps: int) -> int:
@@ -92,8 +92,8 @@ class TrainingJob:
         """Trains, writes the model and queues the outcome; never raises."""
         partial = self.out.with_name(f".{self.out.name}.training")
         try:
+            from ..threads import use_threads
             from .fit import fit_model
-            from .threads import use_threads
 
             use_threads()
 

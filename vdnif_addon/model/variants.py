@@ -20,8 +20,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-from .errors import VDNIFError
-from .settings import DEFAULT_VARIANT, STATIC_VARIANT, VARIANTS, NetworkConfig, TrainConfig
+from ..errors import VDNIFError
+from ..settings import DEFAULT_VARIANT, STATIC_VARIANT, VARIANTS, NetworkConfig, TrainConfig
 
 
 @dataclass(frozen=True)

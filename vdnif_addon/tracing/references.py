@@ -11,19 +11,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..kernels.render import write_hits
+from ..passes import Passes
 from .groundtruth import cast_surface, segment_targets
-from .kernels.render import write_hits
-from .metrics import Passes
 from .traverse import traverse
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
+    from ..geometry.restmesh import RestMesh
+    from ..geometry.walk_rules import Segments
+    from ..kernels.cells import DeviceCells
+    from ..kernels.surface import SurfaceCaster
     from .groundtruth import SurfaceHits
-    from .kernels.cells import DeviceCells
-    from .kernels.surface import SurfaceCaster
-    from .restmesh import RestMesh
-    from .walk_rules import Segments
 
 
 def true_reference(mesh: RestMesh, deformed_caster: SurfaceCaster,

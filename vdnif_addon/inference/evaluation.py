@@ -9,15 +9,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .errors import VDNIFError
+from ..errors import VDNIFError
+from ..passes import Passes
 from .images import PASSES, comparison_figure, display, error_images
-from .metrics import Passes, common_pixels, compare, speed_withheld
+from .metrics import common_pixels, compare, speed_withheld
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
 
-    from .restmesh import RestMesh
-    from .voxels import VoxelGrid
+    from ..geometry.restmesh import RestMesh
+    from ..geometry.voxels import VoxelGrid
 
     Metrics = dict[str, float | int | None]
     """What ``metrics.compare`` returns."""
@@ -48,7 +49,7 @@ def check_model_fits(path: str | os.PathLike, extra: dict[str, Any], mesh: RestM
     if not same_grid:
         raise VDNIFError(f"model '{path}' was trained on {trained_on}, but the mesh of "
                          f"'{mesh.name}' has changed since (now {here}): train it again")
-    from .model_file import mesh_fingerprint
+    from ..model.model_file import mesh_fingerprint
 
     trained_fingerprint = model_grid.get("mesh_fingerprint")    # absent in older models
     if trained_fingerprint is not None and trained_fingerprint != mesh_fingerprint(mesh):

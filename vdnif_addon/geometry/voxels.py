@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import VDNIFError
-from .settings import MAX_RESOLUTION, MIN_RESOLUTION
+from ..errors import VDNIFError
+from ..settings import MAX_RESOLUTION, MIN_RESOLUTION
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int

@@ -18,13 +18,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from .errors import VDNIFError
+from ..errors import VDNIFError
+from ..safe_io import atomic_path
+from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
 from .network import IntersectionNetwork
-from .safe_io import atomic_path
-from .settings import OCCLUSION_THRESHOLD, NetworkConfig
 
 if TYPE_CHECKING:
-    from .restmesh import RestMesh
+    from ..geometry.restmesh import RestMesh
 
 FORMAT_NAME = "vdnif-model"
 FORMAT_VERSION = 2

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import VDNIFError
+from ..errors import VDNIFError
 from .restmesh import TEXTURE_EXTENSIONS, RestMesh
 from .voxels import CORNER_OFFSETS
 

@@ -9,11 +9,11 @@ from typing import Callable
 import numpy as np
 
 from ..errors import VDNIFError
-from ..groundtruth import rest_surface
+from ..geometry.voxels import inverted_cells
 from ..kernels import runtime
 from ..kernels.cells import DeviceCells
 from ..kernels.surface import SurfaceCaster
-from ..voxels import inverted_cells
+from ..tracing.groundtruth import rest_surface
 from .deform import CornerDeformer
 from .poses import posed
 from .read_mesh import evaluated_surface

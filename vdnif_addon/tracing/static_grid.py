@@ -14,13 +14,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import VDNIFError
+from ..errors import VDNIFError
 
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from .voxels import VoxelGrid
-    from .walk_rules import Segments
+    from ..geometry.voxels import VoxelGrid
+    from ..geometry.walk_rules import Segments
 
 # Pieces shorter than this fraction of the occupied extent are not recorded: the deformed walk
 # skips the same corner and edge grazes (its ``step``), so both give the same cells.
@@ -37,8 +37,8 @@ class StaticGrid:
     def __init__(self, grid: VoxelGrid, device: str = "cpu") -> None:
         import warp as wp
 
-        from .kernels import dda as kernel
-        from .kernels import runtime
+        from ..kernels import dda as kernel
+        from ..kernels import runtime
 
         if len(grid.cells) == 0:
             raise VDNIFError("voxel grid has no occupied cells: nothing to traverse")
@@ -71,7 +71,7 @@ class StaticGrid:
         start inside a cell are cut at their origin (``t0 = 0``), and a piece that leaves the
         cell beyond ``max_distance`` ends the ray and is not recorded.
         """
-        from .kernels.dda import dda_segments
+        from ..kernels.dda import dda_segments
 
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)

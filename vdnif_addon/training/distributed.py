@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING
 import torch
 import torch.distributed as dist
 
-from .errors import VDNIFError
-from .settings import DEVICES
+from ..errors import VDNIFError
+from ..settings import DEVICES
 
 if TYPE_CHECKING:
     from jaxtyping import Shaped

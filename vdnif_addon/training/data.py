@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from ..errors import VDNIFError
+from ..settings import Heads, TrainConfig
 from .distributed import ProcessGroup
-from .errors import VDNIFError
-from .settings import Heads, TrainConfig
 
 if TYPE_CHECKING:
     from jaxtyping import Int64, Shaped

@@ -13,11 +13,11 @@ import threading
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from . import __version__
+from .. import __version__
+from ..model.model_file import model_bytes, save_model
+from ..model.variants import variant_config
 from .dataset import read_dataset
-from .model_file import model_bytes, save_model
 from .train import TrainResult, train
-from .variants import variant_config
 
 
 def fit_model(

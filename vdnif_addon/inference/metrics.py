@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..passes import Passes
+
 if TYPE_CHECKING:
-    from jaxtyping import Bool, Float, Int
+    from jaxtyping import Bool
 
 
 PSNR_FLOOR_MSE = 1e-10     # identical albedo reports 100 dB instead of infinity (valid JSON)
@@ -17,39 +18,6 @@ PSNR_FLOOR_MSE = 1e-10     # identical albedo reports 100 dB instead of infinity
 # predict hits: its rays stop in other cells than a working model's, so its rays/s measure
 # another workload and are no speed figure (DESIGN section 10).
 SPEED_MIN_HIT_IOU = 0.9
-
-
-@dataclass
-class Passes:
-    """Per-ray (per-pixel) results: what a reference or the network says each ray sees."""
-
-    hit: Bool[np.ndarray, " R"]
-    distance: Float[np.ndarray, " R"]     # float64 along the deformed ray, object-local units
-    normal: Float[np.ndarray, "R 3"]     # float64 unit, deformed space
-    albedo: Float[np.ndarray, "R 3"]     # float32
-    material: Int[np.ndarray, " R"]       # int32: index into the mesh's used materials
-
-    @classmethod
-    def empty(cls, rays: int) -> Passes:
-        """Passes of ``rays`` rays that hit nothing (every pass zero)."""
-        return cls(hit=np.zeros(rays, bool), distance=np.zeros(rays),
-                   normal=np.zeros((rays, 3)), albedo=np.zeros((rays, 3), np.float32),
-                   material=np.zeros(rays, np.int32))
-
-    @classmethod
-    def concatenate(cls, passes: Iterable[Passes]) -> Passes:
-        """The rays of ``passes`` one after the other."""
-        return cls(*(np.concatenate([getattr(p, name) for p in passes])
-                     for name in ("hit", "distance", "normal", "albedo", "material")))
-
-    def with_slots(self, slots: Int[np.ndarray, " K"]) -> Passes:
-        """A copy whose material pass holds the Blender material slot the user knows:
-        ``slots`` (K,) maps the used-material index to its slot (RestMesh.material_slots);
-        0 where nothing is hit."""
-        slots = np.asarray(slots, np.int32)
-        material = np.where(self.hit, slots[np.clip(self.material, 0, len(slots) - 1)], 0)
-        return Passes(hit=self.hit, distance=self.distance, normal=self.normal,
-                      albedo=self.albedo, material=material.astype(np.int32))
 
 
 def _share(count: int, total: int) -> float | None:

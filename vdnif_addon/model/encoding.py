@@ -18,9 +18,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from .errors import VDNIFError
-from .kernels import encoder as kernel
-from .settings import PE_SCALES, check_encoding_settings, check_grid_settings
+from ..errors import VDNIFError
+from ..kernels import encoder as kernel
+from ..settings import PE_SCALES, check_encoding_settings, check_grid_settings
 
 if TYPE_CHECKING:
     from jaxtyping import Float

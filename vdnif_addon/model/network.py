@@ -16,9 +16,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..errors import VDNIFError
+from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
 from .encoding import HashGrid, SegmentEncoder
-from .errors import VDNIFError
-from .settings import OCCLUSION_THRESHOLD, NetworkConfig
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int64

@@ -22,14 +22,14 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..errors import VDNIFError
+from ..model.encoding import HashGrid
+from ..model.network import IntersectionNetwork
+from ..settings import OCCLUSION_THRESHOLD, Heads, NetworkConfig, TrainConfig
+from .data import Batches, Segments, split_data, voxel_size
 from .distributed import ProcessGroup, resolve_device
-from .encoding import HashGrid
-from .errors import VDNIFError
+from .log import ProgressLog
 from .losses import make_weighting, task_losses
-from .network import IntersectionNetwork
-from .settings import OCCLUSION_THRESHOLD, Heads, NetworkConfig, TrainConfig
-from .training_data import Batches, Segments, split_data, voxel_size
-from .training_log import ProgressLog
 from .validation import calibrate_candidate_threshold, calibrate_threshold, validate
 
 if TYPE_CHECKING:

@@ -13,15 +13,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .attributes import surface_albedo
-from .kernels.surface import SurfaceCaster
+from ..geometry.attributes import surface_albedo
+from ..kernels.surface import SurfaceCaster
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int
 
-    from .restmesh import RestMesh
-    from .voxels import VoxelGrid
-    from .walk_rules import Segments
+    from ..geometry.restmesh import RestMesh
+    from ..geometry.voxels import VoxelGrid
+    from ..geometry.walk_rules import Segments
 
 BOUNDARY_MARGIN = 1e-6
 

@@ -5,9 +5,9 @@ import time
 import bpy
 import numpy as np
 
-from .. import voxels
-from ..capture import Capture
 from ..errors import VDNIFError
+from ..geometry import voxels
+from ..geometry.capture import Capture
 from ..settings import PoseSpec
 from .deform import CornerDeformer, check_deformers
 from .poses import make_poses, posed

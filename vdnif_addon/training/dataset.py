@@ -18,13 +18,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .errors import VDNIFError
+from ..errors import VDNIFError
 
 if TYPE_CHECKING:
-    from .groundtruth import SurfaceHits
-    from .restmesh import RestMesh
-    from .voxels import VoxelGrid
-    from .walk_rules import Segments
+    from ..geometry.restmesh import RestMesh
+    from ..geometry.voxels import VoxelGrid
+    from ..geometry.walk_rules import Segments
+    from ..tracing.groundtruth import SurfaceHits
 
     Shard = Mapping[str, np.ndarray]
     """One shard's arrays by ``ARRAYS`` name, each (S, ...) over its S segments (an npz
@@ -74,7 +74,7 @@ def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> dict[str, Any]
               "dims": grid.dims.tolist(), "resolution": grid.resolution, "extent": grid.extent,
               "occupied_voxels": int(len(grid.cells))}
     if mesh is not None:
-        from .model_file import mesh_fingerprint
+        from ..model.model_file import mesh_fingerprint
 
         header["mesh_fingerprint"] = mesh_fingerprint(mesh)
     return header
@@ -128,7 +128,7 @@ def write_shard(folder: str | os.PathLike, name: str, records: dict[str, np.ndar
     """Writes ``name.npz`` and ``name.json`` into ``folder`` atomically (``safe_io``), after
     ``check_folder``; records the folder's manifest with the first shard. Returns the npz
     path."""
-    from .safe_io import atomic_path, json_text, write_text_atomic
+    from ..safe_io import atomic_path, json_text, write_text_atomic
 
     folder = pathlib.Path(folder)
     check_folder(folder, header)
@@ -222,7 +222,7 @@ def _check_header(path: pathlib.Path, header: dict[str, Any]) -> None:
     if abs(grid["extent"] - h * max(dims)) > 1e-6 * grid["extent"]:
         raise VDNIFError(f"dataset header '{path}': grid extent {grid['extent']!r} is not its "
                          f"voxel size {h!r} times its longest dims {max(dims)}")
-    from .voxels import MAX_RESOLUTION, MIN_RESOLUTION
+    from ..geometry.voxels import MAX_RESOLUTION, MIN_RESOLUTION
 
     if (not isinstance(resolution, int) or isinstance(resolution, bool)
             or not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION):

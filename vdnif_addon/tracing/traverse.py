@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .kernels.walk import walk_segments
-from .walk_rules import BARYCENTRIC_TOLERANCE
+from ..geometry.walk_rules import BARYCENTRIC_TOLERANCE
+from ..kernels.walk import walk_segments
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int
 
-    from .kernels.cells import DeviceCells
-    from .walk_rules import Segments
+    from ..geometry.walk_rules import Segments
+    from ..kernels.cells import DeviceCells
 
 def ray_triangle(origins: Float[np.ndarray, "*batch 3"], directions: Float[np.ndarray, "*batch 3"],
                  a: Float[np.ndarray, "*batch 3"], b: Float[np.ndarray, "*batch 3"],

@@ -23,20 +23,20 @@ import numpy as np
 import torch
 import warp as wp
 
-from .errors import VDNIFError
-from .kernels import render as kernel
-from .kernels import runtime
-from .kernels.segments import segment_buffer
-from .kernels.walk import RayWalk
-from .metrics import Passes
+from ..errors import VDNIFError
+from ..kernels import render as kernel
+from ..kernels import runtime
+from ..kernels.segments import segment_buffer
+from ..kernels.walk import RayWalk
+from ..passes import Passes
 
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from .kernels.cells import DeviceCells
-    from .network import IntersectionNetwork
-    from .voxels import VoxelGrid
-    from .walk_rules import Segments
+    from ..geometry.voxels import VoxelGrid
+    from ..geometry.walk_rules import Segments
+    from ..kernels.cells import DeviceCells
+    from ..model.network import IntersectionNetwork
 
     Prediction = tuple[dict[str, torch.Tensor], bool]
     """A wave's predictions as the resolve kernel reads them (hit, candidate, fraction, normal,
