@@ -16,7 +16,7 @@ def test_zip_holds_the_extension_and_no_dev_files(tmp_path):
     names = zipfile.ZipFile(target).namelist()
     assert target.name == "vdnif-0.1.0.zip"
     for needed in ("blender_manifest.toml", "__init__.py", "vdnif_addon/batch.py",
-                   "vdnif_addon/blender/capture.py", "operators/__init__.py",
+                   "vdnif_addon/blender/capture_scene.py", "operators/__init__.py",
                    "assets/meshes/spot.obj", "assets/meshes/README.md"):
         assert needed in names
     for name in names:
