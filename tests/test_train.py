@@ -655,3 +655,7 @@ def test_device_names():
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
     with pytest.raises(VDNIFError, match="unknown device 'gpu': expected one of auto, cpu, cuda"):
         resolve_device("gpu")
+    # A device resolved by one layer passes through the next unchanged.
+    assert resolve_device(resolve_device("cpu")) == torch.device("cpu")
+    with pytest.raises(VDNIFError, match="unknown device 'meta'"):
+        resolve_device(torch.device("meta"))

@@ -77,9 +77,15 @@ class ProcessGroup:
         return sorted({item for part in gathered for item in (part or [])})
 
 
-def resolve_device(kind: str) -> torch.device:
+def resolve_device(kind: str | torch.device) -> torch.device:
     """ "auto" (CUDA if available, else CPU), "cpu" or "cuda" (this process's LOCAL_RANK
-    device); ``settings.DEVICES`` names them, and any other name is refused."""
+    device); ``settings.DEVICES`` names them, and any other name is refused. A torch device
+    (one resolved already, by a command that passes it on) is returned as it is, so that
+    resolving twice is harmless."""
+    if isinstance(kind, torch.device):
+        if kind.type not in ("cpu", "cuda"):
+            raise VDNIFError(f"unknown device '{kind}': expected a CPU or CUDA device")
+        return kind
     if kind not in DEVICES:
         raise VDNIFError(f"unknown device '{kind}': expected one of {', '.join(DEVICES)}")
     if kind == "auto":

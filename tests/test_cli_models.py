@@ -1,0 +1,47 @@
+"""The commands that load a trained model (render, evaluate, side-by-side) run through the
+command line with a small model, on ``--device cpu`` and ``auto``: a device resolved by one
+layer and handed to the next must be accepted there."""
+
+import json
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+SMALL_TRAIN = ("--resolution", "8", "--poses", "2", "--rays-per-pose", "1024", "--steps", "40",
+               "--batch", "1024", "--levels", "2", "--log2-table-size", "12", "--width", "16",
+               "--depth", "1")
+VIEW = ("--width", "8", "--height", "8")
+
+
+@pytest.fixture(scope="module")
+def small_model(extension, tmp_path_factory):
+    """A lattice-scene model trained for a few steps through ``train``."""
+    import importlib
+
+    cli = importlib.import_module(f"{extension.__name__}.vdnif_addon.cli")
+    folder = tmp_path_factory.mktemp("model")
+    model = folder / "lattice.vdnif"
+    code = cli.main(["train", "--scene", "lattice", *SMALL_TRAIN, "--device", "cpu",
+                     "--out", str(model)])
+    assert code == 0 and model.is_file()
+    return cli, model
+
+
+@pytest.mark.parametrize("device", ["cpu", "auto"])
+def test_render_evaluate_and_side_by_side_take_a_model(small_model, tmp_path, capsys, device):
+    cli, model = small_model
+    assert cli.main(["render", "--model", str(model), "--scene", "lattice", *VIEW,
+                     "--device", device, "--out", str(tmp_path / "render")]) == 0
+    assert (tmp_path / "render" / "render.json").is_file()
+    assert cli.main(["evaluate", "--model", str(model), "--scene", "lattice", "--poses", "1",
+                     *VIEW, "--device", device, "--out", str(tmp_path / "evaluate"),
+                     "--json", str(tmp_path / "evaluate.json")]) == 0
+    evaluated = json.loads((tmp_path / "evaluate.json").read_text())
+    assert evaluated["vs_true"]["false_negative_rate"] is not None
+    assert cli.main(["side-by-side", "--scene", "lattice", "--model", f"lattice={model}",
+                     "--poses", "1", "--repeats", "1", *VIEW, "--device", device,
+                     "--json", str(tmp_path / "sbs.json")]) == 0
+    result = json.loads((tmp_path / "sbs.json").read_text())["results"][0]
+    assert result["scene"] == "lattice" and "neural" in json.dumps(result)
+    assert "error" not in capsys.readouterr().err
