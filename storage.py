@@ -7,13 +7,12 @@ import hashlib
 import json
 import os
 import pathlib
-import re
 import shutil
 
 import bpy
 
 from .vdnif_addon.errors import VDNIFError
-from .vdnif_addon.safe_io import atomic_path, write_bytes_atomic
+from .vdnif_addon.safe_io import atomic_path, file_stem, write_bytes_atomic
 
 PACKED = "model_data"     # the ID property of an object's settings holding the packed model
 
@@ -29,7 +28,7 @@ def portable(path):
 
 
 def _slug(obj):
-    return re.sub(r"[^\w.-]+", "_", obj.name)
+    return file_stem(obj.name)
 
 
 def _beside_blend(obj, name):

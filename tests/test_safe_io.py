@@ -12,10 +12,12 @@ from conftest import REPO
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.safe_io import (
+    FILE_STEM_LIMIT,
     atomic_path,
     check_output_file,
     check_output_folder,
     exclusive_lock,
+    file_stem,
     write_bytes_atomic,
     write_json_atomic,
 )
@@ -150,3 +152,11 @@ def test_a_dataset_folder_refuses_a_shard_of_another_object_or_seed(tmp_path):
                         dict(_header(), pose_range=[1, 2]))            # the same object: fine
     header, shards = dataset.read_dataset(tmp_path)
     assert len(shards) == 2 and header["segments"] == 8
+
+
+@pytest.mark.parametrize("name, stem", [
+    ("Hero", "Hero"), ("../../../tmp/x/evil", "_.._.._tmp_x_evil"), ("/etc/passwd", "_etc_passwd"),
+    ("..", "object"), ("", "object"), ("a b:c", "a_b_c"), ("x" * 300, "x" * FILE_STEM_LIMIT)])
+def test_a_name_becomes_one_file_name_component(name, stem):
+    assert file_stem(name) == stem
+    assert os.sep not in file_stem(name) and not file_stem(name).startswith(".")

@@ -20,6 +20,7 @@ import json
 import math
 import os
 import pathlib
+import re
 import tempfile
 from typing import Any, Iterator
 
@@ -53,6 +54,20 @@ def _check_creatable(path: pathlib.Path, what: str) -> None:
         raise VDNIFError(f"{what} cannot be written: '{existing}' is not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise VDNIFError(f"{what} cannot be written: folder '{existing}' is not writable")
+
+
+FILE_STEM_LIMIT = 100
+"""Longest file-name stem made from a user's name: room for a suffix and the temporary name's
+random part within a file system's 255-byte limit."""
+
+
+def file_stem(text: str) -> str:
+    """``text`` (an object's name, a scene's) as one safe file-name component: runs of
+    anything but letters, digits, ``_``, ``.`` and ``-`` become ``_``, leading dots go (no
+    ``..``, no hidden file), at most FILE_STEM_LIMIT characters; "object" when nothing is
+    left. A name never becomes a path: no separator survives."""
+    stem = re.sub(r"[^\w.-]+", "_", str(text)).lstrip(".")[:FILE_STEM_LIMIT]
+    return stem or "object"
 
 
 def check_output_folder(path: str | os.PathLike, what: str = "output folder") -> None:

@@ -5,6 +5,7 @@ import pathlib
 import sys
 
 from ..errors import VDNIFError
+from ..safe_io import file_stem
 from ..settings import COMMAND_IMAGE, EVALUATION_POSES, RECIPE, TRAINABLE_VARIANTS
 from ..text import metrics_line
 from .options import (
@@ -192,7 +193,7 @@ def _train_on_scene(args):
     obj, spec = load_posed_scene(args)
     captured = capture(obj, args.resolution, spec, deform_corners=False)
     variant = _variant(args, obj.name, captured.mode == "static")
-    out = args.out or pathlib.Path("out") / f"{obj.name.lower()}-{variant}.vdnif"
+    out = args.out or pathlib.Path("out") / f"{file_stem(obj.name.lower())}-{variant}.vdnif"
     pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
         folder = args.data or pathlib.Path(scratch)
