@@ -238,21 +238,3 @@ def test_a_narrowed_run_names_its_scenes_and_seeds(core):
                                             tzinfo=experiments.datetime.timezone.utc)
     assert experiments.ran_line(started, 50 * 60, 1).startswith(
         "Ran on 2026-11-24/25 from 23:50 to 00:40 UTC (wall 50 min, torch on 1 thread, ")
-
-
-def test_full_sizes_train_with_the_default_recipe(core):
-    """The experiments' and the bench's full sizes are the recipe's (``settings.RECIPE``),
-    so a new recipe reaches them without a copied number to update."""
-    from vdnif_addon.settings import RECIPE
-
-    experiment_runs, bench = core("studies.experiment_runs"), core("studies.bench")
-    full = experiment_runs.SIZES["full"]
-    # Resolution None: the recipe's of each scene's mesh (Recipe.resolution_for).
-    assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"],
-            full["overrides"]["batch_size"]) == (None, RECIPE.poses,
-                                                 RECIPE.rays_per_pose, RECIPE.steps,
-                                                 RECIPE.batch_size)
-    full = bench.SIZES["full"]
-    assert (full["base"]["resolution"], full["poses"], full["rays_per_pose"],
-            full["overrides"]["batch_size"]) == (RECIPE.resolution, RECIPE.poses,
-                                                 RECIPE.rays_per_pose, RECIPE.batch_size)

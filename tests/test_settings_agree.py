@@ -12,7 +12,7 @@ import dataclasses
 
 import pytest
 
-from vdnif_addon import limits, settings
+from vdnif_addon import settings
 from vdnif_addon.cli import build_parser
 from vdnif_addon.cli.options import validate_arguments
 from vdnif_addon.errors import VDNIFError
@@ -203,9 +203,12 @@ def command_defaults_device(parser, command):
 
 def test_the_core_refuses_what_settings_does_not_name():
     """Core choices come from settings: a name outside them is refused, each inside taken."""
-    from vdnif_addon.training.losses import WEIGHTING_CLASSES
+    from vdnif_addon.training.losses import make_weighting
 
-    assert list(WEIGHTING_CLASSES) == list(settings.WEIGHTINGS)
+    for name in settings.WEIGHTINGS:
+        assert TrainConfig(weighting=name).weighting == name
+        learns = bool(list(make_weighting(name, ("occlusion", "distance")).parameters()))
+        assert learns == (name == "uncertainty")           # the core builds each by its name
     for name in settings.DEVICES:
         assert TrainConfig(device=name).device == name
     for name in settings.DISTANCE_MODES:
@@ -226,13 +229,3 @@ def test_the_core_refuses_what_settings_does_not_name():
     assert [field.name for field in dataclasses.fields(NetworkConfig)] == [
         "levels", "base_resolution", "growth", "log2_table_size", "feature_dim", "pe_bands",
         "pe_form", "width", "depth", "distance_mode", "albedo_mode", "heads"]  # model files' keys
-
-
-def test_limits_are_read_not_copied():
-    """The caps of limits.py reach every front end through BOUNDS."""
-    assert BOUNDS["poses"][1] == limits.MAX_POSES
-    assert BOUNDS["seed"][1] == limits.MAX_SEED
-    assert BOUNDS["rays_per_pose"][1] == limits.MAX_RAYS_PER_POSE
-    assert BOUNDS["log2_table_size"][1] == limits.MAX_LOG2_TABLE_SIZE
-    assert BOUNDS["batch_size"][1] == limits.MAX_BATCH
-    assert BOUNDS["image_side"][1] == limits.MAX_IMAGE_SIDE
