@@ -7,21 +7,10 @@ import subprocess
 import sys
 
 import pytest
+from batch_runner import error_lines, run_batch
 from conftest import REPO
 
 from vdnif_addon.inference.metrics import SPEED_MIN_HIT_IOU, speed_withheld
-
-BATCH = REPO / "vdnif_addon" / "batch.py"
-
-
-def run_batch(*args, timeout=120, env=None):
-    result = subprocess.run([sys.executable, str(BATCH), "--", *map(str, args)],
-                            capture_output=True, text=True, timeout=timeout, cwd=REPO, env=env)
-    return result.returncode, result.stdout, result.stderr
-
-
-def error_lines(stderr):
-    return [line for line in stderr.splitlines() if line.startswith("vdnif: error:")]
 
 
 def test_capture_writes_the_summary_json(tmp_path):

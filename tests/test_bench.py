@@ -5,8 +5,8 @@ import csv
 import json
 
 import pytest
+from batch_runner import run_batch
 from conftest import REPO
-from test_batch import run_batch
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.inference.metrics import speed_withheld

@@ -6,12 +6,11 @@ import types
 
 import numpy as np
 import pytest
-from test_batch import run_batch
-
-from vdnif_addon.studies.report import write_section
+from batch_runner import run_batch
 
 
-def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path):
+def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path, core):
+    write_section = core("studies.report").write_section
     results = tmp_path / "results.md"
     for key, body in (("experiment static", "first"), ("experiment per-pose", "one"),
                       ("experiment static", "second")):
@@ -51,8 +50,8 @@ def metrics(**values):
     return {"vs_true": dict(one), "vs_embedded": dict(one)}
 
 
-def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none():
-    from vdnif_addon.studies.experiment_runs import median_metrics
+def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none(core):
+    median_metrics = core("studies.experiment_runs").median_metrics
 
     seeds = [metrics(distance_mae=0.3, hit_iou=0.9), metrics(distance_mae=0.1, hit_iou=0.7),
              metrics(distance_mae=0.2, hit_iou=0.95)]
@@ -64,8 +63,10 @@ def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none():
     assert median_metrics(seeds[:2])["vs_true"]["distance_mae"] == pytest.approx(0.2)
 
 
-def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed():
-    from vdnif_addon.studies.report import beat_checks, target_checks, targets_line
+def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed(core):
+    report = core("studies.report")
+    beat_checks, target_checks, targets_line = (report.beat_checks, report.target_checks,
+                                                report.targets_line)
 
     proposed = metrics(distance_mae=0.02, normal_error_deg=12.5, hit_iou=0.99,
                        false_negative_rate=0.004, false_positive_rate=0.006,
@@ -99,9 +100,9 @@ def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed
         false_positive_rate=0.02, material_accuracy=0.5))
 
 
-def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline():
-    from vdnif_addon.model.variants import variant_config
-    from vdnif_addon.settings import ABLATIONS, VARIANTS
+def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline(core):
+    variant_config = core("model.variants").variant_config
+    ABLATIONS, VARIANTS = core("settings").ABLATIONS, core("settings").VARIANTS
 
     proposed, deformed = variant_config("proposed"), variant_config("deformed")
     parts = {"pe_bands": "network", "distance_mode": "network", "weighting": "train"}
