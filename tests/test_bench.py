@@ -90,6 +90,7 @@ def test_bad_presets_files_are_refused(tmp_path):
         load_presets(broken)
 
 
+@pytest.mark.slow
 def test_bench_quick_writes_every_output(tmp_path):
     from vdnif_addon.studies import bench
 

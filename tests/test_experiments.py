@@ -21,6 +21,7 @@ def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path, core):
     assert text.index("second") < text.index("<!-- experiment per-pose -->") < text.index("one")
 
 
+@pytest.mark.slow
 def test_per_pose_experiment_quick(tmp_path):
     results = tmp_path / "docs" / "results.md"
     code, printed, err = run_batch("experiment", "per-pose", "--quick", "--results", results,
@@ -144,6 +145,7 @@ def test_original_is_the_rest_mesh_cast_with_the_rays_of_the_deformed_view(empty
             assert np.abs(deformed.distance[both] - passes.distance[both]).max() > 0.01
 
 
+@pytest.mark.slow
 def test_deformation_experiment_quick(tmp_path):
     """Figure 3 on the textured spot and the three-material bunny: medians over the quick
     size's two seeds on one common pixel set, the original column, targets, figures."""
@@ -187,6 +189,7 @@ def test_deformation_experiment_quick(tmp_path):
     assert "spot/original (rest pose): vs true" in printed
 
 
+@pytest.mark.slow
 def test_ablation_experiment_quick(tmp_path):
     """The ablation end to end on one scene and seed: each run trains the configuration it
     names (one part of proposed taken back to the baseline's) on the same data and steps."""

@@ -30,6 +30,7 @@ def four_slot_box():
     return box
 
 
+@pytest.mark.slow
 def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     import bpy
     from mathutils import Vector
@@ -116,6 +117,7 @@ def static_blend(tmp_path_factory):
     return blend
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("asked, trained, note", [
     ([], "lsnif", "'tri': no armature or lattice deforms it: training the static variant "
                   "lsnif"),
