@@ -2,12 +2,16 @@
 extension (``bl_ext.dev.vdnif``) with user resources in a temporary folder and an empty scene
 per test (BLENDER_NOTES.md)."""
 
+import ast
 import atexit
+import functools
 import importlib
 import os
 import pathlib
 import shutil
+import sys
 import tempfile
+import types
 
 import pytest
 
@@ -71,3 +75,30 @@ def empty_scene(extension):
 
     bpy.ops.wm.read_homefile(use_empty=True)
     return bpy.context.scene
+
+
+@functools.cache
+def extension_oracle(name):
+    """The oracle ``tests/oracles/NAME.py`` bound to the extension's copy of the core (its
+    ``from vdnif_addon.X import`` read as ``from bl_ext.dev.vdnif.vdnif_addon.X import``),
+    so a Blender test keeps to that one identity (tests/test_module_identity.py). Call it
+    from a test that has the extension enabled."""
+    path = REPO / "tests" / "oracles" / f"{name}.py"
+    tree = ast.parse(path.read_text(), str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            tops = {alias.name.split(".")[0] for alias in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            tops = {(node.module or "").split(".")[0] if not node.level else "."}
+        else:
+            continue
+        if tops & {"oracles", "."} or (isinstance(node, ast.Import) and "vdnif_addon" in tops):
+            raise ImportError(f"oracle {name} line {node.lineno}: only 'from vdnif_addon.X "
+                              "import' statements are bound to the extension")
+        if "vdnif_addon" in tops:
+            node.module = f"{EXTENSION_MODULE}.{node.module}"
+    module = types.ModuleType(f"extension_oracles.{name}")
+    module.__file__ = str(path)
+    sys.modules[module.__name__] = module      # classes find their module while it runs
+    exec(compile(tree, str(path), "exec"), module.__dict__)
+    return module

@@ -14,6 +14,7 @@ calls) remains for a case that needs to look inside the process.
 """
 
 import hashlib
+import importlib
 import json
 import os
 import pathlib
@@ -26,7 +27,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from conftest import REPO
+from conftest import EXTENSION_MODULE, REPO
 
 BATCH = REPO / "vdnif_addon" / "batch.py"
 TIME_LIMIT_S = 90      # per case; the slowest real case (a capture) takes ~10 s loaded
@@ -293,9 +294,8 @@ BAD_DATA = {
 
 
 def _bad_model(good, target, kind):
-    from vdnif_addon.model.model_file import load_model, save_model
-
-    network, meta = load_model(good)
+    model_file = importlib.import_module(f"{EXTENSION_MODULE}.vdnif_addon.model.model_file")
+    network, meta = model_file.load_model(good)
     extra = dict(meta["extra"])
     if kind == "no_grid":
         extra.pop("grid")
@@ -307,7 +307,7 @@ def _bad_model(good, target, kind):
         with __import__("torch").no_grad():
             next(iter(network.parameters())).view(-1)[0] = (
                 float("nan") if kind == "nan_weights" else 1e30)
-    save_model(target, network, meta["network_config"], meta["train_info"], extra)
+    model_file.save_model(target, network, meta["network_config"], meta["train_info"], extra)
     return target
 
 
@@ -350,8 +350,9 @@ MESHES = {
 
 
 @pytest.fixture(scope="module")
-def files(trained, tmp_path_factory):
-    """{placeholder: path} of every fixture file the catalogue names."""
+def files(trained, tmp_path_factory, extension):
+    """{placeholder: path} of every fixture file the catalogue names (the spoilt models
+    written by the core as the extension holds it, this file's one identity)."""
     data, model = trained
     root = tmp_path_factory.mktemp("bad")
     places = {"data": data, "model": model}

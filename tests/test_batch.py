@@ -7,21 +7,10 @@ import subprocess
 import sys
 
 import pytest
+from batch_runner import error_lines, run_batch
 from conftest import REPO
 
 from vdnif_addon.inference.metrics import SPEED_MIN_HIT_IOU, speed_withheld
-
-BATCH = REPO / "vdnif_addon" / "batch.py"
-
-
-def run_batch(*args, timeout=120, env=None):
-    result = subprocess.run([sys.executable, str(BATCH), "--", *map(str, args)],
-                            capture_output=True, text=True, timeout=timeout, cwd=REPO, env=env)
-    return result.returncode, result.stdout, result.stderr
-
-
-def error_lines(stderr):
-    return [line for line in stderr.splitlines() if line.startswith("vdnif: error:")]
 
 
 def test_capture_writes_the_summary_json(tmp_path):
@@ -53,6 +42,7 @@ def test_runs_leave_no_blender_session_folder(tmp_path):
     assert list(temporary.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_static_mesh_file_is_reported_as_static(tmp_path):
     mesh = tmp_path / "tri.obj"
     mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
@@ -73,6 +63,7 @@ def test_static_mesh_file_is_reported_as_static(tmp_path):
         "vdnif: error: object 'Cam' is a camera, not a mesh"], err
 
 
+@pytest.mark.slow
 def test_dataset_then_references(tmp_path):
     out = tmp_path / "data"
     for pose_range in ("0:1", "1:3"):
@@ -171,6 +162,7 @@ def quick_demo(tmp_path_factory):
     return out, json.loads((out / "d.json").read_text())
 
 
+@pytest.mark.slow
 def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
     out, report = quick_demo
     assert report == json.loads((out / "report.json").read_text())
@@ -212,6 +204,7 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
             out / "passes" / f"{name}.exr").is_file()
 
 
+@pytest.mark.slow
 def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
     out, demo_report = quick_demo
     model = out / "arm-proposed.vdnif"
@@ -234,6 +227,7 @@ def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
     assert (tmp_path / "e" / "figure-vs-embedded.png").is_file()
 
 
+@pytest.mark.slow
 def test_wrong_surface_tool_evaluates_as_evaluate_does(quick_demo, tmp_path):
     """tools/wrong_surface.py takes evaluate's options and evaluates the same poses and
     pixels: its figure over every both-hit pixel is evaluate's own."""
@@ -268,6 +262,7 @@ sys.exit(code)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", [
     ("render", "--frame", 30, "--width", 8, "--height", 8),
     ("evaluate", "--poses", 1, "--width", 8, "--height", 8)])
@@ -281,6 +276,7 @@ def test_render_and_evaluate_read_the_model_file_once(quick_demo, tmp_path, comm
     assert "model reads: 1" in result.stdout.splitlines()
 
 
+@pytest.mark.slow
 def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_demo, tmp_path):
     out, _ = quick_demo
     model = out / "arm-proposed.vdnif"
@@ -307,6 +303,7 @@ def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_dem
     assert (target / "normal.png").read_bytes() == b"keep"
 
 
+@pytest.mark.slow
 def test_train_from_scene_options_generates_its_dataset(tmp_path):
     data, model = tmp_path / "data", tmp_path / "m.vdnif"
     code, printed, err = run_batch("train", "--scene", "arm", "--resolution", 8, "--poses", 3,

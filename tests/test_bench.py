@@ -5,8 +5,8 @@ import csv
 import json
 
 import pytest
+from batch_runner import run_batch
 from conftest import REPO
-from test_batch import run_batch
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.inference.metrics import speed_withheld
@@ -90,6 +90,7 @@ def test_bad_presets_files_are_refused(tmp_path):
         load_presets(broken)
 
 
+@pytest.mark.slow
 def test_bench_quick_writes_every_output(tmp_path):
     from vdnif_addon.studies import bench
 

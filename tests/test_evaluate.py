@@ -3,7 +3,7 @@ world-space rendering against Blender's own ray casts, and the model/scene check
 
 import numpy as np
 import pytest
-from test_render import OracleNetwork
+from oracle_network import OracleNetwork
 
 
 @pytest.mark.parametrize("fit, width, height", [("AUTO", 40, 30), ("AUTO", 30, 40),

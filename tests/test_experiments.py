@@ -6,12 +6,11 @@ import types
 
 import numpy as np
 import pytest
-from test_batch import run_batch
-
-from vdnif_addon.studies.report import write_section
+from batch_runner import run_batch
 
 
-def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path):
+def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path, core):
+    write_section = core("studies.report").write_section
     results = tmp_path / "results.md"
     for key, body in (("experiment static", "first"), ("experiment per-pose", "one"),
                       ("experiment static", "second")):
@@ -22,6 +21,7 @@ def test_a_section_is_replaced_in_place_and_others_are_kept(tmp_path):
     assert text.index("second") < text.index("<!-- experiment per-pose -->") < text.index("one")
 
 
+@pytest.mark.slow
 def test_per_pose_experiment_quick(tmp_path):
     results = tmp_path / "docs" / "results.md"
     code, printed, err = run_batch("experiment", "per-pose", "--quick", "--results", results,
@@ -51,8 +51,8 @@ def metrics(**values):
     return {"vs_true": dict(one), "vs_embedded": dict(one)}
 
 
-def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none():
-    from vdnif_addon.studies.experiment_runs import median_metrics
+def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none(core):
+    median_metrics = core("studies.experiment_runs").median_metrics
 
     seeds = [metrics(distance_mae=0.3, hit_iou=0.9), metrics(distance_mae=0.1, hit_iou=0.7),
              metrics(distance_mae=0.2, hit_iou=0.95)]
@@ -64,8 +64,10 @@ def test_medians_over_seeds_are_per_metric_and_none_if_a_seed_has_none():
     assert median_metrics(seeds[:2])["vs_true"]["distance_mae"] == pytest.approx(0.2)
 
 
-def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed():
-    from vdnif_addon.studies.report import beat_checks, target_checks, targets_line
+def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed(core):
+    report = core("studies.report")
+    beat_checks, target_checks, targets_line = (report.beat_checks, report.target_checks,
+                                                report.targets_line)
 
     proposed = metrics(distance_mae=0.02, normal_error_deg=12.5, hit_iou=0.99,
                        false_negative_rate=0.004, false_positive_rate=0.006,
@@ -99,9 +101,9 @@ def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed
         false_positive_rate=0.02, material_accuracy=0.5))
 
 
-def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline():
-    from vdnif_addon.model.variants import variant_config
-    from vdnif_addon.settings import ABLATIONS, VARIANTS
+def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline(core):
+    variant_config = core("model.variants").variant_config
+    ABLATIONS, VARIANTS = core("settings").ABLATIONS, core("settings").VARIANTS
 
     proposed, deformed = variant_config("proposed"), variant_config("deformed")
     parts = {"pe_bands": "network", "distance_mode": "network", "weighting": "train"}
@@ -143,6 +145,7 @@ def test_original_is_the_rest_mesh_cast_with_the_rays_of_the_deformed_view(empty
             assert np.abs(deformed.distance[both] - passes.distance[both]).max() > 0.01
 
 
+@pytest.mark.slow
 def test_deformation_experiment_quick(tmp_path):
     """Figure 3 on the textured spot and the three-material bunny: medians over the quick
     size's two seeds on one common pixel set, the original column, targets, figures."""
@@ -186,6 +189,7 @@ def test_deformation_experiment_quick(tmp_path):
     assert "spot/original (rest pose): vs true" in printed
 
 
+@pytest.mark.slow
 def test_ablation_experiment_quick(tmp_path):
     """The ablation end to end on one scene and seed: each run trains the configuration it
     names (one part of proposed taken back to the baseline's) on the same data and steps."""
@@ -238,21 +242,3 @@ def test_a_narrowed_run_names_its_scenes_and_seeds(core):
                                             tzinfo=experiments.datetime.timezone.utc)
     assert experiments.ran_line(started, 50 * 60, 1).startswith(
         "Ran on 2026-11-24/25 from 23:50 to 00:40 UTC (wall 50 min, torch on 1 thread, ")
-
-
-def test_full_sizes_train_with_the_default_recipe(core):
-    """The experiments' and the bench's full sizes are the recipe's (``settings.RECIPE``),
-    so a new recipe reaches them without a copied number to update."""
-    from vdnif_addon.settings import RECIPE
-
-    experiment_runs, bench = core("studies.experiment_runs"), core("studies.bench")
-    full = experiment_runs.SIZES["full"]
-    # Resolution None: the recipe's of each scene's mesh (Recipe.resolution_for).
-    assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"],
-            full["overrides"]["batch_size"]) == (None, RECIPE.poses,
-                                                 RECIPE.rays_per_pose, RECIPE.steps,
-                                                 RECIPE.batch_size)
-    full = bench.SIZES["full"]
-    assert (full["base"]["resolution"], full["poses"], full["rays_per_pose"],
-            full["overrides"]["batch_size"]) == (RECIPE.resolution, RECIPE.poses,
-                                                 RECIPE.rays_per_pose, RECIPE.batch_size)

@@ -6,10 +6,3 @@ def test_loaded_under_extension_namespace(extension):
 
     assert extension.__name__ == "bl_ext.dev.vdnif"
     assert addon_utils.check("bl_ext.dev.vdnif")[1], "extension is not enabled"
-
-
-def test_core_imports_without_bpy_dependency_at_top_level():
-    import vdnif_addon
-    import vdnif_addon.errors
-
-    assert issubclass(vdnif_addon.errors.VDNIFError, Exception)

@@ -23,7 +23,7 @@ import pathlib
 
 import numpy as np
 import pytest
-from oracles import surface_casts as oracle
+from conftest import extension_oracle
 
 GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"
 TOLERANCE = 1e-6             # object sizes, along the triangle normal
@@ -40,6 +40,7 @@ def face_normals(mesh):
 def attributes_at(mesh, p0, direction, distance, triangle):
     """(normal, albedo) of the points ``p0 + distance direction`` on ``triangle`` (numpy)."""
     point = p0 + distance[:, None] * direction
+    oracle = extension_oracle("surface_casts")
     weights = oracle.barycentric(point, mesh.vertices[mesh.triangles[triangle]])
     normal = oracle.shading_normals(mesh.vertices, mesh.triangles, mesh.corner_normals,
                                     triangle, weights)
@@ -112,7 +113,7 @@ def test_segment_ground_truth_equals_blender_bvhtree(empty_scene, core, scene):
     mesh = capture.mesh
     found = core("tracing.groundtruth").segment_targets(mesh, rest_caster, segments)
     tree = core("blender.bvh").BVHCaster(mesh.vertices, mesh.triangles)
-    expected = oracle.segment_targets(mesh, tree, segments)
+    expected = extension_oracle("surface_casts").segment_targets(mesh, tree, segments)
     assert expected.hit.sum() > 1000 and len(segments) > 10000
     assert_same_targets(mesh, segments.p0, segments.p1, found, expected, found.triangle)
     both = found.hit & expected.hit

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 import scene_builders as sb
-from test_batch import error_lines, run_batch
+from batch_runner import error_lines, run_batch
 
 COLORS = {0: (1, 1, 0, 1), 1: (1, 0, 0, 1), 2: (0, 1, 0, 1), 3: (0, 0, 1, 1)}
 TINY = dict(steps=5, batch_size=256, log2_table_size=10, device="cpu")
@@ -30,6 +30,7 @@ def four_slot_box():
     return box
 
 
+@pytest.mark.slow
 def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     import bpy
     from mathutils import Vector
@@ -64,7 +65,7 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
         evaluation.check_model_fits(model, stale, captured.mesh, captured.grid)
 
     # The material pass in the slots of Blender's own faces, through an exact network.
-    from test_render import OracleNetwork
+    from oracle_network import OracleNetwork
 
     neural = core("blender.neural")
     oracle = neural.SceneModel(network=OracleNetwork(captured.mesh, captured.grid), metadata={
@@ -116,6 +117,7 @@ def static_blend(tmp_path_factory):
     return blend
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("asked, trained, note", [
     ([], "lsnif", "'tri': no armature or lattice deforms it: training the static variant "
                   "lsnif"),

@@ -113,7 +113,7 @@ def test_pose_keys_survive_a_json_file(empty_scene, core):
 
 
 def test_evaluating_on_training_poses_is_refused(empty_scene, core):
-    from test_render import OracleNetwork
+    from oracle_network import OracleNetwork
 
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)

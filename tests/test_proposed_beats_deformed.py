@@ -29,6 +29,7 @@ fewest measured, 298).
 
 import sys
 
+import pytest
 import torch
 
 SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2, width=48,
@@ -57,6 +58,7 @@ def compare(experiment_runs, tmp_path, seed):
     return runs.medians["proposed"], runs.medians["deformed"]
 
 
+@pytest.mark.slow
 def test_proposed_beats_deformed_on_the_common_pixels(empty_scene, core, tmp_path):
     proposed, deformed = compare(core("studies.experiment_runs"), tmp_path, seed=0)
     for reference in ("vs_true", "vs_embedded"):

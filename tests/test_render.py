@@ -1,23 +1,22 @@
 """The neural renderer's wave logic, driven by an oracle network that knows the ground truth:
 its passes must equal the embedded reference exactly (no bpy needed); and the renderer
-against the numpy/torch renderer it replaced (``oracles/render.py``) and its golden passes."""
+against the numpy/torch renderer it replaced (``oracles/render.py``). Its golden passes, in a
+Blender scene, are in ``test_render_golden.py``."""
 
 import numpy as np
 import pytest
 import torch
-from oracles import encoding_torch as encoding_oracle
+from oracle_network import OracleNetwork
 from oracles import render as old_render
 from oracles import walk as old_walk
 
-from vdnif_addon.geometry import voxels, walk_rules
+from vdnif_addon.geometry import voxels
 from vdnif_addon.geometry.restmesh import Albedo, RestMesh
 from vdnif_addon.inference import images
 from vdnif_addon.inference import neural_render as render
 from vdnif_addon.kernels.cells import DeviceCells
 from vdnif_addon.passes import Passes
 from vdnif_addon.tracing import groundtruth, rays, references
-
-GOLDEN = __import__("pathlib").Path(__file__).parent / "golden"
 
 
 def icosphere_mesh():
@@ -48,28 +47,6 @@ def icosphere_mesh():
     albedo = [Albedo("constant", np.array(c, np.float32)) for c in ((1, 0, 0), (0, 0, 1))]
     return RestMesh(name="Ball", vertices=v, triangles=triangles, corner_normals=normals,
                     material_index=material, albedo=albedo)
-
-
-class OracleNetwork:
-    """Answers every segment with its exact rest-space ground truth."""
-
-    def __init__(self, mesh, grid):
-        self.mesh, self.grid = mesh, grid
-        self.caster = groundtruth.rest_surface(mesh)           # segments in no given cell
-        self.queries = 0
-
-    def predict(self, p0, p1, rest_len, voxel_size):
-        to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa: E731
-        segments = walk_rules.Segments(ray=np.arange(len(p0)), cell=np.zeros(len(p0), int),
-                                     t0=np.zeros(len(p0)), t1=np.ones(len(p0)),
-                                     p0=to_rest(p0), p1=to_rest(p1))
-        hits = groundtruth.segment_targets(self.mesh, self.caster, segments)
-        self.queries += len(p0)
-        length = rest_len.double().numpy()
-        return {"hit": torch.as_tensor(hits.hit), "candidate": torch.as_tensor(hits.hit),
-                "fraction": torch.as_tensor(hits.distance / np.maximum(length, 1e-30)),
-                "normal": torch.as_tensor(hits.normal),
-                "material": torch.as_tensor(hits.material.astype(np.int64))}
 
 
 def bent_ball(resolution=10):
@@ -186,70 +163,6 @@ def test_renderer_on_cuda_equals_the_cpu():
     np.testing.assert_allclose(gpu.distance, cpu.distance, rtol=0, atol=1e-9)
     np.testing.assert_allclose(gpu.normal, cpu.normal, rtol=0, atol=1e-6)
     np.testing.assert_allclose(gpu.albedo, cpu.albedo, rtol=0, atol=1e-6)
-
-
-def test_renderer_reproduces_its_golden_passes(core):
-    """The arm at resolution 12 in its first evaluation pose, rendered with the golden model
-    by the numpy/torch renderer before kernels replaced it (tests/golden/make_goldens.py).
-    The golden network ran the torch encoder, whose float32 sin (SLEEF) is up to one unit in
-    the last place off the kernel's (test_encoding_kernel.py): that moved one normal of 2,304
-    by 1.2e-5. The oracle twin of the encoder keeps this a test of the render kernels alone."""
-    golden = np.load(GOLDEN / "arm-render.npz")
-    network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
-    network.encoder = encoding_oracle.from_product(network.encoder)
-    obj = core("blender.scenes").demo_scene("arm")
-    spec = core("blender.poses").PoseSpec(count=1)
-    grid = core("blender.capture_scene").capture(obj, 12, spec, deform_corners=False).grid
-    cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
-    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
-    passes, stats = core("inference.neural_render").neural_passes(network, grid, table, cells,
-                                                 golden["origins"], golden["directions"])
-    assert golden["hit"].sum() > 10 and stats["truncated"] == 0
-    np.testing.assert_array_equal(passes.hit, golden["hit"])
-    np.testing.assert_allclose(passes.distance, golden["distance"], rtol=0, atol=1e-5)
-    np.testing.assert_allclose(passes.normal, golden["normal"], rtol=0, atol=1e-5)
-    np.testing.assert_allclose(passes.albedo, golden["albedo"], rtol=0, atol=1e-6)
-    np.testing.assert_array_equal(passes.material, golden["material"])
-
-
-def test_warp_launches_never_run_from_two_threads_at_once(core, monkeypatch):
-    """The overlapped render walks one lane on a worker thread while the network encodes the
-    other lane on its own worker: every Warp launch must still run alone. Each launch is
-    stretched by a millisecond so that unserialized launches would meet."""
-    import threading
-    import time
-
-    import warp as wp
-
-    golden = np.load(GOLDEN / "arm-render.npz")
-    network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
-    obj = core("blender.scenes").demo_scene("arm")
-    grid = core("blender.capture_scene").capture(obj, 12, core("blender.poses").PoseSpec(count=1),
-                                           deform_corners=False).grid
-    cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
-    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
-    launch, guard = wp.launch, threading.Lock()
-    seen = {"active": 0, "most": 0, "threads": set()}
-
-    def stretched(*args, **kwargs):
-        with guard:
-            seen["active"] += 1
-            seen["most"] = max(seen["most"], seen["active"])
-            seen["threads"].add(threading.get_ident())
-        try:
-            time.sleep(0.001)
-            return launch(*args, **kwargs)
-        finally:
-            with guard:
-                seen["active"] -= 1
-
-    monkeypatch.setattr(wp, "launch", stretched)
-    render = core("inference.neural_render")
-    passes, _ = render.neural_passes(network, grid, table, cells, golden["origins"],
-                                     golden["directions"], overlap=True, schedule=(1,))
-    assert len(seen["threads"]) >= 2, "the render did not overlap: nothing was tested"
-    assert seen["most"] == 1
-    np.testing.assert_array_equal(passes.hit, golden["hit"])
 
 
 def test_display_images_and_figure():

@@ -45,9 +45,8 @@ def spot(empty_scene, core):
 
 
 def test_a_textured_mesh_trains_at_the_recipes_textured_resolution(spot, core):
-    from vdnif_addon.cli import build_parser
-    from vdnif_addon.cli.options import load_posed_scene
-    from vdnif_addon.settings import RECIPE
+    build_parser, RECIPE = core("cli").build_parser, core("settings").RECIPE
+    load_posed_scene = core("cli.options").load_posed_scene
 
     kinds = {albedo.kind for albedo in core("blender.read_mesh").read_rest_mesh(spot).albedo}
     assert "texture" in kinds and RECIPE.textured_resolution > RECIPE.resolution
@@ -70,9 +69,8 @@ def test_a_textured_mesh_trains_at_the_recipes_textured_resolution(spot, core):
 
 
 def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
-    from vdnif_addon.cli import build_parser
-    from vdnif_addon.cli.options import load_posed_scene
-    from vdnif_addon.settings import RECIPE
+    build_parser, RECIPE = core("cli").build_parser, core("settings").RECIPE
+    load_posed_scene = core("cli.options").load_posed_scene
 
     assert core("blender.resolution").recipe_resolution(arm) == RECIPE.resolution
     args = build_parser().parse_args(["capture", "--scene", "arm"])

@@ -44,14 +44,3 @@ def test_training_config_and_commands_default_to_the_recipe():
 def test_resolution_takes_a_number_or_auto(text, expected):
     args = build_parser().parse_args(["capture", "--scene", "arm", "--resolution", text])
     assert args.resolution == expected
-
-
-def test_the_demo_runs_the_recipe_with_its_own_steps_at_256_pixels():
-    from vdnif_addon.settings import DEMO_STEPS
-    from vdnif_addon.studies.demo import SIZES
-
-    full = SIZES["full"]
-    assert (full["resolution"], full["poses"], full["rays_per_pose"], full["steps"]) == (
-        None, RECIPE.poses, RECIPE.rays_per_pose, DEMO_STEPS)   # None: the mesh's recipe
-    assert DEMO_STEPS <= RECIPE.steps
-    assert full["width"] >= 256 and full["height"] >= 256 and full["eval_poses"] == 8

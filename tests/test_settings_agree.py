@@ -4,15 +4,21 @@ with ``vdnif_addon/settings.py``.
 
 Each row of a table below names where a setting appears: a property of ``Object.vdnif`` (or
 of the preferences), an option of a command, a field of a core configuration. The values
-are read from what was built (the registered RNA, the parsed defaults, the dataclass
-defaults, the validation that refuses a value), never copied from settings.py.
+are read from what was built (the registered RNA, read in a fresh Blender process, the
+parsed defaults, the dataclass defaults, the validation that refuses a value), never copied
+from settings.py.
 """
 
 import dataclasses
+import json
+import subprocess
+import sys
+import types
 
 import pytest
+from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE
 
-from vdnif_addon import limits, settings
+from vdnif_addon import settings
 from vdnif_addon.cli import build_parser
 from vdnif_addon.cli.options import validate_arguments
 from vdnif_addon.errors import VDNIFError
@@ -74,14 +80,48 @@ RANGES = {
 """Every BOUNDS entry appears here (test_every_bound_is_checked)."""
 
 
-@pytest.fixture(scope="module")
-def panel(extension):
-    """The registered RNA of ``Object.vdnif`` and of the preferences: name -> property."""
-    import bpy
+# Run after ENABLE_IN_FRESH_PROCESS: prints the registered properties' defaults, ranges and
+# choices as JSON.
+DUMP_RNA = f"""
+import json
 
-    properties = dict(bpy.types.Object.bl_rna.properties["vdnif"].fixed_type.properties)
-    preferences = bpy.context.preferences.addons[extension.__name__].preferences
-    return properties, dict(preferences.bl_rna.properties)
+def described(prop):
+    found = {{"type": prop.type}}
+    if prop.type in ("BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"):
+        found["default"] = prop.default
+    if prop.type in ("INT", "FLOAT"):
+        found["hard_min"], found["hard_max"] = prop.hard_min, prop.hard_max
+    if prop.type == "ENUM":
+        found["enum_items"] = [item.identifier for item in prop.enum_items]
+    return found
+
+def table(rna):
+    return {{name: described(prop) for name, prop in rna.properties.items()
+             if name != "rna_type" and not getattr(prop, "is_array", False)}}
+
+preferences = bpy.context.preferences.addons["{EXTENSION_MODULE}"].preferences
+print(json.dumps([table(bpy.types.Object.bl_rna.properties["vdnif"].fixed_type),
+                  table(preferences.bl_rna)]))
+"""
+
+
+@pytest.fixture(scope="module")
+def panel():
+    """The registered RNA of ``Object.vdnif`` and of the preferences: name -> property (its
+    type, default, hard range and enum identifiers), read in a fresh Blender process that
+    enables the extension, so this file keeps to one copy of the core in its own process
+    (tests/test_module_identity.py)."""
+    done = subprocess.run([sys.executable, "-c", ENABLE_IN_FRESH_PROCESS + DUMP_RNA],
+                          capture_output=True, text=True, timeout=120, check=True)
+    tables = json.loads(done.stdout.strip().splitlines()[-1])
+    for rows in tables:
+        for name, row in rows.items():
+            row["enum_items"] = [types.SimpleNamespace(identifier=item)
+                                 for item in row.get("enum_items", [])]
+            rows[name] = types.SimpleNamespace(**row)
+    properties, preferences = tables
+    assert len(properties) > 20 and "device" in preferences     # the tables were read
+    return properties, preferences
 
 
 @pytest.fixture(scope="module")
@@ -203,9 +243,12 @@ def command_defaults_device(parser, command):
 
 def test_the_core_refuses_what_settings_does_not_name():
     """Core choices come from settings: a name outside them is refused, each inside taken."""
-    from vdnif_addon.training.losses import WEIGHTING_CLASSES
+    from vdnif_addon.training.losses import make_weighting
 
-    assert list(WEIGHTING_CLASSES) == list(settings.WEIGHTINGS)
+    for name in settings.WEIGHTINGS:
+        assert TrainConfig(weighting=name).weighting == name
+        learns = bool(list(make_weighting(name, ("occlusion", "distance")).parameters()))
+        assert learns == (name == "uncertainty")           # the core builds each by its name
     for name in settings.DEVICES:
         assert TrainConfig(device=name).device == name
     for name in settings.DISTANCE_MODES:
@@ -226,13 +269,3 @@ def test_the_core_refuses_what_settings_does_not_name():
     assert [field.name for field in dataclasses.fields(NetworkConfig)] == [
         "levels", "base_resolution", "growth", "log2_table_size", "feature_dim", "pe_bands",
         "pe_form", "width", "depth", "distance_mode", "albedo_mode", "heads"]  # model files' keys
-
-
-def test_limits_are_read_not_copied():
-    """The caps of limits.py reach every front end through BOUNDS."""
-    assert BOUNDS["poses"][1] == limits.MAX_POSES
-    assert BOUNDS["seed"][1] == limits.MAX_SEED
-    assert BOUNDS["rays_per_pose"][1] == limits.MAX_RAYS_PER_POSE
-    assert BOUNDS["log2_table_size"][1] == limits.MAX_LOG2_TABLE_SIZE
-    assert BOUNDS["batch_size"][1] == limits.MAX_BATCH
-    assert BOUNDS["image_side"][1] == limits.MAX_IMAGE_SIDE

@@ -1,0 +1,74 @@
+"""The neural renderer in a Blender scene: the arm's golden passes rendered again, and the
+overlapped render's Warp launches, each one alone (``test_render.py`` holds the renderer's
+tests without Blender)."""
+
+import pathlib
+
+import numpy as np
+from conftest import extension_oracle
+
+GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"
+
+
+def test_renderer_reproduces_its_golden_passes(core):
+    """The arm at resolution 12 in its first evaluation pose, rendered with the golden model
+    by the numpy/torch renderer before kernels replaced it (tests/golden/make_goldens.py).
+    The golden network ran the torch encoder, whose float32 sin (SLEEF) is up to one unit in
+    the last place off the kernel's (test_encoding_kernel.py): that moved one normal of 2,304
+    by 1.2e-5. The oracle twin of the encoder keeps this a test of the render kernels alone."""
+    golden = np.load(GOLDEN / "arm-render.npz")
+    network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
+    network.encoder = extension_oracle("encoding_torch").from_product(network.encoder)
+    obj = core("blender.scenes").demo_scene("arm")
+    spec = core("blender.poses").PoseSpec(count=1)
+    grid = core("blender.capture_scene").capture(obj, 12, spec, deform_corners=False).grid
+    cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
+    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
+    passes, stats = core("inference.neural_render").neural_passes(network, grid, table, cells,
+                                                 golden["origins"], golden["directions"])
+    assert golden["hit"].sum() > 10 and stats["truncated"] == 0
+    np.testing.assert_array_equal(passes.hit, golden["hit"])
+    np.testing.assert_allclose(passes.distance, golden["distance"], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(passes.normal, golden["normal"], rtol=0, atol=1e-5)
+    np.testing.assert_allclose(passes.albedo, golden["albedo"], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(passes.material, golden["material"])
+
+
+def test_warp_launches_never_run_from_two_threads_at_once(core, monkeypatch):
+    """The overlapped render walks one lane on a worker thread while the network encodes the
+    other lane on its own worker: every Warp launch must still run alone. Each launch is
+    stretched by a millisecond so that unserialized launches would meet."""
+    import threading
+    import time
+
+    import warp as wp
+
+    golden = np.load(GOLDEN / "arm-render.npz")
+    network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
+    obj = core("blender.scenes").demo_scene("arm")
+    grid = core("blender.capture_scene").capture(obj, 12, core("blender.poses").PoseSpec(count=1),
+                                           deform_corners=False).grid
+    cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
+    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
+    launch, guard = wp.launch, threading.Lock()
+    seen = {"active": 0, "most": 0, "threads": set()}
+
+    def stretched(*args, **kwargs):
+        with guard:
+            seen["active"] += 1
+            seen["most"] = max(seen["most"], seen["active"])
+            seen["threads"].add(threading.get_ident())
+        try:
+            time.sleep(0.001)
+            return launch(*args, **kwargs)
+        finally:
+            with guard:
+                seen["active"] -= 1
+
+    monkeypatch.setattr(wp, "launch", stretched)
+    render = core("inference.neural_render")
+    passes, _ = render.neural_passes(network, grid, table, cells, golden["origins"],
+                                     golden["directions"], overlap=True, schedule=(1,))
+    assert len(seen["threads"]) >= 2, "the render did not overlap: nothing was tested"
+    assert seen["most"] == 1
+    np.testing.assert_array_equal(passes.hit, golden["hit"])
