@@ -197,7 +197,7 @@ def test_the_graph_is_read(graph):
     assert f"{CORE}.cli" in edges[f"{CORE}.batch"]                     # absolute, in a function
     assert f"{CORE}.blender.capture_scene" in edges[f"{CORE}.cli.pipeline"]  # relative, in a fn
     assert f"{CORE}.text" in edges["operators.passes"]             # from the root, two dots
-    assert "bpy" in external["viewer"] and "torch" in external[f"{CORE}.network"]
+    assert "bpy" in external["viewer"] and "torch" in external[f"{CORE}.model.network"]
 
 
 def test_no_import_cycle(graph):
