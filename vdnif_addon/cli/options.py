@@ -23,7 +23,7 @@ from ..settings import (
     RECIPE,
     PoseSpec,
 )
-from ..text import metrics_line
+from ..text import metrics_line, speed_line
 
 
 def add_scene_options(parser):
@@ -187,8 +187,6 @@ def report_training(record):
 
 
 def print_evaluation(report):
-    from ..studies.report import speed_line
-
     print(f"evaluated {report['variant']} on '{report['object']}' R={report['resolution']}, "
           f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
           f"{report['width']}x{report['height']}")
