@@ -28,7 +28,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..errors import VDNIFError
-from ..settings import ExtremeDeform
+from ..extreme_deform import ExtremeDeform
 from .read_mesh import deform_modifiers
 from .rig import bend_twist, influencing_bones, lattice_cells, offset_lattice
 
