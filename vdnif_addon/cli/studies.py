@@ -59,7 +59,8 @@ def cmd_bench(args):
     """Sweep resolution, hash grid, PE bands and width, each point trained until it
     converges; derive the presets."""
     from ..presets import PRESETS_FILE
-    from ..studies.bench import NO_PRESETS, run_bench
+    from ..studies.bench import run_bench
+    from ..studies.bench_report import NO_PRESETS
 
     quick_dir = pathlib.Path("out/bench-quick")
     out = args.out or (quick_dir if args.quick else pathlib.Path("docs/bench"))
