@@ -24,8 +24,10 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(PY) -m ruff check .
 
-package: $(STAMP)
-	$(PY) tools/package.py --out build
+# The standard library only (tools/package.py): zipping the files needs no venv.
+package:
+	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found (tomllib needs Python 3.11)"; exit 1; }
+	$(PYTHON) tools/package.py --out build
 
 clean:
 	rm -rf build out .pytest_cache .ruff_cache

@@ -184,7 +184,7 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     from test_metrics import image, one_material_mesh
 
     from vdnif_addon.inference.evaluation import compare_both, speed_figures
-    from vdnif_addon.studies import bench
+    from vdnif_addon.studies import bench, bench_report
 
     mesh = one_material_mesh()
     reference = image(["##########"] * 2)
@@ -210,10 +210,10 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     assert rows[2][PRESET_ERROR] is None
     presets = derive_presets(rows, PRESET_ERROR)
     assert presets["fast"]["width"] == 32 and presets["accurate"]["width"] == 64
-    bench.write_outputs(tmp_path, rows)
+    bench_report.write_outputs(tmp_path, rows)
     assert (tmp_path / "pareto.png").stat().st_size > 10_000
-    text = "\n".join(bench.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
-                                          tmp_path, None))
+    text = "\n".join(bench_report.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
+                                                 tmp_path, None))
     assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text
 
 

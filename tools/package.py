@@ -2,7 +2,9 @@
 
 Stands in for ``blender --command extension build``, which needs a Blender executable: the
 manifest is checked against the rules in BLENDER_NOTES.md and the ``[build]
-paths_exclude_pattern`` list is applied with gitignore-style matching.
+paths_exclude_pattern`` list is applied with gitignore-style matching. The studies and the
+dev tools stay out of the zip. It imports the standard library only, so that ``make
+package`` runs with a bare Python 3.11 and installs nothing.
 
     python tools/package.py --out build
 """

@@ -8,27 +8,26 @@ from __future__ import annotations
 from .errors import VDNIFError
 
 MAX_IMAGE_PIXELS = 4096 * 4096
-"""Pixels of one rendered image: a ray costs ~1 KiB across the walk's buffers, the passes and
-both references, so 16.8 M pixels is ~16 GiB at the worst; 100000 x 100000 would be 9 TiB."""
+"""Pixels of one rendered image: a ray costs about 1 KiB across the walk's buffers, the passes
+and both references, so the cap keeps the worst image within this machine class's memory."""
 
 MIN_OBJECT_SIZE = 1e-5
 MAX_OBJECT_SIZE = 1e9
 """The supported sizes of a mesh (longest side of its rest bounds, local units; DESIGN section
-2). Inside it every figure in object units is the same at any scale (tests/test_scale.py: the
-arm, 3 units, gives the same references from --scale 1e-6 to 1e10); outside, float32 parts
-of the pipeline under- or overflow (the arm's normal error went from 1.9 deg to 27 deg at
-scale 1e-8 and 3.5 deg at 1e12), so such a mesh is refused."""
+2). Inside it every figure in object units is the same at any scale (tests/test_scale.py);
+outside, float32 parts of the pipeline under- or overflow, so such a mesh is refused."""
 
 MAX_IMAGE_SIDE = 16384
 MAX_POSES = 4096
 """Poses of one capture: the deformed corners are kept for every pose (``capture``)."""
 
 MAX_RAYS_PER_POSE = 1 << 22
-"""Training rays per pose: ~10 segments per ray at ~80 bytes per shard row is ~3 GiB."""
+"""Training rays per pose: every walked segment is a dataset shard row, so the cap keeps one
+pose's rows within a few GiB."""
 
 MAX_LOG2_TABLE_SIZE = 24
-"""Hash table rows per level 2^T: 2^24 rows x Fd 2 x 4 bytes x 16 levels is 2 GiB, with Adam's
-two moments 6 GiB."""
+"""Hash table rows per level 2^T: at the cap a many-level table and Adam's two moments take
+several GiB."""
 
 MAX_TABLE_FLOATS = 2**31 - 1
 """The encoder kernels index the table with int32: at most this many floats (8 GB) in all

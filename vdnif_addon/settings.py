@@ -1,7 +1,8 @@
 """Every setting's one home: the names a setting may take, its default, its range and its
 validation, read by the batch commands' parser, the panel's properties and the core alike
 (DESIGN section 8 for the recipe). Holds the configurations of a run: ``NetworkConfig``
-(with ``Heads``), ``TrainConfig``, ``PoseSpec`` (with ``ExtremeDeform``) and the variants.
+(with ``Heads``), ``TrainConfig``, ``PoseSpec`` and the variants; the extreme pose a PoseSpec
+may add is ``extreme_deform``'s.
 
 Imports neither torch, nor bpy, nor Warp, nor numpy, so the UI and the command-line parser can
 read it cheaply. Hard memory caps live in ``limits``; the ranges here are read from them.
@@ -13,10 +14,13 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from . import limits
 from .errors import VDNIFError
+
+if TYPE_CHECKING:
+    from .extreme_deform import ExtremeDeform
 
 
 @dataclass(frozen=True)
@@ -30,24 +34,17 @@ class Recipe:
     """
 
     resolution: int = 32
-    # A textured mesh (albedo varies within a material, ``RestMesh.albedo_varies``) at 64:
-    # at 32 the voxel embedding alone bounds spot's albedo at 32.5 dB against the true
-    # reference and the network 29.2 (3 seeds, 8 unseen poses at 256x256, zero start); at 64
-    # the embedding gives 37.1 and the network 33.2 (33.6 at the equal start), at 0.8 speed.
+    # A textured mesh (``RestMesh.albedo_varies``) trains finer: coarser voxels alone move
+    # the hits enough to blur the albedo read at them (DESIGN section 8).
     textured_resolution: int = 64
     poses: int = 32
-    # 65,536, not 16,384: holes and extras come from too few distinct ray lines near
-    # silhouettes (docs/HOLES.md). On spot (seed 0, 8 unseen poses at 256x256, vs true) 4x
-    # the rays gave distance 0.00195 against 0.00231, 5.70 deg against 6.01, holes + extras
-    # 0.37 % against 0.45 % and albedo 29.1 dB against 28.2; 8x and 16x gave 29.4 / 29.5 dB
-    # and the same distance for twice / four times the memory (resident sizes seen while
-    # training: 3.4 GB at 4x, 5.5 / 10.9 GB at 8x / 16x; ``make demo`` peaks at 4.9 GB).
+    # Many distinct ray lines near silhouettes remove holes and extras (docs/HOLES.md); more
+    # than this cost memory for little gain (docs/results.md, "training rays per pose").
     rays_per_pose: int = 65536
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
-    # 9,000, not 3,000: on the three-material bunny (8 unseen poses at 256x256, seed 0, vs
-    # true) 3,000 steps left holes 0.79 %, extras 0.66 %, 0.0267 object units and 15.3 deg;
-    # 9,000 give 0.26 % / 0.38 % / 0.0109 / 9.9 deg with the same data (docs/results-history.md).
+    # A third of this left holes, extras and distance error on the three-material bunny that
+    # more steps remove with the same data (docs/results-history.md, "Why 9,000 steps").
     steps: int = 9000
     batch_size: int = 2**14
 
@@ -67,10 +64,8 @@ DEMO_SCENE = "spot"
 """The main job's scene (``make demo``): textured and armature-rigged."""
 
 DEMO_STEPS = 3000
-"""The main job's training steps: a third of the recipe's, so that ``make demo`` stays under
-10 minutes on 2 CPU cores (the whole job took 302 s of wall time there with 3,000 steps and
-65,536 rays per pose, beside another training; 9,000 steps would take about 13 minutes). On
-spot they meet every hole, extra, distance and normal target (README, docs/results.md)."""
+"""The main job's training steps: fewer than the recipe's, so that ``make demo`` stays under
+10 minutes on 2 CPU cores; on spot they still meet every target (README, docs/results.md)."""
 
 # The suggested resolution (``blender/resolution.py``): the coarsest candidate whose
 # embedding error (true vs embedded reference, distance MAE in object units) is at most
@@ -90,16 +85,14 @@ DEFAULT_DEVICE = "auto"
 POSE_SOURCES = ("random", "frames")
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
 DISTANCE_MODES = ("fraction", "log1p-fraction", "log1p")
-"""``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l),
-scale-invariant, its error taken in t/l (``losses.distance_error``). ``log1p``: ReLU
-log1p(d/h), the proposed form of model files written before log1p-fraction (DESIGN section 8
-says why it was replaced)."""
+"""``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l), its
+error taken in t/l (``losses.distance_error``). ``log1p``: ReLU log1p(d/h), in model files
+written before log1p-fraction (DESIGN section 8 says why it was replaced)."""
 ALBEDO_MODES = ("segment", "hit")
-"""``segment``: the paper's albedo head, one more output of the MLP over the segment's two
-end points. ``hit``: an albedo field of the rest-space point alone (its own hash grid and a
-small MLP), read at the hit the network places (``IntersectionNetwork.albedo_at``): on
-spot the head reads the texture no sharper than 24.5 dB however well the hit is placed,
-while a field at the placed hit follows the placement (DESIGN section 8)."""
+"""``segment``: the paper's albedo head, one more output of the MLP over the segment's end
+points. ``hit``: an albedo field of the rest-space point alone (its own hash grid and MLP),
+read at the hit the network places (``IntersectionNetwork.albedo_at``): the head blurs the
+texture however well the hit is placed, the field follows the placement (DESIGN section 8)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
 WEIGHTING_STARTS = ("zero", "equal")
@@ -110,8 +103,6 @@ DEFAULT_WEIGHTING_START = "equal"
 """The recipe's start (``TrainConfig.weighting_start`` says why); the paper names none."""
 PE_SCALES = {"paper": 1.0, "pi": math.pi}
 """``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
-DEFORM_KINDS = ("bend", "twist", "stretch", "squash")
-"""The extreme poses of ``--deform`` (``blender/extremes.py``)."""
 AUTO_RESOLUTION = "auto"
 """``--resolution auto``: the suggested resolution of the scene."""
 
@@ -122,7 +113,7 @@ MIN_RESOLUTION, MAX_RESOLUTION = 4, 256
 MAX_GRID_RESOLUTION = 2**16
 """Cells per axis of the hash grid's finest level."""
 MAX_STEPS = 10**7
-"""The panel's IntProperty holds a signed 32-bit int; 10^7 is 3000 x the recipe's steps."""
+"""The panel's IntProperty holds a signed 32-bit int; this is far beyond any useful run."""
 EVALUATION_POSES = 8
 """Unseen poses a model is evaluated on unless told otherwise (panel and ``evaluate``)."""
 COMMAND_IMAGE = (128, 128)
@@ -266,8 +257,8 @@ class NetworkConfig:
     width: int = 64
     depth: int = 3
     distance_mode: str = "log1p-fraction"
-    # The field at the placed hit: on spot (R 32, recipe, seed 0, 8 unseen poses, vs true)
-    # 28.2 dB against the head's 24.2, distance 0.00231 against 0.00270 (ALBEDO_MODES).
+    # The field at the placed hit: a sharper albedo, and the MLP freed of the albedo columns
+    # places hits better (ALBEDO_MODES).
     albedo_mode: str = "hit"
     heads: Heads = field(default_factory=Heads)
 
@@ -315,18 +306,16 @@ class TrainConfig:
     batch_size: int = RECIPE.batch_size
     lr_grid: float = 1e-2
     lr_mlp: float = 1e-3
-    # The log-variances' own rate stays at the MLP's 1e-3: at 1e-2 they settle, favour the
+    # The log-variances' own rate stays at the MLP's: faster, they settle, favour the
     # regression tasks over occlusion by the ratio of their losses, and the small scene of
-    # tests/test_proposed_beats_deformed.py fell from hit IoU 0.86 to 0.26 (DESIGN section 8).
+    # tests/test_proposed_beats_deformed.py loses most of its hits (DESIGN section 8).
     lr_weighting: float = 1e-3
     final_lr_fraction: float = 0.1
     weighting: str = "uncertainty"
     # "equal" (every task at weight 1), not "zero" (occlusion at twice a regression task's
     # weight): the log-variances never settle at the recipe, so the start sets the balance of
-    # the whole run (DESIGN section 8). On the arm (seed 0, 8 unseen poses at 256x256, vs
-    # true, own pixels) "zero" left proposed's distance error at 0.00109 object units against
-    # deformed's 0.00103, "equal" 0.00094; normal error 2.26 deg against 2.47 (deformed 2.80),
-    # holes / extras 0.15 / 0.35 % against 0.12 / 0.36 %: the head-on hits of the passes.
+    # the whole run, and "zero" placed the passes' head-on hits worse than deformed did
+    # (DESIGN section 8).
     weighting_start: str = DEFAULT_WEIGHTING_START
     seed: int = 0
     device: str = DEFAULT_DEVICE
@@ -381,50 +370,11 @@ AUTO_VARIANT = "auto"
 
 
 @dataclass(frozen=True)
-class ExtremeDeform:
-    """An extreme pose: ``amount`` is degrees for bend and twist, a factor for stretch
-    (>= 1) and squash (in (0, 1])."""
-
-    kind: str
-    amount: float
-
-    def __post_init__(self) -> None:
-        if self.kind not in DEFORM_KINDS:
-            raise VDNIFError(f"unknown deform kind '{self.kind}': choose one of "
-                             f"{', '.join(DEFORM_KINDS)}")
-        if not math.isfinite(self.amount):
-            raise VDNIFError(f"deform {self.kind} amount {self.amount} is not finite")
-        if self.kind == "stretch" and self.amount < 1:
-            hint = f" (use squash:{self.amount:g} to shorten)" if self.amount > 0 else ""
-            raise VDNIFError(f"stretch factor {self.amount:g} must be at least 1{hint}")
-        if self.kind == "squash" and not 0 < self.amount <= 1:
-            raise VDNIFError(f"squash factor {self.amount:g} must be in (0, 1]")
-
-    @classmethod
-    def parse(cls, text: str) -> ExtremeDeform:
-        """From ``KIND:VALUE`` text, e.g. ``bend:170`` or ``squash:0.1``."""
-        kind, _, value = str(text).partition(":")
-        try:
-            amount = float(value)
-        except ValueError:
-            raise VDNIFError(f"deform '{text}' is not KIND:VALUE with a number VALUE "
-                             f"(e.g. bend:170, twist:360, stretch:4, squash:0.1)") from None
-        return cls(kind.strip().lower(), amount)
-
-    def pose_key(self, obj: Any) -> dict[str, Any]:
-        """The JSON-ready ``"deform"`` entry of a pose of mesh object ``obj`` (a bpy Object)."""
-        return {"object": obj.name, "kind": self.kind, "amount": self.amount}
-
-
-@dataclass(frozen=True)
 class PoseSpec:
-    """How to choose poses: ``count`` random poses from ``seed`` or frames of the range
-    (``blender/poses.py`` draws them).
-
-    ``avoid``, set by ``poses.evaluation_spec``: the training poses these must be disjoint
-    from, as the PoseSpec that chose them or as a tuple of pose dicts (a model's training
-    poses). ``deform``: an ExtremeDeform added on top of every pose.
-    """
+    """How to choose poses (``blender/poses.py`` draws them): ``count`` random poses from
+    ``seed`` or frames of the range; ``deform``: an extreme pose on top of every pose;
+    ``avoid`` (``poses.evaluation_spec``): the training poses these must be disjoint from, as
+    the PoseSpec that chose them or as a tuple of a model's pose dicts."""
 
     source: str = "random"
     count: int = EVALUATION_POSES

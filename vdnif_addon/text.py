@@ -27,3 +27,12 @@ def metrics_line(m: dict) -> str:
             + f", normal error {value(m['normal_error_deg'])} deg, hit IoU "
             f"{value(m['hit_iou'])}, false negatives {percent(m.get('false_negative_rate'))}"
             f", false positives {percent(m.get('false_positive_rate'))}{extra}")
+
+
+def speed_line(report: dict) -> str:
+    """The neural render's rays/s of an evaluation report, or n/a with the reason
+    (``inference.metrics.speed_withheld``: only models that predict hits have a speed)."""
+    speed = report["timings"].get("render_rays_per_s")
+    if speed is not None:
+        return f"{speed:,.0f} rays/s"
+    return f"n/a ({report['speed_withheld']})" if report.get("speed_withheld") else "n/a"

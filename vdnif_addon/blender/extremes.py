@@ -28,7 +28,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..errors import VDNIFError
-from ..settings import ExtremeDeform
+from ..extreme_deform import ExtremeDeform
 from .read_mesh import deform_modifiers
 from .rig import bend_twist, influencing_bones, lattice_cells, offset_lattice
 
@@ -50,15 +50,16 @@ def parse_scale(text):
 def add_stress_options(parser):
     """Adds ``--scale S`` and ``--deform KIND:VALUE`` to an argparse parser (bad values raise
     VDNIFError while parsing)."""
-    group = parser.add_argument_group("stress")
+    group = parser.add_argument_group("stress", description=(
+        "Errors in object units should not change with --scale. Bend and twist are summed "
+        "along the bone chain or the lattice's longest axis; stretch and squash keep the "
+        "cross-section (no volume preservation)."))
     group.add_argument("--scale", type=parse_scale, default=1.0, metavar="S",
                        help="make the object's rest geometry and rig S times larger before "
-                            "capture (default 1); errors in object units should not change")
+                            "capture")
     group.add_argument("--deform", type=ExtremeDeform.parse, metavar="KIND:VALUE",
                        help="an extreme pose on top of every pose of the rig: bend:DEG, "
-                            "twist:DEG (summed along the bone chain or the lattice's longest "
-                            "axis), stretch:X (X >= 1), squash:X (0 < X <= 1), without "
-                            "volume preservation")
+                            "twist:DEG, stretch:X (X >= 1) or squash:X (0 < X <= 1)")
 
 
 def apply_stress(args, obj, spec):

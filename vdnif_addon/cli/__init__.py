@@ -3,16 +3,34 @@
 
 Each command prints its summary to stdout, progress to stderr, and a failure as one line
 ``vdnif: error: ...`` with a non-zero exit code.
+
+The installed extension ships without the studies (``vdnif_addon/studies/`` and
+``cli/studies.py``, left out by ``blender_manifest.toml``): there the study commands are
+listed as such and refuse to run with one line.
 """
 
 import argparse
 import os
 import sys
 import traceback
+from importlib.util import find_spec
 
 from ..errors import VDNIFError
-from . import pipeline, studies
+from . import pipeline
 from .options import validate_arguments
+
+# The studies' commands and the studies themselves; an import error inside them still raises.
+if all(find_spec(f"{package}.studies") is not None
+       for package in (__name__, __name__.rpartition(".")[0])):
+    from . import studies
+else:
+    studies = None
+
+STUDY_COMMANDS = ("demo", "experiment", "bench", "side-by-side", "bench-network")
+"""The commands ``studies.add_commands`` adds: developer studies, not in the installed
+extension."""
+STUDY_MISSING = ("'{command}' is a developer study: it needs the repository checkout "
+                 "(the installed extension leaves the studies out)")
 
 
 class _DefaultsFormatter(argparse.HelpFormatter):
@@ -62,8 +80,19 @@ def build_parser():
         f"show the traceback of a failure (anywhere on the line; or {DEBUG_ENV}=1)"))
     commands = parser.add_subparsers(dest="command", metavar="<command>", parser_class=_Parser)
     pipeline.add_commands(commands)
-    studies.add_commands(commands)
+    if studies is not None:
+        studies.add_commands(commands)
+    else:
+        for name in STUDY_COMMANDS:
+            commands.add_parser(name, help="developer study: needs the repository checkout")
     return parser
+
+
+def _missing_study(argv):
+    """The study command that ``argv`` names where the studies are not installed, else None
+    (its parser is only a listing, and --help must fail the same way)."""
+    command = next((arg for arg in argv if not arg.startswith("-")), None)
+    return command if studies is None and command in STUDY_COMMANDS else None
 
 
 DEBUG_ENV = "VDNIF_DEBUG"
@@ -80,6 +109,9 @@ def main(argv):
     ``vdnif: error: ...`` on stderr for any failure (the traceback only with --debug)."""
     argv, debug = _debugging(list(argv))
     try:
+        missing = _missing_study(argv)
+        if missing is not None:
+            raise VDNIFError(STUDY_MISSING.format(command=missing))
         parser = build_parser()
         args = parser.parse_args(argv)
         if args.command is None:

@@ -23,7 +23,10 @@ from ..settings import (
     RECIPE,
     PoseSpec,
 )
-from ..text import metrics_line
+from ..text import metrics_line, speed_line
+
+PIPELINE_SCENE = "arm"
+"""The embedded scene of a pipeline command that names no scene."""
 
 
 def add_scene_options(parser):
@@ -33,7 +36,7 @@ def add_scene_options(parser):
     group = parser.add_argument_group("scene (one of)")
     source = group.add_mutually_exclusive_group()
     source.add_argument("--scene", choices=DEMO_SCENES,
-                        help="an embedded demo scene (default: arm)")
+                        help=f"an embedded demo scene (default: {PIPELINE_SCENE})")
     source.add_argument("--mesh", type=pathlib.Path, metavar="FILE",
                         help="an OBJ, PLY or glTF file, rigged procedurally (see --rig)")
     source.add_argument("--blend", type=pathlib.Path, metavar="FILE",
@@ -51,7 +54,7 @@ def load_scene(args):
         return scenes.mesh_scene(args.mesh, args.rig or "armature")
     if args.blend is not None:
         return scenes.blend_scene(args.blend, args.object)
-    return scenes.demo_scene(args.scene or "arm", rig=args.rig)
+    return scenes.demo_scene(args.scene or PIPELINE_SCENE, rig=args.rig)
 
 
 def load_posed_scene(args):
@@ -115,10 +118,8 @@ def pose_spec(args):
 
 def add_capture_options(parser, default_poses):
     parser.add_argument("--resolution", type=resolution_option, metavar="R",
-                        help=f"voxels along the longest side, "
-                        f"{MIN_RESOLUTION}..{MAX_RESOLUTION}, or "
-                        f"'{AUTO_RESOLUTION}': the coarsest whose voxel embedding error is "
-                        f"at most {EMBEDDING_ERROR_SHARE:g} x the network's (default "
+                        help=f"voxels along the longest side ({MIN_RESOLUTION}.."
+                        f"{MAX_RESOLUTION}), or '{AUTO_RESOLUTION}' to suggest one (default "
                         f"{RECIPE.resolution}, {RECIPE.textured_resolution} for a textured "
                         "mesh)")
     add_pose_options(parser, default_poses)
@@ -187,8 +188,6 @@ def report_training(record):
 
 
 def print_evaluation(report):
-    from ..studies.report import speed_line
-
     print(f"evaluated {report['variant']} on '{report['object']}' R={report['resolution']}, "
           f"{report['poses']} {'unseen ' if report['unseen_poses'] else ''}poses, "
           f"{report['width']}x{report['height']}")

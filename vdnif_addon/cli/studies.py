@@ -5,6 +5,7 @@ maps its options onto a study of ``vdnif_addon/studies`` and prints its summary
 import pathlib
 
 from ..errors import VDNIFError
+from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..safe_io import write_text_atomic
 from ..settings import DEMO_SCENE, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
@@ -59,7 +60,8 @@ def cmd_bench(args):
     """Sweep resolution, hash grid, PE bands and width, each point trained until it
     converges; derive the presets."""
     from ..presets import PRESETS_FILE
-    from ..studies.bench import NO_PRESETS, run_bench
+    from ..studies.bench import run_bench
+    from ..studies.bench_report import NO_PRESETS
 
     quick_dir = pathlib.Path("out/bench-quick")
     out = args.out or (quick_dir if args.quick else pathlib.Path("docs/bench"))
@@ -234,7 +236,7 @@ def add_commands(commands):
                       "the demo's own)")
     add_device_option(demo)
     demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
-                      metavar="DIR", help="default out/demo")
+                      metavar="DIR", help="output folder")
     demo.add_argument("--json", type=pathlib.Path, metavar="PATH",
                       help="also write the report JSON here (it is always in DIR)")
     demo.set_defaults(run=cmd_demo)
@@ -246,18 +248,19 @@ def add_commands(commands):
     experiment.add_argument("--scenes", metavar="A,B", help="only these of the experiment's "
                             "scenes (default all; the section names them)")
     experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
-                            "size's seeds (default all: 3, or 2 with --quick)")
+                            "size's seeds (default: all)")
     add_device_option(experiment)
     experiment.add_argument("--results", type=pathlib.Path,
                             default=pathlib.Path("docs/results.md"), metavar="PATH",
-                            help="markdown file whose section is rewritten (default "
-                                 "docs/results.md; figures and JSON beside it in results/)")
+                            help="markdown file whose section is rewritten; figures and "
+                                 "JSON go to results/ beside it")
     experiment.set_defaults(run=cmd_experiment)
 
     sweep = commands.add_parser("bench", help=cmd_bench.__doc__, description=(
         cmd_bench.__doc__ + " Each point trains the proposed variant on the arm and evaluates "
         "it on unseen poses (accuracy against both references, training time, render rays/s, "
-        "model bytes)."))
+        "model bytes). A run again on the same --work folder trains only the unfinished "
+        "points, and runs side by side on one folder share them."))
     sweep.add_argument("--quick", action="store_true",
                        help="a small sweep (minutes) into out/bench-quick, presets not shipped")
     sweep.add_argument("--out", type=pathlib.Path, metavar="DIR",
@@ -268,9 +271,7 @@ def add_commands(commands):
                        help="markdown whose sweep section is rewritten "
                             "(default docs/performance.md; none with --quick)")
     sweep.add_argument("--work", type=pathlib.Path, metavar="DIR",
-                       help="each point's model and training record; a stopped bench run "
-                            "again with the same folder trains only the unfinished points, "
-                            "and runs side by side on one folder share the points (default "
+                       help="each point's model and training record (default "
                             "out/bench-work, out/bench-quick-work with --quick)")
     add_device_option(sweep)
     sweep.set_defaults(run=cmd_bench)
@@ -295,21 +296,21 @@ def _add_side_by_side(commands):
                                  description=cmd_side_by_side.__doc__ + (
                                      " Poses are unseen evaluation poses. suzanne-N is "
                                      "Suzanne subdivided N times with a lattice rig; "
-                                     f"'million' is suzanne-{MILLION_LEVEL} (1,007,616 "
-                                     "triangles)."))
+                                     f"'million' is suzanne-{MILLION_LEVEL}. Neural speeds "
+                                     "need a model that predicts hits (hit IoU at least "
+                                     f"{SPEED_MIN_HIT_IOU} against the true reference); "
+                                     "without one they are n/a."))
     parser.add_argument("--scene", nargs="+", choices=SCENES, default=["bunny"],
-                        help="one or more scenes (default bunny)")
-    parser.add_argument("--model", nargs="+", metavar="[SCENE=]MODEL", help=(
-        "a model file trained on the scene, or SCENE=MODEL per scene: neural speeds need a "
-        "model that predicts hits (hit IoU >= 0.9 against the true reference); without one "
-        "they are n/a"))
+                        help="one or more scenes")
+    parser.add_argument("--model", nargs="+", metavar="[SCENE=]MODEL",
+                        help="a model file trained on the scene, or SCENE=MODEL per scene")
     parser.add_argument("--repeats", type=int, default=3, metavar="N",
-                        help="timed repeats; medians are reported (default 3)")
+                        help="timed repeats; medians are reported")
     parser.add_argument("--resolution", type=int, metavar="R", help=(
         f"voxel resolution (default: the model's, else {RECIPE.resolution}, "
         f"{RECIPE.textured_resolution} for a textured mesh)"))
     parser.add_argument("--poses", type=int, default=4, metavar="N",
-                        help="unseen poses per repeat (default 4)")
+                        help="unseen poses per repeat")
     parser.add_argument("--seed", type=int, default=0,
                         help="training pose seed; the evaluation poses of it are used")
     parser.add_argument("--width", type=int, default=256, metavar="W")

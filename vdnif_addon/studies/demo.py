@@ -22,14 +22,13 @@ from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import DEMO_STEPS, RECIPE, PoseSpec
 from .report import demo_markdown
 
-SIZES = {   # full: the main job with the default recipe but DEMO_STEPS (under 10 minutes on
-    # 2 cores), at the recipe's resolution of the scene's mesh (None); quick: tests
+SIZES = {   # full: the main job, the default recipe but DEMO_STEPS, at the recipe's
+    # resolution of the scene's mesh (None); quick: tests
     "full": dict(resolution=None, poses=RECIPE.poses,
                  rays_per_pose=RECIPE.rays_per_pose, steps=DEMO_STEPS, eval_poses=8,
                  width=256, height=256, overrides={}),
-    # quick: 600 steps, not 300: with every task at weight 1 from the start
-    # (TrainConfig.weighting_start) the arm's model reached a hit IoU of 0.19 against the true
-    # reference at 300 (tests/test_batch.py asks for more than 0.2) and 0.49 at 600, 3 s more.
+    # quick: with every task at weight 1 from the start (TrainConfig.weighting_start), half
+    # these steps leave the arm's model short of the hits tests/test_batch.py asks for.
     "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=600, eval_poses=2,
                   width=32, height=24, overrides=dict(log2_table_size=12, batch_size=2048)),
 }

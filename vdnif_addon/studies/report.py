@@ -5,7 +5,7 @@ import pathlib
 import re
 
 from ..safe_io import write_text_atomic
-from ..text import percent, value
+from ..text import percent, speed_line, value
 
 # The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes
 # and of Table 1: at most these, against both references.
@@ -138,15 +138,6 @@ def targets_line(scene, proposed, deformed=None, rates=True):
                  "metric/reference pairs" + (f"; **not** on {'; '.join(lost)}." if lost
                                               else ": **every metric**."))
     return line
-
-
-def speed_line(report):
-    """The neural render's rays/s of an evaluation report, or n/a with the reason
-    (metrics.speed_withheld: only models that predict hits have a speed)."""
-    speed = report["timings"].get("render_rays_per_s")
-    if speed is not None:
-        return f"{speed:,.0f} rays/s"
-    return f"n/a ({report['speed_withheld']})" if report.get("speed_withheld") else "n/a"
 
 
 def goal_line(metrics):

@@ -20,7 +20,7 @@ PATHS = {"neural": "neural render (walk + network)",
 SHORT = {"neural": "neural", "bvhtree": "BVHTree", "warp": "Warp refit", "embree": "Embree"}
 PLOTS = {"speed": "side-by-side-speed.png", "bytes": "side-by-side-bytes.png"}
 
-# The targets of the neural path (DESIGN section 10; measured on 2 CPU cores).
+# The targets of the neural path (DESIGN section 10), set for 2 CPU cores.
 TARGET_RAYS_PER_S = 0.5e6          # neural render, trained model, unseen poses, 256x256
 TARGET_WALK = 1.3                  # deformed walk / static DDA walk, rest pose
 TARGET_WALK_NETWORK = 1.05         # the same with the network over every walked segment

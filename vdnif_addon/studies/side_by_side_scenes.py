@@ -1,5 +1,5 @@
 """The side-by-side study's scene names, apart from its timing code so that the batch parser
-can list them without importing torch or Warp (2.7 s of a failing command's 4 s)."""
+can list them without importing torch or Warp (most of a failing command's start-up)."""
 
 from ..errors import VDNIFError
 

@@ -1,0 +1,154 @@
+"""The outputs of the speed/accuracy sweep (``bench``): ``bench.csv``, ``bench.json``, the
+Pareto plots and the sweep's section of ``docs/performance.md``."""
+
+import csv
+import pathlib
+
+import numpy as np
+
+from ..inference.metrics import SPEED_MIN_HIT_IOU
+from ..presets import PRESET_ERROR, SETTINGS
+from ..safe_io import atomic_path, write_json_atomic
+from ..text import percent, value
+from .pareto import pareto_front
+
+NO_PRESETS = (f"no sweep point predicts hits (hit IoU at least {SPEED_MIN_HIT_IOU} against the "
+              "true reference): nothing to compare, no presets derived")
+
+
+def write_outputs(out, rows):
+    """bench.csv, bench.json and pareto.png (error vs render speed and vs training time)."""
+    with atomic_path(out / "bench.csv", "CSV file") as temporary, \
+            open(temporary, "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    write_json_atomic(out / "bench.json", rows)
+    _plot(out / "pareto.png", rows)
+
+
+def _plot(path, rows):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot
+
+    usable = [r for r in rows
+              if r[PRESET_ERROR] is not None and r["render_rays_per_s"] is not None]
+    error = [r[PRESET_ERROR] for r in usable]
+    figure, axes = pyplot.subplots(1, 2, figsize=(11, 4.2))
+    if not usable:                      # no point to put on a log scale: say why
+        for ax in axes:
+            ax.set_axis_off()
+        figure.text(0.5, 0.5, NO_PRESETS.replace(": ", ":\n"), ha="center", va="center",
+                    fontsize=12)
+        with atomic_path(path, "plot") as temporary:
+            figure.savefig(temporary, dpi=120)
+        pyplot.close(figure)
+        return
+    for ax, key, label, cost in (
+            (axes[0], "render_rays_per_s", "neural render (rays/s)", lambda v: 1 / v),
+            (axes[1], "train_s", "training time (s)", lambda v: v)):
+        x = [r[key] for r in usable]
+        front = pareto_front(error, [cost(v) for v in x])
+        ax.scatter(x, error, color="0.6", label="sweep point")
+        ax.plot([x[i] for i in front], [error[i] for i in front], "o-", color="C3",
+                label="Pareto front")
+        # A label runs to the right of its point, or to the left in the right third of the
+        # (log) axis: about 30 characters at 6 pt would otherwise leave the figure.
+        lo, hi = np.log(min(x)), np.log(max(x))
+        for r, xv, yv in zip(usable, x, error):
+            left = hi > lo and (np.log(xv) - lo) / (hi - lo) > 2 / 3
+            ax.annotate(point_label(r), (xv, yv), fontsize=6, xytext=(-3 if left else 3, 3),
+                        textcoords="offset points", ha="right" if left else "left")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("distance MAE vs true reference\n(object units, common pixels)")
+        ax.legend(fontsize=7)
+    figure.tight_layout()
+    with atomic_path(path, "plot") as temporary:
+        figure.savefig(temporary, dpi=120)
+    pyplot.close(figure)
+
+
+def point_label(row):
+    """A point's settings in short: R32 L2 T16 F3 W64, and S<steps> once trained."""
+    return (f"R{row['resolution']} L{row['levels']} T{row['log2_table_size']} "
+            f"F{row['pe_bands']} W{row['width']}"
+            + (f" S{row['steps']}" if "steps" in row else ""))
+
+
+def rule_text(convergence):
+    """The convergence rule of ``Convergence`` in words, with the size's numbers."""
+    return (f"Every point trains until it converges: the training validates on its "
+            f"held-out training poses every {convergence['validate_every']} steps, and stops "
+            f"once {convergence['patience']} validations in a row ("
+            f"{convergence['patience'] * convergence['validate_every']:,} steps) have not "
+            f"lowered any of the held-out occlusion error, distance MAE (voxels) and normal "
+            f"error by more than {100 * convergence['min_gain']:g} % below its last mark; "
+            f"at most {convergence['max_steps']:,} steps (a point stopped there says so), "
+            f"the learning rate decaying over those {convergence['max_steps']:,} steps for "
+            "every point. Training time is the time to converge.")
+
+
+def sweep_markdown(rows, presets, size, command, out, performance):
+    """The sweep's table, plot and presets for docs/performance.md."""
+    relative = pathlib.Path(out).resolve().relative_to(
+        pathlib.Path(performance).resolve().parent) if performance else out
+    import torch
+
+    compared = [r for r in rows if r["speed_withheld"] is None]
+    pixels = compared[0]["common_vs_true_compared_rays"] if compared else 0
+    lines = [f"Command: `{command}`", "",
+             f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
+             f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} unseen poses "
+             f"at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
+             f"thread(s); render speed: median of {size['speed_rounds']} rounds, each "
+             "rendering every point once. One setting moves at a time from the base "
+             + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
+             rule_text(size["convergence"]), "",
+             f"Only points that predict hits (hit IoU at least {SPEED_MIN_HIT_IOU} against "
+             f"the true reference) have a speed, {len(compared)} of {len(rows)} here; their "
+             f"distance and normal errors are taken over one common pixel set, the {pixels:,} "
+             "pixels where every one of them and the reference hit (against the embedded "
+             "reference: where each hits its own resolution's embedding). The other points "
+             "show n/a (their errors over their own hits are in bench.json). Hit IoU and the "
+             "false-negative / false-positive rates (shares of the true reference's hits) "
+             "count every pixel.",
+             "",
+             "| R | L | log2 T | F | width | steps (converged) | distance MAE true / embedded "
+             "| distance MAE true (voxels) | normal error true / embedded (deg) "
+             "| hit IoU (true) | false neg. / pos. (true) | train (s) | render rays/s "
+             "| model bytes |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+             "| --- |"]
+    for r in rows:
+        speed = (f"{r['render_rays_per_s']:,.0f}" if r["render_rays_per_s"] is not None
+                 else "n/a")
+        lines.append(
+            f"| {r['resolution']} | {r['levels']} | {r['log2_table_size']} | {r['pe_bands']} | "
+            f"{r['width']} | {r['steps']:,} ({'yes' if r['converged'] else 'no: cap'}) | "
+            f"{value(r['common_vs_true_distance_mae'])} / "
+            f"{value(r['common_vs_embedded_distance_mae'])} | "
+            f"{value(r['common_vs_true_distance_mae_voxels'], 3)} | "
+            f"{value(r['common_vs_true_normal_error_deg'], 3)}"
+            f" / {value(r['common_vs_embedded_normal_error_deg'], 3)} | "
+            f"{value(r['vs_true_hit_iou'])} | {percent(r['vs_true_false_negative_rate'])} / "
+            f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f} | {speed} | "
+            f"{r['model_bytes']:,} |")
+    lines += ["", f"![Pareto fronts]({relative}/pareto.png)", ""]
+    if presets is None:
+        return lines + [f"Presets: n/a, {NO_PRESETS}.", "",
+                        f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
+    lines += [f"Presets (the panel's preset menu), from the front of {PRESET_ERROR} vs render "
+              "speed:",
+              "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s |",
+              "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
+    for name, preset in presets.items():
+        measured = preset["measured"]
+        lines.append(f"| {name} | " + " | ".join(str(preset[k]) for k in SETTINGS)
+                     + f" | {value(measured[PRESET_ERROR])} | "
+                     f"{measured['render_rays_per_s']:,.0f} |")
+    lines += ["", f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
+    return lines
