@@ -40,7 +40,7 @@ def test_camera_errors_name_the_object(empty_scene, core):
     ortho.data.type = "ORTHO"
     empty = bpy.data.objects.new("Nothing", None)
     for camera, message in ((ortho, "camera 'Flat' is ortho"),
-                            (empty, "object 'Nothing' is a empty, not a camera"),
+                            (empty, "object 'Nothing' is an empty, not a camera"),
                             (None, "no camera")):
         with pytest.raises(errors.VDNIFError, match=message):
             neural.camera_rays(camera, 8, 8)

@@ -179,3 +179,17 @@ def test_presets_come_only_from_points_that_predict_hits():
         16, 24, 48]
     with pytest.raises(VDNIFError, match="no sweep point has both"):
         derive_presets([point(0.01, 10.0, 8, hit_iou=0.3)])
+
+
+def test_summary_lines_give_units_and_grammar():
+    from vdnif_addon.text import article, metrics_line
+
+    assert [article(w) for w in ("armature", "empty", "mesh", "Lattice")] == [
+        "an armature", "an empty", "a mesh", "a Lattice"]
+    line = metrics_line({"distance_mae": 0.001, "distance_mae_voxels": 0.03,
+                         "normal_error_deg": 2.5, "hit_iou": 0.99, "false_negative_rate": 0.001,
+                         "false_positive_rate": 0.002, "albedo_psnr": 8.359,
+                         "material_accuracy": 0.995})
+    assert "albedo PSNR 8.359 dB" in line and "material accuracy 99.5 %" in line
+    assert "albedo PSNR n/a, material accuracy n/a" in metrics_line(
+        {"distance_mae": None, "normal_error_deg": None, "hit_iou": None})

@@ -160,3 +160,10 @@ def test_a_dataset_folder_refuses_a_shard_of_another_object_or_seed(tmp_path):
 def test_a_name_becomes_one_file_name_component(name, stem):
     assert file_stem(name) == stem
     assert os.sep not in file_stem(name) and not file_stem(name).startswith(".")
+
+
+@pytest.mark.parametrize("path", ["out/evaldir/", "out/.", "out/.."])
+def test_an_output_file_path_that_names_a_folder_is_refused(tmp_path, path):
+    with pytest.raises(VDNIFError, match="names a folder, not a file"):
+        check_output_file(str(tmp_path) + "/" + path)
+    assert list(tmp_path.iterdir()) == []

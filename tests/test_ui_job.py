@@ -114,3 +114,13 @@ def test_worker_thread_touches_nothing_after_join(data_dir, tmp_path):
     job.join(timeout=60)
     assert job.state.status == "completed"
     assert not any(t.name.startswith("vdnif-train") for t in threading.enumerate())
+
+
+def test_progress_shows_the_sum_of_the_task_losses_not_the_weighted_total(data_dir, tmp_path):
+    """The uncertainty weighting's total holds log-variances and goes below zero; the panel
+    shows the task losses' sum, which is never negative."""
+    job = TrainingJob(data_dir, "proposed", tmp_path / "m.vdnif", dict(OVERRIDES, steps=20))
+    job._apply("progress", {"step": 5, "total": -1.3832, "eta_s": 3.0, "samples_per_s": 1.0,
+                            "losses": {"occlusion": 0.25, "distance": 0.5, "normal": 0.125}})
+    assert job.state.loss == 0.875
+    assert job.state.line() == "step 5/20, loss 0.8750, ETA 3 s"

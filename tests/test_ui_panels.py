@@ -174,7 +174,7 @@ def test_trained_and_evaluated(arm, extension):
     assert "distance error 0.25 voxels, normal error 9.5 deg" in everything
     assert "2 unseen poses, 32x24, proposed" in everything
     assert ("distance MAE 0.02 object units (0.64 voxels), normal error 12 deg, hit IoU 0.9, "
-            "false negatives 0.46 %, false positives 8.8 %, albedo PSNR 31.25, "
+            "false negatives 0.46 %, false positives 8.8 %, albedo PSNR 31.25 dB, "
             "material accuracy n/a") in everything, "the panel prints the batch line"
     assert "distance MAE n/a" in everything and "12,345 rays/s" in everything
     assert "has no trained model" not in everything

@@ -82,9 +82,11 @@ def check_output_folder(path: str | os.PathLike, what: str = "output folder") ->
 def check_output_file(path: str | os.PathLike, what: str = "output file") -> None:
     """Raises VDNIFError unless a file can be written at ``path``: not a folder, in a folder
     that exists or can be created and is writable."""
+    text = os.fspath(path)
     path = pathlib.Path(path)
-    if path.name in ("", ".", ".."):
-        raise VDNIFError(f"{what} '{path}' names no file")
+    if path.name in ("", ".", "..") or text.replace(os.sep, "/").rpartition("/")[2] in (
+            "", ".", ".."):
+        raise VDNIFError(f"{what} '{text}' names a folder, not a file")
     if path.is_dir():
         raise VDNIFError(f"{what} '{path}' is a folder, not a file")
     _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),

@@ -14,14 +14,20 @@ def percent(share: float | None, digits: int = 3) -> str:
     return "n/a" if share is None else f"{100 * share:.{digits}g} %"
 
 
+def article(word: str) -> str:
+    """``word`` with "a" or "an" before it, by its first letter's sound as spelled."""
+    return f"{'an' if word[:1].lower() in 'aeiou' else 'a'} {word}"
+
+
 def metrics_line(m: dict) -> str:
     """One line of an evaluation's metrics, as the batch commands and the panel print it:
     distance error in object units and voxels, normal error, the hit-mask metrics and the
     scene's optional metrics ("n/a" where the scene has nothing to predict: one material
     without texture, DESIGN section 10)."""
     voxels = m.get("distance_mae_voxels")
-    extra = "".join(f", {name} {value(m.get(key))}" for key, name in (
-        ("albedo_psnr", "albedo PSNR"), ("material_accuracy", "material accuracy")))
+    psnr, accuracy = m.get("albedo_psnr"), m.get("material_accuracy")
+    extra = (f", albedo PSNR {value(psnr)}{'' if psnr is None else ' dB'}"
+             f", material accuracy {percent(accuracy)}")
     return (f"distance MAE {value(m['distance_mae'])} object units"
             + ("" if voxels is None else f" ({value(voxels)} voxels)")
             + f", normal error {value(m['normal_error_deg'])} deg, hit IoU "

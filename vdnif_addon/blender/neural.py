@@ -13,6 +13,7 @@ from ..errors import VDNIFError
 from ..inference.evaluation import check_model_fits, compare_both, concatenated, speed_figures
 from ..inference.neural_render import neural_passes
 from ..passes import Passes
+from ..text import article
 from ..tracing.rays import camera_rays as pinhole_rays
 from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
 from ..tracing.references import embedded_passes, true_reference
@@ -109,7 +110,7 @@ def camera_rays(camera, width, height):
     if camera is None:
         raise VDNIFError("no camera: the scene has no active camera and none was named")
     if camera.type != "CAMERA":
-        raise VDNIFError(f"object '{camera.name}' is a {camera.type.lower()}, not a camera")
+        raise VDNIFError(f"object '{camera.name}' is {article(camera.type.lower())}, not a camera")
     data = camera.data
     if data.type != "PERSP":
         raise VDNIFError(f"camera '{camera.name}' is {data.type.lower()}: only perspective "

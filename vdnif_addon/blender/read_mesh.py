@@ -9,6 +9,7 @@ from ..errors import VDNIFError
 from ..geometry.attributes import has_area
 from ..geometry.restmesh import Albedo, RestMesh
 from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
+from ..text import article
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
@@ -19,7 +20,7 @@ def check_mesh_object(obj):
     if obj is None:
         raise VDNIFError("no object given")
     if obj.type != "MESH":
-        raise VDNIFError(f"object '{obj.name}' is a {obj.type.lower()}, not a mesh")
+        raise VDNIFError(f"object '{obj.name}' is {article(obj.type.lower())}, not a mesh")
     if len(obj.data.polygons) == 0:
         raise VDNIFError(f"mesh object '{obj.name}' is empty: it has no faces")
 

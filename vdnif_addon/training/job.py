@@ -137,7 +137,9 @@ class TrainingJob:
     def _apply(self, kind: str, payload: Any) -> None:
         state = self.state
         if kind == "progress":
-            state.step, state.loss = payload["step"], payload["total"]
+            # The weighted total holds the learned log-variances and goes negative; the
+            # sum of the task losses is what a user reads as "the loss falls".
+            state.step, state.loss = payload["step"], sum(payload["losses"].values())
             state.eta_s, state.samples_per_s = payload["eta_s"], payload["samples_per_s"]
             return
         state.status, state.cancelling = kind, False
