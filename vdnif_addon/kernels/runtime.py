@@ -9,6 +9,8 @@ folder. The first compile of a kernel module takes seconds; ``load`` says so on 
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import hashlib
 import os
 import pathlib
@@ -16,6 +18,7 @@ import platform
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from types import ModuleType
 from typing import TYPE_CHECKING
 
@@ -66,6 +69,38 @@ def cache_dir() -> pathlib.Path:
     return pathlib.Path(root) / f"warp-{wp.__version__}-{host_key()}"
 
 
+def cuda_driver_present() -> bool:
+    """Whether the NVIDIA driver library that Warp loads for CUDA can be loaded here."""
+    names = {"win32": ("nvcuda.dll",), "linux": ("libcuda.so", "libcuda.so.1")}.get(
+        sys.platform, ())
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
+
+
+@contextlib.contextmanager
+def _quiet_stderr(quiet: bool) -> Iterator[None]:
+    """Standard error (the file descriptor: Warp's native library writes to it) silenced
+    while ``quiet``: without a driver Warp warns on every start that CUDA is unavailable,
+    which is the expected case on a machine without an NVIDIA GPU, not news."""
+    if not quiet:
+        yield
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def init() -> ModuleType:
     """Warp, initialized once with this machine's kernel cache; returns the module."""
     with _lock:
@@ -74,7 +109,8 @@ def init() -> ModuleType:
             folder = cache_dir()
             folder.mkdir(parents=True, exist_ok=True)
             wp.config.kernel_cache_dir = str(folder)
-            wp.init()
+            with _quiet_stderr(not cuda_driver_present()):
+                wp.init()
             _state["ready"] = True
     return wp
 
