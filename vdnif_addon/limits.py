@@ -26,6 +26,11 @@ MAX_POSES = 4096
 MAX_RAYS_PER_POSE = 1 << 22
 """Training rays per pose: ~10 segments per ray at ~80 bytes per shard row is ~3 GiB."""
 
+MAX_SHARD_SEGMENTS = 64 * MAX_RAYS_PER_POSE
+"""Segments (rows) of one dataset shard: ~6 poses of MAX_RAYS_PER_POSE rays at ~10 segments a
+ray, ~21 GiB at ~80 bytes a row. Training reads a shard's arrays whole, so a shard whose zip
+directory or array headers claim more is refused before any array is read."""
+
 MAX_LOG2_TABLE_SIZE = 24
 """Hash table rows per level 2^T: 2^24 rows x Fd 2 x 4 bytes x 16 levels is 2 GiB, with Adam's
 two moments 6 GiB."""
