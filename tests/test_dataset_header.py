@@ -123,6 +123,7 @@ BAD_HEADERS = [
     ("unknown entry", _set(["colour"], "red"), r"unknown entries 'colour'"),
     ("mode empty", _set(["mode"], ""), r"mode '' is not a name"),
     ("not a header", _set(["format"], "other"), r"is not a VDNIF dataset header"),
+    ("version a bool", _set(["version"], True), r"has format version True"),
 ]
 
 

@@ -328,7 +328,7 @@ class DatasetHeader:
         check_depth(data, where)
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise VDNIFError(f"{where} is not a VDNIF dataset header")
-        if data.get("version") != VERSION:
+        if not _is_int(data.get("version")) or data["version"] != VERSION:
             raise VDNIFError(f"{where} has format version {data.get('version')!r}, this VDNIF "
                              f"reads version {VERSION}: generate the dataset again")
         grid = GridHeader.from_dict(data.get("grid"), where)
