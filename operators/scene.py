@@ -70,12 +70,12 @@ class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
             header = variant_dataset(obj, captured, variant, folder,
                                      settings.rays_per_pose, settings.seed, progress=update)
         settings.dataset_dir = storage.portable(folder)
-        counts = header["counts"]
+        counts = header.counts
         settings.dataset_info = json.dumps({
             "variant": variant, "resolution": settings.resolution,
-            "poses": len(header["poses"]), "rays": counts["rays"],
-            "segments": counts["segments"], "hits": counts["hits"]})
-        return (f"'{obj.name}': {counts['segments']} segments of {counts['rays']} rays "
+            "poses": len(header.poses), "rays": counts.rays,
+            "segments": counts.segments, "hits": counts.hits})
+        return (f"'{obj.name}': {counts.segments} segments of {counts.rays} rays "
                 f"-> {settings.dataset_dir}")
 
 

@@ -481,7 +481,7 @@ def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene
     capture = core("blender.capture_scene").capture
     first = capture(obj, 8)
     grid_header = core("training.dataset").grid_header
-    extra = {"object": obj.name, "grid": grid_header(first.grid, first.mesh),
+    extra = {"object": obj.name, "grid": grid_header(first.grid, first.mesh).to_dict(),
              "heads": first.mesh.heads()}
     check = core("inference.evaluation").check_model_fits
     check("m.vdnif", extra, first.mesh, first.grid)

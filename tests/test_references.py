@@ -1,6 +1,7 @@
 """Embedded vs true reference, and training datasets, on real scenes."""
 
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -73,9 +74,9 @@ def test_dataset_shards_split_by_pose_range_equal_one_run(empty_scene, core, tmp
     for pose_range in ((0, 1), (1, 4)):
         generate(obj, capture, tmp_path / "split", 256, seed=5, pose_range=pose_range)
     dataset = core("training.dataset")
-    (whole_header, whole), (split_header, split) = (
+    (whole_data, whole), (split_data, split) = (
         dataset.read_dataset(tmp_path / "whole"), dataset.read_dataset(tmp_path / "split"))
-    assert len(split) == 2 and split_header["poses"] == whole_header["poses"]
+    assert len(split) == 2 and split_data.poses == whole_data.poses
     for name in dataset.ARRAYS:
         np.testing.assert_array_equal(np.concatenate([s[name] for s in split]), whole[0][name])
     shard = whole[0]
@@ -84,7 +85,8 @@ def test_dataset_shards_split_by_pose_range_equal_one_run(empty_scene, core, tmp
     assert 0 <= shard["p0"].min() and shard["p1"].max() <= 1
     np.testing.assert_allclose(np.linalg.norm(shard["normal"][hits], axis=1), 1, atol=1e-5)
     assert set(np.unique(shard["pose"])) == {0, 1, 2, 3}
-    assert whole_header["heads"]["material"] is False and whole_header["counts"]["rays"] == 1024
+    whole_header = whole_data.header
+    assert whole_header.heads.material is False and whole_header.counts.rays == 1024
 
 
 def test_dataset_reader_refuses_bad_folders(empty_scene, core, tmp_path):
@@ -101,7 +103,8 @@ def test_dataset_reader_refuses_bad_folders(empty_scene, core, tmp_path):
         dataset.read_dataset(foreign)
     corrupt = tmp_path / "corrupt"
     corrupt.mkdir()
-    (corrupt / "s.json").write_text(json.dumps({"format": "vdnif-dataset", "version": 1}))
+    golden = pathlib.Path(__file__).parent / "golden" / "arm-dataset" / "shard-000000-000003"
+    (corrupt / "s.json").write_text(golden.with_suffix(".json").read_text())   # a good header
     (corrupt / "s.npz").write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(error, match="s.npz' cannot be read"):
         dataset.read_dataset(corrupt)

@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 from conftest import REPO
+from dataset_headers import header_dict
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.safe_io import (
@@ -22,6 +23,7 @@ from vdnif_addon.safe_io import (
     write_json_atomic,
 )
 from vdnif_addon.training import dataset
+from vdnif_addon.training.header import DatasetHeader
 
 
 def _listing(folder):
@@ -101,15 +103,15 @@ def test_a_read_only_folder_is_refused(tmp_path):
         folder.chmod(0o755)
 
 
-def _records(n=4):
-    return {name: np.zeros((n, *shape), dtype) for name, (dtype, shape) in dataset.ARRAYS.items()}
+def _records(n=4, pose=0):
+    records = {name: np.zeros((n, *shape), dtype)
+               for name, (dtype, shape) in dataset.ARRAYS.items()}
+    records["pose"][:] = pose
+    return records
 
 
-def _header(name="Ball", seed=0):
-    grid = {"origin": [0.0] * 3, "voxel_size": 0.125, "dims": [8, 8, 8], "resolution": 8,
-            "extent": 1.0}
-    return {"object": name, "grid": grid, "voxel_size": 0.125, "seed": seed,
-            "poses": [{"frame": 1.0}], "pose_range": [0, 1]}
+def _header(name="Ball", seed=0, pose_range=(0, 1)):
+    return DatasetHeader.from_dict(header_dict(name, seed, pose_range, segments=4), "test")
 
 
 def test_an_exclusive_lock_has_one_holder_until_it_is_closed_or_its_process_ends(tmp_path):
@@ -148,10 +150,10 @@ def test_a_dataset_folder_refuses_a_shard_of_another_object_or_seed(tmp_path):
         with pytest.raises(VDNIFError, match="holds shards of object 'Ball'"):
             dataset.write_shard(tmp_path, "shard-000000-000001", _records(), header)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
-    dataset.write_shard(tmp_path, "shard-000001-000002", _records(),
-                        dict(_header(), pose_range=[1, 2]))            # the same object: fine
-    header, shards = dataset.read_dataset(tmp_path)
-    assert len(shards) == 2 and header["segments"] == 8
+    dataset.write_shard(tmp_path, "shard-000001-000002", _records(pose=1),
+                        _header(pose_range=(1, 2)))                    # the same object: fine
+    merged, shards = dataset.read_dataset(tmp_path)
+    assert len(shards) == 2 and merged.segments == 8
 
 
 @pytest.mark.parametrize("name, stem", [

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
+from dataset_headers import header_dict
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.model.model_file import load_model
@@ -19,6 +20,7 @@ from vdnif_addon.settings import Heads, NetworkConfig, TrainConfig
 from vdnif_addon.training import train as training
 from vdnif_addon.training.data import load_segments
 from vdnif_addon.training.fit import fit_model
+from vdnif_addon.training.header import DatasetHeader
 from vdnif_addon.training.losses import (
     FixedWeighting,
     UncertaintyWeighting,
@@ -82,7 +84,8 @@ def sphere_shards(n=256, shards=2, poses=4, voxel_size=0.125, resolution=8, seed
 
 
 def header(voxel_size=0.125, albedo=True, materials=2):
-    return {"voxel_size": voxel_size, "heads": {"albedo": albedo, "material_count": materials}}
+    return DatasetHeader.from_dict(
+        header_dict(voxel_size=voxel_size, albedo=albedo, materials=materials), "test header")
 
 
 def finite_module(module):
@@ -438,13 +441,11 @@ def test_bad_datasets_are_reported():
     shards[0]["material"][shards[0]["hit"] == 1] = 5
     with pytest.raises(VDNIFError, match="material"):
         train(shards, header(), config, NetworkConfig(**SMALL))
-    with pytest.raises(VDNIFError, match="voxel_size"):
-        train(sphere_shards(), header(voxel_size=0.0), config, NetworkConfig(**SMALL))
-    merged = {
-        "grid": {"voxel_size": 0.125},
-        "heads": header()["heads"],
-    }  # as dataset.read_dataset merges it
-    assert train(sphere_shards(), merged, config, NetworkConfig(**SMALL)).steps == 1
+    with pytest.raises(VDNIFError, match="voxel size or extent is not a positive number"):
+        header(voxel_size=0.0)
+    with pytest.raises(VDNIFError, match="must be a training.header.DatasetHeader, got dict"):
+        train(sphere_shards(), header_dict(), config, NetworkConfig(**SMALL))
+    assert train(sphere_shards(), header(), config, NetworkConfig(**SMALL)).steps == 1
     with pytest.raises(VDNIFError, match="no training segments"):
         train([], header(), config, NetworkConfig(**SMALL))
     with pytest.raises(VDNIFError, match="batch_size"):

@@ -6,10 +6,12 @@ import time
 
 import numpy as np
 import pytest
+from dataset_headers import header_dict
 from test_train import SMALL, sphere_shards
 
 from vdnif_addon.model.model_file import load_model
 from vdnif_addon.training import dataset
+from vdnif_addon.training.header import DatasetHeader
 from vdnif_addon.training.job import JobState, TrainingJob, progress_interval
 
 OVERRIDES = dict(SMALL, batch_size=64, device="cpu")
@@ -19,16 +21,15 @@ OVERRIDES = dict(SMALL, batch_size=64, device="cpu")
 def data_dir(tmp_path_factory):
     """A dataset folder as ``dataset`` writes it, with sphere segments of four poses."""
     folder = tmp_path_factory.mktemp("data")
-    for number, shard in enumerate(sphere_shards(n=512, poses=4)):
-        records = dict(shard, t0=np.zeros(len(shard["pose"]), np.float32),
-                       ray=np.arange(len(shard["pose"]), dtype=np.int32))
-        grid = {"origin": [0.0] * 3, "voxel_size": 0.125, "dims": [8, 8, 8], "resolution": 8,
-                "extent": 1.0, "occupied_voxels": 100}
-        header = {"object": "Ball", "mode": "armature", "object_size": 1.0, "grid": grid,
-                  "voxel_size": 0.125, "heads": {"albedo": True, "material_count": 2},
-                  "albedo_table": [[0.5, 0.5, 0.5]] * 2,
-                  "poses": [{"frame": float(p)} for p in range(4)]}
-        dataset.write_shard(folder, f"shard-{number}", records, header)
+    [arrays] = sphere_shards(n=512, shards=1, poses=4)
+    for start, stop in ((0, 2), (2, 4)):                 # two shards of two poses each
+        rows = (arrays["pose"] >= start) & (arrays["pose"] < stop)
+        records = {key: value[rows] for key, value in arrays.items()}
+        records.update(t0=np.zeros(rows.sum(), np.float32),
+                       ray=np.arange(rows.sum(), dtype=np.int32))
+        header = header_dict(pose_range=(start, stop), materials=2, segments=int(rows.sum()))
+        dataset.write_shard(folder, f"shard-{start}-{stop}", records,
+                            DatasetHeader.from_dict(header, "test header"))
     return folder
 
 

@@ -62,8 +62,9 @@ def main():
         raise VDNIFError(f"--shell must be a finite number of voxels >= 0, got {args.shell}")
     torch.manual_seed(0)
     network = load_model(args.model)[0] if args.model else None
-    header, shards = read_dataset(args.data)
-    if not header["heads"]["albedo"]:
+    merged, shards = read_dataset(args.data)
+    header = merged.header
+    if not header.heads.albedo:
         raise VDNIFError(f"dataset '{args.data}' has no albedo head: it needs a textured or "
                          "multi-coloured object")
     if network and "albedo" not in network.head_sizes:
@@ -78,12 +79,12 @@ def main():
     print(f"hits: {train.sum():,} to fit, {held.sum():,} held out (poses > {last})")
     # The dataset's points are normalized rest coordinates (``VoxelGrid.normalize``): one
     # voxel is the voxel size over the grid's extent there.
-    voxel = header["grid"]["voxel_size"] / header["grid"]["extent"]
+    voxel = header.grid.voxel_size / header.grid.extent
 
     if network:
         with torch.inference_mode():
             predicted = network.predict(tensor(p0), tensor(p1),
-                                        tensor(data["rest_len"][held]), header["voxel_size"])
+                                        tensor(data["rest_len"][held]), header.voxel_size)
         own = psnr(predicted["albedo"].numpy(), reference)
         print(f"the model's albedo ({network.config.albedo_mode}): {own:.2f} dB")
 

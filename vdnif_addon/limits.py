@@ -25,6 +25,11 @@ MAX_RAYS_PER_POSE = 1 << 22
 """Training rays per pose: every walked segment is a dataset shard row, so the cap keeps one
 pose's rows within a few GiB."""
 
+MAX_SHARD_SEGMENTS = 64 * MAX_RAYS_PER_POSE
+"""Segments (rows) of one dataset shard: ~6 poses of MAX_RAYS_PER_POSE rays at ~10 segments a
+ray, ~21 GiB at ~80 bytes a row. Training reads a shard's arrays whole, so a shard whose zip
+directory or array headers claim more is refused before any array is read."""
+
 MAX_LOG2_TABLE_SIZE = 24
 """Hash table rows per level 2^T: at the cap a many-level table and Adam's two moments take
 several GiB."""

@@ -120,7 +120,7 @@ def main():
     training_golden(folder)
     render_golden(obj, folder)
     references_golden(obj)
-    assert dataset.read_dataset(folder)[0]["segments"] > 0
+    assert dataset.read_dataset(folder)[0].segments > 0
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """Per-pose work over a captured object: training datasets and the two references."""
 
+import dataclasses
 import platform
 import time
 
@@ -17,13 +18,15 @@ from ..tracing.rays import orbit_rays, orbit_viewpoints, training_rays
 from ..tracing.references import embedded_reference, true_reference
 from ..tracing.traverse import traverse
 from ..training import dataset
+from ..training.header import FORMAT, VERSION, DatasetHeader
 from .pose_geometry import PosedObject
 
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
                      pose_range=None, progress=None, grazing_fraction=None):
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
-    ``pose_range`` = (start, stop)) and writes one shard; returns its header. The ray mix
+    ``pose_range`` = (start, stop)) and writes one shard; returns its DatasetHeader (its
+    timings with the writing's). The ray mix
     (``rays.training_rays``) defaults to the recipe's (``settings.RECIPE``)."""
     check_range("rays per pose", rays_per_pose, 1, MAX_RAYS_PER_POSE)
     if surface_fraction is None:
@@ -74,21 +77,23 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
     timings["records_s"] += time.perf_counter() - clock
     timings["total_s"] = sum(timings.values())
-    header = {
+    name = f"shard-{start:06d}-{stop:06d}"
+    header = DatasetHeader.from_dict({                   # the reader's checks, before writing
+        "format": FORMAT, "version": VERSION,
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,
-        "grid": dataset.grid_header(capture.grid, capture.mesh),
+        "grid": dataset.grid_header(capture.grid, capture.mesh).to_dict(),
         "voxel_size": capture.grid.voxel_size,
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
         "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
         "grazing_fraction": grazing_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
-        "versions": _versions(),
-    }
+        "versions": _versions(), "segments": len(merged["pose"]),
+    }, f"dataset header of shard '{name}'")
     clock = time.perf_counter()
-    dataset.write_shard(out_dir, f"shard-{start:06d}-{stop:06d}", merged, header)
-    timings["write_s"] = time.perf_counter() - clock     # in the returned header only
-    return header
+    dataset.write_shard(out_dir, name, merged, header)
+    write_s = time.perf_counter() - clock                # in the returned header only
+    return dataclasses.replace(header, timings={**header.timings, "write_s": write_s})
 
 
 def reference_run(obj, capture, width, height, rest_pose=False, progress=None):

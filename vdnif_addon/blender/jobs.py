@@ -98,7 +98,7 @@ def train_variant(obj, captured, variant, folder, rays_per_pose, out, overrides,
     """Dataset + training of ``variant`` in one step: (TrainResult, summary)."""
     header = variant_dataset(obj, captured, variant, folder, rays_per_pose, seed)
     result, summary = fit_model(folder, variant, out, overrides, progress=progress)
-    summary["dataset"] = {"folder": str(folder), "rays": header["counts"]["rays"],
-                          "segments": header["counts"]["segments"],
-                          "seconds": header["timings"]["total_s"]}
+    summary["dataset"] = {"folder": str(folder), "rays": header.counts.rays,
+                          "segments": header.counts.segments,
+                          "seconds": header.timings["total_s"]}
     return result, summary

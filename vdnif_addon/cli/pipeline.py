@@ -59,7 +59,7 @@ def cmd_dataset(args):
     from ..blender.capture_scene import capture
     from ..blender.generate import generate_dataset
     from ..progress import Progress
-    from ..training.dataset import check_folder, grid_header
+    from ..training.dataset import DatasetIdentity, check_folder, grid_header
 
     check_resolution(args.resolution)
     if args.rays_per_pose < 1:
@@ -67,26 +67,26 @@ def cmd_dataset(args):
     obj, spec = load_posed_scene(args)
     result = capture(obj, args.resolution, spec, deform_corners=False)
     pose_range = parse_range(args.pose_range, len(result.poses))
-    check_folder(args.out, {"object": result.mesh.name, "seed": args.seed,      # before work
-                            "grid": grid_header(result.grid)})
+    check_folder(args.out, DatasetIdentity(result.mesh.name, args.seed,        # before work
+                                           grid_header(result.grid)))
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
     header = generate_dataset(obj, result, args.out, args.rays_per_pose,
                               args.surface_fraction, args.seed, pose_range,
                               progress=lambda done, _: progress.update(done),
                               grazing_fraction=args.grazing_fraction)
-    counts, timings = header["counts"], header["timings"]
+    counts, timings = header.counts, header.timings
     walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
-    print(f"dataset '{header['object']}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
-    print(f"  rays {counts['rays']}, segments {counts['segments']}, hits {counts['hits']}")
-    print(f"  {counts['segments'] / walk_and_truth:,.0f} segments/s, "
-          f"{counts['rays'] / walk_and_truth:,.0f} rays/s of walk + ground truth; walk "
+    print(f"dataset '{header.object}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
+    print(f"  rays {counts.rays}, segments {counts.segments}, hits {counts.hits}")
+    print(f"  {counts.segments / walk_and_truth:,.0f} segments/s, "
+          f"{counts.rays / walk_and_truth:,.0f} rays/s of walk + ground truth; walk "
           f"{timings['walk_s']:.2f} s (kernel, entry BVH included), ground truth "
           f"{timings['ground_truth_s']:.2f} s")
     print(f"  also: pose preparation {timings['prepare_s']:.2f} s, Blender evaluation "
           f"{timings['evaluate_s']:.2f} s, training rays {timings['rays_s']:.2f} s, rest BVH "
           f"{timings['rest_surface_s']:.2f} s, records {timings['records_s']:.2f} s, writing "
           f"{timings['write_s']:.2f} s")
-    _truncation_warning(counts.get("truncated_rays", 0), counts["rays"])
+    _truncation_warning(counts.truncated_rays or 0, counts.rays)
     return 0
 
 
@@ -149,8 +149,8 @@ def cmd_train(args):
         if args.data is None:
             raise VDNIFError("give --data DIR (a dataset folder) or scene options "
                              "(--scene, --mesh or --blend)")
-        header, _ = read_dataset(args.data)
-        variant = _variant(args, header["object"], header.get("mode") == "static")
+        header = read_dataset(args.data)[0].header
+        variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
         result, summary = fit_model(args.data, variant, out, network_overrides(args),
                                     progress=report_training)

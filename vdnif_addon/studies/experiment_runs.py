@@ -147,8 +147,8 @@ def run_scene(run, scene, labels, rest=False):
             # held-out validation along the way: did the steps suffice?
             report["validation_history"] = [{"step": r["step"], **(r["validation"] or {})}
                                             for r in result.history]
-            report["dataset"] = {"rays": datasets[deformed_data]["counts"]["rays"],
-                                 "segments": datasets[deformed_data]["counts"]["segments"],
+            report["dataset"] = {"rays": datasets[deformed_data].counts.rays,
+                                 "segments": datasets[deformed_data].counts.segments,
                                  "seed": seed}
             joined = concatenated(views)
             references = _same_references(references, joined, scene)

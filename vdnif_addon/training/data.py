@@ -5,15 +5,14 @@ Data contract (the dataset module produces it): ``segments`` is a sequence of sh
 mapping of equal-length numpy arrays: ``p0``, ``p1`` (S, 3) normalized rest coordinates;
 ``seg_len``, ``rest_len`` (S,); ``hit`` (S,) uint8; ``hit_frac`` (S,) in [0,1]; ``normal``,
 ``albedo`` (S, 3); ``material`` (S,) int16; ``pose``, ``ray`` (S,) int32; ``t0`` (S,) the
-deformed distance to the segment's entry; a ray's segments in walk order. ``header`` gives
-``voxel_size`` (h, rest units) and ``heads`` = {"albedo": bool, "material_count": int}.
+deformed distance to the segment's entry; a ray's segments in walk order. Their dataset
+header (``header.DatasetHeader``) gives the voxel size h (rest units) and the heads.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -109,17 +108,6 @@ def load_segments(
 def select(data: Mapping[str, torch.Tensor], index: Int64[torch.Tensor, " chosen"]) -> Segments:
     """The rows ``index`` of every field."""
     return {key: value[index] for key, value in data.items()}
-
-
-def voxel_size(header: Mapping[str, Any]) -> float:
-    """h from ``header['voxel_size']``, or ``header['grid']`` as the dataset module merges it."""
-    if not isinstance(header, Mapping):
-        raise VDNIFError(f"dataset header must be a mapping, got {type(header).__name__}")
-    grid = header.get("grid")
-    h = header.get("voxel_size", grid.get("voxel_size") if isinstance(grid, Mapping) else None)
-    if isinstance(h, bool) or not isinstance(h, (int, float)) or not math.isfinite(h) or h <= 0:
-        raise VDNIFError(f"dataset header 'voxel_size' must be a positive number, got {h!r}")
-    return float(h)
 
 
 def split_poses(

@@ -34,22 +34,23 @@ def fit_model(
     Returns (the TrainResult, a JSON-ready summary); only the main process of a ``torchrun``
     launch writes the file (the summary is then empty on the others).
     """
-    header, shards = read_dataset(data_dir)
+    data, shards = read_dataset(data_dir)
+    header = data.header
     chosen = variant_config(variant, **(overrides or {}))
     result = train(shards, header, chosen.train, chosen.network, progress=progress,
                    cancel=cancel)
     if not result.is_main:
         return result, {}
-    extra = {"object": header["object"], "object_size": header["object_size"],
-             "grid": header["grid"], "heads": header["heads"],
-             "albedo_table": header["albedo_table"], "variant": variant,
-             "vdnif_version": __version__, "train_poses": header["poses"],
+    extra = {"object": header.object, "object_size": header.object_size,
+             "grid": header.grid.to_dict(), "heads": header.heads.to_dict(),
+             "albedo_table": [list(row) for row in header.albedo_table], "variant": variant,
+             "vdnif_version": __version__, "train_poses": list(data.poses),
              "occlusion_threshold": result.occlusion_threshold,
              "candidate_threshold": result.candidate_threshold,
-             "dataset": {"folder": str(data_dir), "shards": header["shards"],
-                         "poses": len(header["poses"]), "segments": header["segments"]}}
+             "dataset": {"folder": str(data_dir), "shards": list(data.shards),
+                         "poses": len(data.poses), "segments": data.segments}}
     save_model(out, result.network, result.network_config, result.info(), extra)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
-               "object": header["object"], "segments": header["segments"],
+               "object": header.object, "segments": data.segments,
                "train": result.info(), "network_config": result.network_config.to_dict()}
     return result, summary

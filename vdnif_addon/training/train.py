@@ -25,9 +25,10 @@ from torch import nn
 from ..errors import VDNIFError
 from ..model.encoding import HashGrid
 from ..model.network import IntersectionNetwork
-from ..settings import OCCLUSION_THRESHOLD, Heads, NetworkConfig, TrainConfig
-from .data import Batches, Segments, split_data, voxel_size
+from ..settings import OCCLUSION_THRESHOLD, NetworkConfig, TrainConfig
+from .data import Batches, Segments, split_data
 from .distributed import ProcessGroup, resolve_device
+from .header import DatasetHeader
 from .log import ProgressLog
 from .losses import make_weighting, task_losses
 from .validation import calibrate_candidate_threshold, calibrate_threshold, validate
@@ -173,7 +174,7 @@ class TrainingStep:
 
 def train(
     segments: Sequence[Mapping[str, np.ndarray]],
-    header: Mapping[str, Any],
+    header: DatasetHeader,
     config: TrainConfig,
     network_config: NetworkConfig,
     progress: Callable[[dict[str, Any]], None] | None = None,
@@ -182,7 +183,7 @@ def train(
     """Train an ``IntersectionNetwork`` on ``segments`` (``training_data`` states the
     contract of ``segments`` and ``header``).
 
-    The heads follow ``header['heads']``. Every ``log_interval`` steps (and at the end) the main
+    The heads follow ``header.heads``. Every ``log_interval`` steps (and at the end) the main
     process calls ``progress`` with step, steps, mean task losses since the last call, total,
     log-variances, samples/s, ETA seconds and validation metrics on a fixed subset of the
     held-out poses. ``cancel`` (e.g. a threading.Event): once set, training stops before the
@@ -190,8 +191,11 @@ def train(
     (WORLD_SIZE > 1) each rank trains on ``segments[rank::world]`` with gradients averaged by
     DistributedDataParallel; every rank returns the same weights.
     """
-    h = voxel_size(header)
-    heads = Heads.from_header(header.get("heads", {}))
+    if not isinstance(header, DatasetHeader):
+        raise VDNIFError("the dataset header must be a training.header.DatasetHeader, got "
+                         f"{type(header).__name__}")
+    h = header.voxel_size
+    heads = header.heads.network_heads()
     network_config = dataclasses.replace(network_config, heads=heads)
     device = resolve_device(config.device)
     group = ProcessGroup.from_environment(device)
