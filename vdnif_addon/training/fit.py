@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .. import __version__
+from ..model.metadata import FORMAT_VERSION, ModelMetadata
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
 from .dataset import read_dataset
@@ -40,15 +41,22 @@ def fit_model(
                    cancel=cancel)
     if not result.is_main:
         return result, {}
-    extra = {"object": header["object"], "object_size": header["object_size"],
-             "grid": header["grid"], "heads": header["heads"],
-             "albedo_table": header["albedo_table"], "variant": variant,
-             "vdnif_version": __version__, "train_poses": header["poses"],
-             "occlusion_threshold": result.occlusion_threshold,
-             "candidate_threshold": result.candidate_threshold,
-             "dataset": {"folder": str(data_dir), "shards": header["shards"],
-                         "poses": len(header["poses"]), "segments": header["segments"]}}
-    save_model(out, result.network, result.network_config, result.info(), extra)
+    heads, grid = header["heads"], header["grid"]
+    # A dataset header that names no used-slot table or mesh fingerprint (the golden arm
+    # dataset's, which the recorded loss curve trains on) has a material per slot and
+    # leaves the mesh unchecked.
+    slots = heads.get("material_slots", list(range(heads["material_count"])))
+    metadata = ModelMetadata.from_dict({
+        "version": FORMAT_VERSION, "object": header["object"],
+        "object_size": header["object_size"], "variant": variant,
+        "network_config": result.network_config.to_dict(),
+        "grid": {"mesh_fingerprint": None, **grid}, "material_slots": slots,
+        "albedo_table": header["albedo_table"], "thresholds": result.thresholds.to_dict(),
+        "train_poses": header["poses"], "training": result.info(),
+        "dataset": {"folder": str(data_dir), "shards": header["shards"],
+                    "poses": len(header["poses"]), "segments": header["segments"]},
+        "vdnif_version": __version__}, str(out))
+    save_model(out, result.network, metadata)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header["object"], "segments": header["segments"],
                "train": result.info(), "network_config": result.network_config.to_dict()}
