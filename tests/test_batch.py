@@ -257,7 +257,7 @@ def test_wrong_surface_tool_evaluates_as_evaluate_does(quick_demo, tmp_path):
 
 COUNT_MODEL_READS = """
 import sys
-from vdnif_addon import model_file
+from vdnif_addon.model import model_file
 reads = []
 read = model_file.load_model
 model_file.load_model = lambda *a, **k: reads.append(a) or read(*a, **k)
