@@ -123,11 +123,12 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         return choose_variant(None if self.variant == defaults.AUTO_VARIANT else self.variant,
                               not deform_modifiers(self.id_data))
 
-    def adopt(self, metadata: dict[str, object]) -> None:
-        """Takes the variant, resolution and network settings of a loaded model."""
-        self.variant = metadata["extra"]["variant"]
-        self.resolution = metadata["extra"]["grid"]["resolution"]
-        network = metadata["network_config"]
+    def adopt(self, metadata: object) -> None:
+        """Takes the variant, resolution and network settings of a loaded model (its
+        ``ModelMetadata``)."""
+        self.variant = metadata.variant
+        self.resolution = metadata.grid.resolution
+        network = metadata.network_config
         for name in NETWORK_FIELDS:
             setattr(self, name, getattr(network, name))
 

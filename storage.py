@@ -133,11 +133,12 @@ def export_model(obj, target):
 
 def model_summary(metadata, path):
     """What the panel shows of a model file, from ``model_file.load_model``'s metadata."""
-    extra, info = metadata["extra"], metadata["train_info"]
-    return {"object": extra.get("object"), "variant": extra.get("variant"),
-            "resolution": extra["grid"]["resolution"], "status": info.get("status"),
-            "steps": info.get("steps"), "seconds": info.get("seconds"),
-            "validation": info.get("validation"), "bytes": os.path.getsize(path)}
+    training = metadata.training
+    return {"object": metadata.object, "variant": metadata.variant,
+            "resolution": metadata.grid.resolution, "status": training.status,
+            "steps": training.steps, "seconds": training.seconds,
+            "validation": None if training.validation is None else dict(training.validation),
+            "bytes": os.path.getsize(path)}
 
 
 def _cache_path(data):

@@ -34,15 +34,14 @@ class VDNIF_OT_load_model(VDNIFOperator, bpy.types.Operator, ImportHelper):
     filter_glob: FILE_FILTER
 
     def work(self, context, obj):
-        from ..vdnif_addon.blender.capture_scene import capture
+        from ..vdnif_addon.blender.jobs import model_capture
         from ..vdnif_addon.inference.evaluation import check_model_fits
         from ..vdnif_addon.model.model_file import load_model
 
         _, metadata = load_model(self.filepath)
         settings = obj.vdnif
-        resolution = metadata["extra"]["grid"]["resolution"]
-        captured = capture(obj, resolution, settings.pose_spec(count=1), deform_corners=False)
-        check_model_fits(self.filepath, metadata["extra"], captured.mesh, captured.grid)
+        captured = model_capture(obj, metadata, settings.pose_spec())
+        check_model_fits(self.filepath, metadata, captured.mesh, captured.grid)
         storage.keep_model(obj, self.filepath, storage.model_summary(metadata, self.filepath))
         settings.adopt(metadata)
         settings.metrics = ""

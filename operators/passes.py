@@ -5,28 +5,21 @@ import json
 import bpy
 
 from .. import storage, viewer
-from ..vdnif_addon.errors import VDNIFError
 from ..vdnif_addon.text import metrics_line
 from .common import VDNIFOperator, progress
 
 
 def model_capture(obj, evaluation_count=None):
-    """The object captured at its model's resolution, with ``evaluation_count`` evaluation
-    poses when given: from the object's pose settings, disjoint from the poses its model
-    was trained on."""
-    from ..vdnif_addon.blender.capture_scene import capture
-    from ..vdnif_addon.blender.jobs import evaluation_poses
+    """(the object's model file read, the object captured again as its model was trained on
+    it): with ``evaluation_count`` evaluation poses from the object's pose settings,
+    disjoint from the poses its model was trained on (``jobs.model_capture``)."""
+    from ..vdnif_addon.blender.jobs import model_capture as capture_for_model
     from ..vdnif_addon.model.model_file import load_model
 
-    settings = obj.vdnif
-    resolution = settings.parsed("model_info").get("resolution")
-    if resolution is None:
-        raise VDNIFError(f"'{obj.name}' has a model without its description: load it again")
-    if evaluation_count is None:
-        return capture(obj, resolution, settings.pose_spec(count=1), deform_corners=False)
-    trained = load_model(storage.model_path(obj))[1]["extra"].get("train_poses", [])
-    return evaluation_poses(obj, resolution, settings.pose_spec(), count=evaluation_count,
-                            trained=trained)
+    loaded = load_model(storage.model_path(obj))
+    spec = obj.vdnif.pose_spec()
+    return loaded, capture_for_model(obj, loaded[1], spec, evaluation_count is not None,
+                                     count=evaluation_count)
 
 
 def region_3d(context):
@@ -63,8 +56,9 @@ class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
             origins, directions = camera_rays(scene.camera, width, height)
         else:
             origins, directions = viewer.view_rays(region_3d(context), width, height)
-        captured = model_capture(obj)
-        model = load_scene_model(storage.model_path(obj), captured, settings.device_name(context))
+        loaded, captured = model_capture(obj)
+        model = load_scene_model(storage.model_path(obj), captured, settings.device_name(context),
+                                 loaded)
         pose = {"frame": scene.frame_current + scene.frame_subframe}
         result = render_rays(obj, captured, model, pose, origins, directions, references=True)
         slots = captured.mesh.material_slots          # the material pass shows the slots
@@ -89,11 +83,12 @@ class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
         from ..vdnif_addon.blender.jobs import evaluate_file
 
         settings = obj.vdnif
-        captured = model_capture(obj, settings.eval_poses)
+        loaded, captured = model_capture(obj, settings.eval_poses)
         with progress(context, len(captured.poses)) as update:
             report, _ = evaluate_file(obj, captured, storage.model_path(obj),
                                       settings.image_width, settings.image_height,
-                                      settings.device_name(context), progress=update)
+                                      settings.device_name(context), progress=update,
+                                      loaded=loaded)
         settings.metrics = json.dumps(report)
         return f"'{obj.name}': {metrics_line(report['vs_true'])} on {report['poses']} poses"
 

@@ -14,7 +14,6 @@ calls) remains for a case that needs to look inside the process.
 """
 
 import hashlib
-import importlib
 import json
 import os
 import pathlib
@@ -27,7 +26,7 @@ import zipfile
 
 import numpy as np
 import pytest
-from conftest import EXTENSION_MODULE, REPO
+from conftest import REPO
 
 BATCH = REPO / "vdnif_addon" / "batch.py"
 TIME_LIMIT_S = 90      # per case; the slowest real case (a capture) takes ~10 s loaded
@@ -186,7 +185,7 @@ CASES = [
     ("evaluate-model-huge-weights", "evaluate --model {bad_model:huge_weights} {arm}",
      r"weights '.*' are not finite numbers of magnitude at most 1e\+06", "proc"),
     ("evaluate-model-nan-albedo", "evaluate --model {bad_model:nan_albedo} {arm}",
-     r"metadata extra.albedo_table has non-finite values", "proc"),
+     r"metadata albedo_table has non-finite values", "proc"),
     ("evaluate-wrong-resolution", "evaluate --model {model} --scene arm --resolution 12 "
      "--poses 1 --width 16 --height 16", r"was trained on 'Arm' at resolution 8", "proc"),
     ("evaluate-another-object", "evaluate --model {model} --scene lattice --poses 1 "
@@ -294,20 +293,32 @@ BAD_DATA = {
 
 
 def _bad_model(good, target, kind):
-    model_file = importlib.import_module(f"{EXTENSION_MODULE}.vdnif_addon.model.model_file")
-    network, meta = model_file.load_model(good)
-    extra = dict(meta["extra"])
+    """The model file ``good`` damaged as ``kind`` says, written to ``target`` with a
+    matching checksum: its stored metadata edited past ``ModelMetadata``'s checks, or its
+    weights."""
+    import hashlib
+    import io
+
+    import torch
+
+    archive = torch.load(good, weights_only=True)
+    inner = torch.load(io.BytesIO(archive["payload"].numpy().tobytes()), weights_only=True)
+    meta = inner["metadata"]
     if kind == "no_grid":
-        extra.pop("grid")
+        meta.pop("grid")
     elif kind == "float_resolution":
-        extra["grid"] = dict(extra["grid"], resolution=8.5)
+        meta["grid"]["resolution"] = 8.5
     elif kind == "nan_albedo":
-        extra["albedo_table"] = np.full((1, 3), np.nan, np.float32)
+        meta["albedo_table"] = [[float("nan")] * 3]
     elif kind in ("nan_weights", "huge_weights"):
-        with __import__("torch").no_grad():
-            next(iter(network.parameters())).view(-1)[0] = (
-                float("nan") if kind == "nan_weights" else 1e30)
-    model_file.save_model(target, network, meta["network_config"], meta["train_info"], extra)
+        weights = next(iter(inner["state_dict"].values()))
+        weights.view(-1)[0] = float("nan") if kind == "nan_weights" else 1e30
+    buffer = io.BytesIO()
+    torch.save(inner, buffer)
+    data = buffer.getvalue()
+    archive["payload"] = torch.frombuffer(bytearray(data), dtype=torch.uint8)
+    archive["sha256"] = hashlib.sha256(data).hexdigest()
+    torch.save(archive, target)
     return target
 
 
@@ -472,19 +483,17 @@ def test_capture_json_through_planted_symlinks_overwrites_nothing(tmp_path, empt
 
 
 def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene, core):
-    """The model keeps the rest mesh's fingerprint with its grid; a model written before it
-    (no fingerprint) still passes the old checks."""
+    """The model keeps the rest mesh's fingerprint with its grid."""
     import bpy
+    from model_metadata import capture_metadata
 
     bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2)
     obj = bpy.context.active_object
     capture = core("blender.capture_scene").capture
     first = capture(obj, 8)
-    grid_header = core("training.dataset").grid_header
-    extra = {"object": obj.name, "grid": grid_header(first.grid, first.mesh).to_dict(),
-             "heads": first.mesh.heads()}
+    metadata = capture_metadata(core, first)
     check = core("inference.evaluation").check_model_fits
-    check("m.vdnif", extra, first.mesh, first.grid)
+    check("m.vdnif", metadata, first.mesh, first.grid)
     inner = min(range(len(obj.data.vertices)), key=lambda i: abs(obj.data.vertices[i].co.z))
     obj.data.vertices[inner].co *= 0.9            # inside the old bounds: the same grid
     obj.data.update()
@@ -492,9 +501,7 @@ def test_a_mesh_edited_within_its_bounds_is_refused_by_its_old_model(empty_scene
     assert edited.grid.dims.tolist() == first.grid.dims.tolist()
     np.testing.assert_allclose(edited.grid.origin, first.grid.origin)
     with pytest.raises(core("errors").VDNIFError, match="another version of the mesh"):
-        check("m.vdnif", extra, edited.mesh, edited.grid)
-    old = dict(extra, grid={k: v for k, v in extra["grid"].items() if k != "mesh_fingerprint"})
-    check("m.vdnif", old, edited.mesh, edited.grid)
+        check("m.vdnif", metadata, edited.mesh, edited.grid)
 
 
 def test_debug_shows_the_traceback_and_a_bug_says_it_is_one(core, capfd, monkeypatch):

@@ -1,8 +1,11 @@
 """Rendering a model on a Blender scene: camera rays against Blender's own projection,
 world-space rendering against Blender's own ray casts, and the model/scene checks."""
 
+import dataclasses
+
 import numpy as np
 import pytest
+from model_metadata import capture_metadata
 from oracle_network import OracleNetwork
 
 
@@ -60,9 +63,9 @@ def test_world_rays_of_a_moved_scaled_object_match_blenders_ray_cast(empty_scene
     bpy.context.view_layer.update()
     capture = core("blender.capture_scene").capture(obj, 12)
     neural = core("blender.neural")
-    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid), metadata={
-        "extra": {"albedo_table": capture.mesh.albedo_table().tolist()}}, grid=capture.grid,
-        path="oracle", device="cpu")
+    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid),
+                              metadata=capture_metadata(core, capture), grid=capture.grid,
+                              path="oracle", device="cpu")
     camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
     empty_scene.collection.objects.link(camera)
     camera.location, camera.rotation_euler = (1.0, -12.0, 0.5), (np.pi / 2, 0.0, 0.0)
@@ -89,18 +92,23 @@ def test_a_model_for_another_object_or_resolution_is_refused(empty_scene, core):
     capture = core("blender.capture_scene").capture(core("blender.scenes").demo_scene("arm"), 16,
                                               core("blender.poses").PoseSpec(count=1))
     grid = capture.grid
-    extra = {"object": "Arm", "grid": {"resolution": 16, "dims": grid.dims.tolist(),
-                                       "origin": grid.origin.tolist(),
-                                       "voxel_size": grid.voxel_size},
-             "heads": {"material_count": 1}}
+    metadata = capture_metadata(core, capture)
     fits = core("inference.evaluation").check_model_fits
-    fits("m.vdnif", extra, capture.mesh, grid)
+    fits("m.vdnif", metadata, capture.mesh, grid)
     errors = core("errors")
     cases = [
-        (dict(extra, object="Suzanne"), "trained on 'Suzanne' at resolution 16"),
-        (dict(extra, grid=dict(extra["grid"], resolution=32)), "not on 'Arm' at resolution 16"),
-        (dict(extra, grid=dict(extra["grid"], voxel_size=0.2)), "the mesh of 'Arm' has changed"),
-        (dict(extra, heads={"material_count": 2}), "knows 2 materials, 'Arm' has 1"),
+        (dataclasses.replace(metadata, object="Suzanne"), "trained on 'Suzanne' at resolution 16"),
+        (dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid, resolution=32)),
+         "not on 'Arm' at resolution 16"),
+        (dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid, voxel_size=0.2)),
+         "the mesh of 'Arm' has changed"),
+        (dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid,
+                                                                mesh_fingerprint="0" * 64)),
+         "another version of the mesh of 'Arm'"),
+        (capture_metadata(core, capture, network_config=core("settings").NetworkConfig(
+            heads=core("settings").Heads(albedo=False, material_count=2)).to_dict(),
+            material_slots=[0, 1], albedo_table=[[0.5] * 3] * 2),
+         "knows 2 materials, 'Arm' has 1"),
     ]
     for other, message in cases:
         with pytest.raises(errors.VDNIFError, match=message):

@@ -2,6 +2,7 @@
 slots that faces use, the material pass still in the slots the user knows, and the static
 variant for a scene that nothing deforms, in the CLI and the UI."""
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -53,12 +54,11 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     core("training.fit").fit_model(tmp_path / "data", "lsnif", model, TINY)
     network, metadata = core("model.model_file").load_model(model)
     assert network.config.heads.sizes()["material"] == 2       # not 4 slots
-    assert metadata["extra"]["heads"]["material_slots"] == [1, 3]
+    assert metadata.material_slots == (1, 3)
 
     evaluation = core("inference.evaluation")
-    evaluation.check_model_fits(model, metadata["extra"], captured.mesh, captured.grid)
-    stale = dict(metadata["extra"], heads=dict(metadata["extra"]["heads"],
-                                               material_slots=[0, 1]))
+    evaluation.check_model_fits(model, metadata, captured.mesh, captured.grid)
+    stale = dataclasses.replace(metadata, material_slots=(0, 1))
     with pytest.raises(core("errors").VDNIFError,
                        match=r"knows the materials of slots \[0, 1\], 'Box' uses slots "
                              r"\[1, 3\]: train it again"):
@@ -68,9 +68,9 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     from oracle_network import OracleNetwork
 
     neural = core("blender.neural")
-    oracle = neural.SceneModel(network=OracleNetwork(captured.mesh, captured.grid), metadata={
-        "extra": {"albedo_table": captured.mesh.albedo_table().tolist()}}, grid=captured.grid,
-        path="oracle", device="cpu")
+    oracle = neural.SceneModel(network=OracleNetwork(captured.mesh, captured.grid),
+                               metadata=metadata, grid=captured.grid, path="oracle",
+                               device="cpu")
     camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
     empty_scene.collection.objects.link(camera)
     camera.location, camera.rotation_euler = (0.5, -4.0, 1.7), (1.3, 0.0, 0.0)
@@ -154,7 +154,7 @@ def test_ui_trains_the_static_variant_automatically(empty_scene, extension):
     assert settings.parsed("model_info")["variant"] == "lsnif"
     storage = extension.storage
     _, metadata = extension.vdnif_addon.model.model_file.load_model(storage.model_path(cube))
-    assert metadata["network_config"].pe_bands == 0          # the variant's own bands
+    assert metadata.network_config.pe_bands == 0          # the variant's own bands
     settings.variant = "proposed"                             # asked: it wins
     assert settings.chosen_variant() == ("proposed", "no armature or lattice deforms it: "
                                          "the deformation-aware variant proposed gains "

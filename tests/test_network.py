@@ -4,8 +4,9 @@ import pytest
 import torch
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.model.metadata import Thresholds
 from vdnif_addon.model.network import IntersectionNetwork, readout
-from vdnif_addon.settings import Heads, NetworkConfig
+from vdnif_addon.settings import DISTANCE_MODES, Heads, NetworkConfig
 
 # The paper's albedo head over the segment; the albedo field has tests of its own.
 SMALL = {"levels": 2, "base_resolution": 8, "log2_table_size": 10, "width": 16, "depth": 2,
@@ -49,7 +50,7 @@ def test_paper_architecture():
     assert sum(isinstance(layer, torch.nn.ReLU) for layer in network.mlp) == 3
 
 
-@pytest.mark.parametrize("mode", ["fraction", "log1p-fraction", "log1p"])
+@pytest.mark.parametrize("mode", DISTANCE_MODES)
 def test_distance_activation(mode):
     torch.manual_seed(0)
     network = IntersectionNetwork(NetworkConfig(**SMALL, distance_mode=mode))
@@ -80,38 +81,6 @@ def test_readout_fraction_mode():
     assert p["material"].tolist() == [1, 0]
 
 
-def test_readout_log1p_mode_gives_rest_units():
-    h = 1e-3
-    y = torch.tensor([0.0, math.log1p(0.5), 3.0])
-    rest_len = torch.tensor([1e-3, 1e-3, 1e-3])
-    p = readout(
-        {"occlusion": torch.zeros(3), "distance": y, "normal": torch.ones(3, 3)},
-        "log1p",
-        h,
-        rest_len,
-    )
-    torch.testing.assert_close(p["distance"], h * torch.expm1(y))
-    torch.testing.assert_close(
-        p["fraction"], torch.tensor([0.0, 0.5, 1.0])
-    )  # clamped to the segment
-    assert p["material"].tolist() == [0, 0, 0] and "albedo" not in p
-    torch.testing.assert_close(p["normal"].norm(dim=1), torch.ones(3))
-    zero_length = readout(
-        {"occlusion": torch.zeros(1), "distance": torch.ones(1), "normal": torch.ones(1, 3)},
-        "log1p",
-        h,
-        torch.zeros(1),
-    )
-    assert torch.isfinite(zero_length["fraction"]).all()
-    with pytest.raises(VDNIFError, match="voxel size"):
-        readout(
-            {"occlusion": torch.zeros(1), "distance": torch.ones(1), "normal": torch.ones(1, 3)},
-            "log1p",
-            0.0,
-            torch.ones(1),
-        )
-
-
 def test_readout_log1p_fraction_mode_gives_the_segment_fraction():
     """log1p-fraction: the head regresses log1p(t/l); the fraction is expm1 of it, kept in
     the segment, and the rest distance that fraction of the segment's rest length, at any
@@ -127,6 +96,16 @@ def test_readout_log1p_fraction_mode_gives_the_segment_fraction():
         {"occlusion": torch.zeros(1), "distance": torch.ones(1), "normal": torch.ones(1, 3)},
         "log1p-fraction", 1.0, torch.zeros(1))
     assert torch.isfinite(zero_length["fraction"]).all() and zero_length["distance"] == 0
+    with pytest.raises(VDNIFError, match="voxel size"):
+        readout({"occlusion": torch.zeros(1), "distance": torch.ones(1),
+                 "normal": torch.ones(1, 3)}, "log1p-fraction", 0.0, torch.ones(1))
+
+
+def test_the_distance_modes_are_the_fraction_and_its_log():
+    """log1p(d/h), the proposed form before log1p(t/l), is no mode any more."""
+    assert DISTANCE_MODES == ("fraction", "log1p-fraction")
+    with pytest.raises(VDNIFError, match="log1p"):
+        NetworkConfig(distance_mode="log1p")
 
 
 def test_predict_is_readout_of_forward_in_batches():
@@ -231,11 +210,10 @@ def test_empty_batches_and_non_finite_coordinates_are_safe():
     assert all(torch.isfinite(value).all() for value in network(odd, torch.rand(2, 3)).values())
 
 
-@pytest.mark.parametrize("mode", ["log1p-fraction", "log1p"])
-def test_log1p_distance_head_starts_alive(mode):
+def test_log1p_distance_head_starts_alive():
     """A ReLU distance head whose outputs all start at 0 never learns (dead ReLU)."""
     torch.manual_seed(0)
-    network = IntersectionNetwork(NetworkConfig(distance_mode=mode))
+    network = IntersectionNetwork(NetworkConfig(distance_mode="log1p-fraction"))
     p0, p1 = torch.rand(2, 4096, 3)
     distance = network(p0, p1)["distance"]
     assert (distance > 0).float().mean() > 0.9
@@ -265,7 +243,8 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     torch.testing.assert_close(outputs["albedo"], at_hit)
     with torch.no_grad():                   # half the segments are candidates
         probability = torch.sigmoid(outputs["occlusion"])
-    network.candidate_threshold = network.occlusion_threshold = float(probability.median())
+    median = float(probability.median())
+    network.thresholds = Thresholds(median, median)
     predicted = network.predict(p0, p1, rest_len, 0.05, batch=64)
     point = p0 + predicted["fraction"][:, None] * (p1 - p0)
     candidate = predicted["candidate"]
@@ -275,7 +254,7 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
                                    network.albedo_at(point[candidate]))
         assert (predicted["albedo"][~candidate] == 0).all()
         whole = readout(network(p0, p1), config.distance_mode, 0.05, rest_len,
-                        network.occlusion_threshold, network.candidate_threshold)
+                        network.thresholds)
     assert whole.keys() | {"albedo"} == predicted.keys()
     for key in whole:
         torch.testing.assert_close(predicted[key], whole[key], rtol=1e-5, atol=1e-6)

@@ -113,6 +113,7 @@ def test_pose_keys_survive_a_json_file(empty_scene, core):
 
 
 def test_evaluating_on_training_poses_is_refused(empty_scene, core):
+    from model_metadata import capture_metadata
     from oracle_network import OracleNetwork
 
     box = sb.lattice_box((4, 2, 2), 0.5)
@@ -120,9 +121,9 @@ def test_evaluating_on_training_poses_is_refused(empty_scene, core):
     capture = core("blender.capture_scene").capture(
         box, 8, core("blender.poses").PoseSpec(count=2), deform_corners=False)
     neural = core("blender.neural")
-    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid), metadata={
-        "extra": {"albedo_table": capture.mesh.albedo_table().tolist(),
-                  "train_poses": capture.poses[1:]}},
+    model = neural.SceneModel(
+        network=OracleNetwork(capture.mesh, capture.grid),
+        metadata=capture_metadata(core, capture, train_poses=capture.poses[1:]),
         grid=capture.grid, path="oracle.vdnif", device="cpu")
     with pytest.raises(core("errors").VDNIFError,
                        match=r"^'Box': the evaluation poses include poses that model "

@@ -12,10 +12,8 @@ GOLDEN = pathlib.Path(__file__).resolve().parent / "golden"
 
 def test_renderer_reproduces_its_golden_passes(core):
     """The arm at resolution 12 in its first evaluation pose, rendered with the golden model
-    by the numpy/torch renderer before kernels replaced it (tests/golden/make_goldens.py).
-    The golden network ran the torch encoder, whose float32 sin (SLEEF) is up to one unit in
-    the last place off the kernel's (test_encoding_kernel.py): that moved one normal of 2,304
-    by 1.2e-5. The oracle twin of the encoder keeps this a test of the render kernels alone."""
+    (tests/golden/make_goldens.py), its encoder the torch twin of the kernel, as the golden
+    passes were: the oracle encoder keeps this a test of the render kernels alone."""
     golden = np.load(GOLDEN / "arm-render.npz")
     network, metadata = core("model.model_file").load_model(GOLDEN / "arm-render-model.vdnif")
     network.encoder = extension_oracle("encoding_torch").from_product(network.encoder)
@@ -23,7 +21,7 @@ def test_renderer_reproduces_its_golden_passes(core):
     spec = core("blender.poses").PoseSpec(count=1)
     grid = core("blender.capture_scene").capture(obj, 12, spec, deform_corners=False).grid
     cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
-    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
+    table = metadata.albedo_colors()
     passes, stats = core("inference.neural_render").neural_passes(network, grid, table, cells,
                                                  golden["origins"], golden["directions"])
     assert golden["hit"].sum() > 10 and stats["truncated"] == 0
@@ -49,7 +47,7 @@ def test_warp_launches_never_run_from_two_threads_at_once(core, monkeypatch):
     grid = core("blender.capture_scene").capture(obj, 12, core("blender.poses").PoseSpec(count=1),
                                            deform_corners=False).grid
     cells = core("kernels.cells").DeviceCells(grid, corners=golden["corners"])
-    table = np.asarray(metadata["extra"]["albedo_table"], np.float32).reshape(-1, 3)
+    table = metadata.albedo_colors()
     launch, guard = wp.launch, threading.Lock()
     seen = {"active": 0, "most": 0, "threads": set()}
 

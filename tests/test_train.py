@@ -112,7 +112,7 @@ def test_all_miss_batch_gives_zero_hit_losses_and_finite_gradients():
         "albedo": torch.zeros(n, 3),
         "material": torch.full((n,), -1),
     }
-    losses = task_losses(outputs, batch, "log1p", 1e-3)
+    losses = task_losses(outputs, batch, "log1p-fraction")
     assert losses["occlusion"] > 0
     assert all(losses[task] == 0 for task in ("distance", "normal", "albedo", "material"))
     UncertaintyWeighting(list(losses))(losses).backward()
@@ -126,27 +126,21 @@ def test_distance_targets_follow_the_mode():
         "rest_len": torch.tensor([4.0, 4.0, 4.0]),
         "normal": torch.tensor([[0.0, 0.0, 1.0]] * 3),
     }
-    log_target = torch.log1p(torch.tensor([2.0, 0.0]) / 2.0)  # d = 0.5 * 4, h = 2
     outputs = {
         "occlusion": torch.zeros(3),
         "distance": torch.tensor([0.0, 0.0, 9.0]),
         "normal": torch.tensor([[0.0, 0.0, 1.0]] * 3),
     }
     torch.testing.assert_close(
-        task_losses(outputs, batch, "log1p", 2.0)["distance"], (log_target**2).mean()
-    )
-    torch.testing.assert_close(
-        task_losses(outputs, batch, "fraction", 2.0)["distance"], torch.tensor(0.125)
+        task_losses(outputs, batch, "fraction")["distance"], torch.tensor(0.125)
     )
     # log1p(t/l): the output is log1p of the hit's fraction of its segment, its error taken
-    # in that fraction (expm1(0) = 0 against 0.5), whatever the voxel size
-    for h in (1e-3, 2.0, 1e3):
-        torch.testing.assert_close(
-            task_losses(outputs, batch, "log1p-fraction", h)["distance"],
-            torch.tensor(0.5 ** 2 / 2))
+    # in that fraction (expm1(0) = 0 against 0.5)
+    torch.testing.assert_close(
+        task_losses(outputs, batch, "log1p-fraction")["distance"], torch.tensor(0.5 ** 2 / 2))
     exact = dict(outputs, distance=torch.tensor([math.log1p(0.5), 0.0, 9.0]))
-    assert task_losses(exact, batch, "log1p-fraction", 2.0)["distance"] < 1e-12
-    assert task_losses(outputs, batch, "fraction", 2.0)["normal"] == 0
+    assert task_losses(exact, batch, "log1p-fraction")["distance"] < 1e-12
+    assert task_losses(outputs, batch, "fraction")["normal"] == 0
 
 
 def test_log_distance_error_weighs_far_and_near_hits_alike():
@@ -159,7 +153,7 @@ def test_log_distance_error_weighs_far_and_near_hits_alike():
         distance = torch.tensor([math.log1p(output_fraction), 500.0], requires_grad=True)
         outputs = {"occlusion": torch.zeros(2), "distance": distance,
                    "normal": torch.tensor([[0.0, 0.0, 1.0]] * 2)}
-        value = task_losses(outputs, batch, "log1p-fraction", 1.0)["distance"]
+        value = task_losses(outputs, batch, "log1p-fraction")["distance"]
         value.backward()
         assert torch.isfinite(distance.grad).all()
         return value.item()
@@ -395,9 +389,8 @@ def test_training_follows_the_recorded_loss_curve(tmp_path):
         for task, value in expected["losses"].items():
             assert record["losses"][task] == pytest.approx(value, rel=1e-3), (record["step"], task)
     network, metadata = load_model(tmp_path / "model.vdnif")
-    threshold = metadata["extra"]["occlusion_threshold"]
-    assert threshold == metadata["train_info"]["occlusion_threshold"]
-    assert network.occlusion_threshold == threshold
+    assert network.thresholds == metadata.thresholds
+    assert metadata.training.steps == 50 and metadata.object == "Arm"
 
 
 def test_same_seed_gives_identical_weights():
@@ -562,20 +555,18 @@ def test_training_calibrates_the_threshold_on_the_held_out_poses():
     chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
     expected = calibrate_threshold(
         result.network, {key: value[chosen] for key, value in held_out.items()})
-    assert result.occlusion_threshold == expected
-    assert result.network.occlusion_threshold == expected
-    assert result.info()["occlusion_threshold"] == expected
+    assert result.thresholds.occlusion == expected
+    assert result.thresholds is result.network.thresholds
 
 
 class _Table(torch.nn.Module):
     """Stands in for the network: each segment's occlusion logit and log-distance output
-    read from p0's x (the row's index) in fixed tables; the distance table holds log1p(d/h)."""
+    read from p0's x (the row's index) in fixed tables; the distance table holds log1p(t/l)."""
 
     def __init__(self, logit, distance):
         super().__init__()
         self.logit, self.distance = logit, distance
-        self.config = NetworkConfig(**SMALL, distance_mode="log1p")
-        self.occlusion_threshold = 0.5
+        self.config = NetworkConfig(**SMALL, distance_mode="log1p-fraction")
 
     def forward(self, p0, p1):
         row = p0[:, 0].long()
@@ -611,7 +602,7 @@ def test_candidate_calibration_places_hits_best_by_brute_force():
             "rest_len": rest_len, "seg_len": seg_len, "t0": slot.float(),
             "pose": ray % 2, "ray": ray // 2}
     data["p1"] = data["p0"]
-    network = _Table(logit, torch.log1p(predicted / h))
+    network = _Table(logit, torch.log1p(predicted))
     distance = data["t0"].double() + predicted.double()     # the readout's fraction x 1.0
 
     def first(mask, value):
@@ -629,9 +620,9 @@ def test_candidate_calibration_places_hits_best_by_brute_force():
               for t in tried]
     best = min(range(len(tried)), key=lambda k: (errors[k], -k))
     assert errors[best] < errors[-1]          # the case is one where a lower threshold helps
-    assert calibrate_candidate_threshold(network, data, h) == pytest.approx(tried[best])
+    assert calibrate_candidate_threshold(network, data, h, 0.5) == pytest.approx(tried[best])
     empty = {key: value[:0] for key, value in data.items()}
-    assert calibrate_candidate_threshold(network, empty, h) == 0.5
+    assert calibrate_candidate_threshold(network, empty, h, 0.5) == 0.5
 
 
 def test_training_calibrates_the_candidate_threshold_on_the_held_out_poses():
@@ -643,10 +634,9 @@ def test_training_calibrates_the_candidate_threshold_on_the_held_out_poses():
     held_out = load_segments(shards, result.network_config.heads)
     chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
     expected = calibrate_candidate_threshold(
-        result.network, {key: value[chosen] for key, value in held_out.items()}, 0.125)
-    assert result.candidate_threshold == expected <= result.occlusion_threshold
-    assert result.network.candidate_threshold == expected
-    assert result.info()["candidate_threshold"] == expected
+        result.network, {key: value[chosen] for key, value in held_out.items()}, 0.125,
+        result.thresholds.occlusion)
+    assert result.thresholds.candidate == expected <= result.thresholds.occlusion
 
 
 def test_device_names():

@@ -56,7 +56,7 @@ def test_worker_reports_progress_and_writes_the_model(data_dir, tmp_path):
     assert np.isfinite(state.loss) and state.eta_s == 0 and state.samples_per_s > 0
     assert state.model == str(out) and "completed after 20 steps" in state.line()
     _, metadata = load_model(out)
-    assert metadata["train_info"]["steps"] == 20 and metadata["extra"]["object"] == "Ball"
+    assert metadata.training.steps == 20 and metadata.object == "Ball"
     assert [p.name for p in tmp_path.iterdir()] == ["model.vdnif"], "temporary file left"
 
 
@@ -70,9 +70,9 @@ def test_cancel_stops_the_worker_and_keeps_the_last_finished_step(data_dir, tmp_
     state = job.join(timeout=60)
     assert state.status == "cancelled" and not state.cancelling
     network, metadata = load_model(out)
-    info = metadata["train_info"]
-    assert info["status"] == "cancelled" and 3 <= info["steps"] < 100000
-    assert state.step == info["steps"] and all(
+    info = metadata.training
+    assert info.status == "cancelled" and 3 <= info.steps < 100000
+    assert state.step == info.steps and all(
         np.isfinite(p.detach().numpy()).all() for p in network.parameters())
 
 

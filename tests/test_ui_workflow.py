@@ -58,8 +58,7 @@ def eager_model(source, target):
     with __import__("torch").no_grad():
         output.weight[0] = 0.0
         output.bias[0] = 20.0                        # occlusion logit: column 0
-    model_file.save_model(target, network, metadata["network_config"],
-                          metadata["train_info"], metadata["extra"])
+    model_file.save_model(target, network, metadata)
 
 
 @pytest.fixture(scope="module")
@@ -148,7 +147,7 @@ def test_dataset_and_training_write_their_results(session):
     info = session["trained_info"]
     assert info["status"] == "completed" and info["steps"] == 30 and info["resolution"] == 12
     _, metadata = module("vdnif_addon.model.model_file").load_model(session["trained_path"])
-    assert metadata["train_info"]["steps"] == 30 and metadata["extra"]["object"] == "Arm"
+    assert metadata.training.steps == 30 and metadata.object == "Arm"
     assert math.isfinite(info["validation"]["distance_mae"])
 
 

@@ -64,8 +64,8 @@ def main():
     if not 0 < known.voxels < float("inf"):
         raise VDNIFError(f"--voxels must be a positive number of voxels, got {known.voxels}")
     from vdnif_addon.cli import build_parser
+    from vdnif_addon.cli.model_commands import evaluated
     from vdnif_addon.cli.options import validate_arguments
-    from vdnif_addon.cli.pipeline import evaluated
     from vdnif_addon.inference.evaluation import metric_heads
 
     args = build_parser().parse_args(["evaluate", *rest])

@@ -57,8 +57,9 @@ RECIPE = Recipe()
 """The default recipe."""
 
 OCCLUSION_THRESHOLD = 0.5
-"""Occlusion probability above which a segment counts as a hit, for a model file that holds
-no threshold calibrated on held-out poses (files written before calibration existed)."""
+"""Occlusion probability above which a segment counts as a hit until training calibrates the
+thresholds on held-out poses (``model.metadata.Thresholds``), and the calibration's choice
+among equally good ones."""
 
 DEMO_SCENE = "spot"
 """The main job's scene (``make demo``): textured and armature-rigged."""
@@ -84,10 +85,9 @@ DEVICES = ("auto", "cpu", "cuda")
 DEFAULT_DEVICE = "auto"
 POSE_SOURCES = ("random", "frames")
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
-DISTANCE_MODES = ("fraction", "log1p-fraction", "log1p")
-"""``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l), its
-error taken in t/l (``losses.distance_error``). ``log1p``: ReLU log1p(d/h), in model files
-written before log1p-fraction (DESIGN section 8 says why it was replaced)."""
+DISTANCE_MODES = ("fraction", "log1p-fraction")
+"""``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l),
+scale-invariant, its error taken in t/l (``losses.distance_error``)."""
 ALBEDO_MODES = ("segment", "hit")
 """``segment``: the paper's albedo head, one more output of the MLP over the segment's end
 points. ``hit``: an albedo field of the rest-space point alone (its own hash grid and MLP),

@@ -1,11 +1,13 @@
 """Writes the golden files the regression tests compare against.
 
-They were produced by the numpy/torch pipeline before compiled kernels replaced it (the
-commit that added this folder), and are not meant to be regenerated: a later pipeline must
-reproduce them within the tolerances its tests state. Run from the repository root with the
-bpy module:
+The dataset, its inputs, the loss curve and the references were produced by the numpy/torch
+pipeline before compiled kernels replaced it (the commit that added this folder), and are
+not meant to be regenerated: a later pipeline must reproduce them within the tolerances its
+tests state. The model files follow the model format: when it changes they are written
+again by today's code (``train-model``, ``render``). Run from the repository root with the
+bpy module, naming the parts to write (default: all):
 
-    python tests/golden/make_goldens.py
+    python tests/golden/make_goldens.py [dataset] [train] [train-model] [render] [references]
 
 - ``arm-dataset/``: the dataset shard of the arm demo scene (resolution 12, 3 random poses of
   seed 0, 256 rays per pose, surface fraction 0.6) and ``arm-inputs.npz``: each pose's deformed
@@ -13,10 +15,13 @@ bpy module:
   the same input without Blender.
 - ``arm-train.json``: the per-step total and task losses of the first 50 training steps of the
   proposed variant on that shard (table 2^12, batch 1024, seed 0, no validation split).
-- ``arm-train.vdnif``: the weights after those 50 steps.
-- ``arm-render.npz`` and ``arm-render-model.vdnif``: a model trained 300 steps (batch 2048)
-  and the passes the renderer predicted with it for the first evaluation pose (its deformed
-  voxel corners and its 32x24 orbit rays are stored beside them).
+- ``arm-train.vdnif``: the weights after those 50 steps (``train-model`` writes it alone).
+- ``arm-render.npz`` and ``arm-render-model.vdnif``: a model trained 1,000 steps (batch
+  2048; enough that its hits cover most of the arm's pixels in the view) and the passes
+  the renderer predicted with it, its encoder the torch twin of the kernel
+  (``tests/oracles/encoding_torch.py``, as ``test_render`` replays it), for the first
+  evaluation pose (its deformed voxel corners and its 32x24 orbit rays are stored beside
+  them).
 - ``arm-references.json``: ``references`` metrics on 2 evaluation poses at 32x24.
 """
 
@@ -28,9 +33,10 @@ import numpy as np
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 HERE = pathlib.Path(__file__).resolve().parent
-sys.path.insert(0, str(REPO))
+sys.path[:0] = [str(REPO), str(REPO / "tests")]
 
 import bpy  # noqa: E402,F401  (before mathutils)
+from oracles import encoding_torch  # noqa: E402
 
 from vdnif_addon.blender.capture_scene import capture  # noqa: E402
 from vdnif_addon.blender.generate import generate_dataset, reference_run  # noqa: E402
@@ -71,13 +77,15 @@ def dataset_golden(obj, captured):
     return folder
 
 
-def training_golden(folder):
+def training_golden(folder, curve=True):
     losses = []
     fit_model(folder, "proposed", HERE / "arm-train.vdnif",
               dict(SMALL, steps=50, batch_size=1024, log_interval=1, val_fraction=0.0),
               progress=lambda record: losses.append(
                   {"step": record["step"], "total": record["total"],
                    "losses": record["losses"]}))
+    if not curve:
+        return
     (HERE / "arm-train.json").write_text(json.dumps(
         {"settings": dict(SMALL, steps=50, batch_size=1024, val_fraction=0.0,
                           variant="proposed"), "history": losses}, indent=1) + "\n")
@@ -86,17 +94,17 @@ def training_golden(folder):
 def render_golden(obj, folder):
     model_path = HERE / "arm-render-model.vdnif"
     fit_model(folder, "proposed", model_path,
-              dict(SMALL, steps=300, batch_size=2048, val_fraction=0.0))
+              dict(SMALL, steps=1000, batch_size=2048, val_fraction=0.0))
     evaluated = evaluation_poses(obj, RESOLUTION, PoseSpec(count=2, seed=SEED))
     model = load_scene_model(model_path, evaluated, "cpu")
+    model.network.encoder = encoding_torch.from_product(model.network.encoder)
     with PosedObject(obj, evaluated) as posed_object:
         geometry = posed_object.geometry(evaluated.poses[0])
         with posed(evaluated.poses[0]):
             corners = posed_object.deformer.deformed()
         origins, directions = orbit_view(geometry, orbit_viewpoints(2)[0], 32, 24)
         passes, _ = neural_passes(model.network, model.grid, model.albedo_table,
-                                  geometry.cells, geometry.entry_caster, origins, directions,
-                                  "cpu")
+                                  geometry.cells, origins, directions, "cpu")
         np.savez_compressed(HERE / "arm-render.npz", corners=corners,
                             origins=origins, directions=directions, hit=passes.hit,
                             distance=passes.distance, normal=passes.normal,
@@ -112,16 +120,27 @@ def references_golden(obj):
     (HERE / "arm-references.json").write_text(json.dumps(keep, indent=1) + "\n")
 
 
-def main():
+PARTS = ("dataset", "train", "train-model", "render", "references")
+
+
+def main(parts):
+    unknown = set(parts) - set(PARTS)
+    if unknown:
+        raise SystemExit(f"unknown parts {sorted(unknown)}: name some of {', '.join(PARTS)}")
     obj = demo_scene("arm")
-    captured = capture(obj, RESOLUTION, PoseSpec(count=POSES, seed=SEED),
-                       deform_corners=False)
-    folder = dataset_golden(obj, captured)
-    training_golden(folder)
-    render_golden(obj, folder)
-    references_golden(obj)
+    folder = HERE / "arm-dataset"
+    if "dataset" in parts:
+        captured = capture(obj, RESOLUTION, PoseSpec(count=POSES, seed=SEED),
+                           deform_corners=False)
+        dataset_golden(obj, captured)
+    if "train" in parts or "train-model" in parts:
+        training_golden(folder, curve="train" in parts)
+    if "render" in parts:
+        render_golden(obj, folder)
+    if "references" in parts:
+        references_golden(obj)
     assert dataset.read_dataset(folder)[0].segments > 0
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:] or PARTS)

@@ -42,6 +42,23 @@ def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None
                    deform_corners=False)
 
 
+def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
+                  resolution=None):
+    """``obj`` captured again as the model of ``metadata`` (its ModelMetadata) was trained
+    on it: at the model's resolution (``resolution``: one asked for instead, which
+    ``neural.load_scene_model`` refuses unless it is the model's), corners left to per-pose
+    work. Its poses: one of ``spec``, for rendering, or with ``evaluation`` ``count``
+    evaluation poses (default ``spec.count``) disjoint from the model's training poses, or
+    views of the rest pose with ``rest`` (``evaluation_poses``). Without a model
+    (``metadata`` None) ``resolution`` is required and the poses avoid those of ``spec``."""
+    resolution = resolution or metadata.grid.resolution
+    if not evaluation:
+        return capture(obj, resolution, dataclasses.replace(spec, count=1),
+                       deform_corners=False)
+    trained = None if metadata is None else list(metadata.train_poses)
+    return evaluation_poses(obj, resolution, spec, rest=rest, count=count, trained=trained)
+
+
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
                   viewpoints=None, seen=False, loaded=None):
     """(report, views) of the model file on the poses of ``captured``, with the model's
@@ -50,15 +67,15 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     model = load_scene_model(model_path, captured, device, loaded)
     report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress,
                                    seen)
-    train_info = model.metadata["train_info"]
-    report["config"] = {"network": model.metadata["network_config"].to_dict(),
-                        "train": train_info.get("config")}
-    report["timings"].update(train_s=train_info.get("seconds"),
-                             train_samples_per_s=train_info.get("samples_per_s"),
-                             train_steps=train_info.get("steps"))
+    training = model.metadata.training
+    report["config"] = {"network": model.metadata.network_config.to_dict(),
+                        "train": dict(training.config)}
+    report["timings"].update(train_s=training.seconds,
+                             train_samples_per_s=training.samples_per_s,
+                             train_steps=training.steps)
     # The loss weighting's final s_i: at the recipe they show whether it balanced the tasks or
     # only followed its learning rate (DESIGN.md section 8, uncertainty weighting).
-    report["log_variances"] = train_info.get("log_variances")
+    report["log_variances"] = dict(training.log_variances)
     report["model_bytes"] = pathlib.Path(model_path).stat().st_size
     return report, views
 

@@ -26,35 +26,30 @@ class SceneModel:
     """A model file loaded for one captured object (checked to fit it)."""
 
     network: object            # IntersectionNetwork in eval mode on ``device``
-    metadata: dict             # model_file.load_model's metadata
+    metadata: object           # the file's ModelMetadata (model_file.load_model)
     grid: object               # the capture's VoxelGrid, equal to the model's
     path: str
     device: object             # torch.device
 
     @property
-    def extra(self):
-        return self.metadata["extra"]
-
-    @property
     def variant(self):
-        return self.extra.get("variant")
+        return self.metadata.variant
 
     @property
     def albedo_table(self):
-        return np.asarray(self.extra["albedo_table"], np.float32).reshape(-1, 3)
+        return self.metadata.albedo_colors()
 
 
 def load_scene_model(path, capture, device="auto", loaded=None):
     """Loads the model file ``path`` for ``capture``'s object (``loaded``: its
     ``model_file.load_model`` result when the caller read it already); a file that is
-    corrupt, of a newer format, or trained on another object or resolution raises a one-line
-    VDNIFError."""
-    from ..model.model_file import check_scene_metadata, load_model
+    corrupt, of another format, or trained on another object or resolution raises a
+    one-line VDNIFError."""
+    from ..model.model_file import load_model
     from ..training.distributed import resolve_device
 
     network, metadata = load_model(path) if loaded is None else loaded
-    check_scene_metadata(path, metadata["extra"])
-    check_model_fits(path, metadata["extra"], capture.mesh, capture.grid)
+    check_model_fits(path, metadata, capture.mesh, capture.grid)
     device = resolve_device(device)
     return SceneModel(network=network.to(device), metadata=metadata, grid=capture.grid,
                       path=str(path), device=device)
@@ -141,7 +136,7 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
     speeds are given only for a model that predicts hits (``evaluation.speed_figures``).
     """
     poses = capture.poses
-    unseen = _unseen(poses, model.extra.get("train_poses", []))
+    unseen = _unseen(poses, model.metadata.train_poses)
     if not (unseen or seen or capture.mode == "static" or all(p.get("rest") for p in poses)):
         raise VDNIFError(f"'{obj.name}': the evaluation poses include poses that model "
                          f"'{model.path}' was trained on: evaluate on unseen poses")

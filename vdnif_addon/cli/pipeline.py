@@ -1,25 +1,24 @@
-"""The pipeline's batch commands: capture, dataset, references, train, render, evaluate;
-one function per command and the parsers that name them (``add_commands``)."""
+"""The pipeline's batch commands: capture, dataset, references, train, and the commands on
+the trained model (``model_commands``: render, evaluate); one function per command and the
+parsers that name them (``add_commands``)."""
 
 import pathlib
 import sys
 
 from ..errors import VDNIFError
 from ..safe_io import file_stem
-from ..settings import COMMAND_IMAGE, EVALUATION_POSES, RECIPE, TRAINABLE_VARIANTS
+from ..settings import COMMAND_IMAGE, RECIPE, TRAINABLE_VARIANTS
 from ..text import metrics_line
+from . import model_commands
 from .options import (
     NETWORK_OPTIONS,
     add_capture_options,
-    add_device_option,
-    add_pose_options,
     add_scene_options,
     add_training_options,
     check_resolution,
     load_posed_scene,
     names_scene,
     network_overrides,
-    print_evaluation,
     report_training,
     write_json,
 )
@@ -203,103 +202,6 @@ def _train_on_scene(args):
                              network_overrides(args), args.seed, progress=report_training)
 
 
-def _read_model(args):
-    """(network, metadata) of the --model file, read once per command, its metadata checked
-    for what a scene needs (a complete grid, an integer resolution)."""
-    from ..model.model_file import check_scene_metadata, load_model
-
-    loaded = load_model(args.model)
-    check_scene_metadata(args.model, loaded[1]["extra"])
-    return loaded
-
-
-def _model_resolution(args, extra):
-    """--resolution, or the model's own (``extra``: its metadata ``extra``) when not given
-    (they must agree anyway)."""
-    if args.resolution is not None:
-        check_resolution(args.resolution)
-        return args.resolution
-    return int(extra["grid"]["resolution"])
-
-
-def cmd_render(args):
-    """Render the predicted passes of a pose through a camera with a trained model."""
-    import bpy
-
-    from ..blender.capture_scene import capture
-    from ..blender.jobs import write_passes
-    from ..blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
-    from ..blender.scenes import find_camera
-
-    loaded = _read_model(args)
-    resolution = args.resolution = _model_resolution(args, loaded[1]["extra"])
-    obj, spec = load_posed_scene(args)
-    captured = capture(obj, resolution, spec, deform_corners=False)
-    model = load_scene_model(args.model, captured, args.device, loaded)
-    scene = bpy.context.scene
-    frame = scene.frame_current if args.frame is None else args.frame
-    pose = {"frame": float(frame)}
-    camera = find_camera(args.camera)
-    if camera is not None:
-        origins, directions = camera_rays(camera, args.width, args.height)
-        view = f"camera '{camera.name}'"
-        result = render_rays(obj, captured, model, pose, origins, directions,
-                             references=args.references)
-    else:
-        view = "an orbit viewpoint (the scene has no camera)"
-        result = render_orbit(obj, captured, model, pose, args.width, args.height,
-                              references=args.references)
-    slots = captured.mesh.material_slots
-    written = write_passes(args.out, result.predicted, args.height, args.width,
-                           result.world_scale, slots=slots)
-    if args.references:
-        for name in ("true", "embedded"):
-            written += write_passes(args.out, getattr(result, name), args.height, args.width,
-                                    result.world_scale, prefix=f"{name}-", slots=slots)
-    summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
-               "width": args.width, "height": args.height,
-               "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
-               "rays_per_s": result.timings["rays"] / result.timings["render_s"],
-               "files": [str(path) for path in written]}
-    write_json(pathlib.Path(args.out) / "render.json", summary)
-    print(f"rendered '{obj.name}' at frame {frame:g} through {view}, {args.width}x"
-          f"{args.height}: {summary['hit_pixels']} hit pixels, "
-          f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
-    return 0
-
-
-def evaluated(args):
-    """(report, views, captured) of the evaluate command's ``args``: its JSON report, per
-    pose the predicted, true and embedded Passes (``neural.evaluate_model``), and the
-    evaluation poses' capture. ``tools/wrong_surface.py`` reads the views as well."""
-    from ..blender.jobs import evaluate_file, evaluation_poses
-    from ..progress import Progress
-
-    loaded = _read_model(args)
-    resolution = args.resolution = _model_resolution(args, loaded[1]["extra"])
-    trained = loaded[1]["extra"].get("train_poses", [])
-    obj, spec = load_posed_scene(args)
-    captured = evaluation_poses(obj, resolution, spec, rest=args.rest_pose, trained=trained)
-    progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
-    report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
-                                  args.device, lambda done, _: progress.update(done),
-                                  loaded=loaded)
-    return report, views, captured
-
-
-def cmd_evaluate(args):
-    """Evaluate a trained model on unseen poses against the true and embedded references."""
-    from ..blender.jobs import write_figures
-
-    report, views, captured = evaluated(args)
-    if args.out is not None:
-        report["figures"] = {name: str(path) for name, path in write_figures(
-            args.out, views[0], args.height, args.width, captured.mesh.size).items()}
-    write_json(args.json, report)
-    print_evaluation(report)
-    return 0
-
-
 def _scene_command(commands, name, run, default_poses, notes):
     """A command that reads a scene: scene, resolution, pose and stress options."""
     from ..blender.extremes import add_stress_options
@@ -308,25 +210,6 @@ def _scene_command(commands, name, run, default_poses, notes):
     add_scene_options(parser)
     add_capture_options(parser, default_poses)
     add_stress_options(parser)
-    parser.set_defaults(run=run)
-    return parser
-
-
-def _model_command(commands, name, run, default_poses, notes):
-    """A command that uses a trained model on a scene; the resolution is the model's."""
-    from ..blender.extremes import add_stress_options
-
-    parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
-    parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
-                        help="a model file written by 'train' or 'demo'")
-    add_scene_options(parser)
-    parser.add_argument("--resolution", type=int, metavar="R",
-                        help="voxel resolution (default: the model's; must match it)")
-    add_pose_options(parser, default_poses)
-    add_stress_options(parser)
-    parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
-    parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
-    add_device_option(parser)
     parser.set_defaults(run=run)
     return parser
 
@@ -388,25 +271,4 @@ def add_commands(commands):
     for option, (_, kind, text) in NETWORK_OPTIONS.items():
         group.add_argument(option, type=kind, help=text)
     training.set_defaults(run=cmd_train)
-
-    render = _model_command(commands, "render", cmd_render, 1, (
-        "Writes per pass (hit, distance, normal, albedo, material) a PNG for looking and an "
-        "EXR for use (distance in world units) and render.json into --out."))
-    render.add_argument("--frame", type=float, metavar="F",
-                        help="the timeline frame to pose the scene at (default: current)")
-    render.add_argument("--camera", metavar="NAME", help=(
-        "camera object (default: the scene's camera, else an orbit viewpoint)"))
-    render.add_argument("--references", action="store_true",
-                        help="also render the true and embedded references")
-    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
-
-    evaluate = _model_command(commands, "evaluate", cmd_evaluate, EVALUATION_POSES, (
-        "Poses are the evaluation poses of --seed: another random seed or frames between "
-        "the training frames, never trained on. Writes --json with variant, config, vs_true "
-        "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
-        "albedo_psnr, material_accuracy), timings and model_bytes."))
-    evaluate.add_argument("--rest-pose", action="store_true",
-                          help="evaluate on views of the undeformed rest pose instead")
-    evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
-                          help="write the comparison figures and error images here")
-    evaluate.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    model_commands.add_commands(commands)

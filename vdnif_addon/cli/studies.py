@@ -181,24 +181,20 @@ def _scene_capture(obj, model_path, args, device):
     """(capture of unseen poses, SceneModel or None) of one scene: the poses avoid the
     model's training poses; the resolution is --resolution, else the model's, else the
     recipe's of the mesh."""
-    from ..blender.capture_scene import capture
+    from ..blender.jobs import model_capture
     from ..blender.neural import load_scene_model
-    from ..blender.poses import evaluation_spec
     from ..blender.resolution import recipe_resolution
     from ..model.model_file import load_model
     from ..settings import PoseSpec
 
-    trained, resolution = None, args.resolution
-    if model_path is not None:
-        extra = load_model(model_path)[1]["extra"]
-        trained = extra.get("train_poses") or None
-        resolution = resolution or int(extra["grid"]["resolution"])
-    resolution = resolution or recipe_resolution(obj)
+    loaded = None if model_path is None else load_model(model_path)
+    metadata = None if loaded is None else loaded[1]
+    resolution = args.resolution or (None if metadata else recipe_resolution(obj))
     check_resolution(resolution)
-    spec = evaluation_spec(PoseSpec(count=args.poses, seed=args.seed), trained=trained)
-    captured = capture(obj, resolution, spec, deform_corners=False)
-    model = (None if model_path is None
-             else load_scene_model(model_path, captured, device))
+    captured = model_capture(obj, metadata, PoseSpec(count=args.poses, seed=args.seed),
+                             evaluation=True, resolution=resolution)
+    model = (None if loaded is None
+             else load_scene_model(model_path, captured, device, loaded))
     return captured, model
 
 

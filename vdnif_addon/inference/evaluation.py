@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 
     from ..geometry.restmesh import RestMesh
     from ..geometry.voxels import VoxelGrid
+    from ..model.metadata import ModelMetadata
 
     Metrics = dict[str, float | int | None]
     """What ``metrics.compare`` returns."""
@@ -29,44 +30,41 @@ REFERENCES = ("true", "embedded")
 RENDER_SPEEDS = ("render_rays_per_s", "render_segments_per_s", "network_fraction")
 
 
-def check_model_fits(path: str | os.PathLike, extra: dict[str, Any], mesh: RestMesh,
+def check_model_fits(path: str | os.PathLike, metadata: ModelMetadata, mesh: RestMesh,
                      grid: VoxelGrid) -> None:
-    """Raises a one-line VDNIFError unless the model in ``path`` (its metadata ``extra``)
-    was trained on this rest ``mesh`` voxelized as ``grid``: same object, resolution, grid
-    and materials. Rendering with another object's network would give garbage."""
-    model_grid = extra.get("grid") or {}
-    trained_on = (f"'{extra.get('object')}' at resolution {model_grid.get('resolution')} "
-                  f"(grid {'x'.join(map(str, model_grid.get('dims', [])))})")
+    """Raises a one-line VDNIFError unless the model in ``path`` (its ``metadata``) was
+    trained on this rest ``mesh`` voxelized as ``grid``: same object, resolution, grid,
+    mesh and materials. Rendering with another object's network would give garbage."""
+    model_grid = metadata.grid
+    trained_on = (f"'{metadata.object}' at resolution {model_grid.resolution} "
+                  f"(grid {'x'.join(map(str, model_grid.dims))})")
     here = (f"'{mesh.name}' at resolution {grid.resolution} "
             f"(grid {'x'.join(map(str, grid.dims.tolist()))})")
-    if extra.get("object") != mesh.name or model_grid.get("resolution") != grid.resolution:
+    if metadata.object != mesh.name or model_grid.resolution != grid.resolution:
         raise VDNIFError(f"model '{path}' was trained on {trained_on}, not on {here}: "
                          f"train a model for this object and resolution")
-    same_grid = (list(model_grid.get("dims", [])) == grid.dims.tolist()
-                 and np.allclose(model_grid.get("origin"), grid.origin, rtol=1e-6,
+    same_grid = (list(model_grid.dims) == grid.dims.tolist()
+                 and np.allclose(model_grid.origin, grid.origin, rtol=1e-6,
                                  atol=1e-9 * mesh.size)
-                 and np.isclose(model_grid.get("voxel_size"), grid.voxel_size, rtol=1e-6))
+                 and np.isclose(model_grid.voxel_size, grid.voxel_size, rtol=1e-6))
     if not same_grid:
         raise VDNIFError(f"model '{path}' was trained on {trained_on}, but the mesh of "
                          f"'{mesh.name}' has changed since (now {here}): train it again")
     from ..model.model_file import mesh_fingerprint
 
-    trained_fingerprint = model_grid.get("mesh_fingerprint")    # absent in older models
-    if trained_fingerprint is not None and trained_fingerprint != mesh_fingerprint(mesh):
+    known = model_grid.mesh_fingerprint
+    if known is not None and known != mesh_fingerprint(mesh):
         raise VDNIFError(f"model '{path}' was trained on another version of the mesh of "
                          f"'{mesh.name}' (its vertices, faces or materials were edited "
                          "since): train it again")
-    heads = extra.get("heads") or {}
-    materials = heads.get("material_count")
+    materials = metadata.network_config.heads.material_count
     if materials != mesh.material_count:
         raise VDNIFError(f"model '{path}' knows {materials} materials, '{mesh.name}' has "
                          f"{mesh.material_count}: train it again")
-    # Models written before the used-slot table had a head over every slot.
-    slots = list(heads.get("material_slots", range(materials)))
-    if slots != mesh.material_slots.tolist():
-        raise VDNIFError(f"model '{path}' knows the materials of slots {slots}, "
-                         f"'{mesh.name}' uses slots {mesh.material_slots.tolist()}: "
-                         "train it again")
+    if list(metadata.material_slots) != mesh.material_slots.tolist():
+        raise VDNIFError(f"model '{path}' knows the materials of slots "
+                         f"{list(metadata.material_slots)}, '{mesh.name}' uses slots "
+                         f"{mesh.material_slots.tolist()}: train it again")
 
 
 def metric_heads(mesh: RestMesh) -> dict[str, bool]:

@@ -65,10 +65,10 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
     A ray hits when one of its segments has an occlusion probability above the model's
-    threshold (``network.occlusion_threshold``); its hit lies on its first segment above
-    the lower candidate threshold (``network.candidate_threshold``; both calibrated in
-    training): distance ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo
-    head or, without one, from ``albedo_table`` (M, 3) by material. ``device`` is the
+    occlusion threshold; its hit lies on its first segment above the lower candidate
+    threshold (``network.thresholds``, both calibrated in training): distance
+    ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo head or, without one,
+    from ``albedo_table`` (M, 3) by material. ``device`` is the
     network's torch device; the cells' Warp device must be the same. With ``overlap`` the
     rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
     the network evaluates the other lane's wave; by default only on the CPU with a core that

@@ -17,8 +17,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import VDNIFError
-from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
+from ..settings import NetworkConfig
 from .encoding import HashGrid, SegmentEncoder
+from .metadata import Thresholds
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int64
@@ -54,23 +55,19 @@ class IntersectionNetwork(nn.Module):
             layers += [nn.Linear(width_in, config.width), nn.ReLU()]
             width_in = config.width
         output = nn.Linear(width_in, sum(self.mlp_heads.values()))
-        if config.distance_mode in ("log1p", "log1p-fraction"):
-            # ReLU output: start it in its active range (log1p of half a voxel or of half
-            # the segment), or a head whose first outputs are all negative never gets a
-            # gradient (a dead ReLU).
+        if config.distance_mode == "log1p-fraction":
+            # ReLU output: start it in its active range (log1p of half the segment), or a
+            # head whose first outputs are all negative never gets a gradient (a dead ReLU).
             distance_column = list(self.mlp_heads).index("distance")
             start = sum(list(self.mlp_heads.values())[:distance_column])
             with torch.no_grad():
                 output.bias[start] = math.log1p(0.5)
         layers.append(output)
         self.mlp = nn.Sequential(*layers)
-        # Not a parameter: training calibrates it on held-out poses (``train.calibrate_
-        # threshold``) and the model file stores it; ``predict`` applies it.
-        self.occlusion_threshold = OCCLUSION_THRESHOLD
-        # The hit is placed on a ray's first segment above this lower threshold (DESIGN
-        # section 9); equal to the occlusion threshold until training calibrates it, as in
-        # files without one.
-        self.candidate_threshold = OCCLUSION_THRESHOLD
+        # Not parameters: training calibrates them on held-out poses (``validation``), the
+        # model file's metadata carries them and ``load_model`` hands them over; ``predict``
+        # applies them.
+        self.thresholds = Thresholds()
 
     def forward(
         self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"],
@@ -78,8 +75,8 @@ class IntersectionNetwork(nn.Module):
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
 
-        ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l, ReLU log1p(t/l) or
-        ReLU log1p(d/h) per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
+        ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l or ReLU log1p(t/l)
+        per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
         (N, 3) in [0,1]; ``material`` (N, M) logits. Only the heads of ``config.heads`` are
         present. With an albedo field (``albedo_mode`` "hit") the albedo is the field's at
         ``p0 + hit_frac (p1 - p0)``, the reference's hit (N,) t/l, and absent without it.
@@ -122,7 +119,7 @@ class IntersectionNetwork(nn.Module):
     ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
-        ``forward`` at the model's ``occlusion_threshold``, without autograd, ``batch``
+        ``forward`` at the model's ``thresholds``, without autograd, ``batch``
         segments at a time to bound memory. An albedo field is read at each candidate
         segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of the others is 0).
 
@@ -142,8 +139,7 @@ class IntersectionNetwork(nn.Module):
         def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
                         ) -> dict[str, torch.Tensor]:
             q0, q1, length = chunks[index]
-            part = readout(self.heads(features), mode, voxel_size, length,
-                           self.occlusion_threshold, self.candidate_threshold)
+            part = readout(self.heads(features), mode, voxel_size, length, self.thresholds)
             if self.albedo_field is not None:
                 # Only candidates can place a hit (hits are candidates too): most of a
                 # wave's segments are not, and skip the field. Its encoder launch waits for
@@ -192,16 +188,15 @@ def readout(
     distance_mode: str,
     voxel_size: float,
     rest_len: Float[torch.Tensor, " batch"],
-    threshold: float = OCCLUSION_THRESHOLD,
-    candidate_threshold: float | None = None,
+    thresholds: Thresholds = Thresholds(),
 ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
           | Int64[torch.Tensor, " batch"]]:
     """Head outputs -> predictions.
 
     rest_len: (N,) rest-space segment length |p1 - p0|; voxel_size: h in rest units.
-    Returns ``hit_probability`` (N,), ``hit`` (N,) bool (probability above ``threshold``,
-    the model's calibrated occlusion threshold), ``candidate`` (N,) bool (probability above
-    ``candidate_threshold``, taken at most ``threshold``; ``threshold`` when None),
+    Returns ``hit_probability`` (N,), ``hit`` (N,) bool (probability above the occlusion
+    threshold of ``thresholds``, the model's calibrated ones), ``candidate`` (N,) bool
+    (probability above their candidate threshold),
     ``distance`` (N,) rest-space local distance d from p0, ``fraction`` (N,) d / rest_len in
     [0,1] (the renderer's t = fraction * l),
     ``normal`` (N, 3) unit (zero where the head output is zero), ``material`` (N,) int64
@@ -212,19 +207,13 @@ def readout(
     probability = torch.sigmoid(outputs["occlusion"])
     if distance_mode == "fraction":
         fraction = outputs["distance"]
-        distance = fraction * rest_len
-    elif distance_mode == "log1p-fraction":
-        fraction = torch.expm1(outputs["distance"]).clamp(0.0, 1.0)
-        distance = fraction * rest_len
     else:
-        distance = voxel_size * torch.expm1(outputs["distance"])
-        tiny = torch.finfo(distance.dtype).tiny
-        fraction = (distance / rest_len.clamp_min(tiny)).clamp(0.0, 1.0)
+        fraction = torch.expm1(outputs["distance"]).clamp(0.0, 1.0)
+    distance = fraction * rest_len
     predictions = {
         "hit_probability": probability,
-        "hit": probability > threshold,
-        "candidate": probability > (threshold if candidate_threshold is None
-                                    else min(candidate_threshold, threshold)),
+        "hit": probability > thresholds.occlusion,
+        "candidate": probability > thresholds.candidate,
         "distance": distance,
         "fraction": fraction,
         "normal": F.normalize(outputs["normal"], dim=1),

@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .. import __version__
+from ..model.metadata import FORMAT_VERSION, ModelMetadata
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
 from .dataset import read_dataset
@@ -41,15 +42,24 @@ def fit_model(
                    cancel=cancel)
     if not result.is_main:
         return result, {}
-    extra = {"object": header.object, "object_size": header.object_size,
-             "grid": header.grid.to_dict(), "heads": header.heads.to_dict(),
-             "albedo_table": [list(row) for row in header.albedo_table], "variant": variant,
-             "vdnif_version": __version__, "train_poses": list(data.poses),
-             "occlusion_threshold": result.occlusion_threshold,
-             "candidate_threshold": result.candidate_threshold,
-             "dataset": {"folder": str(data_dir), "shards": list(data.shards),
-                         "poses": len(data.poses), "segments": data.segments}}
-    save_model(out, result.network, result.network_config, result.info(), extra)
+    # A dataset header that names no used-slot table or mesh fingerprint (the golden arm
+    # dataset's, which the recorded loss curve trains on) has a material per slot and
+    # leaves the mesh unchecked.
+    slots = header.heads.material_slots
+    metadata = ModelMetadata.from_dict({
+        "version": FORMAT_VERSION, "object": header.object,
+        "object_size": header.object_size, "variant": variant,
+        "network_config": result.network_config.to_dict(),
+        "grid": {"mesh_fingerprint": None, **header.grid.to_dict()},
+        "material_slots": list(range(header.heads.material_count)) if slots is None
+        else list(slots),
+        "albedo_table": [list(row) for row in header.albedo_table],
+        "thresholds": result.thresholds.to_dict(),
+        "train_poses": list(data.poses), "training": result.info(),
+        "dataset": {"folder": str(data_dir), "shards": list(data.shards),
+                    "poses": len(data.poses), "segments": data.segments},
+        "vdnif_version": __version__}, str(out))
+    save_model(out, result.network, metadata)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,
                "train": result.info(), "network_config": result.network_config.to_dict()}

@@ -15,36 +15,30 @@ CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 
 
 def distance_error(
-    distance: torch.Tensor, hit_frac: torch.Tensor, rest_len: torch.Tensor, distance_mode: str,
-    voxel_size: float
+    distance: torch.Tensor, hit_frac: torch.Tensor, distance_mode: str
 ) -> torch.Tensor:
     """Squared error (N,) of the distance head's output ``distance`` (N,) against the hit:
-    t/l (``fraction``), expm1 of the ReLU log1p(t/l) output against t/l
-    (``log1p-fraction``), or log1p(d/h) (``log1p``, model files before log1p-fraction).
+    t/l (``fraction``), or expm1 of the ReLU log1p(t/l) output against t/l
+    (``log1p-fraction``).
 
-    hit_frac, rest_len: (N,); hit_frac = t/l is the hit's fraction of the segment, d =
-    hit_frac * rest_len the rest-space local distance and h the voxel size: every error is
-    scale-invariant.
+    hit_frac: (N,), t/l, the hit's fraction of the segment: the error is scale-invariant.
     """
     if distance_mode == "fraction":
         return (distance - hit_frac).square()
-    if distance_mode == "log1p-fraction":
-        # The head outputs log1p(t/l); its error is taken in t/l, the unit the hit is
-        # placed in. In log space an error at t/l near 1 weighs (1 / (1 + t/l))^2, a
-        # quarter of one near 0: on the arm (3,000 steps, held-out poses) the log-space MSE
-        # left 0.074 voxels of error at t/l in [0.7, 0.9) against the sigmoid's 0.064, and
-        # 0.060 voxels in all against 0.051 with the error in t/l (DESIGN section 8).
-        # The clamp keeps expm1 finite on the misses' untrained outputs (a NaN gradient
-        # through torch.where otherwise); targets stay below log 2.
-        return (torch.expm1(distance.clamp(max=4.0)) - hit_frac).square()
-    return (distance - torch.log1p(hit_frac * rest_len / voxel_size)).square()
+    # The head outputs log1p(t/l); its error is taken in t/l, the unit the hit is placed
+    # in. In log space an error at t/l near 1 weighs (1 / (1 + t/l))^2, a quarter of one
+    # near 0: on the arm (3,000 steps, held-out poses) the log-space MSE left 0.074 voxels
+    # of error at t/l in [0.7, 0.9) against the sigmoid's 0.064, and 0.060 voxels in all
+    # against 0.051 with the error in t/l (DESIGN section 8). The clamp keeps expm1 finite
+    # on the misses' untrained outputs (a NaN gradient through torch.where otherwise);
+    # targets stay below log 2.
+    return (torch.expm1(distance.clamp(max=4.0)) - hit_frac).square()
 
 
 def task_losses(
     outputs: Mapping[str, torch.Tensor],
     batch: Mapping[str, torch.Tensor],
     distance_mode: str,
-    voxel_size: float,
 ) -> dict[str, torch.Tensor]:
     """Scalar loss per head present in ``outputs``.
 
@@ -64,7 +58,7 @@ def task_losses(
             outputs["occlusion"], hit.to(outputs["occlusion"].dtype)
         ),
         "distance": over_hits(distance_error(outputs["distance"], batch["hit_frac"],
-                                             batch["rest_len"], distance_mode, voxel_size)),
+                                             distance_mode)),
         "normal": over_hits(1.0 - F.cosine_similarity(outputs["normal"], batch["normal"], dim=1)),
     }
     if "albedo" in outputs:

@@ -24,8 +24,9 @@ from torch import nn
 
 from ..errors import VDNIFError
 from ..model.encoding import HashGrid
+from ..model.metadata import Thresholds
 from ..model.network import IntersectionNetwork
-from ..settings import OCCLUSION_THRESHOLD, NetworkConfig, TrainConfig
+from ..settings import NetworkConfig, TrainConfig
 from .data import Batches, Segments, split_data
 from .distributed import ProcessGroup, resolve_device
 from .header import DatasetHeader
@@ -39,7 +40,8 @@ if TYPE_CHECKING:
 
 @dataclass
 class TrainResult:
-    """A trained network (eval mode, on the training device) and how training went."""
+    """A trained network (eval mode, on the training device, holding the thresholds
+    calibrated on the held-out poses) and how training went."""
 
     network: IntersectionNetwork
     network_config: NetworkConfig
@@ -52,8 +54,6 @@ class TrainResult:
     seconds: float
     samples_per_s: float
     val_poses: list[int]
-    occlusion_threshold: float = OCCLUSION_THRESHOLD  # calibrated on the held-out poses
-    candidate_threshold: float = OCCLUSION_THRESHOLD  # likewise, at most the one above
     rank: int = 0
     world_size: int = 1
 
@@ -62,8 +62,14 @@ class TrainResult:
         """Only the main process (rank 0) writes outputs."""
         return self.rank == 0
 
+    @property
+    def thresholds(self) -> Thresholds:
+        """The thresholds calibrated on the held-out poses (the network's)."""
+        return self.network.thresholds
+
     def info(self) -> dict[str, Any]:
-        """Plain-data summary for ``model_file.save_model``'s ``train_info``."""
+        """Plain-data summary, the model metadata's ``training`` entry
+        (``metadata.TrainingSummary``)."""
         return {
             "status": self.status,
             "steps": self.steps,
@@ -72,8 +78,6 @@ class TrainResult:
             "seconds": self.seconds,
             "samples_per_s": self.samples_per_s,
             "val_poses": self.val_poses,
-            "occlusion_threshold": self.occlusion_threshold,
-            "candidate_threshold": self.candidate_threshold,
             "world_size": self.world_size,
             "config": self.config.to_dict(),
         }
@@ -95,7 +99,7 @@ class Objective(nn.Module):
     ) -> tuple[Float[torch.Tensor, ""], Float[torch.Tensor, " tasks"]]:
         """(total loss, task losses in head order) of ``batch``."""
         outputs = self.network(batch["p0"], batch["p1"], batch["hit_frac"])
-        losses = task_losses(outputs, batch, self.network.config.distance_mode, self.voxel_size)
+        losses = task_losses(outputs, batch, self.network.config.distance_mode)
         return self.weighting(losses), torch.stack(list(losses.values()))
 
 
@@ -180,7 +184,7 @@ def train(
     progress: Callable[[dict[str, Any]], None] | None = None,
     cancel: threading.Event | None = None,
 ) -> TrainResult:
-    """Train an ``IntersectionNetwork`` on ``segments`` (``training_data`` states the
+    """Train an ``IntersectionNetwork`` on ``segments`` (``training.data`` states the
     contract of ``segments`` and ``header``).
 
     The heads follow ``header.heads``. Every ``log_interval`` steps (and at the end) the main
@@ -250,10 +254,9 @@ def _train(
                 progress(record)
 
     network.eval()
-    threshold = calibrate_threshold(network, val_data, group)
-    network.occlusion_threshold = threshold
-    candidate = calibrate_candidate_threshold(network, val_data, h, group)
-    network.candidate_threshold = candidate
+    occlusion = calibrate_threshold(network, val_data, group)
+    network.thresholds = Thresholds(
+        occlusion, calibrate_candidate_threshold(network, val_data, h, occlusion, group))
     return TrainResult(
         network=network,
         network_config=network_config,
@@ -266,8 +269,6 @@ def _train(
         seconds=log.seconds,
         samples_per_s=log.samples_per_s,
         val_poses=val_poses,
-        occlusion_threshold=threshold,
-        candidate_threshold=candidate,
         rank=group.rank,
         world_size=group.world,
     )

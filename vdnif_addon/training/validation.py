@@ -57,9 +57,8 @@ def evaluation_sums(
     for start in range(0, data["p0"].shape[0], batch):
         part = {key: value[start : start + batch] for key, value in data.items()}
         outputs = network(part["p0"], part["p1"], part["hit_frac"])
-        losses = task_losses(outputs, part, mode, voxel_size)
-        predicted = readout(outputs, mode, voxel_size, part["rest_len"],
-                            network.occlusion_threshold)
+        losses = task_losses(outputs, part, mode)
+        predicted = readout(outputs, mode, voxel_size, part["rest_len"], network.thresholds)
         hit = part["hit"]
         n, hits = hit.numel(), hit.sum()
         cos = (predicted["normal"] * part["normal"]).sum(1).clamp(-1.0, 1.0)
@@ -184,18 +183,18 @@ def calibrate_candidate_threshold(
     network: IntersectionNetwork,
     data: Segments,
     voxel_size: float,
+    occlusion: float,
     group: ProcessGroup | None = None,
     batch: int = 2**16,
 ) -> float:
     """The candidate threshold that places hits best on ``data`` (the held-out poses, with
     ``training_data.RAY_FIELDS``; a ray's rows in walk order): among CANDIDATE_THRESHOLDS
-    below ``network.occlusion_threshold`` and that threshold itself, the one with the least
+    below the ``occlusion`` threshold and that threshold itself, the one with the least
     mean |D - D_ref| over the rays that the reference and the network both hit, D the
     deformed distance ``t0 + fraction * seg_len`` on the ray's first segment above it, D_ref
     on its first hit segment. Ties go to the higher one; without such rays (or held-out
     segments) it is the occlusion threshold, which places hits where it finds them."""
     group = group or ProcessGroup()
-    occlusion = network.occlusion_threshold
     thresholds = [t for t in CANDIDATE_THRESHOLDS if t < occlusion] + [occlusion]
     device = data["p0"].device
     sums = torch.zeros(len(thresholds) + 1, dtype=torch.float64, device=device)
@@ -206,7 +205,7 @@ def calibrate_candidate_threshold(
             part = slice(start, start + batch)
             outputs = network(data["p0"][part], data["p1"][part])
             predicted = readout(outputs, network.config.distance_mode, voxel_size,
-                                data["rest_len"][part], occlusion)
+                                data["rest_len"][part])
             probability.append(predicted["hit_probability"].float())
             distance.append(data["t0"][part].double()
                             + predicted["fraction"].double() * data["seg_len"][part].double())

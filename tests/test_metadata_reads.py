@@ -1,0 +1,63 @@
+"""Model metadata is read through ``ModelMetadata``'s attributes, checked once by
+``ModelMetadata.from_dict``: no module reads it by string key (``extra["grid"]``,
+``metadata["train_info"]``, ``extra.get("object")``), which would bypass the checks. Only
+``vdnif_addon/model/metadata.py`` reads the stored plain data."""
+
+import pathlib
+import re
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+ALLOWED = pathlib.Path("vdnif_addon/model/metadata.py")
+FOLDERS = ("vdnif_addon", "operators", "panels", "tools")
+KEY = r"""\s*["']"""
+STRING_KEY_READ = re.compile(
+    rf"""\b(extra|metadata|meta|train_info)\s*(\[{KEY}|\.get\({KEY})"""
+    rf"""|\[{KEY}(extra|train_info)["']\s*\]""")
+"""A string-key read of model metadata: a key in brackets or ``.get`` on a name that held
+the metadata dict, or its old ``extra`` / ``train_info`` entries by name."""
+
+
+def string_key_reads(repo):
+    """``path:line: text`` of each string-key read of model metadata in ``repo``'s root
+    modules and its vdnif_addon, operators, panels and tools folders, but for ALLOWED."""
+    paths = [*repo.glob("*.py"),
+             *(path for folder in FOLDERS for path in (repo / folder).rglob("*.py"))]
+    found = []
+    for path in sorted(paths):
+        if path.relative_to(repo) == ALLOWED:
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if STRING_KEY_READ.search(line):
+                found.append(f"{path.relative_to(repo)}:{number}: {line.strip()}")
+    return found
+
+
+def test_no_module_reads_model_metadata_by_string_key():
+    assert string_key_reads(REPO) == []
+
+
+def test_a_planted_string_key_read_is_found(tmp_path):
+    """The scan finds each form of read where it may hide, and leaves the allowed module,
+    non-string keys and other names alone."""
+    planted = {
+        "vdnif_addon/blender/neural.py": 'table = model.metadata["extra"]["albedo_table"]',
+        "vdnif_addon/cli/pipeline.py": 'resolution = extra["grid"]["resolution"]',
+        "operators/passes.py": "trained = extra.get('train_poses', [])",
+        "panels/sidebar.py": 'steps = metadata["train_info"]["steps"]',
+        "tools/albedo_ceiling.py": 'config = meta.get("network_config")',
+        "storage.py": 'info = load_model(path)[1]["train_info"]',
+    }
+    harmless = {
+        ALLOWED.as_posix(): 'version = data["version"]',
+        "vdnif_addon/blender/extremes.py": "bone.matrix_basis @= extra[bone.name]",
+        "vdnif_addon/progress.py": 'line = f"{done}{extra}"',
+    }
+    for files in (planted, harmless):
+        for name, text in files.items():
+            path = tmp_path / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(f"def f(model, extra, meta, metadata, data, bone, done):\n"
+                            f"    {text}\n")
+    found = string_key_reads(tmp_path)
+    assert sorted(entry.split(":")[0] for entry in found) == sorted(planted)
+    assert all(entry.endswith(planted[entry.split(":")[0]]) for entry in found)

@@ -1,0 +1,147 @@
+"""The batch commands on a trained model: render and evaluate. Each reads the --model file
+once and captures the scene of the options again as the model was trained on it
+(``jobs.model_capture``)."""
+
+import pathlib
+
+from ..settings import COMMAND_IMAGE, EVALUATION_POSES
+from .options import (
+    add_device_option,
+    add_pose_options,
+    add_scene_options,
+    check_resolution,
+    load_posed_scene,
+    print_evaluation,
+    write_json,
+)
+
+
+def _model_scene(args, evaluation=False):
+    """(network and metadata, mesh object, capture) of a command on the --model file: the
+    model read once (``load_model`` checks it), the scene of the options captured again as
+    the model was trained on it (``jobs.model_capture``: at --resolution when given, else the
+    model's; with ``evaluation`` on evaluation poses, or views of the rest pose)."""
+    from ..blender.jobs import model_capture
+    from ..model.model_file import load_model
+
+    check_resolution(args.resolution)
+    loaded, asked = load_model(args.model), args.resolution
+    obj, spec = load_posed_scene(args)
+    captured = model_capture(obj, loaded[1], spec, evaluation, resolution=asked,
+                             rest=getattr(args, "rest_pose", False))
+    args.resolution = captured.grid.resolution
+    return loaded, obj, captured
+
+
+def cmd_render(args):
+    """Render the predicted passes of a pose through a camera with a trained model."""
+    import bpy
+
+    from ..blender.jobs import write_passes
+    from ..blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
+    from ..blender.scenes import find_camera
+
+    loaded, obj, captured = _model_scene(args)
+    model = load_scene_model(args.model, captured, args.device, loaded)
+    scene = bpy.context.scene
+    frame = scene.frame_current if args.frame is None else args.frame
+    pose = {"frame": float(frame)}
+    camera = find_camera(args.camera)
+    if camera is not None:
+        origins, directions = camera_rays(camera, args.width, args.height)
+        view = f"camera '{camera.name}'"
+        result = render_rays(obj, captured, model, pose, origins, directions,
+                             references=args.references)
+    else:
+        view = "an orbit viewpoint (the scene has no camera)"
+        result = render_orbit(obj, captured, model, pose, args.width, args.height,
+                              references=args.references)
+    slots = captured.mesh.material_slots
+    written = write_passes(args.out, result.predicted, args.height, args.width,
+                           result.world_scale, slots=slots)
+    if args.references:
+        for name in ("true", "embedded"):
+            written += write_passes(args.out, getattr(result, name), args.height, args.width,
+                                    result.world_scale, prefix=f"{name}-", slots=slots)
+    summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
+               "width": args.width, "height": args.height,
+               "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
+               "rays_per_s": result.timings["rays"] / result.timings["render_s"],
+               "files": [str(path) for path in written]}
+    write_json(pathlib.Path(args.out) / "render.json", summary)
+    print(f"rendered '{obj.name}' at frame {frame:g} through {view}, {args.width}x"
+          f"{args.height}: {summary['hit_pixels']} hit pixels, "
+          f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
+    return 0
+
+
+def evaluated(args):
+    """(report, views, captured) of the evaluate command's ``args``: its JSON report, per
+    pose the predicted, true and embedded Passes (``neural.evaluate_model``), and the
+    evaluation poses' capture. ``tools/wrong_surface.py`` reads the views as well."""
+    from ..blender.jobs import evaluate_file
+    from ..progress import Progress
+
+    loaded, obj, captured = _model_scene(args, evaluation=True)
+    progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
+    report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
+                                  args.device, lambda done, _: progress.update(done),
+                                  loaded=loaded)
+    return report, views, captured
+
+
+def cmd_evaluate(args):
+    """Evaluate a trained model on unseen poses against the true and embedded references."""
+    from ..blender.jobs import write_figures
+
+    report, views, captured = evaluated(args)
+    if args.out is not None:
+        report["figures"] = {name: str(path) for name, path in write_figures(
+            args.out, views[0], args.height, args.width, captured.mesh.size).items()}
+    write_json(args.json, report)
+    print_evaluation(report)
+    return 0
+
+
+def _model_command(commands, name, run, default_poses, notes):
+    """A command that uses a trained model on a scene; the resolution is the model's."""
+    from ..blender.extremes import add_stress_options
+
+    parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
+    parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
+                        help="a model file written by 'train' or 'demo'")
+    add_scene_options(parser)
+    parser.add_argument("--resolution", type=int, metavar="R",
+                        help="voxel resolution (default: the model's; must match it)")
+    add_pose_options(parser, default_poses)
+    add_stress_options(parser)
+    parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
+    parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
+    add_device_option(parser)
+    parser.set_defaults(run=run)
+    return parser
+
+
+def add_commands(commands):
+    """Adds the model commands to the batch parser's subcommands ``commands``."""
+    render = _model_command(commands, "render", cmd_render, 1, (
+        "Writes per pass (hit, distance, normal, albedo, material) a PNG for looking and an "
+        "EXR for use (distance in world units) and render.json into --out."))
+    render.add_argument("--frame", type=float, metavar="F",
+                        help="the timeline frame to pose the scene at (default: current)")
+    render.add_argument("--camera", metavar="NAME", help=(
+        "camera object (default: the scene's camera, else an orbit viewpoint)"))
+    render.add_argument("--references", action="store_true",
+                        help="also render the true and embedded references")
+    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
+
+    evaluate = _model_command(commands, "evaluate", cmd_evaluate, EVALUATION_POSES, (
+        "Poses are the evaluation poses of --seed: another random seed or frames between "
+        "the training frames, never trained on. Writes --json with variant, config, vs_true "
+        "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
+        "albedo_psnr, material_accuracy), timings and model_bytes."))
+    evaluate.add_argument("--rest-pose", action="store_true",
+                          help="evaluate on views of the undeformed rest pose instead")
+    evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
+                          help="write the comparison figures and error images here")
+    evaluate.add_argument("--json", type=pathlib.Path, metavar="PATH")

@@ -1,0 +1,338 @@
+"""What a saved model knows of itself: the scene it was trained on (object, grid, material
+slots, albedo table, training poses), its network config, its calibrated thresholds and how
+training went. ``ModelMetadata`` is frozen and checked once, in ``from_dict`` when a file is
+read and in the constructor when training makes one; readers use its attributes.
+
+The model file stores ``to_dict()``, plain data (numbers, strings, lists, dicts), as its
+metadata payload (``model_file``).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, NoReturn
+
+import numpy as np
+
+from ..errors import VDNIFError
+from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
+
+if TYPE_CHECKING:
+    from jaxtyping import Float
+
+FORMAT_VERSION = 3
+"""The model file's format: 3 holds ``ModelMetadata.to_dict()``. Files of an older format
+are refused (retrain them)."""
+
+GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
+"""The grid entries that place the voxels: the model's grid must be the capture's."""
+
+
+class _Reader:
+    """Typed reads of one plain-data mapping of the model file ``path``; every failure is a
+    one-line VDNIFError naming the file and the entry (``where``)."""
+
+    def __init__(self, path: str, data: Any, where: str = "") -> None:
+        self.path, self.where = path, where
+        if not isinstance(data, Mapping):
+            self.fail(f"{where or 'its metadata'} is not a mapping")
+        self.data = data
+
+    def fail(self, problem: str) -> NoReturn:
+        raise VDNIFError(f"model file {self.path} is damaged: {problem}")
+
+    def name(self, key: str) -> str:
+        return f"{self.where}.{key}" if self.where else key
+
+    def get(self, key: str) -> Any:
+        if key not in self.data:
+            self.fail(f"its metadata has no {self.name(key)}")
+        return self.data[key]
+
+    def child(self, key: str, default: Any = None) -> _Reader:
+        """The mapping at ``key`` (``default`` when absent and given)."""
+        value = self.data.get(key, default) if default is not None else self.get(key)
+        return _Reader(self.path, value, self.name(key))
+
+    def text(self, key: str) -> str:
+        value = self.get(key)
+        if not isinstance(value, str):
+            self.fail(f"its metadata {self.name(key)} {value!r} is not text")
+        return value
+
+    def integer(self, key: str, minimum: int = 0) -> int:
+        value = self.get(key)
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or (
+                value < minimum):
+            self.fail(f"its metadata {self.name(key)} {value!r} is not an integer of at "
+                      f"least {minimum}")
+        return int(value)
+
+    def number(self, key: str, positive: bool = False) -> float:
+        value = self.get(key)
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            self.fail(f"its metadata {self.name(key)} {value!r} is not a number")
+        if not math.isfinite(value):
+            self.fail(f"its metadata {self.name(key)} has non-finite values")
+        if positive and not value > 0:
+            self.fail(f"its metadata {self.name(key)} {value!r} must be positive")
+        return float(value)
+
+    def array(self, key: str, dtype: type, shape: tuple[int | None, ...]) -> np.ndarray:
+        """Numbers of ``shape`` (None: any length), finite."""
+        value = self.get(key)
+        try:
+            array = np.asarray(value, dtype)
+        except (TypeError, ValueError):
+            self.fail(f"its metadata {self.name(key)} is not numbers")
+        if array.ndim != len(shape) or any(
+                n is not None and size != n for size, n in zip(array.shape, shape)):
+            wanted = "x".join("n" if n is None else str(n) for n in shape)
+            self.fail(f"its metadata {self.name(key)} has shape {array.shape}, not {wanted}")
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            self.fail(f"its metadata {self.name(key)} has non-finite values")
+        if array.dtype.kind in "iu" and not np.array_equal(array, np.asarray(value)):
+            self.fail(f"its metadata {self.name(key)} is not integers")
+        return array
+
+    def optional_numbers(self, key: str) -> dict[str, float | None] | None:
+        """A mapping of names to finite numbers (or None), or None."""
+        value = self.get(key)
+        if value is None:
+            return None
+        reader = self.child(key)
+        return {name: None if item is None else reader.number(name)
+                for name, item in reader.data.items()}
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """The occlusion probability above which a segment is a hit, and the lower one above
+    which a ray's first segment places its hit (DESIGN section 9). Training calibrates both
+    on held-out poses; until then both are ``OCCLUSION_THRESHOLD``."""
+
+    occlusion: float = OCCLUSION_THRESHOLD
+    candidate: float = OCCLUSION_THRESHOLD
+
+    def __post_init__(self) -> None:
+        for name in ("occlusion", "candidate"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (
+                    0 < value <= 1):
+                raise VDNIFError(f"{name} threshold {value!r} must lie in (0, 1]")
+        if self.candidate > self.occlusion:
+            raise VDNIFError(f"candidate threshold {self.candidate} must be at most the "
+                             f"occlusion threshold {self.occlusion}")
+
+    def to_dict(self) -> dict[str, float]:
+        """Plain data for the model file."""
+        return {"occlusion": float(self.occlusion), "candidate": float(self.candidate)}
+
+    @classmethod
+    def read(cls, reader: _Reader) -> Thresholds:
+        """From the model file's entry (``reader``)."""
+        return cls(reader.number("occlusion"), reader.number("candidate"))
+
+
+@dataclass(frozen=True)
+class ModelGrid:
+    """The voxel grid the model was trained on (``voxels.VoxelGrid``'s placement) and the
+    fingerprint of the rest mesh voxelized (``model_file.mesh_fingerprint``; None where the
+    dataset named none, as the golden arm dataset of ``tests/golden`` does)."""
+
+    origin: tuple[float, float, float]
+    voxel_size: float
+    dims: tuple[int, int, int]
+    resolution: int
+    extent: float
+    occupied_voxels: int
+    mesh_fingerprint: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data, the dataset header's grid entry (``dataset.grid_header``)."""
+        return {"origin": list(self.origin), "voxel_size": self.voxel_size,
+                "dims": list(self.dims), "resolution": self.resolution, "extent": self.extent,
+                "occupied_voxels": self.occupied_voxels,
+                "mesh_fingerprint": self.mesh_fingerprint}
+
+    @classmethod
+    def read(cls, reader: _Reader) -> ModelGrid:
+        """From the model file's (or a dataset header's) grid entry (``reader``)."""
+        if any(key not in reader.data for key in GRID_KEYS):
+            raise VDNIFError(f"model file {reader.path} has no complete grid in its metadata "
+                             f"({', '.join(GRID_KEYS)})")
+        resolution = reader.data["resolution"]
+        if isinstance(resolution, bool) or not isinstance(resolution, numbers.Integral):
+            raise VDNIFError(f"model file {reader.path}: grid resolution {resolution!r} is not "
+                             "an integer")
+        dims = reader.array("dims", np.int64, (3,))
+        if (dims < 1).any():
+            reader.fail(f"its metadata grid dims {dims.tolist()} are not positive")
+        return cls(origin=tuple(reader.array("origin", np.float64, (3,)).tolist()),
+                   voxel_size=reader.number("voxel_size", positive=True),
+                   dims=tuple(dims.tolist()), resolution=reader.integer("resolution", 1),
+                   extent=reader.number("extent", positive=True),
+                   occupied_voxels=reader.integer("occupied_voxels"),
+                   mesh_fingerprint=None if reader.get("mesh_fingerprint") is None
+                   else reader.text("mesh_fingerprint"))
+
+
+@dataclass(frozen=True)
+class TrainingSummary:
+    """How training went (``train.TrainResult.summary``): status ("completed" or
+    "cancelled"), optimizer steps, wall seconds and samples per second, the metrics on the
+    held-out poses (None without any), the loss weighting's final log-variances, the
+    held-out pose indices, the processes and the TrainConfig as plain data."""
+
+    status: str
+    steps: int
+    seconds: float
+    samples_per_s: float
+    validation: Mapping[str, float | None] | None
+    log_variances: Mapping[str, float]
+    val_poses: tuple[int, ...]
+    world_size: int
+    config: Mapping[str, Any]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (JSON-ready)."""
+        return {"status": self.status, "steps": self.steps, "seconds": self.seconds,
+                "samples_per_s": self.samples_per_s,
+                "validation": None if self.validation is None else dict(self.validation),
+                "log_variances": dict(self.log_variances), "val_poses": list(self.val_poses),
+                "world_size": self.world_size, "config": dict(self.config)}
+
+    @classmethod
+    def read(cls, reader: _Reader) -> TrainingSummary:
+        """From the model file's entry (``reader``)."""
+        config = reader.child("config")
+        return cls(status=reader.text("status"), steps=reader.integer("steps"),
+                   seconds=reader.number("seconds"),
+                   samples_per_s=reader.number("samples_per_s"),
+                   validation=reader.optional_numbers("validation"),
+                   log_variances=reader.optional_numbers("log_variances") or {},
+                   val_poses=tuple(reader.array("val_poses", np.int64, (None,)).tolist()),
+                   world_size=reader.integer("world_size", 1), config=dict(config.data))
+
+
+@dataclass(frozen=True)
+class DatasetSource:
+    """The dataset the model was trained on: folder, shard names, pose and segment counts."""
+
+    folder: str
+    shards: tuple[str, ...]
+    poses: int
+    segments: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data."""
+        return {"folder": self.folder, "shards": list(self.shards), "poses": self.poses,
+                "segments": self.segments}
+
+    @classmethod
+    def read(cls, reader: _Reader) -> DatasetSource:
+        """From the model file's entry (``reader``)."""
+        shards = reader.get("shards")
+        if not isinstance(shards, Sequence) or not all(isinstance(s, str) for s in shards):
+            reader.fail("its metadata dataset.shards is not a list of names")
+        return cls(folder=reader.text("folder"), shards=tuple(shards),
+                   poses=reader.integer("poses"), segments=reader.integer("segments"))
+
+
+@dataclass(frozen=True)
+class ModelMetadata:
+    """Everything a model file holds besides its weights (module docstring).
+
+    ``material_slots``: the object's used material slots, the network's materials in order;
+    ``albedo_table``: (rows, 3) constant albedo per material, read by the render kernels by
+    material (at least ``network_config.heads.material_count`` rows); ``train_poses``: the
+    pose descriptions trained on (``poses.make_poses``), which evaluation avoids.
+    """
+
+    object: str
+    object_size: float
+    variant: str
+    network_config: NetworkConfig
+    grid: ModelGrid
+    material_slots: tuple[int, ...]
+    albedo_table: tuple[tuple[float, float, float], ...]
+    thresholds: Thresholds
+    train_poses: tuple[Mapping[str, Any], ...]
+    training: TrainingSummary
+    dataset: DatasetSource
+    vdnif_version: str
+    version: int = FORMAT_VERSION
+
+    def __post_init__(self) -> None:
+        materials = self.network_config.heads.material_count
+        if len(self.albedo_table) < materials:
+            raise VDNIFError(f"its albedo table has {len(self.albedo_table)} rows for "
+                             f"{materials} materials")
+        if len(self.material_slots) != materials or min(self.material_slots) < 0:
+            raise VDNIFError(f"its material slots {list(self.material_slots)} are not "
+                             f"{materials} slot indices")
+
+    def albedo_colors(self) -> Float[np.ndarray, "rows 3"]:
+        """The albedo table as the render kernels read it, (rows, 3) float32."""
+        return np.array(self.albedo_table, np.float32).reshape(-1, 3)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for the model file (numbers, strings, lists, dicts)."""
+        return {"version": self.version, "object": self.object,
+                "object_size": self.object_size, "variant": self.variant,
+                "network_config": self.network_config.to_dict(), "grid": self.grid.to_dict(),
+                "material_slots": list(self.material_slots),
+                "albedo_table": [list(row) for row in self.albedo_table],
+                "thresholds": self.thresholds.to_dict(),
+                "train_poses": [dict(pose) for pose in self.train_poses],
+                "training": self.training.to_dict(), "dataset": self.dataset.to_dict(),
+                "vdnif_version": self.vdnif_version}
+
+    @classmethod
+    def from_dict(cls, data: Any, path: str) -> ModelMetadata:
+        """Inverse of ``to_dict`` for the model file ``path``: every entry checked (types,
+        finite numbers, a complete grid, the albedo table and the material slots against
+        the network's materials, thresholds in (0, 1]); a failure is a one-line VDNIFError
+        naming the file. ``training.fit`` makes the metadata it writes with it too."""
+        reader = _Reader(path, data)
+        version = reader.integer("version")
+        if version != FORMAT_VERSION:
+            raise VDNIFError(outdated(path, version))
+        try:
+            config = NetworkConfig.from_dict(reader.get("network_config"))
+        except (VDNIFError, TypeError) as exc:
+            reader.fail(f"its network config is invalid: {exc}")
+        poses = reader.get("train_poses")
+        if not isinstance(poses, Sequence) or not all(
+                isinstance(pose, Mapping) and all(isinstance(k, str) for k in pose)
+                for pose in poses):
+            reader.fail("its metadata train_poses is not a list of pose descriptions")
+        albedo = reader.array("albedo_table", np.float64, (None, 3)).astype(np.float32)
+        try:
+            return cls(object=reader.text("object"),
+                       object_size=reader.number("object_size", positive=True),
+                       variant=reader.text("variant"), network_config=config,
+                       grid=ModelGrid.read(reader.child("grid", {})),
+                       material_slots=tuple(
+                           reader.array("material_slots", np.int64, (None,)).tolist()),
+                       albedo_table=tuple(tuple(row) for row in albedo.tolist()),
+                       thresholds=Thresholds.read(reader.child("thresholds")),
+                       train_poses=tuple(dict(pose) for pose in poses),
+                       training=TrainingSummary.read(reader.child("training")),
+                       dataset=DatasetSource.read(reader.child("dataset")),
+                       vdnif_version=reader.text("vdnif_version"), version=version)
+        except VDNIFError as exc:
+            if str(exc).startswith(f"model file {path}"):
+                raise
+            reader.fail(str(exc))
+
+def outdated(path: str, version: object) -> str:
+    """The one line that refuses a model file of another format version than this add-on's."""
+    if isinstance(version, int) and version > FORMAT_VERSION:
+        return (f"model file {path} has format version {version}, newer than this add-on "
+                f"reads ({FORMAT_VERSION}); update the add-on")
+    return (f"model file {path} has format version {version!r}, older than this add-on "
+            f"reads ({FORMAT_VERSION}): train it again")
