@@ -184,8 +184,8 @@ STEP_ROWS = (
     ("neural: render (walk + network)", "neural_render_s"),
     ("neural render: walk (seconds inside the render)", "neural_walk_s"),
     ("neural render: network (seconds inside the render)", "neural_network_s"),
-    ("rest view: deformed walk (`traverse.traverse`)", "deformed_walk_s"),
-    ("rest view: static DDA walk (`dda.StaticGrid`)", "static_walk_s"),
+    ("rest view: deformed walk (`tracing.traverse.traverse`)", "deformed_walk_s"),
+    ("rest view: static DDA walk (`tracing.static_grid.StaticGrid`)", "static_walk_s"),
     ("rest view: network over every walked segment", "all_segments_network_s"),
 )
 
@@ -217,9 +217,10 @@ def _what_is_timed(result):
         "through Python indexing: its 'copy' step is the binding's cost, the 'commit' step "
         "Embree's own build). The **neural** path re-evaluates the corner "
         "helper's modifiers, reads the deformed corners and refits the cells and the entry "
-        "BVH (its preparation), then renders (`render.neural_passes`: walk + network in "
-        "waves, a ray stops at its first predicted hit). On the rest pose, the deformed walk "
-        "(`traverse.traverse`) is timed against the static DDA walk (`dda.StaticGrid`) of the "
+        "BVH (its preparation), then renders (`inference.neural_render.neural_passes`: walk "
+        "+ network in waves, a ray stops at its first predicted hit). On the rest pose, the "
+        "deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
+        "(`tracing.static_grid.StaticGrid`) of the "
         "same rays, and the network over every walked segment is added to both. Each ratio "
         "is computed within one repeat from the per-pose means of both sides, timed "
         "alternately in one process after one untimed pass.")

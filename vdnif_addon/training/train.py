@@ -1,8 +1,8 @@
 """Training: Adam with a decaying learning rate, validation on held-out poses, progress and
 cooperative cancel, and data-parallel training when launched under ``torchrun``.
 
-The data (``training_data``: its module docstring gives the contract), the held-out metrics
-and threshold (``validation``), the progress records (``training_log``) and the process
+The data (``training.data``: its module docstring gives the contract), the held-out metrics
+and threshold (``validation``), the progress records (``training.log``) and the process
 group (``distributed``) have modules of their own; this one holds the loop.
 
 Non-finite values: training raises VDNIFError naming the step (1-based, before its update),

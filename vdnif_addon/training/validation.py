@@ -50,7 +50,7 @@ threshold 0.44), and rises above (0.236 at 0.2)."""
 def evaluation_sums(
     network: IntersectionNetwork, data: Segments, voxel_size: float, batch: int
 ) -> Float64[torch.Tensor, " quantities"]:
-    """Per-quantity sums (len(SUMS),) float64 over ``data`` (``training_data.Segments``),
+    """Per-quantity sums (len(SUMS),) float64 over ``data`` (``training.data.Segments``),
     summable across processes."""
     mode = network.config.distance_mode
     sums = torch.zeros(len(SUMS), dtype=torch.float64, device=data["p0"].device)
@@ -119,7 +119,7 @@ def evaluate(
     voxel_size: float,
     batch: int = 2**16,
 ) -> dict[str, float]:
-    """Task losses and metrics of ``network`` on ``training_data.load_segments`` tensors.
+    """Task losses and metrics of ``network`` on ``training.data.load_segments`` tensors.
 
     Hit-dependent metrics use the true hits: ``distance_mae`` (rest units; also in voxels),
     ``normal_error_deg``, ``material_accuracy``; ``occlusion_accuracy`` uses every segment.
@@ -188,7 +188,7 @@ def calibrate_candidate_threshold(
     batch: int = 2**16,
 ) -> float:
     """The candidate threshold that places hits best on ``data`` (the held-out poses, with
-    ``training_data.RAY_FIELDS``; a ray's rows in walk order): among CANDIDATE_THRESHOLDS
+    ``training.data.RAY_FIELDS``; a ray's rows in walk order): among CANDIDATE_THRESHOLDS
     below the ``occlusion`` threshold and that threshold itself, the one with the least
     mean |D - D_ref| over the rays that the reference and the network both hit, D the
     deformed distance ``t0 + fraction * seg_len`` on the ray's first segment above it, D_ref
