@@ -1,10 +1,11 @@
 """Writes the golden files the regression tests compare against.
 
-The dataset, its inputs, the loss curve and the references were produced by the numpy/torch
-pipeline before compiled kernels replaced it (the commit that added this folder), and are
-not meant to be regenerated: a later pipeline must reproduce them within the tolerances its
-tests state. The model files follow the model format: when it changes they are written
-again by today's code (``train-model``, ``render``). Run from the repository root with the
+The dataset, its inputs and the references come from the numpy/torch pipeline that the
+compiled kernels replaced; today's kernels reproduce them within the tolerances their tests
+state, and the loss curve trains on that dataset, so they are kept as independent
+references rather than regenerated. The loss curve, the model files and the rendered passes
+are today's code's (``train``, ``train-model``, ``render``): a change that moves them on
+purpose writes them again and says why in its commit. Run from the repository root with the
 bpy module, naming the parts to write (default: all):
 
     python tests/golden/make_goldens.py [dataset] [train] [train-model] [render] [references]
