@@ -17,8 +17,9 @@ from dataset_headers import header_dict
 
 from vdnif_addon import limits
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry.voxels import GRID_KEYS
 from vdnif_addon.training import dataset
-from vdnif_addon.training.header import GRID_KEYS, MAX_DEPTH, VERSION, DatasetHeader
+from vdnif_addon.training.header import MAX_DEPTH, VERSION, DatasetHeader
 
 GOLDEN_SHARD = REPO / "tests" / "golden" / "arm-dataset" / "shard-000000-000003.json"
 

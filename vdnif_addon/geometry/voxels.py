@@ -55,6 +55,10 @@ _EDGE_HIGH = np.arange(8)[:, None] | _AXIS_BITS
 _BOX_AXIS_CROSS = np.cross(np.eye(3)[:, None, :], np.eye(3)[None, :, :])
 
 
+GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
+"""What places a voxel grid in rest space, as dataset headers and model files store it."""
+
+
 @dataclass(frozen=True, eq=False)
 class VoxelGrid:
     """The occupied cells of a padded rest-space grid, stored sparsely.

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import numpy as np
 
 from ..errors import VDNIFError
+from ..geometry.voxels import GRID_KEYS
 from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
 
 if TYPE_CHECKING:
@@ -27,7 +28,6 @@ FORMAT_VERSION = 3
 """The model file's format: 3 holds ``ModelMetadata.to_dict()``. Files of an older format
 are refused (retrain them)."""
 
-GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
 """The grid entries that place the voxels: the model's grid must be the capture's."""
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any, NoReturn
 
 from ..errors import VDNIFError
+from ..geometry.voxels import GRID_KEYS
 from ..limits import (
     MAX_OBJECT_SIZE,
     MAX_POSES,
@@ -29,7 +30,6 @@ from ..settings import MAX_MATERIALS, MAX_RESOLUTION, MIN_RESOLUTION, Heads
 
 FORMAT = "vdnif-dataset"
 VERSION = 1
-GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
 """Where the grid lies: what every shard of a folder shares (``GridHeader.placement``)."""
 MAX_DEPTH = 16
 """Nesting of a header's JSON (a lattice pose is 6 deep): deeper is not a header, and is
