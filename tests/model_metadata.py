@@ -1,7 +1,7 @@
 """Model metadata for tests, made as ``training.fit`` makes it: plain data read back by
-``ModelMetadata.from_dict``, so that every test's metadata passes the file's checks."""
-
-from vdnif_addon.model.metadata import FORMAT_VERSION
+``ModelMetadata.from_dict``, so that every test's metadata passes the file's checks. It
+imports no copy of the core: the caller's ``metadata`` module (``vdnif_addon.model.metadata``
+or the extension's) gives the format version, so a test file keeps to one identity."""
 
 GRID = {"origin": [-1.0, -2.0, 0.5], "voxel_size": 0.125, "dims": [8, 8, 4], "resolution": 8,
         "extent": 1.0, "occupied_voxels": 100, "mesh_fingerprint": "0" * 64}
@@ -11,11 +11,13 @@ TRAINING = {"status": "completed", "steps": 12, "seconds": 1.5, "samples_per_s":
             "val_poses": [1, 4], "world_size": 1, "config": {"steps": 12}}
 
 
-def metadata_dict(network_config, **changes):
-    """Plain metadata of a model built with ``network_config``: a made-up grid and one
-    albedo row (and material slot) per material, unless ``changes`` say otherwise."""
+def metadata_dict(metadata, network_config, **changes):
+    """Plain metadata of a model built with ``network_config``, of ``metadata``'s format
+    version: a made-up grid and one albedo row (and material slot) per material, unless
+    ``changes`` say otherwise."""
     materials = network_config.heads.material_count
-    data = {"version": FORMAT_VERSION, "object": "Arm", "object_size": 3.0, "variant": "proposed",
+    data = {"version": metadata.FORMAT_VERSION, "object": "Arm", "object_size": 3.0,
+            "variant": "proposed",
             "network_config": network_config.to_dict(), "grid": dict(GRID),
             "material_slots": list(range(materials)),
             "albedo_table": [[0.1 * (i + 1), 0.2, 0.3] for i in range(materials)],
@@ -35,8 +37,8 @@ def capture_metadata(core, capture, **changes):
     config = settings.NetworkConfig(heads=settings.Heads(albedo=bool(mesh.albedo_varies),
                                                          material_count=mesh.material_count))
     data = metadata_dict(
-        config, object=mesh.name, object_size=mesh.size,
-        grid=core("training.dataset").grid_header(capture.grid, mesh),
+        core("model.metadata"), config, object=mesh.name, object_size=mesh.size,
+        grid=core("training.dataset").grid_header(capture.grid, mesh).to_dict(),
         material_slots=mesh.material_slots.tolist(), albedo_table=mesh.albedo_table().tolist(),
         train_poses=[])
     data.update(changes)

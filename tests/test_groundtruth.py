@@ -167,7 +167,7 @@ def test_dataset_equals_the_golden_shard(empty_scene, core, tmp_path):
     groundtruth = core("tracing.groundtruth")
     triangle, *_ = groundtruth.rest_surface(mesh).cast_segments(
         p0, p1, np.zeros(len(p0), int), groundtruth.BOUNDARY_MARGIN * mesh.size)
-    brute = core("tracing.traverse").BruteForceCaster(mesh.vertices[mesh.triangles])
+    brute = extension_oracle("geometry").BruteForceCaster(mesh.vertices[mesh.triangles])
     length = np.linalg.norm(p1 - p0, axis=1)
     direction = (p1 - p0) / np.where(length > 0, length, 1.0)[:, None]
     grow = 2 * groundtruth.BOUNDARY_MARGIN * mesh.size

@@ -11,6 +11,7 @@ from model_metadata import metadata_dict
 from oracles import encoding_torch as oracle
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.model import metadata as metadata_module
 from vdnif_addon.model import model_file
 from vdnif_addon.model.metadata import FORMAT_VERSION, ModelMetadata, Thresholds
 from vdnif_addon.model.model_file import load_model, model_bytes, save_model
@@ -30,7 +31,7 @@ CONFIG = NetworkConfig(
 
 
 def metadata(config=CONFIG, **changes):
-    return ModelMetadata.from_dict(metadata_dict(config, **changes), "test.vdnif")
+    return ModelMetadata.from_dict(metadata_dict(metadata_module, config, **changes), "test.vdnif")
 
 
 META = metadata()
@@ -60,8 +61,8 @@ def test_round_trip_gives_identical_outputs_and_metadata(saved, network):
     assert all(torch.equal(expected[key], actual[key]) for key in expected)
     assert meta.training.steps == 12 and meta.training.val_poses == (1, 4)
     assert meta.grid.origin == (-1.0, -2.0, 0.5) and meta.grid.resolution == 8
-    np.testing.assert_array_equal(meta.albedo_colors(),
-                                  np.array(metadata_dict(CONFIG)["albedo_table"], np.float32))
+    table = metadata_dict(metadata_module, CONFIG)["albedo_table"]
+    np.testing.assert_array_equal(meta.albedo_colors(), np.array(table, np.float32))
     assert meta.albedo_colors().dtype == np.float32 and meta.material_slots == (0, 1, 2)
     assert meta.train_poses == ({"frame": 1.0},)
     assert model_bytes(saved) == os.path.getsize(saved) > 0

@@ -35,7 +35,8 @@ def walk_pose(core, obj, capture, pose, size=32):
             geometry.cells, capture.mesh, posed_object.rest_caster, origins, directions)
         truth = refs.true_reference(
             capture.mesh, geometry.mesh_caster(capture.mesh.triangles), origins, directions)
-        corners = geometry.cells.cell_corner_positions().reshape(-1, 3)
+        cells = geometry.cells
+        corners = cells.corners[cells.grid.cell_corners].reshape(-1, 3)
         inverted = core("geometry.voxels").inverted_cells(
             corners, np.arange(len(corners)).reshape(-1, 8))
     return dict(segments=segments, targets=targets, embedded=embedded, truth=truth,

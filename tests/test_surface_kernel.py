@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 import warp as wp
 from oracles import surface_casts as oracle
+from oracles.geometry import BruteForceCaster
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.geometry import voxels, walk_rules
 from vdnif_addon.geometry.restmesh import Albedo, RestMesh
 from vdnif_addon.kernels import runtime, surface
-from vdnif_addon.tracing import groundtruth, references, traverse
+from vdnif_addon.tracing import groundtruth, references
 
 # Degenerate input must be handled explicitly: any numpy floating-point warning fails a test.
 pytestmark = pytest.mark.filterwarnings("error")
@@ -201,7 +202,7 @@ def test_rays_equal_the_numpy_pipeline_with_brute_force():
     directions = unit(rng.uniform(-1, 1, (3000, 3)) - origins)
     found = groundtruth.cast_surface(mesh, groundtruth.rest_surface(mesh), origins,
                                      directions, np.inf)
-    brute = traverse.BruteForceCaster(mesh.vertices[mesh.triangles])
+    brute = BruteForceCaster(mesh.vertices[mesh.triangles])
     assert_hits_equal(found, oracle.cast_surface(mesh, brute, origins, directions,
                                                  np.full(3000, np.inf)), mesh.size)
 
@@ -232,7 +233,7 @@ def test_segments_equal_the_numpy_pipeline_with_brute_force(by_cell):
     segments = cell_segments(grid, np.random.default_rng(4), 20000)
     caster = groundtruth.rest_surface(mesh, grid if by_cell else None)
     found = groundtruth.segment_targets(mesh, caster, segments)
-    brute = traverse.BruteForceCaster(mesh.vertices[mesh.triangles])
+    brute = BruteForceCaster(mesh.vertices[mesh.triangles])
     expected = oracle.segment_targets(mesh, brute, segments)
     assert not found.hit[:5].any()
     assert_hits_equal(found, expected, mesh.size)
@@ -276,7 +277,7 @@ def test_true_reference_is_the_cast_of_its_pose():
     origins = 3 * unit(rng.normal(size=(2000, 3)))
     directions = unit(rng.uniform(-1, 1, (2000, 3)) - origins)
     passes = references.true_reference(mesh, caster, origins, directions)
-    brute = traverse.BruteForceCaster(moved[mesh.triangles])
+    brute = BruteForceCaster(moved[mesh.triangles])
     expected = oracle.cast_surface(mesh, brute, origins, directions, np.full(2000, np.inf),
                                    vertices=moved)
     np.testing.assert_array_equal(passes.hit, expected.hit)

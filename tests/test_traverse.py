@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from oracles import walk as oracle
+from oracles.geometry import BruteForceCaster
 
 from vdnif_addon.geometry import voxels
 from vdnif_addon.geometry import walk_rules as rules
@@ -158,7 +159,7 @@ def test_special_rays_terminate_without_nan(name, origin, direction):
         # the same walk rules (the numpy walk) entering through the lowest-numbered of the
         # tied triangles, as a brute-force caster breaks the tie, cover every touched box
         cells = oracle.DeformedCells(grid, grid.corner_positions())
-        brute = oracle.traverse(cells, tv.BruteForceCaster(cells.boundary_triangles()),
+        brute = oracle.traverse(cells, BruteForceCaster(cells.boundary_triangles()),
                                 origin, direction)
         np.testing.assert_allclose(brute.length.sum(), union_length(near, far), atol=1e-6)
     else:

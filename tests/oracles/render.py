@@ -9,8 +9,8 @@ made a hit, ending its walk, by its first segment predicted hit (DESIGN section 
 import numpy as np
 import torch
 
+from oracles.geometry import deformed_normals, trilinear_jacobian
 from oracles.walk import Walk
-from vdnif_addon.geometry.attributes import deformed_normals, trilinear_jacobian
 from vdnif_addon.inference.neural_render import predict_segments
 from vdnif_addon.passes import Passes
 

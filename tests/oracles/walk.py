@@ -10,6 +10,7 @@ together, so the global step count is every ray's own step count).
 
 import numpy as np
 
+from oracles.geometry import _crossings, _dot, entry_cast, ray_triangle
 from vdnif_addon.geometry.walk_rules import (
     CELL_TRIANGLES,
     OPPOSITE_FACE,
@@ -18,7 +19,6 @@ from vdnif_addon.geometry.walk_rules import (
     Segments,
     step_budget,
 )
-from vdnif_addon.tracing.traverse import _crossings, _dot, ray_triangle
 
 WALK_CHUNK = 1 << 14             # walkers per vectorized intersection batch (bounds memory)
 
@@ -89,6 +89,13 @@ class Walk:
         self.pieces, self.taken, self.steps, self.given_up = [], 0, 0, 0
         self.seek(np.arange(rays), np.zeros(rays), first=True)
 
+
+    def _cast(self, origins, directions, max_distance):
+        """The entry caster's first hits: a DeviceCells' entry BVH (as the kernel casts), or
+        any caster with a ``cast`` of that signature (the brute-force one)."""
+        if hasattr(self.caster, "entry"):
+            return entry_cast(self.caster, origins, directions, max_distance)
+        return self.caster.cast(origins, directions, max_distance)
     def active(self):
         return len(self.ray)
 
@@ -121,7 +128,7 @@ class Walk:
             ok = remaining >= 0
             rays, t_from, remaining = rays[ok], t_from[ok], remaining[ok]
             start = self.origins[rays] + t_from[:, None] * self.directions[rays]
-            index, t = self.caster.cast(start, self.directions[rays], remaining)
+            index, t = self._cast(start, self.directions[rays], remaining)
             hit = index >= 0
             rays, index, t_from = rays[hit], index[hit], t_from[hit]
             t, u, v, leaving = self._crossing(rays, index, t[hit] + t_from)
@@ -150,7 +157,7 @@ class Walk:
         if not len(inside):
             return
         start = self.origins[rays[inside]] + t_from[inside, None] * self.directions[rays[inside]]
-        back_index, back_t = self.caster.cast(start, -self.directions[rays[inside]],
+        back_index, back_t = self._cast(start, -self.directions[rays[inside]],
                                               np.full(len(inside), 2.0 * self.step))
         found = back_index >= 0
         inside, back_index, back_t = inside[found], back_index[found], back_t[found]
@@ -179,7 +186,7 @@ class Walk:
         return np.where(close, exact, t), u, v, outward
 
     def _start_inside(self, rays):
-        back_index, back_t = self.caster.cast(self.origins[rays], -self.directions[rays],
+        back_index, back_t = self._cast(self.origins[rays], -self.directions[rays],
                                               np.full(len(rays), np.inf))
         found = back_index >= 0
         t, u, v = np.zeros(len(rays)), np.zeros(len(rays)), np.zeros(len(rays))

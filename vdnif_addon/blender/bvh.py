@@ -10,7 +10,7 @@ from mathutils.bvhtree import BVHTree
 
 class BVHCaster:
     """First hits of rays against a triangle mesh; same interface as
-    ``traverse.BruteForceCaster``."""
+    ``BruteForceCaster`` (tests/oracles/geometry.py)."""
 
     def __init__(self, vertices, triangles):
         """``vertices`` (V, 3), ``triangles`` (T, 3) vertex indices; hit indices are rows

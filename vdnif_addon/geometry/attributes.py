@@ -14,7 +14,6 @@ import numpy as np
 
 from ..errors import VDNIFError
 from .restmesh import TEXTURE_EXTENSIONS, RestMesh
-from .voxels import CORNER_OFFSETS
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int
@@ -144,51 +143,6 @@ def _albedo(mesh: RestMesh, source: Albedo, triangle: Int[np.ndarray, " n"],
     if source.kind == "attribute" and mesh.corner_colors is not None:
         return interpolate(np.asarray(mesh.corner_colors, dtype=np.float64)[triangle], weights)
     return source.color
-
-
-def _trilinear_factors(local: Float[np.ndarray, "N 3"]) -> Float[np.ndarray, "N 8 3"]:
-    """(N, 8, 3) per-axis linear factors of each corner's weight: u or 1 - u by the corner's
-    offset along that axis."""
-    local = np.asarray(local, dtype=np.float64)[:, None, :]
-    return np.where(CORNER_OFFSETS == 1, local, 1.0 - local)
-
-
-def trilinear_map(cell_corners: Float[np.ndarray, "N 8 3"], local: Float[np.ndarray, "N 3"]
-                  ) -> Float[np.ndarray, "N 3"]:
-    """(N, 3) point x(u) = sum_c w_c(u) X_c of cells with corners (N, 8, 3) (corner
-    c = dx + 2 dy + 4 dz) at local coordinates u (N, 3) in [0, 1]^3."""
-    return np.einsum("nc,nci->ni", _trilinear_factors(local).prod(axis=2), cell_corners)
-
-
-def trilinear_jacobian(cell_corners: Float[np.ndarray, "N 8 3"],
-                       local: Float[np.ndarray, "N 3"]) -> Float[np.ndarray, "N 3 3"]:
-    """(N, 3, 3) Jacobian dx/du of ``trilinear_map``; column j is the derivative along u_j."""
-    factors = _trilinear_factors(local)
-    others = factors[:, :, [[1, 2], [0, 2], [0, 1]]].prod(axis=3)      # (N, 8, 3)
-    derivative = np.where(CORNER_OFFSETS == 1, others, -others)         # dw_c / du_j
-    return np.einsum("nci,ncj->nij", np.asarray(cell_corners, dtype=np.float64), derivative)
-
-
-def deformed_normals(rest_normals: Float[np.ndarray, "N 3"],
-                     jacobian: Float[np.ndarray, "N 3 3"]) -> Float[np.ndarray, "N 3"]:
-    """(N, 3) unit normals normalize(J^-T n) of rest normals (N, 3) under Jacobians (N, 3, 3).
-
-    Computed as sign(det J) cof(J) n, with cof(J) = det(J) J^-T built from cross products of
-    J's columns: finite for every J, and equal to J^-T n up to a positive factor. J is first
-    scaled to unit max entry (a uniform scale leaves the result unchanged), so nothing
-    overflows. A singular J counts as det >= 0; where the cofactor normal vanishes (J of rank
-    <= 1, or n in its null space) the rest normal is returned.
-    """
-    rest = normalize(rest_normals, FALLBACK_NORMAL)
-    jacobian = np.asarray(jacobian, dtype=np.float64)
-    scale = np.abs(jacobian).max(axis=(1, 2), initial=0.0)[:, None, None]
-    j = jacobian / np.where(scale > 0, scale, 1.0)
-    a, b, c = j[:, :, 0], j[:, :, 1], j[:, :, 2]
-    cofactor = np.stack([np.cross(b, c), np.cross(c, a), np.cross(a, b)], axis=2)
-    sign = np.where(_dot(a, cofactor[:, :, 0]) < 0, -1.0, 1.0)[:, None]
-    deformed = sign * np.einsum("nij,nj->ni", cofactor, rest)
-    tiny = np.linalg.norm(deformed, axis=1, keepdims=True) <= SINGULAR_COFACTOR
-    return normalize(np.where(tiny, 0.0, deformed), rest)
 
 
 def sample_surface(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],

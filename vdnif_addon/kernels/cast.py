@@ -3,7 +3,8 @@
 The caster behind every ray query of the pipeline: the entry faces of the deformed cells, the
 rest mesh for segment ground truth, the deformed mesh for the true reference. A mesh whose
 vertices move but keep their triangles is ``refit`` (bounds updated in place) rather than
-rebuilt. Same interface as ``traverse.BruteForceCaster``, the reference it is tested against.
+rebuilt. Same interface as ``BruteForceCaster`` (tests/oracles/geometry.py), the reference
+it is tested against.
 Geometry is float32 in the BVH (as in Blender's BVHTree); callers that need more refine the
 hit on its triangle in float64.
 """

@@ -33,7 +33,7 @@ from . import runtime
 from .cast import MeshCaster
 
 if TYPE_CHECKING:
-    from jaxtyping import Float, Int
+    from jaxtyping import Float
 
     from ..geometry.voxels import VoxelGrid
 
@@ -98,7 +98,8 @@ def maximum(a: wp.float64, b: wp.float64) -> wp.float64:
 @wp.func
 def intersect(o: wp.vec3d, d: wp.vec3d, a: wp.vec3d, e1: wp.vec3d, e2: wp.vec3d,
               scale: wp.float64):
-    """Möller-Trumbore, as ``traverse.ray_triangle``: (t, u, v, hit, outward)."""
+    """Möller-Trumbore, as the oracle ``ray_triangle`` (tests/oracles/geometry.py): (t, u, v,
+    hit, outward)."""
     p = cross(d, e2)
     det = dot(e1, p)
     usable = wp.abs(det) > USABLE_DETERMINANT * wp.max(scale, TINY_SCALE)
@@ -248,24 +249,5 @@ class DeviceCells:
         self.pose += 1
         return self
 
-    def cast(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
-             max_distance: Float[np.ndarray, " N"]
-             ) -> tuple[Int[np.ndarray, " N"], Float[np.ndarray, " N"]]:
-        """First hits of rays (N, 3) on the entry BVH within ``max_distance`` (N,), in
-        object units: (index (N,) int64, -1 on a miss; t (N,) inf on a miss). The walk
-        kernel casts the same way (``entry_cast``); the walk's oracle casts with this."""
-        index, t = self.entry.cast(self._in_frame(origins), directions,
-                                   np.asarray(max_distance, np.float64) / self.frame_scale)
-        return index, t * self.frame_scale
-
     def _in_frame(self, points: Float[np.ndarray, "*batch 3"]) -> Float[np.ndarray, "*batch 3"]:
         return (np.asarray(points, np.float64) - self.frame_origin) / self.frame_scale
-
-    def cell_corner_positions(self) -> Float[np.ndarray, "N 8 3"]:
-        """(N, 8, 3) float64 deformed corners of every cell in the current pose."""
-        return self.corners[self.grid.cell_corners]
-
-    def boundary_triangles(self) -> Float[np.ndarray, "K 3 3"]:
-        """(K, 3, 3) deformed corners of the entry BVH's triangles (rows of ``entry``)."""
-        local = CELL_TRIANGLES[self.boundary_triangle]
-        return self.cell_corner_positions()[self.boundary_cell[:, None], local]

@@ -4,10 +4,10 @@ passes (DESIGN section 9).
 A hit on segment ``(t0, t1, p0, p1)`` of cell ``cell`` at ``fraction`` of its length has the
 deformed distance ``t0 + fraction (t1 - t0)``; its rest normal is carried to deformed space by
 ``J^-T``, J the Jacobian of the cell's trilinear map at the rest hit point, computed as
-``attributes.deformed_normals`` does (sign(det J) cof(J) n with J scaled to unit max entry, the
-rest normal kept where the cofactor normal vanishes). The renderer
-(``inference/neural_render.py``) and the embedded reference (``tracing/references.py``,
-``set_hits``) both make their passes here.
+sign(det J) cof(J) n with J scaled to unit max entry, the rest normal kept where the
+cofactor normal vanishes (the oracle ``deformed_normals`` in tests/oracles/geometry.py). The
+renderer (``inference/neural_render.py``) and the embedded reference
+(``tracing/references.py``, ``set_hits``) both make their passes here.
 """
 
 from __future__ import annotations
