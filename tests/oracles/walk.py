@@ -230,7 +230,8 @@ class Walk:
                                  np.where(touching, t, -np.inf).argmax(1))
         lost = ~touching.any(1)
         rows = np.arange(len(ray))
-        t_out = np.maximum(t[rows, exit_triangle], t_in)
+        # a lost walker (nothing touched) has no exit: its t stays, and it re-seeks below
+        t_out = np.where(lost, t_in, np.maximum(t[rows, exit_triangle], t_in))
         p_out = self.cells.rest_point(cell, exit_triangle, u[rows, exit_triangle],
                                       v[rows, exit_triangle])
         beyond = t_out <= self.far[ray]

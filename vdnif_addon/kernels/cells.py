@@ -138,7 +138,8 @@ def boundary_crossing(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, face: wp.int3
 @wp.func
 def entry_cast(cells: CellArrays, start: wp.vec3d, d: wp.vec3d, limit: wp.float64):
     """The entry BVH's first hit along unit ``d`` from ``start`` within ``limit`` (object
-    units): (found, face, t in object units), rounded as ``DeviceCells.cast`` rounds."""
+    units): (found, face, t in object units), in the BVH's float32 frame (the oracle's
+    ``entry_cast`` in tests/oracles/geometry.py casts the same way)."""
     s = (start - cells.frame_origin) / cells.frame_scale
     query = wp.mesh_query_ray(
         cells.mesh, wp.vec3(wp.float32(s[0]), wp.float32(s[1]), wp.float32(s[2])),

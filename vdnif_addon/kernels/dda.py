@@ -64,6 +64,60 @@ def wall_crossing(low: wp.float64, h: wp.float64, o: wp.float64, d: wp.float64,
     return (low + wp.float64(cell + up) * h - o) / d
 
 
+@wp.func
+def grid_entry(grid: Grid, o: wp.vec3d, d: wp.vec3d, far: wp.float64):
+    """Where the ray enters the occupied cells' bounds (slab test): (whether it does within
+    ``far``, the entry distance, the cell there)."""
+    h = grid.voxel_size
+    near = -INF
+    leave = INF
+    valid = d[0] != wp.float64(0.0) or d[1] != wp.float64(0.0) or d[2] != wp.float64(0.0)
+    for axis in range(3):
+        if d[axis] == wp.float64(0.0):
+            if not (o[axis] >= grid.low[axis] and o[axis] <= grid.high[axis]):
+                valid = False           # parallel to a slab it is not in
+        else:
+            t_low = (grid.low[axis] - o[axis]) / d[axis]
+            t_high = (grid.high[axis] - o[axis]) / d[axis]
+            near = wp.max(near, wp.min(t_low, t_high))
+            leave = wp.min(leave, wp.max(t_low, t_high))
+    t = wp.max(near, wp.float64(0.0))
+    cell = wp.vec3i(0, 0, 0)
+    entered = valid and t < leave and t <= far
+    if entered:
+        point = o + d * t
+        for axis in range(3):
+            index = wp.int32(wp.floor((point[axis] - grid.low[axis]) / h))
+            cell[axis] = wp.clamp(index, 0, grid.dims[axis] - 1)
+    return entered, t, cell
+
+
+@wp.func
+def first_wall(tx: wp.float64, ty: wp.float64, tz: wp.float64):
+    """The nearest of the three next walls: (its distance, its axis); ties go to the lowest
+    axis."""
+    t_out = tz
+    axis = wp.int32(2)
+    if ty <= tz:
+        t_out = ty
+        axis = wp.int32(1)
+    if tx <= t_out:
+        t_out = tx
+        axis = wp.int32(0)
+    return t_out, axis
+
+
+@wp.func
+def step_index(i: wp.int32, d: wp.float64, count: wp.int32):
+    """The cell index past the wall the ray crosses along one axis: (index, whether it is
+    still inside the grid's ``count`` cells)."""
+    if d > wp.float64(0.0):
+        i += 1
+    else:
+        i -= 1
+    return i, i >= 0 and i < count
+
+
 @wp.kernel
 def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
              out: SegmentBuffer):
@@ -78,26 +132,10 @@ def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
     cell = rays.cell[r]
     h = grid.voxel_size
     if mode == ENTER:
-        near = -INF
-        leave = INF
-        valid = d[0] != wp.float64(0.0) or d[1] != wp.float64(0.0) or d[2] != wp.float64(0.0)
-        for axis in range(3):
-            if d[axis] == wp.float64(0.0):
-                if not (o[axis] >= grid.low[axis] and o[axis] <= grid.high[axis]):
-                    valid = False           # parallel to a slab it is not in
-            else:
-                t_low = (grid.low[axis] - o[axis]) / d[axis]
-                t_high = (grid.high[axis] - o[axis]) / d[axis]
-                near = wp.max(near, wp.min(t_low, t_high))
-                leave = wp.min(leave, wp.max(t_low, t_high))
-        t = wp.max(near, wp.float64(0.0))
-        if not (valid and t < leave and t <= far):
+        entered, t, cell = grid_entry(grid, o, d, far)
+        if not entered:
             rays.mode[r] = DONE
             return
-        point = o + d * t
-        for axis in range(3):
-            index = wp.int32(wp.floor((point[axis] - grid.low[axis]) / h))
-            cell[axis] = wp.clamp(index, 0, grid.dims[axis] - 1)
         mode = WALK
     # the walk in scalars: a vector indexed by a run-time axis would live in memory
     i = cell[0]
@@ -106,46 +144,24 @@ def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
     tx = wall_crossing(grid.low[0], h, o[0], d[0], i)
     ty = wall_crossing(grid.low[1], h, o[1], d[1], j)
     tz = wall_crossing(grid.low[2], h, o[2], d[2], k)
-    nx = grid.dims[0]
-    ny = grid.dims[1]
-    nz = grid.dims[2]
     while mode == WALK:
         if out.cursor[0] >= out.capacity:
             break                                          # paused until the next launch
-        t_out = tz                                         # the first smallest crossing
-        axis = 2
-        if ty <= tz:
-            t_out = ty
-            axis = 1
-        if tx <= t_out:
-            t_out = tx
-            axis = 0
-        index = grid.lookup[i + nx * (j + ny * k)]
+        t_out, axis = first_wall(tx, ty, tz)
+        index = grid.lookup[i + grid.dims[0] * (j + grid.dims[1] * k)]
         within = t_out <= far
         if within and index >= 0 and t_out - t > grid.min_piece:
             if emit(out, r, index, t, t_out, o + d * t, o + d * t_out) < 0:
                 break                                      # buffer full: redo this step later
         inside = False
         if axis == 0:
-            if d[0] > wp.float64(0.0):
-                i += 1
-            else:
-                i -= 1
-            inside = i >= 0 and i < nx
+            i, inside = step_index(i, d[0], grid.dims[0])
             tx = wall_crossing(grid.low[0], h, o[0], d[0], i)
         elif axis == 1:
-            if d[1] > wp.float64(0.0):
-                j += 1
-            else:
-                j -= 1
-            inside = j >= 0 and j < ny
+            j, inside = step_index(j, d[1], grid.dims[1])
             ty = wall_crossing(grid.low[1], h, o[1], d[1], j)
         else:
-            if d[2] > wp.float64(0.0):
-                k += 1
-            else:
-                k -= 1
-            inside = k >= 0 and k < nz
+            k, inside = step_index(k, d[2], grid.dims[2])
             tz = wall_crossing(grid.low[2], h, o[2], d[2], k)
         if not (within and inside):
             mode = DONE

@@ -87,6 +87,127 @@ class RayState:
     behind_from: wp.array(dtype=wp.float64)  # seek start of the last entry found behind it
 
 
+@wp.func
+def seek_entry(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, far: wp.float64, mode: wp.int32,
+               t: wp.float64, cell: wp.int32, entry_face: wp.int32, p: wp.vec3d,
+               clip_from: wp.float64, behind_from: wp.float64):
+    """The next entry into the occupied set at or after ``t`` (the entry rules in this
+    module's docstring): (mode WALK, DONE or TRUNCATED, t, cell, entry face, rest entry
+    point, clip_from, behind_from), the cell, face and point unchanged unless it entered."""
+    step = cells.step
+    casts = wp.int32(0)
+    while mode != WALK and mode < DONE:
+        if mode == SEEK and casts == SEEKS:
+            mode = TRUNCATED                       # given up
+            break
+        casts += 1
+        remaining = far - t
+        if not (remaining >= wp.float64(0.0)):
+            mode = DONE
+            break
+        found, face, cast_t = entry_cast(cells, o + d * t, d, remaining)
+        if not found:
+            mode = DONE
+            break
+        hit_t, u, v, leaving = boundary_crossing(cells, o, d, face, cast_t + t)
+        if mode == SEEK_FIRST:
+            if leaving:                            # the ray starts inside
+                found, back_face, back_t = entry_cast(cells, o, -d, INF)
+                if found:
+                    face = back_face
+                    hit_t, u, v, leaving = boundary_crossing(cells, o, d, face, -back_t)
+                    clip_from = hit_t
+            leaving = False
+        elif leaving and hit_t > t + step and t > behind_from:
+            # the seek starts inside the occupied set: a re-seek starts step beyond an exit,
+            # and a cell across an edge or corner of the cell left can begin sooner; its
+            # entry is within step behind the start (2 step: float32 slack), so it is
+            # entered there instead of passing the far face. Once per seek start at most,
+            # and only past the last such start: a collapsed cell entered so and left at
+            # once would otherwise be entered forever
+            found, back_face, back_t = entry_cast(cells, o + d * t, -d,
+                                                  wp.float64(2.0) * step)
+            if found:
+                back_hit_t, back_u, back_v, back_leaving = boundary_crossing(
+                    cells, o, d, back_face, t - back_t)
+                if not back_leaving:
+                    face = back_face
+                    hit_t = maximum(back_hit_t, t - step)
+                    u = back_u
+                    v = back_v
+                    leaving = False
+                    behind_from = t
+        if leaving:
+            t = maximum(hit_t, t) + step
+        else:
+            triangle = cells.boundary_triangle[face]
+            cell = cells.boundary_cell[face]
+            entry_face = triangle // 2
+            t = hit_t
+            p = rest_point(cells, cell, triangle, u, v)
+            mode = WALK
+    return mode, t, cell, entry_face, p, clip_from, behind_from
+
+
+@wp.func
+def exit_crossings(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, cell: wp.int32,
+                   entry_face: wp.int32, t: wp.float64):
+    """Outward crossings of the cell's face triangles (its entry face skipped): the nearest
+    one beyond ``t + step`` and the farthest one at or after ``t - step``, each as (local
+    triangle or -1, t, u, v)."""
+    step = cells.step
+    base = cell * 12
+    ahead = wp.int32(-1)
+    ahead_t = INF
+    ahead_u = wp.float64(0.0)
+    ahead_v = wp.float64(0.0)
+    touch = wp.int32(-1)
+    touch_t = -INF
+    touch_u = wp.float64(0.0)
+    touch_v = wp.float64(0.0)
+    for k in range(12):
+        if k // 2 != entry_face:
+            tri = cells.triangles[base + k]
+            pv = cross(d, tri.e2)
+            det = dot(tri.e1, pv)
+            if det < wp.float64(0.0) and -det > USABLE_DETERMINANT * wp.max(tri.scale,
+                                                                          TINY_SCALE):
+                inv = wp.float64(1.0) / det
+                s = o - tri.a
+                u = dot(s, pv) * inv
+                if u >= -TOLERANCE:
+                    q = cross(s, tri.e1)
+                    v = dot(d, q) * inv
+                    if v >= -TOLERANCE and u + v <= ONE_PLUS_TOLERANCE:
+                        tk = dot(tri.e2, q) * inv
+                        if tk > t + step and tk < ahead_t:
+                            ahead = k
+                            ahead_t = tk
+                            ahead_u = u
+                            ahead_v = v
+                        if tk >= t - step and (touch < 0 or tk > touch_t):
+                            touch = k
+                            touch_t = tk
+                            touch_u = u
+                            touch_v = v
+    return ahead, ahead_t, ahead_u, ahead_v, touch, touch_t, touch_u, touch_v
+
+
+@wp.func
+def farthest_crossing(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, cell: wp.int32,
+                      t: wp.float64) -> wp.float64:
+    """The farthest crossing beyond ``t`` of any of the cell's face triangles (-inf if none):
+    where a walker that lost its way re-seeks from."""
+    base = cell * 12
+    far_side = -INF
+    for k in range(12):
+        tri = cells.triangles[base + k]
+        tk, _u, _v, hit, _outward = intersect(o, d, tri.a, tri.e1, tri.e2, tri.scale)
+        if hit and tk > t and tk > far_side:
+            far_side = tk
+    return far_side
+
+
 @wp.kernel
 def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
               max_steps: wp.int32, per_wave: wp.int32, out: SegmentBuffer):
@@ -109,132 +230,42 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
     written = wp.int32(0)
     while mode < DONE:
         if mode != WALK:
-            # seek the next entry at or after t
-            casts = wp.int32(0)
-            while mode != WALK and mode < DONE:
-                if mode == SEEK and casts == SEEKS:
-                    mode = TRUNCATED                       # given up
-                    break
-                casts += 1
-                remaining = far - t
-                if not (remaining >= wp.float64(0.0)):
-                    mode = DONE
-                    break
-                found, face, cast_t = entry_cast(cells, o + d * t, d, remaining)
-                if not found:
-                    mode = DONE
-                    break
-                hit_t, u, v, leaving = boundary_crossing(cells, o, d, face, cast_t + t)
-                if mode == SEEK_FIRST:
-                    if leaving:                            # the ray starts inside
-                        found, back_face, back_t = entry_cast(cells, o, -d, INF)
-                        if found:
-                            face = back_face
-                            hit_t, u, v, leaving = boundary_crossing(cells, o, d, face,
-                                                                     -back_t)
-                            clip_from = hit_t
-                    leaving = False
-                elif leaving and hit_t > t + step and t > behind_from:
-                    # the seek starts inside the occupied set: a re-seek starts step beyond an
-                    # exit, and a cell across an edge or corner of the cell left can begin
-                    # sooner; its entry is within step behind the start (2 step: float32
-                    # slack), so it is entered there instead of passing the far face. Once
-                    # per seek start at most, and only past the last such start: a collapsed
-                    # cell entered so and left at once would otherwise be entered forever
-                    found, back_face, back_t = entry_cast(cells, o + d * t, -d,
-                                                          wp.float64(2.0) * step)
-                    if found:
-                        back_hit_t, back_u, back_v, back_leaving = boundary_crossing(
-                            cells, o, d, back_face, t - back_t)
-                        if not back_leaving:
-                            face = back_face
-                            hit_t = maximum(back_hit_t, t - step)
-                            u = back_u
-                            v = back_v
-                            leaving = False
-                            behind_from = t
-                if leaving:
-                    t = maximum(hit_t, t) + step
-                else:
-                    triangle = cells.boundary_triangle[face]
-                    cell = cells.boundary_cell[face]
-                    entry_face = triangle // 2
-                    t = hit_t
-                    p = rest_point(cells, cell, triangle, u, v)
-                    zero_passes = 0
-                    mode = WALK
+            mode, t, cell, entry_face, p, clip_from, behind_from = seek_entry(
+                cells, o, d, far, mode, t, cell, entry_face, p, clip_from, behind_from)
+            if mode == WALK:
+                zero_passes = 0
             continue
         if steps >= max_steps:
             mode = TRUNCATED
             break
         if written >= per_wave or out.cursor[0] >= out.capacity:
             break                                          # paused until the next launch
-        # the exit: among outward crossings of the other faces' triangles, the nearest one
-        # beyond t + step, else the farthest one at or after t - step
-        base = cell * 12
-        ahead = wp.int32(-1)
-        ahead_t = INF
-        ahead_u = wp.float64(0.0)
-        ahead_v = wp.float64(0.0)
-        touch = wp.int32(-1)
-        touch_t = -INF
-        touch_u = wp.float64(0.0)
-        touch_v = wp.float64(0.0)
-        for k in range(12):
-            if k // 2 != entry_face:
-                tri = cells.triangles[base + k]
-                pv = cross(d, tri.e2)
-                det = dot(tri.e1, pv)
-                if det < wp.float64(0.0) and -det > USABLE_DETERMINANT * wp.max(tri.scale,
-                                                                              TINY_SCALE):
-                    inv = wp.float64(1.0) / det
-                    s = o - tri.a
-                    u = dot(s, pv) * inv
-                    if u >= -TOLERANCE:
-                        q = cross(s, tri.e1)
-                        v = dot(d, q) * inv
-                        if v >= -TOLERANCE and u + v <= ONE_PLUS_TOLERANCE:
-                            tk = dot(tri.e2, q) * inv
-                            if tk > t + step and tk < ahead_t:
-                                ahead = k
-                                ahead_t = tk
-                                ahead_u = u
-                                ahead_v = v
-                            if tk >= t - step and (touch < 0 or tk > touch_t):
-                                touch = k
-                                touch_t = tk
-                                touch_u = u
-                                touch_v = v
+        ahead, ahead_t, ahead_u, ahead_v, touch, touch_t, touch_u, touch_v = exit_crossings(
+            cells, o, d, cell, entry_face, t)
         exit_k = ahead
         exit_t = ahead_t
         exit_u = ahead_u
         exit_v = ahead_v
-        lost = touch < 0
-        far_side = -INF
         if ahead < 0:
             exit_k = touch
             exit_t = touch_t
             exit_u = touch_u
             exit_v = touch_v
-            if lost:
-                # no exit: numpy's argmax over nothing picks triangle 0; and the re-seek
-                # starts past every crossing of the cell beyond t
-                exit_k = 0
-                for k in range(12):
-                    tri = cells.triangles[base + k]
-                    tk, u, v, hit, _outward = intersect(o, d, tri.a, tri.e1, tri.e2,
-                                                        tri.scale)
-                    if k == 0:
-                        exit_t = tk
-                        exit_u = u
-                        exit_v = v
-                    if hit and tk > t and tk > far_side:
-                        far_side = tk
+        lost = touch < 0
+        far_side = -INF
+        if lost:
+            # no exit at all: the ray re-seeks past every crossing of the cell beyond t
+            exit_t = t
+            far_side = farthest_crossing(cells, o, d, cell, t)
         t_out = maximum(exit_t, t)
         beyond = t_out <= far
         p_out = p
+        neighbour = wp.int32(-1)
+        exit_face = wp.int32(0)
         if not lost:
             p_out = rest_point(cells, cell, exit_k, exit_u, exit_v)
+            exit_face = exit_k // 2
+            neighbour = cells.neighbours[cell, exit_face]
         if ahead >= 0 and beyond and (not (clip_from < wp.float64(0.0))
                                       or t_out > wp.float64(0.0)):
             t0 = t
@@ -246,8 +277,6 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
                 break                                      # buffer full: redo this step later
             written += 1
         steps += 1
-        exit_face = exit_k // 2
-        neighbour = cells.neighbours[cell, exit_face]
         if ahead >= 0:
             zero_passes = 0
         else:
