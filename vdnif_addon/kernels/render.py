@@ -22,7 +22,8 @@ from ..geometry.attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
 from . import runtime
 from .cells import CellArrays, cross, dot
 from .segments import SegmentBuffer
-from .walk import DONE, TRUNCATED, RayState
+from .walk import RayState
+from .walk_steps import DONE, TRUNCATED
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int

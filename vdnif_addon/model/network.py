@@ -170,7 +170,7 @@ class IntersectionNetwork(nn.Module):
 class AlbedoField(nn.Module):
     """Albedo of a normalized rest-space point (N, 3) -> (N, 3) in [0,1]: a hash grid of the
     network's grid settings and a ReLU MLP of its width, two hidden layers (the field that
-    ``tools/albedo_ceiling.py`` measures: 46.6 dB at the true hit point on spot)."""
+    ``tools/albedo_ceiling.py`` measures against the model's albedo head)."""
 
     def __init__(self, config: NetworkConfig) -> None:
         super().__init__()
