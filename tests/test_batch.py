@@ -316,3 +316,24 @@ def test_train_from_scene_options_generates_its_dataset(tmp_path):
     assert json.loads((tmp_path / "t.json").read_text())["model_bytes"] == model.stat().st_size
     code, _, err = run_batch("train", "--scene", "arm", "--data", data, "--steps", 5)
     assert code == 1 and "already holds shards" in error_lines(err)[0]
+
+
+def test_train_on_a_dataset_folder_creates_the_model_files_folder(tmp_path):
+    """``train --data DIR --out new/folder/model.vdnif`` (the README's example) writes the
+    model into a folder it creates; a --out naming a folder is refused before training."""
+    import shutil
+
+    data = tmp_path / "data"
+    shutil.copytree(REPO / "tests" / "golden" / "arm-dataset", data)
+    out = tmp_path / "models" / "arm" / "arm.vdnif"
+    code, printed, err = run_batch("train", "--data", data, "--steps", 2, "--batch", 256,
+                                   "--log2-table-size", 12, "--device", "cpu", "--out", out)
+    assert code == 0, err
+    assert out.is_file() and f"model {out}" in printed
+    for folder in (tmp_path / "models", tmp_path / "absent"):
+        code, _, err = run_batch("train", "--data", data, "--steps", 2, "--out",
+                                 str(folder) + "/")
+        lines = error_lines(err)
+        assert code == 1 and len(lines) == 1 and "folder, not a file" in lines[0], err
+        assert str(folder) in lines[0] and "step" not in err
+    assert not (tmp_path / "absent").exists()

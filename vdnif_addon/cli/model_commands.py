@@ -11,6 +11,7 @@ from .options import (
     add_scene_options,
     check_resolution,
     load_posed_scene,
+    output_file,
     print_evaluation,
     write_json,
 )
@@ -144,4 +145,4 @@ def add_commands(commands):
                           help="evaluate on views of the undeformed rest pose instead")
     evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
                           help="write the comparison figures and error images here")
-    evaluate.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    evaluate.add_argument("--json", type=output_file, metavar="PATH")

@@ -5,6 +5,7 @@ several commands print."""
 
 import argparse
 import math
+import os
 import pathlib
 import sys
 
@@ -207,6 +208,15 @@ OUTPUT_FILES = ("json", "markdown", "results", "presets", "performance")
 """Options naming a file a command writes; ``--out`` is a file for train, else a folder."""
 IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
 """Commands whose --width/--height are an image's (train's --width is the MLP's)."""
+
+
+def output_file(text: str) -> pathlib.Path:
+    """The type of an option that names an output file (--json, --markdown, train's --out):
+    refused when it names a folder (a trailing separator, ``.``, ``..``), which the path
+    object alone would drop, silently writing a file of the folder's name."""
+    if text.replace(os.sep, "/").rpartition("/")[2] in ("", ".", ".."):
+        raise argparse.ArgumentTypeError(f"'{text}' names a folder, not a file")
+    return pathlib.Path(text)
 
 
 def validate_arguments(args):

@@ -6,7 +6,7 @@ import pathlib
 import sys
 
 from ..errors import VDNIFError
-from ..safe_io import file_stem
+from ..safe_io import check_output_file, file_stem
 from ..settings import COMMAND_IMAGE, RECIPE, TRAINABLE_VARIANTS
 from ..text import metrics_line
 from . import model_commands
@@ -19,6 +19,7 @@ from .options import (
     load_posed_scene,
     names_scene,
     network_overrides,
+    output_file,
     report_training,
     write_json,
 )
@@ -151,6 +152,8 @@ def cmd_train(args):
         header = read_dataset(args.data)[0].header
         variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
+        check_output_file(out, "model file")            # before training, not after it
+        pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
         result, summary = fit_model(args.data, variant, out, network_overrides(args),
                                     progress=report_training)
     if not result.is_main:
@@ -221,7 +224,7 @@ def add_commands(commands):
     capture = _scene_command(commands, "capture", cmd_capture, 8, (
         "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
         "inverted_cells (per pose), heads and capture_s."))
-    capture.add_argument("--json", type=pathlib.Path, metavar="PATH",
+    capture.add_argument("--json", type=output_file, metavar="PATH",
                          help="write the summary as JSON")
 
     data = _scene_command(commands, "dataset", cmd_dataset, RECIPE.poses, (
@@ -246,7 +249,7 @@ def add_commands(commands):
     refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
     refs.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
     refs.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
-    refs.add_argument("--json", type=pathlib.Path, metavar="PATH", help="write the report")
+    refs.add_argument("--json", type=output_file, metavar="PATH", help="write the report")
 
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
@@ -263,10 +266,10 @@ def add_commands(commands):
     training.add_argument("--variant", choices=TRAINABLE_VARIANTS, help=(
         "default: lsnif for a scene that no armature or lattice deforms (static), else "
         "proposed"))
-    training.add_argument("--out", type=pathlib.Path, metavar="MODEL", help=(
+    training.add_argument("--out", type=output_file, metavar="MODEL", help=(
         "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
     add_training_options(training)
-    training.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    training.add_argument("--json", type=output_file, metavar="PATH")
     group = training.add_argument_group("encoding and network (default: the variant's)")
     for option, (_, kind, text) in NETWORK_OPTIONS.items():
         group.add_argument(option, type=kind, help=text)

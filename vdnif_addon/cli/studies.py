@@ -12,6 +12,7 @@ from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
     add_device_option,
     check_resolution,
+    output_file,
     print_evaluation,
     report_training,
     write_json,
@@ -233,7 +234,7 @@ def add_commands(commands):
     add_device_option(demo)
     demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
                       metavar="DIR", help="output folder")
-    demo.add_argument("--json", type=pathlib.Path, metavar="PATH",
+    demo.add_argument("--json", type=output_file, metavar="PATH",
                       help="also write the report JSON here (it is always in DIR)")
     demo.set_defaults(run=cmd_demo)
 
@@ -246,7 +247,7 @@ def add_commands(commands):
     experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
                             "size's seeds (default: all)")
     add_device_option(experiment)
-    experiment.add_argument("--results", type=pathlib.Path,
+    experiment.add_argument("--results", type=output_file,
                             default=pathlib.Path("docs/results.md"), metavar="PATH",
                             help="markdown file whose section is rewritten; figures and "
                                  "JSON go to results/ beside it")
@@ -261,9 +262,9 @@ def add_commands(commands):
                        help="a small sweep (minutes) into out/bench-quick, presets not shipped")
     sweep.add_argument("--out", type=pathlib.Path, metavar="DIR",
                        help="bench.csv, bench.json, pareto.png (default docs/bench)")
-    sweep.add_argument("--presets", type=pathlib.Path, metavar="PATH",
+    sweep.add_argument("--presets", type=output_file, metavar="PATH",
                        help="presets JSON (default: the one the panel reads)")
-    sweep.add_argument("--performance", type=pathlib.Path, metavar="PATH",
+    sweep.add_argument("--performance", type=output_file, metavar="PATH",
                        help="markdown whose sweep section is rewritten "
                             "(default docs/performance.md; none with --quick)")
     sweep.add_argument("--work", type=pathlib.Path, metavar="DIR",
@@ -283,7 +284,7 @@ def add_commands(commands):
     bench.add_argument("--threads", type=int, metavar="N",
                        help="torch threads (default: the product's, vdnif_addon/threads.py)")
     bench.add_argument("--repeats", type=int, default=5)
-    bench.add_argument("--json", type=pathlib.Path, metavar="PATH")
+    bench.add_argument("--json", type=output_file, metavar="PATH")
     bench.set_defaults(run=cmd_bench_network)
 
 
@@ -312,13 +313,13 @@ def _add_side_by_side(commands):
     parser.add_argument("--width", type=int, default=256, metavar="W")
     parser.add_argument("--height", type=int, default=256, metavar="H")
     add_device_option(parser, default="cpu")
-    parser.add_argument("--json", type=pathlib.Path, metavar="PATH",
+    parser.add_argument("--json", type=output_file, metavar="PATH",
                         help="write every repeat's timings, the medians and ratios as JSON")
-    parser.add_argument("--markdown", type=pathlib.Path, metavar="PATH",
+    parser.add_argument("--markdown", type=output_file, metavar="PATH",
                         help="write the tables as markdown")
     parser.add_argument("--plots", type=pathlib.Path, metavar="DIR",
                         help="write the rays/s and bytes plots into DIR")
-    parser.add_argument("--performance", type=pathlib.Path, metavar="PATH", help=(
+    parser.add_argument("--performance", type=output_file, metavar="PATH", help=(
         "rewrite the side-by-side section of PATH (docs/performance.md), plots in "
         "side-by-side/ beside it"))
     parser.add_argument("--save-blend", type=pathlib.Path, metavar="DIR", help=(
