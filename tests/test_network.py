@@ -266,3 +266,20 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     assert plain.albedo_field is None and "albedo" not in plain(p0, p1, hit_frac)
     with pytest.raises(VDNIFError, match="albedo_mode"):
         NetworkConfig(albedo_mode="texture")
+
+
+def test_predict_keeps_float32_albedo_when_the_field_answers_in_float16(monkeypatch):
+    """Under CUDA's autocast the albedo field answers in float16 and ``index_copy`` into
+    the float32 pass does not promote it (the CPU's autocast does): predict casts it."""
+    torch.manual_seed(3)
+    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
+                           heads=Heads(albedo=True, material_count=1))
+    network = IntersectionNetwork(config)
+    network.thresholds = Thresholds(1e-9, 1e-9)        # every segment a candidate
+    field = network.albedo_at
+    monkeypatch.setattr(network, "albedo_at", lambda points: field(points).half())
+    p0, p1 = torch.rand(2, 50, 3)
+    predicted = network.predict(p0, p1, torch.full((50,), 0.1), 0.05, batch=64)
+    assert predicted["albedo"].dtype == torch.float32
+    expected = field(p0 + predicted["fraction"][:, None] * (p1 - p0)).half().float()
+    torch.testing.assert_close(predicted["albedo"], expected)

@@ -147,8 +147,11 @@ class IntersectionNetwork(nn.Module):
                 chosen = part["candidate"].nonzero().squeeze(1)
                 point = q0[chosen] + part["fraction"][chosen].to(q0.dtype).unsqueeze(1) * (
                     q1[chosen] - q0[chosen])
-                part["albedo"] = q0.new_zeros(len(q0), 3).index_copy(
-                    0, chosen, self.albedo_at(point))
+                albedo = q0.new_zeros(len(q0), 3)
+                # CUDA's autocast gives the field's float16 output and does not promote it
+                # for index_copy as the CPU's does: cast to the destination's dtype.
+                part["albedo"] = albedo.index_copy(
+                    0, chosen, self.albedo_at(point).to(albedo.dtype))
             return part
 
         parts = []
