@@ -26,6 +26,10 @@ class OracleNetwork:
         self.caster = self.groundtruth.rest_surface(mesh)      # segments in no given cell
         self.queries = 0
 
+    def parameters(self):
+        """No weights: it answers on the device its inputs are on."""
+        return iter(())
+
     def predict(self, p0, p1, rest_len, voxel_size):
         to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa: E731
         segments = self.walk_rules.Segments(

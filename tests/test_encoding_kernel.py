@@ -175,3 +175,13 @@ def test_a_level_of_the_paper_setting_reads_the_hash_of_its_vertex():
         )
         assert features[level].tolist() == grid.table[row].tolist()
     assert math.prod(grid.table.shape) == 2 * 2**16 * 3
+
+
+def test_a_table_and_points_on_two_devices_are_refused_before_the_launch():
+    """The launch reads raw pointers past Warp's device checks: on a GPU a table on one
+    device and points on another would be an illegal memory access. (The "meta" device
+    stands in for the second device on a machine without CUDA.)"""
+    grid = HashGrid(levels=2, base_resolution=4, log2_table_size=8, feature_dim=2)
+    points = torch.rand(10, 3, device="meta")
+    with pytest.raises(VDNIFError, match="table is on cpu but the points are on meta"):
+        grid(points)

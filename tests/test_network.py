@@ -283,3 +283,13 @@ def test_predict_keeps_float32_albedo_when_the_field_answers_in_float16(monkeypa
     assert predicted["albedo"].dtype == torch.float32
     expected = field(p0 + predicted["fraction"][:, None] * (p1 - p0)).half().float()
     torch.testing.assert_close(predicted["albedo"], expected)
+
+
+def test_the_render_refuses_a_network_on_another_device():
+    """neural_passes checks the network's weights against the render's device before any
+    launch ("meta" stands in for a GPU on a machine without one)."""
+    from vdnif_addon.inference.neural_render import neural_passes
+
+    network = IntersectionNetwork(NetworkConfig(**SMALL)).to("meta")
+    with pytest.raises(VDNIFError, match="weights are on meta but the render runs on cpu"):
+        neural_passes(network, None, None, None, None, None, device="cpu")

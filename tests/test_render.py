@@ -101,6 +101,10 @@ class RandomNetwork:
     def __init__(self, materials=2, albedo=False):
         self.materials, self.albedo = materials, albedo
 
+    def parameters(self):
+        """No weights: it answers on the device its inputs are on."""
+        return iter(())
+
     def predict(self, p0, p1, rest_len, voxel_size):
         q = torch.cat([p0, p1], 1).mul(1 << 20).floor().long()
         primes = torch.tensor([73856093, 19349663, 83492791, 2654435761, 805459861, 3674653429],

@@ -30,6 +30,10 @@ class OracleNetwork:
         self.mesh, self.grid, self.targets = mesh, grid, groundtruth.segment_targets
         self.caster = groundtruth.rest_surface(mesh)
 
+    def parameters(self):
+        """No weights: it answers on the device its inputs are on."""
+        return iter(())
+
     def predict(self, p0, p1, rest_len, voxel_size):
         to_rest = lambda p: p.double().numpy() * self.grid.extent + self.grid.origin  # noqa: E731
         count = len(p0)

@@ -75,6 +75,12 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     torch's threads leave free (else the walk would slow the network down as much as it
     saves).
     """
+    weights = next(iter(network.parameters()), None)
+    if weights is not None and runtime.device(weights.device) != runtime.device(device):
+        # A mismatch would reach a raw kernel launch, where it is an illegal memory access
+        # that poisons the whole session on a GPU: refuse it before any launch.
+        raise VDNIFError(f"the network's weights are on {weights.device} but the render runs "
+                         f"on {device}: move the network to {device} first")
     warp_device = cells.device
     if runtime.device(device) != runtime.device(warp_device):
         raise VDNIFError(f"the network runs on {device} but the cells are on {warp_device}: "

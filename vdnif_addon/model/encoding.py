@@ -73,7 +73,14 @@ class _Encode(torch.autograd.Function):
 def _encode(table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
             p1: Float[torch.Tensor, "N 3"] | None, encoding: kernel.Encoding
             ) -> Float[torch.Tensor, "N C"]:
-    """Through autograd when the table's gradient is wanted, else the bare launch."""
+    """Through autograd when the table's gradient is wanted, else the bare launch. The
+    launch reads raw pointers past Warp's own device checks, so a table and points on two
+    devices are refused here (on a GPU they would be an illegal memory access)."""
+    for points in (p0, p1):
+        if points is not None and points.device != table.device:
+            raise VDNIFError(f"the hash grid's table is on {table.device} but the points are "
+                             f"on {points.device}: put the network and its inputs on one "
+                             "device")
     if torch.is_grad_enabled() and table.requires_grad:
         return _Encode.apply(table, p0, p1, encoding)
     return kernel.encode(encoding, table.detach(), p0, p1)
