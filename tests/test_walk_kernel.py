@@ -282,3 +282,24 @@ def test_a_cell_across_an_edge_or_corner_within_step_is_walked():
         np.testing.assert_array_equal(got.ray, static.ray)
         np.testing.assert_array_equal(got.cell, static.cell)
         np.testing.assert_array_equal(np.bincount(got.ray), 2)
+
+
+def test_a_lost_walker_re_seeks_whatever_its_max_distance():
+    """A walker that crosses no face of its cell (a lost walker: the cell is folded back
+    behind the face it was entered by) re-seeks past the cell, and the ray's max distance
+    only cuts what lies beyond it. Cells A, B and C along y, an empty cell between B and C;
+    B's far corners folded to before its entry face, the -x ones tilted so that the plane of
+    B's triangle 0 meets the ray beyond the limit (the walk used to compare that crossing,
+    an argmax over no candidate, with the limit and end the ray in B, dropping C)."""
+    grid = grid_of([[1, 1, 1], [1, 2, 1], [1, 4, 1]], (3, 6, 3))       # cells A, B, C
+    corners = grid.corner_positions()
+    folded = corners[:, 1] == 3.0                                     # B's +y corners
+    corners[folded, 1] = 1.5
+    corners[folded & (corners[:, 0] == 1.0), 0] = 0.95
+    origins, directions = np.array([[1.5, -1.0, 1.5]]), np.array([[0.0, 1.0, 0.0]])
+    whole = assert_same_walk(grid, corners, origins, directions)
+    cut = assert_same_walk(grid, corners, origins, directions, max_distance=7.0)
+    for got in (whole, cut):
+        np.testing.assert_array_equal(got.cell, [0, 2])        # B lost (no segment), C reached
+        np.testing.assert_allclose(np.c_[got.t0, got.t1], [[2.0, 3.0], [5.0, 6.0]])
+        assert got.truncated == 0
