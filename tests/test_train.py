@@ -650,3 +650,26 @@ def test_device_names():
     assert resolve_device(resolve_device("cpu")) == torch.device("cpu")
     with pytest.raises(VDNIFError, match="unknown device 'meta'"):
         resolve_device(torch.device("meta"))
+
+
+def test_auto_and_cuda_need_a_gpu_that_both_torch_and_warp_see(monkeypatch, capsys):
+    """torch can see a GPU that Warp's CUDA 13 wheels cannot use (an old driver or GPU):
+    "auto" then stays on the CPU and says why, once; "cuda" is refused on one line. Where
+    both see it, both pick it. (torch's and Warp's device queries are faked.)"""
+    from vdnif_addon.kernels import runtime
+    from vdnif_addon.training import distributed
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(distributed, "_warned", set())
+    monkeypatch.setattr(runtime, "cuda_device_count", lambda: 0)
+    assert distributed.resolve_device("auto") == torch.device("cpu")
+    assert distributed.resolve_device("auto") == torch.device("cpu")
+    said = capsys.readouterr().err.splitlines()
+    assert len(said) == 1 and "torch sees a CUDA GPU and Warp" in said[0]
+    assert said[0].endswith("using the CPU")
+    with pytest.raises(VDNIFError, match="setting device is 'cuda' but torch sees a CUDA GPU "
+                                         "and Warp .* NVIDIA driver for CUDA 13"):
+        distributed.resolve_device("cuda")
+    monkeypatch.setattr(runtime, "cuda_device_count", lambda: 1)
+    assert distributed.resolve_device("auto") == torch.device("cuda", 0)
+    assert distributed.resolve_device("cuda") == torch.device("cuda", 0)

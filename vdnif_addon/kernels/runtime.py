@@ -115,6 +115,16 @@ def init() -> ModuleType:
     return wp
 
 
+def cuda_device_count() -> int:
+    """How many CUDA devices Warp can run kernels on (0 without a usable driver)."""
+    return init().get_cuda_device_count()
+
+
+def warp_version() -> str:
+    """Warp's version, for messages."""
+    return wp.__version__
+
+
 def device(torch_device: str | torch.device) -> str:
     """The Warp device name of a torch device (or of "cpu" / "cuda" / "cuda:N")."""
     text = str(torch_device)

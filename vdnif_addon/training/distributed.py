@@ -4,6 +4,7 @@ training needs (maximum, sum, union), each the identity when the process is alon
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -89,9 +90,40 @@ def resolve_device(kind: str | torch.device) -> torch.device:
     if kind not in DEVICES:
         raise VDNIFError(f"unknown device '{kind}': expected one of {', '.join(DEVICES)}")
     if kind == "auto":
-        kind = "cuda" if torch.cuda.is_available() else "cpu"
+        kind = "cpu"
+        if torch.cuda.is_available():
+            problem = _warp_cuda_problem()
+            if problem is None:
+                kind = "cuda"
+            elif _warn_once(problem):
+                print(f"vdnif: device auto: {problem}; using the CPU", file=sys.stderr,
+                      flush=True)
     if kind == "cuda":
         if not torch.cuda.is_available():
             raise VDNIFError("setting device is 'cuda' but no CUDA device is available")
+        problem = _warp_cuda_problem()
+        if problem is not None:
+            raise VDNIFError(f"setting device is 'cuda' but {problem}")
         return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
     return torch.device("cpu")
+
+
+_warned: set[str] = set()
+
+
+def _warn_once(message: str) -> bool:
+    """Whether ``message`` is new in this process (said once, not per call)."""
+    new = message not in _warned
+    _warned.add(message)
+    return new
+
+
+def _warp_cuda_problem() -> str | None:
+    """Why Warp, which runs every kernel, cannot use the GPU torch sees (None when it can):
+    its wheels need a recent NVIDIA driver (CUDA 13, a Turing or newer GPU)."""
+    from ..kernels import runtime
+
+    if runtime.cuda_device_count() > 0:
+        return None
+    return (f"torch sees a CUDA GPU and Warp {runtime.warp_version()} does not (it needs an "
+            "NVIDIA driver for CUDA 13 and a Turing or newer GPU)")
