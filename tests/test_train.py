@@ -660,6 +660,8 @@ def test_auto_and_cuda_need_a_gpu_that_both_torch_and_warp_see(monkeypatch, caps
     from vdnif_addon.training import distributed
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    monkeypatch.delenv("LOCAL_RANK", raising=False)
     monkeypatch.setattr(distributed, "_warned", set())
     monkeypatch.setattr(runtime, "cuda_device_count", lambda: 0)
     assert distributed.resolve_device("auto") == torch.device("cpu")
@@ -673,3 +675,33 @@ def test_auto_and_cuda_need_a_gpu_that_both_torch_and_warp_see(monkeypatch, caps
     monkeypatch.setattr(runtime, "cuda_device_count", lambda: 1)
     assert distributed.resolve_device("auto") == torch.device("cuda", 0)
     assert distributed.resolve_device("cuda") == torch.device("cuda", 0)
+
+
+
+def test_each_rank_trains_on_its_own_gpu(monkeypatch):
+    """LOCAL_RANK picks the GPU among the visible ones, or the only one a scheduler leaves
+    each task; and the group sets it as the current device before NCCL's first collective
+    (which otherwise puts every rank's tensors on cuda:0). CUDA is faked."""
+    from vdnif_addon.kernels import runtime
+    from vdnif_addon.training import distributed
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(runtime, "cuda_device_count", lambda: 4)
+    for visible, rank, expected in ((4, "2", 2), (1, "3", 0), (4, "0", 0)):
+        monkeypatch.setattr(torch.cuda, "device_count", lambda visible=visible: visible)
+        monkeypatch.setenv("LOCAL_RANK", rank)
+        assert distributed.resolve_device("cuda") == torch.device("cuda", expected)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    monkeypatch.setenv("LOCAL_RANK", "3")
+    with pytest.raises(VDNIFError, match="LOCAL_RANK 3 names no visible GPU \\(2 visible\\)"):
+        distributed.resolve_device("cuda")
+    chosen = []
+    monkeypatch.setattr(torch.cuda, "set_device", chosen.append)
+    monkeypatch.setattr(distributed.dist, "is_initialized", lambda: True)
+    monkeypatch.setattr(distributed.dist, "get_rank", lambda: 1)
+    monkeypatch.setattr(distributed.dist, "get_world_size", lambda: 2)
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    group = distributed.ProcessGroup.from_environment(torch.device("cuda", 1))
+    assert chosen == [torch.device("cuda", 1)] and (group.rank, group.world) == (1, 2)
+    assert distributed.ProcessGroup.from_environment(torch.device("cpu")).rank == 1
+    assert chosen == [torch.device("cuda", 1)]

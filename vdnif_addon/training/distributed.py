@@ -42,6 +42,10 @@ class ProcessGroup:
             ) from exc
         if world <= 1:
             return cls()
+        if device.type == "cuda":
+            # NCCL's collectives (all_gather_object among them) put their tensors on the
+            # current device: without this every rank would use cuda:0.
+            torch.cuda.set_device(device)
         owns = not dist.is_initialized()
         if owns:
             try:
@@ -104,7 +108,7 @@ def resolve_device(kind: str | torch.device) -> torch.device:
         problem = _warp_cuda_problem()
         if problem is not None:
             raise VDNIFError(f"setting device is 'cuda' but {problem}")
-        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+        return torch.device("cuda", _local_gpu())
     return torch.device("cpu")
 
 
@@ -127,3 +131,20 @@ def _warp_cuda_problem() -> str | None:
         return None
     return (f"torch sees a CUDA GPU and Warp {runtime.warp_version()} does not (it needs an "
             "NVIDIA driver for CUDA 13 and a Turing or newer GPU)")
+
+
+def _local_gpu() -> int:
+    """This process's GPU: its LOCAL_RANK among the visible GPUs, or the one GPU a scheduler
+    that gives each task its own leaves visible."""
+    try:
+        rank = int(os.environ.get("LOCAL_RANK", "0"))
+    except ValueError:
+        raise VDNIFError("environment variable LOCAL_RANK is not an integer: "
+                         f"{os.environ['LOCAL_RANK']!r}") from None
+    count = torch.cuda.device_count()
+    if 0 <= rank < count:
+        return rank
+    if count == 1:
+        return 0
+    raise VDNIFError(f"LOCAL_RANK {rank} names no visible GPU ({count} visible): give each "
+                     "process one GPU, or as many as the ranks on this machine")
