@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from conftest import REPO
 from dataset_headers import header_dict
+from source_scan import matching_lines
 
 from vdnif_addon import limits
 from vdnif_addon.errors import VDNIFError
@@ -300,18 +301,7 @@ def string_key_reads(repo):
     """'path:line: text' of each string-key read of a dataset header (``header[...]``,
     ``header.get(...)``) in the extension's and the tools' sources, but for the header's
     own module."""
-    paths = [*repo.glob("*.py"), *(path for folder in ("vdnif_addon", "operators", "panels",
-                                                       "tools")
-                                   for path in (repo / folder).rglob("*.py"))]
-    found = []
-    for path in sorted(paths):
-        relative = path.relative_to(repo).as_posix()
-        if relative == HEADER_MODULE:
-            continue
-        for number, line in enumerate(path.read_text().splitlines(), 1):
-            if HEADER_READ.search(line):
-                found.append(f"{relative}:{number}: {line.strip()}")
-    return found
+    return matching_lines(repo, HEADER_READ, HEADER_MODULE)
 
 
 def test_no_reader_takes_the_dataset_header_by_string_keys():

@@ -6,9 +6,10 @@
 import pathlib
 import re
 
+from source_scan import matching_lines
+
 REPO = pathlib.Path(__file__).resolve().parents[1]
 ALLOWED = pathlib.Path("vdnif_addon/model/metadata.py")
-FOLDERS = ("vdnif_addon", "operators", "panels", "tools")
 KEY = r"""\s*["']"""
 STRING_KEY_READ = re.compile(
     rf"""\b(extra|metadata|meta|train_info)\s*(\[{KEY}|\.get\({KEY})"""
@@ -20,16 +21,7 @@ the metadata dict, or its old ``extra`` / ``train_info`` entries by name."""
 def string_key_reads(repo):
     """``path:line: text`` of each string-key read of model metadata in ``repo``'s root
     modules and its vdnif_addon, operators, panels and tools folders, but for ALLOWED."""
-    paths = [*repo.glob("*.py"),
-             *(path for folder in FOLDERS for path in (repo / folder).rglob("*.py"))]
-    found = []
-    for path in sorted(paths):
-        if path.relative_to(repo) == ALLOWED:
-            continue
-        for number, line in enumerate(path.read_text().splitlines(), 1):
-            if STRING_KEY_READ.search(line):
-                found.append(f"{path.relative_to(repo)}:{number}: {line.strip()}")
-    return found
+    return matching_lines(repo, STRING_KEY_READ, ALLOWED.as_posix())
 
 
 def test_no_module_reads_model_metadata_by_string_key():
