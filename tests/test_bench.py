@@ -217,65 +217,6 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text
 
 
-def validations(errors):
-    """Progress records every 100 steps whose held-out figures are ``errors``: a list of
-    (occlusion error, distance MAE in voxels, normal error) per validation."""
-    return [{"step": 100 * (i + 1), "validation": {
-        "occlusion_accuracy": 1 - occlusion, "distance_mae_voxels": distance,
-        "normal_error_deg": normal, "segments": 1000.0}} for i, (occlusion, distance, normal)
-        in enumerate(errors)]
-
-
-def feed(rule, records):
-    for record in records:
-        rule(record)
-        if rule.cancel.is_set():
-            return record["step"]
-    return None
-
-
-def test_convergence_stops_after_patience_validations_without_a_real_gain():
-    from vdnif_addon.studies.bench import Convergence
-
-    seen = []
-    rule = Convergence(validate_every=100, patience=3, min_gain=0.02, max_steps=5000,
-                       forward=seen.append)
-    assert rule.overrides() == {"steps": 5000, "log_interval": 100}
-    # 300: distance improves by 10 %; then 1 % gains only (below 2 %), normal flat: the
-    # third validation without a real gain (600) converges
-    errors = [(0.1, 1.0, 20.0), (0.1, 0.95, 20.0), (0.1, 0.855, 20.0), (0.1, 0.85, 20.0),
-              (0.099, 0.849, 19.9), (0.0995, 0.846, 20.1), (0.05, 0.5, 5.0)]
-    assert feed(rule, validations(errors)) == 600 == rule.converged_at
-    assert len(seen) == 6                          # every record is passed on
-    assert rule.marks["distance_mae_voxels"] == pytest.approx(0.855)
-
-
-def test_convergence_counts_a_slow_decline_once_it_adds_up():
-    from vdnif_addon.studies.bench import Convergence
-
-    rule = Convergence(validate_every=100, patience=3, min_gain=0.02, max_steps=5000)
-    # 1 % less every validation: each gain alone is below 2 %, three add up to more, so the
-    # mark moves every third validation and the rule never sees 3 in a row without a gain
-    errors = [(0.1, 0.99 ** i, 10.0) for i in range(40)]
-    assert feed(rule, validations(errors)) is None and rule.converged_at is None
-    # a metric that only rises never counts as a gain
-    rule = Convergence(validate_every=100, patience=2, min_gain=0.02, max_steps=5000)
-    assert feed(rule, validations([(0.1, 1.0 + i, 10.0) for i in range(5)])) == 300
-
-
-def test_convergence_ignores_records_without_validation():
-    from vdnif_addon.studies.bench import Convergence, watched
-
-    rule = Convergence(validate_every=100, patience=1, min_gain=0.02, max_steps=5000)
-    for step in (100, 200, 300):
-        rule({"step": step, "validation": None})
-    assert not rule.cancel.is_set()
-    figures = watched({"occlusion_accuracy": 0.9, "material_accuracy": 0.75,
-                       "distance_mae_voxels": 0.2, "loss/occlusion": 0.3})
-    assert figures == pytest.approx({"occlusion_error": 0.1, "material_error": 0.25,
-                                     "distance_mae_voxels": 0.2})
-
-
 def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rounds(
         tmp_path, monkeypatch):
     """One render times a point only roughly: every point renders once per round and its

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from . import limits
+from .checks import check_choice, check_int, check_number
 from .errors import VDNIFError
 
 if TYPE_CHECKING:
@@ -149,26 +150,6 @@ _COUNT = (1, 2**40)
 """Range of the core-only counts (val_segments, log_interval): positive."""
 MAX_MATERIALS = 2**15
 """Material slots of a material head (``capture`` stores indices as int16)."""
-
-
-def check_int(name: str, value: int, low: int, high: int) -> None:
-    """Raise a VDNIFError naming the setting unless ``value`` is an int in [low, high]."""
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise VDNIFError(f"setting {name} must be an integer in [{low}, {high}], got {value!r}")
-
-
-def check_number(name: str, value: float, low: float, high: float) -> None:
-    """Raise a VDNIFError naming the setting unless ``value`` is a real number in [low, high]
-    (NaN never is)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-        raise VDNIFError(f"setting {name} must be a number in [{low:g}, {high:g}], "
-                         f"got {value!r}")
-
-
-def check_choice(name: str, value: str, choices: Any) -> None:
-    """Raise a VDNIFError naming the setting unless ``value`` is one of ``choices``."""
-    if value not in choices:
-        raise VDNIFError(f"setting {name} must be one of {list(choices)}, got {value!r}")
 
 
 def check_grid_settings(
@@ -321,13 +302,19 @@ class TrainConfig:
     device: str = DEFAULT_DEVICE
     val_fraction: float = 0.1
     val_segments: int = 2**16
+    # Every log_interval steps a validation feeds the stopping rule (``training.stopping``);
+    # steps is then a cap, and stop_patience 0 runs them all.
     log_interval: int = 100
+    stop_patience: int = 0
+    stop_min_gain: float = 0.02
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "seed"):
             check_int(name, getattr(self, name), *BOUNDS[name])
         for name in ("val_segments", "log_interval"):
             check_int(name, getattr(self, name), *_COUNT)
+        check_int("stop_patience", self.stop_patience, 0, MAX_STEPS)
+        check_number("stop_min_gain", self.stop_min_gain, 0.0, 1.0)
         for name in ("lr_grid", "lr_mlp", "lr_weighting", "final_lr_fraction"):
             value = getattr(self, name)
             if (isinstance(value, bool) or not isinstance(value, (int, float))

@@ -1,7 +1,7 @@
 """The speed/accuracy sweep behind ``batch.py -- bench``: the proposed variant trained and
 evaluated on unseen poses of the arm while one setting at a time moves away from a base
 (voxel resolution, hash levels and table size, PE bands, MLP width). Every point trains to
-the same convergence rule (``Convergence``), so the front compares converged models, not
+the same convergence rule (``training.stopping``), so the front compares converged models, not
 models stopped at one step count. Writes CSV, JSON, Pareto plots and a section of
 ``docs/performance.md`` (``bench_report``) and the presets derived from the front.
 
@@ -14,7 +14,6 @@ import pathlib
 import shlex
 import sys
 import tempfile
-import threading
 
 import numpy as np
 
@@ -53,66 +52,17 @@ SIZES = {
               "width": [32, 64]},
         convergence=dict(validate_every=50, patience=3, min_gain=0.02, max_steps=600)),
 }
-# The held-out validation figures the convergence rule watches (errors: lower is better);
-# the occlusion accuracy enters as its error, the share of misclassified segments.
-WATCHED = ("occlusion_error", "distance_mae_voxels", "normal_error_deg", "material_error",
-           "loss/albedo")
 METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
            "false_negative_rate", "false_positive_rate")
 COMMON_METRICS = ("distance_mae", "distance_mae_voxels", "normal_error_deg")
 PERFORMANCE_PREAMBLE = "# Performance\n\nEach section names the command that measured it.\n"
 
 
-class Convergence:
-    """The convergence rule of every sweep point, fed the training's progress records.
-
-    Every ``validate_every`` steps training validates on its held-out poses (the training
-    data's own, never the evaluation poses). A validation *improves* when one of the
-    WATCHED figures falls below its mark by more than ``min_gain`` (relative); the mark is
-    then set to that value (smaller gains do not move it, so a slow steady decline still
-    counts once it adds up to ``min_gain``). After ``patience`` validations in a row
-    without an improvement the point has converged: ``cancel`` is set and training stops
-    before its next update. Training that reaches ``max_steps`` first is reported as not
-    converged. The learning rate decays over ``max_steps`` (TrainConfig.steps), the same
-    schedule for every point.
-    """
-
-    def __init__(self, validate_every, patience, min_gain, max_steps, forward=None):
-        self.validate_every, self.patience = validate_every, patience
-        self.min_gain, self.max_steps, self.forward = min_gain, max_steps, forward
-        self.cancel = threading.Event()
-        self.marks, self.stale, self.converged_at = {}, 0, None
-
-    def overrides(self):
-        """The TrainConfig settings the rule trains with."""
-        return {"steps": self.max_steps, "log_interval": self.validate_every}
-
-    def __call__(self, record):
-        if self.forward is not None:
-            self.forward(record)
-        validation = record.get("validation")
-        if validation is None or self.converged_at is not None:
-            return
-        improved = False
-        for key, error in watched(validation).items():
-            mark = self.marks.get(key)
-            if mark is None or error < mark * (1 - self.min_gain):
-                self.marks[key] = error
-                improved = True
-        self.stale = 0 if improved else self.stale + 1
-        if self.stale >= self.patience:
-            self.converged_at = record["step"]
-            self.cancel.set()
-
-
-def watched(validation):
-    """The WATCHED figures of one held-out validation (``train._metrics``), as errors."""
-    figures = dict(validation)
-    if "occlusion_accuracy" in figures:
-        figures["occlusion_error"] = 1.0 - figures["occlusion_accuracy"]
-    if "material_accuracy" in figures:
-        figures["material_error"] = 1.0 - figures["material_accuracy"]
-    return {key: figures[key] for key in WATCHED if figures.get(key) is not None}
+def rule_overrides(convergence):
+    """The TrainConfig settings of a size's convergence rule (``training.stopping``): at most
+    ``max_steps`` steps, the learning rate decaying over them for every point alike."""
+    return {"steps": convergence["max_steps"], "log_interval": convergence["validate_every"],
+            "stop_patience": convergence["patience"], "stop_min_gain": convergence["min_gain"]}
 
 
 def sweep_points(base, axes):
@@ -257,13 +207,12 @@ def _train_point(data, model, size, point, device, progress):
     """Trains one sweep point on the dataset folder ``data`` to the convergence rule into
     ``model``; its record."""
     settings = {k: v for k, v in point.items() if k != "resolution"}
-    rule = Convergence(**size["convergence"], forward=progress)
     result, _ = fit_model(data, "proposed", model,
                           dict(size["overrides"], device=device, **settings,
-                               **rule.overrides()),
-                          progress=rule, cancel=rule.cancel)
+                               **rule_overrides(size["convergence"])),
+                          progress=progress)
     return {"key": point_key(size, point), "steps": result.steps,
-            "converged": rule.converged_at is not None}
+            "converged": result.status == "converged"}
 
 
 def point_key(size, point):

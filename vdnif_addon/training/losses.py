@@ -8,7 +8,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..settings import DEFAULT_WEIGHTING_START, WEIGHTING_STARTS, WEIGHTINGS, check_choice
+from ..checks import check_choice
+from ..settings import DEFAULT_WEIGHTING_START, WEIGHTING_STARTS, WEIGHTINGS
 
 CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 """Tasks weighted as classification, exp(-s) L + s/2; the others are regression tasks."""

@@ -32,6 +32,7 @@ from .distributed import ProcessGroup, resolve_device
 from .header import DatasetHeader
 from .log import ProgressLog
 from .losses import make_weighting, task_losses
+from .stopping import StoppingRule
 from .validation import calibrate_candidate_threshold, calibrate_threshold, validate
 
 if TYPE_CHECKING:
@@ -46,7 +47,7 @@ class TrainResult:
     network: IntersectionNetwork
     network_config: NetworkConfig
     config: TrainConfig
-    status: str  # "completed" or "cancelled"
+    status: str  # "completed" (every step), "converged" (the stopping rule) or "cancelled"
     steps: int  # optimizer steps taken
     validation: dict[str, float] | None  # on the held-out poses; None without any
     log_variances: dict[str, float]
@@ -190,10 +191,12 @@ def train(
     The heads follow ``header.heads``. Every ``log_interval`` steps (and at the end) the main
     process calls ``progress`` with step, steps, mean task losses since the last call, total,
     log-variances, samples/s, ETA seconds and validation metrics on a fixed subset of the
-    held-out poses. ``cancel`` (e.g. a threading.Event): once set, training stops before the
-    next update and returns the model as it is, status "cancelled". Under ``torchrun``
-    (WORLD_SIZE > 1) each rank trains on ``segments[rank::world]`` with gradients averaged by
-    DistributedDataParallel; every rank returns the same weights.
+    held-out poses; the stopping rule (``training.stopping``, ``config.stop_patience``)
+    may end training there, status "converged". ``cancel`` (e.g. a threading.Event): once
+    set, training stops before the next update and returns the model as it is, status
+    "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
+    ``segments[rank::world]`` with gradients averaged by DistributedDataParallel; every rank
+    returns the same weights.
     """
     if not isinstance(header, DatasetHeader):
         raise VDNIFError("the dataset header must be a training.header.DatasetHeader, got "
@@ -240,6 +243,7 @@ def _train(
     log = ProgressLog(step_once.tasks, config.steps, config.log_interval,
                       config.batch_size * group.world, device)
 
+    rule = StoppingRule(config.stop_patience, config.stop_min_gain)
     status = "completed"
     for _ in range(config.steps):
         started = time.perf_counter()
@@ -249,9 +253,13 @@ def _train(
             break
         log.add(total, losses, time.perf_counter() - started)
         if log.due:
-            record = log.record(weighting.log_variances(), validate(network, probe, h, group))
+            validation = validate(network, probe, h, group)
+            record = log.record(weighting.log_variances(), validation)
             if progress is not None and group.rank == 0:
                 progress(record)
+            if rule.update(log.steps_done, validation):
+                status = "converged"
+                break
 
     network.eval()
     occlusion = calibrate_threshold(network, val_data, group)
