@@ -252,3 +252,37 @@ def test_cli_md_commands_run(core, user_files, monkeypatch, capsys):
     assert (user_files / "models" / "arm.vdnif").is_file()
     assert (user_files / "out" / "hero" / "render.json").is_file()
     assert (user_files / "out" / "demo-quick" / "report.json").is_file()
+
+
+RESULTS = REPO / "docs" / "results.md"
+
+
+def test_results_summary_repeats_its_json(core):
+    """Each row of the summary tables in docs/results.md (before the experiments' own
+    sections) gives its run's medians against the true reference, formatted as the sections
+    format them, from the JSON file the row names."""
+    import json
+
+    text = core("text")
+    summary = RESULTS.read_text().partition("<!-- experiment ")[0]
+    rows = [_cells(line) for line in summary.splitlines()
+            if line.startswith("| ") and line.rstrip().endswith(".json` |")]
+    for scene, model, *figures, source in rows:
+        runs = json.loads((RESULTS.parent / source.strip("`")).read_text())["runs"]
+        m = runs[f"{scene}/{model}"]["common"]["vs_true"]
+        assert figures == [text.percent(m.get("false_negative_rate")),
+                           text.percent(m.get("false_positive_rate")),
+                           text.value(m["distance_mae"]),
+                           text.value(m.get("distance_mae_voxels"), 3),
+                           text.value(m["normal_error_deg"], 3),
+                           text.value(m.get("albedo_psnr"), 3),
+                           text.value(m.get("material_accuracy"), 3)], (scene, model, source)
+    assert len(rows) >= 30
+
+
+def test_every_result_file_is_referenced_and_every_reference_exists():
+    """docs/results/ holds the files that docs/results.md names, no more (superseded runs
+    stay in git's history), and every file it names is there."""
+    named = set(re.findall(r"results/([\w.,-]+\.(?:json|png))", RESULTS.read_text()))
+    present = {path.name for path in (REPO / "docs" / "results").iterdir()}
+    assert named == present, (sorted(named - present), sorted(present - named))
