@@ -320,7 +320,7 @@ def test_train_from_scene_options_generates_its_dataset(tmp_path):
 
 @pytest.mark.slow
 def test_train_on_a_dataset_folder_creates_the_model_files_folder(tmp_path):
-    """``train --data DIR --out new/folder/model.vdnif`` (the README's example) writes the
+    """``train --data DIR --out new/folder/model.vdnif`` (docs/cli.md's example) writes the
     model into a folder it creates; a --out naming a folder is refused before training."""
     import shutil
 

@@ -2,7 +2,7 @@
 functions too): no import cycle; the studies and the batch commands sit on top, so nothing
 below them imports them; bpy only in the Blender layers; no oversized module.
 
-Layers (README, Layout), lowest first: the foundations (``vdnif_addon/*.py``: errors, limits,
+Layers (README, Developing), lowest first: the foundations (``vdnif_addon/*.py``: errors, limits,
 settings, ...), then the pipeline's stages ``geometry/`` < ``kernels/`` < ``tracing/`` <
 ``model/`` < ``training/`` < ``inference/``, then ``blender/`` (adapters and pipeline steps)
 < ``studies/`` < ``cli/`` (and ``batch.py``), with the extension's root modules

@@ -40,12 +40,12 @@ class Recipe:
     textured_resolution: int = 64
     poses: int = 32
     # Many distinct ray lines near silhouettes remove holes and extras (docs/HOLES.md); more
-    # than this cost memory for little gain (docs/results.md, "training rays per pose").
+    # than this cost memory for little gain (docs/DESIGN.md section 8, training rays per pose).
     rays_per_pose: int = 65536
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
     # A third of this left holes, extras and distance error on the three-material bunny that
-    # more steps remove with the same data (docs/results-history.md, "Why 9,000 steps").
+    # more steps remove with the same data (docs/DESIGN.md section 8, the default recipe).
     steps: int = 9000
     batch_size: int = 2**14
 
@@ -67,7 +67,7 @@ DEMO_SCENE = "spot"
 
 DEMO_STEPS = 3000
 """The main job's training steps: fewer than the recipe's, so that ``make demo`` stays under
-10 minutes on 2 CPU cores; on spot they still meet every target (README, docs/results.md)."""
+10 minutes on 2 CPU cores; on spot they still meet every target (`make demo`'s report)."""
 
 # The suggested resolution (``blender/resolution.py``): the coarsest candidate whose
 # embedding error (true vs embedded reference, distance MAE in object units) is at most
