@@ -11,17 +11,23 @@ a descheduled thread, slowing inference and training many times (DESIGN section 
 from __future__ import annotations
 
 import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 ENCODER_CORES = 1
 """Cores left to the encoder's thread (a Warp CPU launch runs on one)."""
 
 
+def cores() -> int:
+    """The cores this process may use."""
+    allowed = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    return len(allowed) if allowed else os.cpu_count() or 1
+
+
 def default_threads() -> int:
     """Torch threads by default: the cores this process may use, less ``ENCODER_CORES``, at
     least one."""
-    cores = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
-    count = len(cores) if cores else os.cpu_count() or 1
-    return max(1, count - ENCODER_CORES)
+    return max(1, cores() - ENCODER_CORES)
 
 
 def use_threads(threads: int | None = None) -> int:
@@ -31,3 +37,30 @@ def use_threads(threads: int | None = None) -> int:
 
     torch.set_num_threads(threads or default_threads())
     return torch.get_num_threads()
+
+
+_pool: dict[int, ThreadPoolExecutor] = {}
+_pool_lock = threading.Lock()
+_encoder = {"threads": None}
+
+
+def encoder_threads() -> int:
+    """CPU threads the encoder's launches are split over: ``use_encoder_threads``'s count,
+    else every core this process may use (training runs the encoder and the MLP one after
+    the other, so while it encodes torch's threads wait)."""
+    return _encoder["threads"] or cores()
+
+
+def use_encoder_threads(count: int | None) -> None:
+    """Splits the encoder's CPU launches over ``count`` threads (None: every core)."""
+    _encoder["threads"] = count
+
+
+def encoder_pool() -> ThreadPoolExecutor:
+    """The worker threads that run the encoder's CPU slices, ``encoder_threads()`` of them,
+    made once per process."""
+    with _pool_lock:
+        count = encoder_threads()
+        if count not in _pool:
+            _pool[count] = ThreadPoolExecutor(count, thread_name_prefix="vdnif-encoder")
+        return _pool[count]

@@ -30,12 +30,12 @@ On the CPU a launch is serial and latency-bound on the table reads: at the paper
 from __future__ import annotations
 
 import sys
-from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 import torch
 import warp as wp
 
+from .. import threads
 from . import runtime
 
 if TYPE_CHECKING:
@@ -55,6 +55,9 @@ NON_NEGATIVE = 0x7FFFFFFF
 """Masks an array index known to be in [0, 2^31): Warp wraps negative indices Python-style,
 and an index whose sign bit is visibly clear lets the compiler drop that test, 4 instructions
 per table read (1.05-1.08x the throughput, tools/encoder_bench.py)."""
+
+MIN_SLICE_POINTS = 2048
+"""Points per CPU slice at least: below this a thread's start costs more than it saves."""
 
 VECTOR_WIDTHS = (4, 3, 2, 1)
 """Table-row access widths compiled, widest first: a row of Fd floats is read as Fd / K
@@ -310,18 +313,47 @@ def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
 
 
 def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],
-              p1: Float[torch.Tensor, "N 3"] | None, ends: int
-              ) -> Iterator[tuple[int, int, list[Any]]]:
-    """Slices ``(first, stop)`` of the points of at most ``MAX_LAUNCH_VECTORS`` output vectors
-    each, with the launch arguments of the slice."""
+              p1: Float[torch.Tensor, "N 3"] | None, ends: int, parts: int = 1
+              ) -> list[tuple[int, int, list[Any]]]:
+    """Slices ``(first, stop)`` of the points, at least ``parts`` of them (as even as may be)
+    and of at most ``MAX_LAUNCH_VECTORS`` output vectors each, with the launch arguments of
+    the slice."""
     per_point = enc.width(ends) // vector_width(enc.feature_dim)
-    step = max(1, MAX_LAUNCH_VECTORS // per_point)
+    count = p0.shape[0]
+    step = max(1, min(MAX_LAUNCH_VECTORS // per_point, -(-count // parts)))
     shared = [ends, enc.bands, float(enc.scale), enc.dense, wp.uint32(enc.mask),
               wp.from_torch(enc.levels, requires_grad=False, return_ctype=True)]
-    for first in range(0, p0.shape[0], step):
-        stop = min(first + step, p0.shape[0])
+    slices = []
+    for first in range(0, count, step):
+        stop = min(first + step, count)
         ends_ = [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
-        yield first, stop, ends_ + shared
+        slices.append((first, stop, ends_ + shared))
+    return slices
+
+
+def _parts(device: str, count: int) -> int:
+    """Slices a launch over ``count`` points is split into: one per CPU thread of
+    ``threads.encoder_threads()`` with at least ``MIN_SLICE_POINTS`` points each, one on CUDA
+    (a CUDA launch is parallel already)."""
+    if not str(device).startswith("cpu"):
+        return 1
+    return max(1, min(threads.encoder_threads(), count // MIN_SLICE_POINTS))
+
+
+def _run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
+         launches: list[tuple[int, list[Any]]]) -> None:
+    """Launches ``kernel`` once per (dim, arguments) of ``launches``. With ``workers`` > 1
+    (the CPU only) launch i runs on worker i % workers of ``threads.encoder_pool()``, each
+    worker's launches in order, the workers at once: a launch is serial and releases the GIL
+    in its ctypes call, and a kernel without tiles keeps no state between tasks."""
+    def run(jobs: list[tuple[int, list[Any]]]) -> None:
+        for dim, inputs in jobs:
+            wp.launch(kernel, dim=dim, inputs=inputs, device=device, stream=stream)
+
+    if workers == 1:
+        run(launches)
+    else:
+        list(threads.encoder_pool().map(run, [launches[k::workers] for k in range(workers)]))
 
 
 def _vec3(points: Float[torch.Tensor, "N 3"]):
@@ -340,33 +372,43 @@ def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch
            p1: Float[torch.Tensor, "N 3"] | None) -> Float[torch.Tensor, "N C"]:
     """Features (N, C) of points (``p1`` None: C = L*Fd, no gamma unless bands) or segments
     (C = 2*(1+2F)*L*Fd); table (rows, Fd) float32 contiguous, p0/p1 (N, 3) contiguous
-    float32, all on one device."""
+    float32, all on one device. Each output row is written by its own slice's launch."""
     ends = 1 if p1 is None else 2
     out = torch.empty(p0.shape[0], enc.width(ends), dtype=torch.float32, device=p0.device)
     device, stream = _target(p0)
     width = vector_width(enc.feature_dim)
     rows = _vectors(table, width)
+    chunks = enc.feature_dim // width
     with runtime.LAUNCHES:
-        for first, stop, args in _launches(enc, p0, p1, ends):
-            args += [rows, enc.feature_dim // width, _vectors(out[first:stop], width)]
-            wp.launch(_FORWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
-                      stream=stream)
+        parts = _parts(device, p0.shape[0])
+        slices = _launches(enc, p0, p1, ends, parts)
+        _run(_FORWARD[width], device, stream, parts,
+             [((stop - first) * ends, args + [rows, chunks, _vectors(out[first:stop], width)])
+              for first, stop, args in slices])
     return out
 
 
 def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
                     p1: Float[torch.Tensor, "N 3"] | None, grad_out: Float[torch.Tensor, "N C"]
                     ) -> Float[torch.Tensor, "rows Fd"]:
-    """d(sum grad_out * encode(...)) / d table: (rows, Fd) float32; grad_out (N, C)."""
+    """d(sum grad_out * encode(...)) / d table: (rows, Fd) float32; grad_out (N, C).
+
+    Workers that run at once scatter into gradient tables of their own (a CPU launch's
+    atomic adds are plain adds, safe within one serial launch only), summed afterwards: the
+    sum's order then differs from one launch's, by float32 rounding."""
     ends = 1 if p1 is None else 2
-    grad_table = torch.zeros(rows, enc.feature_dim, dtype=torch.float32, device=p0.device)
     device, stream = _target(p0)
     width = vector_width(enc.feature_dim)
     grad_out = grad_out.to(torch.float32).contiguous()
-    target = _vectors(grad_table, width)
+    chunks = enc.feature_dim // width
     with runtime.LAUNCHES:
-        for first, stop, args in _launches(enc, p0, p1, ends):
-            args += [_vectors(grad_out[first:stop], width), enc.feature_dim // width, target]
-            wp.launch(_BACKWARD[width], dim=(stop - first) * ends, inputs=args, device=device,
-                      stream=stream)
-    return grad_table
+        parts = _parts(device, p0.shape[0])
+        slices = _launches(enc, p0, p1, ends, parts)
+        grads = torch.zeros(parts, rows, enc.feature_dim, dtype=torch.float32,
+                            device=p0.device)
+        _run(_BACKWARD[width], device, stream, parts,
+             [((stop - first) * ends,
+               args + [_vectors(grad_out[first:stop], width), chunks,
+                       _vectors(grads[i % parts], width)])
+              for i, (first, stop, args) in enumerate(slices)])
+    return grads[0] if parts == 1 else grads.sum(0)

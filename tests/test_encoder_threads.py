@@ -1,0 +1,76 @@
+"""The encoder's CPU launches split over several threads (``kernels.encoder``): the same
+features as one serial launch, bit for bit, and the same table gradient up to the order of
+its float32 sums, run after run, at sizes that split unevenly; both also against the torch
+oracle (``oracles.encoding_torch``)."""
+
+import pytest
+import torch
+from oracles import encoding_torch as oracle
+
+from vdnif_addon import threads
+from vdnif_addon.kernels import encoder as kernel
+from vdnif_addon.model.encoding import HashGrid, SegmentEncoder
+
+
+@pytest.fixture
+def encoder_threads():
+    yield threads.use_encoder_threads
+    threads.use_encoder_threads(None)
+
+
+def features_and_gradient(encoder, p0, p1, weights):
+    encoder.zero_grad(set_to_none=True)
+    features = encoder(p0, p1)
+    (features * weights).sum().backward()
+    return features.detach(), encoder.grid.table.grad.clone()
+
+
+@pytest.mark.parametrize("count", [2 * kernel.MIN_SLICE_POINTS, 9_001, 20_011])
+@pytest.mark.parametrize("workers", [2, 3, 4])
+def test_threaded_launches_equal_one_launch_run_after_run(encoder_threads, count, workers):
+    torch.manual_seed(count)
+    # a small hashed table: many segments scatter into the same rows, so a lost update
+    # between workers would show
+    encoder = SegmentEncoder(HashGrid(2, 16, 2.0, 9, 3), pe_bands=2)
+    with torch.no_grad():
+        encoder.grid.table.uniform_(-1.0, 1.0)
+    p0, p1 = torch.rand(2, count, 3)
+    weights = torch.randn(count, encoder.output_dim)
+    encoder_threads(1)
+    assert kernel._parts("cpu", count) == 1
+    serial, serial_grad = features_and_gradient(encoder, p0, p1, weights)
+    encoder_threads(workers)
+    assert kernel._parts("cpu", count) == min(workers, count // kernel.MIN_SLICE_POINTS) > 1
+    scale = serial_grad.abs().max()
+    for _ in range(10):
+        features, grad = features_and_gradient(encoder, p0, p1, weights)
+        assert torch.equal(features, serial)
+        torch.testing.assert_close(grad, serial_grad, rtol=0, atol=1e-5 * scale)
+
+
+def test_threaded_gradient_equals_the_torch_oracle(encoder_threads):
+    """The tolerance of the one-launch kernel's own oracle test
+    (tests/test_encoding_kernel.py)."""
+    torch.manual_seed(3)
+    encoder = SegmentEncoder(HashGrid(2, 12, 2.0, 10, 2), pe_bands=1)
+    with torch.no_grad():
+        encoder.grid.table.uniform_(-1.0, 1.0)
+    reference = oracle.from_product(encoder, correctly_rounded=True)
+    p0, p1 = torch.rand(2, 3 * kernel.MIN_SLICE_POINTS, 3)
+    weights = torch.randn(p0.shape[0], encoder.output_dim)
+    encoder_threads(3)
+    features, grad = features_and_gradient(encoder, p0, p1, weights)
+    reference.zero_grad(set_to_none=True)
+    expected = reference(p0, p1)
+    (expected * weights).sum().backward()
+    expected_grad = reference.grid.table.grad.t()
+    torch.testing.assert_close(features, expected.detach(), rtol=1e-6, atol=1e-6)
+    scale = expected_grad.abs().max().item()
+    torch.testing.assert_close(grad, expected_grad, rtol=1e-6, atol=1e-6 * scale)
+
+
+def test_small_batches_and_cuda_stay_one_launch(encoder_threads):
+    encoder_threads(8)
+    assert kernel._parts("cpu", kernel.MIN_SLICE_POINTS * 2 - 1) == 1
+    assert kernel._parts("cpu", kernel.MIN_SLICE_POINTS * 100) == 8
+    assert kernel._parts("cuda:0", kernel.MIN_SLICE_POINTS * 100) == 1
