@@ -1,10 +1,10 @@
-"""Checks the CUDA path on a machine with an NVIDIA GPU, in a minute or two: walks a dataset
-of a bent ball on the GPU, trains the proposed variant 2,000 steps there (batches
-moved from host memory each step), and renders one view with the trained network (the Warp
-encoder inside the wave loop) on the GPU and on the CPU, again on the GPU in waves split by
-a small wave cap, and again under a side ``torch.cuda.stream``; each GPU render must match
-the CPU's: hits equal but at most one pixel, distances within 1e-5 where both hit. Prints
-the driver's, torch's and Warp's versions and the timings.
+"""Checks the CUDA path on a machine with an NVIDIA GPU in a few minutes (the first run
+compiles the CUDA kernels): walks a dataset of a bent ball on the GPU, trains the proposed
+variant 2,000 steps there (each batch moved from host memory), and renders one view with the
+trained network (the Warp encoder inside the wave loop) on the GPU and on the CPU, again on
+the GPU in waves split by a small wave cap, and again under a side ``torch.cuda.stream``;
+each GPU render must match the CPU's: hits equal but at most one pixel, distances within
+1e-5 where both hit. Prints the driver's, torch's and Warp's versions and the timings.
 
     make gpu-check          (or: .venv/bin/python tools/gpu_check.py)
 
