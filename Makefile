@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.requirements-installed
 
-.PHONY: demo test lint package venv clean
+.PHONY: demo test lint package venv clean gpu-check
 
 venv: $(STAMP)
 
@@ -23,6 +23,10 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
+
+# Trains and renders on the GPU against the CPU (tools/gpu_check.py); refused without CUDA.
+gpu-check: $(STAMP)
+	$(PY) tools/gpu_check.py
 
 # The standard library only (tools/package.py): zipping the files needs no venv.
 package:

@@ -11,7 +11,7 @@ import sys
 
 import bpy
 
-from .vdnif_addon import settings
+from .vdnif_addon import dependencies, settings
 
 _DEVICE_TEXT = {"auto": ("Auto", "CUDA when available, else the CPU"),
                 "cpu": ("CPU", "Train and render on the CPU"),
@@ -19,12 +19,11 @@ _DEVICE_TEXT = {"auto": ("Auto", "CUDA when available, else the CPU"),
 DEVICES = [(name, *_DEVICE_TEXT[name]) for name in settings.DEVICES]
 """The device enum's items: ``settings.DEVICES`` with their labels."""
 INSTALL_HINT = "Preferences > Add-ons > VDNIF > Install PyTorch and Warp"
-WARP_REQUIREMENT = "warp-lang==1.19.0"
-"""The Warp release the kernels are written and tested for (as pinned in requirements.txt)."""
+WARP_REQUIREMENT = dependencies.WARP_REQUIREMENT
 
 _torch_details = None                  # cached (version, cuda available) or an error line
 _warp_details = None                   # cached version and kernel cache folder, or an error
-install = {"process": None, "message": ""}
+install = {"process": None, "message": "", "plan": None}
 
 
 def dependencies_folder() -> str:
@@ -79,7 +78,8 @@ def torch_details() -> str:
         try:
             import torch
 
-            cuda = "CUDA available" if torch.cuda.is_available() else "no CUDA device"
+            cuda = ("CUDA available" if torch.cuda.is_available() else
+                    "no CUDA device: VDNIF trains and renders on the CPU")
             _torch_details = f"PyTorch {torch.__version__}, {cuda}"
         except Exception as exc:   # a broken install must not break the preferences
             _torch_details = f"PyTorch is installed but cannot be imported: {exc}"
@@ -92,9 +92,11 @@ def device(context: bpy.types.Context) -> str:
 
 
 def install_command(folder: str) -> list[str]:
-    """pip installing Warp and torch into ``folder`` with Blender's own Python."""
-    return [sys.executable, "-m", "pip", "install", "--upgrade", "--no-input",
-            "--target", folder, WARP_REQUIREMENT, "torch"]
+    """pip installing Warp and torch into ``folder`` with Blender's own Python: PyTorch's
+    CUDA build where Windows has an NVIDIA driver (``dependencies.torch_plan``, kept in
+    ``install`` for the messages that say which build it is)."""
+    install["plan"] = dependencies.torch_plan()
+    return dependencies.install_command(sys.executable, folder, install["plan"])
 
 
 def start_install(background: bool) -> str:
@@ -111,6 +113,8 @@ def start_install(background: bool) -> str:
                                           env=environment, text=True)
     install["process"].log = log
     install["message"] = "Installing PyTorch and Warp (several minutes, about 1 GB)..."
+    if install["plan"] is not None:
+        install["message"] += f" {install['plan'].note}"
     bpy.app.timers.register(_watch_install, first_interval=1.0)
     return install["message"]
 
@@ -134,6 +138,9 @@ def _installed(returncode: int, output: str) -> str:
         use_kernel_folder()
         install["message"] = (f"Installed PyTorch {importlib.metadata.version('torch')} and "
                               f"Warp {importlib.metadata.version('warp-lang')}")
+        plan = install["plan"]
+        if plan is not None and not plan.cuda:
+            install["message"] += f"; {plan.note}"
     else:
         lines = [line for line in output.splitlines() if line.strip()]
         install["message"] = "PyTorch install failed: " + (lines[-1] if lines else

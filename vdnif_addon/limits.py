@@ -39,6 +39,11 @@ MAX_TABLE_FLOATS = 2**31 - 1
 levels."""
 
 MAX_BATCH = 1 << 22
+MAX_WAVE_SEGMENTS = 1 << 22
+"""Segments of one neural-render wave: the walk's buffer, the network's inputs and its
+answers take about 200 bytes a segment (under 1 GiB at the cap, where rays x 16 segments
+would take many GiB at the largest image). A larger wave is split (fewer segments per ray,
+then part of the rays at a time) into waves that give the same passes."""
 MAX_SEED = 2**31 - 1
 """numpy's and torch's seeds are unsigned 32-bit, the panel's IntProperty a signed 32-bit
 int: the smaller of the two."""

@@ -6,7 +6,10 @@ unresolved ray on by at most k segments (one kernel launch), the network evaluat
 segments in one batch, and a kernel places each ray's hit on its first candidate segment and
 makes it a hit at its first confident one (``kernels/render.py``), ending its walk; finished
 rays leave the list on the device. Only two counts per wave come back to the host, to size
-the next launch and the network batch.
+the next launch and the network batch. A wave holds at most ``limits.MAX_WAVE_SEGMENTS``
+segments: beyond it a ray walks fewer segments, and past one per ray only part of the rays
+walk on (the walk pauses the others when the buffer is full); a ray's passes depend only on
+its own segments in walk order, so the split changes nothing but the number of waves.
 """
 
 from __future__ import annotations
@@ -23,11 +26,13 @@ import numpy as np
 import torch
 import warp as wp
 
+from .. import limits
 from ..errors import VDNIFError
+from ..kernels import encoder, runtime
 from ..kernels import render as kernel
-from ..kernels import runtime
 from ..kernels.segments import segment_buffer
 from ..kernels.walk import RayWalk
+from ..memory import RENDER_ADVICE, out_of_memory
 from ..passes import Passes
 
 if TYPE_CHECKING:
@@ -60,7 +65,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   albedo_table: Float[np.ndarray, "M 3"], cells: DeviceCells,
                   origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
                   device: str | torch.device = "cpu", schedule: Sequence[int] = WAVE_SEGMENTS,
-                  overlap: bool | None = None) -> tuple[Passes, dict[str, Any]]:
+                  overlap: bool | None = None,
+                  max_wave_segments: int = limits.MAX_WAVE_SEGMENTS
+                  ) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
@@ -73,7 +80,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
     the network evaluates the other lane's wave; by default only on the CPU with a core that
     torch's threads leave free (else the walk would slow the network down as much as it
-    saves).
+    saves). A wave walks at most ``max_wave_segments`` segments. Running out of memory is a
+    VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
     if weights is not None and runtime.device(weights.device) != runtime.device(device):
@@ -89,9 +97,10 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     overlap = _core_to_spare(device) if overlap is None else overlap
     rays = len(origins)
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
-    with _torch_stream(device), _worker(overlap) as pool:
+    with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
+          _worker(overlap) as pool):
         walk = RayWalk(cells, origins, directions, lanes=2 if overlap else 1)
-        waves = _Waves(network, grid, walk, schedule, albedo_table, stats)
+        waves = _Waves(network, grid, walk, schedule, albedo_table, stats, max_wave_segments)
         ready = {}                      # lane -> segments walked, awaiting the network
         while True:
             to_walk = [i for i, lane in enumerate(walk.lanes) if lane.count and i not in ready]
@@ -114,10 +123,11 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
             wp.launch(kernel.unresolved_truncated, dim=rays,
                       inputs=[walk.state, waves.passes, counter], device=warp_device)
         stats["truncated"] = int(counter.numpy()[0])
-    passes = waves.passes
-    return Passes(hit=passes.hit.numpy().astype(bool), distance=passes.distance.numpy(),
-                  normal=passes.normal.numpy(), albedo=passes.albedo.numpy(),
-                  material=passes.material.numpy()), stats
+        passes = waves.passes
+        result = Passes(hit=passes.hit.numpy().astype(bool), distance=passes.distance.numpy(),
+                        normal=passes.normal.numpy(), albedo=passes.albedo.numpy(),
+                        material=passes.material.numpy())
+    return result, stats
 
 
 class _Waves:
@@ -130,9 +140,9 @@ class _Waves:
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
-                 stats: dict[str, Any]) -> None:
+                 stats: dict[str, Any], max_segments: int) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
-        self.stats, self.device = stats, walk.device
+        self.stats, self.device, self.max_segments = stats, walk.device, max_segments
         self.passes = kernel.empty_passes(walk.rays, self.device)
         self.first = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32, device=self.device)
         self.candidate = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32,
@@ -145,11 +155,14 @@ class _Waves:
         self.inputs = [None] * len(walk.lanes)
 
     def advance(self, lane: int) -> int:
-        """Walks ``lane`` on by its next wave's k segments per ray; returns how many."""
+        """Walks ``lane`` on by its next wave's k segments per ray, fewer where the wave would
+        pass ``max_segments``; returns how many segments it walked."""
         clock = time.perf_counter()
-        per_wave = wave_segments(self.waves[lane], self.schedule)
+        rays = self.walk.lanes[lane].count
+        per_wave = max(1, min(wave_segments(self.waves[lane], self.schedule),
+                              self.max_segments // rays))
         self.waves[lane] += 1
-        need = self.walk.lanes[lane].count * per_wave
+        need = min(rays * per_wave, self.max_segments)
         if self.buffers[lane] is None or need > self.buffers[lane].capacity:
             self.buffers[lane] = segment_buffer(need, self.device)
             self.inputs[lane] = [wp.empty(need, dtype=dtype, device=self.device)
@@ -238,12 +251,25 @@ def _worker(overlap: bool) -> Iterator[ThreadPoolExecutor | None]:
         yield pool
 
 
-def _torch_stream(device: str | torch.device) -> contextlib.AbstractContextManager:
-    """On CUDA, Warp launches go to torch's current stream, so the network reads what the
-    walk wrote and the resolve reads what the network wrote, in order."""
-    if torch.device(device).type == "cuda":
-        return wp.ScopedStream(wp.stream_from_torch(torch.cuda.current_stream(device)))
-    return contextlib.nullcontext()
+@contextlib.contextmanager
+def _device_stream(device: str | torch.device) -> Iterator[None]:
+    """On CUDA the render runs on the device's default stream, after the work the caller's
+    current stream holds and before its later work. Warp's launches and torch's (the
+    network) then run in order, and Warp's host reads (a wave's counts, the passes), which
+    copy on the default stream, wait for them: under ``torch.cuda.stream`` the caller's
+    stream does not synchronize with that copy."""
+    device = torch.device(device)
+    if device.type != "cuda":
+        yield
+        return
+    caller = torch.cuda.current_stream(device)
+    default = torch.cuda.default_stream(device)
+    default.wait_stream(caller)
+    try:
+        with torch.cuda.stream(default), wp.ScopedStream(encoder.warp_stream(default)):
+            yield
+    finally:
+        caller.wait_stream(default)
 
 
 def predict_segments(network: IntersectionNetwork, grid: VoxelGrid, segments: Segments,

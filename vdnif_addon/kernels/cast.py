@@ -60,7 +60,8 @@ class MeshCaster:
         self.mesh = None
         if self.triangle_count:
             self.indices = wp_.array(triangles.ravel(), dtype=wp_.int32, device=device)
-            self.mesh = wp_.Mesh(points=self.points, indices=self.indices)
+            self.mesh = wp_.Mesh(points=self.points, indices=self.indices,
+                                 bvh_constructor=runtime.BVH_CONSTRUCTOR)
 
     def refit(self, vertices: Float[np.ndarray, "V 3"]) -> None:
         """Moves the vertices (same count and triangles) and updates the BVH's bounds."""

@@ -304,12 +304,30 @@ class Encoding:
         return ends * (1 + 2 * self.bands) * count * self.feature_dim
 
 
+_STREAMS: dict[tuple[int | None, int], wp.Stream] = {}
+"""(GPU index, CUDA stream handle) -> the Warp stream that wraps it (``warp_stream``)."""
+
+
+def warp_stream(stream: torch.cuda.Stream) -> wp.Stream:
+    """The Warp stream of a torch CUDA stream, made on first use and reused: a Warp stream
+    made per launch registers the torch stream with Warp every time and unregisters it when
+    collected, while the stream is still current under ``torch.cuda.stream``."""
+    key = (stream.device.index, stream.cuda_stream)
+    found = _STREAMS.get(key)
+    if found is None:
+        found = _STREAMS.setdefault(key, wp.stream_from_torch(stream))
+    return found
+
+
 def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
     """(Warp device, stream) of a torch tensor's device, the kernels loaded there. On CUDA the
-    launch goes to torch's current stream, so it is ordered with torch's work."""
+    launch goes to torch's current stream, so it is ordered with torch's work; what the host
+    reads of its output (through torch) waits for that stream."""
     device = runtime.device(tensor.device)
     runtime.load(sys.modules[__name__], device)
-    return device, wp.stream_from_torch(tensor.device) if tensor.device.type == "cuda" else None
+    if tensor.device.type != "cuda":
+        return device, None
+    return device, warp_stream(torch.cuda.current_stream(tensor.device))
 
 
 def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],

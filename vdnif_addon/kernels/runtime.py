@@ -33,6 +33,13 @@ _lock = threading.Lock()
 _state = {"ready": False, "root": None}
 _loaded: set = set()
 
+BVH_CONSTRUCTOR = "sah"
+"""How every ``wp.Mesh`` builds its BVH, on the CPU and on CUDA alike. Warp's default is SAH on
+the CPU and LBVH on CUDA: two trees traverse in another order, and where a ray meets two
+triangles at the same distance (an edge, a vertex) each device could report another one. A
+CUDA mesh built with SAH is built on the host and copied (slower to build than LBVH; meshes
+are built once per object and refitted per pose)."""
+
 LAUNCHES = threading.RLock()
 """Held around every Warp launch that may run beside another thread's: the renderer walks one
 lane on a worker thread while ``network.predict`` encodes the other lane on its own worker,

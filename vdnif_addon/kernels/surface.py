@@ -290,7 +290,8 @@ class SurfaceCaster:
         items = np.arange(count, dtype=np.int32)
         self.cell_root = wp.empty(0, dtype=wp.int32, device=device)
         if count:
-            self.mesh = wp.Mesh(points=self.points, indices=self.corner_vertex)
+            self.mesh = wp.Mesh(points=self.points, indices=self.corner_vertex,
+                                bvh_constructor=runtime.BVH_CONSTRUCTOR)
             if cell_boxes is not None:
                 items = self._group_by_cell(cell_boxes, cell_margin)
         self.item_triangle = wp.array(items, dtype=wp.int32, device=device)
@@ -320,7 +321,8 @@ class SurfaceCaster:
             points=self.points,
             indices=wp.array(self.triangles[items].ravel(), dtype=wp.int32, device=self.device),
             groups=wp.array(np.repeat(np.arange(cells, dtype=np.int32), count),
-                            dtype=wp.int32, device=self.device))
+                            dtype=wp.int32, device=self.device),
+            bvh_constructor=runtime.BVH_CONSTRUCTOR)
         self.cell_root = wp.empty(cells, dtype=wp.int32, device=self.device)
         wp.launch(_group_roots, dim=cells, inputs=[self.mesh.id, self.cell_root],
                   device=self.device)

@@ -1,5 +1,9 @@
-"""Training data: dataset shards -> validated tensors on the training device, this process's
-share of them, the held-out poses, and the random batches the loop draws.
+"""Training data: dataset shards -> validated tensors, this process's share of them, the
+held-out poses, and the random batches the loop draws.
+
+The training rows stay in host memory (a dataset may be many times a GPU's memory): each
+step's batch is gathered there and moved to the training device. The held-out rows, a
+``val_fraction`` of them that validation evaluates in chunks, live on the device.
 
 Data contract (the dataset module produces it): ``segments`` is a sequence of shards, each a
 mapping of equal-length numpy arrays: ``p0``, ``p1`` (S, 3) normalized rest coordinates;
@@ -128,9 +132,9 @@ def split_data(
     heads: Heads,
     device: torch.device,
     group: ProcessGroup,
-) -> tuple[Segments, Segments, list[int]]:
-    """(training data, validation data, held-out poses): this process's shards
-    (``segments[rank::world]``) loaded and split by the held-out poses."""
+) -> tuple[TrainingRows, Segments, list[int]]:
+    """(training rows in host memory, validation data on ``device``, held-out poses): this
+    process's shards (``segments[rank::world]``) loaded and split by the held-out poses."""
     if len(segments) == 0:
         raise VDNIFError("no training segments: the dataset has no shards")
     shards = list(segments)[group.rank :: group.world]
@@ -139,38 +143,63 @@ def split_data(
             f"process {group.rank} has no dataset shard: "
             f"{len(segments)} shards for {group.world} processes"
         )
-    data = load_segments(shards, heads, device)
+    data = load_segments(shards, heads)
     val_poses = split_poses(data["pose"], config.val_fraction, config.seed, group)
-    held_out = torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64, device=device))
-    train_data = select({key: value for key, value in data.items() if key not in RAY_FIELDS},
-                        ~held_out)
-    val_data = select(data, held_out)
-    if train_data["p0"].shape[0] == 0:
+    held_out = torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64))
+    kept = ~held_out
+    train_rows, val_data = TrainingRows(device), {}
+    for key in list(data):
+        column = data.pop(key)      # one field at a time: no second copy of the whole data
+        val_data[key] = column[held_out].to(device)
+        if key not in RAY_FIELDS:
+            train_rows[key] = column[kept]
+    if train_rows["p0"].shape[0] == 0:
         raise VDNIFError(
             f"process {group.rank} has no training segments after holding out poses {val_poses}"
         )
-    return train_data, val_data, val_poses
+    return train_rows, val_data, val_poses
+
+
+class TrainingRows(dict):
+    """Segments in host memory, with the ``device`` that their batches train on."""
+
+    def __init__(self, device: str | torch.device) -> None:
+        super().__init__()
+        self.device = torch.device(device)
 
 
 class Batches:
-    """Random batches of one process's training data, from its own seeded generator on the
-    data's device (seed + rank: each process draws its own batches)."""
+    """Random batches of one process's training data, drawn by a seeded generator in host
+    memory (seed + rank: each process draws its own batches) and moved to the training device
+    (``TrainingRows.device``; plain Segments train where they are)."""
 
     def __init__(self, data: Segments, batch_size: int, seed: int) -> None:
         self.data = data
         self.batch_size = batch_size
         self.count = data["p0"].shape[0]
-        self.generator = torch.Generator(device=data["p0"].device).manual_seed(seed)
+        self.device = getattr(data, "device", data["p0"].device)
+        self.generator = torch.Generator().manual_seed(seed)
 
     def subset(self, data: Segments, size: int) -> Segments:
         """At most ``size`` rows of ``data`` drawn without replacement (the validation
-        probe), from this generator."""
-        order = torch.randperm(data["p0"].shape[0], generator=self.generator,
-                               device=data["p0"].device)
-        return select(data, order[:size])
+        probe), from this generator, on the device of ``data``."""
+        order = torch.randperm(data["p0"].shape[0], generator=self.generator)
+        return select(data, order[:size].to(data["p0"].device))
 
     def next(self) -> Segments:
-        """``batch_size`` rows drawn with replacement."""
-        index = torch.randint(self.count, (self.batch_size,), generator=self.generator,
-                              device=self.generator.device)
-        return select(self.data, index)
+        """``batch_size`` rows drawn with replacement, on the training device."""
+        index = torch.randint(self.count, (self.batch_size,), generator=self.generator)
+        rows = self.data["p0"].device
+        if rows.type == "cpu" and self.device.type == "cuda":
+            return {key: _staged(value, index).to(self.device, non_blocking=True)
+                    for key, value in self.data.items()}
+        return {key: value.to(self.device)
+                for key, value in select(self.data, index.to(rows)).items()}
+
+
+def _staged(column: torch.Tensor, index: Int64[torch.Tensor, " chosen"]) -> torch.Tensor:
+    """Rows ``index`` of a host column gathered into page-locked memory, whose copy to the GPU
+    neither waits for the GPU nor holds up the host (torch's pinned allocator keeps a block
+    until the copy that reads it is done)."""
+    staged = torch.empty((len(index), *column.shape[1:]), dtype=column.dtype, pin_memory=True)
+    return torch.index_select(column, 0, index, out=staged)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import VDNIFError
+from ..memory import TRAINING_ADVICE, out_of_memory, release_cached_memory
 
 
 def progress_interval(steps: int) -> int:
@@ -89,31 +90,37 @@ class TrainingJob:
         self._thread.start()
 
     def run(self) -> None:
-        """Trains, writes the model and queues the outcome; never raises."""
+        """Trains, writes the model and queues the outcome; never raises. Torch's cached GPU
+        memory is handed back at the end (a render's Warp allocations need it)."""
         partial = self.out.with_name(f".{self.out.name}.training")
         try:
-            from ..threads import use_threads
-            from .fit import fit_model
-
-            use_threads()
-
-            self.out.parent.mkdir(parents=True, exist_ok=True)
-            result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
-                                        progress=lambda record: self._queue.put(
-                                            ("progress", record)),
-                                        cancel=self._cancel)
-            if result.steps == 0:
-                self._queue.put(("cancelled", None))
-                return
-            os.replace(partial, self.out)
-            self._queue.put((result.status, dict(summary, model=str(self.out))))
+            self._queue.put(self._fit(partial))
         except VDNIFError as exc:
             self._queue.put(("failed", str(exc)))
-        except Exception as exc:   # torch errors (out of memory, ...) end the job, not Blender
+        except Exception as exc:   # torch errors end the job, not Blender
             self._queue.put(("failed", f"training failed: {type(exc).__name__}: {exc}"))
         finally:
             if partial.exists():
                 partial.unlink()
+            release_cached_memory()
+
+    def _fit(self, partial: pathlib.Path) -> tuple[str, dict[str, Any] | None]:
+        """Trains into ``partial``, moves it over the model file; the outcome to queue. The
+        network and its data are released when this returns."""
+        from ..threads import use_threads
+        from .fit import fit_model
+
+        use_threads()
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        with out_of_memory("training", TRAINING_ADVICE):
+            result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
+                                        progress=lambda record: self._queue.put(
+                                            ("progress", record)),
+                                        cancel=self._cancel)
+        if result.steps == 0:
+            return "cancelled", None
+        os.replace(partial, self.out)
+        return result.status, dict(summary, model=str(self.out))
 
     def cancel(self) -> None:
         self._cancel.set()

@@ -1,0 +1,229 @@
+"""Checks the CUDA path on a machine with an NVIDIA GPU in a few minutes (the first run
+compiles the CUDA kernels): walks a dataset of a bent ball on the GPU, trains the proposed
+variant 2,000 steps there (each batch moved from host memory), and renders one view with the
+trained network (the Warp encoder inside the wave loop) on the GPU and on the CPU, again on
+the GPU in waves split by a small wave cap, and again under a side ``torch.cuda.stream``;
+each GPU render must match the CPU's: hits equal but at most one pixel, distances within
+1e-5 where both hit. Prints the driver's, torch's and Warp's versions and the timings.
+
+    make gpu-check          (or: .venv/bin/python tools/gpu_check.py)
+
+Exit status 0 when every comparison holds, 1 when one fails or there is no CUDA device (one
+line on stderr, before any work).
+"""
+
+import argparse
+import copy
+import pathlib
+import subprocess
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from vdnif_addon.errors import VDNIFError  # noqa: E402
+
+MAX_HIT_DIFFERENCES = 1
+"""Pixels whose hit may differ between the devices: a float32 MLP sums in another order on
+a GPU, which can move a probability across the threshold."""
+DISTANCE_TOLERANCE = 1e-5
+"""Largest distance difference (object units) where both devices hit."""
+SPLIT_WAVE = 1000
+"""The wave cap of the split render: far below the view's segments, so that waves split."""
+
+
+def cuda_problem() -> str | None:
+    """Why this machine cannot run the check (None when it can): torch and Warp must both
+    see a CUDA device."""
+    import torch
+
+    if not torch.cuda.is_available():
+        return f"torch {torch.__version__} sees no CUDA device"
+    from vdnif_addon.kernels import runtime
+
+    if runtime.cuda_device_count() == 0:
+        return (f"Warp {runtime.warp_version()} sees no CUDA device (it needs an NVIDIA "
+                "driver for CUDA 13 and a Turing or newer GPU)")
+    return None
+
+
+def versions() -> dict[str, str]:
+    """The GPU, the driver (its release as nvidia-smi gives it, and its CUDA version),
+    torch's and Warp's versions with the CUDA each was built with."""
+    import torch
+
+    from vdnif_addon.kernels import runtime
+
+    wp = runtime.init()
+    try:
+        release = subprocess.run(["nvidia-smi", "--query-gpu=driver_version",
+                                  "--format=csv,noheader"], capture_output=True, text=True,
+                                 timeout=30).stdout.splitlines()[0].strip()
+    except (OSError, IndexError, subprocess.SubprocessError):
+        release = "?"
+    cuda = wp.get_cuda_driver_version()
+    toolkit = wp.get_cuda_toolkit_version()
+    return {"gpu": torch.cuda.get_device_name(0),
+            "driver": f"{release} (CUDA {'.'.join(map(str, cuda)) if cuda else '?'})",
+            "torch": f"{torch.__version__} (CUDA {torch.version.cuda})",
+            "warp": f"{wp.__version__} (CUDA {'.'.join(map(str, toolkit)) if toolkit else '?'})"}
+
+
+def ball(resolution: int = 12, rings: int = 24, sides: int = 32):
+    """(RestMesh, VoxelGrid, bent corners): a UV sphere of two materials, its grid and a smooth
+    non-affine pose of the grid's corners."""
+    from vdnif_addon.geometry import voxels
+    from vdnif_addon.geometry.restmesh import Albedo, RestMesh
+
+    theta = np.linspace(0, np.pi, rings + 1)[1:-1]
+    phi = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    ring = np.stack([np.outer(np.sin(theta), np.cos(phi)), np.outer(np.sin(theta), np.sin(phi)),
+                     np.outer(np.cos(theta), np.ones(sides))], -1).reshape(-1, 3)
+    vertices = np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]]).astype(np.float64)
+    triangles = []
+    for s in range(sides):
+        t = (s + 1) % sides
+        triangles.append((0, 1 + s, 1 + t))
+        for r in range(rings - 2):
+            a, b = 1 + r * sides, 1 + (r + 1) * sides
+            triangles += [(a + s, b + s, b + t), (a + s, b + t, a + t)]
+        last = 1 + (rings - 2) * sides
+        triangles.append((last + s, len(vertices) - 1, last + t))
+    triangles = np.array(triangles, np.int32)
+    normals = vertices[triangles].astype(np.float32)
+    material = (vertices[triangles].mean(1)[:, 2] > 0).astype(np.int32)
+    albedo = [Albedo("constant", np.array(c, np.float32)) for c in ((1, 0, 0), (0, 0, 1))]
+    mesh = RestMesh(name="Ball", vertices=vertices, triangles=triangles, corner_normals=normals,
+                    material_index=material, albedo=albedo)
+    grid = voxels.build_grid(mesh.vertices, mesh.triangles, resolution)
+    bend = grid.corner_positions().copy()
+    bend[:, 0] += 0.15 * bend[:, 2] ** 2
+    return mesh, grid, bend
+
+
+def dataset(mesh, grid, bend, poses: int, rays_per_pose: int, device: str):
+    """(shards, DatasetHeader): ``poses`` poses between the rest pose and ``bend``, each
+    walked and labelled on ``device``."""
+    from vdnif_addon.geometry.attributes import sample_surface
+    from vdnif_addon.kernels.cells import DeviceCells
+    from vdnif_addon.tracing import groundtruth, rays
+    from vdnif_addon.tracing.traverse import traverse
+    from vdnif_addon.training import dataset as data
+    from vdnif_addon.training.header import FORMAT, VERSION, DatasetHeader
+
+    rest = grid.corner_positions()
+    caster = groundtruth.rest_surface(mesh, grid, device)
+    shards, segments = [], 0
+    for pose in range(poses):
+        corners = rest + (bend - rest) * (pose / max(poses - 1, 1))
+        rng = np.random.default_rng(pose)
+        surface, _, _ = sample_surface(mesh.vertices, mesh.triangles, rays_per_pose, rng)
+        origins, directions = rays.training_rays(corners.min(0), corners.max(0), surface,
+                                                 rays_per_pose, 0.5, rng)
+        walked = traverse(DeviceCells(grid, device, corners=corners), origins, directions)
+        targets = groundtruth.segment_targets(mesh, caster, walked)
+        shards.append(data.segment_records(grid, walked, targets, pose))
+        segments += len(walked)
+    header = DatasetHeader.from_dict({
+        "format": FORMAT, "version": VERSION, "object": mesh.name, "mode": "armature",
+        "object_size": mesh.size, "grid": data.grid_header(grid, mesh).to_dict(),
+        "voxel_size": grid.voxel_size, "heads": mesh.heads(),
+        "albedo_table": mesh.albedo_table().tolist(),
+        "poses": [{"frame": float(p)} for p in range(poses)], "pose_range": [0, poses],
+        "seed": 0, "rays_per_pose": rays_per_pose, "surface_fraction": 0.5,
+        "grazing_fraction": 0.0, "inverted_cells": [0] * poses,
+        "counts": {"rays": poses * rays_per_pose, "segments": segments,
+                   "hits": int(sum(s["hit"].sum() for s in shards))},
+        "timings": {"total_s": 0.0}, "versions": {"vdnif": "gpu-check"}, "segments": segments,
+    }, "gpu-check dataset")
+    return shards, header
+
+
+def compare(cpu, gpu) -> tuple[int, float]:
+    """(pixels whose hit differs, largest distance difference where both hit)."""
+    both = cpu.hit & gpu.hit
+    distance = float(np.abs(cpu.distance - gpu.distance)[both].max()) if both.any() else 0.0
+    return int((cpu.hit != gpu.hit).sum()), distance
+
+
+def check(steps: int = 2000, size: int = 128, poses: int = 6, rays_per_pose: int = 16384,
+          say=print) -> bool:
+    """Trains and renders as the module says; reports through ``say``; True when every
+    GPU render matches the CPU's."""
+    import torch
+
+    from vdnif_addon.inference.neural_render import neural_passes
+    from vdnif_addon.kernels.cells import DeviceCells
+    from vdnif_addon.model.variants import variant_config
+    from vdnif_addon.tracing import rays
+    from vdnif_addon.training.train import train
+
+    for name, version in versions().items():
+        say(f"{name}: {version}")
+    mesh, grid, bend = ball()
+    clock = time.perf_counter()
+    shards, header = dataset(mesh, grid, bend, poses, rays_per_pose, "cuda:0")
+    say(f"dataset on cuda:0: {header.segments} segments of {poses} poses in "
+        f"{time.perf_counter() - clock:.1f} s")
+    chosen = variant_config("proposed", steps=steps, batch_size=8192, device="cuda",
+                            log_interval=steps)
+    result = train(shards, header, chosen.train, chosen.network)
+    say(f"training on cuda:0: {result.steps} steps in {result.seconds:.1f} s, "
+        f"{result.samples_per_s:,.0f} segments/s, validation {result.validation}")
+    network = result.network
+    view = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), view, size, size)
+    table = mesh.albedo_table()
+
+    def render(device, net, **options):
+        cells = DeviceCells(grid, "cuda:0" if device == "cuda" else "cpu", corners=bend)
+        clock = time.perf_counter()
+        passes, stats = neural_passes(net, grid, table, cells, origins, directions,
+                                      device=device, **options)
+        return passes, stats, time.perf_counter() - clock
+
+    cpu, cpu_stats, cpu_s = render("cpu", copy.deepcopy(network).cpu())
+    say(f"render on the CPU: {size}x{size}, {cpu.hit.sum()} hits, {cpu_stats['waves']} waves, "
+        f"{cpu_s:.2f} s")
+    ok = cpu.hit.sum() > 0
+    runs = {"cuda": {}, "cuda, waves split": {"max_wave_segments": SPLIT_WAVE}}
+    for label, options in [*runs.items(), ("cuda, side stream", None)]:
+        if options is None:
+            with torch.cuda.stream(torch.cuda.Stream()):
+                gpu, stats, seconds = render("cuda", network)
+        else:
+            render("cuda", network, **options)        # the first also compiles the kernels
+            gpu, stats, seconds = render("cuda", network, **options)
+        hits, distance = compare(cpu, gpu)
+        good = (hits <= MAX_HIT_DIFFERENCES and distance <= DISTANCE_TOLERANCE
+                and stats["truncated"] == 0)
+        ok &= good
+        say(f"render on {label}: {stats['waves']} waves, {seconds:.3f} s; against the CPU: "
+            f"{hits} hits differ (at most {MAX_HIT_DIFFERENCES}), distances within "
+            f"{distance:.2e} (at most {DISTANCE_TOLERANCE:.0e}): {'ok' if good else 'FAILED'}")
+    return bool(ok)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--steps", type=int, default=2000, help="training steps on the GPU")
+    parser.add_argument("--size", type=int, default=128, help="rendered view's side, pixels")
+    args = parser.parse_args(argv)
+    problem = cuda_problem()
+    if problem is not None:
+        print(f"gpu_check: error: no CUDA device to check: {problem}", file=sys.stderr)
+        return 1
+    try:
+        ok = check(args.steps, args.size)
+    except VDNIFError as exc:
+        print(f"gpu_check: error: {exc}", file=sys.stderr)
+        return 1
+    print("gpu-check: " + ("passed" if ok else "FAILED"))
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

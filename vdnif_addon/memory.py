@@ -1,0 +1,69 @@
+"""Running out of memory as the user's problem: torch's and Warp's allocation failures (on a
+GPU or the host) become one VDNIFError line that says what to lower, and torch's cached GPU
+memory is handed back once a job is over.
+
+Imports neither torch nor Warp: a failure is recognised by its type where torch is loaded,
+else by the wording both libraries use.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import sys
+from collections.abc import Iterator
+
+from .errors import VDNIFError
+
+TRAINING_ADVICE = ("lower the batch size or the hash table size (log2 table size), "
+                   "or train on the CPU")
+"""What a training that ran out of memory can lower."""
+
+RENDER_ADVICE = "lower the image size, or render on the CPU"
+"""What a render that ran out of memory can lower (the rays' state is per pixel; a wave's
+buffers are capped by ``limits.MAX_WAVE_SEGMENTS``)."""
+
+_WORDING = ("out of memory", "Failed to allocate", "can't allocate memory")
+"""torch's CUDA ("CUDA out of memory"), Warp's ("Failed to allocate N bytes on device") and
+torch's CPU allocator's ("can't allocate memory") messages."""
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` is an allocation failure of torch, Warp or numpy."""
+    if isinstance(exc, MemoryError):
+        return True
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(exc, torch.cuda.OutOfMemoryError):
+        return True
+    return isinstance(exc, RuntimeError) and any(words in str(exc) for words in _WORDING)
+
+
+def _detail(exc: BaseException) -> str:
+    """The first two sentences of the failure's first line (torch's goes on for lines)."""
+    lines = str(exc).strip().splitlines()
+    first = lines[0] if lines else type(exc).__name__
+    return ". ".join(first.split(". ")[:2]).rstrip(". ")
+
+
+@contextlib.contextmanager
+def out_of_memory(task: str, advice: str) -> Iterator[None]:
+    """Turns an allocation failure inside into ``VDNIFError("<task> ran out of memory
+    (<what failed>): <advice>")``; any other exception passes unchanged."""
+    try:
+        yield
+    except VDNIFError:
+        raise
+    except Exception as exc:
+        if not is_out_of_memory(exc):
+            raise
+        raise VDNIFError(f"{task} ran out of memory ({_detail(exc)}): {advice}") from None
+
+
+def release_cached_memory() -> None:
+    """Hands the GPU memory that torch keeps cached for reuse back to the driver, so that
+    Warp's allocations (a render) and other programs can have it; nothing where this process
+    never used CUDA."""
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.cuda.is_initialized():
+        gc.collect()                # a network left in a reference cycle holds its tensors
+        torch.cuda.empty_cache()
