@@ -10,7 +10,7 @@ import torch
 import warp as wp
 
 from vdnif_addon.inference import neural_render as render
-from vdnif_addon.kernels import encoder, runtime
+from vdnif_addon.kernels import encoder, launches, runtime
 
 
 class FakeStream:
@@ -36,7 +36,7 @@ def fake_streams(monkeypatch, log):
     monkeypatch.setattr(torch.cuda, "current_stream", lambda device=None: streams["current"])
     monkeypatch.setattr(torch.cuda, "default_stream", lambda device=None: streams["default"])
     monkeypatch.setattr(wp, "stream_from_torch", from_torch)
-    monkeypatch.setattr(encoder, "_STREAMS", {})
+    monkeypatch.setattr(launches, "_STREAMS", {})
     return streams, made
 
 

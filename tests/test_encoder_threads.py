@@ -1,4 +1,4 @@
-"""The encoder's CPU launches split over several threads (``kernels.encoder``): the same
+"""The encoder's CPU launches split over several threads (``kernels.launches``): the same
 features as one serial launch, bit for bit, and the same table gradient up to the order of
 its float32 sums, run after run, at sizes that split unevenly; both also against the torch
 oracle (``oracles.encoding_torch``)."""
@@ -8,7 +8,7 @@ import torch
 from oracles import encoding_torch as oracle
 
 from vdnif_addon import threads
-from vdnif_addon.kernels import encoder as kernel
+from vdnif_addon.kernels import launches
 from vdnif_addon.model.encoding import HashGrid, SegmentEncoder
 
 
@@ -25,7 +25,7 @@ def features_and_gradient(encoder, p0, p1, weights):
     return features.detach(), encoder.grid.table.grad.clone()
 
 
-@pytest.mark.parametrize("count", [2 * kernel.MIN_SLICE_POINTS, 9_001, 20_011])
+@pytest.mark.parametrize("count", [2 * launches.MIN_SLICE_POINTS, 9_001, 20_011])
 @pytest.mark.parametrize("workers", [2, 3, 4])
 def test_threaded_launches_equal_one_launch_run_after_run(encoder_threads, count, workers):
     torch.manual_seed(count)
@@ -37,10 +37,10 @@ def test_threaded_launches_equal_one_launch_run_after_run(encoder_threads, count
     p0, p1 = torch.rand(2, count, 3)
     weights = torch.randn(count, encoder.output_dim)
     encoder_threads(1)
-    assert kernel._parts("cpu", count) == 1
+    assert launches.parts("cpu", count) == 1
     serial, serial_grad = features_and_gradient(encoder, p0, p1, weights)
     encoder_threads(workers)
-    assert kernel._parts("cpu", count) == min(workers, count // kernel.MIN_SLICE_POINTS) > 1
+    assert launches.parts("cpu", count) == min(workers, count // launches.MIN_SLICE_POINTS) > 1
     scale = serial_grad.abs().max()
     for _ in range(10):
         features, grad = features_and_gradient(encoder, p0, p1, weights)
@@ -56,7 +56,7 @@ def test_threaded_gradient_equals_the_torch_oracle(encoder_threads):
     with torch.no_grad():
         encoder.grid.table.uniform_(-1.0, 1.0)
     reference = oracle.from_product(encoder, correctly_rounded=True)
-    p0, p1 = torch.rand(2, 3 * kernel.MIN_SLICE_POINTS, 3)
+    p0, p1 = torch.rand(2, 3 * launches.MIN_SLICE_POINTS, 3)
     weights = torch.randn(p0.shape[0], encoder.output_dim)
     encoder_threads(3)
     features, grad = features_and_gradient(encoder, p0, p1, weights)
@@ -71,6 +71,6 @@ def test_threaded_gradient_equals_the_torch_oracle(encoder_threads):
 
 def test_small_batches_and_cuda_stay_one_launch(encoder_threads):
     encoder_threads(8)
-    assert kernel._parts("cpu", kernel.MIN_SLICE_POINTS * 2 - 1) == 1
-    assert kernel._parts("cpu", kernel.MIN_SLICE_POINTS * 100) == 8
-    assert kernel._parts("cuda:0", kernel.MIN_SLICE_POINTS * 100) == 1
+    assert launches.parts("cpu", launches.MIN_SLICE_POINTS * 2 - 1) == 1
+    assert launches.parts("cpu", launches.MIN_SLICE_POINTS * 100) == 8
+    assert launches.parts("cuda:0", launches.MIN_SLICE_POINTS * 100) == 1

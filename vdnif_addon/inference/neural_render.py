@@ -28,7 +28,7 @@ import warp as wp
 
 from .. import limits
 from ..errors import VDNIFError
-from ..kernels import encoder, runtime
+from ..kernels import launches, runtime
 from ..kernels import render as kernel
 from ..kernels.segments import segment_buffer
 from ..kernels.walk import RayWalk
@@ -266,7 +266,7 @@ def _device_stream(device: str | torch.device) -> Iterator[None]:
     default = torch.cuda.default_stream(device)
     default.wait_stream(caller)
     try:
-        with torch.cuda.stream(default), wp.ScopedStream(encoder.warp_stream(default)):
+        with torch.cuda.stream(default), wp.ScopedStream(launches.warp_stream(default)):
             yield
     finally:
         caller.wait_stream(default)

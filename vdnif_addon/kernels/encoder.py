@@ -35,8 +35,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 import warp as wp
 
-from .. import threads
-from . import runtime
+from . import launches, runtime
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
@@ -55,9 +54,6 @@ NON_NEGATIVE = 0x7FFFFFFF
 """Masks an array index known to be in [0, 2^31): Warp wraps negative indices Python-style,
 and an index whose sign bit is visibly clear lets the compiler drop that test, 4 instructions
 per table read (1.05-1.08x the throughput, tools/encoder_bench.py)."""
-
-MIN_SLICE_POINTS = 2048
-"""Points per CPU slice at least: below this a thread's start costs more than it saves."""
 
 VECTOR_WIDTHS = (4, 3, 2, 1)
 """Table-row access widths compiled, widest first: a row of Fd floats is read as Fd / K
@@ -304,21 +300,6 @@ class Encoding:
         return ends * (1 + 2 * self.bands) * count * self.feature_dim
 
 
-_STREAMS: dict[tuple[int | None, int], wp.Stream] = {}
-"""(GPU index, CUDA stream handle) -> the Warp stream that wraps it (``warp_stream``)."""
-
-
-def warp_stream(stream: torch.cuda.Stream) -> wp.Stream:
-    """The Warp stream of a torch CUDA stream, made on first use and reused: a Warp stream
-    made per launch registers the torch stream with Warp every time and unregisters it when
-    collected, while the stream is still current under ``torch.cuda.stream``."""
-    key = (stream.device.index, stream.cuda_stream)
-    found = _STREAMS.get(key)
-    if found is None:
-        found = _STREAMS.setdefault(key, wp.stream_from_torch(stream))
-    return found
-
-
 def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
     """(Warp device, stream) of a torch tensor's device, the kernels loaded there. On CUDA the
     launch goes to torch's current stream, so it is ordered with torch's work; what the host
@@ -327,7 +308,7 @@ def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
     runtime.load(sys.modules[__name__], device)
     if tensor.device.type != "cuda":
         return device, None
-    return device, warp_stream(torch.cuda.current_stream(tensor.device))
+    return device, launches.warp_stream(torch.cuda.current_stream(tensor.device))
 
 
 def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],
@@ -347,31 +328,6 @@ def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],
         ends_ = [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
         slices.append((first, stop, ends_ + shared))
     return slices
-
-
-def _parts(device: str, count: int) -> int:
-    """Slices a launch over ``count`` points is split into: one per CPU thread of
-    ``threads.encoder_threads()`` with at least ``MIN_SLICE_POINTS`` points each, one on CUDA
-    (a CUDA launch is parallel already)."""
-    if not str(device).startswith("cpu"):
-        return 1
-    return max(1, min(threads.encoder_threads(), count // MIN_SLICE_POINTS))
-
-
-def _run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
-         launches: list[tuple[int, list[Any]]]) -> None:
-    """Launches ``kernel`` once per (dim, arguments) of ``launches``. With ``workers`` > 1
-    (the CPU only) launch i runs on worker i % workers of ``threads.encoder_pool()``, each
-    worker's launches in order, the workers at once: a launch is serial and releases the GIL
-    in its ctypes call, and a kernel without tiles keeps no state between tasks."""
-    def run(jobs: list[tuple[int, list[Any]]]) -> None:
-        for dim, inputs in jobs:
-            wp.launch(kernel, dim=dim, inputs=inputs, device=device, stream=stream)
-
-    if workers == 1:
-        run(launches)
-    else:
-        list(threads.encoder_pool().map(run, [launches[k::workers] for k in range(workers)]))
 
 
 def _vec3(points: Float[torch.Tensor, "N 3"]):
@@ -398,9 +354,9 @@ def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch
     rows = _vectors(table, width)
     chunks = enc.feature_dim // width
     with runtime.LAUNCHES:
-        parts = _parts(device, p0.shape[0])
+        parts = launches.parts(device, p0.shape[0])
         slices = _launches(enc, p0, p1, ends, parts)
-        _run(_FORWARD[width], device, stream, parts,
+        launches.run(_FORWARD[width], device, stream, parts,
              [((stop - first) * ends, args + [rows, chunks, _vectors(out[first:stop], width)])
               for first, stop, args in slices])
     return out
@@ -420,11 +376,11 @@ def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
     grad_out = grad_out.to(torch.float32).contiguous()
     chunks = enc.feature_dim // width
     with runtime.LAUNCHES:
-        parts = _parts(device, p0.shape[0])
+        parts = launches.parts(device, p0.shape[0])
         slices = _launches(enc, p0, p1, ends, parts)
         grads = torch.zeros(parts, rows, enc.feature_dim, dtype=torch.float32,
                             device=p0.device)
-        _run(_BACKWARD[width], device, stream, parts,
+        launches.run(_BACKWARD[width], device, stream, parts,
              [((stop - first) * ends,
                args + [_vectors(grad_out[first:stop], width), chunks,
                        _vectors(grads[i % parts], width)])

@@ -1,0 +1,53 @@
+"""How the encoder's launches are placed: split over CPU threads (a Warp CPU launch runs on
+one), or on the Warp stream of torch's current CUDA stream."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+import warp as wp
+
+from .. import threads
+
+MIN_SLICE_POINTS = 2048
+"""Points per CPU slice at least: below this a thread's start costs more than it saves."""
+
+_STREAMS: dict[tuple[int | None, int], wp.Stream] = {}
+"""(GPU index, CUDA stream handle) -> the Warp stream that wraps it (``warp_stream``)."""
+
+
+def warp_stream(stream: torch.cuda.Stream) -> wp.Stream:
+    """The Warp stream of a torch CUDA stream, made on first use and reused: a Warp stream
+    made per launch registers the torch stream with Warp every time and unregisters it when
+    collected, while the stream is still current under ``torch.cuda.stream``."""
+    key = (stream.device.index, stream.cuda_stream)
+    found = _STREAMS.get(key)
+    if found is None:
+        found = _STREAMS.setdefault(key, wp.stream_from_torch(stream))
+    return found
+
+
+def parts(device: str, count: int) -> int:
+    """Slices a launch over ``count`` points is split into: one per CPU thread of
+    ``threads.encoder_threads()`` with at least ``MIN_SLICE_POINTS`` points each, one on CUDA
+    (a CUDA launch is parallel already)."""
+    if not str(device).startswith("cpu"):
+        return 1
+    return max(1, min(threads.encoder_threads(), count // MIN_SLICE_POINTS))
+
+
+def run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
+        jobs: list[tuple[int, list[Any]]]) -> None:
+    """Launches ``kernel`` once per (dim, arguments) of ``jobs``. With ``workers`` > 1
+    (the CPU only) job i runs on worker i % workers of ``threads.encoder_pool()``, each
+    worker's jobs in order, the workers at once: a launch is serial and releases the GIL
+    in its ctypes call, and a kernel without tiles keeps no state between tasks."""
+    def in_order(share: list[tuple[int, list[Any]]]) -> None:
+        for dim, inputs in share:
+            wp.launch(kernel, dim=dim, inputs=inputs, device=device, stream=stream)
+
+    if workers == 1:
+        in_order(jobs)
+    else:
+        list(threads.encoder_pool().map(in_order, [jobs[k::workers] for k in range(workers)]))
