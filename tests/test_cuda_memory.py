@@ -4,6 +4,8 @@ capped and split with the same passes; an out-of-memory failure of torch or Warp
 VDNIFError line that says what to lower; a training job hands torch's cached GPU memory
 back (``torch.cuda`` faked)."""
 
+import pathlib
+
 import numpy as np
 import pytest
 import torch
@@ -154,8 +156,9 @@ def test_a_training_job_hands_back_cached_gpu_memory(monkeypatch, tmp_path):
     def failing(*args, **kwargs):
         raise torch.cuda.OutOfMemoryError(TORCH_OOM)
 
-    monkeypatch.setattr(fit, "fit_model", failing)
-    job = TrainingJob(tmp_path, "proposed", tmp_path / "model.vdnif", {"steps": 10})
+    monkeypatch.setattr(fit, "train", failing)
+    golden = pathlib.Path(__file__).resolve().parent / "golden" / "arm-dataset"
+    job = TrainingJob(golden, "proposed", tmp_path / "model.vdnif", {"steps": 10})
     job.run()
     state = job.poll()
     assert state.status == "failed" and emptied == [True]
@@ -173,3 +176,18 @@ def test_a_training_job_hands_back_cached_gpu_memory(monkeypatch, tmp_path):
     job.run()
     assert job.poll().status == "completed" and emptied == [True, True]
     assert (tmp_path / "model.vdnif").read_bytes() == b"model"
+
+
+def test_training_out_of_memory_is_one_line_from_the_command_line_and_the_panel(
+        monkeypatch, tmp_path):
+    """``fit_model``, which the train command, the demo and the panel's job all call, turns a
+    GPU allocation failure inside training into the one-line error."""
+    def fail(*args, **kwargs):
+        raise torch.cuda.OutOfMemoryError("CUDA out of memory. Tried to allocate 2.00 GiB")
+
+    monkeypatch.setattr(fit, "train", fail)
+    golden = pathlib.Path(__file__).resolve().parent / "golden" / "arm-dataset"
+    with pytest.raises(VDNIFError, match="training ran out of memory") as raised:
+        fit.fit_model(golden, "proposed", tmp_path / "m.vdnif", {"steps": 1})
+    assert memory.TRAINING_ADVICE in str(raised.value) and "\n" not in str(raised.value)
+    assert not (tmp_path / "m.vdnif").exists()

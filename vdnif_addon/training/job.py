@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..errors import VDNIFError
-from ..memory import TRAINING_ADVICE, out_of_memory, release_cached_memory
+from ..memory import release_cached_memory
 
 
 def progress_interval(steps: int) -> int:
@@ -112,11 +112,10 @@ class TrainingJob:
 
         use_threads()
         self.out.parent.mkdir(parents=True, exist_ok=True)
-        with out_of_memory("training", TRAINING_ADVICE):
-            result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
-                                        progress=lambda record: self._queue.put(
-                                            ("progress", record)),
-                                        cancel=self._cancel)
+        result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
+                                    progress=lambda record: self._queue.put(
+                                        ("progress", record)),
+                                    cancel=self._cancel)
         if result.steps == 0:
             return "cancelled", None
         os.replace(partial, self.out)
