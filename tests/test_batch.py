@@ -95,6 +95,13 @@ def test_dataset_then_references(tmp_path):
     assert trained["network_config"]["pe_bands"] == 0
     assert trained["network_config"]["log2_table_size"] == 12
     assert (out / "lsnif.vdnif").is_file() and "ETA" in err
+    # the history: per progress record the step, the positive task losses and validation
+    history = trained["history"]
+    assert history[-1]["step"] == 20 and all(set(r) == {"step", "losses", "validation"}
+                                             for r in history)
+    assert all(loss > 0 for r in history for loss in r["losses"].values())
+    assert trained["plot"] == str(out / "lsnif-training.png")
+    assert (out / "lsnif-training.png").is_file()
 
 
 @pytest.mark.parametrize("args, message", [

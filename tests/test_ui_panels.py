@@ -177,6 +177,7 @@ def test_trained_and_evaluated(arm, extension):
             "false negatives 0.46 %, false positives 8.8 %, albedo PSNR 31.25 dB, "
             "material accuracy n/a") in everything, "the panel prints the batch line"
     assert "distance MAE n/a" in everything and "12,345 rays/s" in everything
+    assert "Verdict: speckled: 0.46 % holes, 8.8 % extras" in everything
     assert "has no trained model" not in everything
     report = json.loads(settings.metrics)
     report.update(timings={"render_rays_per_s": None},

@@ -12,6 +12,7 @@ from ..inference.exr import write_multilayer
 from ..model.variants import variant_config
 from ..passes import COMPOSITOR_PASSES, VIEW_LAYER
 from ..training.fit import fit_model
+from ..training.history import plot
 from .capture_scene import capture
 from .generate import generate_dataset
 from .image_io import save_image
@@ -103,6 +104,11 @@ def write_passes(folder, passes, height, width, world_scale=None, prefix="", slo
         images.compositor_passes(data, height, width, normal_matrix), COMPOSITOR_PASSES,
         VIEW_LAYER))
     return written
+
+
+def write_training_plot(path, history):
+    """Writes the loss plot of training's progress records (``history.plot``) as a PNG."""
+    return save_image(path, plot(history))
 
 
 def write_figures(folder, view, height, width, object_size):

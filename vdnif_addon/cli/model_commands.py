@@ -4,6 +4,7 @@ once and captures the scene of the options again as the model was trained on it
 
 import pathlib
 
+from ..inference.metrics import verdict
 from ..settings import COMMAND_IMAGE, EVALUATION_POSES
 from .options import (
     add_device_option,
@@ -105,6 +106,7 @@ def cmd_evaluate(args):
                                          prefix="" if name == "predicted" else "true-")]
     write_json(args.json, report)
     print_evaluation(report)
+    print(f"  verdict against the mesh: {verdict(report['vs_true'])}")
     return 0
 
 
@@ -149,5 +151,5 @@ def add_commands(commands):
     evaluate.add_argument("--rest-pose", action="store_true",
                           help="evaluate on views of the undeformed rest pose instead")
     evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
-                          help="write the figures, error images and first view's passes here")
+                          help="write the figures, error images and first pose's passes here")
     evaluate.add_argument("--json", type=output_file, metavar="PATH")
