@@ -57,8 +57,8 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                      description="Poses the network learns from: more poses cover more of "
                                  "the rig's motion; each adds to the dataset and its time")
     seed: _int("Seed", "seed", defaults.PoseSpec.seed,
-               description="Starting number of the random poses and of the training: the "
-                           "same seed gives the same result again")
+               description="Starting number of the random poses and of training's random "
+                           "choices: another seed gives other poses")
     max_angle: FloatProperty(name="Maximum Angle", default=defaults.PoseSpec.max_angle_deg,
                              min=BOUNDS["max_angle"][0], max=BOUNDS["max_angle"][1],
                              description="Largest random bone rotation per axis in degrees, "

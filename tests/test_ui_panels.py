@@ -168,7 +168,9 @@ def test_trained_and_evaluated(arm, extension):
                                    "height": 24, "variant": "proposed", "vs_true": metrics,
                                    "vs_embedded": dict(metrics, distance_mae=None),
                                    "timings": {"render_rays_per_s": 12345.0}})
+    bpy.data.images.new("VDNIF Training (Arm)", 4, 4)
     everything = texts(draw_all(extension))
+    assert "Loss plot: image 'VDNIF Training (Arm)' (Image Editor)" in everything
     assert "Arm: trained: proposed, 40 steps" in everything
     assert "Model: packed in the .blend (0.25 MB)" in everything
     assert "distance error 0.25 voxels, normal error 9.5 deg" in everything

@@ -80,6 +80,8 @@ def session(extension, tmp_path_factory):
     record["dataset"] = storage.dataset_folder(obj)
     bpy.ops.vdnif.train()
     record["trained_info"] = settings.parsed("model_info")
+    plot = bpy.data.images.get("VDNIF Training (Arm)")
+    record["training_plot"] = None if plot is None else (tuple(plot.size), pixels(plot.name))
     record["trained_path"] = storage.model_path(obj)
     eager = folder / "eager.vdnif"
     eager_model(record["trained_path"], eager)
@@ -152,6 +154,8 @@ def test_dataset_and_training_write_their_results(session):
     _, metadata = module("vdnif_addon.model.model_file").load_model(session["trained_path"])
     assert metadata.training.steps == 30 and metadata.object == "Arm"
     assert math.isfinite(info["validation"]["distance_mae"])
+    size, plot = session["training_plot"]            # the loss plot, an image after Train
+    assert size == (640, 360) and (plot[..., :3] < 0.5).any() and (plot[..., 3] == 1).all()
 
 
 def test_render_passes_fills_the_pass_images(session):
