@@ -9,6 +9,8 @@ from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty,
 
 from . import preferences, viewer
 from .vdnif_addon import settings as defaults
+from .vdnif_addon.presets import PRESET_VARIANT
+from .vdnif_addon.presets import SETTINGS as PRESET_SETTINGS
 from .vdnif_addon.settings import BOUNDS, RECIPE
 
 # Numbered: a .blend stores an enum by number, and "auto" came after the other three.
@@ -46,56 +48,96 @@ def _int(name: str, setting: str, default: int, **options: object) -> IntPropert
 
 class VDNIFSettings(bpy.types.PropertyGroup):
     resolution: _int("Voxel Resolution", "resolution", RECIPE.resolution,
-                     description="Voxels along the object's longest side")
+                     description="Voxels along the object's longest side: more follow finer "
+                                 "detail and bends, and make the dataset larger")
     pose_source: EnumProperty(name="Poses", default=defaults.PoseSpec.source, items=[
-        (name, *_POSE_SOURCE_TEXT[name]) for name in defaults.POSE_SOURCES])
-    pose_count: _int("Pose Count", "poses", RECIPE.poses, soft_max=1024)
-    seed: _int("Seed", "seed", defaults.PoseSpec.seed)
+        (name, *_POSE_SOURCE_TEXT[name]) for name in defaults.POSE_SOURCES],
+        description="Where the poses the network learns from come from")
+    pose_count: _int("Pose Count", "poses", RECIPE.poses, soft_max=1024,
+                     description="Poses the network learns from: more poses cover more of "
+                                 "the rig's motion; each adds to the dataset and its time")
+    seed: _int("Seed", "seed", defaults.PoseSpec.seed,
+               description="Starting number of the random poses and of training's random "
+                           "choices: another seed gives other poses")
     max_angle: FloatProperty(name="Maximum Angle", default=defaults.PoseSpec.max_angle_deg,
                              min=BOUNDS["max_angle"][0], max=BOUNDS["max_angle"][1],
                              description="Largest random bone rotation per axis in degrees, "
                                          "for bones without rotation limits")
     rays_per_pose: _int("Rays per Pose", "rays_per_pose", RECIPE.rays_per_pose,
-                        soft_max=65536)
+                        soft_max=65536,
+                        description="Rays shot at the object in each pose to make training "
+                                    "examples: more rays, fewer holes, a larger dataset")
     variant: EnumProperty(name="Variant", items=VARIANTS, default=defaults.AUTO_VARIANT,
-                          update=_variant_changed)
-    levels: _int("Levels", "levels", NETWORK.levels, soft_max=16)
-    base_resolution: _int("Base Resolution", "base_resolution", NETWORK.base_resolution)
-    log2_table_size: _int("Table Size (log2)", "log2_table_size", NETWORK.log2_table_size)
-    feature_dim: _int("Feature Dim", "feature_dim", NETWORK.feature_dim)
+                          update=_variant_changed,
+                          description="Which kind of network to train")
+    levels: _int("Levels", "levels", NETWORK.levels, soft_max=16,
+                 description="Detail levels of the hash grid, coarse to fine: more levels "
+                             "hold finer detail and render a little slower")
+    base_resolution: _int("Base Resolution", "base_resolution", NETWORK.base_resolution,
+                          description="Cells along each side of the coarsest hash-grid level")
+    log2_table_size: _int("Table Size (log2)", "log2_table_size", NETWORK.log2_table_size,
+                          description="Entries of each hash-grid level as a power of two (16: "
+                                      "65,536): larger tables keep more detail in a larger "
+                                      "model")
+    feature_dim: _int("Feature Dim", "feature_dim", NETWORK.feature_dim,
+                      description="Numbers stored per hash-grid entry: more hold more detail "
+                                  "in a larger, slower model")
     pe_bands: _int("PE Bands", "pe_bands", NETWORK.pe_bands,
-                   description="Positional-encoding bands (0: plain hash grid)")
-    width: _int("Width", "width", NETWORK.width)
-    depth: _int("Depth", "depth", NETWORK.depth)
-    steps: _int("Steps", "steps", RECIPE.steps)
-    batch_size: _int("Batch Size", "batch_size", RECIPE.batch_size)
+                   description="Positional-encoding bands: waves of rising frequency that let "
+                               "the network place fine detail (0: none; Automatic uses its "
+                               "variant's own)")
+    width: _int("Width", "width", NETWORK.width,
+                description="Neurons per layer of the network: wider learns more and renders "
+                            "slower")
+    depth: _int("Depth", "depth", NETWORK.depth,
+                description="Hidden layers of the network: deeper learns more and renders "
+                            "slower")
+    steps: _int("Steps", "steps", RECIPE.steps,
+                description="Training steps: more steps take longer and usually lower the "
+                            "error")
+    batch_size: _int("Batch Size", "batch_size", RECIPE.batch_size,
+                     description="Ray pieces the network learns from per step: larger batches "
+                                 "learn steadier and need more memory")
     device: EnumProperty(name="Device", default="PREFERENCES", items=[
         ("PREFERENCES", "Preferences", "The device chosen in the add-on's preferences"),
-        *preferences.DEVICES])
+        *preferences.DEVICES],
+        description="Where training and rendering run: the CPU or an NVIDIA GPU")
     view: EnumProperty(name="View", default="CAMERA", items=[
         ("CAMERA", "Camera", "Render through the scene's active camera"),
-        ("VIEWPORT", "Viewport", "Render the 3D Viewport's view")])
-    image_width: _int("Width", "image_side", defaults.PANEL_IMAGE[0], subtype="PIXEL")
-    image_height: _int("Height", "image_side", defaults.PANEL_IMAGE[1], subtype="PIXEL")
+        ("VIEWPORT", "Viewport", "Render the 3D Viewport's view")],
+        description="What the passes are rendered through")
+    image_width: _int("Width", "image_side", defaults.PANEL_IMAGE[0], subtype="PIXEL",
+                      description="Width of the rendered pass images in pixels")
+    image_height: _int("Height", "image_side", defaults.PANEL_IMAGE[1], subtype="PIXEL",
+                       description="Height of the rendered pass images in pixels")
     eval_poses: _int("Evaluation Poses", "poses", defaults.EVALUATION_POSES,
                      description="Unseen poses the model is evaluated on")
     dataset_dir: StringProperty(name="Dataset Folder", subtype="DIR_PATH",
                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"},
-                                description="Empty: beside the .blend (or in the user folder "
-                                            "while the .blend is unsaved)")
+                                description="Where the training examples are written. Empty: "
+                                            "beside the .blend (or in the user folder while "
+                                            "the .blend is unsaved)")
     model_storage: EnumProperty(name="Model Storage", default="PACKED", items=[
         ("PACKED", "Packed", "Inside the .blend file"),
         ("FILE", "File", "A file beside the .blend (relative path)")],
         description="Where the next trained or loaded model is kept")
     model_path: StringProperty(name="Model File", subtype="FILE_PATH",
-                               options={"HIDDEN", "PATH_SUPPORTS_BLEND_RELATIVE"})
-    model_info: StringProperty(options={"HIDDEN"})       # JSON: storage.model_summary
-    metrics: StringProperty(options={"HIDDEN"})          # JSON: the last evaluation report
-    voxel_info: StringProperty(options={"HIDDEN"})
-    resolution_info: StringProperty(options={"HIDDEN"})
-    dataset_info: StringProperty(options={"HIDDEN"})     # JSON: what the dataset holds
-    last_error: StringProperty(options={"HIDDEN"})
-    preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview")
+                               options={"HIDDEN", "PATH_SUPPORTS_BLEND_RELATIVE"},
+                               description="The model file, when it is kept beside the .blend")
+    # What the panel shows, kept with the .blend (JSON where it says so).
+    model_info: StringProperty(options={"HIDDEN"}, description="The trained model's summary "
+                               "(storage.model_summary, JSON)")
+    metrics: StringProperty(options={"HIDDEN"},
+                            description="The last evaluation's report (JSON)")
+    voxel_info: StringProperty(options={"HIDDEN"}, description="What Voxelize found")
+    resolution_info: StringProperty(options={"HIDDEN"},
+                                    description="Why the suggested resolution was chosen")
+    dataset_info: StringProperty(options={"HIDDEN"},
+                                 description="What the dataset holds (JSON)")
+    last_error: StringProperty(options={"HIDDEN"},
+                               description="Why the last button failed")
+    preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview",
+                             description="The wireframe object that shows the voxels")
 
     def pose_spec(self, count: int | None = None) -> defaults.PoseSpec:
         """The poses these settings choose (``count`` of them, default ``pose_count``)."""
@@ -123,6 +165,14 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         return choose_variant(None if self.variant == defaults.AUTO_VARIANT else self.variant,
                               not deform_modifiers(self.id_data))
 
+    def apply_preset(self, preset: dict[str, object]) -> None:
+        """Takes every setting of a preset (an entry of ``presets.load_presets``), whole: the
+        variant it was measured with first, then its own settings, the positional bands
+        included."""
+        self.variant = PRESET_VARIANT
+        for name in PRESET_SETTINGS:
+            setattr(self, name, preset[name])
+
     def adopt(self, metadata: object) -> None:
         """Takes the variant, resolution and network settings of a loaded model (its
         ``ModelMetadata``)."""
@@ -138,14 +188,22 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         return json.loads(text) if text else {}
 
 
+_PASS_TEXT = {"normal": "Which way the surface faces (normal)",
+              "albedo": "The surface's colour without lighting (diffuse colour)",
+              "distance": "How far the surface is along the ray (depth)",
+              "material": "The material slot of the surface (material index)"}
+
+
 class VDNIFViewer(bpy.types.PropertyGroup):
-    pass_name: EnumProperty(name="Pass", items=[(name, name.title(), "")
-                                                for name in viewer.PASSES],
-                            update=lambda choice, context: viewer.show(context, choice))
+    pass_name: EnumProperty(name="Pass", items=[
+        (name, viewer.PASS_TITLES[name], _PASS_TEXT[name]) for name in viewer.PASSES],
+        description="The pass the Image Editor shows",
+        update=lambda choice, context: viewer.show(context, choice))
     source: EnumProperty(name="Show", items=[(name, name.title(), text) for name, text in (
         ("reference", "Blender's deformed mesh"), ("predicted", "The network"),
         ("error", "Error of the prediction against the reference"))],
-        default="predicted",
+        default="predicted", description="The reference, the network's prediction or its "
+                                         "error, each kept in its own image",
         update=lambda choice, context: viewer.show(context, choice))
 
 

@@ -46,6 +46,14 @@ def dataset_folder(obj):
     return user_folder("datasets", _slug(obj))
 
 
+def passes_folder(obj):
+    """Where Render Passes writes the object's previews and multilayer EXRs: beside the
+    .blend, else (unsaved .blend) in the user folder."""
+    if bpy.data.filepath:
+        return _beside_blend(obj, "-passes")
+    return user_folder("passes", _slug(obj))
+
+
 def has_dataset(obj):
     folder = dataset_folder(obj)
     return folder.is_dir() and any(folder.glob("shard-*.json"))

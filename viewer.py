@@ -15,11 +15,14 @@ from .vdnif_addon.errors import VDNIFError
 from .vdnif_addon.geometry.voxels import inverted_cells
 from .vdnif_addon.inference.evaluation import view_images
 from .vdnif_addon.inference.images import PASSES
+from .vdnif_addon.passes import COMPOSITOR_SOURCES
 from .vdnif_addon.settings import PoseSpec
 from .vdnif_addon.tracing import rays
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}
+PASS_TITLES = {field: name for name, field in COMPOSITOR_SOURCES.items()}
+"""The title of each pass in the images' names: its name in the multilayer EXR."""
 # (12, 2) the corners of a cell's edges, corner c = dx + 2 dy + 4 dz: pairs one bit apart.
 CELL_EDGES = np.array([(c, c | bit) for bit in (1, 2, 4) for c in range(8) if not c & bit])
 
@@ -82,13 +85,15 @@ def view_rays(region_3d, width, height):
 
 
 def image_name(pass_name, source):
-    """The image the viewer shows for a pass and a source."""
-    return "VDNIF Error" if source == "error" else f"VDNIF {pass_name.title()}"
+    """The image of one pass and source, e.g. "VDNIF Depth (predicted)": each its own, so
+    the reference, the prediction and the error of every pass stay side by side."""
+    return f"VDNIF {PASS_TITLES[pass_name]} ({source})"
 
 
 def set_view(reference, predicted, width, height, object_size):
-    """Keeps the images of a rendered view (reference and predicted Passes) for the viewer:
-    both passes on one distance scale, the error as heat maps; alpha is the hit mask."""
+    """Keeps the images of a rendered view (reference and predicted Passes) for the viewer and
+    writes each into its own float image: both passes on one distance scale, the error as
+    heat maps; alpha is the hit mask (the error images are opaque)."""
     shown = view_images(reference, predicted, height, width, object_size)
     alphas = {"reference": reference.hit, "predicted": predicted.hit,
               "error": np.ones(height * width, bool)}
@@ -97,6 +102,25 @@ def set_view(reference, predicted, width, height, object_size):
         alpha = alphas[source].reshape(height, width, 1).astype(np.float32)
         _view[source] = {name: np.concatenate([image, alpha], axis=2)
                          for name, image in images.items()}
+        for name in PASSES:
+            colorspace = "Non-Color" if source == "error" else COLORSPACES.get(name, "Non-Color")
+            write_image(image_name(name, source), _view[source][name], colorspace)
+
+
+def write_files(obj, result, slots, width, height, frame):
+    """Writes the predicted and the reference passes of a render (``neural.RenderResult`` of
+    world rays, its material pass in used-slot indices mapped by ``slots``) into the
+    object's passes folder as the render command does: PNG previews and one multilayer EXR
+    each for ``frame``. Returns the predicted EXR's path."""
+    from . import storage
+    from .vdnif_addon.blender.jobs import write_passes
+
+    folder = storage.passes_folder(obj)
+    written = write_passes(folder, result.predicted, height, width, result.world_scale,
+                           slots=slots, frame=frame, world_matrix=obj.matrix_world)
+    write_passes(folder, result.true, height, width, result.world_scale, prefix="true-",
+                 slots=slots, frame=frame, world_matrix=obj.matrix_world)
+    return written[-1]
 
 
 def viewed():
@@ -125,18 +149,38 @@ def image_editor(screen):
 
 
 def show(context, viewer):
-    """Writes the images of the viewer's pass and source from the kept view and shows the
-    chosen one in an Image Editor of the screen, if there is one. Returns that image, or
-    None when nothing was rendered yet."""
+    """Shows the image of the viewer's pass and source in the screen's first Image Editor, if
+    there is one. Returns that image, or None when nothing was rendered in this file yet."""
     if not _view:
         return None
-    pass_name, source = viewer.pass_name, viewer.source
-    shown = "reference" if source == "reference" else "predicted"
-    images = {name: write_image(image_name(name, shown), _view[shown][name],
-                                COLORSPACES.get(name, "Non-Color")) for name in PASSES}
-    images["error"] = write_image(image_name(pass_name, "error"), _view["error"][pass_name],
-                                  "Non-Color")
-    image = images["error" if source == "error" else pass_name]
+    name = image_name(viewer.pass_name, viewer.source)
+    image = bpy.data.images.get(name)
+    if image is None:                                      # the user deleted it: again
+        source = viewer.source
+        colorspace = "Non-Color" if source == "error" else COLORSPACES.get(
+            viewer.pass_name, "Non-Color")
+        image = write_image(name, _view[source][viewer.pass_name], colorspace)
+    editor = image_editor(context.screen)
+    if editor is not None:
+        editor.spaces.active.image = image
+    return image
+
+
+def training_image_name(obj):
+    """The image of an object's loss plot."""
+    return f"VDNIF Training ({obj.name})"
+
+
+def show_training(context, obj, history):
+    """Draws the loss plot of training's progress records ``history`` (``history.plot``) into
+    the object's training image and shows it in the screen's first Image Editor, if there is
+    one. Returns the image."""
+    from .vdnif_addon.training.history import plot
+
+    rgb = plot(history)
+    opaque = np.ones((*rgb.shape[:2], 1), np.float32)
+    image = write_image(training_image_name(obj), np.concatenate([rgb, opaque], axis=2),
+                        "sRGB")
     editor = image_editor(context.screen)
     if editor is not None:
         editor.spaces.active.image = image

@@ -64,12 +64,13 @@ class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
         slots = captured.mesh.material_slots          # the material pass shows the slots
         viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size)
+        exr = viewer.write_files(obj, result, slots, width, height, pose["frame"])
         image = viewer.show(context, scene.vdnif_viewer)
         where = ("" if viewer.image_editor(context.screen) is not None
                  else " (open an Image Editor to see it)")
         return (f"'{obj.name}' at frame {pose['frame']:g}: {int(result.predicted.hit.sum())} "
                 f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}), "
-                f"image '{image.name}'{where}")
+                f"image '{image.name}'{where}; passes written to {storage.portable(exr)}")
 
 
 class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):

@@ -3,7 +3,7 @@ synchronous in background mode) and Cancel Training."""
 
 import bpy
 
-from .. import storage
+from .. import storage, viewer
 from ..vdnif_addon.errors import VDNIFError
 from .common import JOBS, VDNIFOperator, redraw
 
@@ -99,6 +99,7 @@ class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
             _, metadata = load_model(state.model)
             storage.keep_model(obj, state.model, storage.model_summary(metadata, state.model))
             obj.vdnif.metrics = ""
+            viewer.show_training(bpy.context, obj, state.history)
         variant, note = obj.vdnif.chosen_variant()
         return f"'{obj.name}': {state.message}, variant {variant}" + (
             f" ({note})" if note else "")

@@ -18,6 +18,7 @@ from ..operators.scene import (
     VDNIF_OT_voxelize,
 )
 from ..operators.training import VDNIF_OT_cancel_training, VDNIF_OT_train
+from ..vdnif_addon.inference.metrics import verdict
 from ..vdnif_addon.presets import PRESET_NAMES
 from ..vdnif_addon.text import metrics_line
 
@@ -124,7 +125,17 @@ class VDNIF_PT_network(StepPanel, bpy.types.Panel):
         row.label(text="Preset")
         for name in PRESET_NAMES:
             row.operator(VDNIF_OT_apply_preset.bl_idname, text=name.title()).preset = name
-        layout.prop(settings, "variant")
+        properties(layout, settings, ("variant", "steps", "device"))
+
+
+class VDNIF_PT_network_advanced(StepPanel, bpy.types.Panel):
+    """The network's own settings, which the presets and the variant choose."""
+
+    bl_label = "Advanced"
+    bl_parent_id = "VDNIF_PT_network"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw_step(self, layout, context, settings):
         layout.label(text="Encoding")
         properties(layout, settings, ("levels", "base_resolution", "log2_table_size",
                                       "feature_dim"))
@@ -132,8 +143,7 @@ class VDNIF_PT_network(StepPanel, bpy.types.Panel):
         bands.enabled = settings.variant != "auto"     # Automatic: the variant's own bands
         bands.prop(settings, "pe_bands")
         layout.label(text="MLP and Training")
-        properties(layout, settings, ("width", "depth", "steps", "batch_size"))
-        layout.prop(settings, "device")
+        properties(layout, settings, ("width", "depth", "batch_size"))
 
 
 class VDNIF_PT_dataset(StepPanel, bpy.types.Panel):
@@ -174,6 +184,9 @@ class VDNIF_PT_training(StepPanel, bpy.types.Panel):
                               f"{validation['normal_error_deg']:.3g} deg")
         elif settings.model_path:
             lines(layout, f"Model file {settings.model_path} is missing", "ERROR")
+        plot = viewer.training_image_name(obj)
+        if plot in bpy.data.images:
+            lines(layout, f"Loss plot: image '{plot}' (Image Editor)", "IMAGE_DATA")
         row = layout.row(align=True)
         row.operator(VDNIF_OT_save_model.bl_idname, icon="EXPORT")
         row.operator(VDNIF_OT_load_model.bl_idname, icon="IMPORT")
@@ -209,6 +222,7 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
         unseen = "unseen " if report.get("unseen_poses") else ""
         layout.label(text=f"{report['poses']} {unseen}poses, {report['width']}x"
                           f"{report['height']}, {report['variant']}")
+        lines(layout, f"Verdict: {verdict(report['vs_true'])}")
         for name, title in (("vs_true", "Against the mesh"),
                             ("vs_embedded", "Against the embedding")):
             box = layout.box()
@@ -221,5 +235,5 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
             lines(layout, f"Speed n/a: {report['speed_withheld']}", "INFO")
 
 
-classes = (VDNIF_PT_main, VDNIF_PT_voxels, VDNIF_PT_network, VDNIF_PT_dataset,
-           VDNIF_PT_training, VDNIF_PT_passes, VDNIF_PT_evaluation)
+classes = (VDNIF_PT_main, VDNIF_PT_voxels, VDNIF_PT_network, VDNIF_PT_network_advanced,
+           VDNIF_PT_dataset, VDNIF_PT_training, VDNIF_PT_passes, VDNIF_PT_evaluation)

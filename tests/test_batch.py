@@ -95,6 +95,13 @@ def test_dataset_then_references(tmp_path):
     assert trained["network_config"]["pe_bands"] == 0
     assert trained["network_config"]["log2_table_size"] == 12
     assert (out / "lsnif.vdnif").is_file() and "ETA" in err
+    # the history: per progress record the step, the positive task losses and validation
+    history = trained["history"]
+    assert history[-1]["step"] == 20 and all(set(r) == {"step", "losses", "validation"}
+                                             for r in history)
+    assert all(loss > 0 for r in history for loss in r["losses"].values())
+    assert trained["plot"] == str(out / "lsnif-training.png")
+    assert (out / "lsnif-training.png").is_file()
 
 
 @pytest.mark.parametrize("args, message", [
@@ -199,9 +206,11 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
     assert len(report["per_pose"]) == report["poses"] == 2
     assert "![reference, predicted, error per pass](figure-vs-true.png)" in (
         out / "report.md").read_text()
-    for name in ("hit", "distance", "normal", "albedo", "material"):
-        assert (out / "passes" / f"{name}.png").is_file() and (
-            out / "passes" / f"{name}.exr").is_file()
+    assert sorted(path.name for path in (out / "passes").iterdir()) == sorted(
+        [f"{name}.png" for name in ("hit", "distance", "normal", "albedo", "material")]
+        + ["passes.exr"])
+    assert report["training_plot"] == str(out / "training.png")
+    assert "![training loss per task](training.png)" in (out / "report.md").read_text()
 
 
 @pytest.mark.slow
@@ -216,7 +225,8 @@ def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
     assert summary["hit_pixels"] > 0 and summary["frame"] == 30
     assert "orbit viewpoint" in summary["view"]
     for prefix in ("", "true-", "embedded-"):
-        assert (tmp_path / "r" / f"{prefix}distance.exr").is_file()
+        assert (tmp_path / "r" / f"{prefix}passes.exr").is_file()
+        assert (tmp_path / "r" / f"{prefix}distance.png").is_file()
     code, printed, err = run_batch("evaluate", "--model", model, "--scene", "arm", "--poses", 2,
                                    "--width", 32, "--height", 24, "--json", tmp_path / "e.json",
                                    "--out", tmp_path / "e")

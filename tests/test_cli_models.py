@@ -44,4 +44,8 @@ def test_render_evaluate_and_side_by_side_take_a_model(small_model, tmp_path, ca
                      "--json", str(tmp_path / "sbs.json")]) == 0
     result = json.loads((tmp_path / "sbs.json").read_text())["results"][0]
     assert result["scene"] == "lattice" and "neural" in json.dumps(result)
-    assert "error" not in capsys.readouterr().err
+    printed = capsys.readouterr()
+    assert "error" not in printed.err
+    assert "verdict against the mesh: " in printed.out
+    for name in ("passes.exr", "true-passes.exr", "figure-vs-true.png"):
+        assert (tmp_path / "evaluate" / name).is_file(), name

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import scene_builders as sb
 from batch_runner import error_lines, run_batch
+from blender_exr import read_multilayer
 
 COLORS = {0: (1, 1, 0, 1), 1: (1, 0, 0, 1), 2: (0, 1, 0, 1), 3: (0, 0, 1, 1)}
 TINY = dict(steps=5, batch_size=256, log2_table_size=10, device="cpu")
@@ -37,6 +38,9 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     from mathutils import Vector
 
     box = four_slot_box()
+    box.rotation_euler.z = 0.4          # world normals differ from the object's own
+    box.scale.z = 1.5
+    bpy.context.view_layer.update()
     mesh = core("blender.read_mesh").read_rest_mesh(box)
     assert mesh.material_count == 2 and mesh.material_slots.tolist() == [1, 3]
     assert sorted(np.unique(mesh.material_index)) == [0, 1]
@@ -77,12 +81,12 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     bpy.context.view_layer.update()
     origins, directions = neural.camera_rays(camera, 24, 16)
     result = neural.render_rays(box, captured, oracle, {"frame": 1.0}, origins, directions)
-    written = core("blender.jobs").write_passes(tmp_path / "r", result.predicted, 16, 24,
-                                                slots=captured.mesh.material_slots)
-    exr = bpy.data.images.load(str(next(p for p in written if p.name == "material.exr")))
-    pixels = np.empty(24 * 16 * 4, np.float32)
-    exr.pixels.foreach_get(pixels)
-    material = pixels.reshape(16, 24, 4)[::-1, :, 0].ravel()
+    core("blender.jobs").write_passes(tmp_path / "r", result.predicted, 16, 24,
+                                      slots=captured.mesh.material_slots,
+                                      world_matrix=box.matrix_world)
+    _, read = read_multilayer(tmp_path / "r" / "passes.exr", 24, 16)
+    material = read["IndexMA"][..., 0].ravel()
+    normal = read["Normal"][..., :3].reshape(-1, 3)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     casts = [empty_scene.ray_cast(depsgraph, Vector(o), Vector(d))
              for o, d in zip(origins, directions)]
@@ -91,6 +95,8 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     assert set(slots.tolist()) == {1, 3}
     np.testing.assert_array_equal(result.predicted.hit, hit)
     np.testing.assert_array_equal(material[hit], slots)
+    # Blender's world-space normals, as the Cycles Normal pass holds them
+    np.testing.assert_allclose(normal[hit], [c[2] for c in casts if c[0]], atol=1e-5)
 
 
 def test_choose_variant(core):

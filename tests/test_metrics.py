@@ -14,11 +14,13 @@ from vdnif_addon.inference.evaluation import (
     speed_figures,
 )
 from vdnif_addon.inference.metrics import (
+    CLEAN_RATE,
     SPEED_MIN_HIT_IOU,
     Passes,
     common_pixels,
     compare,
     speed_withheld,
+    verdict,
 )
 from vdnif_addon.presets import SETTINGS
 from vdnif_addon.studies.pareto import derive_presets
@@ -193,3 +195,12 @@ def test_summary_lines_give_units_and_grammar():
     assert "albedo PSNR 8.359 dB" in line and "material accuracy 99.5 %" in line
     assert "albedo PSNR n/a, material accuracy n/a" in metrics_line(
         {"distance_mae": None, "normal_error_deg": None, "hit_iou": None})
+
+
+def test_verdict_is_clean_only_when_holes_and_extras_are_each_within_the_rate():
+    assert verdict({"false_negative_rate": CLEAN_RATE, "false_positive_rate": 0.0}) == "clean"
+    assert verdict({"false_negative_rate": 0.0, "false_positive_rate": 0.0123}) == (
+        "speckled: 0 % holes, 1.2 % extras")
+    assert verdict({"false_negative_rate": 0.0051, "false_positive_rate": CLEAN_RATE}) == (
+        "speckled: 0.51 % holes, 0.5 % extras")
+    assert verdict({"false_negative_rate": None, "false_positive_rate": None}).startswith("n/a")

@@ -179,8 +179,11 @@ def test_display_images_and_figure():
     np.testing.assert_allclose(shown["normal"][0, 2], [0.5, 0.5, 0.0])
     assert shown["distance"][0, 0, 0] > shown["distance"][0, 2, 0]          # near is bright
     np.testing.assert_allclose(shown["albedo"][1, 0], images.MISS_COLOR)    # a miss
-    data = images.raw(passes, 2, 3)
-    assert np.isnan(data["distance"][1]).all() and data["distance"][0, 1, 0] == 2.0
+    data = images.compositor_passes(passes, 2, 3)
+    assert (data["Depth"][1] == 1e10).all() and data["Depth"][0, 1, 0] == 2.0
+    np.testing.assert_array_equal(data["Combined"][..., 3], passes.hit.reshape(2, 3))
+    preview = images.previews(passes, 2, 3, (1.0, 3.0))
+    np.testing.assert_array_equal(preview["albedo"][..., 3], passes.hit.reshape(2, 3))
     other = Passes.empty(6)
     other.hit[:2] = True
     other.distance[:2] = [1.5, 2.0]

@@ -168,7 +168,9 @@ def test_trained_and_evaluated(arm, extension):
                                    "height": 24, "variant": "proposed", "vs_true": metrics,
                                    "vs_embedded": dict(metrics, distance_mae=None),
                                    "timings": {"render_rays_per_s": 12345.0}})
+    bpy.data.images.new("VDNIF Training (Arm)", 4, 4)
     everything = texts(draw_all(extension))
+    assert "Loss plot: image 'VDNIF Training (Arm)' (Image Editor)" in everything
     assert "Arm: trained: proposed, 40 steps" in everything
     assert "Model: packed in the .blend (0.25 MB)" in everything
     assert "distance error 0.25 voxels, normal error 9.5 deg" in everything
@@ -177,6 +179,7 @@ def test_trained_and_evaluated(arm, extension):
             "false negatives 0.46 %, false positives 8.8 %, albedo PSNR 31.25 dB, "
             "material accuracy n/a") in everything, "the panel prints the batch line"
     assert "distance MAE n/a" in everything and "12,345 rays/s" in everything
+    assert "Verdict: speckled: 0.46 % holes, 8.8 % extras" in everything
     assert "has no trained model" not in everything
     report = json.loads(settings.metrics)
     report.update(timings={"render_rays_per_s": None},

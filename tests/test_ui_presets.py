@@ -1,9 +1,16 @@
-"""The panel's preset menu applies the presets the bench command measured."""
+"""The panel's preset menu applies the presets the bench command measured, whole, and every
+setting of the panel says in its tooltip what it does."""
 
 import json
 import types
 
 import pytest
+import scene_builders as sb
+
+
+def write_presets(presets_module, path, chosen):
+    path.write_text(json.dumps({"source": "bench", "error": presets_module.PRESET_ERROR,
+                                "presets": chosen}))
 
 
 def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene, core,
@@ -17,8 +24,7 @@ def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene
     chosen = {name: dict(settings, width=16 * (i + 1), measured=measured)
               for i, name in enumerate(presets.PRESET_NAMES)}
     path = tmp_path / "presets.json"
-    path.write_text(json.dumps({"source": "bench", "error": presets.PRESET_ERROR,
-                                "presets": chosen}))
+    write_presets(presets, path, chosen)
     monkeypatch.setattr(presets, "PRESETS_FILE", path)
     bpy.ops.mesh.primitive_cube_add()
     obj = bpy.context.active_object
@@ -29,13 +35,67 @@ def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene
     # The button's tooltip gives the settings and bench's figures, in the panel's words.
     tooltip = bpy.types.VDNIF_OT_apply_preset.description(
         bpy.context, types.SimpleNamespace(preset="balanced"))
-    assert tooltip == ("Balanced: resolution 16, 4 hash-grid levels of 2^18 entries, 6 "
-                       "positional-encoding bands, width 32, 3,000 steps; bench measured a "
-                       "distance error of 0.1 object units and 100,000 rays/s")
+    assert tooltip == ("Balanced: the Proposed variant at resolution 16, 4 hash-grid levels "
+                       "of 2^18 entries, 6 positional-encoding bands, width 32, 3,000 steps; "
+                       "bench measured a distance error of 0.1 object units and 100,000 "
+                       "rays/s")
+    # figures only where the file holds them; a preset that shares another's settings says so
+    chosen["fast"] = dict(chosen["balanced"], measured={presets.PRESET_ERROR: 0.1})
+    write_presets(presets, path, chosen)
+    tooltip = bpy.types.VDNIF_OT_apply_preset.description(
+        bpy.context, types.SimpleNamespace(preset="fast"))
+    assert tooltip.endswith("3,000 steps; bench measured a distance error of 0.1 object units "
+                            "(the same settings as Balanced: the measured sweep has no point "
+                            "between them)")
     path.write_text("{}")
     with pytest.raises(RuntimeError, match="presets file .* cannot be read"):
         bpy.ops.vdnif.apply_preset(preset="fast")
     assert "'Cube'" in obj.vdnif.last_error and obj.vdnif.width == 32
     tooltip = bpy.types.VDNIF_OT_apply_preset.description(
         bpy.context, types.SimpleNamespace(preset="fast"))
-    assert tooltip.startswith("Set resolution") and "cannot be read" in tooltip
+    assert tooltip.startswith("Set variant, resolution") and "cannot be read" in tooltip
+
+
+@pytest.mark.parametrize("preset", ["fast", "accurate"])
+def test_a_preset_is_trained_whole_under_the_automatic_variant(empty_scene, core, preset):
+    """What Train receives after a preset on a deforming object whose variant was left at
+    Automatic: every setting of the shipped preset, its positional bands included."""
+    import bpy
+
+    box = sb.lattice_box((2, 2, 2), 0.5)
+    sb.lattice_around(box)
+    bpy.context.view_layer.objects.active = box
+    settings = box.vdnif
+    assert settings.variant == "auto"
+    chosen = core("presets").load_presets()[preset]
+    settings.pe_bands = chosen["pe_bands"] + 1          # a stale value the preset replaces
+    bpy.ops.vdnif.apply_preset(preset=preset)
+    variant, _ = settings.chosen_variant()
+    trained = core("model.variants").variant_config(variant, **{
+        key: value for key, value in settings.overrides(bpy.context).items()
+        if key not in ("seed", "device")})
+    assert variant == core("presets").PRESET_VARIANT and settings.resolution == chosen[
+        "resolution"]
+    network = trained.network
+    assert (network.levels, network.log2_table_size, network.pe_bands, network.width,
+            trained.train.steps) == tuple(chosen[key] for key in (
+                "levels", "log2_table_size", "pe_bands", "width", "steps"))
+
+
+def test_every_setting_has_a_tooltip(extension):
+    """Every property of the add-on's property groups and every item of their menus has a
+    description, Blender's tooltip."""
+    import bpy
+
+    groups = (bpy.types.Object.bl_rna.properties["vdnif"].fixed_type,
+              bpy.types.Scene.bl_rna.properties["vdnif_viewer"].fixed_type)
+    checked = 0
+    for group in groups:
+        for prop in group.properties:
+            if prop.identifier in ("rna_type", "name"):        # Blender's own
+                continue
+            assert prop.description.strip(), f"{group.identifier}.{prop.identifier}"
+            checked += 1
+            for item in getattr(prop, "enum_items", ()):
+                assert item.description.strip(), f"{prop.identifier}: {item.identifier}"
+    assert checked >= 30

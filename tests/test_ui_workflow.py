@@ -16,8 +16,9 @@ from mathutils import Vector
 SMALL = dict(resolution=12, pose_count=4, rays_per_pose=128, steps=30, batch_size=256,
              log2_table_size=12, base_resolution=16, width=32, depth=2, image_width=32,
              image_height=24, eval_poses=2)
-PASS_IMAGES = ("VDNIF Normal", "VDNIF Albedo", "VDNIF Distance", "VDNIF Material",
-               "VDNIF Error")
+PASS_IMAGES = tuple(f"VDNIF {title} ({source})" for title in ("Normal", "DiffCol", "Depth",
+                                                              "IndexMA")
+                    for source in ("predicted", "reference", "error"))
 
 
 def module(name):
@@ -79,6 +80,8 @@ def session(extension, tmp_path_factory):
     record["dataset"] = storage.dataset_folder(obj)
     bpy.ops.vdnif.train()
     record["trained_info"] = settings.parsed("model_info")
+    plot = bpy.data.images.get("VDNIF Training (Arm)")
+    record["training_plot"] = None if plot is None else (tuple(plot.size), pixels(plot.name))
     record["trained_path"] = storage.model_path(obj)
     eager = folder / "eager.vdnif"
     eager_model(record["trained_path"], eager)
@@ -87,6 +90,8 @@ def session(extension, tmp_path_factory):
     record["images"] = {name: pixels(name) for name in PASS_IMAGES}
     record["colorspaces"] = {name: bpy.data.images[name].colorspace_settings.name
                              for name in PASS_IMAGES}
+    record["passes_files"] = sorted(path.name for path in storage.passes_folder(obj).iterdir())
+    record["frame"] = bpy.context.scene.frame_current
     bpy.ops.vdnif.evaluate()
     record["metrics"] = settings.metrics
     record["packed_sha"] = hashlib.sha256(settings[storage.PACKED]).hexdigest()
@@ -149,19 +154,28 @@ def test_dataset_and_training_write_their_results(session):
     _, metadata = module("vdnif_addon.model.model_file").load_model(session["trained_path"])
     assert metadata.training.steps == 30 and metadata.object == "Arm"
     assert math.isfinite(info["validation"]["distance_mae"])
+    size, plot = session["training_plot"]            # the loss plot, an image after Train
+    assert size == (640, 360) and (plot[..., :3] < 0.5).any() and (plot[..., 3] == 1).all()
 
 
 def test_render_passes_fills_the_pass_images(session):
     images = session["images"]
     for name, data in images.items():
         assert data.shape == (24, 32, 4) and np.isfinite(data).all(), name
-    hit = images["VDNIF Normal"][..., 3] > 0.5
+    hit = images["VDNIF Normal (predicted)"][..., 3] > 0.5
     assert 0 < hit.sum() < hit.size, "the predicted view has hit and missed pixels"
-    normals = images["VDNIF Normal"][..., :3][hit] * 2 - 1
+    normals = images["VDNIF Normal (predicted)"][..., :3][hit] * 2 - 1
     assert np.allclose(np.linalg.norm(normals, axis=1), 1, atol=1e-3)
-    assert session["colorspaces"] == {"VDNIF Normal": "Non-Color", "VDNIF Albedo": "sRGB",
-                                      "VDNIF Distance": "Non-Color",
-                                      "VDNIF Material": "Non-Color", "VDNIF Error": "Non-Color"}
+    assert not np.array_equal(images["VDNIF Normal (predicted)"],
+                              images["VDNIF Normal (reference)"]), "one image for both"
+    assert {name for name, space in session["colorspaces"].items() if space == "sRGB"} == {
+        "VDNIF DiffCol (predicted)", "VDNIF DiffCol (reference)"}
+    # the files the render command writes, for the current frame, beside the .blend
+    frame = f"{session['frame']:04d}"
+    assert session["passes_files"] == sorted(
+        f"{prefix}{name}.{frame}.{suffix}" for prefix in ("", "true-") for name, suffix in (
+            ("passes", "exr"), ("hit", "png"), ("normal", "png"), ("albedo", "png"),
+            ("distance", "png"), ("material", "png")))
 
 
 def test_evaluate_keeps_finite_metrics(session):
@@ -200,7 +214,7 @@ def test_reopened_blend_restores_settings_model_and_metrics(session, extension):
     bpy.ops.image.new(name="Blank")          # the pass images are not saved; render again
     bpy.context.view_layer.objects.active = obj
     bpy.ops.vdnif.render_passes()
-    assert (pixels("VDNIF Normal")[..., 3] > 0.5).sum() > 0
+    assert (pixels("VDNIF Normal (predicted)")[..., 3] > 0.5).sum() > 0
 
 
 def test_pass_viewer_switches_pass_and_source(session):
@@ -213,17 +227,20 @@ def test_pass_viewer_switches_pass_and_source(session):
     assert not viewed, "the view rendered in another file was kept"
     bpy.ops.vdnif.render_passes()
     viewer = bpy.context.scene.vdnif_viewer
-    assert viewer.source == "predicted" and editor.spaces.active.image.name == "VDNIF Normal"
+    shown = editor.spaces.active.image.name
+    assert viewer.source == "predicted" and shown == "VDNIF Normal (predicted)"
     viewer.source = "reference"
-    assert np.allclose(pixels("VDNIF Normal"), viewed["reference"]["normal"])
+    assert editor.spaces.active.image.name == "VDNIF Normal (reference)"
+    assert np.allclose(pixels("VDNIF Normal (reference)"), viewed["reference"]["normal"])
     assert not np.allclose(viewed["reference"]["normal"], viewed["predicted"]["normal"])
+    assert np.allclose(pixels("VDNIF Normal (predicted)"), viewed["predicted"]["normal"])
     viewer.pass_name = "distance"
-    assert editor.spaces.active.image.name == "VDNIF Distance"
-    assert np.allclose(pixels("VDNIF Distance"), viewed["reference"]["distance"])
+    assert editor.spaces.active.image.name == "VDNIF Depth (reference)"
     viewer.source = "error"
-    assert editor.spaces.active.image.name == "VDNIF Error"
-    assert np.allclose(pixels("VDNIF Error"), viewed["error"]["distance"])
-    assert np.allclose(pixels("VDNIF Distance"), viewed["predicted"]["distance"])
+    assert editor.spaces.active.image.name == "VDNIF Depth (error)"
+    assert np.allclose(pixels("VDNIF Depth (error)"), viewed["error"]["distance"])
+    assert np.allclose(pixels("VDNIF Depth (predicted)"), viewed["predicted"]["distance"])
+    assert np.allclose(pixels("VDNIF Depth (reference)"), viewed["reference"]["distance"])
 
 
 def test_viewport_view_renders_the_3d_viewports_perspective(session):

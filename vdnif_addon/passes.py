@@ -45,3 +45,18 @@ class Passes:
         material = np.where(self.hit, slots[np.clip(self.material, 0, len(slots) - 1)], 0)
         return Passes(hit=self.hit, distance=self.distance, normal=self.normal,
                       albedo=self.albedo, material=material.astype(np.int32))
+
+
+COMPOSITOR_PASSES = {"Combined": "RGBA", "Depth": "Z", "Normal": "XYZ", "DiffCol": "RGB",
+                     "IndexMA": "X"}
+"""The passes of the multilayer EXR, by the names Cycles gives them in a render result, and
+their channels: Combined is the albedo with the hit mask as alpha (there is no lighting),
+Depth the distance along the ray, Normal in world space where the view is in world space,
+DiffCol the albedo, IndexMA the material slot."""
+COMPOSITOR_SOURCES = {"Depth": "distance", "Normal": "normal", "DiffCol": "albedo",
+                      "IndexMA": "material"}
+"""The field of Passes each compositor pass holds (Combined: albedo and hit)."""
+VIEW_LAYER = "ViewLayer"
+"""The layer name of the EXR's passes: Blender's default view layer's."""
+MISS_DEPTH = 1e10
+"""Depth where a ray hits nothing: the far value Cycles writes for the background."""

@@ -13,22 +13,35 @@ from .errors import VDNIFError
 PRESETS_FILE = pathlib.Path(__file__).with_name("presets.json")
 PRESET_NAMES = ("fast", "balanced", "accurate")
 SETTINGS = ("resolution", "levels", "log2_table_size", "pe_bands", "width", "steps")
+PRESET_VARIANT = "proposed"
+"""The variant ``bench`` trains every point of its sweep with: a preset's settings are that
+variant's, so applying one chooses it too (under Automatic its positional bands would give
+way to the variant's own)."""
 PRESET_ERROR = "common_vs_true_distance_mae"
 """The error the presets' front minimizes and each preset's ``measured`` holds: distance MAE
 against the true reference (object units) over the common pixel set of the sweep's points
 that predict hits (DESIGN section 10). A presets file names it as its ``error``."""
 
 
-def describe_preset(name: str, preset: dict[str, Any]) -> str:
-    """One line for the panel's tooltip and the Apply Preset report: ``preset``'s settings in
-    the panel's words and what ``bench`` measured with them (PRESET_ERROR, rays/s)."""
-    measured = preset["measured"]
-    speed = measured.get("render_rays_per_s")
-    return (f"{name.title()}: resolution {preset['resolution']}, {preset['levels']} hash-grid "
-            f"levels of 2^{preset['log2_table_size']} entries, {preset['pe_bands']} "
-            f"positional-encoding bands, width {preset['width']}, {preset['steps']:,} steps; "
-            f"bench measured a distance error of {measured[PRESET_ERROR]:.3g} object units"
-            + (f" and {speed:,.0f} rays/s" if speed else ""))
+def describe_preset(name: str, presets: dict[str, dict[str, Any]]) -> str:
+    """One line for the panel's tooltip and the Apply Preset report: preset ``name``'s
+    settings in the panel's words and what ``bench`` measured with them (PRESET_ERROR, rays/s,
+    each where the file holds it); a preset whose settings another one shares says so."""
+    preset = presets[name]
+    measured = preset.get("measured", {})
+    error, speed = measured.get(PRESET_ERROR), measured.get("render_rays_per_s")
+    figures = [f"a distance error of {error:.3g} object units" if error is not None else "",
+               f"{speed:,.0f} rays/s" if speed else ""]
+    twins = [other.title() for other in PRESET_NAMES if other != name
+             and all(presets[other][key] == preset[key] for key in SETTINGS)]
+    return (f"{name.title()}: the {PRESET_VARIANT.title()} variant at resolution "
+            f"{preset['resolution']}, {preset['levels']} hash-grid levels of "
+            f"2^{preset['log2_table_size']} entries, {preset['pe_bands']} positional-encoding "
+            f"bands, width {preset['width']}, {preset['steps']:,} steps"
+            + (f"; bench measured {' and '.join(f for f in figures if f)}" if any(figures)
+               else "")
+            + (f" (the same settings as {' and '.join(twins)}: the measured sweep has no "
+               "point between them)" if twins else ""))
 
 
 def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, Any]]:

@@ -8,8 +8,11 @@ import numpy as np
 
 from ..inference import images
 from ..inference.evaluation import distance_range, figure, world_distances
+from ..inference.exr import write_multilayer
 from ..model.variants import variant_config
+from ..passes import COMPOSITOR_PASSES, VIEW_LAYER
 from ..training.fit import fit_model
+from ..training.history import plot
 from .capture_scene import capture
 from .generate import generate_dataset
 from .image_io import save_image
@@ -80,19 +83,32 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     return report, views
 
 
-def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None):
-    """Writes every pass as a PNG for looking and an EXR for use (distance in world units
-    when ``world_scale`` is given, material as the object's slot with the used-slot table
-    ``slots``, see ``Passes.with_slots``); returns the written paths."""
+def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None,
+                 frame=None, world_matrix=None):
+    """Writes a PNG preview per pass (transparent where rays miss) and one multilayer EXR of
+    the compositor's passes (``images.compositor_passes``): distance in world units when
+    ``world_scale`` is given, normals in world space with the object's ``world_matrix``
+    (4, 4), material as the object's slot with the used-slot table ``slots``, see
+    ``Passes.with_slots``. A ``frame`` number goes into the names as Blender numbers image
+    sequences (``normal.0030.png``, ``passes.0030.exr``). Returns the written paths."""
     folder = pathlib.Path(folder)
     data = passes if world_scale is None else world_distances(passes, world_scale)
     data = data if slots is None else data.with_slots(slots)
-    shown = images.display(data, height, width, distance_range(data))
-    shown["hit"] = np.repeat(images.raw(data, height, width)["hit"], 3, axis=2)
-    written = [save_image(folder / f"{prefix}{name}.png", image) for name, image in shown.items()]
-    written += [save_image(folder / f"{prefix}{name}.exr", image)
-                for name, image in images.raw(data, height, width).items()]
+    number = "" if frame is None else f".{round(frame):04d}"
+    written = [save_image(folder / f"{prefix}{name}{number}.png", image) for name, image
+               in images.previews(data, height, width, distance_range(data)).items()]
+    normal_matrix = None if world_matrix is None else np.linalg.inv(
+        np.asarray(world_matrix, np.float64)[:3, :3]).T
+    written.append(write_multilayer(
+        folder / f"{prefix}passes{number}.exr",
+        images.compositor_passes(data, height, width, normal_matrix), COMPOSITOR_PASSES,
+        VIEW_LAYER))
     return written
+
+
+def write_training_plot(path, history):
+    """Writes the loss plot of training's progress records (``history.plot``) as a PNG."""
+    return save_image(path, plot(history))
 
 
 def write_figures(folder, view, height, width, object_size):

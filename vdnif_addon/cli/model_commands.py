@@ -4,6 +4,7 @@ once and captures the scene of the options again as the model was trained on it
 
 import pathlib
 
+from ..inference.metrics import verdict
 from ..settings import COMMAND_IMAGE, EVALUATION_POSES
 from .options import (
     add_device_option,
@@ -57,13 +58,14 @@ def cmd_render(args):
         view = "an orbit viewpoint (the scene has no camera)"
         result = render_orbit(obj, captured, model, pose, args.width, args.height,
                               references=args.references)
-    slots = captured.mesh.material_slots
+    slots, matrix = captured.mesh.material_slots, obj.matrix_world
     written = write_passes(args.out, result.predicted, args.height, args.width,
-                           result.world_scale, slots=slots)
+                           result.world_scale, slots=slots, world_matrix=matrix)
     if args.references:
         for name in ("true", "embedded"):
             written += write_passes(args.out, getattr(result, name), args.height, args.width,
-                                    result.world_scale, prefix=f"{name}-", slots=slots)
+                                    result.world_scale, prefix=f"{name}-", slots=slots,
+                                    world_matrix=matrix)
     summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
                "width": args.width, "height": args.height,
                "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
@@ -93,14 +95,18 @@ def evaluated(args):
 
 def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
-    from ..blender.jobs import write_figures
+    from ..blender.jobs import write_figures, write_passes
 
     report, views, captured = evaluated(args)
     if args.out is not None:
         report["figures"] = {name: str(path) for name, path in write_figures(
             args.out, views[0], args.height, args.width, captured.mesh.size).items()}
+        report["passes"] = [str(path) for name in ("predicted", "true") for path in
+                            write_passes(args.out, views[0][name], args.height, args.width,
+                                         prefix="" if name == "predicted" else "true-")]
     write_json(args.json, report)
     print_evaluation(report)
+    print(f"  verdict against the mesh: {verdict(report['vs_true'])}")
     return 0
 
 
@@ -126,8 +132,9 @@ def _model_command(commands, name, run, default_poses, notes):
 def add_commands(commands):
     """Adds the model commands to the batch parser's subcommands ``commands``."""
     render = _model_command(commands, "render", cmd_render, 1, (
-        "Writes per pass (hit, distance, normal, albedo, material) a PNG for looking and an "
-        "EXR for use (distance in world units) and render.json into --out."))
+        "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
+        "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
+        "Normal, DiffCol, IndexMA, alpha in Combined) and render.json into --out."))
     render.add_argument("--frame", type=float, metavar="F",
                         help="the timeline frame to pose the scene at (default: current)")
     render.add_argument("--camera", metavar="NAME", help=(
@@ -144,5 +151,5 @@ def add_commands(commands):
     evaluate.add_argument("--rest-pose", action="store_true",
                           help="evaluate on views of the undeformed rest pose instead")
     evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
-                          help="write the comparison figures and error images here")
+                          help="write the figures, error images and first pose's passes here")
     evaluate.add_argument("--json", type=output_file, metavar="PATH")

@@ -140,6 +140,7 @@ def _truncation_warning(truncated, rays):
 def cmd_train(args):
     """Train a network on a dataset folder (or on a scene, generating its dataset first)
     and write the model file."""
+    from ..blender.jobs import write_training_plot
     from ..training.dataset import read_dataset
     from ..training.fit import fit_model
 
@@ -158,6 +159,9 @@ def cmd_train(args):
                                     progress=report_training)
     if not result.is_main:
         return 0
+    model = pathlib.Path(summary["model"])
+    summary["plot"] = str(write_training_plot(model.with_name(f"{model.stem}-training.png"),
+                                              summary["history"]))
     write_json(args.json, summary)
     print(f"trained {summary['variant']} on '{summary['object']}' ({summary['segments']} "
           f"segments): "
@@ -166,7 +170,8 @@ def cmd_train(args):
     if result.validation:
         print("  validation on held-out poses: " + ", ".join(
             f"{k} {v:.4g}" for k, v in result.validation.items()))
-    print(f"  model {summary['model']} ({summary['model_bytes']:,} bytes)")
+    print(f"  model {summary['model']} ({summary['model_bytes']:,} bytes), loss plot "
+          f"{summary['plot']}")
     return 0
 
 
@@ -253,7 +258,8 @@ def add_commands(commands):
 
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
-        "(DistributedDataParallel) and the first one writes the model."))
+        "(DistributedDataParallel) and the first one writes the model and its loss plot "
+        "(<model>-training.png beside it)."))
     training.add_argument("--data", type=pathlib.Path, metavar="DIR", help=(
         "dataset folder written by 'dataset'; with scene options the dataset is generated "
         "into it first (default then: a temporary folder)"))
@@ -269,7 +275,8 @@ def add_commands(commands):
     training.add_argument("--out", type=output_file, metavar="MODEL", help=(
         "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
     add_training_options(training)
-    training.add_argument("--json", type=output_file, metavar="PATH")
+    training.add_argument("--json", type=output_file, metavar="PATH", help=(
+        "write the summary with the training history (step, task losses, validation)"))
     group = training.add_argument_group("encoding and network (default: the variant's)")
     for option, (_, kind, text) in NETWORK_OPTIONS.items():
         group.add_argument(option, type=kind, help=text)

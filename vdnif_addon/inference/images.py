@@ -1,5 +1,6 @@
-"""Images of per-ray passes for looking (display-ready RGB in [0, 1]) and for use (raw data),
-error heat maps, and the reference | predicted | error comparison figure.
+"""Images of per-ray passes for looking (display-ready RGB in [0, 1], previews transparent
+where rays miss) and for use (the compositor's passes of the multilayer EXR), error heat
+maps, and the reference | predicted | error comparison figure.
 
 Every image is (H, W, C) float32 with row 0 at the top, as the camera rays are ordered.
 """
@@ -10,6 +11,8 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from ..passes import COMPOSITOR_PASSES, MISS_DEPTH
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -62,17 +65,36 @@ def display(passes: Passes, height: int, width: int, distance_range: tuple[float
             for name, rgb in colors.items()}
 
 
-def raw(passes: Passes, height: int, width: int) -> dict[str, Float[np.ndarray, "H W C"]]:
-    """{pass name: (H, W, C) float32 data}: hit mask, distance (NaN on a miss), normal,
-    albedo, material index; for EXR files and further use."""
-    miss = ~passes.hit
-    return {
-        "hit": _image(passes.hit.astype(np.float32)[:, None], height, width),
-        "distance": _image(np.where(miss, np.nan, passes.distance)[:, None], height, width),
-        "normal": _image(passes.normal, height, width),
-        "albedo": _image(passes.albedo, height, width),
-        "material": _image(passes.material.astype(np.float32)[:, None], height, width),
-    }
+def previews(passes: Passes, height: int, width: int, distance_range: tuple[float, float]
+             ) -> dict[str, Float[np.ndarray, "H W 4"]]:
+    """{pass name: (H, W, 4) preview}: the ``display`` images and the hit mask (white), each
+    with the hit mask as alpha, so that misses are transparent."""
+    alpha = passes.hit.astype(np.float32)[:, None]
+    shown = display(passes, height, width, distance_range)
+    shown["hit"] = _image(np.ones((len(alpha), 3), np.float32), height, width)
+    return {name: np.concatenate([image, _image(alpha, height, width)], axis=2)
+            for name, image in shown.items()}
+
+
+def compositor_passes(passes: Passes, height: int, width: int,
+                      normal_matrix: Float[np.ndarray, "3 3"] | None = None
+                      ) -> dict[str, Float[np.ndarray, "H W C"]]:
+    """{Cycles pass name: (H, W, C) float32} (``passes.COMPOSITOR_PASSES``) for a multilayer
+    EXR: misses are 0 but in Depth (MISS_DEPTH) and transparent in Combined. Normals are
+    mapped by ``normal_matrix`` (3, 3), the inverse transpose of the object's world matrix,
+    when given (Cycles writes world-space normals), and normalized again."""
+    hit = passes.hit[:, None]
+    normal = passes.normal if normal_matrix is None else passes.normal @ np.asarray(
+        normal_matrix, np.float64).T
+    length = np.linalg.norm(normal, axis=1, keepdims=True)
+    normal = normal / np.where(length > 0, length, 1.0)
+    albedo = np.where(hit, passes.albedo, 0.0)
+    data = {"Combined": np.concatenate([albedo, hit], axis=1),
+            "Depth": np.where(passes.hit, passes.distance, MISS_DEPTH)[:, None],
+            "Normal": np.where(hit, normal, 0.0),
+            "DiffCol": albedo,
+            "IndexMA": np.where(passes.hit, passes.material, 0)[:, None]}
+    return {name: _image(data[name], height, width) for name in COMPOSITOR_PASSES}
 
 
 def error_images(predicted: Passes, reference: Passes, height: int, width: int,

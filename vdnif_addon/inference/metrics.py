@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..passes import Passes
+from ..text import percent
 
 if TYPE_CHECKING:
     from jaxtyping import Bool
@@ -18,6 +19,11 @@ PSNR_FLOOR_MSE = 1e-10     # identical albedo reports 100 dB instead of infinity
 # predict hits: its rays stop in other cells than a working model's, so its rays/s measure
 # another workload and are no speed figure (DESIGN section 10).
 SPEED_MIN_HIT_IOU = 0.9
+CLEAN_RATE = 0.005
+"""An evaluation's verdict is "clean" when its false-negative (holes) and false-positive
+(extras) rates against the true reference are each at most this share of the reference's
+hits, else "speckled" (``verdict``). A judgement, inside the range of the converged models
+of the bench sweep (0.05 % to 0.8 % each, docs/performance.md)."""
 
 
 def _share(count: int, total: int) -> float | None:
@@ -101,3 +107,15 @@ def speed_withheld(hit_iou: float | None) -> str | None:
         return (f"hit IoU {hit_iou:.3f} against the true reference is below "
                 f"{SPEED_MIN_HIT_IOU}: the model does not predict hits")
     return None
+
+
+def verdict(metrics: dict[str, Any]) -> str:
+    """One line on an evaluation's hit mask against the true reference (its ``vs_true``
+    metrics): "clean" when holes and extras are each at most CLEAN_RATE of the reference's
+    hits, else "speckled" with both shares."""
+    holes, extras = metrics.get("false_negative_rate"), metrics.get("false_positive_rate")
+    if holes is None or extras is None:
+        return "n/a (the true reference hits nothing)"
+    if holes <= CLEAN_RATE and extras <= CLEAN_RATE:
+        return "clean"
+    return f"speckled: {percent(holes, 2)} holes, {percent(extras, 2)} extras"

@@ -21,7 +21,7 @@ from ..blender.capture_scene import capture
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.scenes import demo_scene
 from ..inference.evaluation import compare_common, concatenated
-from ..presets import PRESET_ERROR
+from ..presets import PRESET_ERROR, PRESET_VARIANT
 from ..safe_io import exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig, PoseSpec
 from ..training.fit import fit_model
@@ -167,7 +167,7 @@ def _train_points(obj, spec, size, points, numbers, work, scratch, device, progr
             data = scratch / f"r{point['resolution']}"
             if not data.exists():
                 captured = capture(obj, point["resolution"], spec, deform_corners=False)
-                variant_dataset(obj, captured, "proposed", data, size["rays_per_pose"])
+                variant_dataset(obj, captured, PRESET_VARIANT, data, size["rays_per_pose"])
             write_json_atomic(path, _train_point(data, model, size, point, device, progress))
     return busy
 
@@ -207,7 +207,7 @@ def _train_point(data, model, size, point, device, progress):
     """Trains one sweep point on the dataset folder ``data`` to the convergence rule into
     ``model``; its record."""
     settings = {k: v for k, v in point.items() if k != "resolution"}
-    result, _ = fit_model(data, "proposed", model,
+    result, _ = fit_model(data, PRESET_VARIANT, model,
                           dict(size["overrides"], device=device, **settings,
                                **rule_overrides(size["convergence"])),
                           progress=progress)

@@ -14,6 +14,7 @@ from ..blender.jobs import (
     train_variant,
     write_figures,
     write_passes,
+    write_training_plot,
 )
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
@@ -61,11 +62,13 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     report, views = evaluate_file(obj, evaluated, model, width, height, device)
     figures = write_figures(out, views[0], height, width, captured.mesh.size)
     passes = write_passes(out / "passes", views[0]["predicted"], height, width)
+    plot = write_training_plot(out / "training.png", summary["history"])
     report.update(train_poses=len(captured.poses), variant_note=note,
                   dataset_rays=summary["dataset"]["rays"],
                   dataset_segments=summary["dataset"]["segments"],
                   figures={name: str(path) for name, path in figures.items()},
-                  passes=[str(path) for path in passes], report=str(out / "report.md"))
+                  passes=[str(path) for path in passes], report=str(out / "report.md"),
+                  history=summary["history"], training_plot=str(plot))
     command = shlex.join(["python", "vdnif_addon/batch.py", "--",
                           *sys.argv[sys.argv.index("--") + 1:]] if "--" in sys.argv
                          else ["python", "vdnif_addon/batch.py", "--", "demo"])

@@ -186,6 +186,9 @@ def demo_markdown(report, command, figure_name):
         "deformed mesh), the prediction, the error (distance error bright at 0.05 object "
         "units, normal error bright at 45 deg; white where only one of them hits).",
         "",
+        *([f"![training loss per task]({pathlib.Path(report['training_plot']).name})", "",
+           "Each task's training loss (solid) and its loss on the held-out training poses "
+           "(dashed) over the steps, log scale.", ""] if report.get("training_plot") else []),
     ])
 
 

@@ -19,6 +19,7 @@ from ..model.metadata import FORMAT_VERSION, ModelMetadata
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
 from .dataset import read_dataset
+from .history import records
 from .train import TrainResult, train
 
 
@@ -65,5 +66,6 @@ def fit_model(
     save_model(out, result.network, metadata)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,
-               "train": result.info(), "network_config": result.network_config.to_dict()}
+               "train": result.info(), "network_config": result.network_config.to_dict(),
+               "history": records(result.history)}
     return result, summary

@@ -16,7 +16,7 @@ import pathlib
 import queue
 import threading
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import VDNIFError
@@ -41,6 +41,7 @@ class JobState:
     cancelling: bool = False
     message: str = ""              # the error of a failed job, or what happened
     model: str | None = None             # the model file written, None if none was
+    history: list = field(default_factory=list)     # the progress records so far
 
     @property
     def done(self) -> bool:
@@ -146,6 +147,7 @@ class TrainingJob:
             # The weighted total holds the learned log-variances and goes negative; the
             # sum of the task losses is what a user reads as "the loss falls".
             state.step, state.loss = payload["step"], sum(payload["losses"].values())
+            state.history.append(payload)
             state.eta_s, state.samples_per_s = payload["eta_s"], payload["samples_per_s"]
             return
         state.status, state.cancelling = kind, False
