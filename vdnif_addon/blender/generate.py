@@ -12,7 +12,7 @@ from ..inference.evaluation import metric_heads
 from ..inference.metrics import compare
 from ..limits import MAX_RAYS_PER_POSE, check_image, check_range
 from ..passes import Passes
-from ..settings import RECIPE
+from ..settings import RECIPE, SECONDARY_OFFSET
 from ..tracing.groundtruth import segment_targets
 from ..tracing.rays import orbit_rays, orbit_viewpoints, training_rays
 from ..tracing.references import embedded_reference, true_reference
@@ -23,7 +23,8 @@ from .pose_geometry import PosedObject
 
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
-                     pose_range=None, progress=None, grazing_fraction=None):
+                     pose_range=None, progress=None, grazing_fraction=None,
+                     secondary_fraction=None):
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its DatasetHeader (its
     timings with the writing's). The ray mix
@@ -33,6 +34,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         surface_fraction = RECIPE.surface_fraction
     if grazing_fraction is None:
         grazing_fraction = RECIPE.grazing_fraction
+    if secondary_fraction is None:
+        secondary_fraction = RECIPE.secondary_fraction
+    offset = SECONDARY_OFFSET * capture.mesh.size       # object units to local ones
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
@@ -55,7 +59,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
             origins, directions = training_rays(geometry.vertices.min(0),
                                                 geometry.vertices.max(0), surface,
                                                 rays_per_pose, surface_fraction, rng,
-                                                normals, grazing_fraction)
+                                                normals, grazing_fraction,
+                                                secondary_fraction=secondary_fraction,
+                                                offset=offset)
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             segments = traverse(geometry.cells, origins, directions)
@@ -86,7 +92,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
         "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
-        "grazing_fraction": grazing_fraction,
+        "grazing_fraction": grazing_fraction, "secondary_fraction": secondary_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
         "versions": _versions(), "segments": len(merged["pose"]),
     }, f"dataset header of shard '{name}'")

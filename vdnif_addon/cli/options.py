@@ -240,9 +240,11 @@ def validate_arguments(args):
     at_least("threads", 1)
     at_least("batch", *BOUNDS["batch_size"])
     at_least("steps", *BOUNDS["steps"])
+    at_least("ao_samples", *BOUNDS["ao_samples"])
     if isinstance(getattr(args, "resolution", None), int):
         check_resolution(args.resolution)
-    for name in ("surface_fraction", "grazing_fraction", "max_angle"):
+    for name in ("surface_fraction", "grazing_fraction", "secondary_fraction", "max_angle",
+                 "ao_distance"):
         low, high = BOUNDS[name]
         value = getattr(args, name, None)
         if value is not None and not (math.isfinite(value) and low <= value <= high):

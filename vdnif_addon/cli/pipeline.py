@@ -73,7 +73,8 @@ def cmd_dataset(args):
     header = generate_dataset(obj, result, args.out, args.rays_per_pose,
                               args.surface_fraction, args.seed, pose_range,
                               progress=lambda done, _: progress.update(done),
-                              grazing_fraction=args.grazing_fraction)
+                              grazing_fraction=args.grazing_fraction,
+                              secondary_fraction=args.secondary_fraction)
     counts, timings = header.counts, header.timings
     walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
     print(f"dataset '{header.object}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
@@ -239,6 +240,9 @@ def add_commands(commands):
                       metavar="F", help="share of rays tangent to the surface at a surface "
                       "point (silhouette rays); the rest aim at random points in the bounds "
                       f"(default {RECIPE.grazing_fraction})")
+    data.add_argument("--secondary-fraction", type=float, default=RECIPE.secondary_fraction,
+                      metavar="F", help="share of rays that start on the surface and leave it, "
+                      f"as shadow and occlusion rays do (default {RECIPE.secondary_fraction})")
     data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
     data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
