@@ -22,7 +22,8 @@ def test_settings_import_neither_torch_nor_bpy():
 def test_the_recipe_is_frozen_and_its_mix_adds_up():
     with pytest.raises(dataclasses.FrozenInstanceError):
         RECIPE.steps = 1
-    assert 0 <= RECIPE.surface_fraction + RECIPE.grazing_fraction <= 1
+    assert 0 <= RECIPE.surface_fraction + RECIPE.grazing_fraction \
+        + RECIPE.secondary_fraction <= 1
 
 
 def test_training_config_and_commands_default_to_the_recipe():
@@ -35,8 +36,9 @@ def test_training_config_and_commands_default_to_the_recipe():
         None, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.steps, RECIPE.batch_size)
     data = parser.parse_args(["dataset", "--scene", "arm", "--out", "d"])
     assert (data.resolution, data.poses, data.rays_per_pose, data.surface_fraction,
-            data.grazing_fraction) == (None, RECIPE.poses, RECIPE.rays_per_pose,
-                                       RECIPE.surface_fraction, RECIPE.grazing_fraction)
+            data.grazing_fraction, data.secondary_fraction) == (
+        None, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.surface_fraction,
+        RECIPE.grazing_fraction, RECIPE.secondary_fraction)
     assert parser.parse_args(["demo"]).scene == settings.DEMO_SCENE == "spot"
 
 

@@ -60,3 +60,25 @@ VIEW_LAYER = "ViewLayer"
 """The layer name of the EXR's passes: Blender's default view layer's."""
 MISS_DEPTH = 1e10
 """Depth where a ray hits nothing: the far value Cycles writes for the background."""
+
+
+SECONDARY_PASSES = ("ao", "shadow")
+"""The passes of the rays that start at each primary hit (``inference/secondary.py``):
+ambient occlusion, the fraction of cosine-weighted rays with no occluder within the AO
+distance (1 open, 0 enclosed), and shadow, whether the light is reached (1 lit, 0 shadowed)."""
+
+
+@dataclass
+class SecondaryPasses:
+    """Per-ray (per-pixel) answers of the secondary rays of one set of primary hits."""
+
+    hit: Bool[np.ndarray, " R"]       # the primary hit the secondary rays start from
+    ao: Float[np.ndarray, " R"]       # float32 fraction unoccluded; 0 without a primary hit
+    lit: Bool[np.ndarray, " R"]       # the light reached; False without a primary hit
+
+    @classmethod
+    def concatenate(cls, passes: Iterable[SecondaryPasses]) -> SecondaryPasses:
+        """The rays of ``passes`` one after the other."""
+        passes = list(passes)
+        return cls(*(np.concatenate([getattr(p, name) for p in passes])
+                     for name in ("hit", "ao", "lit")))

@@ -29,9 +29,10 @@ class Recipe:
     """Default data and optimization sizes of one training run.
 
     poses: deformed training poses; rays_per_pose: training rays walked per pose;
-    surface_fraction / grazing_fraction: shares of those rays aimed from outside at a surface
-    point / tangent to the surface at one (``rays.training_rays``), the rest aimed at random
-    points of the bounds; steps and batch_size: optimizer steps of batch_size segments.
+    surface_fraction / grazing_fraction / secondary_fraction: shares of those rays aimed from
+    outside at a surface point / tangent to the surface at one / starting on the surface, as
+    shadow and occlusion rays do (``rays.training_rays``), the rest aimed at random points of
+    the bounds; steps and batch_size: optimizer steps of batch_size segments.
     """
 
     resolution: int = 32
@@ -44,6 +45,7 @@ class Recipe:
     rays_per_pose: int = 65536
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
+    secondary_fraction: float = 0.0
     # A third of this left holes, extras and distance error on the three-material bunny that
     # more steps remove with the same data (docs/DESIGN.md section 8, the default recipe).
     steps: int = 9000
@@ -78,6 +80,16 @@ EMBEDDING_ERROR_SHARE = 0.1
 SUGGEST_PRESET = "balanced"
 SUGGEST_POSES = 4
 SUGGEST_VIEW_SIZE = 96
+
+# --------------------------------------------------------------------------- secondary rays
+# Ambient occlusion: AO_SAMPLES rays per pixel (a pixel's standard error at most 0.125),
+# each looking AO_DISTANCE object units for an occluder (a tenth of the object: contacts and
+# folds darken, the far side does not). A ray that starts on the surface (rendered or
+# trained on) is pushed SECONDARY_OFFSET object units along the normal so that it does not
+# hit the surface it leaves. DEFAULT_LIGHT_DIRECTION: towards the light, object space, where
+# the scene has no sun or point light. SECONDARY_SEED: the directions' seed (repeatable).
+AO_SAMPLES, AO_DISTANCE, SECONDARY_OFFSET = 16, 0.1, 1e-3
+DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = (0.3, -0.4, 0.866), 0
 
 # --------------------------------------------------------------------------- names
 
@@ -130,6 +142,8 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "rays_per_pose": (1, limits.MAX_RAYS_PER_POSE),
     "surface_fraction": (0.0, 1.0),
     "grazing_fraction": (0.0, 1.0),
+    "secondary_fraction": (0.0, 1.0),
+    "ao_samples": (1, 1024), "ao_distance": (1e-6, 1e3),
     "levels": (1, 64),
     "base_resolution": (1, MAX_GRID_RESOLUTION),
     "growth": (1.0, 16.0),

@@ -42,3 +42,13 @@ def speed_line(report: dict) -> str:
     if speed is not None:
         return f"{speed:,.0f} rays/s"
     return f"n/a ({report['speed_withheld']})" if report.get("speed_withheld") else "n/a"
+
+
+def secondary_line(m: dict) -> str:
+    """The AO and shadow errors of an evaluation's metrics, from the network's own hits and
+    (in brackets) from the true ones (``metrics.compare_secondary``)."""
+    return (f"AO MAE {value(m['ao_mae'])} ({value(m['ao_mae_true_hit'])}), shadow false lit "
+            f"{percent(m['shadow_false_lit_rate'])} "
+            f"({percent(m['shadow_false_lit_rate_true_hit'])}), false shadow "
+            f"{percent(m['shadow_false_shadow_rate'])} "
+            f"({percent(m['shadow_false_shadow_rate_true_hit'])})")

@@ -9,10 +9,12 @@ import numpy as np
 
 from ..geometry.attributes import sample_surface
 from ..inference.evaluation import metric_heads
-from ..inference.metrics import compare
+from ..inference.metrics import compare, compare_secondary
+from ..inference.secondary import embedded_occluded, exact_occluded, secondary_views
+from ..kernels.cast import MeshCaster
 from ..limits import MAX_RAYS_PER_POSE, check_image, check_range
-from ..passes import Passes
-from ..settings import RECIPE
+from ..passes import Passes, SecondaryPasses
+from ..settings import RECIPE, SECONDARY_OFFSET
 from ..tracing.groundtruth import segment_targets
 from ..tracing.rays import orbit_rays, orbit_viewpoints, training_rays
 from ..tracing.references import embedded_reference, true_reference
@@ -23,7 +25,8 @@ from .pose_geometry import PosedObject
 
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
-                     pose_range=None, progress=None, grazing_fraction=None):
+                     pose_range=None, progress=None, grazing_fraction=None,
+                     secondary_fraction=None):
     """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its DatasetHeader (its
     timings with the writing's). The ray mix
@@ -33,6 +36,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         surface_fraction = RECIPE.surface_fraction
     if grazing_fraction is None:
         grazing_fraction = RECIPE.grazing_fraction
+    if secondary_fraction is None:
+        secondary_fraction = RECIPE.secondary_fraction
+    offset = SECONDARY_OFFSET * capture.mesh.size       # object units to local ones
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
@@ -55,7 +61,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
             origins, directions = training_rays(geometry.vertices.min(0),
                                                 geometry.vertices.max(0), surface,
                                                 rays_per_pose, surface_fraction, rng,
-                                                normals, grazing_fraction)
+                                                normals, grazing_fraction,
+                                                secondary_fraction=secondary_fraction,
+                                                offset=offset)
             timings["rays_s"] += time.perf_counter() - clock
             clock = time.perf_counter()
             segments = traverse(geometry.cells, origins, directions)
@@ -86,7 +94,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
         "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
-        "grazing_fraction": grazing_fraction,
+        "grazing_fraction": grazing_fraction, "secondary_fraction": secondary_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
         "versions": _versions(), "segments": len(merged["pose"]),
     }, f"dataset header of shard '{name}'")
@@ -96,14 +104,17 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     return dataclasses.replace(header, timings={**header.timings, "write_s": write_s})
 
 
-def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
+def reference_run(obj, capture, width, height, rest_pose=False, progress=None,
+                  secondary=None):
     """Renders the true and embedded references of every pose in ``capture`` from an orbit
-    camera each, and returns the embedding error and throughput as a JSON-ready dict."""
+    camera each, and returns the embedding error and throughput as a JSON-ready dict; with
+    ``secondary`` (``SecondarySettings``) the AO and shadow passes' too, each reference's
+    from its own hits and the embedded one's from the true hits (suffix ``_true_hit``)."""
     check_image(width, height)
     mesh = capture.mesh
     heads = metric_heads(mesh)
     directions = orbit_viewpoints(len(capture.poses))
-    truth, embedded, per_pose = [], [], []
+    truth, embedded, per_pose, secondaries = [], [], [], []
     clock = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                  embedded_reference_s=0.0, true_reference_s=0.0)
     segment_count = truncated = 0
@@ -138,21 +149,44 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None):
             per_pose.append(dict(compare(embedded[-1], truth[-1], mesh.size, heads,
                                          capture.grid.voxel_size),
                                  inverted_cells=geometry.inverted_cells()))
+            if secondary is not None:
+                start = time.perf_counter()
+                secondaries.append(secondary_views(
+                    {"true": truth[-1], "embedded": embedded[-1]}, origins, rays,
+                    {"exact": exact_occluded(MeshCaster(geometry.vertices, mesh.triangles)),
+                     "embedded": embedded_occluded(geometry.cells, mesh, rest_caster)},
+                    mesh.size, secondary))
+                per_pose[-1].update(_secondary_errors(secondaries[-1]))
+                clock["secondary_s"] = clock.get("secondary_s", 0.0) + (time.perf_counter()
+                                                                        - start)
             if progress is not None:
                 progress(index + 1, len(capture.poses))
     rays_total = len(capture.poses) * width * height
     neural_path_s = clock["walk_s"] + clock["ground_truth_s"]
+    embedding_error = compare(Passes.concatenate(embedded), Passes.concatenate(truth),
+                              mesh.size, heads, capture.grid.voxel_size)
+    if secondary is not None:
+        embedding_error.update(_secondary_errors(
+            {name: SecondaryPasses.concatenate([views[name] for views in secondaries])
+             for name in secondaries[0]}))
     return {
         "object": mesh.name, "mode": capture.mode, "resolution": capture.grid.resolution,
         "poses": len(capture.poses), "rest_pose": rest_pose, "width": width, "height": height,
-        "embedded_vs_true": compare(Passes.concatenate(embedded), Passes.concatenate(truth),
-                                    mesh.size, heads, capture.grid.voxel_size),
+        "embedded_vs_true": embedding_error,
+        **({} if secondary is None else {"secondary": secondary.describe()}),
         "per_pose": per_pose,
         "rays_per_s": rays_total / neural_path_s,
         "segments_per_s": segment_count / neural_path_s,
         "segments_per_ray": segment_count / rays_total, "truncated_rays": truncated,
         "timings": clock, "versions": _versions(),
     }
+
+
+def _secondary_errors(views):
+    """The embedded reference's AO and shadow errors against the true one: from its own
+    hits, and (suffix ``_true_hit``) from the true hits."""
+    return {**compare_secondary(views["embedded"], views["true"]),
+            **compare_secondary(views["embedded_true_hit"], views["true"], suffix="_true_hit")}
 
 
 def _pose_timings(timings, geometry, seconds):

@@ -10,7 +10,7 @@ from ..inference import images
 from ..inference.evaluation import distance_range, figure, world_distances
 from ..inference.exr import write_multilayer
 from ..model.variants import variant_config
-from ..passes import COMPOSITOR_PASSES, VIEW_LAYER
+from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
 from ..training.fit import fit_model
 from ..training.history import plot
 from .capture_scene import capture
@@ -63,13 +63,14 @@ def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
-                  viewpoints=None, seen=False, loaded=None):
+                  viewpoints=None, seen=False, loaded=None, secondary=None):
     """(report, views) of the model file on the poses of ``captured``, with the model's
     training figures and size added to the report (``seen``: see ``evaluate_model``;
-    ``loaded``: see ``neural.load_scene_model``)."""
+    ``loaded``: see ``neural.load_scene_model``; ``secondary``: the AO and shadow
+    passes' ``SecondarySettings``, see ``evaluate_model``)."""
     model = load_scene_model(model_path, captured, device, loaded)
     report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress,
-                                   seen)
+                                   seen, secondary)
     training = model.metadata.training
     report["config"] = {"network": model.metadata.network_config.to_dict(),
                         "train": dict(training.config)}
@@ -123,7 +124,25 @@ def write_figures(folder, view, height, width, object_size):
     errors = images.error_images(view["predicted"], view["true"], height, width, object_size)
     for name in ("distance", "normal"):
         paths[f"error_{name}"] = save_image(folder / f"error-{name}.png", errors[name])
+    if "secondary" in view:             # reference | predicted | error, a row per pass
+        shown = view["secondary"]
+        errors = images.secondary_errors(shown["predicted"], shown["true"], height, width)
+        rows = [[images.secondary_images(shown[source], height, width)["display"][name]
+                 for source in ("true", "predicted")] + [errors[name]]
+                for name in SECONDARY_PASSES]
+        paths["figure_secondary_vs_true"] = save_image(
+            folder / "figure-secondary-vs-true.png", images.comparison_figure(rows))
     return paths
+
+
+def write_secondary(folder, passes, height, width, prefix=""):
+    """Writes the AO and shadow passes (``SecondaryPasses``) as PNG and EXR; returns the
+    written paths."""
+    folder = pathlib.Path(folder)
+    shown = images.secondary_images(passes, height, width)
+    return [save_image(folder / f"{prefix}{name}{suffix}", shown[kind][name])
+            for name in SECONDARY_PASSES
+            for kind, suffix in (("display", ".png"), ("raw", ".exr"))]
 
 
 def train_variant(obj, captured, variant, folder, rays_per_pose, out, overrides, seed=0,

@@ -10,9 +10,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import VDNIFError
-from ..inference.evaluation import check_model_fits, compare_both, concatenated, speed_figures
+from ..inference.evaluation import (
+    check_model_fits,
+    compare_both,
+    compare_secondary_both,
+    concatenated,
+    speed_figures,
+)
 from ..inference.neural_render import neural_passes
-from ..passes import Passes
+from ..inference.secondary import (
+    embedded_occluded,
+    exact_occluded,
+    neural_occluded,
+    secondary_views,
+)
+from ..kernels.cast import MeshCaster
+from ..passes import Passes, SecondaryPasses
 from ..text import article
 from ..tracing.rays import camera_rays as pinhole_rays
 from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
@@ -66,28 +79,33 @@ class RenderResult:
     object_size: float         # one object unit in local units
     world_scale: np.ndarray    # (R,) local distance / world distance per ray
     inverted_cells: int
+    # {"predicted", "true", ...: SecondaryPasses} (``secondary.secondary_views``) when asked
+    secondary: dict = None
 
 
-def render_rays(obj, capture, model, pose, origins, directions, references=False):
+def render_rays(obj, capture, model, pose, origins, directions, references=False,
+                secondary=None):
     """Renders world-space rays (N, 3) of ``obj`` in ``pose`` (a pose dict; the current
     frame is ``{"frame": scene.frame_current}``) with the network, and with the true and
-    embedded references when asked."""
+    embedded references when asked; the AO and shadow passes too with ``secondary`` (a
+    ``SecondarySettings``, its light in the object's local space)."""
     inverse = np.array(obj.matrix_world.inverted(), np.float64)
     local_origins, local_directions, scale = transform_rays(origins, directions, inverse)
     with PosedObject(obj, capture, model.device) as posed_object:
         result = _render(model, posed_object, posed_object.geometry(pose), local_origins,
-                         local_directions, references)
+                         local_directions, references, secondary)
     result.world_scale = scale
     return result
 
 
-def render_orbit(obj, capture, model, pose, width, height, references=False):
+def render_orbit(obj, capture, model, pose, width, height, references=False, secondary=None):
     """``render_rays`` through the first orbit viewpoint around the posed object, for a
     scene without a camera (rays in local space: world distances are scaled back)."""
     with PosedObject(obj, capture, model.device) as posed_object:
         geometry = posed_object.geometry(pose)
         origins, directions = orbit_view(geometry, orbit_viewpoints(1)[0], width, height)
-        result = _render(model, posed_object, geometry, origins, directions, references)
+        result = _render(model, posed_object, geometry, origins, directions, references,
+                         secondary)
     linear = np.array(obj.matrix_world, np.float64)[:3, :3]
     result.world_scale = 1.0 / np.linalg.norm(directions @ linear.T, axis=1)
     return result
@@ -122,7 +140,7 @@ def camera_rays(camera, width, height):
 
 
 def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress=None,
-                   seen=False):
+                   seen=False, secondary=None):
     """Renders every pose of ``capture`` (the evaluation poses) from an orbit camera each
     (``viewpoints`` (P, 3), default a Fibonacci sphere) with the network and both
     references. Returns (report, views): the JSON-ready metrics and timings, and per pose
@@ -134,6 +152,8 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
     them by design (the per-pose upper bound). Views of the rest pose and a static object's
     one pose may be the training pose; ``unseen_poses`` says whether they are. Render
     speeds are given only for a model that predicts hits (``evaluation.speed_figures``).
+    With ``secondary`` (``SecondarySettings``) the AO and shadow passes are compared too,
+    and each view holds them under "secondary".
     """
     poses = capture.poses
     unseen = _unseen(poses, model.metadata.train_poses)
@@ -146,10 +166,13 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
         for index, pose in enumerate(poses):
             geometry = posed_object.geometry(pose)
             origins, directions = orbit_view(geometry, viewpoints[index], width, height)
-            result = _render(model, posed_object, geometry, origins, directions, True)
+            result = _render(model, posed_object, geometry, origins, directions, True,
+                             secondary)
             results.append(result)
             views.append({name: getattr(result, name).with_slots(capture.mesh.material_slots)
                           for name in ("predicted", "true", "embedded")})
+            if secondary is not None:
+                views[-1]["secondary"] = result.secondary
             if progress is not None:
                 progress(index + 1, len(poses))
     joined = concatenated(views)
@@ -174,11 +197,31 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
         "speed_withheld": withheld,
         "truncated_rays": sum(r.timings["truncated_rays"] for r in results),
     }
+    if secondary is not None:
+        _secondary_report(report, results, secondary)
     return report, views
 
 
-def _render(model, posed_object, geometry, origins, directions, references):
-    """RenderResult of local rays for one posed geometry."""
+def _secondary_report(report, results, settings):
+    """Adds the AO and shadow metrics (joined and per pose), their settings and the
+    network's secondary rays per second to an evaluation ``report``."""
+    joined = {name: SecondaryPasses.concatenate([r.secondary[name] for r in results])
+              for name in results[0].secondary}
+    for reference, metrics in compare_secondary_both(joined).items():
+        report[reference].update(metrics)
+    for row, result in zip(report["per_pose"], results):
+        for reference, metrics in compare_secondary_both(result.secondary).items():
+            row[reference].update(metrics)
+    report["secondary"] = settings.describe()
+    rays = sum(r.timings["secondary_rays"] for r in results)
+    seconds = sum(r.timings["secondary_s"] for r in results)
+    report["timings"]["secondary_rays_per_s"] = (
+        rays / seconds if seconds > 0 and report["speed_withheld"] is None else None)
+
+
+def _render(model, posed_object, geometry, origins, directions, references, secondary=None):
+    """RenderResult of local rays for one posed geometry (``secondary``: see
+    ``render_rays``)."""
     mesh = posed_object.capture.mesh
     start = time.perf_counter()
     predicted, stats = neural_passes(model.network, model.grid, model.albedo_table,
@@ -192,9 +235,31 @@ def _render(model, posed_object, geometry, origins, directions, references):
     timings = dict(prepare_s=geometry.prepare_s, walk_s=stats["walk_s"],
                    network_s=stats["network_s"], render_s=render_s, rays=len(origins),
                    segments=stats["segments"], truncated_rays=stats["truncated"])
-    return RenderResult(predicted=predicted, true=true, embedded=embedded, timings=timings,
-                        object_size=mesh.size, world_scale=np.ones(len(origins)),
-                        inverted_cells=geometry.inverted_cells())
+    result = RenderResult(predicted=predicted, true=true, embedded=embedded, timings=timings,
+                          object_size=mesh.size, world_scale=np.ones(len(origins)),
+                          inverted_cells=geometry.inverted_cells())
+    if secondary is not None:
+        _render_secondary(result, model, posed_object, geometry, origins, directions,
+                          secondary)
+    return result
+
+
+def _render_secondary(result, model, posed_object, geometry, origins, directions, settings):
+    """The AO and shadow passes of ``result``'s primary hits (``secondary.secondary_views``):
+    the network's, and each reference's where the result has them."""
+    mesh, stats = posed_object.capture.mesh, {}
+    occluders = {"neural": neural_occluded(model.network, model.grid, model.albedo_table,
+                                           geometry.cells, model.device, stats)}
+    primaries = {"predicted": result.predicted}
+    if result.true is not None:
+        occluders["exact"] = exact_occluded(MeshCaster(geometry.vertices, mesh.triangles))
+        occluders["embedded"] = embedded_occluded(geometry.cells, mesh,
+                                                  posed_object.rest_caster)
+        primaries.update(true=result.true, embedded=result.embedded)
+    result.secondary = secondary_views(primaries, origins, directions, occluders, mesh.size,
+                                       settings)
+    result.timings.update(secondary_rays=stats.get("rays", 0),
+                          secondary_s=stats.get("seconds", 0.0))
 
 
 def _unseen(poses, train_poses):

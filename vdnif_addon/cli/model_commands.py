@@ -10,10 +10,12 @@ from .options import (
     add_device_option,
     add_pose_options,
     add_scene_options,
+    add_secondary_options,
     check_resolution,
     load_posed_scene,
     output_file,
     print_evaluation,
+    secondary_settings,
     write_json,
 )
 
@@ -39,12 +41,13 @@ def cmd_render(args):
     """Render the predicted passes of a pose through a camera with a trained model."""
     import bpy
 
-    from ..blender.jobs import write_passes
+    from ..blender.jobs import write_passes, write_secondary
     from ..blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
     from ..blender.scenes import find_camera
 
     loaded, obj, captured = _model_scene(args)
     model = load_scene_model(args.model, captured, args.device, loaded)
+    secondary = secondary_settings(args, obj)
     scene = bpy.context.scene
     frame = scene.frame_current if args.frame is None else args.frame
     pose = {"frame": float(frame)}
@@ -53,11 +56,11 @@ def cmd_render(args):
         origins, directions = camera_rays(camera, args.width, args.height)
         view = f"camera '{camera.name}'"
         result = render_rays(obj, captured, model, pose, origins, directions,
-                             references=args.references)
+                             references=args.references, secondary=secondary)
     else:
         view = "an orbit viewpoint (the scene has no camera)"
         result = render_orbit(obj, captured, model, pose, args.width, args.height,
-                              references=args.references)
+                              references=args.references, secondary=secondary)
     slots, matrix = captured.mesh.material_slots, obj.matrix_world
     written = write_passes(args.out, result.predicted, args.height, args.width,
                            result.world_scale, slots=slots, world_matrix=matrix)
@@ -66,15 +69,23 @@ def cmd_render(args):
             written += write_passes(args.out, getattr(result, name), args.height, args.width,
                                     result.world_scale, prefix=f"{name}-", slots=slots,
                                     world_matrix=matrix)
+    for name, passes in (result.secondary or {}).items():
+        if name in ("predicted", "true", "embedded"):
+            written += write_secondary(args.out, passes, args.height, args.width,
+                                       prefix="" if name == "predicted" else f"{name}-")
     summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
                "width": args.width, "height": args.height,
                "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
                "rays_per_s": result.timings["rays"] / result.timings["render_s"],
                "files": [str(path) for path in written]}
+    if secondary is not None:
+        summary["secondary"] = secondary.describe()
     write_json(pathlib.Path(args.out) / "render.json", summary)
     print(f"rendered '{obj.name}' at frame {frame:g} through {view}, {args.width}x"
           f"{args.height}: {summary['hit_pixels']} hit pixels, "
           f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
+    if secondary is not None:
+        print(f"  ambient occlusion and shadow: light {secondary.light.source}")
     return 0
 
 
@@ -89,7 +100,7 @@ def evaluated(args):
     progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
                                   args.device, lambda done, _: progress.update(done),
-                                  loaded=loaded)
+                                  loaded=loaded, secondary=secondary_settings(args, obj))
     return report, views, captured
 
 
@@ -125,6 +136,7 @@ def _model_command(commands, name, run, default_poses, notes):
     parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
     parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
     add_device_option(parser)
+    add_secondary_options(parser)
     parser.set_defaults(run=run)
     return parser
 

@@ -12,6 +12,8 @@ import sys
 from ..errors import VDNIFError
 from ..settings import (
     ALBEDO_MODES,
+    AO_DISTANCE,
+    AO_SAMPLES,
     AUTO_RESOLUTION,
     BOUNDS,
     DEFAULT_DEVICE,
@@ -24,7 +26,7 @@ from ..settings import (
     RECIPE,
     PoseSpec,
 )
-from ..text import metrics_line, speed_line
+from ..text import metrics_line, secondary_line, speed_line
 
 PIPELINE_SCENE = "arm"
 """The embedded scene of a pipeline command that names no scene."""
@@ -126,6 +128,32 @@ def add_capture_options(parser, default_poses):
     add_pose_options(parser, default_poses)
 
 
+def add_secondary_options(parser):
+    """``--secondary`` with ``--ao-samples`` and ``--ao-distance``: the AO and shadow passes."""
+    group = parser.add_argument_group("secondary rays")
+    group.add_argument("--secondary", action="store_true", help=(
+        "also the ambient-occlusion and shadow passes (light: the scene's first sun or point "
+        "light, else a default direction)"))
+    group.add_argument("--ao-samples", type=int, default=AO_SAMPLES, metavar="N",
+                       help="ambient-occlusion rays per pixel")
+    group.add_argument("--ao-distance", type=float, default=AO_DISTANCE, metavar="D",
+                       help="how far an ambient-occlusion ray looks, in object units")
+
+
+def secondary_settings(args, obj):
+    """The ``SecondarySettings`` of the options, the light read from the scene of ``obj``;
+    None without ``--secondary``."""
+    if not getattr(args, "secondary", False):
+        return None
+    import bpy
+
+    from ..blender.lights import scene_light
+    from ..inference.secondary import SecondarySettings
+
+    return SecondarySettings(samples=args.ao_samples, distance=args.ao_distance,
+                             light=scene_light(bpy.context.scene, obj))
+
+
 def add_device_option(parser, default=DEFAULT_DEVICE):
     """``--device auto|cpu|cuda`` (settings.DEVICES): auto takes CUDA where torch has it."""
     parser.add_argument("--device", choices=DEVICES, default=default,
@@ -194,6 +222,10 @@ def print_evaluation(report):
           f"{report['width']}x{report['height']}")
     for name in ("vs_true", "vs_embedded"):
         print(f"  {name.replace('_', ' ')}: {metrics_line(report[name])}")
+    if "secondary" in report:
+        print(f"  secondary rays ({report['secondary']['light']}): "
+              + "; ".join(f"{name.replace('_', ' ')} {secondary_line(report[name])}"
+                          for name in ("vs_true", "vs_embedded")))
     t = report["timings"]
     print(f"  pose preparation {t['prepare_pose_s'] * 1e3:.1f} ms, model "
           f"{report['model_bytes']:,} bytes, render {speed_line(report)}")
@@ -240,9 +272,11 @@ def validate_arguments(args):
     at_least("threads", 1)
     at_least("batch", *BOUNDS["batch_size"])
     at_least("steps", *BOUNDS["steps"])
+    at_least("ao_samples", *BOUNDS["ao_samples"])
     if isinstance(getattr(args, "resolution", None), int):
         check_resolution(args.resolution)
-    for name in ("surface_fraction", "grazing_fraction", "max_angle"):
+    for name in ("surface_fraction", "grazing_fraction", "secondary_fraction", "max_angle",
+                 "ao_distance"):
         low, high = BOUNDS[name]
         value = getattr(args, name, None)
         if value is not None and not (math.isfinite(value) and low <= value <= high):

@@ -8,12 +8,13 @@ import sys
 from ..errors import VDNIFError
 from ..safe_io import check_output_file, file_stem
 from ..settings import COMMAND_IMAGE, RECIPE, TRAINABLE_VARIANTS
-from ..text import metrics_line
+from ..text import metrics_line, percent, value
 from . import model_commands
 from .options import (
     NETWORK_OPTIONS,
     add_capture_options,
     add_scene_options,
+    add_secondary_options,
     add_training_options,
     check_resolution,
     load_posed_scene,
@@ -21,6 +22,7 @@ from .options import (
     network_overrides,
     output_file,
     report_training,
+    secondary_settings,
     write_json,
 )
 
@@ -73,7 +75,8 @@ def cmd_dataset(args):
     header = generate_dataset(obj, result, args.out, args.rays_per_pose,
                               args.surface_fraction, args.seed, pose_range,
                               progress=lambda done, _: progress.update(done),
-                              grazing_fraction=args.grazing_fraction)
+                              grazing_fraction=args.grazing_fraction,
+                              secondary_fraction=args.secondary_fraction)
     counts, timings = header.counts, header.timings
     walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
     print(f"dataset '{header.object}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
@@ -115,12 +118,18 @@ def cmd_references(args):
     result = capture(obj, args.resolution, evaluation_spec(spec), deform_corners=False)
     progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
-                           progress=lambda done, _: progress.update(done))
+                           progress=lambda done, _: progress.update(done),
+                           secondary=secondary_settings(args, obj))
     write_json(args.json, report)
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
           f"{'rest' if args.rest_pose else 'unseen'} poses, {args.width}x{args.height}")
     print(f"  embedded vs true: {metrics_line(error)}")
+    if "secondary" in report:
+        print(f"  secondary rays ({report['secondary']['light']}): AO MAE "
+              f"{value(error['ao_mae'])}, shadow false lit "
+              f"{percent(error['shadow_false_lit_rate'])}, false shadow "
+              f"{percent(error['shadow_false_shadow_rate'])}")
     print(f"  {report['rays_per_s']:,.0f} rays/s, {report['segments_per_s']:,.0f} segments/s "
           "of walk + ground truth")
     print("  " + ", ".join(f"{name[:-2].replace('_', ' ')} {seconds:.2f} s"
@@ -244,6 +253,9 @@ def add_commands(commands):
                       metavar="F", help="share of rays tangent to the surface at a surface "
                       "point (silhouette rays); the rest aim at random points in the bounds "
                       f"(default {RECIPE.grazing_fraction})")
+    data.add_argument("--secondary-fraction", type=float, default=RECIPE.secondary_fraction,
+                      metavar="F", help="share of rays that start on the surface and leave it, "
+                      f"as shadow and occlusion rays do (default {RECIPE.secondary_fraction})")
     data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
     data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
@@ -255,6 +267,7 @@ def add_commands(commands):
     refs.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
     refs.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
     refs.add_argument("--json", type=output_file, metavar="PATH", help="write the report")
+    add_secondary_options(refs)
 
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "

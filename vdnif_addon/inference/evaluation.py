@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import VDNIFError
-from ..passes import Passes
+from ..passes import Passes, SecondaryPasses
 from .images import PASSES, comparison_figure, display, error_images
-from .metrics import common_pixels, compare, speed_withheld
+from .metrics import common_pixels, compare, compare_secondary, speed_withheld
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -87,6 +87,24 @@ def compare_both(predicted: Passes, true: Passes, embedded: Passes, mesh: RestMe
     return {f"vs_{name}": compare(predicted, reference, mesh.size, heads, voxel_size,
                                   pixels.get(f"vs_{name}"))
             for name, reference in zip(REFERENCES, (true, embedded))}
+
+
+def compare_secondary_both(views: dict[str, SecondaryPasses],
+                           pixels: dict[str, Bool[np.ndarray, " R"]] | None = None
+                           ) -> dict[str, Metrics]:
+    """{"vs_true": ..., "vs_embedded": ...}: the secondary passes of ``views``
+    (``secondary.secondary_views``) compared, the network's from its own hits against each
+    reference's from its own, and (keys ending ``_true_hit``) the network's from the true
+    hits against the reference's from the same hits: the secondary rays' own error."""
+    pixels = pixels or {}
+    result = {}
+    for name in REFERENCES:
+        own = "embedded_true_hit" if name == "embedded" else "true"
+        result[f"vs_{name}"] = {
+            **compare_secondary(views["predicted"], views[name], pixels.get(f"vs_{name}")),
+            **compare_secondary(views["predicted_true_hit"], views[own],
+                                suffix="_true_hit")}
+    return result
 
 
 def compare_common(runs: Sequence[dict[str, Passes]], mesh: RestMesh,

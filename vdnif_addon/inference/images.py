@@ -17,7 +17,7 @@ from ..passes import COMPOSITOR_PASSES, MISS_DEPTH
 if TYPE_CHECKING:
     from jaxtyping import Float
 
-    from ..passes import Passes
+    from ..passes import Passes, SecondaryPasses
 
 MISS_COLOR = np.array([0.05, 0.05, 0.06], np.float32)
 # Anchors of a perceptual dark-to-bright heat map (magma-like), sampled evenly on [0, 1].
@@ -120,6 +120,29 @@ def error_images(predicted: Passes, reference: Passes, height: int, width: int,
     images["albedo"] = _image(np.where(both[:, None], heat(albedo, 0.25), MISS_COLOR),
                               height, width)
     return images
+
+
+def secondary_images(passes: SecondaryPasses, height: int, width: int
+                     ) -> dict[str, dict[str, Float[np.ndarray, "H W C"]]]:
+    """{"display" | "raw": {"ao" | "shadow": image}}: grey levels for looking (misses dark),
+    and the raw values (AO 0..1, shadow 1 lit / 0 shadowed, NaN where nothing is hit)."""
+    values = {"ao": passes.ao.astype(np.float32), "shadow": passes.lit.astype(np.float32)}
+    return {"display": {name: _image(np.where(passes.hit[:, None], value[:, None], MISS_COLOR),
+                                     height, width) for name, value in values.items()},
+            "raw": {name: _image(np.where(passes.hit, value, np.nan)[:, None], height, width)
+                    for name, value in values.items()}}
+
+
+def secondary_errors(predicted: SecondaryPasses, reference: SecondaryPasses, height: int,
+                     width: int, ao_scale: float = 0.25) -> dict[str, Float[np.ndarray, "H W 3"]]:
+    """Heat maps where both start from a hit: AO difference (bright at ``ao_scale``) and
+    shadow disagreement (red: falsely lit, blue: falsely shadowed)."""
+    both = (predicted.hit & reference.hit)[:, None]
+    ao = heat(np.abs(predicted.ao - reference.ao), ao_scale)
+    wrong = np.where((predicted.lit & ~reference.lit)[:, None], [1.0, 0.2, 0.2],
+                     np.where((~predicted.lit & reference.lit)[:, None], [0.2, 0.4, 1.0], 0.0))
+    return {"ao": _image(np.where(both, ao, MISS_COLOR), height, width),
+            "shadow": _image(np.where(both, wrong, MISS_COLOR), height, width)}
 
 
 def comparison_figure(rows: Sequence[Sequence[Float[np.ndarray, "H W C"]]], gap: int = 4

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..passes import Passes
+from ..passes import Passes, SecondaryPasses
 from ..text import percent
 
 if TYPE_CHECKING:
@@ -80,6 +80,29 @@ def compare(predicted: Passes, reference: Passes, object_size: float,
         result["material_accuracy"] = float(
             (predicted.material[both] == reference.material[both]).mean())
     return result
+
+
+def compare_secondary(predicted: SecondaryPasses, reference: SecondaryPasses,
+                      pixels: Bool[np.ndarray, " R"] | None = None, suffix: str = ""
+                      ) -> dict[str, float | int | None]:
+    """Errors of the secondary passes ``predicted`` against ``reference`` over the rays where
+    both start from a primary hit (and ``pixels`` (R,) when given): ``ao_mae``, the mean
+    absolute AO difference (0..1); ``shadow_false_lit_rate``, rays the prediction lights
+    over those the reference shadows; ``shadow_false_shadow_rate``, rays it shadows over
+    those the reference lights (None without any); ``secondary_rays``, how many; every key
+    ends in ``suffix``."""
+    both = predicted.hit & reference.hit
+    if pixels is not None:
+        both = both & pixels
+    lit, shadowed = both & reference.lit, both & ~reference.lit
+    result = {
+        "secondary_rays": int(both.sum()),
+        "ao_mae": (float(np.abs(predicted.ao[both] - reference.ao[both]).mean())
+                   if both.any() else None),
+        "shadow_false_lit_rate": _share((shadowed & predicted.lit).sum(), shadowed.sum()),
+        "shadow_false_shadow_rate": _share((lit & ~predicted.lit).sum(), lit.sum()),
+    }
+    return {f"{key}{suffix}": value for key, value in result.items()}
 
 
 def common_pixels(pairs: Iterable[tuple[Passes, Passes]]) -> Bool[np.ndarray, " R"]:

@@ -306,7 +306,8 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
         settings["resolution"] = used.pop() if len(used) == 1 else dict(run.resolutions)
     # the training rays' mix is the recipe's at every size (generate_dataset's default)
     settings.update(size["overrides"], surface_fraction=RECIPE.surface_fraction,
-                    grazing_fraction=RECIPE.grazing_fraction, seeds=list(size["seeds"]),
+                    grazing_fraction=RECIPE.grazing_fraction,
+                    secondary_fraction=RECIPE.secondary_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
     write_json_atomic(figures / f"{stem}.json", {"experiment": name, "settings": settings,
                                                  "scenes": list(chosen), "runs": records})

@@ -30,6 +30,10 @@ TRAINING_RADIUS = 1.5
 # more than 75 deg to the normal (HOLES.md), so +-15 deg covers them and the near misses.
 GRAZING_TILT_DEG = 15.0
 
+# Of the rays that start on the surface, this share leaves into the hemisphere behind it, as a
+# renderer's rays from a back face (an open mesh, a thin part seen from behind) do.
+SECONDARY_BACK_SHARE = 0.25
+
 # Golden angle in radians: the azimuth step of the Fibonacci sphere.
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
 
@@ -136,8 +140,8 @@ def training_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray
                   surface_points: Float[np.ndarray, "S 3"], count: int, surface_fraction: float,
                   rng: np.random.Generator,
                   surface_normals: Float[np.ndarray, "S 3"] | None = None,
-                  grazing_fraction: float = 0.0, grazing_tilt_deg: float = GRAZING_TILT_DEG
-                  ) -> Rays:
+                  grazing_fraction: float = 0.0, grazing_tilt_deg: float = GRAZING_TILT_DEG,
+                  secondary_fraction: float = 0.0, offset: float = 0.0) -> Rays:
     """Training rays (origins, unit directions), (count, 3) each, of three kinds at random
     positions in the batch (DESIGN section 8):
 
@@ -149,31 +153,42 @@ def training_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray
       pass just by, an edge (docs/HOLES.md measured 77 % of holes at more than
       75 deg to the normal);
     - round(count * surface_fraction) rays from the sphere aimed at a random surface point;
+    - round(count * secondary_fraction) *secondary* rays that start on the surface, as a
+      renderer's shadow and occlusion rays do: at a random point of ``surface_points``
+      pushed ``offset`` (local units) along its normal, leaving in a cosine-weighted
+      direction of that hemisphere; SECONDARY_BACK_SHARE of them start on the other side
+      and leave into the other hemisphere. The walk starts them inside a cell;
     - the rest from the sphere aimed at a uniform random point in the box.
 
     Sphere origins are uniform on the sphere of radius 1.5 half bounding-box diagonals
     around the box centre.
     """
-    for name, value in (("surface_fraction", surface_fraction),
-                        ("grazing_fraction", grazing_fraction)):
+    shares = (("surface_fraction", surface_fraction), ("grazing_fraction", grazing_fraction),
+              ("secondary_fraction", secondary_fraction))
+    for name, value in shares:
         if not 0 <= value <= 1:
             raise VDNIFError(f"{name} must be in [0, 1], got {value}")
-    if surface_fraction + grazing_fraction > 1:
-        raise VDNIFError(f"surface_fraction + grazing_fraction must be at most 1, got "
-                         f"{surface_fraction} + {grazing_fraction}")
+    if sum(value for _, value in shares) > 1:
+        raise VDNIFError("surface_fraction + grazing_fraction + secondary_fraction must be at "
+                         f"most 1, got {' + '.join(str(value) for _, value in shares)}")
+    if not (np.isfinite(offset) and offset >= 0):
+        raise VDNIFError(f"surface offset must be a finite number >= 0, got {offset}")
     if count < 0:
         raise VDNIFError(f"ray count must be >= 0, got {count}")
     lo, hi, centre, radius = _bounds(bounds_lo, bounds_hi)
     surface_points = np.asarray(surface_points, dtype=np.float64).reshape(-1, 3)
     kind = rng.permutation(count)
-    grazing = kind < round(count * grazing_fraction)
-    on_surface = ~grazing & (kind < round(count * grazing_fraction)
-                             + round(count * surface_fraction))
-    if (on_surface.any() or grazing.any()) and len(surface_points) == 0:
+    ends = np.cumsum([round(count * grazing_fraction), round(count * surface_fraction),
+                      round(count * secondary_fraction)])
+    grazing = kind < ends[0]
+    on_surface = (kind >= ends[0]) & (kind < ends[1])
+    secondary = (kind >= ends[1]) & (kind < ends[2])
+    if (on_surface.any() or grazing.any() or secondary.any()) and len(surface_points) == 0:
         raise VDNIFError("surface rays requested but no surface points were given")
-    if grazing.any() and (surface_normals is None
-                          or np.shape(surface_normals) != surface_points.shape):
-        raise VDNIFError("grazing rays need one surface normal per surface point")
+    if (grazing.any() or secondary.any()) and (
+            surface_normals is None or np.shape(surface_normals) != surface_points.shape):
+        raise VDNIFError("grazing and secondary rays need one surface normal per surface "
+                         "point")
     origins = centre + TRAINING_RADIUS * radius * _uniform_sphere(count, rng)
     targets = lo + rng.random((count, 3)) * (hi - lo)
     targets[on_surface] = surface_points[rng.integers(len(surface_points),
@@ -189,7 +204,44 @@ def training_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray
         back = np.linalg.norm(points - centre, axis=1) + TRAINING_RADIUS * radius
         origins[grazing] = points - back[:, None] * along
         directions[grazing] = along
+    if secondary.any():
+        chosen = rng.integers(len(surface_points), size=secondary.sum())
+        side = np.where(rng.random(len(chosen)) < SECONDARY_BACK_SHARE, -1.0, 1.0)[:, None]
+        normal = side * normalize(np.asarray(surface_normals, np.float64)[chosen],
+                                  np.array([0.0, 0.0, 1.0]))
+        origins[secondary] = surface_points[chosen] + offset * normal
+        directions[secondary] = cosine_directions(normal, rng.random((len(chosen), 2)))
     return origins, directions
+
+
+def cosine_directions(normals: Float[np.ndarray, "N 3"], uniform: Float[np.ndarray, "N 2"]
+                      ) -> Float[np.ndarray, "N 3"]:
+    """(N, 3) unit directions in the hemispheres of unit ``normals`` (N, 3), distributed with
+    density cos(theta) / pi when ``uniform`` (N, 2) is uniform in [0, 1)^2: a uniform point
+    of the unit disk (radius sqrt(u0), azimuth 2 pi u1) lifted onto the hemisphere (Malley).
+    The same ``uniform`` under two normals gives corresponding directions, so renders of
+    nearby normals share their noise."""
+    normals = np.asarray(normals, np.float64)
+    uniform = np.asarray(uniform, np.float64)
+    radius, azimuth = np.sqrt(uniform[:, 0]), 2 * np.pi * uniform[:, 1]
+    tangent, bitangent = _frame(normals)
+    local = (radius * np.cos(azimuth), radius * np.sin(azimuth),
+             np.sqrt(np.clip(1.0 - uniform[:, 0], 0.0, None)))
+    return normalize(local[0][:, None] * tangent + local[1][:, None] * bitangent
+                     + local[2][:, None] * normals, normals)
+
+
+def _frame(normals: Float[np.ndarray, "N 3"]
+           ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"]]:
+    """Two unit tangents completing unit ``normals`` (N, 3) to right-handed orthonormal
+    frames, continuous except where z = -1 (Duff et al. 2017, branch on the sign of z)."""
+    x, y, z = normals[:, 0], normals[:, 1], normals[:, 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    tangent = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1)
+    bitangent = np.stack([b, sign + y * y * a, -y], axis=1)
+    return tangent, bitangent
 
 
 def _grazing_directions(normals: Float[np.ndarray, "N 3"], tilt_deg: float,

@@ -291,6 +291,7 @@ class DatasetHeader:
     rays_per_pose: int
     surface_fraction: float
     grazing_fraction: float | None
+    secondary_fraction: float | None
     inverted_cells: tuple[int, ...]
     counts: Counts
     timings: dict[str, float]
@@ -314,8 +315,9 @@ class DatasetHeader:
                 "poses": [dict(pose) for pose in self.poses],
                 "pose_range": list(self.pose_range), "seed": self.seed,
                 "rays_per_pose": self.rays_per_pose, "surface_fraction": self.surface_fraction}
-        if self.grazing_fraction is not None:
-            data["grazing_fraction"] = self.grazing_fraction
+        for key in ("grazing_fraction", "secondary_fraction"):    # absent in older shards
+            if getattr(self, key) is not None:
+                data[key] = getattr(self, key)
         data.update(inverted_cells=list(self.inverted_cells), counts=self.counts.to_dict(),
                     timings=dict(self.timings), versions=dict(self.versions),
                     segments=self.segments)
@@ -332,7 +334,7 @@ class DatasetHeader:
             raise VDNIFError(f"{where} has format version {data.get('version')!r}, this VDNIF "
                              f"reads version {VERSION}: generate the dataset again")
         grid = GridHeader.from_dict(data.get("grid"), where)
-        _keys(where, "header", data, HEADER_KEYS, ("grazing_fraction",))
+        _keys(where, "header", data, HEADER_KEYS, ("grazing_fraction", "secondary_fraction"))
         name = _name(where, data["object"])
         if data["voxel_size"] != grid.voxel_size:
             _fail(where, f"voxel size {data['voxel_size']!r} differs from the grid's "
@@ -361,7 +363,7 @@ class DatasetHeader:
             _number(where, f"timing {key}", value, 0.0)
         if not all(isinstance(value, str) for value in versions.values()):
             _fail(where, "versions are not all strings")
-        grazing = data.get("grazing_fraction")
+        grazing, secondary = data.get("grazing_fraction"), data.get("secondary_fraction")
         return cls(
             version=VERSION, object=name, mode=mode,
             object_size=_number(where, "object size", data["object_size"], MIN_OBJECT_SIZE,
@@ -375,6 +377,8 @@ class DatasetHeader:
             surface_fraction=_number(where, "surface fraction", data["surface_fraction"], 0, 1),
             grazing_fraction=(None if grazing is None
                               else _number(where, "grazing fraction", grazing, 0, 1)),
+            secondary_fraction=(None if secondary is None
+                                else _number(where, "secondary fraction", secondary, 0, 1)),
             inverted_cells=tuple(inverted), counts=Counts.from_dict(data["counts"], where),
             timings={key: float(value) for key, value in timings.items()},
             versions=dict(versions),

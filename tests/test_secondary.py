@@ -1,0 +1,262 @@
+"""Secondary rays: the training rays that start on the surface, the walk of a ray that starts
+inside a cell, and the ambient-occlusion and shadow passes of the exact, embedded and neural
+paths on a box standing on a plane, where both are known in closed form (no bpy)."""
+
+import numpy as np
+import pytest
+from oracle_network import OracleNetwork
+from oracles.geometry import BruteForceCaster
+
+from vdnif_addon.errors import VDNIFError
+from vdnif_addon.geometry import voxels
+from vdnif_addon.geometry.attributes import sample_surface
+from vdnif_addon.geometry.restmesh import Albedo, RestMesh
+from vdnif_addon.inference import secondary
+from vdnif_addon.inference.evaluation import compare_secondary_both
+from vdnif_addon.inference.metrics import compare_secondary
+from vdnif_addon.inference.neural_render import neural_passes
+from vdnif_addon.kernels.cast import MeshCaster
+from vdnif_addon.kernels.cells import DeviceCells
+from vdnif_addon.passes import Passes, SecondaryPasses
+from vdnif_addon.settings import SECONDARY_OFFSET
+from vdnif_addon.tracing import groundtruth, rays, references
+
+PLANE, BOX, HEIGHT = 2.0, 0.5, 1.0      # plane [-2, 2]^2 at z = 0; box [-.5, .5]^2 x [0, 1]
+
+
+def box_on_plane():
+    """A flat-shaded ground plane with an open-bottomed box standing on it (size 4)."""
+    quads = [[(-PLANE, -PLANE, 0), (PLANE, -PLANE, 0), (PLANE, PLANE, 0), (-PLANE, PLANE, 0)]]
+    b, h = BOX, HEIGHT
+    quads += [[(-b, -b, h), (b, -b, h), (b, b, h), (-b, b, h)],          # top
+              [(b, -b, 0), (b, b, 0), (b, b, h), (b, -b, h)],            # +x
+              [(-b, b, 0), (-b, -b, 0), (-b, -b, h), (-b, b, h)],        # -x
+              [(b, b, 0), (-b, b, 0), (-b, b, h), (b, b, h)],            # +y
+              [(-b, -b, 0), (b, -b, 0), (b, -b, h), (-b, -b, h)]]        # -y
+    vertices, triangles = [], []
+    for quad in quads:
+        base = len(vertices)
+        vertices += quad
+        triangles += [(base, base + 1, base + 2), (base, base + 2, base + 3)]
+    vertices, triangles = np.array(vertices, float), np.array(triangles, np.int32)
+    corners = vertices[triangles]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    return RestMesh(name="BoxOnPlane", vertices=vertices, triangles=triangles,
+                    corner_normals=np.repeat(normal[:, None], 3, 1).astype(np.float32),
+                    material_index=np.zeros(len(triangles), np.int32),
+                    albedo=[Albedo("constant", np.array([0.8, 0.8, 0.8], np.float32))])
+
+
+@pytest.fixture(scope="module")
+def scene():
+    mesh = box_on_plane()
+    grid = voxels.build_grid(mesh.vertices, mesh.triangles, 16)
+    return mesh, grid, DeviceCells(grid, corners=grid.corner_positions())
+
+
+def occluders(mesh, grid, cells):
+    """Every path's occlusion of one scene at rest: brute force, Warp BVH, embedded, neural
+    (an oracle network that answers each segment from the geometry)."""
+    return {"brute": secondary.exact_occluded(BruteForceCaster(mesh.vertices[mesh.triangles])),
+            "exact": secondary.exact_occluded(MeshCaster(mesh.vertices, mesh.triangles)),
+            "embedded": secondary.embedded_occluded(cells, mesh,
+                                                    groundtruth.rest_surface(mesh, grid)),
+            "neural": secondary.neural_occluded(OracleNetwork(mesh, grid), grid,
+                                                mesh.albedo_table(), cells)}
+
+
+def ground_hits(points):
+    """Primary Passes of rays straight down onto ``points`` (N, 3) of the plane from 3 above."""
+    count = len(points)
+    origins = points + [0.0, 0.0, 3.0]
+    directions = np.tile([0.0, 0.0, -1.0], (count, 1))
+    passes = Passes(hit=np.ones(count, bool), distance=np.full(count, 3.0),
+                    normal=np.tile([0.0, 0.0, 1.0], (count, 1)),
+                    albedo=np.zeros((count, 3), np.float32), material=np.zeros(count, np.int32))
+    return passes, origins, directions
+
+
+# --------------------------------------------------------------------------- training rays
+
+def test_secondary_training_rays_leave_the_surface_cosine_weighted():
+    """Each starts ``offset`` along the normal of its surface point (SECONDARY_BACK_SHARE of
+    them on the back), leaves into that side's hemisphere, and cos(theta)^2 is uniform, as
+    the density cos(theta) / pi makes it."""
+    rng = np.random.default_rng(21)
+    surface = rng.random((50, 3))
+    normals = rng.normal(size=(50, 3)) * rng.uniform(0.1, 3.0, (50, 1))     # any length
+    unit = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    offset = 0.01
+    origins, directions = rays.training_rays(np.zeros(3), np.ones(3), surface, 20000, 0.2,
+                                             rng, normals, 0.1, secondary_fraction=0.6,
+                                             offset=offset)
+    # the point and the side each origin starts from: offset from a surface point
+    gap = origins[:, None] - surface[None]
+    along = np.einsum("rsi,si->rs", gap, unit)
+    across = np.linalg.norm(gap - along[..., None] * unit[None], axis=2)
+    starts = (across < 1e-12) & np.isclose(np.abs(along), offset, rtol=1e-9, atol=0)
+    started = starts.any(axis=1)
+    assert started.sum() == 12000
+    point = starts.argmax(axis=1)[started]
+    side = np.sign(along[started, point])
+    assert abs((side < 0).mean() - rays.SECONDARY_BACK_SHARE) < 0.02
+    cosine = np.einsum("ni,ni->n", directions[started], side[:, None] * unit[point])
+    assert cosine.min() >= 0
+    squared = np.sort(cosine ** 2)
+    ks = np.abs(squared - (np.arange(len(squared)) + 0.5) / len(squared)).max()
+    assert ks < 1.63 / np.sqrt(len(squared))              # Kolmogorov-Smirnov at 1 %
+    assert cosine.mean() == pytest.approx(2 / 3, abs=0.01)   # E[cos] under cos / pi
+
+
+def test_cosine_directions_are_uniform_in_azimuth_about_any_normal():
+    rng = np.random.default_rng(3)
+    for normal in ([0, 0, 1], [0, 0, -1], [1, 0, 0], [0.3, -0.8, 0.1]):
+        normal = np.array(normal, float) / np.linalg.norm(normal)
+        d = rays.cosine_directions(np.tile(normal, (20000, 1)), rng.random((20000, 2)))
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+        np.testing.assert_allclose(d.mean(0), 2 / 3 * normal, atol=0.015)   # no azimuth bias
+
+
+def test_secondary_training_rays_need_normals_and_a_valid_share():
+    args = (np.zeros(3), np.ones(3), np.zeros((1, 3)), 10, 0.2, np.random.default_rng(0))
+    with pytest.raises(VDNIFError, match="surface normal"):
+        rays.training_rays(*args, secondary_fraction=0.5)
+    with pytest.raises(VDNIFError, match="at most 1"):
+        rays.training_rays(*args, np.ones((1, 3)), 0.3, secondary_fraction=0.6)
+    with pytest.raises(VDNIFError, match="offset"):
+        rays.training_rays(*args, np.ones((1, 3)), secondary_fraction=0.5, offset=-1.0)
+
+
+@pytest.mark.parametrize("shear", [0.0, 0.4])
+def test_walk_from_inside_a_cell_finds_the_brute_force_first_hit(shear):
+    """Rays that start on the surface start inside a cell; the walk and the exact segment
+    ground truth (the embedded reference) find the first hit brute force finds. An affine
+    pose moves the cells exactly as the mesh, so the embedding is exact there too."""
+    mesh = box_on_plane()
+    grid = voxels.build_grid(mesh.vertices, mesh.triangles, 16)
+    matrix = np.array([[1.0, 0.0, shear], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    cells = DeviceCells(grid, corners=grid.corner_positions() @ matrix.T)
+    posed = mesh.vertices @ matrix.T
+    corners = posed[mesh.triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    rng = np.random.default_rng(5)
+    points, triangle, _ = sample_surface(posed, mesh.triangles, 3000, rng)
+    origins, directions = rays.training_rays(posed.min(0), posed.max(0), points, 3000, 0.0,
+                                             rng, normals[triangle], 0.0,
+                                             secondary_fraction=1.0,
+                                             offset=SECONDARY_OFFSET * mesh.size)
+    walked, _, _ = references.embedded_passes(cells, mesh, groundtruth.rest_surface(mesh, grid),
+                                              origins, directions)
+    index, t = BruteForceCaster(corners).cast(origins, directions, np.full(3000, np.inf))
+    hit = index >= 0
+    assert 300 < hit.sum() < 2700                  # both outcomes are well represented
+    agree = walked.hit == hit
+    assert agree.mean() > 0.998                    # a ray along an edge may go either way
+    np.testing.assert_allclose(walked.distance[agree & hit], t[agree & hit], atol=1e-5)
+
+
+# --------------------------------------------------------------------------- AO and shadow
+
+def wall_ao(gap, reach):
+    """AO of a plane point ``gap`` from an infinite wall, rays of length ``reach``: a
+    cosine-weighted direction projects uniformly onto the unit disk, and it meets the wall
+    within ``reach`` when its component towards the wall is at least gap / reach."""
+    c = np.clip(gap / reach, 0, 1)
+    return 1 - (np.arccos(c) - c * np.sqrt(1 - c * c)) / np.pi
+
+
+@pytest.mark.parametrize("path", ["brute", "exact", "embedded", "neural"])
+def test_ambient_occlusion_and_shadow_of_a_box_on_a_plane(scene, path):
+    """AO beside a wall of the box (taller and wider than the AO reach) and away from it, a
+    sun's shadow and a point light's, in closed form, on every path."""
+    mesh, grid, cells = scene
+    occluded = occluders(mesh, grid, cells)[path]
+    settings = secondary.SecondarySettings(
+        samples=64, distance=0.05, light=secondary.Light(direction=(1.0, 0.0, 1.0), source="t"))
+    reach = settings.distance * mesh.size                         # 0.2 local units
+    gaps = np.repeat([0.02, 0.06, 0.1, 0.15], 24)                 # from the +x wall
+    y = np.tile(np.linspace(-0.2, 0.2, 24), 4)
+    wall = np.stack([BOX + gaps, y, np.zeros_like(y)], 1)
+    far = np.stack([np.linspace(1.0, 1.8, 20), np.linspace(-1.8, 1.8, 20), np.zeros(20)], 1)
+    shade = np.stack([np.linspace(-1.4, -0.6, 20), np.linspace(-0.4, 0.4, 20), np.zeros(20)], 1)
+    points = np.concatenate([wall, far, shade])
+    result = secondary.secondary_passes(*ground_hits(points), occluded, mesh.size, settings)
+    near = result.ao[:len(wall)].reshape(4, 24).mean(1)
+    np.testing.assert_allclose(near, wall_ao(np.array([0.02, 0.06, 0.1, 0.15]), reach),
+                               atol=0.035)
+    # far from the box nothing occludes: any self-hit at the origin would show here
+    np.testing.assert_array_equal(result.ao[len(wall):len(wall) + 20], 1.0)
+    # the sun at 45 deg over +x: the box shadows x in [-1.5, -0.5] at |y| < 0.5
+    assert result.lit[len(wall):len(wall) + 20].all()
+    assert not result.lit[-20:].any()
+    # a point light beside +x: its side lit, behind the box shadowed
+    lamp = secondary.SecondarySettings(samples=1, light=secondary.Light(
+        direction=None, position=(3.0, 0.0, 0.5), source="lamp"))
+    lit = secondary.secondary_passes(*ground_hits(np.concatenate([far, shade])), occluded,
+                                     mesh.size, lamp).lit
+    assert lit[:20].all() and not lit[20:].any()
+
+
+def test_without_the_offset_the_surface_occludes_itself(scene, monkeypatch):
+    """The self-hit the offset exists for: rays started on the plane itself hit it."""
+    mesh, grid, cells = scene
+    points = np.stack([np.linspace(1.0, 1.8, 20), np.linspace(-1.8, 1.8, 20), np.zeros(20)], 1)
+    settings = secondary.SecondarySettings(samples=16)
+    occluded = occluders(mesh, grid, cells)["exact"]
+    monkeypatch.setattr(secondary, "SECONDARY_OFFSET", 0.0)
+    assert (secondary.secondary_passes(*ground_hits(points), occluded, mesh.size,
+                                       settings).ao < 1).any()
+
+
+def test_the_neural_path_from_a_camera_matches_the_exact_one(scene):
+    """A camera's primary hits by the oracle network and by the exact mesh, each with its
+    own secondary rays: the same AO and shadow (the embedding is exact at rest)."""
+    mesh, grid, cells = scene
+    paths = occluders(mesh, grid, cells)
+    origins, directions = rays.look_at_rays(np.array([2.5, -3.0, 2.5]), np.zeros(3),
+                                            rays.DEFAULT_UP, 50, 24, 18)
+    predicted, _ = neural_passes(OracleNetwork(mesh, grid), grid, mesh.albedo_table(), cells,
+                                 origins, directions)
+    true = references.true_reference(mesh, groundtruth.rest_surface(mesh), origins,
+                                     directions)
+    settings = secondary.SecondarySettings(samples=8, light=secondary.Light(
+        direction=(-1.0, 0.5, 1.0), source="t"))
+    views = secondary.secondary_views(
+        {"predicted": predicted, "true": true, "embedded": true}, origins, directions,
+        {"neural": paths["neural"], "exact": paths["exact"], "embedded": paths["embedded"]},
+        mesh.size, settings)
+    assert set(views) == {"predicted", "true", "embedded", "predicted_true_hit",
+                          "embedded_true_hit"}
+    assert true.hit.sum() > 200 and (~views["true"].lit[true.hit]).sum() > 10
+    assert views["true"].ao[true.hit].min() < 0.9           # the box's foot is occluded
+    metrics = compare_secondary_both(views)
+    for name in ("vs_true", "vs_embedded"):
+        assert metrics[name]["ao_mae"] < 0.01 and metrics[name]["ao_mae_true_hit"] < 0.01
+        assert metrics[name]["shadow_false_lit_rate"] <= 0.02
+        assert metrics[name]["shadow_false_shadow_rate"] <= 0.02
+
+
+def test_secondary_metrics_count_against_the_reference():
+    reference = SecondaryPasses(hit=np.array([1, 1, 1, 1, 0], bool),
+                                ao=np.array([1.0, 0.5, 0.0, 1.0, 0.0], np.float32),
+                                lit=np.array([1, 1, 0, 0, 0], bool))
+    predicted = SecondaryPasses(hit=np.array([1, 1, 1, 0, 1], bool),
+                                ao=np.array([0.5, 0.5, 0.5, 1.0, 1.0], np.float32),
+                                lit=np.array([0, 1, 1, 1, 1], bool))
+    result = compare_secondary(predicted, reference, suffix="_x")
+    assert result == {"secondary_rays_x": 3, "ao_mae_x": pytest.approx(1 / 3),
+                      "shadow_false_lit_rate_x": 1.0, "shadow_false_shadow_rate_x": 0.5}
+    empty = compare_secondary(predicted, reference, np.zeros(5, bool))
+    assert empty["ao_mae"] is None and empty["shadow_false_lit_rate"] is None
+
+
+def test_bad_secondary_settings_are_refused():
+    with pytest.raises(VDNIFError, match="AO samples"):
+        secondary.SecondarySettings(samples=0)
+    with pytest.raises(VDNIFError, match="AO distance"):
+        secondary.SecondarySettings(distance=-1.0)
+    with pytest.raises(VDNIFError, match="zero length"):
+        secondary.Light(direction=(0.0, 0.0, 0.0))
+    with pytest.raises(VDNIFError, match="not both"):
+        secondary.Light(direction=(0.0, 0.0, 1.0), position=(1.0, 2.0, 3.0))

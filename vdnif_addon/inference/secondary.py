@@ -1,0 +1,211 @@
+"""Secondary rays: ambient occlusion and shadow from each primary hit, answered by the
+network (the deformed walk in waves, ``neural_render``), by the exact deformed mesh (a Warp
+BVH, ``kernels.cast.MeshCaster``) or by the embedded reference (the walk and the exact
+segment ground truth).
+
+A secondary ray starts at the primary hit pushed ``SECONDARY_OFFSET`` object units along the
+normal turned towards the primary ray's origin: started on the surface itself it would hit
+the surface it leaves (the classic self-hit), and the network's hit, which lies off the
+surface by its distance error, even more so. Ambient occlusion casts ``samples``
+cosine-weighted rays of that hemisphere up to ``distance`` object units; its pass is the
+fraction unoccluded. Shadow casts one ray towards the light; a hit whose normal faces away
+from the light is in its own shadow without a cast.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import VDNIFError
+from ..geometry.attributes import normalize
+from ..passes import Passes, SecondaryPasses
+from ..settings import (
+    AO_DISTANCE,
+    AO_SAMPLES,
+    BOUNDS,
+    DEFAULT_LIGHT_DIRECTION,
+    SECONDARY_OFFSET,
+    SECONDARY_SEED,
+)
+from ..tracing.rays import cosine_directions
+from .neural_render import neural_passes
+
+if TYPE_CHECKING:
+    from jaxtyping import Bool, Float
+
+    from ..geometry.restmesh import RestMesh
+    from ..geometry.voxels import VoxelGrid
+    from ..kernels.cells import DeviceCells
+    from ..kernels.surface import SurfaceCaster
+    from ..model.network import IntersectionNetwork
+
+    Occluded = Callable[[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"],
+                         Float[np.ndarray, " N"]], Bool[np.ndarray, " N"]]
+    """Whether rays (origins, unit directions, max distances; local units) hit anything."""
+
+
+@dataclass(frozen=True)
+class Light:
+    """The light a shadow ray goes to, in the object's local space: a direction towards it
+    (a sun, or the default) or a position (a point light); ``source`` says which, for the
+    output."""
+
+    direction: tuple[float, float, float] | None = DEFAULT_LIGHT_DIRECTION
+    position: tuple[float, float, float] | None = None
+    source: str = "the default direction"
+
+    def __post_init__(self) -> None:
+        if (self.direction is None) == (self.position is None):
+            raise VDNIFError(f"light {self.source}: give a direction or a position, not both")
+        vector = self.direction if self.position is None else self.position
+        if not (np.shape(vector) == (3,) and np.all(np.isfinite(vector))):
+            raise VDNIFError(f"light {self.source}: {vector!r} is not three finite numbers")
+        if self.direction is not None and not np.linalg.norm(self.direction) > 0:
+            raise VDNIFError(f"light {self.source}: its direction has zero length")
+
+    def towards(self, points: Float[np.ndarray, "N 3"]
+                ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, " N"]]:
+        """(unit directions (N, 3), distances (N,)) from ``points`` to the light (inf for a
+        direction; a point on the light itself gets distance 0)."""
+        if self.direction is not None:
+            unit = np.asarray(self.direction, np.float64) / np.linalg.norm(self.direction)
+            return np.broadcast_to(unit, points.shape).copy(), np.full(len(points), np.inf)
+        offset = np.asarray(self.position, np.float64) - points
+        return normalize(offset, np.array([0.0, 0.0, 1.0])), np.linalg.norm(offset, axis=1)
+
+
+@dataclass(frozen=True)
+class SecondarySettings:
+    """AO rays per pixel, their reach in object units, the light, the directions' seed."""
+
+    samples: int = AO_SAMPLES
+    distance: float = AO_DISTANCE
+    light: Light = field(default_factory=Light)
+    seed: int = SECONDARY_SEED
+
+    def __post_init__(self) -> None:
+        low, high = BOUNDS["ao_samples"]
+        if isinstance(self.samples, bool) or not low <= self.samples <= high:
+            raise VDNIFError(f"AO samples {self.samples} must be an integer in {low}..{high}")
+        low, high = BOUNDS["ao_distance"]
+        if not (np.isfinite(self.distance) and low <= self.distance <= high):
+            raise VDNIFError(f"AO distance {self.distance} must be in {low:g}..{high:g} "
+                             "object units")
+
+    def describe(self) -> dict[str, Any]:
+        """The settings as the JSON reports state them."""
+        light = self.light
+        return {"ao_samples": self.samples, "ao_distance": self.distance,
+                "offset": SECONDARY_OFFSET, "light": light.source,
+                "light_direction": None if light.direction is None else list(light.direction),
+                "light_position": None if light.position is None else list(light.position)}
+
+
+# The walk's own max_distance does not serve secondary rays: it drops the segment that
+# crosses it, and a ray that starts inside the occupied set is lost when the set's boundary
+# ahead lies beyond it. So the walked paths walk each ray to its first hit and compare.
+
+
+def exact_occluded(caster: Any) -> Occluded:
+    """Occlusion by a caster with ``cast(origins, directions, max_distance) -> (index, t)``
+    (``MeshCaster`` of the deformed mesh; ``BruteForceCaster`` in the tests)."""
+    def occluded(origins, directions, max_distance):
+        return caster.cast(origins, directions, max_distance)[0] >= 0
+    return occluded
+
+
+def embedded_occluded(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCaster
+                      ) -> Occluded:
+    """Occlusion as the embedded reference sees it: the walk through ``cells`` and the exact
+    ground truth of its segments (what the network is trained to reproduce)."""
+    from ..tracing.groundtruth import segment_targets
+    from ..tracing.references import embedded_reference
+    from ..tracing.traverse import traverse
+
+    def occluded(origins, directions, max_distance):
+        segments = traverse(cells, origins, directions)         # to its first hit (above)
+        targets = segment_targets(mesh, rest_caster, segments)
+        passes = embedded_reference(cells, segments, targets, len(origins))
+        return passes.hit & (passes.distance <= max_distance)
+    return occluded
+
+
+def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
+                    albedo_table: Float[np.ndarray, "M 3"], cells: DeviceCells,
+                    device: Any = "cpu", stats: dict[str, float] | None = None) -> Occluded:
+    """Occlusion as the network answers it through the deformed walk; ``stats`` (when
+    given) accumulates the rays and the seconds of its renders."""
+    def occluded(origins, directions, max_distance):
+        start = time.perf_counter()
+        passes, _ = neural_passes(network, grid, albedo_table, cells, origins, directions,
+                                  device)                       # to its first hit (above)
+        if stats is not None:
+            stats["rays"] = stats.get("rays", 0) + len(origins)
+            stats["seconds"] = stats.get("seconds", 0.0) + time.perf_counter() - start
+        return passes.hit & (passes.distance <= max_distance)
+    return occluded
+
+
+def secondary_starts(primary: Passes, origins: Float[np.ndarray, "R 3"],
+                     directions: Float[np.ndarray, "R 3"], object_size: float
+                     ) -> tuple[Float[np.ndarray, "H 3"], Float[np.ndarray, "H 3"]]:
+    """(start points (H, 3), unit normals (H, 3)) of the secondary rays of the H primary
+    hits of ``primary`` (rays ``origins`` + t ``directions`` (R, 3), local units): the hit
+    pushed SECONDARY_OFFSET object units along its normal turned towards the ray's origin."""
+    hit = np.flatnonzero(primary.hit)
+    direction = normalize(np.asarray(directions, np.float64)[hit], np.array([0.0, 0.0, 1.0]))
+    point = np.asarray(origins, np.float64)[hit] + primary.distance[hit, None] * direction
+    normal = normalize(primary.normal[hit], -direction)
+    normal = np.where(((normal * direction).sum(1) > 0)[:, None], -normal, normal)
+    return point + SECONDARY_OFFSET * object_size * normal, normal
+
+
+def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
+                     directions: Float[np.ndarray, "R 3"], occluded: Occluded,
+                     object_size: float, settings: SecondarySettings = SecondarySettings()
+                     ) -> SecondaryPasses:
+    """AO and shadow of the primary hits of ``primary`` (rays (R, 3) in local units, an
+    object unit ``object_size`` local ones) as ``occluded`` answers their secondary rays.
+    Pixel i's AO directions come from the same uniform numbers whoever renders it, so two
+    renders of one view differ by their answers, not by their noise."""
+    rays = len(primary.hit)
+    start, normal = secondary_starts(primary, origins, directions, object_size)
+    rng = np.random.default_rng([settings.seed, rays])
+    uniform = rng.random((rays, settings.samples, 2))[primary.hit].reshape(-1, 2)
+    samples = np.repeat(normal, settings.samples, axis=0)
+    reach = np.full(len(samples), settings.distance * object_size)
+    blocked = occluded(np.repeat(start, settings.samples, axis=0),
+                       cosine_directions(samples, uniform), reach)
+    ao = np.zeros(rays, np.float32)
+    ao[primary.hit] = 1.0 - blocked.reshape(-1, settings.samples).mean(1)
+    towards, distance = settings.light.towards(start)
+    facing = (normal * towards).sum(1) > 0
+    lit_hits = facing.copy()
+    lit_hits[facing] = ~occluded(start[facing], towards[facing], distance[facing])
+    lit = np.zeros(rays, bool)
+    lit[primary.hit] = lit_hits
+    return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit)
+
+
+def secondary_views(primaries: dict[str, Passes], origins: Float[np.ndarray, "R 3"],
+                    directions: Float[np.ndarray, "R 3"], occluders: dict[str, Occluded],
+                    object_size: float, settings: SecondarySettings
+                    ) -> dict[str, SecondaryPasses]:
+    """The secondary passes an evaluation compares, from the primary ``primaries``
+    {"predicted", "true", "embedded"} and the ``occluders`` {"neural", "exact",
+    "embedded"}: "predicted" (the network from its own hits), "true" and "embedded" (each
+    reference from its own), and "predicted_true_hit" and "embedded_true_hit" (the network
+    and the embedded reference from the true hits: their error is the secondary rays' own,
+    without the primary hits')."""
+    plan = {"predicted": ("predicted", "neural"), "true": ("true", "exact"),
+            "embedded": ("embedded", "embedded"), "predicted_true_hit": ("true", "neural"),
+            "embedded_true_hit": ("true", "embedded")}
+    return {name: secondary_passes(primaries[primary], origins, directions,
+                                   occluders[occluder], object_size, settings)
+            for name, (primary, occluder) in plan.items()
+            if primary in primaries and occluder in occluders}
