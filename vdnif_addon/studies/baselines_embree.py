@@ -4,17 +4,21 @@ binding's per-element copies.
 ``EmbreeScene`` holds one triangle mesh whose vertices live in a numpy array Embree shares
 (``rtcSetSharedGeometryBuffer``: float3 with a 16-byte stride, one padding row for Embree's
 16-byte loads), so a pose writes its vertices there and commits: with ``refit`` the scene is
-dynamic and the geometry's build quality ``RTC_BUILD_QUALITY_REFIT`` (Embree keeps the tree
-and updates its bounds, as Cycles does for a deforming mesh in the viewport), without it the
-scene is static and every commit builds a new BVH. Both are robust (watertight) scenes.
+dynamic, of build quality LOW (Embree's two-level BVH) and the geometry's build quality
+``RTC_BUILD_QUALITY_REFIT`` (Embree keeps the tree and updates its bounds, as Cycles does for
+a deforming mesh in the viewport); without it the scene is static and every commit builds a
+new BVH. Both are robust (watertight) scenes.
 
-Casts go through ``rtcIntersect{16,8,4}``, the widest packet the CPU runs natively (a wider
-call falls back to single rays inside Embree), over numpy-packed structure-of-arrays packets,
-split over ``threads`` Python threads (ctypes releases the GIL for each call). Packets beat
-``embreex``'s ``run`` (a C loop of ``rtcIntersect1``) on the 256x256 orbit views, so they are
-the casts of the Embree rows. ``threads`` is also the device's build threads (``threads=N``):
-Embree's task scheduler takes the largest count of the devices alive, so only one device of
-this module should live at a time.
+Casts go through ``rtcIntersect16`` (the widest call: the fewest ctypes calls; native packets
+on AVX-512, elsewhere Embree loops over the packet's rays) over numpy-packed
+structure-of-arrays packets, split over ``threads`` Python threads (ctypes releases the GIL
+for each call). ``embreex``'s ``run`` (a C loop of ``rtcIntersect1``) casts the same rays
+faster where 16-wide packets are not native (about 1.5x on the bunny's 256x256 views on a
+2-core AVX2 EPYC), but only on a scene that embreex itself builds with its per-element copy,
+so it can neither refit nor share the vertex array: the Embree rows cast with packets.
+``threads`` is also the device's build threads (``threads=N``): Embree's task scheduler takes
+the largest count of the devices alive, so only one device of this module should live at a
+time.
 """
 
 import collections
@@ -208,12 +212,14 @@ class EmbreeScene:
         count = len(origins)
         block = self._packets(count)
         width, packets = block.shape[2], len(block)
-        column = np.zeros(packets * width, np.float32)     # the last packet's spare lanes
+        full, rest = divmod(count, width)
         for rows, values in (((ROW["org_x"], ROW["org_y"], ROW["org_z"]), origins),
                              ((ROW["dir_x"], ROW["dir_y"], ROW["dir_z"]), directions)):
+            values = np.asarray(values)
             for axis, row in enumerate(rows):
-                column[:count] = values[:, axis]
-                block[:, row] = column.reshape(packets, width)
+                block[:full, row] = values[:full * width, axis].reshape(full, width)
+                block[full:, row] = 0                 # the last packet's spare lanes
+                block[full:, row, :rest] = values[full * width:, axis]
         block[:, ROW["tfar"]] = np.inf
         block[:, ROW["geomID"]].view(np.uint32)[:] = RTC_INVALID_GEOMETRY_ID
         rays = (block.ctypes.data + block.strides[0] * np.arange(packets)).tolist()
