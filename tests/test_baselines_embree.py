@@ -196,6 +196,25 @@ def test_packets_hit_what_embreexs_own_loop_hits():
         device.close()
 
 
+def test_a_one_thread_device_builds_on_the_calling_thread_alone():
+    """The 1-thread setting is one thread: the process spends no CPU time beside the caller's
+    while Embree builds (its task scheduler's workers would)."""
+    import time
+
+    device = embree.EmbreeDevice(1)
+    vertices, triangles = soup(np.random.default_rng(5), 60_000)
+    scene = embree.EmbreeScene(device, vertices, triangles, refit=False)
+    try:
+        process, caller = time.process_time(), time.thread_time()
+        for _ in range(3):
+            scene.commit()
+        process, caller = time.process_time() - process, time.thread_time() - caller
+        assert caller > 0.02 and process - caller < 0.1 * caller
+    finally:
+        scene.close()
+        device.close()
+
+
 def test_bad_settings_are_one_line():
     with pytest.raises(VDNIFError, match="thread count 0 must be at least 1"):
         embree.EmbreeDevice(0)
