@@ -71,11 +71,13 @@ def tiny(extension, tmp_path_factory):
     16x16 rays, one repeat: without a model, with the oracle, with one that never hits."""
     side = core("studies.side_by_side")
     poses = core("blender.poses")
-    obj = side.load_side_by_side_scene("lattice")
+    obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
     captured = core("blender.capture_scene").capture(
         obj, 8, poses.evaluation_spec(poses.PoseSpec(count=2)), deform_corners=False)
     folder = tmp_path_factory.mktemp("models")
-    results = {"none": side.compare_paths(obj, captured, None, RAYS, RAYS, repeats=1)}
+    results = {"none": side.compare_paths(obj, captured, None, RAYS, RAYS, repeats=1),
+               "none, 2 threads": side.compare_paths(obj, captured, None, RAYS, RAYS,
+                                                     repeats=1, threads=2)}
     networks = {"oracle": OracleNetwork(captured.mesh, captured.grid),
                 "never": NeverHits(captured.mesh, captured.grid),
                 "untrained": untrained_network(captured.mesh)}
@@ -108,15 +110,20 @@ def test_every_baseline_is_timed_and_hits_what_the_true_reference_hits(tiny):
         assert result["repeats"] == 1 and result["poses"] == 2 and result["rays"] == RAYS ** 2
         seconds = timings(result)
         for name in baselines:
-            for step in ("evaluate_s", "rebuild_s", "cast_s"):
+            for step in ("evaluate_s", "build_s", "pose_s", "cast_s"):
                 assert f"{name}_{step}" in seconds
             assert result["rays_per_s"][name] > 0
             assert result["ratios"][f"prepare_neural_over_{name}"] > 0
             agreement = result["agreement"][name]
             assert agreement["rays"] == 2 * RAYS ** 2 and agreement["differing_hits"] == 0
             assert agreement["both_hit"] > 20 and agreement["max_distance_difference"] < 1e-5
-        assert {"warp_read_s", "warp_refit_s", "embree_copy_s", "embree_commit_s",
-                "bvhtree_build_s", "neural_prepare_s"} <= set(seconds)
+        assert {"warp_read_s", "embree_refit_read_s", "embree_rebuild_read_s",
+                "neural_prepare_s"} <= set(seconds)
+        for record in (r for run in result["runs"] for r in run["poses"]):
+            for name in baselines:           # a pose's preparation is the sum of its steps
+                steps = [record.get(f"{name}_{step}", 0.0)
+                         for step in ("evaluate_s", "read_s", "build_s")]
+                assert record[f"{name}_pose_s"] == pytest.approx(sum(steps))
         assert all(math.isfinite(t) and t > 0 for t in seconds.values())
         assert result["segments_match"]                     # DDA walks the same cells
         assert result["median"]["deformed_walk_segments"] == result["median"]["walk_segments"]
@@ -125,6 +132,32 @@ def test_every_baseline_is_timed_and_hits_what_the_true_reference_hits(tiny):
         assert sizes["mesh"] == 12 * (2012 + 3936)
         assert set(sizes["bvh"]) == set(baselines) and all(b > sizes["mesh"]
                                                            for b in sizes["bvh"].values())
+
+
+def test_every_row_says_how_many_threads_it_used(tiny):
+    _, results = tiny
+    report = core("studies.side_by_side_report")
+    blender = core("studies.baselines").BLENDER_THREADS
+    for key, setting in (("none", 1), ("none, 2 threads", 2)):
+        result = results[key]
+        assert result["threads"] == {
+            "setting": setting, "torch": 1, "bvhtree": {"build": blender, "casts": 1},
+            "warp": {"build": 1, "casts": 1},
+            "embree_refit": {"build": setting, "casts": setting},
+            "embree_rebuild": {"build": setting, "casts": setting}}
+        assert result["embree"]["width"] == 16 and result["embree"]["version"] >= 40000
+    text = "\n".join(report.side_by_side_markdown([results["none"],
+                                                    results["none, 2 threads"]]))
+    assert ("| Embree refit: threads | refit on 1 thread(s), casts on 1 thread(s) | refit on "
+            "2 thread(s), casts on 2 thread(s) |") in text
+    assert ("| BVHTree (Python loop): threads | rebuild on Blender's threads, casts on 1 "
+            "thread(s) | rebuild on Blender's threads, casts on 1 thread(s) |") in text
+    assert "| Warp refit: threads | refit on 1 thread(s), casts on 1 thread(s) |" in text
+    assert "Suzanne (3,936 triangles), 16x16, 2 thread setting" in text
+    side = core("studies.side_by_side")
+    cores = core("studies.baselines").available_cores()
+    assert side.thread_settings(["1", "all", "1"]) == sorted({1, cores})
+    assert [side.torch_setting(n) for n in (1, 2, 16)] == [1, 1, 15]
 
 
 def test_without_a_model_the_neural_side_is_not_run(tiny):
@@ -201,8 +234,9 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
     for label, *_ in report.TARGETS:
         assert label in text
     tables = [line for line in text.splitlines() if line.startswith("| | ")]
-    assert len(tables) == 9 and all(line.count("Suzanne (3,936 triangles)") == 3
-                                    for line in tables)
+    assert len(tables) == 9 and all(
+        line.count("Suzanne (3,936 triangles), 16x16, 1 thread setting") == 3
+        for line in tables)
     assert results["never"]["speed_withheld"] in text and results["none"]["speed_withheld"] in text
     speed_row = next(line for line in text.splitlines()
                      if line.startswith("| neural render (walk"))
@@ -243,34 +277,184 @@ def test_the_command_writes_json_plots_and_section(extension, tmp_path, capsys):
     cli = core("cli")
     performance = tmp_path / "performance.md"
     code = cli.main(["side-by-side", "--scene", "lattice", "--resolution", "8",
-                          "--poses", "1", "--repeats", "1", "--width", "8", "--height", "8",
-                          "--json", str(tmp_path / "sbs.json"),
-                          "--plots", str(tmp_path / "plots"),
-                          "--markdown", str(tmp_path / "sbs.md"),
-                          "--performance", str(performance)])
+                     "--poses", "1", "--repeats", "1", "--width", "8", "--height", "8",
+                     "--threads", "1", "2", "--json", str(tmp_path / "sbs.json"),
+                     "--plots", str(tmp_path / "plots"),
+                     "--markdown", str(tmp_path / "sbs.md"),
+                     "--performance", str(performance)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "side by side 'Suzanne' (3,936 triangles)" in printed and "n/a" in printed
+    for setting in (1, 2):
+        assert (f"side by side 'Suzanne' (3,936 triangles), 8x8, {setting} thread setting"
+                in printed)
     data = json.loads((tmp_path / "sbs.json").read_text())
     assert data["machine"]["cores"] >= 1 and data["machine"]["warp_device"] == "cpu"
-    assert data["command"].endswith("--performance " + str(performance))
-    assert data["results"][0]["speed_withheld"] == core("studies.side_by_side").NO_MODEL
+    assert data["command"].endswith("--threads 1 2 --device cpu --json "
+                                    f"{tmp_path / 'sbs.json'} --markdown {tmp_path / 'sbs.md'} "
+                                    f"--plots {tmp_path / 'plots'} --performance "
+                                    f"{performance}")
+    assert [r["threads"]["setting"] for r in data["results"]] == [1, 2]
+    for result in data["results"]:
+        assert result["speed_withheld"] == core("studies.side_by_side").NO_MODEL
+        for name in core("studies.baselines").BASELINES:
+            assert result["agreement"][name]["differing_hits"] == 0
+            assert result["rays_per_s"][name] > 0
     assert (tmp_path / "plots" / "side-by-side-speed.png").exists()
-    assert "Machine: " in (tmp_path / "sbs.md").read_text()
+    markdown = (tmp_path / "sbs.md").read_text()
+    assert "Machine: " in markdown and "| Embree rebuild: threads |" in markdown
     assert "## Side by side with the classical baselines" in performance.read_text()
 
 
+@pytest.mark.slow
+def test_the_crossover_command_trains_missing_models_and_writes_its_files(extension,
+                                                                          tmp_path, capsys):
+    """Two Suzanne meshes, models trained by the quick size (they predict no hits, so the
+    crossover is n/a with the reason), 8x8 views and the 4x4 preview, one thread setting."""
+    cli = core("cli")
+    out, models = tmp_path / "crossover", tmp_path / "models"
+    argv = ["side-by-side", "--scene", "suzanne-2", "suzanne-3", "--poses", "1", "--repeats",
+            "1", "--width", "8", "--height", "8", "--preview", "4", "--threads", "1",
+            "--train", str(models), "--quick", "--crossover", str(out)]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert sorted(path.name for path in models.iterdir()) == ["suzanne-2.vdnif",
+                                                             "suzanne-3.vdnif"]
+    data = json.loads((out / "crossover.json").read_text())
+    assert data["command"].endswith(
+        "side-by-side --scene suzanne-2 suzanne-3 --poses 1 --seed 0 --repeats 1 --width 8 "
+        f"--height 8 --threads 1 --device cpu --quick --preview 4 --train {models} "
+        f"--crossover {out}")
+    groups = {(row["width"], row["height"], row["threads"]) for row in data["rows"]}
+    assert groups == {(8, 8, 1), (4, 4, 1)}
+    assert len(data["rows"]) == 2 * len(core("studies.baselines").BASELINES)
+    assert all(row["triangles"] is None and row["text"].startswith("n/a (no neural speed")
+               for row in data["rows"])
+    assert [mesh["triangles"] for mesh in data["bytes"]] == [15744, 62976]
+    markdown = (out / "crossover.md").read_text()
+    assert markdown.startswith(f"Command: `{data['command']}`")
+    assert "| Embree refit | **n/a (no neural speed on" in markdown
+    assert (out / "crossover.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "crossover 4x4, 1 thread setting, warp: n/a" in captured.out
+    # a second run uses the models it trained
+    assert cli.main(argv[:-2]) == 0
+    assert "uses the model" in capsys.readouterr().err
+
+
 def test_bad_settings_are_one_line(extension, tmp_path, capsys):
-    side = core("studies.side_by_side")
+    scenes = core("studies.side_by_side_scenes")
     errors = core("errors")
     with pytest.raises(errors.VDNIFError, match="unknown scene 'teapot'"):
-        side.load_side_by_side_scene("teapot")
-    assert side.scene_name("million") == "suzanne-5"
+        scenes.load_side_by_side_scene("teapot")
+    assert scenes.scene_name("million") == "suzanne-5"
     cli = core("cli")
     for argv, message in (
             (["--scene", "bunny", "lattice", "--model", "m.vdnif"], "name the scene of each"),
             (["--scene", "bunny", "--model", "lattice=m.vdnif"], "'lattice' is not among"),
             (["--scene", "lattice", "--repeats", "0", "--resolution", "8", "--poses", "1"],
-             "repeats 0 must be at least 1")):
+             "repeats 0 must be at least 1"),
+            (["--scene", "lattice", "--threads", "0"], "thread setting '0' must be a count"),
+            (["--scene", "lattice", "--threads", "two"], "thread setting 'two' must be"),
+            (["--scene", "bunny", "suzanne-2", "--crossover", str(tmp_path)],
+             "--crossover needs at least two suzanne-N scenes")):
         assert cli.main(["side-by-side", *argv]) == 1
         assert message in capsys.readouterr().err
+
+
+def fake_result(scene, triangles, neural_ms, classical_ms, size=256, setting=2):
+    """A compare_paths result with only what the crossover reads: pose totals in ms (neural
+    None: withheld), each baseline's split evenly between its preparation and its casts."""
+    baselines = core("studies.baselines").BASELINES
+    median = {} if neural_ms is None else {"neural_pose_s": neural_ms / 2e3,
+                                           "neural_render_s": neural_ms / 2e3}
+    for name in baselines:
+        median.update({f"{name}_pose_s": classical_ms[name] / 2e3,
+                       f"{name}_cast_s": classical_ms[name] / 2e3})
+    mesh = 24 * triangles
+    return {"scene": scene, "object": scene.capitalize(), "triangles": triangles,
+            "width": size, "height": size, "threads": {"setting": setting}, "median": median,
+            "network": {"hit_iou": None if neural_ms is None else 0.99,
+                        "false_negative_rate": 0.001, "false_positive_rate": 0.002},
+            "bytes": {"model": 10_000, "mesh": mesh, "bvh": {n: 50 * triangles
+                                                              for n in baselines},
+                      "model_over_mesh_and_bvh": {n: 10_000 / (mesh + 50 * triangles)
+                                                  for n in baselines}}}
+
+
+def power_law_results(neural_ms, scale, power, size=256, setting=2):
+    """The Suzanne sweep (levels 2 to 6) with each classical pose scale * T^power ms and the
+    neural pose neural_ms at every mesh, and the bunny."""
+    baselines = core("studies.baselines").BASELINES
+    sizes = {f"suzanne-{level}": 968 * 4 ** level for level in range(2, 7)}
+    sizes["bunny"] = 69_451
+    return [fake_result(scene, t, neural_ms, {b: scale[b] * t ** power[b] for b in baselines},
+                        size, setting) for scene, t in sizes.items()]
+
+
+def test_the_crossover_is_exact_where_both_poses_follow_power_laws(extension):
+    """Classical pose a T^p against a constant neural pose N cross at T* = (N / a)^(1/p),
+    which log-log interpolation between the sweep's meshes finds exactly."""
+    cross = core("studies.side_by_side_crossover")
+    scale = {"bvhtree": 2e-2, "warp": 1e-4, "embree_refit": 1e-4, "embree_rebuild": 1e-3}
+    power = {"bvhtree": 1.0, "warp": 1.0, "embree_refit": 0.9, "embree_rebuild": 0.8}
+    neural = 40.0
+    data = cross.crossover(power_law_results(neural, scale, power))
+    expected = {name: (neural / scale[name]) ** (1 / power[name]) for name in scale}
+    rows = {row["baseline"]: row for row in data["rows"]}
+    for name in ("warp", "embree_refit", "embree_rebuild"):
+        assert 15_488 < expected[name] < 3_964_928                    # inside the sweep
+        assert rows[name]["triangles"] == pytest.approx(expected[name], rel=1e-9)
+        assert rows[name]["text"] == f"neural cheaper from {expected[name]:,.0f}"
+        assert len(rows[name]["points"]) == 5
+        bunny = rows[name]["others"][0]
+        assert bunny["object"] == "Bunny" and bunny["ratio"] == pytest.approx(
+            neural / (scale[name] * 69_451 ** power[name]))
+    # the BVHTree loop costs more than the neural pose from the smallest mesh on
+    assert rows["bvhtree"]["triangles"] is None
+    assert rows["bvhtree"]["text"] == "neural cheaper on the whole sweep (15,488 and up)"
+    assert [mesh["triangles"] for mesh in data["bytes"]] == sorted(
+        [968 * 4 ** level for level in range(2, 7)] + [69_451])
+
+
+def test_crossover_without_a_crossing_with_two_and_with_withheld_speeds(extension):
+    cross = core("studies.side_by_side_crossover")
+    # neural / classical: 2 at 10, 0.5 at 100, 2 at 1000: down through 1 at sqrt(10) * 10,
+    # then up through it at sqrt(10) * 100 (log-linear between the points)
+    found = cross.crossings([(10, 2.0, 1.0), (100, 1.0, 2.0), (1000, 4.0, 2.0)])
+    assert [way for _, way in found] == [1, -1]
+    assert [t for t, _ in found] == pytest.approx([10 * 10 ** 0.5, 100 * 10 ** 0.5])
+    # a ratio of exactly 1 at a point is the crossing itself
+    assert cross.crossings([(10, 2.0, 1.0), (100, 1.0, 1.0), (1000, 1.0, 3.0)]) == [(100, 1)]
+    baselines = core("studies.baselines").BASELINES
+    scale, power = dict.fromkeys(baselines, 1e-9), dict.fromkeys(baselines, 1.0)
+    rows = cross.crossover(power_law_results(40.0, scale, power))["rows"]
+    assert all(row["triangles"] is None and row["text"]
+               == "classical cheaper on the whole sweep (up to 3,964,928)" for row in rows)
+    withheld = power_law_results(None, scale, power)
+    rows = cross.crossover(withheld)["rows"]
+    assert all(row["text"].startswith("n/a (no neural speed on Suzanne-2, Suzanne-3")
+               for row in rows)
+    assert all(other["ratio"] is None for row in rows for other in row["others"])
+
+
+def test_crossover_markdown_and_plot(extension, tmp_path):
+    cross = core("studies.side_by_side_crossover")
+    plots = core("studies.side_by_side_plots")
+    baselines = core("studies.baselines").BASELINES
+    scale, power = dict.fromkeys(baselines, 1e-4), dict.fromkeys(baselines, 1.0)
+    results = [r for size, setting in ((256, 2), (64, 2), (256, 1), (64, 1))
+               for r in power_law_results(40.0 if size == 256 else 8.0, scale, power, size,
+                                          setting)]
+    data = cross.crossover(results)
+    assert [(row["width"], row["threads"]) for row in data["rows"][::len(baselines)]] == [
+        (256, 2), (256, 1), (64, 2), (64, 1)]
+    text = "\n".join(cross.crossover_markdown(data, results, "python batch.py -- z",
+                                              None, "crossover.png"))
+    assert text.startswith("Command: `python batch.py -- z`")
+    heads = "| baseline | 256x256, 2 thread setting | 256x256, 1 thread setting | 64x64, 2 "
+    assert heads in text and "| Warp refit | **neural cheaper from 400,000**; Bunny " in text
+    assert "| Suzanne-2 (15,488) | 256x256, 2 | 40.0 | 1.5 |" in text
+    assert "0.9900, 0.1 % / 0.2 %" in text
+    assert "| Bunny (69,451) | 10,000 | 1,666,824 |" in text
+    assert "![pose totals and bytes against triangles](crossover.png)" in text
+    path = plots.write_crossover_plot(data, results, tmp_path / "crossover.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 20_000

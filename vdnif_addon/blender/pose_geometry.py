@@ -90,6 +90,8 @@ class PosedObject:
             corners = (self.deformer.deformed() if self.deformer is not None
                        else self.capture.grid.corner_positions())
             self.cells.set_pose(corners)
+            if self.device.startswith("cuda"):   # its kernels run asynchronously there
+                runtime.init().synchronize_device(self.device)
             prepare_s = time.perf_counter() - start
             vertices, normals = evaluated_surface(self.obj, self.capture.mesh)
         return PoseGeometry(_cells=self.cells, corners=corners, vertices=vertices,

@@ -98,39 +98,53 @@ def cmd_bench_network(args):
 
 
 def cmd_side_by_side(args):
-    """Time the neural path against Blender's BVHTree, Warp's refit BVH and Embree per
-    pose, the deformed walk against a static DDA walk, and model bytes against mesh + BVH
-    bytes."""
+    """Time the neural path against Blender's BVHTree, Warp's refit BVH and Embree (refit
+    and rebuilt) per pose at 1 thread and at every core, the deformed walk against a static
+    DDA walk, and model bytes against mesh + BVH bytes."""
     import os
     import shlex
 
     from ..progress import Progress
-    from ..studies.side_by_side import compare_paths, load_side_by_side_scene, machine, save_blends
+    from ..studies.side_by_side import compare_paths, machine, thread_settings
+    from ..studies.side_by_side_plots import write_plots
     from ..studies.side_by_side_report import (
         machine_text,
         side_by_side_markdown,
         write_performance,
-        write_plots,
     )
+    from ..studies.side_by_side_scenes import load_side_by_side_scene, save_blends
     from ..training.distributed import resolve_device
 
     scenes = list(dict.fromkeys(scene_name(name) for name in args.scene))
     if args.save_blend is not None:
         return save_blends(scenes, args.save_blend)
+    settings = thread_settings(args.thread_settings)
+    sizes = _image_sizes(args)
+    if args.crossover is not None and sum(s.startswith("suzanne-") for s in scenes) < 2:
+        raise VDNIFError("--crossover needs at least two suzanne-N scenes in --scene: the "
+                         "crossing is found on the Suzanne sweep")
     models = _model_paths(args.model, scenes)
     device = resolve_device(args.device)
+    if args.train is not None:
+        from ..studies.side_by_side_models import recipe_model
+
+        for name in (name for name in scenes if name not in models):
+            models[name] = recipe_model(name, args.train, args.seed, args.device, args.quick,
+                                        report_training)
     load_before = os.getloadavg()[0]
     results = []
     for name in scenes:
         obj = load_side_by_side_scene(name)
         captured, model = _scene_capture(obj, models.get(name), args, device)
-        progress = Progress(f"side by side '{obj.name}'", args.repeats, "repeats")
-        result = compare_paths(obj, captured, model, args.width, args.height, args.repeats,
-                               progress=lambda done, _: progress.update(done),
-                               device=device)
-        result["scene"] = name
-        results.append(result)
-        _print_result(result)
+        for (width, height), threads in ((size, t) for size in sizes for t in settings):
+            progress = Progress(f"side by side '{obj.name}', {width}x{height}, {threads} "
+                                "thread setting", args.repeats, "repeats")
+            result = compare_paths(obj, captured, model, width, height, args.repeats,
+                                   progress=lambda done, _: progress.update(done),
+                                   device=device, threads=threads)
+            result["scene"] = name
+            results.append(result)
+            _print_result(result)
     threads = os.environ.get("OMP_NUM_THREADS")
     command = ((f"OMP_NUM_THREADS={threads} " if threads else "")
                + shlex.join(["python", "vdnif_addon/batch.py", "--", *command_line(args)]))
@@ -143,7 +157,39 @@ def cmd_side_by_side(args):
         write_plots(results, args.plots)
     if args.performance is not None:
         write_performance(args.performance, results, command, host)
+    if args.crossover is not None:
+        _write_crossover(args.crossover, results, command, host)
     return 0
+
+
+def _image_sizes(args):
+    """(width, height) of every image size to time: --width x --height, then the preview."""
+    preview = args.preview
+    if preview is None and args.crossover is not None:
+        from ..studies.side_by_side_crossover import PREVIEW
+
+        preview = PREVIEW
+    sizes = [(args.width, args.height)]
+    return sizes + ([] if preview is None or (preview, preview) in sizes
+                    else [(preview, preview)])
+
+
+def _write_crossover(folder, results, command, host):
+    """crossover.json, crossover.md and crossover.png into ``folder``."""
+    from ..studies.side_by_side_crossover import crossover, crossover_markdown
+    from ..studies.side_by_side_plots import write_crossover_plot
+    from ..studies.side_by_side_report import machine_text
+
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    data = crossover(results)
+    write_json(folder / "crossover.json", {"command": command, "machine": host, **data})
+    write_crossover_plot(data, results, folder / "crossover.png")
+    write_text_atomic(folder / "crossover.md", "\n".join(crossover_markdown(
+        data, results, command, machine_text(host), "crossover.png")) + "\n", "markdown file")
+    for row in data["rows"]:
+        print(f"crossover {row['width']}x{row['height']}, {row['threads']} thread setting, "
+              f"{row['baseline']}: {row['text']}")
 
 
 def command_line(args):
@@ -154,8 +200,10 @@ def command_line(args):
     line += ["--resolution", str(args.resolution)] if args.resolution else []
     line += ["--poses", str(args.poses), "--seed", str(args.seed), "--repeats",
              str(args.repeats), "--width", str(args.width), "--height", str(args.height),
-             "--device", args.device]
-    for option in ("json", "markdown", "plots", "performance"):
+             "--threads", *args.thread_settings, "--device", args.device]
+    line += ["--quick"] if args.quick else []
+    for option in ("preview", "train", "json", "markdown", "plots", "performance",
+                   "crossover"):
         value = getattr(args, option)
         line += [f"--{option}", str(value)] if value is not None else []
     return line
@@ -208,8 +256,9 @@ def _print_result(result):
         return "n/a" if ratios[name] is None else f"{ratios[name]:.3g}x"
 
     neural = ("n/a" if speeds["neural"] is None else f"{speeds['neural']:,.0f} rays/s")
-    print(f"side by side '{result['object']}' ({result['triangles']:,} triangles), medians "
-          f"of {result['repeats']} repeats: neural render {neural}"
+    print(f"side by side '{result['object']}' ({result['triangles']:,} triangles), "
+          f"{result['width']}x{result['height']}, {result['threads']['setting']} thread "
+          f"setting, medians of {result['repeats']} repeats: neural render {neural}"
           + (f" ({result['speed_withheld']})" if result["speed_withheld"] else "")
           + "; pose total " + ", ".join(f"{ratio(f'pose_neural_over_{b}')} {b}"
                                         for b in BASELINES)
@@ -312,7 +361,15 @@ def _add_side_by_side(commands):
                         help="training pose seed; the evaluation poses of it are used")
     parser.add_argument("--width", type=int, default=256, metavar="W")
     parser.add_argument("--height", type=int, default=256, metavar="H")
+    parser.add_argument("--preview", type=int, metavar="N",
+                        help="also time an NxN preview (default 64 with --crossover)")
+    parser.add_argument("--threads", nargs="+", dest="thread_settings", default=["1", "all"],
+                        metavar="N|all", help="thread settings to time (default: 1 and all)")
     add_device_option(parser, default="cpu")
+    parser.add_argument("--train", type=pathlib.Path, metavar="DIR", help=(
+        "train each scene without --model by the recipe into DIR (kept for the next run)"))
+    parser.add_argument("--quick", action="store_true",
+                        help="with --train: a tiny training, for tests")
     parser.add_argument("--json", type=output_file, metavar="PATH",
                         help="write every repeat's timings, the medians and ratios as JSON")
     parser.add_argument("--markdown", type=output_file, metavar="PATH",
@@ -322,6 +379,8 @@ def _add_side_by_side(commands):
     parser.add_argument("--performance", type=output_file, metavar="PATH", help=(
         "rewrite the side-by-side section of PATH (docs/performance.md), plots in "
         "side-by-side/ beside it"))
+    parser.add_argument("--crossover", type=pathlib.Path, metavar="DIR", help=(
+        "write crossover.json, .md and .png into DIR: where neural meets each baseline"))
     parser.add_argument("--save-blend", type=pathlib.Path, metavar="DIR", help=(
         "only save each scene as DIR/<scene>.blend (for 'train --blend') and stop"))
     parser.set_defaults(run=cmd_side_by_side)

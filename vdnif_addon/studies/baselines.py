@@ -1,31 +1,28 @@
 """The classical baselines of ``side-by-side``: what a user who only wants first hits on a
 deforming mesh runs per pose, each starting from Blender's evaluation of the pose (any
 classical path needs the deformed vertices) and casting the same rays in the object's local
-space.
+space. Each ``rebuild`` returns the pose's steps in seconds: ``evaluate_s`` (Blender's
+evaluation of the deformed mesh), ``read_s`` (reading its vertices), ``build_s`` (the BVH's
+refit or build); ``cast`` returns the first hits; ``threads`` says on how many threads each
+step ran at a run's thread setting; ``bvh_bytes`` how many bytes the acceleration structure
+holds, and ``bytes_source`` how that was found.
 
-- ``BVHTreeBaseline``: Blender's own ``BVHTree`` rebuilt from the evaluated object
-  (``BVHTree.FromObject``), then a Python loop of ``ray_cast`` (mathutils has no batch API),
-  one core.
-- ``WarpRefitBaseline``: Warp's mesh BVH over the rest triangles, built once; per pose the
-  evaluated vertices are copied in and the BVH is ``refit`` (same triangles, no rebuild),
-  then one kernel of ``mesh_query_ray`` casts (``kernels.cast.MeshCaster``). A Warp CPU
-  launch runs on one thread.
-- ``EmbreeBaseline``: Embree, the CPU ray tracer inside Cycles, through its PyPI binding
-  ``embreex``: a scene rebuilt per pose (Embree has no refit for a static scene), robust
-  traversal, Embree's default build quality; the rays are split over ``EMBREE_THREADS``
-  threads since one ``run`` is a single-threaded loop (it releases the GIL). ``embreex`` is a
-  benchmark dependency: it is imported here, lazily, and nowhere in the extension.
-
-Each baseline's ``rebuild`` returns its named seconds (the caller sums them into the pose's
-rebuild time) and ``cast`` its first hits; ``bvh_bytes`` says how many bytes its acceleration
-structure holds, and how that was found.
+- ``bvhtree``: Blender's own ``BVHTree`` rebuilt from the evaluated object
+  (``BVHTree.FromObject``, on Blender's task threads), then a Python loop of ``ray_cast``
+  (mathutils has no batch API, and the loop holds the GIL): one thread at any setting.
+- ``warp``: Warp's mesh BVH over the rest triangles, built once; per pose the evaluated
+  vertices are copied in and the BVH is ``refit``, then one kernel of ``mesh_query_ray``
+  casts (``kernels.cast.MeshCaster``). A Warp CPU launch and Warp's CPU refit run on one
+  thread, and Warp's launches are not made to run from two threads at once
+  (``runtime.LAUNCHES``): one thread at any setting.
+- ``embree_refit`` and ``embree_rebuild``: Embree, the CPU ray tracer inside Cycles, through
+  its C API (``baselines_embree``): the evaluated vertices are read into the vertex array
+  Embree shares, then the commit refits the BVH or builds a new one; packets of rays split
+  over the setting's threads, which also build.
 """
 
-import ctypes
-import glob
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import bpy
 import numpy as np
@@ -35,16 +32,22 @@ from ..blender.bvh import BVHCaster
 from ..errors import VDNIFError
 from ..kernels import runtime
 from ..kernels.cast import MeshCaster
+from .baselines_embree import EmbreeDevice, EmbreeScene
 
-EMBREE_THREADS = 2            # the casts of one pose, split over both cores of the machine
-BASELINES = ("bvhtree", "warp", "embree")
-# CPU threads each baseline's casts run on: a Python loop, one Warp CPU launch, Embree's runs.
-THREADS = {"bvhtree": 1, "warp": 1, "embree": EMBREE_THREADS}
+BASELINES = ("bvhtree", "warp", "embree_refit", "embree_rebuild")
+BLENDER_THREADS = "Blender's"      # steps on Blender's own task threads, which bpy cannot set
 
 # Blender's BVHTree (BLI_kdopbvh, as mathutils builds it: 4 children, 6-axis bounds): per
 # node a 32-byte BVHNode, 6 floats of bounds, 4 child pointers and 1 node pointer.
 BVH_TREE_TYPE = 4
 BVH_NODE_BYTES = 32 + 6 * 4 + BVH_TREE_TYPE * 8 + 8
+
+
+def available_cores():
+    """The cores this process may run on: the 'all cores' thread setting."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0)) or 1
+    return os.cpu_count() or 1
 
 
 def evaluation_s(obj):
@@ -57,9 +60,10 @@ def evaluation_s(obj):
     return time.perf_counter() - start
 
 
-def evaluated_vertices(obj, count):
+def evaluated_vertices(obj, count, out=None):
     """(V, 3) float32 vertices of ``obj``'s evaluated mesh in its local space, read in one
-    ``foreach_get``; ``count`` is the rest mesh's vertex count, which deform modifiers keep."""
+    ``foreach_get`` (into ``out``, a (V, 3) view, where given); ``count`` is the rest mesh's
+    vertex count, which deform modifiers keep."""
     mesh = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
     if len(mesh.vertices) != count:
         raise VDNIFError(f"'{obj.name}': a modifier changes the vertex count between rest "
@@ -67,7 +71,10 @@ def evaluated_vertices(obj, count):
                          "are supported")
     co = np.empty(3 * count, np.float32)
     mesh.vertices.foreach_get("co", co)
-    return co.reshape(-1, 3)
+    if out is None:
+        return co.reshape(-1, 3)
+    out[:] = co.reshape(-1, 3)
+    return out
 
 
 class BVHTreeBaseline:
@@ -80,6 +87,7 @@ class BVHTreeBaseline:
     def __init__(self, mesh):
         self.triangles = len(mesh.triangles)
         self.tree = None
+        self.threads = {"build": BLENDER_THREADS, "casts": 1}
 
     def rebuild(self, obj):
         evaluate_s = evaluation_s(obj)
@@ -121,6 +129,8 @@ class WarpRefitBaseline:
         self.triangles = len(mesh.triangles)
         self.device = runtime.device(device)
         self.caster = MeshCaster(mesh.vertices, mesh.triangles, self.device)
+        on = 1 if self.device == "cpu" else self.device
+        self.threads = {"build": on, "casts": on}
 
     def rebuild(self, obj):
         evaluate_s = evaluation_s(obj)
@@ -131,7 +141,7 @@ class WarpRefitBaseline:
         self.caster.refit(vertices)
         runtime.init().synchronize_device(self.device)
         return {"evaluate_s": evaluate_s, "read_s": read_s,
-                "refit_s": time.perf_counter() - start}
+                "build_s": time.perf_counter() - start}
 
     def cast(self, origins, directions):
         index, t = self.caster.cast(origins, directions, np.inf)
@@ -151,140 +161,59 @@ def warp_bvh_bytes(triangles):
 
 
 class EmbreeBaseline:
-    """An Embree scene of the evaluated mesh, rebuilt every pose (``embreex``)."""
+    """Embree's scene of the mesh on ``device`` (a ``baselines_embree.EmbreeDevice``), its
+    vertices shared with Embree: each pose reads the evaluated vertices into them and
+    commits, which refits the BVH (``refit``) or builds a new one."""
 
-    name = "embree"
     bytes_source = ("measured: Embree's own memory monitor (rtcSetDeviceMemoryMonitorFunction) "
-                    "over the commit of the same scene, its vertex and index buffers left out; "
-                    "these are the bytes Embree allocates, in the blocks its allocator takes "
-                    "(a round 64 MiB on the 1 M mesh), not the bytes its nodes fill")
+                    "over the build of the same scene (its vertex and index arrays are "
+                    "shared, Embree allocates none for them); these are the bytes Embree "
+                    "allocates, in the blocks its allocator takes, not the bytes its nodes fill")
 
-    def __init__(self, mesh):
-        from embreex.rtcore import EmbreeDevice
-
-        self.vertex_count = len(mesh.vertices)
-        self.faces = np.ascontiguousarray(mesh.triangles, np.int32)
-        self.rest = np.asarray(mesh.vertices, np.float32)
-        self.device = EmbreeDevice()       # once, as an application keeps its device
-        self.pool = ThreadPoolExecutor(EMBREE_THREADS, thread_name_prefix="vdnif-embree")
-        self.scene = None
+    def __init__(self, mesh, device, refit):
+        self.name = "embree_refit" if refit else "embree_rebuild"
+        self.scene = EmbreeScene(device, mesh.vertices, mesh.triangles, refit)
+        self.threads = {"build": device.threads, "casts": device.threads}
 
     def rebuild(self, obj):
-        from embreex.mesh_construction import TriangleMesh
-        from embreex.rtcore_scene import EmbreeScene
-
         evaluate_s = evaluation_s(obj)
         start = time.perf_counter()
-        vertices = evaluated_vertices(obj, self.vertex_count)
+        evaluated_vertices(obj, self.scene.count, out=self.scene.vertices)
         read_s = time.perf_counter() - start
         start = time.perf_counter()
-        self.scene = None                  # the previous pose's scene is released first
-        scene = EmbreeScene(self.device, robust=True)
-        TriangleMesh(scene, vertices, self.faces)
-        copy_s = time.perf_counter() - start
-        start = time.perf_counter()
-        nothing = np.empty((0, 3), np.float32)
-        scene.run(nothing, nothing)        # the first run commits: Embree builds its BVH
-        self.scene = scene
-        return {"evaluate_s": evaluate_s, "read_s": read_s, "copy_s": copy_s,
-                "commit_s": time.perf_counter() - start}
+        self.scene.commit()
+        return {"evaluate_s": evaluate_s, "read_s": read_s,
+                "build_s": time.perf_counter() - start}
 
     def cast(self, origins, directions):
-        origins = np.ascontiguousarray(origins, np.float32)
-        directions = np.ascontiguousarray(directions, np.float32)
-        bounds = np.linspace(0, len(origins), EMBREE_THREADS + 1).astype(int)
-        parts = list(self.pool.map(
-            lambda s: self.scene.run(origins[s[0]:s[1]], directions[s[0]:s[1]], output=True),
-            zip(bounds[:-1], bounds[1:])))
-        hit = np.concatenate([part["geomID"] for part in parts]) >= 0
-        tfar = np.concatenate([part["tfar"] for part in parts]).astype(np.float64)
-        return hit, np.where(hit, tfar, np.inf)
+        return self.scene.cast(origins, directions)
 
     def bvh_bytes(self):
-        return embree_bytes(self.rest, self.faces)["bvh"]
+        return self.scene.bvh_bytes()
 
     def close(self):
-        self.scene = None
-        self.pool.shutdown()
+        self.scene.close()
 
 
-def embree_bytes(vertices, triangles):
-    """{"buffers", "bvh"}: bytes Embree allocates for a robust scene of ``triangles`` (T, 3)
-    over ``vertices`` (V, 3) as ``embreex`` builds it (its own float3 vertex buffer with a
-    16-byte stride, a uint3 index buffer), counted by Embree's memory monitor: the buffers,
-    then what the commit (the BVH build) keeps. Calls Embree's C API directly (ctypes on the
-    library inside ``embreex``): the binding does not expose the monitor."""
-    import embreex
-
-    folder = os.path.join(os.path.dirname(os.path.dirname(embreex.__file__)), "embreex.libs")
-    found = glob.glob(os.path.join(folder, "libembree4*")) or glob.glob(
-        os.path.join(os.path.dirname(embreex.__file__), "libembree4*"))
-    if not found:
-        raise VDNIFError(f"cannot find Embree's library beside embreex in '{folder}'")
-    lib = _embree_api(found[0])
-    allocated = [0]
-
-    @_MONITOR
-    def monitor(_, size, __):
-        allocated[0] += size
-        return True
-
-    vertices = np.asarray(vertices, np.float32).reshape(-1, 3)
-    triangles = np.ascontiguousarray(triangles, np.uint32).reshape(-1, 3)
-    device = lib.rtcNewDevice(None)
-    lib.rtcSetDeviceMemoryMonitorFunction(device, monitor, None)
-    scene = lib.rtcNewScene(device)
+def make_baselines(mesh, device="cpu", threads=1):
+    """(every baseline of ``BASELINES`` for the rest ``mesh``, the Embree device they
+    share): the Warp one on ``device``, the Embree ones on an Embree device of ``threads``
+    threads. ``close_baselines`` releases them."""
+    embree = EmbreeDevice(threads)
+    made = []
     try:
-        lib.rtcSetSceneFlags(scene, _RTC_SCENE_FLAG_ROBUST)
-        geometry = lib.rtcNewGeometry(device, _RTC_GEOMETRY_TYPE_TRIANGLE)
-        padded = np.zeros((len(vertices), 4), np.float32)
-        padded[:, :3] = vertices
-        for kind, format_, stride, data in ((_RTC_BUFFER_TYPE_VERTEX, _RTC_FORMAT_FLOAT3, 16,
-                                             padded),
-                                            (_RTC_BUFFER_TYPE_INDEX, _RTC_FORMAT_UINT3, 12,
-                                             triangles)):
-            target = lib.rtcSetNewGeometryBuffer(geometry, kind, 0, format_, stride, len(data))
-            ctypes.memmove(target, data.ctypes.data, data.nbytes)
-        lib.rtcCommitGeometry(geometry)
-        lib.rtcAttachGeometry(scene, geometry)
-        lib.rtcReleaseGeometry(geometry)
-        buffers = allocated[0]
-        lib.rtcCommitScene(scene)
-        return {"buffers": int(buffers), "bvh": int(allocated[0] - buffers)}
-    finally:
-        lib.rtcReleaseScene(scene)
-        lib.rtcReleaseDevice(device)
+        for make in (lambda: BVHTreeBaseline(mesh), lambda: WarpRefitBaseline(mesh, device),
+                     lambda: EmbreeBaseline(mesh, embree, refit=True),
+                     lambda: EmbreeBaseline(mesh, embree, refit=False)):
+            made.append(make())
+    except BaseException:
+        close_baselines(made, embree)
+        raise
+    return made, embree
 
 
-# Embree 4's C API (include/embree4/rtcore_*.h): the few calls and constants embree_bytes uses.
-_MONITOR = ctypes.CFUNCTYPE(ctypes.c_bool, ctypes.c_void_p, ctypes.c_ssize_t, ctypes.c_bool)
-_RTC_SCENE_FLAG_ROBUST = 1 << 2
-_RTC_GEOMETRY_TYPE_TRIANGLE = 0
-_RTC_BUFFER_TYPE_INDEX, _RTC_BUFFER_TYPE_VERTEX = 0, 1
-_RTC_FORMAT_UINT3, _RTC_FORMAT_FLOAT3 = 0x5003, 0x9003
-
-
-def _embree_api(path):
-    lib = ctypes.CDLL(path)
-    pointer = ctypes.c_void_p
-    for name, result, arguments in (
-            ("rtcNewDevice", pointer, [ctypes.c_char_p]),
-            ("rtcSetDeviceMemoryMonitorFunction", None, [pointer, _MONITOR, pointer]),
-            ("rtcNewScene", pointer, [pointer]),
-            ("rtcSetSceneFlags", None, [pointer, ctypes.c_int]),
-            ("rtcNewGeometry", pointer, [pointer, ctypes.c_int]),
-            ("rtcSetNewGeometryBuffer", pointer, [pointer, ctypes.c_int, ctypes.c_uint,
-                                                  ctypes.c_int, ctypes.c_size_t,
-                                                  ctypes.c_size_t]),
-            ("rtcAttachGeometry", ctypes.c_uint, [pointer, pointer]),
-            ("rtcCommitGeometry", None, [pointer]), ("rtcReleaseGeometry", None, [pointer]),
-            ("rtcCommitScene", None, [pointer]), ("rtcReleaseScene", None, [pointer]),
-            ("rtcReleaseDevice", None, [pointer])):
-        function = getattr(lib, name)
-        function.restype, function.argtypes = result, arguments
-    return lib
-
-
-def make_baselines(mesh, device="cpu"):
-    """Every baseline of ``BASELINES`` for the rest ``mesh`` (the Warp one on ``device``)."""
-    return [BVHTreeBaseline(mesh), WarpRefitBaseline(mesh, device), EmbreeBaseline(mesh)]
+def close_baselines(baselines, embree):
+    """Releases ``baselines``, then the Embree device their scenes live on."""
+    for baseline in baselines:
+        baseline.close()
+    embree.close()

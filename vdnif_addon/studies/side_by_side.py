@@ -1,13 +1,18 @@
 """Side by side with the classical baselines (DESIGN section 10, speed and size).
 
 Per pose, every classical baseline (``baselines``: Blender's BVHTree rebuilt, Warp's mesh BVH
-refit, Embree rebuilt) starts from Blender's evaluation of the deformed mesh, prepares its
-BVH and casts every ray; the neural path deforms the voxel corners and refits the entry BVH
-over the deformed cells, then renders with a trained model. On the rest pose, the
+refit, Embree refit and Embree rebuilt) starts from Blender's evaluation of the deformed
+mesh, reads its vertices, prepares its BVH and casts every ray; the neural path deforms the
+voxel corners and refits the entry BVH over the deformed cells, then renders with a trained
+model. A run has one thread setting (1, or every core): the Embree baselines build and cast
+on that many threads, torch runs on that many less the encoder's core (at least one); the
+BVHTree loop and Warp's CPU launches run on one whatever the setting, and each result says
+what ran on how many. On the rest pose, the
 deformation-aware walk (entry BVH + face intersections) is timed against the static DDA walk
 of the same rays: both are Warp kernels with the same segment buffers and launches. Every
 figure is timed alternately in one process after one untimed pass and reported as the median
-over repeats, so background load affects all sides alike.
+over repeats, so background load affects all sides alike. On CUDA the clock is read only
+after the device's queued work is done.
 
 Speeds of the neural render come only from a model file that predicts hits: its hit IoU
 against the true reference, on the same views in the same run, must reach
@@ -36,49 +41,29 @@ from ..inference.neural_render import neural_passes, predict_segments
 from ..kernels import runtime
 from ..model.network import IntersectionNetwork
 from ..passes import Passes
-from ..safe_io import atomic_path
 from ..settings import Heads, NetworkConfig
+from ..threads import ENCODER_CORES
 from ..tracing.rays import orbit_rays, orbit_viewpoints
 from ..tracing.references import true_reference
 from ..tracing.static_grid import StaticGrid
 from ..tracing.traverse import traverse
-from .baselines import BASELINES, THREADS, evaluation_s, make_baselines
-from .side_by_side_scenes import scene_name
+from .baselines import (
+    BASELINES,
+    available_cores,
+    close_baselines,
+    evaluation_s,
+    make_baselines,
+)
 
 NO_MODEL = "no model file for this scene (--model): only a trained model has speeds"
 # Keys of a pose record that time the neural render, withheld with its speed.
 RENDER_KEYS = ("neural_render_s", "neural_walk_s", "neural_network_s", "neural_segments")
 
 
-def suzanne_scene(level):
-    """Blender's Suzanne subdivided ``level`` times (Subdivision applied, flat faces) with the
-    procedural lattice rig, in an emptied file: the scenes of the triangle-count sweep."""
-    from ..blender.scenes import add_rig
-
-    bpy.ops.wm.read_homefile(use_empty=True)
-    bpy.ops.mesh.primitive_monkey_add()
-    obj = bpy.context.active_object
-    obj.name = f"Suzanne subdivided {level}"
-    subdivision = obj.modifiers.new("Subdivision", "SUBSURF")
-    subdivision.levels = level
-    bpy.ops.object.modifier_apply(modifier=subdivision.name)
-    return add_rig(obj, "lattice")
-
-
-
-def load_side_by_side_scene(name):
-    """The mesh object of a scene name in ``SCENES``, built in an emptied file."""
-    from ..blender.scenes import demo_scene
-
-    name = scene_name(name)
-    if name.startswith("suzanne-"):
-        return suzanne_scene(int(name.split("-")[1]))
-    return demo_scene(name)
-
-
-def compare_paths(obj, capture, model, width, height, repeats, progress=None, device="cpu"):
+def compare_paths(obj, capture, model, width, height, repeats, progress=None, device="cpu",
+                  threads=1):
     """Times the classical baselines and the neural path on every pose of ``capture`` of
-    ``obj``.
+    ``obj`` at the thread setting ``threads`` (see the module).
 
     ``model`` is a ``neural.SceneModel`` (or an object with its ``network``,
     ``albedo_table``, ``device``, ``path`` and ``variant``), or None: then the neural render
@@ -92,10 +77,15 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
     if width < 1 or height < 1:
         raise VDNIFError(f"side by side of '{obj.name}': image size {width}x{height} must be "
                          "at least 1x1")
+    if threads < 1:
+        raise VDNIFError(f"side by side of '{obj.name}': thread setting {threads} must be "
+                         "at least 1")
     device = runtime.device(device if model is None else model.device)
     viewpoints = orbit_viewpoints(len(capture.poses))
     static_grid = StaticGrid(capture.grid, device)
-    baselines = make_baselines(capture.mesh, device)
+    torch_threads = torch.get_num_threads()
+    torch.set_num_threads(torch_setting(threads))
+    baselines, embree = make_baselines(capture.mesh, device, threads)
     runs, checks = [], []
     try:
         with PosedObject(obj, capture, device) as posed_object:
@@ -110,29 +100,59 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
             # one untimed pass: kernels load (or compile, the first time on a machine), torch
             # and Embree set themselves up on first use, which no pose should be charged with
             pose_record(capture.poses[0], viewpoints[0])
-            _rest_record(rest, static_grid, model, capture.grid, *rest_rays[0])
+            _rest_record(rest, static_grid, model, capture.grid, *rest_rays[0], device)
             for repeat in range(repeats):
                 poses = []
                 for pose, view in zip(capture.poses, viewpoints):
                     record, check = pose_record(pose, view, check=repeat == 0)
                     poses.append(record)
                     checks += [check] if check is not None else []
-                rest_views = [_rest_record(rest, static_grid, model, capture.grid, *rays)
-                              for rays in rest_rays]
+                rest_views = [_rest_record(rest, static_grid, model, capture.grid, *rays,
+                                           device) for rays in rest_rays]
                 runs.append({"poses": poses, "rest": rest_views})
                 if progress is not None:
                     progress(repeat + 1, repeats)
         sizes = _bytes(capture, model, baselines)
+        thread_counts = {"setting": threads, "torch": torch.get_num_threads(),
+                         **{baseline.name: baseline.threads for baseline in baselines}}
+        packets = {"width": embree.width, "native": embree.native, "version": embree.version}
     finally:
-        for baseline in baselines:
-            baseline.close()
+        close_baselines(baselines, embree)
+        torch.set_num_threads(torch_threads)
     network = _model_info(model, capture, checks)
     if network["speed_withheld"] is not None:
         for run in runs:
             for record in run["poses"]:
                 for key in RENDER_KEYS:
                     record.pop(key, None)
-    return _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
+    result = _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
+    return dict(result, threads=thread_counts, embree=packets)
+
+
+def torch_setting(threads):
+    """Torch's threads at the thread setting ``threads``: the setting less the core the
+    Warp encoder runs on beside the MLP (``threads.ENCODER_CORES``), at least one."""
+    return max(1, threads - ENCODER_CORES)
+
+
+def thread_settings(values):
+    """The thread settings named by ``values`` ("1", "all" or a count), in order, each once;
+    'all' is every core this process may use."""
+    settings = []
+    for value in values:
+        count = available_cores() if value == "all" else int(value) if value.isdigit() else 0
+        if count < 1:
+            raise VDNIFError(f"thread setting '{value}' must be a count of at least 1 or 'all'")
+        settings += [] if count in settings else [count]
+    return settings
+
+
+def synchronize(device):
+    """Waits for the work queued on Warp ``device`` and torch's current CUDA device, so that
+    a clock read next counts it: CUDA runs kernels asynchronously (the CPU needs nothing)."""
+    if device.startswith("cuda"):
+        runtime.init().synchronize_device(device)
+        torch.cuda.synchronize()
 
 
 def _pose_record(obj, posed_object, baselines, model, pose, view, width, height, check):
@@ -148,7 +168,7 @@ def _pose_record(obj, posed_object, baselines, model, pose, view, width, height,
         for baseline in baselines:
             parts = baseline.rebuild(obj)
             record.update({f"{baseline.name}_{part}": s for part, s in parts.items()})
-            record[f"{baseline.name}_rebuild_s"] = sum(parts.values())
+            record[f"{baseline.name}_pose_s"] = sum(parts.values())
         deformer = posed_object.deformer
         record["neural_evaluate_s"] = 0.0 if deformer is None else evaluation_s(deformer.helper)
     record["neural_prepare_s"] = geometry.prepare_s
@@ -161,9 +181,11 @@ def _pose_record(obj, posed_object, baselines, model, pose, view, width, height,
         record[f"{baseline.name}_hits"] = int(casts[baseline.name][0].sum())
     predicted = None
     if model is not None:
+        synchronize(posed_object.device)
         start = time.perf_counter()
         predicted, stats = neural_passes(model.network, capture.grid, model.albedo_table,
                                          geometry.cells, origins, directions, model.device)
+        synchronize(posed_object.device)
         record["neural_render_s"] = time.perf_counter() - start
         record.update(neural_walk_s=stats["walk_s"], neural_network_s=stats["network_s"],
                       neural_segments=stats["segments"], neural_hits=int(predicted.hit.sum()))
@@ -174,14 +196,17 @@ def _pose_record(obj, posed_object, baselines, model, pose, view, width, height,
     return record, {"true": true, "casts": casts, "predicted": predicted}
 
 
-def _rest_record(rest, static_grid, model, grid, origins, directions):
+def _rest_record(rest, static_grid, model, grid, origins, directions, device):
     """Deformed walk vs static DDA walk of the same rest-pose rays, and with a model the
     network over every walked segment (the same segments for both walks)."""
+    synchronize(device)
     start = time.perf_counter()
     deformed = traverse(rest.cells, origins, directions)
+    synchronize(device)
     deformed_walk_s = time.perf_counter() - start
     start = time.perf_counter()
     static = static_grid.traverse(origins, directions)
+    synchronize(device)
     static_walk_s = time.perf_counter() - start
     match = (len(deformed) == len(static) and np.array_equal(deformed.ray, static.ray)
              and np.array_equal(deformed.cell, static.cell))
@@ -192,6 +217,7 @@ def _rest_record(rest, static_grid, model, grid, origins, directions):
         start = time.perf_counter()
         if len(static):
             predict_segments(model.network, grid, static, model.device)
+        synchronize(device)
         record["all_segments_network_s"] = time.perf_counter() - start
     return record
 
@@ -230,7 +256,6 @@ def _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
         "occupied_voxels": int(len(capture.grid.cells)), "poses": len(capture.poses),
         "width": width, "height": height, "rays": rays, "repeats": repeats,
         "network": network, "speed_withheld": network["speed_withheld"],
-        "threads": {"torch": torch.get_num_threads(), **THREADS},
         "median": medians, "rays_per_s": speeds,
         "ratios": {name: _median_or_none(values) for name, values in ratio_runs.items()},
         "ratio_runs": ratio_runs,
@@ -275,10 +300,10 @@ def _ratios():
     """name: (numerator keys, denominator keys), sums of per-pose / per-view means."""
     ratios = {}
     for b in BASELINES:
-        ratios[f"prepare_neural_over_{b}"] = (("neural_pose_s",), (f"{b}_rebuild_s",))
+        ratios[f"prepare_neural_over_{b}"] = (("neural_pose_s",), (f"{b}_pose_s",))
         ratios[f"render_neural_over_{b}"] = (("neural_render_s",), (f"{b}_cast_s",))
         ratios[f"pose_neural_over_{b}"] = (("neural_pose_s", "neural_render_s"),
-                                           (f"{b}_rebuild_s", f"{b}_cast_s"))
+                                           (f"{b}_pose_s", f"{b}_cast_s"))
     ratios["walk_deformed_over_static"] = (("deformed_walk_s",), ("static_walk_s",))
     ratios["walk_and_network_deformed_over_static"] = (
         ("deformed_walk_s", "all_segments_network_s"),
@@ -331,29 +356,11 @@ def machine(load_before, device):
                         if line.startswith("model name")), cpu)
     except OSError:
         pass
-    cores = (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-             else os.cpu_count())
     warp = runtime.init()
-    return {"cpu": cpu, "cores": cores, "load_before": load_before,
+    return {"cpu": cpu, "cores": available_cores(), "load_before": load_before,
             "load_after": os.getloadavg()[0],
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
             "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
             "warp": warp.__version__, "warp_device": runtime.device(device),
             "embreex": importlib.metadata.version("embreex"),
             "blender": bpy.app.version_string}
-
-
-def save_blends(scenes, folder):
-    """Saves each scene as ``folder/<scene>.blend`` for ``train --blend`` and says how."""
-    folder = pathlib.Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    for name in scenes:
-        obj = load_side_by_side_scene(name)
-        path = folder / f"{name}.blend"
-        with atomic_path(path, ".blend file") as temporary:    # copy: the session keeps its file
-            bpy.ops.wm.save_as_mainfile(filepath=str(pathlib.Path(temporary).resolve()),
-                                        check_existing=False, copy=True)
-            pathlib.Path(temporary + "1").unlink(missing_ok=True)  # Blender's backup of it
-        print(f"saved scene '{name}' ('{obj.name}') to {path}: train with "
-              f"train --blend {path} --object '{obj.name}'")
-    return 0

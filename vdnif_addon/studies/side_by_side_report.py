@@ -1,24 +1,25 @@
-"""What a ``side-by-side`` run reports: the markdown tables (one column per scene), the targets
-it is held to, the plots (rays/s and pose totals against triangle count; model bytes against
-mesh + BVH bytes) and its section of ``docs/performance.md``. Works on ``compare_paths``
-results alone (JSON-ready dicts): no bpy, no timing."""
+"""What a ``side-by-side`` run reports: the markdown tables (one column per scene, image size
+and thread setting), the targets it is held to and its section of ``docs/performance.md``
+(plots: ``side_by_side_plots``). Works on ``compare_paths`` results alone (JSON-ready dicts):
+no bpy, no timing."""
 
 import pathlib
 
 from ..inference.metrics import SPEED_MIN_HIT_IOU
-from ..safe_io import atomic_path
 from ..text import percent
-from .baselines import BASELINES
+from .baselines import BASELINES, BLENDER_THREADS
 from .report import write_section
+from .side_by_side_plots import SHORT, pose_total, write_plots
 
 SECTION = "side-by-side"
 TITLE = "Side by side with the classical baselines"
 PATHS = {"neural": "neural render (walk + network)",
-         "bvhtree": "Blender `BVHTree`: rebuild, `ray_cast` loop",
+         "bvhtree": "BVHTree (Python loop): `BVHTree.FromObject`, `ray_cast` loop",
          "warp": "Warp mesh BVH: refit, `mesh_query_ray` kernel",
-         "embree": "Embree (`embreex`): scene rebuilt, `run`"}
-SHORT = {"neural": "neural", "bvhtree": "BVHTree", "warp": "Warp refit", "embree": "Embree"}
-PLOTS = {"speed": "side-by-side-speed.png", "bytes": "side-by-side-bytes.png"}
+         "embree_refit": "Embree (C API): refit (`RTC_BUILD_QUALITY_REFIT`), packet casts",
+         "embree_rebuild": "Embree (C API): new build per pose, packet casts"}
+BUILD = {"bvhtree": "rebuild", "warp": "refit", "embree_refit": "refit",
+         "embree_rebuild": "rebuild"}
 
 # The targets of the neural path (DESIGN section 10), set for 2 CPU cores.
 TARGET_RAYS_PER_S = 0.5e6          # neural render, trained model, unseen poses, 256x256
@@ -80,7 +81,7 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
     targets, speeds, ratios, steps, agreement of the baselines, models, bytes, settings.
     ``command`` is the command that measured them, ``machine`` a ``machine_text`` line, and
     ``plots`` {"speed" | "bytes": relative path} the plot files to show."""
-    heads = " | ".join(f"{r['object']} ({r['triangles']:,} triangles)" for r in results)
+    heads = " | ".join(column_head(r) for r in results)
     rule = "|---" * (len(results) + 1) + "|"
 
     def table(title, rows):
@@ -102,18 +103,20 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
     lines += table("Targets (met / missed; n/a where the figure is withheld or not run).",
                    [(label, [f"{text}{_met(met)}" for text, met in cells])
                     for label, *cells in _transpose_targets(results)])
-    speed_rows = [(f"{PATHS[name]}, rays/s ({_threads(first, name)})",
-                   ["n/a" if r["rays_per_s"][name] is None else f"{r['rays_per_s'][name]:,.0f}"
-                    for r in results]) for name in ("neural", *BASELINES)]
+    speed_rows = [(f"{PATHS[name]}, rays/s", ["n/a" if r["rays_per_s"][name] is None
+                                              else f"{r['rays_per_s'][name]:,.0f}"
+                                              for r in results])
+                  for name in ("neural", *BASELINES)]
+    speed_rows += [(f"{SHORT[name]}: threads", [threads_text(r, name) for r in results])
+                   for name in ("neural", *BASELINES)]
     total_rows = [("neural pose total: preparation + render", [
-        "n/a" if r["median"].get("neural_render_s") is None else
-        f"{1e3 * (r['median']['neural_pose_s'] + r['median']['neural_render_s']):.1f}"
+        "n/a" if pose_total(r, "neural") is None else f"{pose_total(r, 'neural'):.1f}"
         for r in results])]
-    total_rows += [(f"{SHORT[b]} pose total: {'refit' if b == 'warp' else 'rebuild'} + casts",
-                    [f"{1e3 * (r['median'][f'{b}_rebuild_s'] + r['median'][f'{b}_cast_s']):.1f}"
-                     for r in results]) for b in BASELINES]
+    total_rows += [(f"{SHORT[b]} pose total: evaluation, "
+                    f"{'' if b == 'bvhtree' else 'read, '}{BUILD[b]}, casts",
+                    [f"{pose_total(r, b):.1f}" for r in results]) for b in BASELINES]
     lines += table("Speed: rays per second of the casts or the neural render, median over "
-                   "repeats.", speed_rows)
+                   "repeats, and the threads each step ran on.", speed_rows)
     lines += table("Pose total, milliseconds per pose (Blender's evaluation included on "
                    "every side).", total_rows)
     ratio_rows = []
@@ -166,28 +169,39 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
     return lines
 
 
-STEP_ROWS = (
-    ("BVHTree: evaluate the mesh's modifiers", "bvhtree_evaluate_s"),
-    ("BVHTree: `BVHTree.FromObject`", "bvhtree_build_s"),
-    ("BVHTree: casts (`ray_cast` loop)", "bvhtree_cast_s"),
-    ("Warp: evaluate the mesh's modifiers", "warp_evaluate_s"),
-    ("Warp: read the evaluated vertices", "warp_read_s"),
-    ("Warp: copy in + `refit`", "warp_refit_s"),
-    ("Warp: casts (`mesh_query_ray` kernel)", "warp_cast_s"),
-    ("Embree: evaluate the mesh's modifiers", "embree_evaluate_s"),
-    ("Embree: read the evaluated vertices", "embree_read_s"),
-    ("Embree: new scene, `TriangleMesh` (the binding's copy)", "embree_copy_s"),
-    ("Embree: commit (BVH build)", "embree_commit_s"),
-    ("Embree: casts (`run`)", "embree_cast_s"),
-    ("neural: evaluate the corner helper's modifiers", "neural_evaluate_s"),
-    ("neural: read corners + refit cells and entry BVH (`prepare_s`)", "neural_prepare_s"),
-    ("neural: render (walk + network)", "neural_render_s"),
-    ("neural render: walk (seconds inside the render)", "neural_walk_s"),
-    ("neural render: network (seconds inside the render)", "neural_network_s"),
-    ("rest view: deformed walk (`tracing.traverse.traverse`)", "deformed_walk_s"),
-    ("rest view: static DDA walk (`tracing.static_grid.StaticGrid`)", "static_walk_s"),
-    ("rest view: network over every walked segment", "all_segments_network_s"),
-)
+def _step_rows():
+    """(label, record key) of every step the steps table shows."""
+    casts = {"bvhtree": "`ray_cast` loop", "warp": "`mesh_query_ray` kernel",
+             "embree_refit": "packets", "embree_rebuild": "packets"}
+    builds = {"bvhtree": "`BVHTree.FromObject`", "warp": "copy in + `refit`",
+              "embree_refit": "commit (refit)", "embree_rebuild": "commit (new build)"}
+    rows = []
+    for b in BASELINES:
+        rows += [(f"{SHORT[b]}: evaluate the mesh's modifiers", f"{b}_evaluate_s")]
+        rows += [] if b == "bvhtree" else [(f"{SHORT[b]}: read the evaluated vertices",
+                                            f"{b}_read_s")]
+        rows += [(f"{SHORT[b]}: {builds[b]}", f"{b}_build_s"),
+                 (f"{SHORT[b]}: casts ({casts[b]})", f"{b}_cast_s")]
+    return (*rows,
+            ("neural: evaluate the corner helper's modifiers", "neural_evaluate_s"),
+            ("neural: read corners + refit cells and entry BVH (`prepare_s`)",
+             "neural_prepare_s"),
+            ("neural: render (walk + network)", "neural_render_s"),
+            ("neural render: walk (seconds inside the render)", "neural_walk_s"),
+            ("neural render: network (seconds inside the render)", "neural_network_s"),
+            ("rest view: deformed walk (`tracing.traverse.traverse`)", "deformed_walk_s"),
+            ("rest view: static DDA walk (`tracing.static_grid.StaticGrid`)", "static_walk_s"),
+            ("rest view: network over every walked segment", "all_segments_network_s"))
+
+
+STEP_ROWS = _step_rows()
+
+
+def column_head(result):
+    """A table column's head: the mesh, the image size and the thread setting."""
+    return (f"{result['object']} ({result['triangles']:,} triangles), "
+            f"{result['width']}x{result['height']}, {result['threads']['setting']} "
+            "thread setting")
 
 
 def _match_text(result):
@@ -202,37 +216,48 @@ def _match_text(result):
 
 
 def _what_is_timed(result):
+    embree = result["embree"]
+    native = ("native on this CPU" if embree["native"]
+              else "not native on this CPU: Embree loops over their rays")
     return (
         f"Per repeat, each of {result['poses']} unseen poses (evaluation poses, disjoint from "
         "the model's training poses) is seen from an orbit camera of "
         f"{result['width']}x{result['height']} rays in the object's local space. Every "
         "classical baseline starts from Blender's evaluation of the pose (the object is "
-        "tagged, then `evaluated_depsgraph_get()`): **BVHTree** rebuilds with "
+        "tagged, then `evaluated_depsgraph_get()`): **BVHTree (Python loop)** rebuilds with "
         "`BVHTree.FromObject` and casts in a Python loop of `ray_cast` (no batch API); "
         "**Warp** reads the evaluated vertices (`foreach_get`), copies them into its mesh BVH "
         "built once on the rest triangles, refits it and casts with one `mesh_query_ray` "
-        "kernel; **Embree** reads the vertices, builds a new robust scene (`embreex`: "
-        "`EmbreeScene`, `TriangleMesh`, the commit on the first `run`) and casts with `run`, "
-        "the rays split over two threads (`TriangleMesh` copies the mesh element by element "
-        "through Python indexing: its 'copy' step is the binding's cost, the 'commit' step "
-        "Embree's own build). The **neural** path re-evaluates the corner "
+        "kernel; **Embree** (its C API through ctypes, on the library `embreex` ships) reads "
+        "the vertices into the vertex array it shares with Embree, then commits: **Embree "
+        "refit** is a dynamic scene of build quality LOW whose mesh has build quality "
+        "`RTC_BUILD_QUALITY_REFIT` (Embree refits it, as Cycles does for a deforming mesh in "
+        "the viewport), **Embree rebuild** a static scene that builds a new BVH on each "
+        "commit; both are robust (watertight) and cast "
+        f"`rtcIntersect{embree['width']}` packets ({native}) split over the setting's "
+        "threads. The **neural** path re-evaluates the corner "
         "helper's modifiers, reads the deformed corners and refits the cells and the entry "
         "BVH (its preparation), then renders (`inference.neural_render.neural_passes`: walk "
-        "+ network in waves, a ray stops at its first predicted hit). On the rest pose, the "
+        "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
+        "Embree builds and casts on N threads, torch runs the MLP on N - 1 (at least one) "
+        "beside the Warp encoder's thread; the `ray_cast` loop and Warp's CPU launches run "
+        "on one thread at any setting (a Warp CPU launch is serial); Blender's evaluation "
+        "and `BVHTree.FromObject` run on Blender's own threads. On the rest pose, the "
         "deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
-        "(`tracing.static_grid.StaticGrid`) of the "
-        "same rays, and the network over every walked segment is added to both. Each ratio "
-        "is computed within one repeat from the per-pose means of both sides, timed "
-        "alternately in one process after one untimed pass.")
+        "(`tracing.static_grid.StaticGrid`) of the same rays, and the network over every "
+        "walked segment is added to both. Each ratio is computed within one repeat from the "
+        "per-pose means of both sides, timed alternately in one process after one untimed "
+        "pass.")
 
 
 def _withheld_lines(results):
-    withheld = [r for r in results if r["speed_withheld"] is not None]
+    withheld = dict.fromkeys((r["object"], r["speed_withheld"]) for r in results
+                             if r["speed_withheld"] is not None)
     if not withheld:
         return []
     return [f"Neural speeds n/a (only a trained model whose hit IoU against the true "
             f"reference reaches {SPEED_MIN_HIT_IOU} on these views has speeds):", "",
-            *(f"- {r['object']}: {r['speed_withheld']}." for r in withheld), ""]
+            *(f"- {name}: {reason}." for name, reason in withheld), ""]
 
 
 def _transpose_targets(results):
@@ -245,11 +270,19 @@ def _met(met):
     return "" if met is None else (" (met)" if met else " (**missed**)")
 
 
-def _threads(result, name):
+def threads_text(result, name):
+    """On how many threads each step of path ``name`` ran in ``result``."""
+    threads = result["threads"]
     if name == "neural":
-        return (f"torch's MLP on {result['threads']['torch']} thread(s), the Warp encoder and "
-                "the walk on one each beside it")
-    return f"{result['threads'][name]} thread(s)"
+        return (f"MLP on {threads['torch']} torch thread(s), the Warp encoder and the walk on "
+                "one each beside it")
+    counts = threads[name]
+
+    def count(value):
+        return ("Blender's threads" if value == BLENDER_THREADS
+                else f"{value} thread(s)" if isinstance(value, int) else str(value))
+
+    return f"{BUILD[name]} on {count(counts['build'])}, casts on {count(counts['casts'])}"
 
 
 def _agreement_text(agreement):
@@ -290,99 +323,6 @@ def machine_text(machine):
             f"{machine['warp']} on {machine['warp_device']} (a CPU launch runs on one "
             f"thread); Embree through embreex {machine['embreex']}; Blender "
             f"{machine['blender']}.")
-
-
-def write_plots(results, folder):
-    """Writes the speed and bytes plots of ``results`` into ``folder``; returns
-    {"speed" | "bytes": path}. The Suzanne sweep (one mesh subdivided) is drawn as lines,
-    any other mesh as hollow markers on a dotted line at its triangle count."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib import pyplot
-
-    folder = pathlib.Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    results = sorted(results, key=lambda r: r["triangles"])
-    paths = {name: folder / file for name, file in PLOTS.items()}
-    styles = {"neural": ("C3", "o"), "bvhtree": ("C0", "s"), "warp": ("C2", "^"),
-              "embree": ("C1", "D")}
-
-    figure, axes = pyplot.subplots(1, 2, figsize=(12, 5))
-    for name in ("neural", *BASELINES):
-        for ax, figure_of in ((axes[0], lambda r, n=name: r["rays_per_s"][n]),
-                              (axes[1], lambda r, n=name: _pose_total(r, n))):
-            _series(ax, results, figure_of, *styles[name], SHORT[name])
-    for ax, label in ((axes[0], "rays/s (casts or neural render)"),
-                      (axes[1], "pose total, ms (preparation + render)")):
-        _axes(ax, results, label)
-    first = results[0]
-    withheld = [r["object"] for r in results if r["rays_per_s"]["neural"] is None]
-    figure.suptitle(f"{first['width']}x{first['height']} rays per view, unseen poses, "
-                    "medians over repeats" + (f"; neural n/a (no model that predicts hits) "
-                                              f"on {', '.join(withheld)}" if withheld else ""),
-                    fontsize=9)
-    figure.tight_layout()
-    with atomic_path(paths["speed"], "plot") as temporary:
-        figure.savefig(temporary, dpi=120)
-    pyplot.close(figure)
-
-    figure, ax = pyplot.subplots(figsize=(7.5, 5))
-    _series(ax, results, lambda r: r["bytes"]["model"], "C3", "o", "model")
-    _series(ax, results, lambda r: r["bytes"]["mesh"], "0.4", "x", "mesh alone")
-    for name in BASELINES:
-        _series(ax, results, lambda r, n=name: r["bytes"]["mesh"] + r["bytes"]["bvh"][n],
-                *styles[name], f"mesh + {SHORT[name]} BVH")
-    _axes(ax, results, "bytes")
-    figure.tight_layout()
-    with atomic_path(paths["bytes"], "plot") as temporary:
-        figure.savefig(temporary, dpi=120)
-    pyplot.close(figure)
-    return paths
-
-
-def _pose_total(result, name):
-    """Milliseconds per pose of a path (preparation + render, or rebuild / refit + casts),
-    None where not measured or withheld."""
-    median = result["median"]
-    keys = (("neural_pose_s", "neural_render_s") if name == "neural"
-            else (f"{name}_rebuild_s", f"{name}_cast_s"))
-    if any(median.get(key) is None for key in keys):
-        return None
-    return 1e3 * sum(median[key] for key in keys)
-
-
-def _sweep(result):
-    """Whether ``result`` belongs to the Suzanne subdivision sweep (drawn as a line)."""
-    return result.get("scene", "").startswith("suzanne-")
-
-
-def _series(ax, results, figure_of, color, marker, label):
-    """One path's figures against triangles: a line over the sweep, hollow markers for
-    the other meshes; nothing where the figure is None."""
-    points = [(r["triangles"], figure_of(r), _sweep(r)) for r in results
-              if figure_of(r) is not None]
-    sweep = [(t, v) for t, v, in_sweep in points if in_sweep]
-    others = [(t, v) for t, v, in_sweep in points if not in_sweep]
-    if sweep:
-        ax.plot(*zip(*sweep), marker=marker, color=color, label=label)
-    if others:
-        ax.plot(*zip(*others), linestyle="none", marker=marker, color=color,
-                markerfacecolor="none", label=None if sweep else label)
-
-
-def _axes(ax, results, label):
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("triangles (lines: Suzanne subdivided; hollow: other meshes)")
-    ax.set_ylabel(label)
-    for result in results:
-        if not _sweep(result):
-            ax.axvline(result["triangles"], linestyle=":", color="0.6", linewidth=0.8)
-            ax.text(result["triangles"], 1.0, f" {result['object']}", rotation=90, fontsize=7,
-                    va="top", ha="right", transform=ax.get_xaxis_transform())
-    ax.grid(True, which="major", alpha=0.3)
-    ax.legend(fontsize=7)
 
 
 def write_performance(performance, results, command, machine):
