@@ -162,7 +162,8 @@ def add_device_option(parser, default=DEFAULT_DEVICE):
 
 def add_training_options(parser):
     parser.add_argument("--steps", type=int, default=RECIPE.steps, metavar="N",
-                        help=f"optimizer steps (default {RECIPE.steps})")
+                        help=f"optimizer steps at most; training stops sooner once the "
+                        f"held-out poses stop improving (default {RECIPE.steps})")
     parser.add_argument("--batch", type=int, default=RECIPE.batch_size, metavar="B",
                         help=f"segments per step and process (default {RECIPE.batch_size})")
     add_device_option(parser)

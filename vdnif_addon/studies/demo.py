@@ -20,13 +20,13 @@ from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..model.variants import choose_variant
 from ..safe_io import write_json_atomic, write_text_atomic
-from ..settings import DEMO_STEPS, RECIPE, PoseSpec
+from ..settings import RECIPE, PoseSpec
 from .report import demo_markdown
 
-SIZES = {   # full: the main job, the default recipe but DEMO_STEPS, at the recipe's
-    # resolution of the scene's mesh (None); quick: tests
+SIZES = {   # full: the main job, the default recipe at the resolution of the scene's mesh
+    # (None); quick: tests
     "full": dict(resolution=None, poses=RECIPE.poses,
-                 rays_per_pose=RECIPE.rays_per_pose, steps=DEMO_STEPS, eval_poses=8,
+                 rays_per_pose=RECIPE.rays_per_pose, steps=RECIPE.steps, eval_poses=8,
                  width=256, height=256, overrides={}),
     # quick: with every task at weight 1 from the start (TrainConfig.weighting_start), half
     # these steps leave the arm's model short of the hits tests/test_batch.py asks for.
