@@ -21,9 +21,21 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
 from vdnif_addon.threads import use_threads  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402
+
+
+def parse_setting(item):
+    """``KEY=VALUE`` (VALUE as JSON, else as text) -> (key, value)."""
+    key, equals, value = item.partition("=")
+    if not equals or not key:
+        raise VDNIFError(f"setting '{item}' is not KEY=VALUE")
+    try:
+        return key, json.loads(value)
+    except ValueError:
+        return key, value
 
 
 def main():
@@ -37,7 +49,7 @@ def main():
     parser.add_argument("--seed", type=int, default=0, help="test pose seed")
     parser.add_argument("--json", required=True, help="write the figures here")
     args = parser.parse_args()
-    overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
+    overrides = dict(parse_setting(item) for item in args.set)
     threads = use_threads(args.threads)
     with tempfile.TemporaryDirectory() as scratch:
         model = pathlib.Path(scratch) / "model.vdnif"
@@ -70,4 +82,7 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except VDNIFError as error:
+        sys.exit(f"time_to_clean: error: {error}")
