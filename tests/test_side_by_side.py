@@ -141,7 +141,7 @@ def test_every_row_says_how_many_threads_it_used(tiny):
     for key, setting in (("none", 1), ("none, 2 threads", 2)):
         result = results[key]
         assert result["threads"] == {
-            "setting": setting, "torch": 1, "bvhtree": {"build": blender, "casts": 1},
+            "setting": setting, "torch": 1, "encoder": setting, "bvhtree": {"build": blender, "casts": 1},
             "warp": {"build": 1, "casts": 1},
             "embree_refit": {"build": setting, "casts": setting},
             "embree_rebuild": {"build": setting, "casts": setting}}

@@ -5,8 +5,9 @@ refit, Embree refit and Embree rebuilt) starts from Blender's evaluation of the 
 mesh, reads its vertices, prepares its BVH and casts every ray; the neural path deforms the
 voxel corners and refits the entry BVH over the deformed cells, then renders with a trained
 model. A run has one thread setting (1, or every core): the Embree baselines build and cast
-on that many threads, torch runs on that many less the encoder's core (at least one); the
-BVHTree loop and Warp's CPU launches run on one whatever the setting, and each result says
+on that many threads, torch runs on that many less the encoder's core (at least one) and the
+encoder's launches are split over that many; the BVHTree loop and Warp's other CPU launches
+run on one whatever the setting, and each result says
 what ran on how many. On the rest pose, the
 deformation-aware walk (entry BVH + face intersections) is timed against the static DDA walk
 of the same rays: both are Warp kernels with the same segment buffers and launches. Every
@@ -33,6 +34,7 @@ import bpy
 import numpy as np
 import torch
 
+from .. import threads as thread_use
 from ..blender.pose_geometry import PosedObject
 from ..blender.poses import posed
 from ..errors import VDNIFError
@@ -85,6 +87,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
     static_grid = StaticGrid(capture.grid, device)
     torch_threads = torch.get_num_threads()
     torch.set_num_threads(torch_setting(threads))
+    thread_use.use_encoder_threads(threads)
     baselines, embree = make_baselines(capture.mesh, device, threads)
     runs, checks = [], []
     try:
@@ -114,11 +117,13 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
                     progress(repeat + 1, repeats)
         sizes = _bytes(capture, model, baselines)
         thread_counts = {"setting": threads, "torch": torch.get_num_threads(),
+                         "encoder": thread_use.encoder_threads(),
                          **{baseline.name: baseline.threads for baseline in baselines}}
         packets = {"width": embree.width, "native": embree.native, "version": embree.version}
     finally:
         close_baselines(baselines, embree)
         torch.set_num_threads(torch_threads)
+        thread_use.use_encoder_threads(None)
     network = _model_info(model, capture, checks)
     if network["speed_withheld"] is not None:
         for run in runs:

@@ -240,9 +240,10 @@ def _what_is_timed(result):
         "BVH (its preparation), then renders (`inference.neural_render.neural_passes`: walk "
         "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
         "Embree builds and casts on N threads, torch runs the MLP on N - 1 (at least one) "
-        "beside the Warp encoder's thread; the `ray_cast` loop and Warp's CPU launches run "
-        "on one thread at any setting (a Warp CPU launch is serial); Blender's evaluation "
-        "and `BVHTree.FromObject` run on Blender's own threads. On the rest pose, the "
+        "and the Warp encoder's launches are split over N; the `ray_cast` loop and Warp's "
+        "other CPU launches run on one thread at any setting (a Warp CPU launch is serial); "
+        "Blender's evaluation and `BVHTree.FromObject` run on Blender's own threads. "
+        "On the rest pose, the "
         "deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
         "(`tracing.static_grid.StaticGrid`) of the same rays, and the network over every "
         "walked segment is added to both. Each ratio is computed within one repeat from the "
@@ -274,8 +275,8 @@ def threads_text(result, name):
     """On how many threads each step of path ``name`` ran in ``result``."""
     threads = result["threads"]
     if name == "neural":
-        return (f"MLP on {threads['torch']} torch thread(s), the Warp encoder and the walk on "
-                "one each beside it")
+        return (f"MLP on {threads['torch']} torch thread(s), the Warp encoder's launches split "
+                f"over {threads.get('encoder', 1)}, the walk on one")
     counts = threads[name]
 
     def count(value):
