@@ -85,20 +85,11 @@ def test_oracle_network_renders_the_embedded_reference():
     # the default waves (k growing) give the same passes; segments past a ray's hit within
     # its last wave are evaluated too, never more than the walk has
     again, more = render.neural_passes(OracleNetwork(mesh, grid), grid, mesh.albedo_table(),
-                                       cells, origins, directions, min_batch=1)
+                                       cells, origins, directions)
     for name in ("hit", "distance", "normal", "albedo", "material"):
         np.testing.assert_array_equal(getattr(again, name), getattr(predicted, name))
     assert stats["segments"] <= more["segments"] < len(segments)
     assert more["waves"] < stats["waves"]
-    # a minimum batch above the rays left walks more segments per ray in fewer, bigger waves
-    # (here every ray all its segments in one): the same passes
-    again, bigger = render.neural_passes(OracleNetwork(mesh, grid), grid, mesh.albedo_table(),
-                                         cells, origins, directions,
-                                         min_batch=len(origins) * max(render.WAVE_SEGMENTS))
-    for name in ("hit", "distance", "normal", "albedo", "material"):
-        np.testing.assert_array_equal(getattr(again, name), getattr(predicted, name))
-    assert more["segments"] <= bigger["segments"] <= len(segments)
-    assert bigger["waves"] < more["waves"]
 
 
 class RandomNetwork:

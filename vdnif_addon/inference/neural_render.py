@@ -54,10 +54,6 @@ if TYPE_CHECKING:
 # cells: k grows. Measured on a trained bunny, 256x256: k = 1 throughout takes 21 waves and
 # 44.7 k segments, this schedule 6 waves and 49.6 k (k = 2, 4, 8, 16: 4 waves, 56.4 k).
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
-# A wave of few rays walks more segments per ray, up to the schedule's last k, so that a
-# network call holds at least this many segments: the call's fixed cost then weighs on
-# more segments, and the rays left after a few waves mostly pass through anyway.
-MIN_WAVE_BATCH = 8192
 
 
 def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:
@@ -70,8 +66,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
                   device: str | torch.device = "cpu", schedule: Sequence[int] = WAVE_SEGMENTS,
                   overlap: bool | None = None,
-                  max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
-                  min_batch: int = MIN_WAVE_BATCH) -> tuple[Passes, dict[str, Any]]:
+                  max_wave_segments: int = limits.MAX_WAVE_SEGMENTS
+                  ) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
@@ -84,9 +80,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
     the network evaluates the other lane's wave; by default only on the CPU with a core that
     torch's threads leave free (else the walk would slow the network down as much as it
-    saves). A wave walks at most ``max_wave_segments`` segments, and k segments per ray past
-    the schedule's where that keeps a network call to at least ``min_batch`` segments
-    (``MIN_WAVE_BATCH``). Running out of memory is a VDNIFError saying what to lower.
+    saves). A wave walks at most ``max_wave_segments`` segments. Running out of memory is a
+    VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
     if weights is not None and runtime.device(weights.device) != runtime.device(device):
@@ -105,8 +100,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
           _worker(overlap) as pool):
         walk = RayWalk(cells, origins, directions, lanes=2 if overlap else 1)
-        waves = _Waves(network, grid, walk, schedule, albedo_table, stats, max_wave_segments,
-                       min_batch)
+        waves = _Waves(network, grid, walk, schedule, albedo_table, stats, max_wave_segments)
         ready = {}                      # lane -> segments walked, awaiting the network
         while True:
             to_walk = [i for i, lane in enumerate(walk.lanes) if lane.count and i not in ready]
@@ -146,9 +140,8 @@ class _Waves:
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
-                 stats: dict[str, Any], max_segments: int, min_batch: int) -> None:
+                 stats: dict[str, Any], max_segments: int) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
-        self.min_batch = min_batch
         self.stats, self.device, self.max_segments = stats, walk.device, max_segments
         self.passes = kernel.empty_passes(walk.rays, self.device)
         self.first = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32, device=self.device)
@@ -166,9 +159,8 @@ class _Waves:
         pass ``max_segments``; returns how many segments it walked."""
         clock = time.perf_counter()
         rays = self.walk.lanes[lane].count
-        k = max(wave_segments(self.waves[lane], self.schedule),
-                min(-(-self.min_batch // rays), max(self.schedule)))
-        per_wave = max(1, min(k, self.max_segments // rays))
+        per_wave = max(1, min(wave_segments(self.waves[lane], self.schedule),
+                              self.max_segments // rays))
         self.waves[lane] += 1
         need = min(rays * per_wave, self.max_segments)
         if self.buffers[lane] is None or need > self.buffers[lane].capacity:
