@@ -74,3 +74,31 @@ def test_small_batches_and_cuda_stay_one_launch(encoder_threads):
     assert launches.parts("cpu", launches.MIN_SLICE_POINTS * 2 - 1) == 1
     assert launches.parts("cpu", launches.MIN_SLICE_POINTS * 100) == 8
     assert launches.parts("cuda:0", launches.MIN_SLICE_POINTS * 100) == 1
+
+
+def test_the_render_keeps_the_encoder_on_one_thread_beside_its_walk(encoder_threads):
+    """With the waves overlapping (the walk of one lane on the other core) the encoder is not
+    split; without overlap, and after the render, it is split as set."""
+    import numpy as np
+    from test_render import RandomNetwork, bent_ball
+
+    from vdnif_addon.inference import neural_render as render
+    from vdnif_addon.kernels.cells import DeviceCells
+    from vdnif_addon.tracing import rays
+
+    class Recording(RandomNetwork):
+        def predict(self, *args, **kwargs):
+            seen.append(threads.encoder_threads())
+            return super().predict(*args, **kwargs)
+
+    mesh, grid, bend = bent_ball()
+    cells = DeviceCells(grid, corners=bend)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.0, 0.0, 1.0]),
+                                          24, 16)
+    encoder_threads(4)
+    for overlap, expected in ((True, 1), (False, 4)):
+        seen = []
+        render.neural_passes(Recording(), grid, np.ones((2, 3), np.float32), cells, origins,
+                             directions, overlap=overlap)
+        assert seen and set(seen) == {expected}
+        assert threads.encoder_threads() == 4

@@ -10,8 +10,10 @@ a descheduled thread, slowing inference and training many times (DESIGN section 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 ENCODER_CORES = 1
@@ -54,6 +56,19 @@ def encoder_threads() -> int:
 def use_encoder_threads(count: int | None) -> None:
     """Splits the encoder's CPU launches over ``count`` threads (None: every core)."""
     _encoder["threads"] = count
+
+
+@contextlib.contextmanager
+def encoder_on_one_thread() -> Iterator[None]:
+    """Inside, the encoder's launches run on one thread: for the renderer, whose walk runs on
+    the other core beside the encoder (split there, the encoder's slices and the walk took
+    turns on the cores and the bunny's render lost about a fifth of its rays/s)."""
+    before = _encoder["threads"]
+    _encoder["threads"] = 1
+    try:
+        yield
+    finally:
+        _encoder["threads"] = before
 
 
 def encoder_pool() -> ThreadPoolExecutor:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from .. import limits
+from .. import limits, threads
 from ..errors import VDNIFError
 from ..kernels import launches, runtime
 from ..kernels import render as kernel
@@ -243,11 +243,13 @@ def _core_to_spare(device: str | torch.device) -> bool:
 
 @contextlib.contextmanager
 def _worker(overlap: bool) -> Iterator[ThreadPoolExecutor | None]:
-    """One worker thread for the walk when waves overlap, else None."""
+    """One worker thread for the walk when waves overlap, else None; the encoder then keeps
+    to one thread beside it."""
     if not overlap:
         yield None
         return
-    with ThreadPoolExecutor(1, thread_name_prefix="vdnif-walk") as pool:
+    with (ThreadPoolExecutor(1, thread_name_prefix="vdnif-walk") as pool,
+          threads.encoder_on_one_thread()):
         yield pool
 
 

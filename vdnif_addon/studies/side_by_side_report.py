@@ -240,7 +240,8 @@ def _what_is_timed(result):
         "BVH (its preparation), then renders (`inference.neural_render.neural_passes`: walk "
         "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
         "Embree builds and casts on N threads, torch runs the MLP on N - 1 (at least one) "
-        "and the Warp encoder's launches are split over N; the `ray_cast` loop and Warp's "
+        "and the Warp encoder's launches over N where no walk runs beside them; the `ray_cast` "
+        "loop and Warp's "
         "other CPU launches run on one thread at any setting (a Warp CPU launch is serial); "
         "Blender's evaluation and `BVHTree.FromObject` run on Blender's own threads. "
         "On the rest pose, the "
@@ -275,8 +276,9 @@ def threads_text(result, name):
     """On how many threads each step of path ``name`` ran in ``result``."""
     threads = result["threads"]
     if name == "neural":
-        return (f"MLP on {threads['torch']} torch thread(s), the Warp encoder's launches split "
-                f"over {threads.get('encoder', 1)}, the walk on one")
+        return (f"MLP on {threads['torch']} torch thread(s); the Warp encoder on one beside the "
+                f"walk's, split over {threads.get('encoder', 1)} where the render has no walk "
+                "beside it")
     counts = threads[name]
 
     def count(value):
