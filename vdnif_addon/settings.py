@@ -355,6 +355,12 @@ AUTO_VARIANT = "auto"
 
 # --------------------------------------------------------------------------- poses
 
+DEVELOPMENT_POSES, TEST_POSES = "development", "test"
+POSE_SETS = {DEVELOPMENT_POSES: 1_000_003, TEST_POSES: 2_000_029}
+"""Evaluation pose set -> its random seed's offset from the training seed. Development poses
+serve every choice (recipe, threshold grids, presets, bench points, stopping rules); test
+poses serve none: the reported tables, the demo's report and ``evaluate`` alone."""
+
 
 @dataclass(frozen=True)
 class PoseSpec:
