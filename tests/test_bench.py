@@ -12,6 +12,7 @@ from vdnif_addon.errors import VDNIFError
 from vdnif_addon.inference.metrics import speed_withheld
 from vdnif_addon.presets import PRESET_ERROR, PRESETS_FILE, SETTINGS, load_presets
 from vdnif_addon.safe_io import exclusive_lock
+from vdnif_addon.settings import DEVELOPMENT_POSES
 from vdnif_addon.studies.pareto import derive_presets, pareto_front
 
 
@@ -241,8 +242,13 @@ def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rou
         return report, [len(calls)]
 
     monkeypatch.setattr(bench, "evaluate_file", evaluate_file)
-    monkeypatch.setattr(bench, "evaluation_poses", lambda obj, resolution, spec, count:
-                        SimpleNamespace(grid=SimpleNamespace(voxel_size=0.1), mesh=None))
+    pose_sets = []
+
+    def evaluation_poses(obj, resolution, spec, count, pose_set):
+        pose_sets.append(pose_set)
+        return SimpleNamespace(grid=SimpleNamespace(voxel_size=0.1), mesh=None)
+
+    monkeypatch.setattr(bench, "evaluation_poses", evaluation_poses)
     monkeypatch.setattr(bench, "finished_point", lambda path, model, size, point:
                         {"steps": 10, "converged": True})
     monkeypatch.setattr(bench, "concatenated", lambda views: views)
@@ -250,6 +256,8 @@ def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rou
     monkeypatch.setattr(bench, "_add_common", lambda rows, runs, mesh: common.append(runs))
     rows = bench._evaluate_points(None, None, size, points, tmp_path, "cpu")
     assert calls == [0, 1] * 5
+    # the presets and the front are choices: made on the development poses alone
+    assert pose_sets == [DEVELOPMENT_POSES] * 2
     assert rows[0]["render_rays_per_s"] == 3.0 and rows[1]["render_rays_per_s"] is None
     # the errors and the views compared on the common pixels are the first round's
     assert rows[0]["vs_true_distance_mae"] == pytest.approx(0.1)

@@ -36,7 +36,6 @@ def test_per_pose_experiment_quick(tmp_path):
                                                                    "arm/lsnif per pose"}
     for run in runs.values():
         assert {"vs_true", "vs_embedded", "model_bytes"} <= set(run)
-        assert 0 <= run["vs_true"]["hit_iou"] <= 1
     # two per-pose models cost more bytes and training than the one proposed model
     assert runs["arm/lsnif per pose"]["model_bytes"] > runs["arm/proposed"]["model_bytes"]
     assert runs["arm/proposed"]["unseen_poses"] is True

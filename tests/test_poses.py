@@ -76,7 +76,8 @@ def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_pose
     poses, capture = core("blender.poses"), core("blender.capture_scene").capture
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
-    unlucky = poses.PoseSpec(count=3, seed=poses.EVALUATION_SEED_OFFSET)
+    offset = poses.POSE_SETS[poses.TEST_POSES]       # evaluation's default set
+    unlucky = poses.PoseSpec(count=3, seed=offset)
     trained = capture(box, 8, unlucky, deform_corners=False).poses
     evaluated = core("blender.jobs").evaluation_poses(box, 8, poses.PoseSpec(count=5),
                                                       trained=trained)
@@ -84,7 +85,7 @@ def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_pose
     assert len(evaluated.poses) == 5
     assert not keys & {poses.pose_key(p) for p in evaluated.poses}
     # what an unchecked evaluation (the same seed) would have drawn: the training poses
-    unchecked = capture(box, 8, poses.PoseSpec(count=5, seed=poses.EVALUATION_SEED_OFFSET),
+    unchecked = capture(box, 8, poses.PoseSpec(count=5, seed=offset),
                         deform_corners=False).poses
     assert {poses.pose_key(p) for p in unchecked[:3]} == keys
     assert evaluated.poses[:2] == unchecked[3:]
@@ -131,3 +132,38 @@ def test_evaluating_on_training_poses_is_refused(empty_scene, core):
         neural.evaluate_model(box, capture, model, 8, 8)
     report, _ = neural.evaluate_model(box, capture, model, 8, 8, seen=True)
     assert report["unseen_poses"] is False
+
+
+def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(empty_scene, core):
+    """Two named evaluation sets, each drawn by name: the bench's choices are made on the
+    development poses, the reported tables (experiments) and ``evaluate`` use the test poses;
+    the two and the training poses share no pose."""
+    poses, capture = core("blender.poses"), core("blender.capture_scene").capture
+    settings = core("settings")
+    box = sb.lattice_box((4, 2, 2), 0.5)
+    sb.two_bone_rig(box)
+    spec = poses.PoseSpec(count=4)
+    keys = {}
+    drawn = {"training": spec, **{name: poses.evaluation_spec(spec, pose_set=name)
+                                  for name in settings.POSE_SETS}}
+    for name, chosen in drawn.items():
+        captured = capture(box, 8, chosen, deform_corners=False)
+        keys[name] = {poses.pose_key(p) for p in captured.poses}
+        assert len(keys[name]) == 4
+    assert set(keys) == {"training", settings.DEVELOPMENT_POSES, settings.TEST_POSES}
+    for first, second in itertools.combinations(keys.values(), 2):
+        assert not first & second
+    with pytest.raises(core("errors").VDNIFError, match="unknown pose set 'other'"):
+        poses.evaluation_spec(spec, pose_set="other")
+
+    # evaluate (a model's capture, here of a model not yet trained on spec) draws test poses
+    evaluated = core("blender.jobs").model_capture(box, None, spec, evaluation=True,
+                                                   resolution=8)
+    assert {poses.pose_key(p) for p in evaluated.poses} == keys[settings.TEST_POSES]
+
+    # the experiments evaluate on test poses of their own training spec
+    runs = core("studies.experiment_runs")
+    size = dict(runs.SIZES["quick"], poses=4, eval_poses=4, resolution=8)
+    experiment = runs.Experiment(size, "unused", None, "cpu", None, ())
+    drawn = {poses.pose_key(p) for p in experiment.evaluation(box).poses}
+    assert experiment.spec == spec and drawn == keys[settings.TEST_POSES]

@@ -14,7 +14,7 @@ from dataset_headers import header_dict
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.model.model_file import load_model
-from vdnif_addon.model.network import IntersectionNetwork
+from vdnif_addon.model.network import IntersectionNetwork, readout
 from vdnif_addon.model.variants import variant_config
 from vdnif_addon.settings import Heads, NetworkConfig, TrainConfig
 from vdnif_addon.training import train as training
@@ -298,7 +298,7 @@ def test_500_steps_stay_finite(voxel_size, variant, heads, prepare):
         assert math.isfinite(record["total"]) and all(
             math.isfinite(v) for v in record["losses"].values()
         )
-        assert all(abs(s) < 6 for s in record["log_variances"].values())
+        assert all(math.isfinite(s) for s in record["log_variances"].values())
     assert ("material" in result.history[-1]["losses"]) == (heads[1] > 1)
     assert all(math.isfinite(v) for v in result.validation.values())
 
@@ -544,21 +544,6 @@ def test_threshold_calibration_minimizes_held_out_errors_by_brute_force():
     assert calibrate_threshold(_Logit(), empty) == 0.5
 
 
-def test_training_calibrates_the_threshold_on_the_held_out_poses():
-    """train's threshold is calibrate_threshold on the held-out poses' segments (the model
-    file stores it: test_training_follows_the_torch_encoders_loss_curve)."""
-    shards = sphere_shards(n=512, poses=8)
-    result = train(shards, header(), TrainConfig(steps=30, batch_size=128, val_fraction=0.25,
-                                                 device="cpu"), NetworkConfig(**SMALL))
-    held_out = {key: value for key, value in load_segments(
-        shards, result.network_config.heads).items()}
-    chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
-    expected = calibrate_threshold(
-        result.network, {key: value[chosen] for key, value in held_out.items()})
-    assert result.thresholds.occlusion == expected
-    assert result.thresholds is result.network.thresholds
-
-
 class _Table(torch.nn.Module):
     """Stands in for the network: each segment's occlusion logit and log-distance output
     read from p0's x (the row's index) in fixed tables; the distance table holds log1p(t/l)."""
@@ -625,18 +610,64 @@ def test_candidate_calibration_places_hits_best_by_brute_force():
     assert calibrate_candidate_threshold(network, empty, h, 0.5) == 0.5
 
 
-def test_training_calibrates_the_candidate_threshold_on_the_held_out_poses():
-    """train's candidate threshold is calibrate_candidate_threshold on the held-out poses'
-    segments, after the occlusion threshold, and never above it."""
-    shards = sphere_shards(n=512, poses=8)
-    result = train(shards, header(), TrainConfig(steps=30, batch_size=128, val_fraction=0.25,
-                                                 device="cpu"), NetworkConfig(**SMALL))
-    held_out = load_segments(shards, result.network_config.heads)
-    chosen = torch.isin(held_out["pose"], torch.tensor(result.val_poses))
-    expected = calibrate_candidate_threshold(
-        result.network, {key: value[chosen] for key, value in held_out.items()}, 0.125,
-        result.thresholds.occlusion)
-    assert result.thresholds.candidate == expected <= result.thresholds.occlusion
+@pytest.mark.parametrize("variant, poses", [("lsnif", 1), ("deformed", 8), ("proposed", 8)])
+def test_every_variant_calibrates_its_thresholds_on_held_out_data(monkeypatch, variant, poses):
+    """lsnif's dataset has one pose: it holds out rays of it, the others hold out poses. Each
+    variant's thresholds are the brute-force best on held-out segments that training never
+    drew from, and the occlusion threshold beats the uncalibrated 0.5 there."""
+    seen = {}
+
+    def spy(name, function):
+        def wrapped(network, data, *args, **kwargs):
+            seen[name] = {key: value.clone() for key, value in data.items()}
+            return function(network, data, *args, **kwargs)
+        monkeypatch.setattr(training, name, wrapped)
+
+    spy("calibrate_threshold", training.calibrate_threshold)
+    spy("calibrate_candidate_threshold", training.calibrate_candidate_threshold)
+    batches = training.Batches
+    monkeypatch.setattr(training, "Batches", lambda data, size, seed: seen.setdefault(
+        "trained", batches(data, size, seed)))
+    shards = sphere_shards(n=2048, poses=poses, seed=1)
+    settings = variant_config(variant, **SMALL, steps=200, batch_size=128, val_fraction=0.25,
+                              lr_mlp=1e-2, device="cpu")
+    result = train(shards, header(), settings.train, settings.network)
+    held_out, trained = seen["calibrate_threshold"], seen["trained"].data
+    assert seen["calibrate_candidate_threshold"]["p0"].equal(held_out["p0"])
+    # held out: about a quarter of the segments, none of them a training segment
+    assert 0.15 < len(held_out["p0"]) / 2048 < 0.35
+    assert len(held_out["p0"]) + len(trained["p0"]) == 2048
+    rows = {tuple(row) for row in trained["p0"].tolist()}
+    assert not any(tuple(row) in rows for row in held_out["p0"].tolist())
+    assert (len(result.val_poses) == 0) == (poses == 1)
+
+    with torch.no_grad():
+        outputs = result.network(held_out["p0"], held_out["p1"])
+    probability = torch.sigmoid(outputs["occlusion"]).double()
+    hit = held_out["hit"]
+    tried = [k / 50 for k in range(5, 46)]
+    errors = [int(((probability >= t) != hit).sum()) for t in tried]
+    best = min(range(len(tried)), key=lambda k: (errors[k], abs(tried[k] - 0.5)))
+    assert result.thresholds.occlusion == pytest.approx(tried[best])
+    assert errors[best] < errors[tried.index(0.5)]        # calibration mattered here
+
+    # candidate: one segment per ray, so each ray's first segment above t is that segment
+    occlusion = result.thresholds.occlusion
+    fraction = readout(outputs, settings.network.distance_mode, 0.125,
+                       held_out["rest_len"])["fraction"].double()
+    placed = held_out["t0"].double() + fraction * held_out["seg_len"].double()
+    reference = held_out["t0"].double() + held_out["hit_frac"].double() * held_out[
+        "seg_len"].double()
+    both = hit & (probability > occlusion)
+    candidates = [t for t in CANDIDATE_THRESHOLDS if t < occlusion] + [occlusion]
+    # a ray both hit is placed by every lower threshold on the same segment: equal errors,
+    # so the brute-force choice is the highest, the occlusion threshold itself, unless no
+    # ray is hit by both
+    error = [(placed - reference)[both & (probability > t)].abs().sum().item()
+             for t in candidates]
+    assert both.any()
+    chosen = max(k for k in range(len(candidates)) if error[k] == min(error))
+    assert result.thresholds.candidate == pytest.approx(candidates[chosen])
 
 
 def test_device_names():

@@ -46,8 +46,7 @@ class Recipe:
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
     secondary_fraction: float = 0.0
-    # A cap: the stopping rule (TrainConfig.stop_patience) may end training sooner. At the
-    # MLP's rate of 2e-2 the recipe's clean passes need 3,000 (DESIGN section 8).
+    # A cap the stopping rule may end sooner; clean passes need 3,000 (DESIGN section 8).
     steps: int = 3000
     batch_size: int = 2**14
 
@@ -98,16 +97,13 @@ DISTANCE_MODES = ("fraction", "log1p-fraction")
 """``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l),
 scale-invariant, its error taken in t/l (``losses.distance_error``)."""
 ALBEDO_MODES = ("segment", "hit")
-"""``segment``: the paper's albedo head, one more output of the MLP over the segment's end
-points. ``hit``: an albedo field of the rest-space point alone (its own hash grid and MLP),
-read at the hit the network places (``IntersectionNetwork.albedo_at``): the head blurs the
-texture however well the hit is placed, the field follows the placement (DESIGN section 8)."""
+"""``segment``: the paper's albedo head over the segment's end points. ``hit``: an albedo field
+of the rest point, read at the placed hit (``IntersectionNetwork.albedo_at``; DESIGN 8)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
 WEIGHTING_STARTS = ("zero", "equal")
-"""Where the uncertainty weighting's log-variances start: ``zero``, every s_i = 0 (a
-classification task weighs 1, a regression task 0.5), or ``equal``, s_i = log of the task's
-scale (every task weighs 1, the fixed weighting's plain sum)."""
+"""Where the uncertainty weighting's s_i start: ``zero`` (a classification task weighs 1, a
+regression task 0.5), or ``equal``, s_i = log of the task's scale (every task weighs 1)."""
 DEFAULT_WEIGHTING_START = "equal"
 """The recipe's start (``TrainConfig.weighting_start`` says why); the paper names none."""
 PE_SCALES = {"paper": 1.0, "pi": math.pi}
@@ -296,8 +292,7 @@ class TrainConfig:
     steps: int = RECIPE.steps
     batch_size: int = RECIPE.batch_size
     lr_grid: float = 1e-2
-    # 2e-2, not LSNIF's 1e-3: at 1e-3 the held-out occlusion stays at the all-miss answer
-    # for the first 250-800 steps (DESIGN section 8).
+    # Not LSNIF's 1e-3, where occlusion idles at the all-miss answer (DESIGN section 8).
     lr_mlp: float = 2e-2
     # The log-variances' own rate stays at the MLP's: faster, they settle, favour the
     # regression tasks over occlusion by the ratio of their losses, and the small scene of
@@ -366,6 +361,12 @@ AUTO_VARIANT = "auto"
 """The panel's choice of DEFAULT_VARIANT or STATIC_VARIANT by the scene (``choose_variant``)."""
 
 # --------------------------------------------------------------------------- poses
+
+DEVELOPMENT_POSES, TEST_POSES = "development", "test"
+POSE_SETS = {DEVELOPMENT_POSES: 1_000_003, TEST_POSES: 2_000_029}
+"""Evaluation pose set -> its random seed's offset from the training seed. Development poses
+serve every choice (recipe, threshold grids, presets, bench points, stopping rules); test
+poses serve none: the reported tables, the demo's report and ``evaluate`` alone."""
 
 
 @dataclass(frozen=True)

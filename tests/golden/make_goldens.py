@@ -48,7 +48,7 @@ from vdnif_addon.blender.poses import posed  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.inference.neural_render import neural_passes  # noqa: E402
-from vdnif_addon.settings import PoseSpec  # noqa: E402
+from vdnif_addon.settings import DEVELOPMENT_POSES, PoseSpec  # noqa: E402
 from vdnif_addon.tracing.rays import orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.training import dataset  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402
@@ -96,7 +96,8 @@ def render_golden(obj, folder):
     model_path = HERE / "arm-render-model.vdnif"
     fit_model(folder, "proposed", model_path,
               dict(SMALL, steps=1000, batch_size=2048, val_fraction=0.0))
-    evaluated = evaluation_poses(obj, RESOLUTION, PoseSpec(count=2, seed=SEED))
+    evaluated = evaluation_poses(obj, RESOLUTION, PoseSpec(count=2, seed=SEED),
+                                 pose_set=DEVELOPMENT_POSES)
     model = load_scene_model(model_path, evaluated, "cpu")
     model.network.encoder = encoding_torch.from_product(model.network.encoder)
     with PosedObject(obj, evaluated) as posed_object:
@@ -113,7 +114,8 @@ def render_golden(obj, folder):
 
 
 def references_golden(obj):
-    evaluated = evaluation_poses(obj, RESOLUTION, PoseSpec(count=2, seed=SEED))
+    evaluated = evaluation_poses(obj, RESOLUTION, PoseSpec(count=2, seed=SEED),
+                                 pose_set=DEVELOPMENT_POSES)
     report = reference_run(obj, evaluated, 32, 24)
     keep = {key: report[key] for key in ("object", "mode", "resolution", "poses", "width",
                                          "height", "embedded_vs_true", "per_pose",

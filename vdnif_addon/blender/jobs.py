@@ -11,6 +11,7 @@ from ..inference.evaluation import distance_range, figure, world_distances
 from ..inference.exr import write_multilayer
 from ..model.variants import variant_config
 from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
+from ..settings import TEST_POSES
 from ..training.fit import fit_model
 from ..training.history import plot
 from .capture_scene import capture
@@ -30,36 +31,38 @@ def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progr
     return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
 
 
-def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None):
+def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None,
+                     pose_set=TEST_POSES):
     """A capture of ``obj`` (corners left to per-pose work) whose ``count`` poses (default
-    ``spec.count``) are evaluation poses disjoint from the training poses (``trained``, a
-    model's stored training poses, else those of the training ``spec``), or ``count`` views
-    of the rest pose with ``rest``. A request that cannot be disjoint raises a VDNIFError
-    naming the object (``poses.make_poses``)."""
+    ``spec.count``) are evaluation poses of ``pose_set`` (``settings.POSE_SETS``) disjoint
+    from the training poses (``trained``, a model's stored training poses, else those of the
+    training ``spec``), or ``count`` views of the rest pose with ``rest``. A request that
+    cannot be disjoint raises a VDNIFError naming the object (``poses.make_poses``)."""
     count = count or spec.count
     if rest:
         captured = capture(obj, resolution, dataclasses.replace(spec, count=1),
                            deform_corners=False)
         return dataclasses.replace(captured, poses=[REST_POSE] * count)
-    return capture(obj, resolution, evaluation_spec(spec, count, trained),
+    return capture(obj, resolution, evaluation_spec(spec, count, trained, pose_set),
                    deform_corners=False)
 
 
 def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
-                  resolution=None):
+                  resolution=None, pose_set=TEST_POSES):
     """``obj`` captured again as the model of ``metadata`` (its ModelMetadata) was trained
     on it: at the model's resolution (``resolution``: one asked for instead, which
     ``neural.load_scene_model`` refuses unless it is the model's), corners left to per-pose
     work. Its poses: one of ``spec``, for rendering, or with ``evaluation`` ``count``
-    evaluation poses (default ``spec.count``) disjoint from the model's training poses, or
-    views of the rest pose with ``rest`` (``evaluation_poses``). Without a model
+    evaluation poses (default ``spec.count``) of ``pose_set`` disjoint from the model's
+    training poses, or views of the rest pose with ``rest`` (``evaluation_poses``). Without a model
     (``metadata`` None) ``resolution`` is required and the poses avoid those of ``spec``."""
     resolution = resolution or metadata.grid.resolution
     if not evaluation:
         return capture(obj, resolution, dataclasses.replace(spec, count=1),
                        deform_corners=False)
     trained = None if metadata is None else list(metadata.train_poses)
-    return evaluation_poses(obj, resolution, spec, rest=rest, count=count, trained=trained)
+    return evaluation_poses(obj, resolution, spec, rest=rest, count=count, trained=trained,
+                            pose_set=pose_set)
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,

@@ -24,23 +24,26 @@ import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
-from ..settings import PoseSpec
+from ..settings import POSE_SETS, TEST_POSES, PoseSpec
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
 
-EVALUATION_SEED_OFFSET = 1_000_003
 REST_POSE = {"rest": True}
 # Frames closer than this are not distinct poses: Blender keeps the subframe as a float32
 # (about 7 digits), and a thousandth of a frame is far below any animation's detail.
 MIN_FRAME_SPACING = 1e-3
 
 
-def evaluation_spec(spec, count=None, trained=None):
+def evaluation_spec(spec, count=None, trained=None, pose_set=TEST_POSES):
     """The pose spec for evaluating a model trained on the poses of ``spec``: ``count``
-    poses (default ``spec.count``) from another random seed or frames between the training
-    frames, disjoint from the training poses: ``trained`` (a model's stored training poses)
-    when given, else those ``spec`` chooses."""
-    return replace(spec, count=count or spec.count, seed=spec.seed + EVALUATION_SEED_OFFSET,
+    poses (default ``spec.count``) of the named ``pose_set`` (``settings.POSE_SETS``: its
+    own random seed; frames have none, so both sets of frames are the frames between the
+    training frames), disjoint from the training poses: ``trained`` (a model's stored
+    training poses) when given, else those ``spec`` chooses."""
+    if pose_set not in POSE_SETS:
+        raise VDNIFError(f"unknown pose set '{pose_set}': choose one of "
+                         f"{', '.join(POSE_SETS)}")
+    return replace(spec, count=count or spec.count, seed=spec.seed + POSE_SETS[pose_set],
                    avoid=replace(spec, avoid=None) if trained is None else tuple(trained))
 
 

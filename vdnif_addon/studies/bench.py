@@ -23,7 +23,7 @@ from ..blender.scenes import demo_scene
 from ..inference.evaluation import compare_common, concatenated
 from ..presets import PRESET_ERROR, PRESET_VARIANT
 from ..safe_io import exclusive_lock, write_json_atomic
-from ..settings import RECIPE, NetworkConfig, PoseSpec
+from ..settings import DEVELOPMENT_POSES, RECIPE, NetworkConfig, PoseSpec
 from ..training.fit import fit_model
 from .bench_report import point_label, sweep_markdown, write_outputs
 from .pareto import derive_presets
@@ -173,11 +173,13 @@ def _train_points(obj, spec, size, points, numbers, work, scratch, device, progr
 
 
 def _evaluate_points(obj, spec, size, points, work, device):
-    """Every point's model evaluated on the unseen poses of its resolution, in this one
-    process: the CSV's rows with the common-set errors. One short render times a point only
-    roughly, so each renders once per round for ``speed_rounds`` rounds and its speed is the
-    median; its errors are the first round's."""
-    scenes = {resolution: evaluation_poses(obj, resolution, spec, count=size["eval_poses"])
+    """Every point's model evaluated on the development poses (``settings.POSE_SETS``: the
+    presets and the front are choices) of its resolution, in this one process: the CSV's rows
+    with the common-set errors. One short render times a point only roughly, so each renders
+    once per round for ``speed_rounds`` rounds and its speed is the median; its errors are the
+    first round's."""
+    scenes = {resolution: evaluation_poses(obj, resolution, spec, count=size["eval_poses"],
+                                           pose_set=DEVELOPMENT_POSES)
               for resolution in sorted({p["resolution"] for p in points})}
     files = [_point_files(work, number) for number in range(len(points))]
     records = [finished_point(path, model, size, point)

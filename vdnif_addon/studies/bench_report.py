@@ -102,8 +102,8 @@ def sweep_markdown(rows, presets, size, command, out, performance):
     pixels = compared[0]["common_vs_true_compared_rays"] if compared else 0
     lines = [f"Command: `{command}`", "",
              f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
-             f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} unseen poses "
-             f"at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
+             f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} development "
+             f"poses at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
              f"thread(s); render speed: median of {size['speed_rounds']} rounds, each "
              "rendering every point once. One setting moves at a time from the base "
              + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",

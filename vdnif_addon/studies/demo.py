@@ -20,7 +20,7 @@ from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..model.variants import choose_variant
 from ..safe_io import write_json_atomic, write_text_atomic
-from ..settings import RECIPE, PoseSpec
+from ..settings import RECIPE, TEST_POSES, PoseSpec
 from .report import demo_markdown
 
 SIZES = {   # full: the main job, the default recipe at the resolution of the scene's mesh
@@ -57,7 +57,8 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     with tempfile.TemporaryDirectory(prefix="data-", dir=out) as folder:
         _, summary = train_variant(obj, captured, variant, folder, size["rays_per_pose"],
                                    model, overrides, progress=progress)
-    evaluated = evaluation_poses(obj, resolution, spec, count=size["eval_poses"])
+    evaluated = evaluation_poses(obj, resolution, spec, count=size["eval_poses"],
+                                 pose_set=TEST_POSES)
     width, height = size["width"], size["height"]
     report, views = evaluate_file(obj, evaluated, model, width, height, device)
     figures = write_figures(out, views[0], height, width, captured.mesh.size)

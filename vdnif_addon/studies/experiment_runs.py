@@ -20,7 +20,7 @@ from ..blender.scenes import demo_scene
 from ..inference import images
 from ..inference.evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..model.variants import variant_config
-from ..settings import RECIPE, PoseSpec
+from ..settings import RECIPE, TEST_POSES, PoseSpec
 from ..tracing.rays import orbit_viewpoints
 from ..tracing.references import true_reference
 from ..training.fit import fit_model
@@ -83,9 +83,10 @@ class Experiment:
         return self.resolutions[obj.name]
 
     def evaluation(self, obj, rest=False):
-        """Evaluation poses disjoint from the training poses (or views of the rest pose)."""
+        """Test poses (``settings.POSE_SETS``: the reported tables choose nothing) disjoint
+        from the training poses, or views of the rest pose."""
         return evaluation_poses(obj, self.resolution(obj), self.spec, rest=rest,
-                                count=self.size["eval_poses"])
+                                count=self.size["eval_poses"], pose_set=TEST_POSES)
 
     def evaluate(self, obj, evaluated, model, viewpoints=None, seen=False):
         return evaluate_file(obj, evaluated, model, self.size["width"], self.size["height"],

@@ -126,8 +126,8 @@ def deformation(run):
              ("proposed", view["proposed"]["predicted"])], mesh.size))
     lines = [
         f"Both train on the same {run.size['poses']} random poses and are evaluated on "
-        f"{run.size['eval_poses']} other random poses (another seed, disjoint from the "
-        "training poses by construction), one orbit view each at "
+        f"{run.size['eval_poses']} test poses (a seed of their own, disjoint "
+        "from the training poses by construction), one orbit view each at "
         f"{run.size['width']}x{run.size['height']}. Each figure is the median over "
         f"{_seeds(run)}. spot is textured (albedo from its image), the bunny has three "
         f"material slots. The {ORIGINAL} row is the paper's \"original\": the rest pose "
@@ -161,7 +161,7 @@ def ablation(run):
     lines = [
         f"Every run trains on the same data ({run.size['poses']} random poses, the same "
         f"rays per seed) for the same {run.size['steps']} steps and is evaluated on "
-        f"{run.size['eval_poses']} unseen poses at {run.size['width']}x{run.size['height']}; "
+        f"{run.size['eval_poses']} test poses at {run.size['width']}x{run.size['height']}; "
         f"each figure is the median over {_seeds(run)}. The ablations each take one part of "
         f"proposed back to the deformed baseline's: {parts}; `{PI_FORM}` is proposed with "
         "the PEPS sinusoids instead of the paper's `sin(2^k x)`.", "",
@@ -232,7 +232,7 @@ def per_pose(run):
         record["common"] = dict(metrics, models=list(labels))
         rows.append((label, metrics["vs_true"], metrics["vs_embedded"]))
     lines = [
-        f"{len(evaluated.poses)} unseen poses of the arm, one seed (0). The upper bound "
+        f"{len(evaluated.poses)} test poses of the arm, one seed (0). The upper bound "
         f"trains one lsnif network per pose on that pose alone ({rays:,} rays each, through "
         "the same voxel embedding), so it pays training and storage once per pose; the "
         f"proposed model is trained once on {run.size['poses']} other poses.", "",

@@ -26,7 +26,7 @@ from ..settings import Heads, TrainConfig
 from .distributed import ProcessGroup
 
 if TYPE_CHECKING:
-    from jaxtyping import Int64, Shaped
+    from jaxtyping import Bool, Int64, Shaped
 
 Segments = dict[str, "Shaped[torch.Tensor, 'segments ...']"]
 """Field name -> tensor of one row per segment (``FIELDS`` gives dtype and trailing shape)."""
@@ -126,6 +126,17 @@ def split_poses(
     return sorted(everything[i] for i in order[:count].tolist())
 
 
+def held_out_rays(
+    ray: Int64[torch.Tensor, " segments"], fraction: float, seed: int
+) -> Bool[torch.Tensor, " segments"]:
+    """The rows of about ``fraction`` of the rays, whole rays chosen alike in every process:
+    those whose id times the golden ratio, shifted by the seed, has a fractional part below
+    ``fraction``. A dataset of one pose (``lsnif``'s) holds these out instead of a pose, so
+    that its thresholds are calibrated on held-out rays as the others' are on held-out poses."""
+    golden = (5**0.5 - 1) / 2
+    return torch.frac(ray.double() * golden + seed * 2**-0.5) < fraction
+
+
 def split_data(
     segments: Sequence[Mapping[str, np.ndarray]],
     config: TrainConfig,
@@ -134,7 +145,8 @@ def split_data(
     group: ProcessGroup,
 ) -> tuple[TrainingRows, Segments, list[int]]:
     """(training rows in host memory, validation data on ``device``, held-out poses): this
-    process's shards (``segments[rank::world]``) loaded and split by the held-out poses."""
+    process's shards (``segments[rank::world]``) loaded and split by the held-out poses, or,
+    with one pose, by held-out rays (``held_out_rays``; no pose is then held out)."""
     if len(segments) == 0:
         raise VDNIFError("no training segments: the dataset has no shards")
     shards = list(segments)[group.rank :: group.world]
@@ -145,7 +157,8 @@ def split_data(
         )
     data = load_segments(shards, heads)
     val_poses = split_poses(data["pose"], config.val_fraction, config.seed, group)
-    held_out = torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64))
+    held_out = (torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64))
+                if val_poses else held_out_rays(data["ray"], config.val_fraction, config.seed))
     kept = ~held_out
     train_rows, val_data = TrainingRows(device), {}
     for key in list(data):
