@@ -21,10 +21,13 @@ from ..training import dataset
 from ..training.header import FORMAT, VERSION, DatasetHeader
 from .pose_geometry import PosedObject
 
+BLENDER_VERSION = bpy.app.version_string   # read at import, on Blender's main thread
+
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
                      pose_range=None, progress=None, grazing_fraction=None):
-    """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
+    """Walks ``rays_per_pose`` training rays per pose of ``capture`` (``obj``: the mesh
+    object or a PoseSource, see ``PosedObject``) (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its DatasetHeader (its
     timings with the writing's). The ray mix
     (``rays.training_rays``) defaults to the recipe's (``settings.RECIPE``)."""
@@ -165,5 +168,5 @@ def _pose_timings(timings, geometry, seconds):
 def _versions():
     from .. import __version__
 
-    return {"vdnif": __version__, "blender": bpy.app.version_string,
+    return {"vdnif": __version__, "blender": BLENDER_VERSION,
             "numpy": np.__version__, "python": platform.python_version()}

@@ -18,13 +18,20 @@ from .poses import REST_POSE, evaluation_spec
 
 
 def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progress=None):
-    """Writes the training data ``variant`` learns from into ``folder``: the walked segments
-    of every captured pose, or, for a single-pose variant (``lsnif``), of the rest pose alone
+    """Writes the training data ``variant`` learns from into ``folder`` (``variant_capture``);
+    ``obj``: the mesh object or a PoseSource (``PosedObject``)."""
+    captured, rays_per_pose = variant_capture(captured, variant, rays_per_pose)
+    return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
+
+
+def variant_capture(captured, variant, rays_per_pose):
+    """(capture, rays per pose) of the data ``variant`` learns from: the walked segments of
+    every captured pose, or, for a single-pose variant (``lsnif``), of the rest pose alone
     with as many rays as all poses together (the same data budget)."""
     if not variant_config(variant).deformed_data and captured.mode != "static":
-        rays_per_pose *= len(captured.poses)
-        captured = dataclasses.replace(captured, poses=[REST_POSE])
-    return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
+        return (dataclasses.replace(captured, poses=[REST_POSE]),
+                rays_per_pose * len(captured.poses))
+    return captured, rays_per_pose
 
 
 def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None):
@@ -80,18 +87,36 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     return report, views
 
 
-def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None):
+def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None,
+                 suffix=""):
     """Writes every pass as a PNG for looking and an EXR for use (distance in world units
     when ``world_scale`` is given, material as the object's slot with the used-slot table
-    ``slots``, see ``Passes.with_slots``); returns the written paths."""
+    ``slots``, see ``Passes.with_slots``), named ``{prefix}{pass}{suffix}`` (a sequence's
+    frame: ``animation.frame_suffix``); returns the written paths. Writes with Blender's
+    image API: call it on Blender's main thread."""
     folder = pathlib.Path(folder)
     data = passes if world_scale is None else world_distances(passes, world_scale)
     data = data if slots is None else data.with_slots(slots)
     shown = images.display(data, height, width, distance_range(data))
     shown["hit"] = np.repeat(images.raw(data, height, width)["hit"], 3, axis=2)
-    written = [save_image(folder / f"{prefix}{name}.png", image) for name, image in shown.items()]
-    written += [save_image(folder / f"{prefix}{name}.exr", image)
+    written = [save_image(folder / f"{prefix}{name}{suffix}.png", image)
+               for name, image in shown.items()]
+    written += [save_image(folder / f"{prefix}{name}{suffix}.exr", image)
                 for name, image in images.raw(data, height, width).items()]
+    return written
+
+
+def write_view(folder, result, height, width, slots=None, references=False, suffix=""):
+    """Writes a RenderResult's passes (``write_passes``), and with ``references`` those of
+    its true and embedded references, prefixed ``true-`` and ``embedded-``; returns the
+    written paths."""
+    written = write_passes(folder, result.predicted, height, width, result.world_scale,
+                           slots=slots, suffix=suffix)
+    if references:
+        for name in ("true", "embedded"):
+            written += write_passes(folder, getattr(result, name), height, width,
+                                    result.world_scale, prefix=f"{name}-", slots=slots,
+                                    suffix=suffix)
     return written
 
 
