@@ -5,9 +5,9 @@ Registering imports no torch (the panel says when it is missing); Warp, where in
 The pipeline itself lives in ``vdnif_addon`` and never depends on this module.
 """
 
-from . import operators, panels, preferences, properties, viewer
+from . import live_preview, operators, panels, preferences, properties, viewer
 
-_modules = (preferences, properties, viewer, operators, panels)
+_modules = (preferences, properties, viewer, live_preview, operators, panels)
 
 
 def register():

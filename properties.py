@@ -5,9 +5,16 @@ choice (``Scene.vdnif_viewer``)."""
 import json
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
-from . import preferences, viewer
+from . import live_preview, preferences, viewer
 from .vdnif_addon import settings as defaults
 from .vdnif_addon.settings import BOUNDS, RECIPE
 
@@ -94,6 +101,31 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     voxel_info: StringProperty(options={"HIDDEN"})
     resolution_info: StringProperty(options={"HIDDEN"})
     dataset_info: StringProperty(options={"HIDDEN"})     # JSON: what the dataset holds
+    estimate_info: StringProperty(options={"HIDDEN"})    # JSON: settings and estimate
+    keep_partial_model: BoolProperty(
+        name="Keep Partial Model on Cancel", default=False,
+        description="Off: a cancelled training keeps the previous model (the first model is "
+                    "kept even when cancelled). On: it keeps what the cancelled run learned")
+    use_scene_frames: BoolProperty(
+        name="Scene Frame Range", default=True,
+        description="Render Animation renders the scene's frame range; off: the range below")
+    frame_start: IntProperty(name="Start", default=1, description="First frame to render")
+    frame_end: IntProperty(name="End", default=250, description="Last frame to render")
+    frame_step: IntProperty(name="Step", default=1, min=1,
+                            description="Render every this many frames")
+    frames_dir: StringProperty(
+        name="Output Folder", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+        description="Where Render Animation writes its image sequences (empty: beside the "
+                    ".blend)")
+    live_preview: BoolProperty(
+        name="Live Preview", default=False,
+        update=lambda settings, context: live_preview.toggled(settings, context),
+        description="Render the predicted passes at the preview size whenever the frame "
+                    "changes (frames are skipped rather than queued while one renders)")
+    preview_percent: IntProperty(name="Preview Size", default=25, min=5, max=100,
+                                 subtype="PERCENTAGE",
+                                 description="The live preview's size, in percent of the "
+                                             "render size")
     last_error: StringProperty(options={"HIDDEN"})
     preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview")
 

@@ -3,12 +3,10 @@ device cells built once, written as image sequences named like Blender's own (th
 number zero-padded to ``FRAME_DIGITS``, Blender's ``####``).
 
 ``render_frames`` touches no Blender data: it reads every frame through a PoseSource (a live
-``PoseReader`` in batch runs, a ``PoseFeed`` filled on Blender's main thread in the UI)."""
+``PoseReader`` in batch runs, a ``PoseFeed`` filled on Blender's main thread in the UI). The
+frame-range helpers import nothing heavy, for the command-line parser."""
 
 from ..errors import VDNIFError
-from ..tracing.rays import orbit_viewpoints
-from .neural import orbit_view, render_orbit_rays, render_world, view_rays
-from .pose_geometry import PosedObject
 
 FRAME_DIGITS = 4
 """Digits of a frame number in a file name: Blender's default ``####``."""
@@ -57,6 +55,10 @@ def render_frames(source, captured, model, frames, width, height, view=None,
     animates with the scene); else the fixed pinhole ``view`` (world matrix, horizontal
     field of view in degrees: the 3D Viewport's); else an orbit viewpoint around the first
     frame's bounds, kept for the whole range so that the images line up."""
+    from ..tracing.rays import orbit_viewpoints
+    from .neural import orbit_view, render_orbit_rays, render_world, view_rays
+    from .pose_geometry import PosedObject
+
     figures, orbit = [], None
     with PosedObject(source, captured, model.device) as posed_object:
         for index, frame in enumerate(frames):
@@ -73,7 +75,7 @@ def render_frames(source, captured, model, frames, width, height, view=None,
             timings = result.timings
             figures.append({"frame": frame, "hit_pixels": int(result.predicted.hit.sum()),
                             "rays_per_s": timings["rays"] / timings["render_s"],
-                            "render_s": timings["render_s"]})
+                            "timings": timings})
             if each is not None:
                 each(frame, result)
             if progress is not None:

@@ -26,16 +26,20 @@ class PoseReader(PoseSource):
 
     def read(self, pose):
         with posed(pose):
-            start = time.perf_counter()
-            corners = (self.deformer.deformed() if self.deformer is not None
-                       else self.capture.grid.corner_positions())
-            corners_s = time.perf_counter() - start
-            vertices, normals = evaluated_surface(self.obj, self.capture.mesh)
-            return PoseSnapshot(pose=pose, corners=corners, vertices=vertices,
-                                normals=normals,
-                                matrix_world=np.array(self.obj.matrix_world, np.float64),
-                                corners_s=corners_s,
-                                view=None if self.view is None else self.view())
+            return self.read_current(pose)
+
+    def read_current(self, pose):
+        """The snapshot of the scene as it is now, which is in ``pose`` (the live preview
+        reads the frame the user just moved to without setting it again)."""
+        start = time.perf_counter()
+        corners = (self.deformer.deformed() if self.deformer is not None
+                   else self.capture.grid.corner_positions())
+        corners_s = time.perf_counter() - start
+        vertices, normals = evaluated_surface(self.obj, self.capture.mesh)
+        return PoseSnapshot(pose=pose, corners=corners, vertices=vertices, normals=normals,
+                            matrix_world=np.array(self.obj.matrix_world, np.float64),
+                            corners_s=corners_s,
+                            view=None if self.view is None else self.view())
 
     def close(self):
         if self.deformer is not None:
