@@ -136,12 +136,13 @@ class WorkerJob:
                  on_output: Callable[[Any], None] | None = None,
                  cancel: threading.Event | None = None) -> None:
         self.state = WorkState(title, total, unit)
-        self._work, self._live, self.feed = work, live, feed
-        self._reads_factory, self._on_output = reads, on_output
+        self._work, self._live, self.feed, self._on_output = work, live, feed, on_output
         self._cancel = cancel or threading.Event()
         self._queue: queue.Queue = queue.Queue()
         self._outputs: queue.Queue = queue.Queue()
-        self._reads: Iterator[bool] | None = None
+        # A generator runs nothing until its first ``next``: ``tick`` may read ahead before
+        # ``start``; ``run`` never starts it.
+        self._reads: Iterator[bool] | None = None if reads is None else reads()
         self._thread: threading.Thread | None = None
 
     def run(self) -> WorkState:
@@ -156,8 +157,6 @@ class WorkerJob:
 
     def start(self) -> None:
         """Starts the worker thread; the main thread must ``tick`` while it runs."""
-        if self._reads_factory is not None:
-            self._reads = self._reads_factory()
         self._thread = threading.Thread(target=self._execute,
                                         args=(self.feed, self._outputs.put),
                                         name=f"vdnif-{self.state.title}", daemon=True)

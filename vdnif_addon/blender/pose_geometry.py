@@ -35,6 +35,7 @@ class PoseSnapshot:
     normals: np.ndarray            # (T, 3, 3) deformed corner normals
     matrix_world: np.ndarray       # (4, 4) the object's world matrix in this pose
     corners_s: float               # seconds spent deforming the corners
+    read_s: float = 0.0            # seconds of the whole read (posing, corners, mesh)
     view: object = None            # the camera's view in this pose, when one was asked for
 
 
@@ -74,6 +75,7 @@ class PoseGeometry:
     vertices: np.ndarray           # (V, 3) deformed mesh vertices
     normals: np.ndarray            # (T, 3, 3) deformed corner normals
     prepare_s: float               # read the corners, refit the entry BVH, face triangles
+    evaluate_s: float = 0.0        # the rest of reading the pose (Blender's evaluation)
     matrix_world: np.ndarray = None    # (4, 4) the object's world matrix in this pose
     view: object = None            # the snapshot's camera view, if it read one
     _pose: int = 0                 # the cells' pose count when they were set to this pose
@@ -154,7 +156,9 @@ class PosedObject:
         prepare_s = snapshot.corners_s + time.perf_counter() - start
         return PoseGeometry(_cells=self.cells, corners=snapshot.corners,
                             vertices=snapshot.vertices, normals=snapshot.normals,
-                            prepare_s=prepare_s, matrix_world=snapshot.matrix_world,
+                            prepare_s=prepare_s,
+                            evaluate_s=max(snapshot.read_s - snapshot.corners_s, 0.0),
+                            matrix_world=snapshot.matrix_world,
                             view=snapshot.view, _pose=self.cells.pose,
                             _surface=self._deformed_caster)
 

@@ -25,8 +25,11 @@ class PoseReader(PoseSource):
             self.deformer = CornerDeformer(obj, capture.grid.corner_positions())
 
     def read(self, pose):
+        start = time.perf_counter()
         with posed(pose):
-            return self.read_current(pose)
+            snapshot = self.read_current(pose)
+        snapshot.read_s = time.perf_counter() - start
+        return snapshot
 
     def read_current(self, pose):
         """The snapshot of the scene as it is now, which is in ``pose`` (the live preview
@@ -38,7 +41,7 @@ class PoseReader(PoseSource):
         vertices, normals = evaluated_surface(self.obj, self.capture.mesh)
         return PoseSnapshot(pose=pose, corners=corners, vertices=vertices, normals=normals,
                             matrix_world=np.array(self.obj.matrix_world, np.float64),
-                            corners_s=corners_s,
+                            corners_s=corners_s, read_s=time.perf_counter() - start,
                             view=None if self.view is None else self.view())
 
     def close(self):
