@@ -32,8 +32,8 @@ class Session:
 def preview_size(settings):
     """The preview's (width, height): the render size scaled by the preview percentage."""
     scale = settings.preview_percent / 100
-    return (max(8, round(settings.image_width * scale)),
-            max(8, round(settings.image_height * scale)))
+    return (max(1, round(settings.image_width * scale)),
+            max(1, round(settings.image_height * scale)))
 
 
 def previewed(scene):
