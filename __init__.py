@@ -5,7 +5,8 @@ Registering imports no torch (the panel says when it is missing); Warp, where in
 The pipeline itself lives in ``vdnif_addon`` and never depends on this module.
 """
 
-from . import live_preview, operators, panels, preferences, properties, viewer
+from . import operators, panels, preferences, properties, viewer
+from .operators import live_preview
 
 _modules = (preferences, properties, viewer, live_preview, operators, panels)
 

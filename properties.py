@@ -14,7 +14,8 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import live_preview, preferences, viewer
+from . import preferences, viewer
+from .operators import live_preview
 from .vdnif_addon import settings as defaults
 from .vdnif_addon.settings import BOUNDS, RECIPE
 

@@ -6,8 +6,8 @@ import textwrap
 
 import bpy
 
-from .. import live_preview, preferences, storage, viewer
-from ..operators import common
+from .. import preferences, storage, viewer
+from ..operators import common, live_preview
 from ..operators.animation import VDNIF_OT_render_animation
 from ..operators.dependencies import VDNIF_OT_install_dependencies
 from ..operators.model import VDNIF_OT_load_model, VDNIF_OT_save_model

@@ -114,7 +114,7 @@ def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
     obj = reopen(blend)
     scene = bpy.context.scene
     scene.frame_set(1)
-    preview = module("live_preview")
+    preview = module("operators.live_preview")
     obj.vdnif.live_preview = True               # renders the current frame at once
     session = preview._sessions["Arm"]
     assert session.frames.running == 1 and session.renderer is None

@@ -2,7 +2,7 @@
 Blender-evaluated deformed mesh for the true reference.
 
 A pose's Blender data (deformed corners, deformed mesh, world matrix) comes from a
-``PoseSource`` as a ``PoseSnapshot``: read from Blender in the calling thread
+``pose_source.PoseSource`` as a ``PoseSnapshot``: read from Blender in the calling thread
 (``pose_reader.PoseReader``, made for a live object), or handed over by Blender's main
 thread to a worker thread (``PoseFeed``). Everything else here touches no Blender data, so
 that the per-pose work can run in a worker while Blender stays responsive (``worker``).
@@ -21,51 +21,7 @@ from ..kernels import runtime
 from ..kernels.cells import DeviceCells
 from ..kernels.surface import SurfaceCaster
 from ..tracing.groundtruth import rest_surface
-from ..worker import Feed
-
-
-@dataclass
-class PoseSnapshot:
-    """What per-pose work needs of the scene in one pose, read on the thread that may read
-    Blender: plain arrays, valid whatever Blender does afterwards."""
-
-    pose: dict                     # the pose dict (see ``poses``)
-    corners: np.ndarray            # (C, 3) deformed voxel corners, local space
-    vertices: np.ndarray           # (V, 3) deformed mesh vertices, local space
-    normals: np.ndarray            # (T, 3, 3) deformed corner normals
-    matrix_world: np.ndarray       # (4, 4) the object's world matrix in this pose
-    corners_s: float               # seconds spent deforming the corners
-    read_s: float = 0.0            # seconds of the whole read (posing, corners, mesh)
-    view: object = None            # the camera's view in this pose, when one was asked for
-
-
-class PoseSource:
-    """Where a PosedObject gets each pose's PoseSnapshot."""
-
-    name = ""                      # the object's name, for messages
-    deformer = None                # the CornerDeformer of a live source
-
-    def read(self, pose):
-        raise NotImplementedError
-
-    def close(self):
-        """Removes what reading needed (a live source's helper objects)."""
-
-
-class PoseFeed(PoseSource):
-    """Snapshots read on Blender's main thread for a worker, in the order the worker asks
-    for the poses (``worker.Feed``: it raises JobCancelled once the job is cancelled)."""
-
-    def __init__(self, name, cancel, capacity=4):
-        self.name = name
-        self.feed = Feed(cancel, capacity)
-
-    def read(self, pose):
-        snapshot = self.feed.get()
-        if snapshot.pose != pose:
-            raise VDNIFError(f"'{self.name}': the scene was read for pose {snapshot.pose}, "
-                             f"not for {pose}")
-        return snapshot
+from .pose_source import PoseSource
 
 
 @dataclass

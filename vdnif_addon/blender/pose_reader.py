@@ -8,7 +8,7 @@ import time
 import numpy as np
 
 from .deform import CornerDeformer
-from .pose_geometry import PoseSnapshot, PoseSource
+from .pose_source import PoseSnapshot, PoseSource
 from .poses import posed
 from .read_mesh import evaluated_surface
 

@@ -13,7 +13,8 @@ from ..inference.evaluation import distance_range
 from ..inference.images import display
 from ..tracing.rays import orbit_viewpoints
 from .neural import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
-from .pose_geometry import PosedObject, PoseSource
+from .pose_geometry import PosedObject
+from .pose_source import PoseSource
 
 
 class LatestFrame:

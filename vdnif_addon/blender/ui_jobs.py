@@ -21,8 +21,8 @@ from .animation import frame_pose, render_frames
 from .generate import generate_dataset
 from .jobs import evaluate_file, variant_capture
 from .neural import camera_view, load_scene_model
-from .pose_geometry import PoseFeed
 from .pose_reader import PoseReader
+from .pose_source import PoseFeed
 
 SHARD_PATTERN = "shard-*.*"
 SHARD_SUFFIXES = (".json", ".npz")

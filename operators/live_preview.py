@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import bpy
 
-from . import storage, viewer
-from .operators.common import JOBS
+from .. import storage, viewer
+from .common import JOBS
 
 TICK_S = 0.03
 IMAGE = "VDNIF Preview {}"
@@ -45,14 +45,14 @@ def previewed(scene):
 @bpy.app.handlers.persistent
 def on_frame_change(scene, _depsgraph=None):
     """frame_change_post: notes the new frame for every previewed object; returns at once."""
-    from .vdnif_addon.blender.poses import posing
+    from ..vdnif_addon.blender.poses import posing
 
     if posing():                 # a job setting a pose, not the user
         return
     for obj in previewed(scene):
         session = _sessions.get(obj.name)
         if session is None:
-            from .vdnif_addon.blender.preview import LatestFrame
+            from ..vdnif_addon.blender.preview import LatestFrame
 
             session = _sessions[obj.name] = Session(LatestFrame())
         session.frames.request(scene.frame_current)
@@ -83,8 +83,8 @@ def tick():
 def _renderer(obj, scene, session):
     """The session's renderer, made again when the model or the preview settings changed
     (the capture, at the model's resolution, is read here on the main thread)."""
-    from .vdnif_addon.blender.capture_scene import capture
-    from .vdnif_addon.blender.preview import PreviewRenderer
+    from ..vdnif_addon.blender.capture_scene import capture
+    from ..vdnif_addon.blender.preview import PreviewRenderer
 
     settings = obj.vdnif
     width, height = preview_size(settings)
@@ -101,8 +101,8 @@ def _renderer(obj, scene, session):
 
 def _start(obj, scene, session):
     """Reads the pose the scene is in now (the newest frame) and starts its render."""
-    from .vdnif_addon.blender.neural import camera_view
-    from .vdnif_addon.blender.pose_reader import PoseReader
+    from ..vdnif_addon.blender.neural import camera_view
+    from ..vdnif_addon.blender.pose_reader import PoseReader
 
     try:
         renderer = _renderer(obj, scene, session)
@@ -110,7 +110,7 @@ def _start(obj, scene, session):
         if obj.vdnif.view == "CAMERA" and scene.camera is not None:
             read_view = lambda: camera_view(scene.camera, width, height)   # noqa: E731
         elif obj.vdnif.view == "VIEWPORT":
-            from .operators.passes import region_3d
+            from .passes import region_3d
 
             fixed = viewer.viewport_view(region_3d(bpy.context))
             read_view = lambda: fixed                                       # noqa: E731
