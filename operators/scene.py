@@ -30,26 +30,39 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
         return f"'{obj.name}': {settings.voxel_info}"
 
 
-class VDNIF_OT_suggest_resolution(VDNIFOperator, bpy.types.Operator):
-    """Set the coarsest voxel resolution whose embedding error is small beside the network's"""
+class VDNIF_OT_suggest_resolution(JobOperator, bpy.types.Operator):
+    """Set the coarsest voxel resolution whose embedding error is small beside the network's
+    (measured on a few poses at each candidate). Esc cancels"""
 
     bl_idname = "vdnif.suggest_resolution"
     bl_label = "Suggest Resolution"
-    bl_options = {"REGISTER", "UNDO"}
     needs = ("mesh", "idle")
 
-    def work(self, context, obj):
-        from ..vdnif_addon.blender.resolution import network_error, suggest_resolution
-        from ..vdnif_addon.settings import EMBEDDING_ERROR_SHARE
+    def stages(self, context, obj):
+        from ..vdnif_addon.blender.resolution import network_error, resolution_floor
+        from ..vdnif_addon.settings import EMBEDDING_ERROR_SHARE, RESOLUTION_CANDIDATES
 
-        settings = obj.vdnif
         target = EMBEDDING_ERROR_SHARE * network_error()
-        settings.resolution, table = suggest_resolution(obj, settings.pose_spec(), target)
-        tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}"
-                          for row in table)
-        settings.resolution_info = (f"suggested {settings.resolution}: embedding error "
-                                    f"{tried} (target {target:.2g} object units)")
-        return f"'{obj.name}': {settings.resolution_info}"
+
+        def make():
+            from ..vdnif_addon.blender.ui_jobs import suggestion_job
+
+            return suggestion_job(obj, obj.vdnif.pose_spec(), target, resolution_floor(obj),
+                                  RESOLUTION_CANDIDATES)
+
+        def finish(obj, state):
+            outcome(state)
+            if state.status != "completed":
+                return f"'{obj.name}': {state.message}"
+            settings = obj.vdnif
+            settings.resolution, table = state.result
+            tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}"
+                              for row in table)
+            settings.resolution_info = (f"suggested {settings.resolution}: embedding error "
+                                        f"{tried} (target {target:.2g} object units)")
+            return f"'{obj.name}': {settings.resolution_info}"
+
+        return [Stage(make, finish)]
 
 
 def dataset_settings(obj):

@@ -179,3 +179,21 @@ def test_estimate_of_disk_against_a_real_dataset(empty_scene, extension, tmp_pat
     obj.vdnif.rays_per_pose = 1024
     assert training.fresh_estimate(bpy.context, obj) is None, "estimated for other settings"
     assert "operator:vdnif.estimate" in texts(draw_all(extension))
+
+
+@pytest.mark.slow
+def test_suggest_resolution_in_a_worker_equals_the_direct_search(empty_scene, monkeypatch):
+    """The worker asks the main thread for each candidate's capture and poses: the same
+    embedding errors as the search run in one thread, and no helper object left."""
+    obj = arm_scene()
+    monkeypatch.setattr(module("vdnif_addon.settings"), "RESOLUTION_CANDIDATES", (8, 16))
+    resolution = module("vdnif_addon.blender.resolution")
+    target = module("vdnif_addon.settings").EMBEDDING_ERROR_SHARE * resolution.network_error()
+    chosen, table = resolution.suggest_resolution(obj, obj.vdnif.pose_spec(), target, (8, 16))
+    suggest = module("operators.scene").VDNIF_OT_suggest_resolution
+    result, status, reports = modal_run(suggest, "Arm")
+    tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}" for row in table)
+    assert result == {"FINISHED"} and obj.vdnif.resolution == chosen
+    assert obj.vdnif.resolution_info.startswith(f"suggested {chosen}: embedding error {tried}")
+    assert any(re.search(r"suggestion: [01]/2 resolutions", text) for text in status)
+    assert not [o for o in bpy.data.objects if CORNERS in o.name]

@@ -102,9 +102,9 @@ def test_suggest_resolution_sets_the_suggested_one_and_says_why(empty_scene, mon
     resolution = module("vdnif_addon.blender.resolution")
     suggest, calls = resolution.suggest_resolution, []
 
-    def small(target_obj, spec, target):
+    def small(target_obj, spec, target, _candidates, **options):
         calls.append((target_obj, spec.count, target))
-        return suggest(target_obj, spec, target, (8, 16), poses=1, size=24)
+        return suggest(target_obj, spec, target, (8, 16), poses=1, size=24, **options)
 
     monkeypatch.setattr(resolution, "suggest_resolution", small)
     bpy.ops.vdnif.suggest_resolution()

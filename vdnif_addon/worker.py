@@ -114,6 +114,52 @@ class _Failure:
     error: BaseException
 
 
+class MainCalls:
+    """Functions a worker needs run on the main thread (reading Blender where the reads
+    cannot be listed ahead), run by the job's ``tick``; ``call`` waits for the result."""
+
+    def __init__(self, cancel: threading.Event) -> None:
+        self._queue: queue.Queue = queue.Queue()
+        self._cancel = cancel
+
+    def call(self, function: Callable[[], Any], always: bool = False) -> Any:
+        """Worker: ``function()`` run on the main thread; raises JobCancelled once cancelled
+        unless ``always`` (a clean-up that must run)."""
+        done, box = threading.Event(), {}
+        self._queue.put((function, done, box))
+        while not done.wait(0.02):
+            if self._cancel.is_set() and not always:
+                raise JobCancelled
+        if "error" in box:
+            raise box["error"]
+        return box["value"]
+
+    def serve(self, budget_s: float) -> None:
+        """Main thread: runs the waiting calls for about ``budget_s`` seconds."""
+        end = time.monotonic() + budget_s
+        while time.monotonic() < end:
+            try:
+                function, done, box = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                box["value"] = function()
+            except Exception as exc:       # raised in the worker, which called it
+                box["error"] = exc
+            done.set()
+
+
+class DirectCalls:
+    """``MainCalls`` for work run in the main thread itself (background mode)."""
+
+    @staticmethod
+    def call(function: Callable[[], Any], always: bool = False) -> Any:
+        return function()
+
+    def close(self) -> None:
+        """Nothing to clean up."""
+
+
 Work = Callable[[Any, Callable[[int, int], None], Callable[[Any], None]], tuple[str, Any]]
 """``work(source, progress, deliver) -> (message, result)``."""
 
@@ -125,9 +171,10 @@ class WorkerJob:
     ``source``: what the work reads Blender through. ``run`` passes ``live()`` (it reads
     Blender itself); ``start`` passes ``feed``, which ``tick`` on the main thread fills by
     running ``reads()``: a generator that yields True after each item it put into the feed
-    and False while the feed is full. ``progress(done, total)`` gives the progress (and
-    raises JobCancelled once cancelled); ``deliver(item)`` hands a result to
-    ``on_output(item)``, at once in ``run``, on the main thread's next ``tick`` in ``start``.
+    and False while the feed is full, or serves when it is a ``MainCalls``.
+    ``progress(done, total)`` gives the progress (and raises JobCancelled once cancelled);
+    ``deliver(item)`` hands a result to ``on_output(item)``, at once in ``run``, on the
+    main thread's next ``tick`` in ``start``.
     """
 
     def __init__(self, title: str, total: int, unit: str, work: Work,
@@ -166,6 +213,8 @@ class WorkerJob:
         """Main thread: reads ahead for the worker for about ``budget_s`` seconds, and
         hands the delivered results to ``on_output``. A failed read fails the job."""
         self._drain()
+        if isinstance(self.feed, MainCalls):     # served until the worker ends: clean-ups
+            self.feed.serve(budget_s)
         if self._reads is None:
             return
         if self._cancel.is_set() or (self._thread is not None and not self._thread.is_alive()):

@@ -53,3 +53,14 @@ class PoseFeed(PoseSource):
             raise VDNIFError(f"'{self.name}': the scene was read for pose {snapshot.pose}, "
                              f"not for {pose}")
         return snapshot
+
+
+class CalledReader(PoseSource):
+    """A live ``PoseReader`` used from a worker: each read runs on the main thread through
+    ``calls`` (``worker.MainCalls``; ``worker.DirectCalls`` in the main thread itself)."""
+
+    def __init__(self, calls, reader):
+        self.calls, self.reader, self.name = calls, reader, reader.name
+
+    def read(self, pose):
+        return self.calls.call(lambda: self.reader.read(pose))

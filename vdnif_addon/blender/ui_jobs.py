@@ -15,7 +15,7 @@ import shutil
 import threading
 
 from ..training.dataset import MANIFEST
-from ..worker import WorkerJob
+from ..worker import DirectCalls, MainCalls, WorkerJob
 from . import estimate as estimates
 from .animation import frame_pose, render_frames
 from .generate import generate_dataset
@@ -142,3 +142,24 @@ def estimate_job(obj, captured, variant, rays_per_pose, overrides, scratch, seed
 
     return pose_job("estimate", "samples", obj, captured, estimates.probe_poses(captured),
                     work, total=1)
+
+
+def suggestion_job(obj, spec, target, floor, candidates):
+    """Suggests the voxel resolution (``resolution.suggest_resolution``): each candidate's
+    capture and poses are read on the main thread when the worker asks for them. Result:
+    (resolution, table)."""
+    from .resolution import considered, suggest_resolution
+
+    cancel = threading.Event()
+    tried = considered(candidates, floor)
+
+    def work(calls, progress, _deliver):
+        done = []
+        suggested = suggest_resolution(
+            obj, spec, target, candidates, floor=floor, calls=calls,
+            progress=lambda resolution, _: done.append(resolution) or progress(
+                len(done), len(tried)))
+        return f"suggested {suggested[0]}", suggested
+
+    return WorkerJob("suggestion", len(tried), "resolutions", work, live=DirectCalls,
+                     feed=MainCalls(cancel), cancel=cancel)
