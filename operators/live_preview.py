@@ -160,12 +160,21 @@ def stop(name):
         session.renderer.finished(wait=60)
 
 
+@bpy.app.handlers.persistent
+def forget(*_):
+    """load_post: the sessions belong to the file they were made in."""
+    for name in list(_sessions):
+        stop(name)
+
+
 def register():
     bpy.app.handlers.frame_change_post.append(on_frame_change)
+    bpy.app.handlers.load_post.append(forget)
 
 
 def unregister():
     bpy.app.handlers.frame_change_post.remove(on_frame_change)
+    bpy.app.handlers.load_post.remove(forget)
     if bpy.app.timers.is_registered(tick):
         bpy.app.timers.unregister(tick)
     for name in list(_sessions):

@@ -9,7 +9,7 @@ import re
 import bpy
 import numpy as np
 import pytest
-from test_ui_panels import draw_all, texts
+from test_ui_panels import BoundTo, RecordingLayout, draw_all, texts
 from test_ui_workflow import arm_scene, eager_model, modal_run, module
 
 CORNERS = "VDNIF corners"      # the helper objects reading the poses makes
@@ -167,6 +167,12 @@ def test_estimate_of_disk_against_a_real_dataset(empty_scene, extension, tmp_pat
     describe = module("vdnif_addon.blender.estimate").describe
     shown = texts(draw_all(extension))
     assert describe(figures) in shown and "operator:vdnif.train" in shown
+    record = []                                  # Train's confirm dialog shows it too
+    training.VDNIF_OT_train.draw(BoundTo(training.VDNIF_OT_train, RecordingLayout(record)),
+                                 bpy.context)
+    size = module("vdnif_addon.blender.estimate").size_text(figures["bytes"])
+    dialog = texts({"dialog": record})
+    assert f"Dataset: about {size} in " in dialog and describe(figures).capitalize() in dialog
     bpy.ops.vdnif.generate_dataset()
     folder = module("storage").dataset_folder(obj)
     real = sum(path.stat().st_size for path in folder.iterdir())

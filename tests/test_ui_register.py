@@ -39,7 +39,7 @@ def test_register_and_unregister_twice_leave_nothing_behind(extension):
             "install_dependencies", "apply_preset", "suggest_resolution"} == set(
                 enabled["operators"])
     assert enabled["dependency_path"] and not enabled["install_timer"]
-    handlers = dict(enabled["handlers"], load_post=enabled["handlers"]["load_post"] - 1,
+    handlers = dict(enabled["handlers"], load_post=enabled["handlers"]["load_post"] - 2,
                     frame_change_post=enabled["handlers"]["frame_change_post"] - 1)
     for _ in range(2):
         addon_utils.disable(EXTENSION_MODULE, default_set=True)
