@@ -32,6 +32,12 @@ class Stage:
     finish: Callable
 
 
+def handed_over(result):
+    """The status of an operator whose work another operator call took over (invoking it
+    from a dialog or after an estimate): finished once that one runs."""
+    return {"FINISHED"} if result & {"RUNNING_MODAL", "FINISHED"} else {"CANCELLED"}
+
+
 def outcome(state):
     """Raises the failure of a finished job's state as a VDNIFError."""
     if state.status == "failed":
@@ -70,7 +76,7 @@ class JobOperator(VDNIFOperator):
         try:
             self._stages = list(self.stages(context, obj))
             self._next(obj)
-        except VDNIFError as exc:
+        except (VDNIFError, OSError) as exc:
             JOBS.pop(self._name, None)
             return self.fail(obj, exc)
         obj.vdnif.last_error = ""

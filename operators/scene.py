@@ -101,7 +101,9 @@ def dataset_stage(context, obj):
         settings, folder, recorded = obj.vdnif, made["folder"], made["settings"]
         settings.dataset_dir = storage.portable(folder)
         counts = state.result.counts
-        size = sum(path.stat().st_size for path in folder.iterdir() if path.is_file())
+        from ..vdnif_addon.blender.ui_jobs import dataset_files
+
+        size = sum(path.stat().st_size for path in dataset_files(folder))
         settings.dataset_info = json.dumps({
             "variant": recorded["variant"], "resolution": recorded["resolution"],
             "poses": len(state.result.poses), "rays": counts.rays,

@@ -8,7 +8,7 @@ import bpy
 from bpy.props import BoolProperty
 
 from .. import storage
-from .running import JobOperator, Stage, outcome
+from .running import JobOperator, Stage, handed_over, outcome
 from .scene import dataset_settings, dataset_stage
 
 
@@ -136,7 +136,7 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
         if not needs_dataset(obj):
             return self.start(context)
         if fresh_estimate(context, obj) is None:     # measure it first, then ask again
-            return bpy.ops.vdnif.estimate("INVOKE_DEFAULT", then_train=True)
+            return handed_over(bpy.ops.vdnif.estimate("INVOKE_DEFAULT", then_train=True))
         return context.window_manager.invoke_props_dialog(
             self, width=420, title="Generate the dataset and train?", confirm_text="Train")
 
@@ -153,7 +153,7 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
 
     def execute(self, context):
         if not bpy.app.background and not self.confirmed:     # the dialog's Train button
-            return bpy.ops.vdnif.train("INVOKE_DEFAULT", confirmed=True)
+            return handed_over(bpy.ops.vdnif.train("INVOKE_DEFAULT", confirmed=True))
         return super().execute(context)
 
 

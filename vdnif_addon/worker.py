@@ -212,7 +212,7 @@ class WorkerJob:
     def tick(self, budget_s: float = 0.05) -> None:
         """Main thread: reads ahead for the worker for about ``budget_s`` seconds, and
         hands the delivered results to ``on_output``. A failed read fails the job."""
-        self._drain()
+        self._drain(budget_s)
         if isinstance(self.feed, MainCalls):     # served until the worker ends: clean-ups
             self.feed.serve(budget_s)
         if self._reads is None:
@@ -237,10 +237,16 @@ class WorkerJob:
         self._drain()
         reads, self._reads = self._reads, None
         if reads is not None:
-            reads.close()
+            try:
+                reads.close()
+            except Exception:   # noqa: BLE001 - what they made went with its file already
+                pass
 
-    def _drain(self) -> None:
-        while True:
+    def _drain(self, budget_s: float | None = None) -> None:
+        """Hands the delivered results to ``on_output``, for about ``budget_s`` seconds
+        (None: all of them)."""
+        end = None if budget_s is None else time.monotonic() + budget_s
+        while end is None or time.monotonic() < end:
             try:
                 item = self._outputs.get_nowait()
             except queue.Empty:
