@@ -13,12 +13,13 @@ from .scene import dataset_settings, dataset_stage
 
 
 def needs_dataset(obj):
-    """Whether training must generate the dataset first: none yet, or one made for other
-    settings (a dataset without its settings recorded, from an older version, counts as
-    made for the current ones unless its variant trains on other poses)."""
-    if not storage.has_dataset(obj):
-        return True
+    """Whether training must generate the dataset first: none yet, one the object has no
+    record of, or one made for other settings (a dataset without its settings recorded, from
+    an older version, counts as made for the current ones unless its variant trains on
+    other poses)."""
     info = obj.vdnif.parsed("dataset_info")
+    if not info or not storage.has_dataset(obj):
+        return True
     if "settings" in info:
         return info["settings"] != dataset_settings(obj)
     from ..vdnif_addon.model.variants import variant_config

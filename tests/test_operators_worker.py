@@ -5,6 +5,7 @@ the one Train button builds a missing dataset first after measuring its estimate
 
 import json
 import re
+import time
 
 import bpy
 import numpy as np
@@ -84,8 +85,26 @@ def test_one_train_button_builds_the_dataset_then_trains(trained):
     assert record["model_info"]["status"] == "completed" and record["model_info"]["steps"] == 30
 
 
+def held_after_first_pose(monkeypatch):
+    """Holds the dataset job's worker after its first pose until it is cancelled (its
+    progress call raises then), so that Esc lands mid-run however fast the machine."""
+    ui_jobs = module("vdnif_addon.blender.ui_jobs")
+    generate = ui_jobs.generate_dataset
+
+    def held(*args, progress, **options):
+        def hold(done, total):
+            progress(done, total)
+            while done == 1:
+                time.sleep(0.01)
+                progress(done, total)
+
+        return generate(*args, progress=hold, **options)
+
+    monkeypatch.setattr(ui_jobs, "generate_dataset", held)
+
+
 @pytest.mark.slow
-def test_generate_dataset_in_a_worker_and_cancel_keeps_the_previous(trained):
+def test_generate_dataset_in_a_worker_and_cancel_keeps_the_previous(trained, monkeypatch):
     blend, _ = trained
     obj = reopen(blend)
     storage = module("storage")
@@ -94,16 +113,18 @@ def test_generate_dataset_in_a_worker_and_cancel_keeps_the_previous(trained):
     info = obj.vdnif.dataset_info
     obj.vdnif.rays_per_pose = 256
     generate = module("operators.scene").VDNIF_OT_generate_dataset
-    result, status, reports = modal_run(generate, "Arm", lambda state: state.count >= 1)
+    with monkeypatch.context() as patched:
+        held_after_first_pose(patched)
+        result, status, reports = modal_run(generate, "Arm", lambda state: state.count >= 1)
     assert result == {"FINISHED"} and "previous dataset is kept" in reports[0][1]
     assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
     assert obj.vdnif.dataset_info == info
-    assert any(re.search(r"dataset: [1-3]/4 poses, ETA .*Esc cancels", text) for text in status)
+    assert any("dataset: 1/4 poses, ETA" in text and "Esc cancels" in text for text in status)
 
     result, status, reports = modal_run(generate, "Arm")
     counts = [int(text.split("dataset: ")[1].split("/")[0]) for text in status
               if "dataset: " in text and "/4 poses" in text]
-    assert result == {"FINISHED"} and counts == sorted(counts) and counts[-1] == 4
+    assert result == {"FINISHED"} and counts and counts == sorted(counts)
     assert obj.vdnif.parsed("dataset_info")["rays"] == 4 * 256
     assert [p.name for p in folder.parent.iterdir() if p.name.endswith(".partial")] == []
 
