@@ -6,8 +6,9 @@ The pipeline itself lives in ``vdnif_addon`` and never depends on this module.
 """
 
 from . import operators, panels, preferences, properties, viewer
+from .operators import live_preview
 
-_modules = (preferences, properties, viewer, operators, panels)
+_modules = (preferences, properties, viewer, live_preview, operators, panels)
 
 
 def register():

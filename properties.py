@@ -5,9 +5,17 @@ choice (``Scene.vdnif_viewer``)."""
 import json
 
 import bpy
-from bpy.props import EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 from . import preferences, viewer
+from .operators import live_preview
 from .vdnif_addon import settings as defaults
 from .vdnif_addon.presets import PRESET_VARIANT
 from .vdnif_addon.presets import SETTINGS as PRESET_SETTINGS
@@ -134,6 +142,32 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                                     description="Why the suggested resolution was chosen")
     dataset_info: StringProperty(options={"HIDDEN"},
                                  description="What the dataset holds (JSON)")
+    estimate_info: StringProperty(options={"HIDDEN"}, description="The measured disk and "
+                                  "time estimate and the settings it was measured for (JSON)")
+    keep_partial_model: BoolProperty(
+        name="Keep Partial Model on Cancel", default=False,
+        description="Off: a cancelled training keeps the previous model (the first model is "
+                    "kept even when cancelled). On: it keeps what the cancelled run learned")
+    use_scene_frames: BoolProperty(
+        name="Scene Frame Range", default=True,
+        description="Render Animation renders the scene's frame range; off: the range below")
+    frame_start: IntProperty(name="Start", default=1, description="First frame to render")
+    frame_end: IntProperty(name="End", default=250, description="Last frame to render")
+    frame_step: IntProperty(name="Step", default=1, min=1,
+                            description="Render every this many frames")
+    frames_dir: StringProperty(
+        name="Output Folder", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
+        description="Where Render Animation writes its image sequences (empty: beside the "
+                    ".blend)")
+    live_preview: BoolProperty(
+        name="Live Preview", default=False,
+        update=lambda settings, context: live_preview.toggled(settings, context),
+        description="Render the predicted passes at the preview size whenever the frame "
+                    "changes (frames are skipped rather than queued while one renders)")
+    preview_percent: IntProperty(name="Preview Size", default=25, min=5, max=100,
+                                 subtype="PERCENTAGE",
+                                 description="The live preview's size, in percent of the "
+                                             "render size")
     last_error: StringProperty(options={"HIDDEN"},
                                description="Why the last button failed")
     preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview",

@@ -27,12 +27,13 @@ def portable(path):
     return bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
 
 
-def _slug(obj):
+def slug(obj):
+    """The object's name as a file name."""
     return file_stem(obj.name)
 
 
 def _beside_blend(obj, name):
-    return pathlib.Path(bpy.path.abspath(f"//vdnif/{_slug(obj)}{name}"))
+    return pathlib.Path(bpy.path.abspath(f"//vdnif/{slug(obj)}{name}"))
 
 
 def dataset_folder(obj):
@@ -43,7 +44,18 @@ def dataset_folder(obj):
         return pathlib.Path(bpy.path.abspath(chosen))
     if bpy.data.filepath:
         return _beside_blend(obj, "-dataset")
-    return user_folder("datasets", _slug(obj))
+    return user_folder("datasets", slug(obj))
+
+
+def frames_folder(obj):
+    """Where Render Animation writes the object's image sequences: its setting, else beside
+    the .blend, else (unsaved .blend) in the user folder."""
+    chosen = obj.vdnif.frames_dir
+    if chosen:
+        return pathlib.Path(bpy.path.abspath(chosen))
+    if bpy.data.filepath:
+        return _beside_blend(obj, "-frames")
+    return user_folder("frames", slug(obj))
 
 
 def passes_folder(obj):
@@ -51,19 +63,12 @@ def passes_folder(obj):
     .blend, else (unsaved .blend) in the user folder."""
     if bpy.data.filepath:
         return _beside_blend(obj, "-passes")
-    return user_folder("passes", _slug(obj))
+    return user_folder("passes", slug(obj))
 
 
 def has_dataset(obj):
     folder = dataset_folder(obj)
     return folder.is_dir() and any(folder.glob("shard-*.json"))
-
-
-def clear_dataset(folder):
-    """Removes the shards of an earlier dataset from ``folder`` (nothing else)."""
-    for path in pathlib.Path(folder).glob("shard-*.*"):
-        if path.suffix in (".json", ".npz"):
-            path.unlink()
 
 
 def training_target(obj):
@@ -74,7 +79,7 @@ def training_target(obj):
             raise VDNIFError(f"'{obj.name}': save the .blend first so its model can be stored "
                              "beside it, or choose packed model storage")
         return _beside_blend(obj, ".vdnif")
-    return user_folder("models") / f"{_slug(obj)}-training.vdnif"
+    return user_folder("models") / f"{slug(obj)}-training.vdnif"
 
 
 def keep_model(obj, path, summary):

@@ -17,7 +17,6 @@ from .vdnif_addon.inference.evaluation import view_images
 from .vdnif_addon.inference.images import PASSES
 from .vdnif_addon.passes import COMPOSITOR_SOURCES
 from .vdnif_addon.settings import PoseSpec
-from .vdnif_addon.tracing import rays
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}
@@ -70,9 +69,9 @@ def _new_preview(obj):
     return preview
 
 
-def view_rays(region_3d, width, height):
-    """World rays (origins, directions), (H*W, 3) each, of a perspective 3D Viewport view
-    (its RegionView3D) rendered at ``width`` x ``height`` with the view's horizontal angle."""
+def viewport_view(region_3d):
+    """(world matrix (4, 4), horizontal field of view in degrees) of a perspective 3D
+    Viewport view (its RegionView3D): the pinhole ``neural.view_rays`` renders."""
     if region_3d is None:
         raise VDNIFError("no 3D Viewport to render from: render through the camera instead")
     if not region_3d.is_perspective:
@@ -80,8 +79,7 @@ def view_rays(region_3d, width, height):
                          "(Numpad 5) or render through the camera")
     projection = np.array(region_3d.window_matrix, np.float64)
     fov = math.degrees(2 * math.atan(1 / projection[0, 0]))
-    return rays.camera_rays(np.array(region_3d.view_matrix.inverted(), np.float64), fov,
-                            width, height)
+    return np.array(region_3d.view_matrix.inverted(), np.float64), fov
 
 
 def image_name(pass_name, source):
@@ -117,9 +115,9 @@ def write_files(obj, result, slots, width, height, frame):
 
     folder = storage.passes_folder(obj)
     written = write_passes(folder, result.predicted, height, width, result.world_scale,
-                           slots=slots, frame=frame, world_matrix=obj.matrix_world)
+                           slots=slots, frame=frame, world_matrix=result.matrix_world)
     write_passes(folder, result.true, height, width, result.world_scale, prefix="true-",
-                 slots=slots, frame=frame, world_matrix=obj.matrix_world)
+                 slots=slots, frame=frame, world_matrix=result.matrix_world)
     return written[-1]
 
 

@@ -1,12 +1,10 @@
 """What every VDNIF operator shares: poll checks whose reason the user sees, and errors
 reported with ``self.report`` and kept for the panel."""
 
-import contextlib
-
 from .. import preferences, storage
 from ..vdnif_addon.errors import VDNIFError
 
-JOBS = {}   # object name -> its running TrainingJob (runtime only, never saved)
+JOBS = {}   # object name -> its running job (runtime only, never saved), see running
 
 
 def _mesh(context):
@@ -29,7 +27,7 @@ def _torch(_context):
 def _idle(context):
     obj = context.active_object
     if obj.name in JOBS:
-        return f"'{obj.name}' is training: wait or cancel it"
+        return f"'{obj.name}' is busy ({JOBS[obj.name].state.line()}): wait or cancel it"
     return None
 
 
@@ -47,15 +45,15 @@ def _model(context):
     return None
 
 
-def _training(context):
+def _running(context):
     obj = context.active_object
     if obj.name not in JOBS:
-        return f"'{obj.name}' is not training"
+        return f"'{obj.name}' runs no job"
     return None
 
 
 CHECKS = {"mesh": _mesh, "torch": _torch, "idle": _idle, "dataset": _dataset,
-          "model": _model, "training": _training}
+          "model": _model, "running": _running}
 
 
 class VDNIFOperator:
@@ -102,17 +100,6 @@ class VDNIFOperator:
         obj.vdnif.last_error = ""
         self.report({"INFO"}, message)
         return {"FINISHED"}
-
-
-@contextlib.contextmanager
-def progress(context, total):
-    """A ``progress(done, total)`` callback driving the window manager's progress cursor."""
-    wm = context.window_manager
-    wm.progress_begin(0, max(total, 1))
-    try:
-        yield lambda done, _total: wm.progress_update(done)
-    finally:
-        wm.progress_end()
 
 
 def redraw(context):

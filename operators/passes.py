@@ -1,4 +1,6 @@
-"""Render Passes (into the pass viewer's images) and Evaluate (metrics on unseen poses)."""
+"""Render Passes (this frame, into the pass viewer's images) and Evaluate (metrics on unseen
+poses), both in workers (``running``): the poses and the view are read on the main thread,
+the network and the references run in the worker."""
 
 import json
 
@@ -6,7 +8,7 @@ import bpy
 
 from .. import storage, viewer
 from ..vdnif_addon.text import metrics_line
-from .common import VDNIFOperator, progress
+from .running import JobOperator, Stage, outcome
 
 
 def model_capture(obj, evaluation_count=None):
@@ -32,7 +34,34 @@ def region_3d(context):
     return None
 
 
-class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
+def render_view(context, obj):
+    """(camera, fixed view) the object's settings render through: the scene's camera (read
+    in each frame, it may move), or the 3D Viewport's view read now."""
+    if obj.vdnif.view == "CAMERA":
+        return context.scene.camera, None
+    return None, viewer.viewport_view(region_3d(context))
+
+
+def frames_stage(context, obj, frames, width, height, on_frame, references=False,
+                 camera=None, view=None):
+    """The ``make`` of a Stage rendering ``frames`` of the object's model
+    (``ui_jobs.frames_job``); ``on_frame(frame, result, captured)`` runs on the main thread
+    for each frame."""
+    name, device = obj.name, obj.vdnif.device_name(context)
+
+    def make():
+        from ..vdnif_addon.blender.ui_jobs import frames_job
+
+        obj = bpy.data.objects[name]
+        loaded, captured = model_capture(obj)
+        return frames_job(obj, captured, storage.model_path(obj), frames, width, height,
+                          device, lambda frame, result: on_frame(frame, result, captured),
+                          camera=camera, view=view, references=references, loaded=loaded)
+
+    return make
+
+
+class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
     """Render this frame's passes with the network and the deformed mesh into VDNIF images"""
 
     bl_idname = "vdnif.render_passes"
@@ -47,51 +76,69 @@ class VDNIF_OT_render_passes(VDNIFOperator, bpy.types.Operator):
             return "The scene has no active camera: add one or render the viewport's view"
         return reason
 
-    def work(self, context, obj):
-        from ..vdnif_addon.blender.neural import camera_rays, load_scene_model, render_rays
-
+    def stages(self, context, obj):
         settings, scene = obj.vdnif, context.scene
         width, height = settings.image_width, settings.image_height
-        if settings.view == "CAMERA":
-            origins, directions = camera_rays(scene.camera, width, height)
-        else:
-            origins, directions = viewer.view_rays(region_3d(context), width, height)
-        loaded, captured = model_capture(obj)
-        model = load_scene_model(storage.model_path(obj), captured, settings.device_name(context),
-                                 loaded)
-        pose = {"frame": scene.frame_current + scene.frame_subframe}
-        result = render_rays(obj, captured, model, pose, origins, directions, references=True)
-        slots = captured.mesh.material_slots          # the material pass shows the slots
-        viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
+        frame = scene.frame_current + scene.frame_subframe
+        camera, view = render_view(context, obj)
+        kept = {}
+
+        def keep(_frame, result, captured):
+            kept.update(result=result, slots=captured.mesh.material_slots)
+
+        make = frames_stage(context, obj, [frame], width, height, keep, references=True,
+                               camera=camera, view=view)
+
+        def finish(obj, state):
+            outcome(state)
+            if state.status != "completed":
+                return f"'{obj.name}': {state.message}"
+            result, slots = kept["result"], kept["slots"]   # the material pass: the slots
+            viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size)
-        exr = viewer.write_files(obj, result, slots, width, height, pose["frame"])
-        image = viewer.show(context, scene.vdnif_viewer)
-        where = ("" if viewer.image_editor(context.screen) is not None
-                 else " (open an Image Editor to see it)")
-        return (f"'{obj.name}' at frame {pose['frame']:g}: {int(result.predicted.hit.sum())} "
-                f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}), "
-                f"image '{image.name}'{where}; passes written to {storage.portable(exr)}")
+            exr = viewer.write_files(obj, result, slots, width, height, frame)
+            image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
+            where = ("" if viewer.image_editor(bpy.context.screen) is not None
+                     else " (open an Image Editor to see it)")
+            return (f"'{obj.name}' at frame {frame:g}: {int(result.predicted.hit.sum())} "
+                    f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}"
+                    f"), image '{image.name}'{where}; passes written to "
+                    f"{storage.portable(exr)}")
+
+        return [Stage(make, finish)]
 
 
-class VDNIF_OT_evaluate(VDNIFOperator, bpy.types.Operator):
-    """Evaluate the model on unseen poses against the deformed mesh and the voxel embedding"""
+class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
+    """Evaluate the model on unseen poses against the deformed mesh and the voxel embedding.
+    Esc cancels"""
 
     bl_idname = "vdnif.evaluate"
     bl_label = "Evaluate"
     needs = ("mesh", "torch", "idle", "model")
 
-    def work(self, context, obj):
-        from ..vdnif_addon.blender.jobs import evaluate_file
+    def stages(self, context, obj):
+        name, settings = obj.name, obj.vdnif
+        device = settings.device_name(context)
 
-        settings = obj.vdnif
-        loaded, captured = model_capture(obj, settings.eval_poses)
-        with progress(context, len(captured.poses)) as update:
-            report, _ = evaluate_file(obj, captured, storage.model_path(obj),
-                                      settings.image_width, settings.image_height,
-                                      settings.device_name(context), progress=update,
-                                      loaded=loaded)
-        settings.metrics = json.dumps(report)
-        return f"'{obj.name}': {metrics_line(report['vs_true'])} on {report['poses']} poses"
+        def make():
+            from ..vdnif_addon.blender.ui_jobs import evaluation_job
+
+            obj = bpy.data.objects[name]
+            settings = obj.vdnif
+            loaded, captured = model_capture(obj, settings.eval_poses)
+            return evaluation_job(obj, captured, storage.model_path(obj),
+                                  settings.image_width, settings.image_height, device, loaded)
+
+        def finish(obj, state):
+            outcome(state)
+            if state.status != "completed":
+                return f"'{obj.name}': {state.message}"
+            report = state.result
+            obj.vdnif.metrics = json.dumps(report)
+            return (f"'{obj.name}': {metrics_line(report['vs_true'])} on {report['poses']} "
+                    "poses")
+
+        return [Stage(make, finish)]
 
 
 classes = (VDNIF_OT_render_passes, VDNIF_OT_evaluate)

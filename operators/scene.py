@@ -1,15 +1,18 @@
-"""Voxelize (with its wireframe preview) and Generate Dataset."""
+"""Voxelize (with its wireframe preview; optional, a look at the cells before training) and
+Generate Dataset (in a worker, ``running``)."""
 
 import json
 
 import bpy
 
 from .. import storage, viewer
-from .common import VDNIFOperator, progress
+from .common import VDNIFOperator
+from .running import JobOperator, Stage, outcome
 
 
 class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
-    """Voxelize the mesh; show its occupied cells, deformed at the current frame, as a wireframe"""
+    """Optional: show the occupied voxel cells, deformed at the current frame, as a wireframe
+    (training voxelizes by itself)"""
 
     bl_idname = "vdnif.voxelize"
     bl_label = "Voxelize"
@@ -27,56 +30,101 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
         return f"'{obj.name}': {settings.voxel_info}"
 
 
-class VDNIF_OT_suggest_resolution(VDNIFOperator, bpy.types.Operator):
-    """Set the coarsest voxel resolution whose embedding error is small beside the network's"""
+class VDNIF_OT_suggest_resolution(JobOperator, bpy.types.Operator):
+    """Set the coarsest voxel resolution whose embedding error is small beside the network's
+    (measured on a few poses at each candidate). Esc cancels"""
 
     bl_idname = "vdnif.suggest_resolution"
     bl_label = "Suggest Resolution"
-    bl_options = {"REGISTER", "UNDO"}
     needs = ("mesh", "idle")
 
-    def work(self, context, obj):
-        from ..vdnif_addon.blender.resolution import network_error, suggest_resolution
-        from ..vdnif_addon.settings import EMBEDDING_ERROR_SHARE
+    def stages(self, context, obj):
+        from ..vdnif_addon.blender.resolution import network_error, resolution_floor
+        from ..vdnif_addon.settings import EMBEDDING_ERROR_SHARE, RESOLUTION_CANDIDATES
 
-        settings = obj.vdnif
         target = EMBEDDING_ERROR_SHARE * network_error()
-        settings.resolution, table = suggest_resolution(obj, settings.pose_spec(), target)
-        tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}"
-                          for row in table)
-        settings.resolution_info = (f"suggested {settings.resolution}: embedding error "
-                                    f"{tried} (target {target:.2g} object units)")
-        return f"'{obj.name}': {settings.resolution_info}"
+
+        def make():
+            from ..vdnif_addon.blender.ui_jobs import suggestion_job
+
+            return suggestion_job(obj, obj.vdnif.pose_spec(), target, resolution_floor(obj),
+                                  RESOLUTION_CANDIDATES)
+
+        def finish(obj, state):
+            outcome(state)
+            if state.status != "completed":
+                return f"'{obj.name}': {state.message}"
+            settings = obj.vdnif
+            settings.resolution, table = state.result
+            tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}"
+                              for row in table)
+            settings.resolution_info = (f"suggested {settings.resolution}: embedding error "
+                                        f"{tried} (target {target:.2g} object units)")
+            return f"'{obj.name}': {settings.resolution_info}"
+
+        return [Stage(make, finish)]
 
 
-class VDNIF_OT_generate_dataset(VDNIFOperator, bpy.types.Operator):
-    """Walk training rays through the deformed voxels of every pose and write the dataset"""
+def dataset_settings(obj):
+    """The settings a dataset is made with (recorded with it: Train regenerates a dataset
+    made with other ones)."""
+    settings = obj.vdnif
+    variant, _ = settings.chosen_variant()
+    return {"variant": variant, "resolution": settings.resolution,
+            "pose_source": settings.pose_source, "poses": settings.pose_count,
+            "seed": settings.seed, "max_angle": round(settings.max_angle, 6),
+            "rays_per_pose": settings.rays_per_pose}
+
+
+def dataset_stage(context, obj):
+    """Generates the object's dataset (``ui_jobs.dataset_job``): the poses are captured on
+    the main thread, walked in the worker; a cancel keeps the previous dataset. What it
+    records is what it was made with, whatever the settings became meanwhile."""
+    name, made = obj.name, {}
+
+    def make():
+        from ..vdnif_addon.blender.capture_scene import capture
+        from ..vdnif_addon.blender.ui_jobs import dataset_job
+
+        obj = bpy.data.objects[name]
+        settings = obj.vdnif
+        made.update(settings=dataset_settings(obj), folder=storage.dataset_folder(obj))
+        captured = capture(obj, settings.resolution, settings.pose_spec(),
+                           deform_corners=False)
+        return dataset_job(obj, captured, made["settings"]["variant"], made["folder"],
+                           settings.rays_per_pose, settings.seed)
+
+    def finish(obj, state):
+        outcome(state)
+        if state.status != "completed":
+            return f"'{obj.name}': {state.message}; the previous dataset is kept"
+        settings, folder, recorded = obj.vdnif, made["folder"], made["settings"]
+        settings.dataset_dir = storage.portable(folder)
+        counts = state.result.counts
+        from ..vdnif_addon.blender.ui_jobs import dataset_files
+
+        size = sum(path.stat().st_size for path in dataset_files(folder))
+        settings.dataset_info = json.dumps({
+            "variant": recorded["variant"], "resolution": recorded["resolution"],
+            "poses": len(state.result.poses), "rays": counts.rays,
+            "segments": counts.segments, "hits": counts.hits, "bytes": size,
+            "settings": recorded})
+        return (f"'{obj.name}': {counts.segments:,} segments of {counts.rays:,} rays, "
+                f"{size / 1e6:.1f} MB -> {settings.dataset_dir}")
+
+    return Stage(make, finish)
+
+
+class VDNIF_OT_generate_dataset(JobOperator, bpy.types.Operator):
+    """Walk training rays through the deformed voxels of every pose and write the dataset
+    (Train does this by itself when the dataset is missing). Esc cancels"""
 
     bl_idname = "vdnif.generate_dataset"
     bl_label = "Generate Dataset"
     needs = ("mesh", "torch", "idle")
 
-    def work(self, context, obj):
-        from ..vdnif_addon.blender.capture_scene import capture
-        from ..vdnif_addon.blender.jobs import variant_dataset
-
-        settings = obj.vdnif
-        variant, _ = settings.chosen_variant()
-        captured = capture(obj, settings.resolution, settings.pose_spec(),
-                           deform_corners=False)
-        folder = storage.dataset_folder(obj)
-        storage.clear_dataset(folder)
-        with progress(context, len(captured.poses)) as update:
-            header = variant_dataset(obj, captured, variant, folder,
-                                     settings.rays_per_pose, settings.seed, progress=update)
-        settings.dataset_dir = storage.portable(folder)
-        counts = header.counts
-        settings.dataset_info = json.dumps({
-            "variant": variant, "resolution": settings.resolution,
-            "poses": len(header.poses), "rays": counts.rays,
-            "segments": counts.segments, "hits": counts.hits})
-        return (f"'{obj.name}': {counts.segments} segments of {counts.rays} rays "
-                f"-> {settings.dataset_dir}")
+    def stages(self, context, obj):
+        return [dataset_stage(context, obj)]
 
 
 classes = (VDNIF_OT_voxelize, VDNIF_OT_suggest_resolution, VDNIF_OT_generate_dataset)

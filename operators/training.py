@@ -1,98 +1,63 @@
-"""Train (modal: a worker thread, progress in the panel and the status bar, Esc to cancel;
-synchronous in background mode) and Cancel Training."""
+"""Train: the one button that trains from scratch (the dataset when it is missing or was made
+for other settings, then the network), after showing the estimated disk and time; and
+Estimate, which measures that estimate. Both run in workers (``running``)."""
+
+import json
 
 import bpy
+from bpy.props import BoolProperty
 
 from .. import storage, viewer
-from ..vdnif_addon.errors import VDNIFError
-from .common import JOBS, VDNIFOperator, redraw
-
-_timers = []        # the window-manager timers of running Train operators
+from .running import JobOperator, Stage, handed_over, outcome
+from .scene import dataset_settings, dataset_stage
 
 
-class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
-    """Train the network on the dataset; the model is kept with the .blend. Esc cancels"""
+def needs_dataset(obj):
+    """Whether training must generate the dataset first: none yet, one the object has no
+    record of, or one made for other settings (a dataset without its settings recorded, from
+    an older version, counts as made for the current ones unless its variant trains on
+    other poses)."""
+    info = obj.vdnif.parsed("dataset_info")
+    if not info or not storage.has_dataset(obj):
+        return True
+    if "settings" in info:
+        return info["settings"] != dataset_settings(obj)
+    from ..vdnif_addon.model.variants import variant_config
 
-    bl_idname = "vdnif.train"
-    bl_label = "Train"
-    needs = ("mesh", "torch", "idle", "dataset")
+    variant, _ = obj.vdnif.chosen_variant()
+    made_for = info.get("variant", variant)
+    return variant_config(made_for).deformed_data != variant_config(variant).deformed_data
 
-    def work(self, context, obj):
-        """Trains in this thread: background mode and scripts."""
-        job = self._job(context, obj)
-        job.run()
-        return self._keep(obj, job.poll())
 
-    def invoke(self, context, event):
-        if bpy.app.background:
-            return self.execute(context)
-        obj = context.active_object
-        try:
-            job = self._job(context, obj)
-        except VDNIFError as exc:
-            return self.fail(obj, exc)
-        obj.vdnif.last_error = ""
-        self._name = obj.name
-        JOBS[obj.name] = job
-        job.start()
-        self._timer = context.window_manager.event_timer_add(0.25, window=context.window)
-        _timers.append(self._timer)
-        context.window_manager.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+def run_settings(context, obj):
+    """Everything an estimate depends on: the dataset's settings and the training's."""
+    return {"dataset": dataset_settings(obj), "training": obj.vdnif.overrides(context)}
 
-    def modal(self, context, event):
-        job = JOBS.get(self._name)
-        if job is None:                   # the extension is being disabled
-            return {"CANCELLED"}
-        if event.type == "ESC" and event.value == "PRESS":
-            job.cancel()
-            return {"RUNNING_MODAL"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"}
-        state = job.poll()
-        context.workspace.status_text_set(f"VDNIF '{self._name}': {state.line()}"
-                                          + ("" if state.done else "  (Esc cancels)"))
-        redraw(context)
-        if not state.done:
-            return {"PASS_THROUGH"}
-        self._stop(context)
-        obj = bpy.data.objects.get(self._name)
-        if obj is None:
-            self.report({"WARNING"}, f"'{self._name}' is gone; its model is not kept")
-            return {"CANCELLED"}
-        try:
-            return self.succeed(obj, self._keep(obj, state))
-        except VDNIFError as exc:
-            return self.fail(obj, exc)
 
-    def cancel(self, context):
-        """Blender ends the operator (file loaded, window closed): stop the worker."""
-        job = JOBS.get(self._name)
-        if job is not None:
-            job.cancel()
-            job.join()
-        self._stop(context)
+def fresh_estimate(context, obj):
+    """The object's estimate when it was measured for its current settings, else None."""
+    kept = obj.vdnif.parsed("estimate_info")
+    if kept.get("settings") != json.loads(json.dumps(run_settings(context, obj))):
+        return None
+    return kept["figures"]
 
-    def _job(self, context, obj):
-        from ..vdnif_addon.model.variants import variant_config
+
+def training_stage(context, obj):
+    """Trains on the object's dataset into the model it keeps (``training.job``)."""
+    name, overrides = obj.name, obj.vdnif.overrides(context)
+    variant, _ = obj.vdnif.chosen_variant()
+
+    def make():
         from ..vdnif_addon.training.job import TrainingJob
 
-        settings = obj.vdnif
-        variant, _ = settings.chosen_variant()
-        made_for = settings.parsed("dataset_info").get("variant", variant)
-        deformed = variant_config(variant).deformed_data
-        if variant_config(made_for).deformed_data != deformed:
-            raise VDNIFError(f"the dataset of '{obj.name}' was generated for the {made_for} "
-                             f"variant, which trains on other poses than {variant}: "
-                             "generate it again")
-        return TrainingJob(storage.dataset_folder(obj), variant,
-                           storage.training_target(obj), settings.overrides(context))
+        obj = bpy.data.objects[name]
+        # With no model yet, a cancelled run keeps what it learned: there is nothing to keep.
+        keep = obj.vdnif.keep_partial_model or not storage.has_model(obj)
+        return TrainingJob(storage.dataset_folder(obj), variant, storage.training_target(obj),
+                           overrides, keep_partial=keep)
 
-    def _keep(self, obj, state):
-        """Keeps the model the job wrote with the object; the message of the outcome (with
-        the note on the variant choice, if any)."""
-        if state.status == "failed":
-            raise VDNIFError(state.message)
+    def finish(obj, state):
+        outcome(state)
         if state.model is not None:
             from ..vdnif_addon.model.model_file import load_model
 
@@ -104,36 +69,100 @@ class VDNIF_OT_train(VDNIFOperator, bpy.types.Operator):
         return f"'{obj.name}': {state.message}, variant {variant}" + (
             f" ({note})" if note else "")
 
-    def _stop(self, context):
-        JOBS.pop(self._name, None)
-        if self._timer in _timers:
-            _timers.remove(self._timer)
-            context.window_manager.event_timer_remove(self._timer)
-        if context.workspace is not None:
-            context.workspace.status_text_set(None)
+    return Stage(make, finish)
 
 
-class VDNIF_OT_cancel_training(VDNIFOperator, bpy.types.Operator):
-    """Stop training after the current step and keep the network trained so far"""
+def estimate_stage(context, obj):
+    """Measures what a run from scratch costs (``estimate``), kept in the settings."""
+    name, settings = obj.name, run_settings(context, obj)
 
-    bl_idname = "vdnif.cancel_training"
-    bl_label = "Cancel Training"
-    needs = ("mesh", "training")
+    def make():
+        from ..vdnif_addon.blender.capture_scene import capture
+        from ..vdnif_addon.blender.ui_jobs import estimate_job
 
-    def work(self, context, obj):
-        JOBS[obj.name].cancel()
-        return f"'{obj.name}': cancelling training"
+        obj = bpy.data.objects[name]
+        chosen = obj.vdnif
+        variant, _ = chosen.chosen_variant()
+        captured = capture(obj, chosen.resolution, chosen.pose_spec(), deform_corners=False)
+        scratch = storage.user_folder("estimates") / storage.slug(obj)
+        return estimate_job(obj, captured, variant, chosen.rays_per_pose, settings["training"],
+                            scratch, chosen.seed)
+
+    def finish(obj, state):
+        outcome(state)
+        if state.status == "completed":
+            obj.vdnif.estimate_info = json.dumps({"settings": settings,
+                                                  "figures": state.result})
+        return f"'{obj.name}': {state.message}"
+
+    return Stage(make, finish)
 
 
-def stop_all():
-    """Unregistering: cancels every job and waits for it, removes the timers."""
-    for job in JOBS.values():
-        job.cancel()
-        job.join(timeout=30)
-    JOBS.clear()
-    for timer in _timers:
-        bpy.context.window_manager.event_timer_remove(timer)
-    _timers.clear()
+class VDNIF_OT_estimate(JobOperator, bpy.types.Operator):
+    """Measure the disk space and time a training from scratch needs with these settings
+    (a few rays and training steps)"""
+
+    bl_idname = "vdnif.estimate"
+    bl_label = "Estimate Disk and Time"
+    needs = ("mesh", "torch", "idle")
+
+    then_train: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
+
+    def stages(self, context, obj):
+        return [estimate_stage(context, obj)]
+
+    def finished(self, context, obj):
+        if self.then_train and fresh_estimate(context, obj) is not None:
+            bpy.ops.vdnif.train("INVOKE_DEFAULT")
 
 
-classes = (VDNIF_OT_train, VDNIF_OT_cancel_training)
+class VDNIF_OT_train(JobOperator, bpy.types.Operator):
+    """Train from scratch: generate the dataset when it is missing or made for other settings
+    (its estimated size and time are shown first), then train the network; the model is
+    kept with the .blend. Esc cancels"""
+
+    bl_idname = "vdnif.train"
+    bl_label = "Train"
+    needs = ("mesh", "torch", "idle")
+
+    confirmed: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
+
+    def stages(self, context, obj):
+        first = [dataset_stage(context, obj)] if needs_dataset(obj) else []
+        return first + [training_stage(context, obj)]
+
+    def invoke(self, context, event):
+        if bpy.app.background or self.confirmed:
+            return super().invoke(context, event)
+        obj = context.active_object
+        if not needs_dataset(obj):
+            return self.start(context)
+        if fresh_estimate(context, obj) is None:     # measure it first, then ask again
+            return handed_over(bpy.ops.vdnif.estimate("INVOKE_DEFAULT", then_train=True))
+        return context.window_manager.invoke_props_dialog(
+            self, width=420, title="Generate the dataset and train?", confirm_text="Train")
+
+    def draw(self, context):
+        from ..vdnif_addon.blender.estimate import describe
+
+        obj = context.active_object
+        figures = fresh_estimate(context, obj)
+        layout = self.layout
+        if figures is not None:
+            layout.label(text=f"Dataset: about {_size(figures)} in "
+                              f"{storage.dataset_folder(obj)}", icon="DISK_DRIVE")
+            layout.label(text=describe(figures).capitalize(), icon="TIME")
+
+    def execute(self, context):
+        if not bpy.app.background and not self.confirmed:     # the dialog's Train button
+            return handed_over(bpy.ops.vdnif.train("INVOKE_DEFAULT", confirmed=True))
+        return super().execute(context)
+
+
+def _size(figures):
+    from ..vdnif_addon.blender.estimate import size_text
+
+    return size_text(figures["bytes"])
+
+
+classes = (VDNIF_OT_estimate, VDNIF_OT_train)

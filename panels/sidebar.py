@@ -7,17 +7,19 @@ import textwrap
 import bpy
 
 from .. import preferences, storage, viewer
-from ..operators import common
+from ..operators import common, live_preview
+from ..operators.animation import VDNIF_OT_render_animation
 from ..operators.dependencies import VDNIF_OT_install_dependencies
 from ..operators.model import VDNIF_OT_load_model, VDNIF_OT_save_model
 from ..operators.passes import VDNIF_OT_evaluate, VDNIF_OT_render_passes
 from ..operators.presets import VDNIF_OT_apply_preset
+from ..operators.running import VDNIF_OT_cancel_job
 from ..operators.scene import (
     VDNIF_OT_generate_dataset,
     VDNIF_OT_suggest_resolution,
     VDNIF_OT_voxelize,
 )
-from ..operators.training import VDNIF_OT_cancel_training, VDNIF_OT_train
+from ..operators.training import VDNIF_OT_estimate, VDNIF_OT_train, fresh_estimate, needs_dataset
 from ..vdnif_addon.inference.metrics import verdict
 from ..vdnif_addon.presets import PRESET_NAMES
 from ..vdnif_addon.text import metrics_line
@@ -86,17 +88,47 @@ class VDNIF_PT_main(SidebarPanel, bpy.types.Panel):
         obj = context.active_object
         job = common.JOBS.get(obj.name)
         if job is not None:
-            state = f"training: {job.state.line()}"
+            state = f"busy: {job.state.line()}"
         elif storage.has_model(obj):
             info = obj.vdnif.parsed("model_info")
             state = f"trained: {info.get('variant')}, {info.get('steps')} steps"
         else:
             state = "no model yet"
         layout.label(text=f"{obj.name}: {state}", icon="MESH_DATA")
+        if job is not None:
+            layout.progress(factor=min(max(job.state.fraction, 0.0), 1.0), type="BAR",
+                            text=job.state.line())
+            layout.operator(VDNIF_OT_cancel_job.bl_idname, icon="CANCEL")
+        else:
+            draw_train(layout, context, obj)
         if obj.vdnif.last_error:
             box = layout.box()
             box.alert = True
             lines(box, obj.vdnif.last_error, "ERROR")
+
+
+def draw_train(layout, context, obj):
+    """The one Train button, with what a run from scratch will cost when it needs a dataset
+    (measured by Estimate) or that the dataset is there already."""
+    from ..vdnif_addon.blender.estimate import describe
+
+    row = layout.row(align=True)
+    row.scale_y = 1.4
+    row.operator(VDNIF_OT_train.bl_idname, icon="PLAY")
+    reason = VDNIF_OT_train.unavailable(context)
+    if reason:
+        lines(layout, reason, "INFO")
+        return
+    dataset = needs_dataset(obj)
+    figures = fresh_estimate(context, obj)
+    if figures is not None:
+        lines(layout, describe(figures, dataset=dataset), "TIME")
+    elif dataset:
+        lines(layout, "Generates the dataset first (its size and time are shown before it "
+                      "starts)", "INFO")
+        layout.operator(VDNIF_OT_estimate.bl_idname, icon="TIME")
+    else:
+        lines(layout, "Trains on the dataset generated before", "INFO")
 
 
 class VDNIF_PT_voxels(StepPanel, bpy.types.Panel):
@@ -112,7 +144,11 @@ class VDNIF_PT_voxels(StepPanel, bpy.types.Panel):
         names = ["pose_count"] + (["seed", "max_angle"] if settings.pose_source == "random"
                                   else [])
         properties(layout, settings, names)
-        button(layout, context, VDNIF_OT_voxelize, "MESH_GRID")
+        layout.operator(VDNIF_OT_voxelize.bl_idname, text="Voxelize (Optional)",
+                        icon="MESH_GRID")
+        reason = VDNIF_OT_voxelize.unavailable(context)
+        if reason:
+            lines(layout, reason, "INFO")
         if settings.voxel_info:
             lines(layout, settings.voxel_info)
 
@@ -165,13 +201,8 @@ class VDNIF_PT_training(StepPanel, bpy.types.Panel):
 
     def draw_step(self, layout, context, settings):
         obj = context.active_object
-        job = common.JOBS.get(obj.name)
-        if job is not None:
-            layout.progress(factor=job.state.fraction, type="BAR", text=job.state.line())
-            layout.operator(VDNIF_OT_cancel_training.bl_idname, icon="CANCEL")
-        else:
-            button(layout, context, VDNIF_OT_train, "PLAY")
         layout.prop(settings, "model_storage")
+        layout.prop(settings, "keep_partial_model")
         info = settings.parsed("model_info")
         if storage.has_model(obj) and info:
             lines(layout, f"Model: {storage.model_location(obj)}", "FILE")
@@ -199,6 +230,7 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
         layout.prop(settings, "view")
         properties(layout, settings, ("image_width", "image_height"))
         button(layout, context, VDNIF_OT_render_passes, "RENDER_STILL")
+        draw_animation(layout, context, settings)
         choice = context.scene.vdnif_viewer
         layout.use_property_split = False
         layout.row().prop(choice, "pass_name", expand=True)
@@ -208,6 +240,25 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
                          " (Image Editor)", icon="IMAGE_DATA")
         else:
             layout.label(text="Render the passes to fill the images", icon="INFO")
+
+
+def draw_animation(layout, context, settings):
+    """Render Animation's frame range and folder, and the live preview's toggle."""
+    layout.prop(settings, "use_scene_frames")
+    if settings.use_scene_frames:
+        scene = context.scene
+        layout.label(text=f"Frames {scene.frame_start}..{scene.frame_end}, step "
+                          f"{scene.frame_step}", icon="TIME")
+    else:
+        properties(layout, settings, ("frame_start", "frame_end", "frame_step"))
+    layout.prop(settings, "frames_dir")
+    button(layout, context, VDNIF_OT_render_animation, "RENDER_ANIMATION")
+    row = layout.row(align=True)
+    row.prop(settings, "live_preview")
+    row.prop(settings, "preview_percent")
+    failure = live_preview.error(context.active_object)
+    if failure:
+        lines(layout, failure, "ERROR")
 
 
 class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):

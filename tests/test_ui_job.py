@@ -14,7 +14,9 @@ from vdnif_addon.training import dataset
 from vdnif_addon.training.header import DatasetHeader
 from vdnif_addon.training.job import JobState, TrainingJob, progress_interval
 
-OVERRIDES = dict(SMALL, batch_size=64, device="cpu")
+# The stopping rule off: these runs take the steps they ask for (a validation every step
+# would end them after a few).
+OVERRIDES = dict(SMALL, batch_size=64, device="cpu", stop_patience=0)
 
 
 @pytest.fixture(scope="module")
@@ -60,9 +62,22 @@ def test_worker_reports_progress_and_writes_the_model(data_dir, tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["model.vdnif"], "temporary file left"
 
 
-def test_cancel_stops_the_worker_and_keeps_the_last_finished_step(data_dir, tmp_path):
+def test_a_run_the_stopping_rule_ends_writes_its_model(data_dir, tmp_path):
     out = tmp_path / "model.vdnif"
-    job = TrainingJob(data_dir, "proposed", out, dict(OVERRIDES, steps=100000, log_interval=1))
+    out.write_bytes(b"the last good model")
+    job = TrainingJob(data_dir, "proposed", out, dict(OVERRIDES, steps=200, stop_patience=2))
+    job.run()
+    state = job.poll()
+    assert state.status == "converged" and state.step < 200, state.message
+    assert state.line().startswith(f"converged after {state.step} steps in ")
+    _, metadata = load_model(out)
+    assert metadata.training.steps == state.step and metadata.training.status == "converged"
+
+
+def test_cancel_with_keep_partial_keeps_the_last_finished_step(data_dir, tmp_path):
+    out = tmp_path / "model.vdnif"
+    job = TrainingJob(data_dir, "proposed", out, dict(OVERRIDES, steps=100000, log_interval=1),
+                      keep_partial=True)
     job.start()
     wait_for(job, lambda s: s.step >= 3)
     job.cancel()
@@ -76,10 +91,25 @@ def test_cancel_stops_the_worker_and_keeps_the_last_finished_step(data_dir, tmp_
         np.isfinite(p.detach().numpy()).all() for p in network.parameters())
 
 
+def test_cancel_after_some_steps_keeps_the_previous_model_by_default(data_dir, tmp_path):
+    out = tmp_path / "model.vdnif"
+    out.write_bytes(b"the last good model")
+    job = TrainingJob(data_dir, "proposed", out, dict(OVERRIDES, steps=100000, log_interval=1))
+    job.start()
+    wait_for(job, lambda s: s.step >= 3)
+    job.cancel()
+    state = job.join(timeout=60)
+    assert state.status == "cancelled" and state.model is None and state.step >= 3
+    assert state.line() == (f"cancelled after {state.step} steps (partial model dropped): "
+                            "the previous model is kept")
+    assert out.read_bytes() == b"the last good model"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.vdnif"], "partial file left"
+
+
 def test_cancel_before_the_first_step_keeps_the_previous_model(data_dir, tmp_path):
     out = tmp_path / "model.vdnif"
     out.write_bytes(b"the last good model")
-    job = TrainingJob(data_dir, "proposed", out, dict(OVERRIDES, steps=50))
+    job = TrainingJob(data_dir, "proposed", out, dict(OVERRIDES, steps=50), keep_partial=True)
     job.cancel()
     job.run()                                      # synchronously, as in background mode
     state = job.poll()

@@ -1,6 +1,7 @@
 """The sidebar panels draw against a recording layout in every state (no object, no torch,
 no model, training, trained, error), and the operators refuse bad input with a reason."""
 
+import itertools
 import json
 
 import bpy
@@ -119,11 +120,15 @@ def test_no_model_yet(arm, extension):
     assert set(drawn) == {cls.__name__ for cls in extension.panels.sidebar.classes}
     everything = texts(drawn)
     assert "Arm: no model yet" in everything
-    assert "'Arm' has no dataset yet: generate one first" in everything
+    assert "Generates the dataset first (its size and time are shown before it starts)" in \
+        everything and "operator:vdnif.estimate" in everything
     assert "'Arm' has no trained model" in everything
     assert "Render the passes to fill the images" in everything
-    with pytest.raises(RuntimeError, match="'Arm' is not training"):
-        bpy.ops.vdnif.cancel_training()
+    scene = bpy.context.scene
+    assert "operator:vdnif.render_animation" in everything and (
+        f"Frames {scene.frame_start}..{scene.frame_end}, step 1") in everything
+    with pytest.raises(RuntimeError, match="'Arm' runs no job"):
+        bpy.ops.vdnif.cancel_job()
     arm.vdnif.variant = "lsnif"                   # a variant brings its positional bands
     assert arm.vdnif.pe_bands == 0
     arm.vdnif.variant = "proposed"
@@ -132,7 +137,8 @@ def test_no_model_yet(arm, extension):
     assert {"resolution", "pose_source", "pose_count", "seed", "max_angle", "rays_per_pose",
             "variant", "levels", "base_resolution", "log2_table_size", "feature_dim",
             "pe_bands", "width", "depth", "steps", "batch_size", "device", "view",
-            "pass_name", "source", "model_storage"} <= shown
+            "pass_name", "source", "model_storage", "keep_partial_model", "use_scene_frames",
+            "frames_dir", "live_preview", "preview_percent"} <= shown
 
 
 def test_training_shows_progress_and_cancel(arm, extension, core, tmp_path):
@@ -142,16 +148,17 @@ def test_training_shows_progress_and_cancel(arm, extension, core, tmp_path):
     extension.operators.common.JOBS["Arm"] = job
     try:
         drawn = draw_all(extension)
-        assert bpy.ops.vdnif.cancel_training.poll() and not bpy.ops.vdnif.train.poll()
-        bpy.ops.vdnif.cancel_training()
+        assert bpy.ops.vdnif.cancel_job.poll() and not bpy.ops.vdnif.train.poll()
+        bpy.ops.vdnif.cancel_job()
         assert job.state.cancelling
     finally:
         extension.operators.common.JOBS.clear()
-    progress = [call for call in drawn["VDNIF_PT_training"] if call[0] == "progress"]
+    progress = [call for call in drawn["VDNIF_PT_main"] if call[0] == "progress"]
     assert progress[0][2]["factor"] == 0.25 and "step 50/200" in progress[0][2]["text"]
-    assert "operator:vdnif.cancel_training" in texts(drawn)
-    assert "Arm: training: step 50/200" in texts(drawn)
-    assert "'Arm' is training" in texts(drawn), "Voxelize says why it waits"
+    assert "operator:vdnif.cancel_job" in texts(drawn)
+    assert "operator:vdnif.train" not in texts(drawn), "the progress takes Train's place"
+    assert "Arm: busy: step 50/200" in texts(drawn)
+    assert "'Arm' is busy (step 50/200" in texts(drawn), "Voxelize says why it waits"
 
 
 def test_trained_and_evaluated(arm, extension):
@@ -196,8 +203,10 @@ def test_error_is_shown_until_the_next_success(arm, extension):
     message = "'Arm': a long explanation of what went wrong " * 3
     arm.vdnif.last_error = message
     main = draw_all(extension)["VDNIF_PT_main"]
-    lines = [call for call in main if call[2].get("icon") in ("ERROR", "BLANK1")]
-    assert lines[0][2]["icon"] == "ERROR" and len(lines) > 1, "wrapped over lines"
+    start = next(i for i, call in enumerate(main) if call[2].get("icon") == "ERROR")
+    lines = [main[start], *itertools.takewhile(lambda call: call[2].get("icon") == "BLANK1",
+                                               main[start + 1:])]
+    assert len(lines) > 1, "wrapped over lines"
     assert " ".join(call[1] for call in lines) == message.strip()
     bpy.ops.vdnif.voxelize()
     assert arm.vdnif.last_error == "" and "ERROR" not in str(draw_all(extension))
@@ -209,6 +218,7 @@ def test_operators_refuse_bad_input(empty_scene, extension):
     bpy.context.scene.collection.objects.link(obj)
     bpy.context.view_layer.objects.active = obj
     for operator in ("voxelize", "generate_dataset", "train", "render_passes", "evaluate",
-                     "save_model", "load_model", "cancel_training"):
+                     "save_model", "load_model", "cancel_job", "render_animation",
+                     "estimate"):
         with pytest.raises(RuntimeError, match="'Empty' has no faces"):
             getattr(bpy.ops.vdnif, operator)()

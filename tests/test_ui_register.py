@@ -34,12 +34,13 @@ def test_register_and_unregister_twice_leave_nothing_behind(extension):
 
     enabled = registered_state()
     assert enabled["classes"] and enabled["object_settings"] and enabled["viewer"]
-    assert {"voxelize", "generate_dataset", "train", "cancel_training", "render_passes",
-            "evaluate", "save_model", "load_model", "install_dependencies",
-            "apply_preset", "suggest_resolution"} == set(
+    assert {"voxelize", "generate_dataset", "train", "estimate", "cancel_job",
+            "render_passes", "render_animation", "evaluate", "save_model", "load_model",
+            "install_dependencies", "apply_preset", "suggest_resolution"} == set(
                 enabled["operators"])
     assert enabled["dependency_path"] and not enabled["install_timer"]
-    handlers = dict(enabled["handlers"], load_post=enabled["handlers"]["load_post"] - 1)
+    handlers = dict(enabled["handlers"], load_post=enabled["handlers"]["load_post"] - 2,
+                    frame_change_post=enabled["handlers"]["frame_change_post"] - 1)
     for _ in range(2):
         addon_utils.disable(EXTENSION_MODULE, default_set=True)
         disabled = registered_state()

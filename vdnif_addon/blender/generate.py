@@ -23,11 +23,14 @@ from ..training import dataset
 from ..training.header import FORMAT, VERSION, DatasetHeader
 from .pose_geometry import PosedObject
 
+BLENDER_VERSION = bpy.app.version_string   # read at import, on Blender's main thread
+
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
                      pose_range=None, progress=None, grazing_fraction=None,
                      secondary_fraction=None):
-    """Walks ``rays_per_pose`` training rays per pose of ``capture`` (or of the slice
+    """Walks ``rays_per_pose`` training rays per pose of ``capture`` (``obj``: the mesh
+    object or a PoseSource, see ``PosedObject``) (or of the slice
     ``pose_range`` = (start, stop)) and writes one shard; returns its DatasetHeader (its
     timings with the writing's). The ray mix
     (``rays.training_rays``) defaults to the recipe's (``settings.RECIPE``)."""
@@ -49,9 +52,8 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         rest_caster = posed_object.rest_caster
         timings["rest_surface_s"] = time.perf_counter() - clock
         for done, index in enumerate(range(start, stop), 1):
-            clock = time.perf_counter()
             geometry = posed_object.geometry(capture.poses[index])
-            _pose_timings(timings, geometry, time.perf_counter() - clock)
+            _pose_timings(timings, geometry)
             clock = time.perf_counter()
             rng = np.random.default_rng([seed, index])
             surface, triangle, _ = sample_surface(geometry.vertices, capture.mesh.triangles,
@@ -123,10 +125,9 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None,
         rest_caster = posed_object.rest_caster
         clock["rest_surface_s"] = time.perf_counter() - start
         for index, pose in enumerate(capture.poses):
-            start = time.perf_counter()
             geometry = (posed_object.rest_geometry() if rest_pose
                         else posed_object.geometry(pose))
-            _pose_timings(clock, geometry, time.perf_counter() - start)
+            _pose_timings(clock, geometry)
             start = time.perf_counter()
             origins, rays = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
                                        directions[index], width, height)
@@ -189,15 +190,15 @@ def _secondary_errors(views):
             **compare_secondary(views["embedded_true_hit"], views["true"], suffix="_true_hit")}
 
 
-def _pose_timings(timings, geometry, seconds):
+def _pose_timings(timings, geometry):
     """Adds a pose's preparation (deformed cells and entry BVH) and the rest of posing it
-    (Blender's evaluation of the deformed mesh) to ``timings``."""
+    (Blender's evaluation of the deformed mesh, on the thread that read it) to ``timings``."""
     timings["prepare_s"] += geometry.prepare_s
-    timings["evaluate_s"] += seconds - geometry.prepare_s
+    timings["evaluate_s"] += geometry.evaluate_s
 
 
 def _versions():
     from .. import __version__
 
-    return {"vdnif": __version__, "blender": bpy.app.version_string,
+    return {"vdnif": __version__, "blender": BLENDER_VERSION,
             "numpy": np.__version__, "python": platform.python_version()}

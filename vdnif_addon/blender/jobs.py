@@ -22,13 +22,20 @@ from .poses import REST_POSE, evaluation_spec
 
 
 def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progress=None):
-    """Writes the training data ``variant`` learns from into ``folder``: the walked segments
-    of every captured pose, or, for a single-pose variant (``lsnif``), of the rest pose alone
+    """Writes the training data ``variant`` learns from into ``folder`` (``variant_capture``);
+    ``obj``: the mesh object or a PoseSource (``PosedObject``)."""
+    captured, rays_per_pose = variant_capture(captured, variant, rays_per_pose)
+    return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
+
+
+def variant_capture(captured, variant, rays_per_pose):
+    """(capture, rays per pose) of the data ``variant`` learns from: the walked segments of
+    every captured pose, or, for a single-pose variant (``lsnif``), of the rest pose alone
     with as many rays as all poses together (the same data budget)."""
     if not variant_config(variant).deformed_data and captured.mode != "static":
-        rays_per_pose *= len(captured.poses)
-        captured = dataclasses.replace(captured, poses=[REST_POSE])
-    return generate_dataset(obj, captured, folder, rays_per_pose, seed=seed, progress=progress)
+        return (dataclasses.replace(captured, poses=[REST_POSE]),
+                rays_per_pose * len(captured.poses))
+    return captured, rays_per_pose
 
 
 def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None,
@@ -94,11 +101,12 @@ def write_passes(folder, passes, height, width, world_scale=None, prefix="", slo
     ``world_scale`` is given, normals in world space with the object's ``world_matrix``
     (4, 4), material as the object's slot with the used-slot table ``slots``, see
     ``Passes.with_slots``. A ``frame`` number goes into the names as Blender numbers image
-    sequences (``normal.0030.png``, ``passes.0030.exr``). Returns the written paths."""
+    sequences (``normal.0030.png``, ``passes.0030.exr``). Returns the written paths. Writes
+    with Blender's image API: call it on Blender's main thread."""
     folder = pathlib.Path(folder)
     data = passes if world_scale is None else world_distances(passes, world_scale)
     data = data if slots is None else data.with_slots(slots)
-    number = "" if frame is None else f".{round(frame):04d}"
+    number = frame_number(frame)
     written = [save_image(folder / f"{prefix}{name}{number}.png", image) for name, image
                in images.previews(data, height, width, distance_range(data)).items()]
     normal_matrix = None if world_matrix is None else np.linalg.inv(
@@ -113,6 +121,33 @@ def write_passes(folder, passes, height, width, world_scale=None, prefix="", slo
 def write_training_plot(path, history):
     """Writes the loss plot of training's progress records (``history.plot``) as a PNG."""
     return save_image(path, plot(history))
+
+
+def write_view(folder, result, height, width, slots=None, references=False, frame=None):
+    """Writes a RenderResult's passes (``write_passes``, normals in world space with the
+    pose's world matrix), with ``references`` those of its true and embedded references,
+    prefixed ``true-`` and ``embedded-``, and its AO and shadow passes when it has them
+    (``write_secondary``); returns the written paths."""
+    world_matrix = result.matrix_world
+    written = write_passes(folder, result.predicted, height, width, result.world_scale,
+                           slots=slots, frame=frame, world_matrix=world_matrix)
+    if references:
+        for name in ("true", "embedded"):
+            written += write_passes(folder, getattr(result, name), height, width,
+                                    result.world_scale, prefix=f"{name}-", slots=slots,
+                                    frame=frame, world_matrix=world_matrix)
+    for name, passes in (result.secondary or {}).items():
+        if name in ("predicted", "true", "embedded"):
+            written += write_secondary(folder, passes, height, width,
+                                       prefix="" if name == "predicted" else f"{name}-",
+                                       frame=frame)
+    return written
+
+
+def frame_number(frame):
+    """What a sequence's file names hold before the extension, as Blender numbers image
+    sequences (``.0030``; a negative frame keeps its sign); nothing without a frame."""
+    return "" if frame is None else f".{round(frame):04d}"
 
 
 def write_figures(folder, view, height, width, object_size):
@@ -138,12 +173,13 @@ def write_figures(folder, view, height, width, object_size):
     return paths
 
 
-def write_secondary(folder, passes, height, width, prefix=""):
-    """Writes the AO and shadow passes (``SecondaryPasses``) as PNG and EXR; returns the
-    written paths."""
+def write_secondary(folder, passes, height, width, prefix="", frame=None):
+    """Writes the AO and shadow passes (``SecondaryPasses``) as PNG and EXR, a ``frame``
+    numbered as in ``write_passes``; returns the written paths."""
     folder = pathlib.Path(folder)
     shown = images.secondary_images(passes, height, width)
-    return [save_image(folder / f"{prefix}{name}{suffix}", shown[kind][name])
+    number = frame_number(frame)
+    return [save_image(folder / f"{prefix}{name}{number}{suffix}", shown[kind][name])
             for name in SECONDARY_PASSES
             for kind, suffix in (("display", ".png"), ("raw", ".exr"))]
 

@@ -81,6 +81,7 @@ class RenderResult:
     inverted_cells: int
     # {"predicted", "true", ...: SecondaryPasses} (``secondary.secondary_views``) when asked
     secondary: dict = None
+    matrix_world: np.ndarray = None    # (4, 4) the object's world matrix in the pose
 
 
 def render_rays(obj, capture, model, pose, origins, directions, references=False,
@@ -88,12 +89,21 @@ def render_rays(obj, capture, model, pose, origins, directions, references=False
     """Renders world-space rays (N, 3) of ``obj`` in ``pose`` (a pose dict; the current
     frame is ``{"frame": scene.frame_current}``) with the network, and with the true and
     embedded references when asked; the AO and shadow passes too with ``secondary`` (a
-    ``SecondarySettings``, its light in the object's local space)."""
-    inverse = np.array(obj.matrix_world.inverted(), np.float64)
-    local_origins, local_directions, scale = transform_rays(origins, directions, inverse)
+    ``SecondarySettings``, its light in the object's local space). ``obj``: a mesh object
+    or a PoseSource."""
     with PosedObject(obj, capture, model.device) as posed_object:
-        result = _render(model, posed_object, posed_object.geometry(pose), local_origins,
-                         local_directions, references, secondary)
+        return render_world(model, posed_object, posed_object.geometry(pose), origins,
+                            directions, references, secondary)
+
+
+def render_world(model, posed_object, geometry, origins, directions, references=False,
+                 secondary=None):
+    """RenderResult of world-space rays for one posed geometry (its world matrix maps them
+    into the object's local space; ``world_scale`` maps the distances back)."""
+    inverse = np.linalg.inv(geometry.matrix_world)
+    local_origins, local_directions, scale = transform_rays(origins, directions, inverse)
+    result = render_local(model, posed_object, geometry, local_origins, local_directions,
+                          references, secondary)
     result.world_scale = scale
     return result
 
@@ -104,9 +114,17 @@ def render_orbit(obj, capture, model, pose, width, height, references=False, sec
     with PosedObject(obj, capture, model.device) as posed_object:
         geometry = posed_object.geometry(pose)
         origins, directions = orbit_view(geometry, orbit_viewpoints(1)[0], width, height)
-        result = _render(model, posed_object, geometry, origins, directions, references,
-                         secondary)
-    linear = np.array(obj.matrix_world, np.float64)[:3, :3]
+        return render_orbit_rays(model, posed_object, geometry, origins, directions,
+                                 references, secondary)
+
+
+def render_orbit_rays(model, posed_object, geometry, origins, directions, references=False,
+                      secondary=None):
+    """RenderResult of local rays (an orbit view's) for one posed geometry, with the world
+    scale of its world matrix."""
+    result = render_local(model, posed_object, geometry, origins, directions, references,
+                          secondary)
+    linear = geometry.matrix_world[:3, :3]
     result.world_scale = 1.0 / np.linalg.norm(directions @ linear.T, axis=1)
     return result
 
@@ -117,9 +135,10 @@ def orbit_view(geometry, direction, width, height):
                       height)
 
 
-def camera_rays(camera, width, height):
-    """World-space rays (origins, directions), (H*W, 3) each, of a perspective Blender
-    camera object rendering a ``width`` x ``height`` image (its sensor fit respected)."""
+def camera_view(camera, width, height):
+    """(world matrix (4, 4), horizontal field of view in degrees) of a perspective Blender
+    camera object rendering a ``width`` x ``height`` image (its sensor fit respected): what
+    ``view_rays`` needs, read from Blender."""
     if camera is None:
         raise VDNIFError("no camera: the scene has no active camera and none was named")
     if camera.type != "CAMERA":
@@ -135,8 +154,20 @@ def camera_rays(camera, width, height):
         vertical = data.sensor_fit == "VERTICAL"
         angle = data.angle_y if vertical else data.angle_x
     half = math.tan(angle / 2) * (width / height if vertical else 1.0)
-    return pinhole_rays(np.array(camera.matrix_world), math.degrees(2 * math.atan(half)),
-                        width, height)
+    return np.array(camera.matrix_world, np.float64), math.degrees(2 * math.atan(half))
+
+
+def view_rays(view, width, height):
+    """World-space rays (origins, directions), (H*W, 3) each, of a pinhole ``view``
+    (world matrix, horizontal field of view in degrees)."""
+    matrix, fov = view
+    return pinhole_rays(matrix, fov, width, height)
+
+
+def camera_rays(camera, width, height):
+    """World-space rays (origins, directions), (H*W, 3) each, of a perspective Blender
+    camera object rendering a ``width`` x ``height`` image (``camera_view``)."""
+    return view_rays(camera_view(camera, width, height), width, height)
 
 
 def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress=None,
@@ -166,8 +197,8 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
         for index, pose in enumerate(poses):
             geometry = posed_object.geometry(pose)
             origins, directions = orbit_view(geometry, viewpoints[index], width, height)
-            result = _render(model, posed_object, geometry, origins, directions, True,
-                             secondary)
+            result = render_local(model, posed_object, geometry, origins, directions, True,
+                                  secondary)
             results.append(result)
             views.append({name: getattr(result, name).with_slots(capture.mesh.material_slots)
                           for name in ("predicted", "true", "embedded")})
@@ -219,9 +250,10 @@ def _secondary_report(report, results, settings):
         rays / seconds if seconds > 0 and report["speed_withheld"] is None else None)
 
 
-def _render(model, posed_object, geometry, origins, directions, references, secondary=None):
+def render_local(model, posed_object, geometry, origins, directions, references=False,
+                 secondary=None):
     """RenderResult of local rays for one posed geometry (``secondary``: see
-    ``render_rays``)."""
+    ``render_rays``); touches no Blender data."""
     mesh = posed_object.capture.mesh
     start = time.perf_counter()
     predicted, stats = neural_passes(model.network, model.grid, model.albedo_table,
@@ -237,7 +269,8 @@ def _render(model, posed_object, geometry, origins, directions, references, seco
                    segments=stats["segments"], truncated_rays=stats["truncated"])
     result = RenderResult(predicted=predicted, true=true, embedded=embedded, timings=timings,
                           object_size=mesh.size, world_scale=np.ones(len(origins)),
-                          inverted_cells=geometry.inverted_cells())
+                          inverted_cells=geometry.inverted_cells(),
+                          matrix_world=geometry.matrix_world)
     if secondary is not None:
         _render_secondary(result, model, posed_object, geometry, origins, directions,
                           secondary)

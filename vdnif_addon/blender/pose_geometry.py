@@ -1,5 +1,12 @@
 """Per-pose geometry of a captured object: the deformed cells with their entry BVH, and the
-Blender-evaluated deformed mesh for the true reference."""
+Blender-evaluated deformed mesh for the true reference.
+
+A pose's Blender data (deformed corners, deformed mesh, world matrix) comes from a
+``pose_source.PoseSource`` as a ``PoseSnapshot``: read from Blender in the calling thread
+(``pose_reader.PoseReader``, made for a live object), or handed over by Blender's main
+thread to a worker thread (``PoseFeed``). Everything else here touches no Blender data, so
+that the per-pose work can run in a worker while Blender stays responsive (``worker``).
+"""
 
 import time
 from dataclasses import dataclass, field
@@ -14,9 +21,7 @@ from ..kernels import runtime
 from ..kernels.cells import DeviceCells
 from ..kernels.surface import SurfaceCaster
 from ..tracing.groundtruth import rest_surface
-from .deform import CornerDeformer
-from .poses import posed
-from .read_mesh import evaluated_surface
+from .pose_source import PoseSource
 
 
 @dataclass
@@ -26,6 +31,9 @@ class PoseGeometry:
     vertices: np.ndarray           # (V, 3) deformed mesh vertices
     normals: np.ndarray            # (T, 3, 3) deformed corner normals
     prepare_s: float               # read the corners, refit the entry BVH, face triangles
+    evaluate_s: float = 0.0        # the rest of reading the pose (Blender's evaluation)
+    matrix_world: np.ndarray = None    # (4, 4) the object's world matrix in this pose
+    view: object = None            # the snapshot's camera view, if it read one
     _pose: int = 0                 # the cells' pose count when they were set to this pose
     _surface: Callable = field(default=None, repr=False)   # (geometry, triangles) -> caster
 
@@ -52,18 +60,28 @@ class PoseGeometry:
 class PosedObject:
     """Poses a captured object one pose at a time. Use as a context manager.
 
-    The device cells (topology and entry BVH) are built once, on ``device`` (a Warp
-    device, the network's): a pose copies its deformed corners into them and refits.
+    ``source``: a PoseSource (its owner closes it), or a live mesh object (read through a
+    ``PoseReader`` made here and closed on exit). The device cells (topology and entry
+    BVH) are built once, on ``device`` (a Warp device, the network's): a pose copies its
+    deformed corners into them and refits.
     """
 
-    def __init__(self, obj, capture, device="cpu"):
-        self.obj, self.capture, self.device = obj, capture, runtime.device(device)
-        self.deformer = None
-        if capture.mode != "static":
-            self.deformer = CornerDeformer(obj, capture.grid.corner_positions())
+    def __init__(self, source, capture, device="cpu"):
+        self._owned = not isinstance(source, PoseSource)
+        if self._owned:
+            from .pose_reader import PoseReader
+
+            source = PoseReader(source, capture)
+        self.source, self.capture, self.device = source, capture, runtime.device(device)
+        self.name = source.name
         self.cells = DeviceCells(capture.grid, self.device)
         self._rest_cells = None
         self._deformed, self._deformed_pose = None, None
+
+    @property
+    def deformer(self):
+        """The CornerDeformer of a live source (None for a static object or a feed)."""
+        return self.source.deformer
 
     @cached_property
     def rest_caster(self):
@@ -85,17 +103,21 @@ class PosedObject:
         undeformed rest pose). The cells of the previous pose are moved to this one."""
         if pose.get("rest"):
             return self.rest_geometry()
-        with posed(pose):
-            start = time.perf_counter()
-            corners = (self.deformer.deformed() if self.deformer is not None
-                       else self.capture.grid.corner_positions())
-            self.cells.set_pose(corners)
-            if self.device.startswith("cuda"):   # its kernels run asynchronously there
-                runtime.init().synchronize_device(self.device)
-            prepare_s = time.perf_counter() - start
-            vertices, normals = evaluated_surface(self.obj, self.capture.mesh)
-        return PoseGeometry(_cells=self.cells, corners=corners, vertices=vertices,
-                            normals=normals, prepare_s=prepare_s, _pose=self.cells.pose,
+        return self.place(self.source.read(pose))
+
+    def place(self, snapshot):
+        """PoseGeometry of a PoseSnapshot (touches no Blender data)."""
+        start = time.perf_counter()
+        self.cells.set_pose(snapshot.corners)
+        if self.device.startswith("cuda"):   # its kernels run asynchronously there
+            runtime.init().synchronize_device(self.device)
+        prepare_s = snapshot.corners_s + time.perf_counter() - start
+        return PoseGeometry(_cells=self.cells, corners=snapshot.corners,
+                            vertices=snapshot.vertices, normals=snapshot.normals,
+                            prepare_s=prepare_s,
+                            evaluate_s=max(snapshot.read_s - snapshot.corners_s, 0.0),
+                            matrix_world=snapshot.matrix_world,
+                            view=snapshot.view, _pose=self.cells.pose,
                             _surface=self._deformed_caster)
 
     def rest_geometry(self):
@@ -113,8 +135,8 @@ class PosedObject:
                             _surface=lambda geometry, triangles: self.rest_caster)
 
     def close(self):
-        if self.deformer is not None:
-            self.deformer.close()
+        if self._owned:
+            self.source.close()
 
     def __enter__(self):
         return self

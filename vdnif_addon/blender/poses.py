@@ -171,12 +171,21 @@ def _lattice_sampler(obj, modifier, spec):
     return sample
 
 
+_posing = []     # one entry per ``posed`` in progress
+
+
+def posing():
+    """Whether the scene is being put in a pose (its frame changes are not the user's)."""
+    return bool(_posing)
+
+
 @contextlib.contextmanager
 def posed(pose):
     """Puts the scene in ``pose`` while inside; restores frame, bones and lattice after."""
     scene = bpy.context.scene
     frame = scene.frame_current, scene.frame_subframe
     restore = []
+    _posing.append(pose)
     try:
         whole = math.floor(pose["frame"])
         scene.frame_set(int(whole), subframe=pose["frame"] - whole)
@@ -189,9 +198,12 @@ def posed(pose):
         bpy.context.view_layer.update()
         yield
     finally:
-        for undo in reversed(restore):
-            undo()
-        scene.frame_set(frame[0], subframe=frame[1])
+        try:
+            for undo in reversed(restore):
+                undo()
+            scene.frame_set(frame[0], subframe=frame[1])
+        finally:
+            _posing.pop()
 
 
 def _armature_of_bones(names):

@@ -20,8 +20,11 @@ from ..settings import (
     SUGGEST_PRESET,
     SUGGEST_VIEW_SIZE,
 )
+from ..worker import DirectCalls
 from .capture_scene import capture
 from .generate import reference_run
+from .pose_reader import PoseReader
+from .pose_source import CalledReader
 from .read_mesh import read_rest_mesh
 
 
@@ -38,24 +41,43 @@ def network_error(preset=SUGGEST_PRESET, presets=None):
     return float(chosen["measured"][PRESET_ERROR])
 
 
+def resolution_floor(obj):
+    """The coarsest resolution suggested for mesh object ``obj``: the textured one for a
+    textured mesh, else none (0)."""
+    return RECIPE.textured_resolution if read_rest_mesh(obj).albedo_varies else 0
+
+
+def considered(candidates, floor):
+    """The candidates tried from ``floor`` on (the finest one when none is as fine)."""
+    return [r for r in candidates if r >= floor] or list(candidates[-1:])
+
+
 def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
-                       poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE, progress=None, floor=None):
+                       poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE, progress=None, floor=None,
+                       calls=DirectCalls()):
     """(R, table): the coarsest of ``candidates`` (ascending) from ``floor`` on (default: the
     textured resolution for a textured mesh, else none) whose embedding error, distance
     MAE of the embedded against the true reference on ``poses`` poses of ``spec`` at
     ``size`` x ``size``, is at most ``target`` (default EMBEDDING_ERROR_SHARE of the
     preset's network error); the finest candidate when none is. ``table`` lists
-    {resolution, embedding_error} per candidate tried."""
+    {resolution, embedding_error} per candidate tried.
+
+    ``calls``: how Blender is read (captures, poses): in this thread, or from a worker on
+    the main thread (``worker.MainCalls``; ``floor`` must then be given)."""
     if target is None:
         target = EMBEDDING_ERROR_SHARE * network_error()
     if floor is None:
-        floor = RECIPE.textured_resolution if read_rest_mesh(obj).albedo_varies else 0
-    candidates = [r for r in candidates if r >= floor] or list(candidates[-1:])
+        floor = resolution_floor(obj)
+    candidates = considered(candidates, floor)
     table = []
     spec = dataclasses.replace(spec, count=min(spec.count, poses))
     for resolution in candidates:
-        captured = capture(obj, resolution, spec, deform_corners=False)
-        report = reference_run(obj, captured, size, size)
+        captured = calls.call(lambda: capture(obj, resolution, spec, deform_corners=False))
+        reader = calls.call(lambda: PoseReader(obj, captured))
+        try:
+            report = reference_run(CalledReader(calls, reader), captured, size, size)
+        finally:
+            calls.call(reader.close, always=True)
         error = report["embedded_vs_true"]["distance_mae"]
         table.append({"resolution": resolution, "embedding_error": error})
         if progress is not None:

@@ -12,6 +12,7 @@ from .options import (
     add_scene_options,
     add_secondary_options,
     check_resolution,
+    frames_option,
     load_posed_scene,
     output_file,
     print_evaluation,
@@ -38,54 +39,67 @@ def _model_scene(args, evaluation=False):
 
 
 def cmd_render(args):
-    """Render the predicted passes of a pose through a camera with a trained model."""
+    """Render the predicted passes of a pose, or of a range of frames, through a camera with a
+    trained model."""
     import bpy
 
-    from ..blender.jobs import write_passes, write_secondary
-    from ..blender.neural import camera_rays, load_scene_model, render_orbit, render_rays
+    from ..blender.animation import frame_pose, render_frames
+    from ..blender.jobs import write_view
+    from ..blender.neural import camera_view, load_scene_model
+    from ..blender.pose_reader import PoseReader
+    from ..blender.poses import posed
     from ..blender.scenes import find_camera
+    from ..progress import Progress
 
     loaded, obj, captured = _model_scene(args)
     model = load_scene_model(args.model, captured, args.device, loaded)
-    secondary = secondary_settings(args, obj)
-    scene = bpy.context.scene
-    frame = scene.frame_current if args.frame is None else args.frame
-    pose = {"frame": float(frame)}
+    sequence = args.frames is not None
+    frames = args.frames if sequence else [
+        bpy.context.scene.frame_current if args.frame is None else args.frame]
+
+    def light_at(frame):            # the AO and shadow settings, the light as in that frame
+        with posed(frame_pose(frame)):
+            return secondary_settings(args, obj)
+
+    secondary = light_at if getattr(args, "secondary", False) else None
     camera = find_camera(args.camera)
     if camera is not None:
-        origins, directions = camera_rays(camera, args.width, args.height)
+        camera_view(camera, args.width, args.height)    # refuses a non-camera before work
         view = f"camera '{camera.name}'"
-        result = render_rays(obj, captured, model, pose, origins, directions,
-                             references=args.references, secondary=secondary)
     else:
         view = "an orbit viewpoint (the scene has no camera)"
-        result = render_orbit(obj, captured, model, pose, args.width, args.height,
-                              references=args.references, secondary=secondary)
-    slots, matrix = captured.mesh.material_slots, obj.matrix_world
-    written = write_passes(args.out, result.predicted, args.height, args.width,
-                           result.world_scale, slots=slots, world_matrix=matrix)
-    if args.references:
-        for name in ("true", "embedded"):
-            written += write_passes(args.out, getattr(result, name), args.height, args.width,
-                                    result.world_scale, prefix=f"{name}-", slots=slots,
-                                    world_matrix=matrix)
-    for name, passes in (result.secondary or {}).items():
-        if name in ("predicted", "true", "embedded"):
-            written += write_secondary(args.out, passes, args.height, args.width,
-                                       prefix="" if name == "predicted" else f"{name}-")
-    summary = {"model": str(args.model), "object": obj.name, "frame": frame, "view": view,
+    written, slots = [], captured.mesh.material_slots
+    progress = Progress(f"render '{obj.name}'", len(frames), "frames")
+
+    def write(frame, result):
+        written.extend(write_view(args.out, result, args.height, args.width, slots,
+                                  args.references, frame if sequence else None))
+
+    reader = PoseReader(obj, captured, None if camera is None else (
+        lambda: camera_view(camera, args.width, args.height)))
+    try:
+        figures = render_frames(reader, captured, model, frames, args.width, args.height,
+                                references=args.references, each=write,
+                                progress=(lambda done, _: progress.update(done)) if sequence
+                                else None, secondary=secondary)
+    finally:
+        reader.close()
+    summary = {"model": str(args.model), "object": obj.name, "view": view,
                "width": args.width, "height": args.height,
-               "hit_pixels": int(result.predicted.hit.sum()), "timings": result.timings,
-               "rays_per_s": result.timings["rays"] / result.timings["render_s"],
                "files": [str(path) for path in written]}
-    if secondary is not None:
-        summary["secondary"] = secondary.describe()
+    if sequence:
+        summary["frames"] = figures
+    else:
+        summary.update(figures[0])
     write_json(pathlib.Path(args.out) / "render.json", summary)
-    print(f"rendered '{obj.name}' at frame {frame:g} through {view}, {args.width}x"
-          f"{args.height}: {summary['hit_pixels']} hit pixels, "
-          f"{summary['rays_per_s']:,.0f} rays/s -> {args.out}")
+    shown = (f"frames {frames[0]}..{frames[-1]} ({len(frames)})" if sequence
+             else f"frame {frames[0]:g}")
+    speed = sum(f["rays_per_s"] for f in figures) / len(figures)
+    hits = sum(f["hit_pixels"] for f in figures)
+    print(f"rendered '{obj.name}' at {shown} through {view}, {args.width}x{args.height}: "
+          f"{hits} hit pixels, {speed:,.0f} rays/s -> {args.out}")
     if secondary is not None:
-        print(f"  ambient occlusion and shadow: light {secondary.light.source}")
+        print(f"  ambient occlusion and shadow: light {figures[0]['secondary']['light']}")
     return 0
 
 
@@ -147,8 +161,11 @@ def add_commands(commands):
         "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
         "Normal, DiffCol, IndexMA, alpha in Combined) and render.json into --out."))
-    render.add_argument("--frame", type=float, metavar="F",
-                        help="the timeline frame to pose the scene at (default: current)")
+    when = render.add_mutually_exclusive_group()
+    when.add_argument("--frame", type=float, metavar="F",
+                      help="the timeline frame to pose the scene at (default: current)")
+    when.add_argument("--frames", type=frames_option, metavar="A:B[:STEP]",
+                      help="frames A to B every STEP, as image sequences (passes.0001.exr)")
     render.add_argument("--camera", metavar="NAME", help=(
         "camera object (default: the scene's camera, else an orbit viewpoint)"))
     render.add_argument("--references", action="store_true",

@@ -243,6 +243,16 @@ IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
 """Commands whose --width/--height are an image's (train's --width is the MLP's)."""
 
 
+def frames_option(text: str) -> list[int]:
+    """The type of ``render --frames A:B[:STEP]``: the frames, A to B included."""
+    from ..blender.animation import parse_frames
+
+    try:
+        return parse_frames(text)
+    except VDNIFError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix(f"--frames '{text}' ")) from None
+
+
 def output_file(text: str) -> pathlib.Path:
     """The type of an option that names an output file (--json, --markdown, train's --out):
     refused when it names a folder (a trailing separator, ``.``, ``..``), which the path

@@ -1,9 +1,9 @@
 """Training for the UI: ``fit.fit_model`` in a worker thread, progress through a queue, and
 cancel, with no Blender data touched (the Train operator is only glue around this).
 
-The model is written to a temporary file beside the target and moved over it only once at
-least one training step was taken: a cancel at once, a failure or a crash never replaces
-the last good model, and a cancel later keeps the network of the last finished step.
+The model is written to a temporary file beside the target and moved over it only when the
+run completed, or was cancelled after at least one step with ``keep_partial``: a failure, a
+crash or (by default) a cancel never replaces the last good model.
 
 Importing this module does not import torch (``fit`` is imported by the worker), so the
 UI can show a job's state without it.
@@ -21,6 +21,7 @@ from typing import Any
 
 from ..errors import VDNIFError
 from ..memory import release_cached_memory
+from ..worker import duration
 
 
 def progress_interval(steps: int) -> int:
@@ -59,25 +60,26 @@ class JobState:
             text = f"step 0/{self.steps}, starting"
         else:
             text = (f"step {self.step}/{self.steps}, loss {self.loss:.4f}, "
-                    f"ETA {_duration(self.eta_s)}")
+                    f"ETA {duration(self.eta_s)}")
         return text + (", cancelling" if self.cancelling else "")
 
 
 class TrainingJob:
     """Trains ``variant`` on the dataset folder ``data_dir`` into the model file ``out``.
 
-    ``overrides``: NetworkConfig / TrainConfig fields (``steps`` required). Call ``run()``
-    to train in this thread (background mode), or ``start()`` for a worker thread; then
+    ``overrides``: NetworkConfig / TrainConfig fields (``steps`` required); ``keep_partial``:
+    a cancelled run still writes the network of its last finished step. Call ``run()`` to
+    train in this thread (background mode), or ``start()`` for a worker thread; then
     ``poll()`` from the UI's thread drains the queue into ``state``, ``cancel()`` asks the
     worker to stop after its current step.
     """
 
     def __init__(self, data_dir: str | pathlib.Path, variant: str, out: str | pathlib.Path,
-                 overrides: Mapping[str, Any]) -> None:
+                 overrides: Mapping[str, Any], keep_partial: bool = False) -> None:
         if "steps" not in overrides:
             raise VDNIFError("training settings lack the number of steps")
         self.data_dir, self.variant = pathlib.Path(data_dir), variant
-        self.out = pathlib.Path(out)
+        self.out, self.keep_partial = pathlib.Path(out), keep_partial
         self.overrides = {"log_interval": progress_interval(overrides["steps"]), **overrides}
         self.state = JobState(steps=overrides["steps"])
         self._queue = queue.Queue()
@@ -105,9 +107,10 @@ class TrainingJob:
                 partial.unlink()
             release_cached_memory()
 
-    def _fit(self, partial: pathlib.Path) -> tuple[str, dict[str, Any] | None]:
-        """Trains into ``partial``, moves it over the model file; the outcome to queue. The
-        network and its data are released when this returns."""
+    def _fit(self, partial: pathlib.Path) -> tuple[str, dict[str, Any] | int]:
+        """Trains into ``partial``, moves it over the model file; the outcome to queue (a
+        cancel that keeps the previous model queues its step count). The network and its
+        data are released when this returns."""
         from ..threads import use_threads
         from .fit import fit_model
 
@@ -117,10 +120,16 @@ class TrainingJob:
                                     progress=lambda record: self._queue.put(
                                         ("progress", record)),
                                     cancel=self._cancel)
-        if result.steps == 0:
-            return "cancelled", None
+        if result.status == "cancelled" and (result.steps == 0 or not self.keep_partial):
+            return "cancelled", result.steps
         os.replace(partial, self.out)
         return result.status, dict(summary, model=str(self.out))
+
+    def tick(self, budget_s: float = 0.0) -> None:
+        """Training reads no Blender data: nothing to do on the main thread."""
+
+    def close(self) -> None:
+        """Nothing to clean up on the main thread."""
 
     def cancel(self) -> None:
         self._cancel.set()
@@ -153,17 +162,13 @@ class TrainingJob:
         state.status, state.cancelling = kind, False
         if kind == "failed":
             state.message = payload
-        elif payload is None:
-            state.message = "cancelled before the first step: the previous model is kept"
+        elif isinstance(payload, int):
+            when = ("before the first step" if payload == 0
+                    else f"after {payload} steps (partial model dropped)")
+            state.step = payload
+            state.message = f"cancelled {when}: the previous model is kept"
         else:
             state.model = payload["model"]
             state.step = payload["train"]["steps"]
             state.message = (f"{kind} after {state.step} steps in "
-                             f"{_duration(payload['train']['seconds'])}")
-
-
-def _duration(seconds: float | None) -> str:
-    if seconds is None:
-        return "?"
-    seconds = round(seconds)
-    return f"{seconds // 60}:{seconds % 60:02d}" if seconds >= 60 else f"{seconds} s"
+                             f"{duration(payload['train']['seconds'])}")

@@ -1,0 +1,59 @@
+"""Render Animation: the passes of a frame range (the scene's by default) as image sequences
+in the output folder, in a worker (``running``): each frame's pose and camera are read on the
+main thread, rendered in the worker, and its images written on the main thread again."""
+
+import bpy
+
+from .. import storage
+from .passes import VDNIF_OT_render_passes, frames_stage, render_view
+from .running import JobOperator, Stage, outcome
+
+
+def animation_frames(scene, settings):
+    """The frames Render Animation renders: the scene's range and step, or the object's."""
+    from ..vdnif_addon.blender.animation import frame_range
+
+    if settings.use_scene_frames:
+        return frame_range(scene.frame_start, scene.frame_end, scene.frame_step)
+    return frame_range(settings.frame_start, settings.frame_end, settings.frame_step)
+
+
+class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
+    """Render the passes of every frame of the range into image sequences (passes.0001.exr,
+    normal.0001.png, ...) in the output folder. Esc cancels"""
+
+    bl_idname = "vdnif.render_animation"
+    bl_label = "Render Animation"
+    needs = VDNIF_OT_render_passes.needs
+
+    @classmethod
+    def unavailable(cls, context):
+        return VDNIF_OT_render_passes.unavailable(context)
+
+    def stages(self, context, obj):
+        from ..vdnif_addon.blender.jobs import write_view
+
+        settings = obj.vdnif
+        frames = animation_frames(context.scene, settings)
+        width, height = settings.image_width, settings.image_height
+        folder = storage.frames_folder(obj)
+        written = []           # the frames whose images were written
+
+        def write(frame, result, captured):
+            write_view(folder, result, height, width, captured.mesh.material_slots,
+                       frame=frame)
+            written.append(frame)
+
+        camera, view = render_view(context, obj)
+        make = frames_stage(context, obj, frames, width, height, write, camera=camera,
+                            view=view)
+
+        def finish(obj, state):
+            outcome(state)
+            return (f"'{obj.name}': {state.message}; {len(written)} of frames {frames[0]}.."
+                    f"{frames[-1]} written to {storage.portable(folder)}")
+
+        return [Stage(make, finish)]
+
+
+classes = (VDNIF_OT_render_animation,)

@@ -1,0 +1,180 @@
+"""Animation: frame ranges as Blender takes them, ``render --frames`` writing image sequences
+from one loaded model (each frame equal to a single ``--frame`` render of it), Render
+Animation over the scene's range or the object's, cancelled part-way, and the live preview's
+drop-frames rule on timeline changes."""
+
+import json
+import re
+import time
+
+import bpy
+import numpy as np
+import pytest
+from test_operators_worker import reopen, trained  # noqa: F401 - a fixture
+from test_ui_workflow import modal_run, module
+
+SIZE = ("--width", "16", "--height", "12")
+
+
+def image_pixels(path):
+    """(H, W, 4) float pixels of an image file read with Blender's image API."""
+    image = bpy.data.images.load(str(path))
+    try:
+        width, height = image.size
+        data = np.empty(width * height * 4, np.float32)
+        image.pixels.foreach_get(data)
+        return data.reshape(height, width, 4)
+    finally:
+        bpy.data.images.remove(image)
+
+
+def sequence(folder, stem="normal", suffix=".png"):
+    """The frame numbers of the ``stem`` image sequence in ``folder`` (``normal.0001.png``)."""
+    return sorted(int(path.name[len(stem) + 1:-len(suffix)])
+                  for path in folder.glob(f"{stem}.*{suffix}"))
+
+
+def test_frame_ranges_parse_like_blenders(extension):
+    animation = module("vdnif_addon.blender.animation")
+    errors = module("vdnif_addon.errors")
+    assert animation.parse_frames("1:5") == [1, 2, 3, 4, 5]
+    assert animation.parse_frames("1:9:4") == [1, 5, 9]
+    assert animation.parse_frames("-2:1:2") == [-2, 0]
+    for text, problem in (("5:1", "ends before it starts"), ("1:5:0", "at least 1"),
+                          ("a:b", "START:END"), ("3", "START:END"), ("1.5:3", "whole")):
+        with pytest.raises(errors.VDNIFError, match=problem):
+            animation.parse_frames(text)
+    jobs = module("vdnif_addon.blender.jobs")
+    assert jobs.frame_number(7) == ".0007" and jobs.frame_number(12345) == ".12345"
+    assert jobs.frame_number(-3) == ".-003" and jobs.frame_number(None) == ""
+
+
+@pytest.mark.slow
+def test_render_frames_writes_sequences_from_one_loaded_model(trained, tmp_path,  # noqa: F811
+                                                              monkeypatch, capsys):
+    blend, _ = trained
+    obj = reopen(blend)
+    model = tmp_path / "arm.vdnif"
+    bpy.ops.vdnif.save_model(filepath=str(model))
+    model_file = module("vdnif_addon.model.model_file")
+    loads, load = [], model_file.load_model
+    monkeypatch.setattr(model_file, "load_model", lambda path: loads.append(path) or load(path))
+    cli = module("vdnif_addon.cli")
+    scene = ("--blend", str(blend), "--object", obj.name, "--model", str(model))
+    out = tmp_path / "frames"
+    assert cli.main(["render", *scene, "--frames", "1:5:2", *SIZE, "--out", str(out)]) == 0
+    assert len(loads) == 1, "the model is read once for the whole range"
+    assert "frames 1..5 (3)" in capsys.readouterr().out
+    for stem in ("normal", "albedo", "distance", "material", "hit"):
+        assert sequence(out, stem) == [1, 3, 5]
+    assert sequence(out, "passes", ".exr") == [1, 3, 5], "one multilayer EXR per frame"
+    summary = json.loads((out / "render.json").read_text())
+    assert [f["frame"] for f in summary["frames"]] == [1, 3, 5]
+    assert all(f["hit_pixels"] > 0 for f in summary["frames"]) and "camera" in summary["view"]
+
+    single = tmp_path / "single"
+    assert cli.main(["render", *scene, "--frame", "3", *SIZE, "--out", str(single)]) == 0
+    for name in ("distance", "normal"):
+        assert np.array_equal(image_pixels(single / f"{name}.png"),
+                              image_pixels(out / f"{name}.0003.png")), name
+    assert (single / "passes.exr").read_bytes() == (out / "passes.0003.exr").read_bytes()
+    assert not np.array_equal(image_pixels(out / "normal.0001.png"),
+                              image_pixels(out / "normal.0005.png")), "it moves"
+    assert cli.main(["render", *scene, "--frames", "3:1", "--out", str(tmp_path / "x")]) == 1
+    assert "argument --frames: the frame range 3:1 ends before it starts" in \
+        capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_render_animation_over_the_scene_range_or_the_objects(trained,  # noqa: F811
+                                                              monkeypatch):
+    blend, _ = trained
+    obj = reopen(blend)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 2, 4
+    bpy.ops.vdnif.render_animation()
+    folder = module("storage").frames_folder(obj)
+    assert folder == blend.parent / "vdnif" / "Arm-frames"
+    assert sequence(folder) == [2, 3, 4] and sequence(folder, "passes", ".exr") == [2, 3, 4]
+    obj.vdnif.use_scene_frames = False
+    obj.vdnif.frame_start, obj.vdnif.frame_end, obj.vdnif.frame_step = 10, 18, 4
+    bpy.ops.vdnif.render_animation()
+    assert sequence(folder) == [2, 3, 4, 10, 14, 18]
+
+    obj.vdnif.frame_start, obj.vdnif.frame_end, obj.vdnif.frame_step = 20, 40, 1
+    render = module("operators.animation").VDNIF_OT_render_animation
+    ui_jobs = module("vdnif_addon.blender.ui_jobs")
+    frames = ui_jobs.render_frames
+
+    def held(*args, progress, **options):      # Esc lands at frame 2 however fast it runs
+        def hold(done, total):
+            progress(done, total)
+            while done == 2:
+                time.sleep(0.01)
+                progress(done, total)
+
+        return frames(*args, progress=hold, **options)
+
+    monkeypatch.setattr(ui_jobs, "render_frames", held)
+    result, status, reports = modal_run(render, "Arm", lambda state: state.count >= 2)
+    written = [frame for frame in sequence(folder) if frame >= 20]
+    assert result == {"FINISHED"} and written == [20, 21], "cancelled after frame 2"
+    assert "render cancelled after" in reports[0][1]
+    assert any(re.search(r"render: \d+/21 frames, ETA \d+ s", text) for text in status)
+
+
+@pytest.mark.slow
+def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
+    """A scrub over several frames while a render runs leaves one frame waiting, the newest;
+    the ones between are dropped, never rendered; the images show the newest frame."""
+    blend, _ = trained
+    obj = reopen(blend)
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    preview = module("operators.live_preview")
+    obj.vdnif.live_preview = True               # renders the current frame at once
+    session = preview._sessions["Arm"]
+    assert session.frames.running == 1 and session.renderer is None
+    preview.tick()
+    assert session.renderer.busy
+    for frame in (2, 3, 4, 5, 6):               # the scrub, while frame 1 renders
+        scene.frame_set(frame)
+    assert session.frames.running == 1 and session.frames.waiting == 6
+    assert session.frames.dropped == 4
+    with module("vdnif_addon.blender.poses").posed({"frame": 9.0}):
+        pass                                     # a job posing the scene: not a request
+    assert session.frames.waiting == 6
+    while preview.tick() is not None:
+        pass
+    assert session.shown == [1, 6] and session.error == ""
+    width, height = preview.preview_size(obj.vdnif)
+    assert (width, height) == (8, 6)
+    shown = bpy.data.images["VDNIF Preview Normal"]
+    assert tuple(shown.size) == (width, height)
+    pixels = np.empty(width * height * 4, np.float32)
+    shown.pixels.foreach_get(pixels)
+
+    capture = module("vdnif_addon.blender.capture_scene").capture
+    captured = capture(obj, 12, obj.vdnif.pose_spec(1), deform_corners=False)
+    neural = module("vdnif_addon.blender.neural")
+    model = neural.load_scene_model(module("storage").model_path(obj), captured)
+    reader = module("vdnif_addon.blender.pose_reader").PoseReader(
+        obj, captured, lambda: neural.camera_view(scene.camera, width, height))
+    kept = []
+    try:
+        module("vdnif_addon.blender.animation").render_frames(
+            reader, captured, model, [6], width, height, each=lambda _, r: kept.append(r))
+    finally:
+        reader.close()
+    expected = module("vdnif_addon.blender.preview").images(kept[0].predicted, height, width)
+    assert np.allclose(pixels.reshape(height, width, 4)[::-1], expected["normal"], atol=1e-6)
+    obj.vdnif.live_preview = False
+    assert "Arm" not in preview._sessions
+
+
+def test_latest_frame_rule(extension):
+    frames = module("vdnif_addon.blender.preview").LatestFrame()
+    assert frames.request(1) and not frames.request(2) and not frames.request(3)
+    assert (frames.running, frames.waiting, frames.dropped) == (1, 3, 1)
+    assert frames.finished() == 3 and frames.running == 3 and frames.waiting is None
+    assert frames.finished() is None and frames.request(4)
