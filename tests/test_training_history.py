@@ -1,6 +1,7 @@
 """Training's history as users get it: the records of ``train --json`` and their plot."""
 
 import numpy as np
+import pytest
 
 from vdnif_addon.training import history
 
@@ -66,3 +67,11 @@ def test_font_has_distinct_glyphs_for_every_character():
     shapes = {glyph.tobytes() for glyph in history.GLYPHS.values()}
     assert len(shapes) == len(history.GLYPHS) and history.GLYPHS["0"].shape == (7, 5)
     assert not history.GLYPHS[" "].any() and history.GLYPHS["-"][3].all()
+
+
+@pytest.mark.parametrize("last, ticks", [(0, [0]), (1, [0, 1]), (2, [0, 1, 2]), (7, [0, 2, 4, 6]),
+                                         (3000, [0, 1000, 2000, 3000]), (450, [0, 100, 200, 300,
+                                                                               400])])
+def test_step_ticks_are_round_and_never_zero_apart(last, ticks):
+    """A training of 2 steps (a tiny run) drew ticks 0.5 apart, rounded to 0: a crash."""
+    assert history._step_ticks(last) == ticks

@@ -92,11 +92,12 @@ def _polyline(image, xs, ys, color, dashed, box):
 
 
 def _step_ticks(last: int) -> list[int]:
-    """About five round step numbers (1, 2 or 5 times a power of ten apart) from 0 to ``last``."""
+    """About five round step numbers (1, 2 or 5 times a power of ten apart, at least 1) from 0
+    to ``last``."""
     raw = max(last, 1) / 5
     power = 10 ** math.floor(math.log10(raw))
     spacing = next(m * power for m in (1, 2, 5, 10) if m * power >= raw)
-    return list(range(0, last + 1, int(spacing)))
+    return list(range(0, last + 1, max(1, round(spacing))))
 
 
 def plot(history: Sequence[dict[str, Any]]) -> Float[np.ndarray, "H W 3"]:
