@@ -110,10 +110,10 @@ def check_output_folder(path: str | os.PathLike, what: str = "output folder") ->
     """Raises VDNIFError unless ``path`` is a folder (existing, or one that can be created)
     in which files can be created."""
     path = pathlib.Path(path)
+    if (problem := _name_problem(path)) is not None:     # before a stat fails on it
+        raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if os.path.lexists(path) and not path.is_dir():
         raise VDNIFError(f"{what} '{path}' exists and is not a folder")
-    if (problem := _name_problem(path)) is not None:
-        raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     _check_creatable(path, f"{what} '{path}'")
 
 
@@ -125,10 +125,10 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Non
     if path.name in ("", ".", "..") or text.replace(os.sep, "/").rpartition("/")[2] in (
             "", ".", ".."):
         raise VDNIFError(f"{what} '{text}' names a folder, not a file")
+    if (problem := _name_problem(path)) is not None:     # before a stat fails on it
+        raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if path.is_dir():
         raise VDNIFError(f"{what} '{path}' is a folder, not a file")
-    if (problem := _name_problem(path)) is not None:
-        raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),
                      f"{what} '{path}'")
 
@@ -146,10 +146,10 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
     """
     path = pathlib.Path(path)
     folder = path.parent if str(path.parent) else pathlib.Path(".")
-    if path.is_dir():
-        raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
     if (problem := _name_problem(path)) is not None:
         raise VDNIFError(f"cannot write {what} '{path}': {problem}")
+    if path.is_dir():
+        raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
     prefix, suffix = _temporary_affixes(path)
     try:
         if make_folder:
