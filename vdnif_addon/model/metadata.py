@@ -45,6 +45,10 @@ def poses_problem(poses: Any, subject: str) -> str | None:
     return None
 
 
+_PROBLEM_CHARS = 300
+"""The longest description of a problem in a message: one line a user reads."""
+
+
 class _Reader:
     """Typed reads of one plain-data mapping of the model file ``path``; every failure is a
     one-line VDNIFError naming the file and the entry (``where``)."""
@@ -56,6 +60,8 @@ class _Reader:
         self.data = data
 
     def fail(self, problem: str) -> NoReturn:
+        if len(problem) > _PROBLEM_CHARS:       # a huge value quoted by a settings check
+            problem = problem[:_PROBLEM_CHARS] + "..."
         raise VDNIFError(f"model file {self.path} is damaged: {problem}")
 
     def name(self, key: str) -> str:
@@ -99,7 +105,8 @@ class _Reader:
         """Numbers of ``shape`` (None: any length), finite."""
         value = self.get(key)
         try:
-            array = np.asarray(value, dtype)
+            with np.errstate(invalid="ignore", over="ignore"):     # refused just below
+                array = np.asarray(value, dtype)
         except (TypeError, ValueError, OverflowError):
             self.fail(f"its metadata {self.name(key)} is not numbers")
         if array.ndim != len(shape) or any(
@@ -318,14 +325,18 @@ class ModelMetadata:
         version = reader.integer("version")
         if version != FORMAT_VERSION:
             raise VDNIFError(outdated(path, version))
+        if (bad := first_non_plain(reader.get("network_config"))) is not None:
+            reader.fail(f"its metadata entry 'network_config.{bad}' is not a finite number or "
+                        "plain data")
         try:
             config = NetworkConfig.from_dict(reader.get("network_config"))
-        except (VDNIFError, TypeError, ValueError) as exc:    # ValueError: a huge integer
+        except (VDNIFError, TypeError) as exc:
             reader.fail(f"its network config is invalid: {exc}")
         poses = reader.get("train_poses")
         if (problem := poses_problem(poses, "its metadata train_poses is")) is not None:
             reader.fail(problem)
-        albedo = reader.array("albedo_table", np.float64, (None, 3)).astype(np.float32)
+        with np.errstate(over="ignore"):                            # refused just below
+            albedo = reader.array("albedo_table", np.float64, (None, 3)).astype(np.float32)
         if not np.isfinite(albedo).all():
             reader.fail("its metadata albedo_table has values beyond float32's range")
         try:
