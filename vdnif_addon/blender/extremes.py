@@ -28,7 +28,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..errors import VDNIFError
-from ..extreme_deform import MAX_FACTOR, MAX_TURN_DEG, ExtremeDeform
+from ..extreme_deform import ExtremeDeform
 from .read_mesh import deform_modifiers
 from .rig import bend_twist, influencing_bones, lattice_cells, offset_lattice
 
@@ -59,8 +59,7 @@ def add_stress_options(parser):
                             "capture")
     group.add_argument("--deform", type=ExtremeDeform.parse, metavar="KIND:VALUE",
                        help="an extreme pose on top of every pose of the rig: bend:DEG, "
-                            f"twist:DEG (|DEG| <= {MAX_TURN_DEG:g}), stretch:X (1 <= X <= "
-                            f"{MAX_FACTOR:g}) or squash:X ({1 / MAX_FACTOR:g} <= X <= 1)")
+                            "twist:DEG, stretch:X (X >= 1) or squash:X (0 < X <= 1)")
 
 
 def apply_stress(args, obj, spec):
