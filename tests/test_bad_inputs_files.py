@@ -356,6 +356,9 @@ bpy.ops.wm.save_as_mainfile(filepath=out + "/nan_location.blend")
 cube, rig = rigged()
 rig.location = (0.0, float("inf"), 0.0)   # Blender keeps it as float32's largest number
 bpy.ops.wm.save_as_mainfile(filepath=out + "/inf_rig.blend")
+cube, rig = rigged()
+cube.name = "../../x/Evil"
+bpy.ops.wm.save_as_mainfile(filepath=out + "/evil_name.blend")
 """
 
 
@@ -380,7 +383,7 @@ def files(trained, tmp_path_factory):  # noqa: F811 - the imported fixture
     blends.mkdir()
     subprocess.run([sys.executable, "-c", BLEND_SCRIPT, str(blends)], check=True,
                    capture_output=True, timeout=120)
-    for name in ("nan_location", "inf_rig"):
+    for name in ("nan_location", "inf_rig", "evil_name"):
         places[f"blend:{name}"] = blends / f"{name}.blend"
     yield places
     for folder in (places["ro"], places["ro"] / "data"):
@@ -511,3 +514,21 @@ def test_every_count_option_is_bounded(tmp_path):
                 assert "\n" not in message and value in message, (command, option, message)
                 checked += 1
     assert checked >= 2 * 40
+
+
+@pytest.mark.slow
+def test_an_object_named_like_a_path_is_trained_into_out_by_a_file_name(files, tmp_path):
+    """train without --out names its model after the object: an object named
+    '../../x/Evil' wrote outside out/ (and created the folder); its name is now one file
+    name component in out/."""
+    work = tmp_path / "a" / "b"
+    work.mkdir(parents=True)
+    result = subprocess.run(
+        [sys.executable, str(BATCH), "--", "train", "--blend", str(files["blend:evil_name"]),
+         "--object", "../../x/Evil", "--resolution", "8", "--poses", "2", "--rays-per-pose",
+         "16", "--steps", "1", "--batch", "64"], capture_output=True, text=True, cwd=work,
+        timeout=300, env=dict(os.environ, OMP_NUM_THREADS="1"))
+    assert result.returncode == 0, result.stderr
+    written = sorted(str(path.relative_to(tmp_path)) for path in tmp_path.rglob("*")
+                     if path.is_file())
+    assert written == ["a/b/out/_.._x_evil-proposed.vdnif"]
