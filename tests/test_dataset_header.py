@@ -19,8 +19,9 @@ from source_scan import matching_lines
 from vdnif_addon import limits
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.geometry.voxels import GRID_KEYS
+from vdnif_addon.safe_io import MAX_DEPTH
 from vdnif_addon.training import dataset
-from vdnif_addon.training.header import MAX_DEPTH, VERSION, DatasetHeader
+from vdnif_addon.training.header import VERSION, DatasetHeader
 
 GOLDEN_SHARD = REPO / "tests" / "golden" / "arm-dataset" / "shard-000000-000003.json"
 

@@ -1,4 +1,5 @@
 import dataclasses
+import errno
 import hashlib
 import io
 import os
@@ -90,16 +91,17 @@ def test_an_albedo_field_round_trips(tmp_path):
 def test_write_is_atomic_and_leaves_no_temporary_files(tmp_path, saved, network, monkeypatch):
     assert os.listdir(tmp_path) == ["model.vdnif"]
     good = saved.read_bytes()
-    real_save = torch.save
 
-    def failing_save(obj, target, *args, **kwargs):
-        if isinstance(target, io.BytesIO):
-            return real_save(obj, target, *args, **kwargs)
-        target.write(b"partial model bytes")
-        raise OSError("disk full")
+    class FullDisk(io.FileIO):
+        """A file on a disk that fills after a few bytes."""
 
-    monkeypatch.setattr(model_file.torch, "save", failing_save)
-    with pytest.raises(VDNIFError, match="model.vdnif.*disk full"):
+        def write(self, data):
+            super().write(bytes(data)[:19])
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(model_file, "open", lambda name, mode: FullDisk(name, mode),
+                        raising=False)
+    with pytest.raises(VDNIFError, match="model.vdnif.*no space left on device"):
         save_model(saved, network, META)
     assert saved.read_bytes() == good
     assert os.listdir(tmp_path) == ["model.vdnif"]

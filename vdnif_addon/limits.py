@@ -30,6 +30,10 @@ MAX_SHARD_SEGMENTS = 64 * MAX_RAYS_PER_POSE
 ray, ~21 GiB at ~80 bytes a row. Training reads a shard's arrays whole, so a shard whose zip
 directory or array headers claim more is refused before any array is read."""
 
+MAX_HEADER_BYTES = 1 << 28
+"""Bytes of one dataset header or manifest (JSON, read whole): a header of MAX_POSES poses of
+a rig of a hundred bones takes about 30 MB."""
+
 MAX_LOG2_TABLE_SIZE = 24
 """Hash table rows per level 2^T: at the cap a many-level table and Adam's two moments take
 several GiB."""
@@ -49,13 +53,26 @@ MAX_SEED = 2**31 - 1
 int: the smaller of the two."""
 
 
+MAX_THREADS = 1024
+"""Torch threads (``--threads``): more than the cores of today's largest machines; 2^31 makes
+OpenMP fail to allocate its thread pool and hang."""
+
+MAX_REPEATS = 1000
+"""Timed repeats of one measurement (``--repeats``) and trainings of one experiment point
+(``--seeds``): the medians settle within a few."""
+
+MAX_FRAME = 1_048_574
+"""Blender's last timeline frame (and -MAX_FRAME its first): ``frame_set`` clamps a frame
+beyond it, so a pose there would not be the frame it names."""
+
+
 def check_range(name: str, value: float, low: float, high: float | None = None) -> None:
     """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""
     if value < low:
         raise VDNIFError(f"{name} {value} must be at least {low}")
     if high is not None and value > high:
         raise VDNIFError(f"{name} {value} is more than the limit {high:,} "
-                         "(vdnif_addon/settings.py)")
+                         "(vdnif_addon/limits.py, settings.BOUNDS)")
 
 
 def check_image(width: int, height: int) -> None:

@@ -10,6 +10,11 @@ not after the training.
 
 ``exclusive_lock`` lets processes that share a work folder (``bench`` runs side by side) each
 take a different piece of the work.
+
+Reading a file a user names goes through here too: ``open_regular`` refuses a folder, a FIFO
+or a device before anything blocks on it or reads it forever, ``check_unpacked`` a zip that
+would unpack to more than it holds, and ``check_depth`` / ``first_non_plain`` plain data
+(JSON, a model's metadata) that nests too deeply or holds what JSON cannot.
 """
 
 from __future__ import annotations
@@ -18,11 +23,15 @@ import contextlib
 import io
 import json
 import math
+import numbers
 import os
 import pathlib
 import re
+import reprlib
+import stat
 import tempfile
-from typing import Any, Iterator
+import zipfile
+from typing import Any, BinaryIO, Iterator
 
 from .errors import VDNIFError
 
@@ -70,10 +79,39 @@ def file_stem(text: str) -> str:
     return stem or "object"
 
 
+NAME_MAX = 255
+"""Longest file name in bytes on the file systems VDNIF writes to (ext4, XFS, APFS, NTFS)."""
+_RANDOM_PART = 8                       # mkstemp's random characters
+_KEPT_SUFFIX = 16
+"""The longest suffix a temporary file keeps (writers such as ``np.savez`` and the image
+writers choose their format by it); a longer one is no format."""
+
+
+def _name_problem(path: pathlib.Path) -> str | None:
+    """Why a file or folder name along ``path`` cannot be created, or None."""
+    for part in path.parts:
+        size = len(os.fsencode(part))
+        if size > NAME_MAX:
+            return (f"the name '{part[:20]}...' has {size} bytes, more than the file "
+                    f"system's {NAME_MAX}")
+    return None
+
+
+def _temporary_affixes(path: pathlib.Path) -> tuple[str, str]:
+    """(prefix, suffix) of the temporary file of ``path``: ``.NAME.`` and its suffix, NAME
+    cut so that the temporary name fits in ``NAME_MAX`` bytes whenever ``path``'s does."""
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= _KEPT_SUFFIX else ""
+    room = NAME_MAX - len("..") - _RANDOM_PART - len(os.fsencode(suffix))
+    name = os.fsencode(path.name)[:room].decode("utf-8", "ignore")
+    return f".{name}.", suffix
+
+
 def check_output_folder(path: str | os.PathLike, what: str = "output folder") -> None:
     """Raises VDNIFError unless ``path`` is a folder (existing, or one that can be created)
     in which files can be created."""
     path = pathlib.Path(path)
+    if (problem := _name_problem(path)) is not None:     # before a stat fails on it
+        raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if os.path.lexists(path) and not path.is_dir():
         raise VDNIFError(f"{what} '{path}' exists and is not a folder")
     _check_creatable(path, f"{what} '{path}'")
@@ -87,6 +125,8 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Non
     if path.name in ("", ".", "..") or text.replace(os.sep, "/").rpartition("/")[2] in (
             "", ".", ".."):
         raise VDNIFError(f"{what} '{text}' names a folder, not a file")
+    if (problem := _name_problem(path)) is not None:     # before a stat fails on it
+        raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if path.is_dir():
         raise VDNIFError(f"{what} '{path}' is a folder, not a file")
     _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),
@@ -106,13 +146,15 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
     """
     path = pathlib.Path(path)
     folder = path.parent if str(path.parent) else pathlib.Path(".")
+    if (problem := _name_problem(path)) is not None:
+        raise VDNIFError(f"cannot write {what} '{path}': {problem}")
     if path.is_dir():
         raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
+    prefix, suffix = _temporary_affixes(path)
     try:
         if make_folder:
             folder.mkdir(parents=True, exist_ok=True)
-        handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix,
-                                             dir=folder)
+        handle, temporary = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
     except OSError as exc:
         raise VDNIFError(f"cannot write {what} '{path}': {_reason(exc)}") from exc
     try:
@@ -197,3 +239,122 @@ def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
         file.close()
         return None
     return file
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words ("a folder", "a FIFO", ...)."""
+    for test, kind in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a folder"),
+                       (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def open_regular(path: str | os.PathLike, label: str) -> BinaryIO:
+    """``path`` opened for reading in binary, refused on one line that starts with
+    ``label`` (what and which file, e.g. "model file m.vdnif") unless it is a regular file:
+    a FIFO would block the reader forever and a device such as /dev/zero never ends, so the
+    file is opened without blocking and checked before anything reads it."""
+    try:
+        descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise VDNIFError(f"{label} does not exist") from None
+    except OSError as exc:
+        raise VDNIFError(f"{label} cannot be read: {_reason(exc)}") from None
+    try:
+        mode = os.fstat(descriptor).st_mode
+        if not stat.S_ISREG(mode):
+            raise VDNIFError(f"{label} is not a regular file: it is {file_kind(mode)}")
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(descriptor, True)
+        return os.fdopen(descriptor, "rb")
+    except BaseException:
+        os.close(descriptor)
+        raise
+
+
+def unpacked_size(file: BinaryIO) -> int | None:
+    """The bytes the zip archive ``file`` unpacks to by its directory (what a reader
+    allocates), or None when it is not a zip archive; ``file`` is left at its start."""
+    try:
+        with zipfile.ZipFile(file) as archive:
+            return sum(info.file_size for info in archive.infolist())
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+        return None
+    finally:
+        file.seek(0)
+
+
+class _ShortRepr(reprlib.Repr):
+    def repr_int(self, x: int, level: int) -> str:
+        if x.bit_length() > 128:        # str() of an int of over 4300 digits raises
+            return f"<an integer of {x.bit_length()} bits>"
+        return super().repr_int(x, level)
+
+
+_SHORT = _ShortRepr()
+_SHORT.maxstring = _SHORT.maxother = 60
+
+
+def shown(value: Any) -> str:
+    """``repr(value)`` for a one-line message, kept short: a damaged file's huge list,
+    string or integer is cut, never written out whole (nor fails to be)."""
+    return _SHORT.repr(value)
+
+
+MAX_DEPTH = 16
+"""Nesting of VDNIF's plain data (a dataset header, a model's metadata; a lattice pose is 6
+deep in either): deeper is not VDNIF's, and is refused before anything walks it
+recursively."""
+
+
+def check_depth(data: Any, where: str) -> None:
+    """Raises VDNIFError naming ``where`` when the plain data ``data`` nests more than
+    ``MAX_DEPTH`` lists or mappings (walked without recursion)."""
+    stack = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        items = (value.values() if isinstance(value, dict)
+                 else value if isinstance(value, (list, tuple)) else None)
+        if items is None:
+            continue
+        if depth > MAX_DEPTH:
+            raise VDNIFError(f"{where}: nests more than {MAX_DEPTH} levels of lists and "
+                             "objects")
+        stack.extend((item, depth + 1) for item in items)
+
+
+def finite_number(value: Any) -> bool:
+    """Whether ``value`` is a real number (not a bool) that a float holds finitely."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:                   # an integer beyond the float range
+        return False
+
+
+def first_non_plain(value: Any) -> str | None:
+    """The JSON path of the first entry of ``value`` that is not finite JSON data (text,
+    a finite number, true/false, null, a list, an object with text keys), or None. Call
+    after ``check_depth``."""
+    stack = [(value, "")]
+    while stack:
+        item, where = stack.pop()
+        if isinstance(item, dict):
+            if not all(isinstance(key, str) for key in item):
+                return where or "value"
+            stack.extend((child, f"{where}.{key}" if where else key)
+                         for key, child in reversed(item.items()))
+        elif isinstance(item, (list, tuple)):
+            stack.extend((child, f"{where}[{i}]") for i, child in reversed(
+                list(enumerate(item))))
+        elif not (item is None or isinstance(item, (str, bool))
+                  or isinstance(item, (int, float)) and finite_number(item)):
+            return where or "value"
+    return None

@@ -50,14 +50,22 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
                    timings=timings)
 
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+"""Blender stores an infinite location or scale as float32's largest number: as infinite."""
+
+
 def _check_rigs_invertible(obj):
     """Raises VDNIFError when an armature or lattice deforming ``obj`` (or ``obj`` itself)
-    has a world matrix without inverse (scaled to 0 on an axis): poses and the rest map
-    need its inverse."""
+    has a world matrix that is not finite (a NaN or infinite location, rotation or scale, its
+    own or a parent's: every deformed cell would be NaN) or has no inverse (scaled to 0 on
+    an axis): poses and the rest map need its inverse."""
     for name, matrix in ((f"object '{obj.name}'", obj.matrix_world),
                          *((f"{m.type.lower()} '{m.object.name}' of '{obj.name}'",
                             m.object.matrix_world)
                            for m in deform_modifiers(obj) if m.object is not None)):
+        if not (np.abs(np.array(matrix)) < _FLOAT32_MAX).all():
+            raise VDNIFError(f"the {name} has a location, rotation or scale that is not a "
+                             "finite number (NaN or infinite; its own or a parent's)")
         determinant = matrix.to_3x3().determinant()
         if not (np.isfinite(determinant) and abs(determinant) > 0):
             raise VDNIFError(f"the {name} is scaled to zero or to a non-finite size (its "
@@ -71,6 +79,10 @@ def _deformed_corners(obj, rest, poses, progress):
         for index, pose in enumerate(poses):
             with posed(pose):
                 corners[index] = deformer.deformed()
+            if not np.isfinite(corners[index]).all():
+                raise VDNIFError(f"pose {index} of '{obj.name}' deforms its voxel corners to "
+                                 "positions that are not finite numbers (a bone, lattice "
+                                 "point or rig with a NaN or infinite transform?)")
             if progress is not None:
                 progress(index + 1, len(poses))
     return corners

@@ -279,8 +279,9 @@ def validate_arguments(args):
     at_least("seed", *BOUNDS["seed"])
     at_least("poses", *BOUNDS["poses"])
     at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
-    at_least("repeats", 1)
-    at_least("threads", 1)
+    at_least("repeats", 1, limits.MAX_REPEATS)
+    at_least("seeds", 1, limits.MAX_REPEATS)
+    at_least("threads", 1, limits.MAX_THREADS)
     at_least("batch", *BOUNDS["batch_size"])
     at_least("steps", *BOUNDS["steps"])
     at_least("ao_samples", *BOUNDS["ao_samples"])
@@ -295,6 +296,9 @@ def validate_arguments(args):
                              f"{low:g}..{high:g}")
     if given("frame") and not math.isfinite(args.frame):
         raise VDNIFError(f"--frame {args.frame} is not a finite number")
+    if given("frame") and abs(args.frame) > limits.MAX_FRAME:
+        raise VDNIFError(f"--frame {args.frame:g} is outside Blender's frames "
+                         f"{-limits.MAX_FRAME}..{limits.MAX_FRAME}")
     if args.command in IMAGE_COMMANDS and given("width") and given("height"):
         limits.check_image(args.width, args.height)
     if args.command == "train":

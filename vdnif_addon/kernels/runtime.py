@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING
 
 import warp as wp
 
+from ..errors import VDNIFError
+
 if TYPE_CHECKING:
     import torch
 
@@ -76,6 +78,22 @@ def cache_dir() -> pathlib.Path:
     return pathlib.Path(root) / f"warp-{wp.__version__}-{host_key()}"
 
 
+def _ready_cache(folder: pathlib.Path) -> None:
+    """Creates the kernel cache ``folder``; a place where it cannot be (under a file, in a
+    read-only folder) is a one-line VDNIFError naming it and where it came from, before
+    Warp fails on its first compile."""
+    source = ("the extension's user folder" if _state["root"] is not None
+              else f"${CACHE_ENV}" if os.environ.get(CACHE_ENV) else "the user's cache folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        reason = exc.strerror.lower() if exc.strerror else str(exc)
+        raise VDNIFError(f"kernel cache folder '{folder}' (from {source}) cannot be created: "
+                         f"{reason}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise VDNIFError(f"kernel cache folder '{folder}' (from {source}) is not writable")
+
+
 def cuda_driver_present() -> bool:
     """Whether the NVIDIA driver library that Warp loads for CUDA can be loaded here."""
     names = {"win32": ("nvcuda.dll",), "linux": ("libcuda.so", "libcuda.so.1")}.get(
@@ -114,7 +132,7 @@ def init() -> ModuleType:
         if not _state["ready"]:
             wp.config.log_level = wp.LOG_WARNING
             folder = cache_dir()
-            folder.mkdir(parents=True, exist_ok=True)
+            _ready_cache(folder)
             wp.config.kernel_cache_dir = str(folder)
             with _quiet_stderr(not cuda_driver_present()):
                 wp.init()

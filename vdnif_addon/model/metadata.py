@@ -9,9 +9,8 @@ metadata payload (``model_file``).
 
 from __future__ import annotations
 
-import math
 import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -19,6 +18,7 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..geometry.voxels import GRID_KEYS
+from ..safe_io import check_depth, finite_number, first_non_plain, shown
 from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
 
 if TYPE_CHECKING:
@@ -28,7 +28,25 @@ FORMAT_VERSION = 3
 """The model file's format: 3 holds ``ModelMetadata.to_dict()``. Files of an older format
 are refused (retrain them)."""
 
-"""The grid entries that place the voxels: the model's grid must be the capture's."""
+
+def poses_problem(poses: Any, subject: str) -> str | None:
+    """Why ``poses`` (a dataset header's or a model's training poses, ``subject`` naming
+    them with their verb: "poses are") is not a list of pose descriptions
+    (``poses.make_poses``: plain-data mappings with text keys, each with a finite frame), or
+    None. Call after ``check_depth``."""
+    if not isinstance(poses, (list, tuple)) or not all(
+            isinstance(pose, Mapping) for pose in poses):
+        return f"{subject} not a list of pose descriptions (JSON objects)"
+    if (bad := first_non_plain(poses)) is not None:
+        return f"pose figure 'poses{bad}' is not a finite number or plain data"
+    for index, pose in enumerate(poses):
+        if not finite_number(pose.get("frame")):
+            return f"pose {index} has no finite frame number"
+    return None
+
+
+_PROBLEM_CHARS = 300
+"""The longest description of a problem in a message: one line a user reads."""
 
 
 class _Reader:
@@ -42,6 +60,8 @@ class _Reader:
         self.data = data
 
     def fail(self, problem: str) -> NoReturn:
+        if len(problem) > _PROBLEM_CHARS:       # a huge value quoted by a settings check
+            problem = problem[:_PROBLEM_CHARS] + "..."
         raise VDNIFError(f"model file {self.path} is damaged: {problem}")
 
     def name(self, key: str) -> str:
@@ -60,33 +80,34 @@ class _Reader:
     def text(self, key: str) -> str:
         value = self.get(key)
         if not isinstance(value, str):
-            self.fail(f"its metadata {self.name(key)} {value!r} is not text")
+            self.fail(f"its metadata {self.name(key)} {shown(value)} is not text")
         return value
 
     def integer(self, key: str, minimum: int = 0) -> int:
         value = self.get(key)
         if isinstance(value, bool) or not isinstance(value, numbers.Integral) or (
                 value < minimum):
-            self.fail(f"its metadata {self.name(key)} {value!r} is not an integer of at "
+            self.fail(f"its metadata {self.name(key)} {shown(value)} is not an integer of at "
                       f"least {minimum}")
         return int(value)
 
     def number(self, key: str, positive: bool = False) -> float:
         value = self.get(key)
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
-            self.fail(f"its metadata {self.name(key)} {value!r} is not a number")
-        if not math.isfinite(value):
+            self.fail(f"its metadata {self.name(key)} {shown(value)} is not a number")
+        if not finite_number(value):
             self.fail(f"its metadata {self.name(key)} has non-finite values")
         if positive and not value > 0:
-            self.fail(f"its metadata {self.name(key)} {value!r} must be positive")
+            self.fail(f"its metadata {self.name(key)} {shown(value)} must be positive")
         return float(value)
 
     def array(self, key: str, dtype: type, shape: tuple[int | None, ...]) -> np.ndarray:
         """Numbers of ``shape`` (None: any length), finite."""
         value = self.get(key)
         try:
-            array = np.asarray(value, dtype)
-        except (TypeError, ValueError):
+            with np.errstate(invalid="ignore", over="ignore"):     # refused just below
+                array = np.asarray(value, dtype)
+        except (TypeError, ValueError, OverflowError):
             self.fail(f"its metadata {self.name(key)} is not numbers")
         if array.ndim != len(shape) or any(
                 n is not None and size != n for size, n in zip(array.shape, shape)):
@@ -104,6 +125,8 @@ class _Reader:
         if value is None:
             return None
         reader = self.child(key)
+        if not all(isinstance(name, str) for name in reader.data):
+            self.fail(f"its metadata {self.name(key)} has names that are not text")
         return {name: None if item is None else reader.number(name)
                 for name, item in reader.data.items()}
 
@@ -122,7 +145,7 @@ class Thresholds:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (
                     0 < value <= 1):
-                raise VDNIFError(f"{name} threshold {value!r} must lie in (0, 1]")
+                raise VDNIFError(f"{name} threshold {shown(value)} must lie in (0, 1]")
         if self.candidate > self.occlusion:
             raise VDNIFError(f"candidate threshold {self.candidate} must be at most the "
                              f"occlusion threshold {self.occlusion}")
@@ -166,8 +189,8 @@ class ModelGrid:
                              f"({', '.join(GRID_KEYS)})")
         resolution = reader.data["resolution"]
         if isinstance(resolution, bool) or not isinstance(resolution, numbers.Integral):
-            raise VDNIFError(f"model file {reader.path}: grid resolution {resolution!r} is not "
-                             "an integer")
+            raise VDNIFError(f"model file {reader.path}: grid resolution {shown(resolution)} "
+                             "is not an integer")
         dims = reader.array("dims", np.int64, (3,))
         if (dims < 1).any():
             reader.fail(f"its metadata grid dims {dims.tolist()} are not positive")
@@ -236,7 +259,7 @@ class DatasetSource:
     def read(cls, reader: _Reader) -> DatasetSource:
         """From the model file's entry (``reader``)."""
         shards = reader.get("shards")
-        if not isinstance(shards, Sequence) or not all(isinstance(s, str) for s in shards):
+        if not isinstance(shards, (list, tuple)) or not all(isinstance(s, str) for s in shards):
             reader.fail("its metadata dataset.shards is not a list of names")
         return cls(folder=reader.text("folder"), shards=tuple(shards),
                    poses=reader.integer("poses"), segments=reader.integer("segments"))
@@ -297,22 +320,27 @@ class ModelMetadata:
         finite numbers, a complete grid, the albedo table and the material slots against
         the network's materials, thresholds in (0, 1]); a failure is a one-line VDNIFError
         naming the file. ``training.fit`` makes the metadata it writes with it too."""
+        check_depth(data, f"model file {path} is damaged: its metadata")
         reader = _Reader(path, data)
         version = reader.integer("version")
         if version != FORMAT_VERSION:
             raise VDNIFError(outdated(path, version))
+        if (bad := first_non_plain(reader.get("network_config"))) is not None:
+            reader.fail(f"its metadata entry 'network_config.{bad}' is not a finite number or "
+                        "plain data")
         try:
             config = NetworkConfig.from_dict(reader.get("network_config"))
         except (VDNIFError, TypeError) as exc:
             reader.fail(f"its network config is invalid: {exc}")
         poses = reader.get("train_poses")
-        if not isinstance(poses, Sequence) or not all(
-                isinstance(pose, Mapping) and all(isinstance(k, str) for k in pose)
-                for pose in poses):
-            reader.fail("its metadata train_poses is not a list of pose descriptions")
-        albedo = reader.array("albedo_table", np.float64, (None, 3)).astype(np.float32)
+        if (problem := poses_problem(poses, "its metadata train_poses is")) is not None:
+            reader.fail(problem)
+        with np.errstate(over="ignore"):                            # refused just below
+            albedo = reader.array("albedo_table", np.float64, (None, 3)).astype(np.float32)
+        if not np.isfinite(albedo).all():
+            reader.fail("its metadata albedo_table has values beyond float32's range")
         try:
-            return cls(object=reader.text("object"),
+            metadata = cls(object=reader.text("object"),
                        object_size=reader.number("object_size", positive=True),
                        variant=reader.text("variant"), network_config=config,
                        grid=ModelGrid.read(reader.child("grid", {})),
@@ -328,11 +356,14 @@ class ModelMetadata:
             if str(exc).startswith(f"model file {path}"):
                 raise
             reader.fail(str(exc))
+        if (bad := first_non_plain(data)) is not None:     # the free-form entries (config)
+            reader.fail(f"its metadata entry '{bad}' is not a finite number or plain data")
+        return metadata
 
 def outdated(path: str, version: object) -> str:
     """The one line that refuses a model file of another format version than this add-on's."""
     if isinstance(version, int) and version > FORMAT_VERSION:
         return (f"model file {path} has format version {version}, newer than this add-on "
                 f"reads ({FORMAT_VERSION}); update the add-on")
-    return (f"model file {path} has format version {version!r}, older than this add-on "
+    return (f"model file {path} has format version {shown(version)}, older than this add-on "
             f"reads ({FORMAT_VERSION}): train it again")

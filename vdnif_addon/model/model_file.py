@@ -5,6 +5,10 @@ itself a serialized ``{"metadata", "state_dict"}``, the metadata as ``ModelMetad
 writes it; the SHA-256 of the payload bytes catches corruption that the archive format alone
 would not. It is read with ``weights_only=True`` only, so a foreign file cannot run code, and
 written atomically. A file of another format version than ``FORMAT_VERSION`` is refused.
+
+``torch.save`` stores the members of its zip archive uncompressed, so a model file (and the
+payload inside it) unpacks to no more bytes than it holds: one that claims more was not
+written by VDNIF and is refused before torch allocates what its zip directory claims.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import numpy as np
 import torch
 
 from ..errors import VDNIFError
-from ..safe_io import atomic_path
+from ..safe_io import atomic_path, open_regular, shown, unpacked_size
 from .metadata import FORMAT_VERSION, ModelMetadata, outdated
 from .network import IntersectionNetwork
 
@@ -85,9 +89,13 @@ def save_model(
         "sha256": hashlib.sha256(payload).hexdigest(),
         "payload": torch.frombuffer(bytearray(payload), dtype=torch.uint8),
     }
+    buffer = io.BytesIO()
+    torch.save(archive, buffer)
+    # Written here, not by torch.save to the file: torch turns a failed write (a full disk)
+    # into a RuntimeError of its own, where this write raises the OSError that names it.
     with atomic_path(path, "model file", make_folder=False) as temporary:     # safe_io
         with open(temporary, "wb") as file:
-            torch.save(archive, file)
+            file.write(buffer.getbuffer())
 
 
 def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetadata]:
@@ -95,24 +103,14 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetad
     metadata, checked). A missing, corrupt, truncated, foreign, damaged or other-format file
     raises a one-line VDNIFError naming the file."""
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise VDNIFError(f"model file {path} does not exist")
-    try:
-        archive = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:
-        reason = (
-            "not a plain-data torch archive"
-            if isinstance(exc, pickle.UnpicklingError)
-            else _reason(exc)
-        )
-        raise VDNIFError(
-            f"model file {path} cannot be read (corrupt, truncated or not a VDNIF model): {reason}"
-        ) from exc
+    with open_regular(path, f"model file {path}") as file:
+        _check_unpacked(file, os.fstat(file.fileno()).st_size, path)
+        archive = _read_archive(file, path)
     if not isinstance(archive, dict) or archive.get("format") != FORMAT_NAME:
         raise VDNIFError(f"{path} is not a VDNIF model file")
     version = archive.get("version")
     if isinstance(version, bool) or not isinstance(version, int) or version < 1:
-        raise VDNIFError(f"model file {path} has an invalid format version {version!r}")
+        raise VDNIFError(f"model file {path} has an invalid format version {shown(version)}")
     if version != FORMAT_VERSION:
         raise VDNIFError(outdated(path, version))
     payload = archive.get("payload")
@@ -121,6 +119,7 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetad
     data = payload.numpy().tobytes()
     if hashlib.sha256(data).hexdigest() != archive.get("sha256"):
         raise VDNIFError(f"model file {path} is corrupt: its checksum does not match")
+    _check_unpacked(io.BytesIO(data), len(data), path)
     try:
         inner = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
         stored = inner["metadata"]
@@ -141,6 +140,28 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetad
                              f"numbers of magnitude at most {MAX_WEIGHT:g}")
     network.thresholds = metadata.thresholds
     return network, metadata
+
+
+def _read_archive(file: io.IOBase, path: str) -> object:
+    """The torch archive in ``file`` (plain data and tensors only), or a one-line
+    VDNIFError naming the model file ``path``."""
+    try:
+        return torch.load(file, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        reason = ("not a plain-data torch archive" if isinstance(exc, pickle.UnpicklingError)
+                  else _reason(exc))
+        raise VDNIFError(f"model file {path} cannot be read (corrupt, truncated or not a "
+                         f"VDNIF model): {reason}") from exc
+
+
+def _check_unpacked(file: io.IOBase, size: int, path: str) -> None:
+    """Raises VDNIFError when the zip archive ``file`` of ``size`` bytes would unpack to more
+    than it holds (module docstring)."""
+    unpacked = unpacked_size(file)
+    if unpacked is not None and unpacked > size:
+        raise VDNIFError(f"model file {path} is not a VDNIF model: it would unpack to "
+                         f"{unpacked:,} bytes from {size:,} (VDNIF stores its members "
+                         "uncompressed)")
 
 
 def model_bytes(path: str | os.PathLike) -> int:

@@ -13,16 +13,16 @@ import json
 import math
 import os
 import pathlib
-import stat
 import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, BinaryIO
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .. import limits
 from ..errors import VDNIFError
+from ..safe_io import open_regular, unpacked_size
 from .header import DatasetHeader, DatasetIdentity, GridHeader
 
 if TYPE_CHECKING:
@@ -128,9 +128,21 @@ def write_shard(folder: str | os.PathLike, name: str, records: dict[str, np.ndar
                           "dataset manifest")
     target = folder / f"{name}.npz"
     with atomic_path(target, "dataset shard") as temporary:
-        np.savez(temporary, **records)
+        _write_npz(temporary, records)
     write_text_atomic(folder / f"{name}.json", text, "dataset header")
     return target
+
+
+def _write_npz(path: str, arrays: dict[str, np.ndarray]) -> None:
+    """``np.savez``'s archive (members stored, not compressed), written so that a failed
+    write (a full disk) raises once: ``np.savez`` leaves its zip open on failure, and the
+    zip's finalizer then writes its directory again and prints a second traceback after the
+    error line."""
+    with open(path, "wb") as file, zipfile.ZipFile(file, "w", zipfile.ZIP_STORED,
+                                                   allowZip64=True) as archive:
+        for name, array in arrays.items():
+            with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
 
 
 @dataclass(frozen=True)
@@ -196,27 +208,19 @@ def _check_overlap(paths: list[pathlib.Path], headers: list[DatasetHeader]) -> N
 
 
 def _read_json(path: pathlib.Path, what: str) -> Any:
-    """The JSON of regular file ``path``; ``what`` names it in errors."""
+    """The JSON of regular file ``path`` of at most ``limits.MAX_HEADER_BYTES``; ``what``
+    names it in errors."""
     try:
-        with _open_regular(path, what) as file:
-            return json.loads(file.read())
+        with open_regular(path, f"{what} '{path}'") as file:
+            text = file.read(limits.MAX_HEADER_BYTES + 1)
+        if len(text) > limits.MAX_HEADER_BYTES:
+            raise VDNIFError(f"{what} '{path}' is larger than the limit "
+                             f"{limits.MAX_HEADER_BYTES:,} bytes (vdnif_addon/limits.py)")
+        return json.loads(text)
     except RecursionError:
         raise VDNIFError(f"{what} '{path}' nests too deeply to be read") from None
     except (OSError, ValueError) as exc:
         raise VDNIFError(f"{what} '{path}' cannot be read: {exc}") from None
-
-
-def _open_regular(path: pathlib.Path, what: str) -> BinaryIO:
-    """``path`` opened for reading, refused unless it is a regular file: a FIFO named like a
-    shard would block the reader forever (opened without blocking, checked, then read)."""
-    descriptor = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    try:
-        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
-            raise VDNIFError(f"{what} '{path}' is not a regular file")
-        return os.fdopen(descriptor, "rb")
-    except BaseException:
-        os.close(descriptor)
-        raise
 
 
 def _manifest(folder: pathlib.Path) -> DatasetIdentity | None:
@@ -237,9 +241,17 @@ def _open_shard(path: pathlib.Path) -> Shard:
     """The shard's npz, its zip directory and array headers checked before any array is
     read: every ``ARRAYS`` member, their sizes within ``limits.MAX_SHARD_SEGMENTS`` rows, each
     array's header claiming the bytes its member holds."""
+    file = open_regular(path, f"dataset shard '{path}'")
+    size, unpacked = os.fstat(file.fileno()).st_size, unpacked_size(file)
+    if unpacked is not None and unpacked > size:
+        file.close()
+        raise VDNIFError(f"dataset shard '{path}' is not a VDNIF shard: it would unpack to "
+                         f"{unpacked:,} bytes from {size:,} (VDNIF stores its arrays "
+                         "uncompressed)")
     try:
-        shard = np.load(_open_regular(path, "dataset shard"))
+        shard = np.load(file)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        file.close()
         raise VDNIFError(f"dataset shard '{path}' cannot be read: {exc}") from None
     if not isinstance(shard, np.lib.npyio.NpzFile):
         raise VDNIFError(f"dataset shard '{path}' is not an npz archive")

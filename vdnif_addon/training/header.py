@@ -15,6 +15,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NoReturn
 
+import numpy as np
+
 from ..errors import VDNIFError
 from ..geometry.voxels import GRID_KEYS
 from ..limits import (
@@ -25,34 +27,16 @@ from ..limits import (
     MAX_SHARD_SEGMENTS,
     MIN_OBJECT_SIZE,
 )
-from ..safe_io import first_non_finite
+from ..model.metadata import poses_problem
+from ..safe_io import check_depth, finite_number, shown
 from ..settings import MAX_MATERIALS, MAX_RESOLUTION, MIN_RESOLUTION, Heads
 
 FORMAT = "vdnif-dataset"
 VERSION = 1
-"""Where the grid lies: what every shard of a folder shares (``GridHeader.placement``)."""
-MAX_DEPTH = 16
-"""Nesting of a header's JSON (a lattice pose is 6 deep): deeper is not a header, and is
-refused before anything walks it recursively."""
 
 
 def _fail(where: str, message: str) -> NoReturn:
     raise VDNIFError(f"{where}: {message}")
-
-
-def check_depth(data: Any, where: str) -> None:
-    """Raises VDNIFError when the plain data ``data`` nests more than ``MAX_DEPTH`` lists or
-    objects (walked without recursion)."""
-    stack = [(data, 1)]
-    while stack:
-        value, depth = stack.pop()
-        items = (value.values() if isinstance(value, dict)
-                 else value if isinstance(value, list) else None)
-        if items is None:
-            continue
-        if depth > MAX_DEPTH:
-            _fail(where, f"nests more than {MAX_DEPTH} levels of lists and objects")
-        stack.extend((item, depth + 1) for item in items)
 
 
 def _is_int(value: object) -> bool:
@@ -62,20 +46,19 @@ def _is_int(value: object) -> bool:
 def _int(where: str, name: str, value: object, low: int, high: int | None = None) -> int:
     if not _is_int(value) or value < low or (high is not None and value > high):
         span = f"{low}..{high}" if high is not None else f"at least {low}"
-        _fail(where, f"{name} {value!r} is not an integer {span}")
+        _fail(where, f"{name} {shown(value)} is not an integer {span}")
     return value
 
 
 def _is_number(value: object) -> bool:
-    return (not isinstance(value, bool) and isinstance(value, (int, float))
-            and math.isfinite(value))
+    return isinstance(value, (int, float)) and finite_number(value)
 
 
 def _number(where: str, name: str, value: object, low: float = -math.inf,
             high: float = math.inf) -> float:
     if not _is_number(value) or not low <= value <= high:
         span = "" if math.isinf(low) and math.isinf(high) else f" in {low:g}..{high:g}"
-        _fail(where, f"{name} {value!r} is not a finite number{span}")
+        _fail(where, f"{name} {shown(value)} is not a finite number{span}")
     return float(value)
 
 
@@ -92,7 +75,7 @@ def _keys(where: str, name: str, data: Mapping[str, Any], required: tuple[str, .
     if missing:
         _fail(where, f"{name} lacks {', '.join(missing)}")
     if unknown:
-        _fail(where, f"{name} has unknown entries {', '.join(map(repr, unknown))}")
+        _fail(where, f"{name} has unknown entries {', '.join(map(shown, unknown))}")
 
 
 @dataclass(frozen=True)
@@ -129,26 +112,26 @@ class GridHeader:
         _keys(where, "grid", data, GRID_KEYS, ("occupied_voxels", "mesh_fingerprint"))
         origin, dims = data["origin"], data["dims"]
         if not (isinstance(origin, list) and len(origin) == 3 and all(map(_is_number, origin))):
-            _fail(where, f"grid origin {origin!r} is not 3 numbers")
+            _fail(where, f"grid origin {shown(origin)} is not 3 numbers")
         if not (isinstance(dims, list) and len(dims) == 3
                 and all(_is_int(n) and 1 <= n <= 2**31 - 1 for n in dims)):
-            _fail(where, f"grid dims {dims!r} are not 3 counts")
+            _fail(where, f"grid dims {shown(dims)} are not 3 counts")
         h, extent = data["voxel_size"], data["extent"]
         if not (_is_number(h) and h > 0 and _is_number(extent) and extent > 0):
             _fail(where, "grid voxel size or extent is not a positive number")
         if abs(extent - h * max(dims)) > 1e-6 * extent:
-            _fail(where, f"grid extent {extent!r} is not its voxel size {h!r} times its "
+            _fail(where, f"grid extent {shown(extent)} is not its voxel size {shown(h)} times its "
                          f"longest dims {max(dims)}")
         resolution = data["resolution"]
         if not _is_int(resolution) or not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION:
-            _fail(where, f"grid resolution {resolution!r} is not an integer in "
+            _fail(where, f"grid resolution {shown(resolution)} is not an integer in "
                          f"{MIN_RESOLUTION}..{MAX_RESOLUTION}")
         occupied = data.get("occupied_voxels")
         if occupied is not None:
             _int(where, "grid occupied_voxels", occupied, 0, math.prod(dims))
         fingerprint = data.get("mesh_fingerprint")
         if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
-            _fail(where, f"grid mesh_fingerprint {fingerprint!r} is not a string")
+            _fail(where, f"grid mesh_fingerprint {shown(fingerprint)} is not a string")
         return cls(origin=tuple(map(float, origin)), voxel_size=float(h), dims=tuple(dims),
                    resolution=resolution, extent=float(extent), occupied_voxels=occupied,
                    mesh_fingerprint=fingerprint)
@@ -190,12 +173,13 @@ class DatasetHeads:
             _fail(where, "heads occlusion, distance and normal are not all true")
         count = _int(where, "heads material_count", data["material_count"], 1, MAX_MATERIALS)
         if not isinstance(data["albedo"], bool) or data["material"] is not (count > 1):
-            _fail(where, f"heads albedo {data['albedo']!r} or material {data['material']!r} "
-                         f"is not true or false as its {count} materials say")
+            _fail(where, f"heads albedo {shown(data['albedo'])} or material "
+                         f"{shown(data['material'])} is not true or false as its {count} "
+                         "materials say")
         slots = data.get("material_slots")
         if slots is not None and not (isinstance(slots, list) and len(slots) == count
                                       and all(_is_int(s) and s >= 0 for s in slots)):
-            _fail(where, f"heads material_slots {slots!r} are not {count} slot indices")
+            _fail(where, f"heads material_slots {shown(slots)} are not {count} slot indices")
         return cls(albedo=data["albedo"], material_count=count,
                    material_slots=None if slots is None else tuple(slots))
 
@@ -331,32 +315,31 @@ class DatasetHeader:
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise VDNIFError(f"{where} is not a VDNIF dataset header")
         if not _is_int(data.get("version")) or data["version"] != VERSION:
-            raise VDNIFError(f"{where} has format version {data.get('version')!r}, this VDNIF "
-                             f"reads version {VERSION}: generate the dataset again")
+            raise VDNIFError(f"{where} has format version {shown(data.get('version'))}, this "
+                             f"VDNIF reads version {VERSION}: generate the dataset again")
         grid = GridHeader.from_dict(data.get("grid"), where)
         _keys(where, "header", data, HEADER_KEYS, ("grazing_fraction", "secondary_fraction"))
         name = _name(where, data["object"])
         if data["voxel_size"] != grid.voxel_size:
-            _fail(where, f"voxel size {data['voxel_size']!r} differs from the grid's "
-                         f"{grid.voxel_size!r}")
+            _fail(where, f"voxel size {shown(data['voxel_size'])} differs from the grid's "
+                         f"{shown(grid.voxel_size)}")
         mode = data["mode"]
         if not isinstance(mode, str) or not mode:
-            _fail(where, f"mode {mode!r} is not a name")
+            _fail(where, f"mode {shown(mode)} is not a name")
         heads = DatasetHeads.from_dict(data["heads"], where)
         poses, span = data["poses"], data["pose_range"]
-        if not (isinstance(poses, list) and len(poses) <= MAX_POSES
-                and all(isinstance(pose, dict) for pose in poses)):
-            _fail(where, f"poses are not a list of at most {MAX_POSES} JSON objects")
-        if (bad := first_non_finite(poses)) is not None:
-            _fail(where, f"pose figure 'poses{bad}' is not a finite number")
+        if (problem := poses_problem(poses, "poses are")) is not None:
+            _fail(where, problem)
+        if len(poses) > MAX_POSES:
+            _fail(where, f"has {len(poses)} poses, more than the limit {MAX_POSES}")
         if not (isinstance(span, list) and len(span) == 2 and all(map(_is_int, span))
                 and 0 <= span[0] < span[1] and span[1] - span[0] == len(poses)):
-            _fail(where, f"pose range {span!r} is not two integers 0 <= start < stop that "
+            _fail(where, f"pose range {shown(span)} is not two integers 0 <= start < stop that "
                          f"span its {len(poses)} poses")
         inverted = data["inverted_cells"]
         if not (isinstance(inverted, list) and len(inverted) == len(poses)
                 and all(_is_int(n) and n >= 0 for n in inverted)):
-            _fail(where, f"inverted_cells {inverted!r} are not one count per pose")
+            _fail(where, f"inverted_cells {shown(inverted)} are not one count per pose")
         timings, versions = (_object(where, "timings", data["timings"]),
                              _object(where, "versions", data["versions"]))
         for key, value in timings.items():
@@ -385,6 +368,9 @@ class DatasetHeader:
             segments=_int(where, "segments", data["segments"], 0, MAX_SHARD_SEGMENTS))
 
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
 def _albedo_table(where: str, table: object,
                   materials: int) -> tuple[tuple[float, float, float], ...]:
     """One finite RGB row per material, at least one."""
@@ -393,5 +379,7 @@ def _albedo_table(where: str, table: object,
         _fail(where, "the albedo table is not all finite numbers (rows of 3)")
     if len(table) < max(materials, 1):
         _fail(where, f"the albedo table has {len(table)} rows for {materials} materials")
+    if not all(abs(value) <= _FLOAT32_MAX for row in table for value in row):
+        _fail(where, "the albedo table has values beyond float32's range (training's type)")
     return tuple((float(r), float(g), float(b)) for r, g, b in table)
 
