@@ -201,3 +201,24 @@ def test_the_batch_pipeline_trains_and_evaluates_a_skinned_glb(empty_scene, tmp_
     assert code == 1 and error_lines(err) == [
         f"vdnif: error: mesh file '{path}' has its own armature 'Rig': a procedural rig is "
         "only for a mesh without one (leave out --rig)"]
+
+
+def test_a_rigged_blend_file_with_an_animated_shape_key_is_refused_by_name(empty_scene, core,
+                                                                          tmp_path):
+    """The file's own armature poses the mesh, but a shape key its action animates would
+    move the true mesh away from the corners: capture names it. (The glTF importer leaves
+    a morph target's animation in a muted NLA track, where it animates nothing.)"""
+    body, *_ = author_character(tmp_path)
+    body.shape_key_add(name="Basis")
+    smile = body.shape_key_add(name="Smile")
+    co = sb.mesh_vertices(body)
+    co[:, 2] += 0.2 * (co[:, 0] > 1.0)
+    smile.data.foreach_set("co", co.astype(np.float32).ravel())
+    for frame, value in ((1, 0.0), (20, 1.0)):
+        smile.value = value
+        smile.keyframe_insert("value", frame=frame)
+    obj = core("blender.scenes").blend_scene(export(tmp_path, "blend"), "Body")
+    assert core("blender.mesh_files").own_armature(obj).name == "Rig"
+    with pytest.raises(core("errors").VDNIFError,
+                       match="'Body' .*: shape key 'Smile' \\(animated\\)"):
+        core("blender.capture_scene").capture(obj, 8)
