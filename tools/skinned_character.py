@@ -19,8 +19,8 @@ import addon_utils  # isort: skip
 # name: (head, tail, parent, skin radius at the head)
 BONES = {
     "Hips": ((0, 0, 0.95), (0, 0, 1.2), None, 0.17),
-    "Chest": ((0, 0, 1.2), (0, 0, 1.5), "Hips", 0.19),
-    "Head": ((0, 0, 1.5), (0, 0, 1.9), "Chest", 0.08),
+    "Chest": ((0, 0, 1.2), (0, 0, 1.45), "Hips", 0.19),
+    "Head": ((0, 0, 1.45), (0, 0, 1.9), "Chest", 0.08),
     "UpperArm.L": ((0.2, 0, 1.45), (0.5, 0, 1.45), "Chest", 0.07),
     "LowerArm.L": ((0.5, 0, 1.45), (0.78, 0, 1.45), "UpperArm.L", 0.055),
     "UpperArm.R": ((-0.2, 0, 1.45), (-0.5, 0, 1.45), "Chest", 0.07),
@@ -32,6 +32,9 @@ BONES = {
 }
 TIP_RADIUS = {"Head": 0.13, "LowerArm.L": 0.045, "LowerArm.R": 0.045, "Shin.L": 0.06,
               "Shin.R": 0.06}
+# Skin edges that join the limbs to the trunk (bones need not touch, the surface must).
+JOINTS = (((0, 0, 1.45), (0.2, 0, 1.45)), ((0, 0, 1.45), (-0.2, 0, 1.45)),
+          ((0, 0, 0.95), (0.11, 0, 0.95)), ((0, 0, 0.95), (-0.11, 0, 0.95)))
 # action: frames and {bone: (axis, degrees at the middle frame, degrees at the last frame)}
 ACTIONS = {
     "Walk": (1, 40, {"Thigh.L": (0, 35, -35), "Thigh.R": (0, -35, 35), "Shin.L": (0, -50, 0),
@@ -83,6 +86,7 @@ def _skinned_body():
                 points.append(point)
                 radii.append(size if size is not None else radius)
         edges.append((index[head], index[tail]))
+    edges += [(index[a], index[b]) for a, b in JOINTS]
     mesh = bpy.data.meshes.new("Character")
     mesh.from_pydata(points, edges, [])
     body = bpy.data.objects.new("Character", mesh)
