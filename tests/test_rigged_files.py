@@ -222,3 +222,31 @@ def test_a_rigged_blend_file_with_an_animated_shape_key_is_refused_by_name(empty
     with pytest.raises(core("errors").VDNIFError,
                        match="'Body' .*: shape key 'Smile' \\(animated\\)"):
         core("blender.capture_scene").capture(obj, 8)
+
+
+def test_an_unskinned_mesh_beside_a_skinned_one_joins_it(empty_scene, core, tmp_path):
+    """Several meshes are joined into the skinned one, which keeps its Armature modifier
+    whatever the importer's order; the extra mesh stays at rest (no weights)."""
+    import bpy
+
+    body, *_ = author_character(tmp_path)
+    bpy.ops.mesh.primitive_cube_add(size=0.2, location=(1.0, 0.25, 1.0))
+    bpy.context.active_object.name = "AHat"          # sorts before "Body"
+    total = len(body.data.vertices) + 8
+    obj = core("blender.scenes").mesh_scene(export(tmp_path, "glb"))
+    assert [o.type for o in bpy.context.scene.objects if o is not obj] == ["ARMATURE"]
+    assert core("blender.mesh_files").own_armature(obj).name == "Rig"
+    assert len(obj.data.vertices) >= total
+
+
+def test_meshes_skinned_to_two_armatures_are_refused(empty_scene, core, tmp_path):
+    import bpy
+
+    author_character(tmp_path)
+    other = sb.lattice_box((4, 2, 2), 0.25, name="Other")
+    other.location = (0.0, 2.0, 0.0)
+    sb.two_bone_rig(other)
+    bpy.context.view_layer.update()
+    path = export(tmp_path, "glb")
+    with pytest.raises(core("errors").VDNIFError, match="2 armatures .*only one armature"):
+        core("blender.scenes").mesh_scene(path)

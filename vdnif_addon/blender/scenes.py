@@ -2,8 +2,9 @@
 procedural rig), and objects from .blend files.
 
 Every source returns the mesh object to capture. The procedural rigs are the same for the
-demo scenes and for any mesh a user gives: an armature chain along the longest axis with
-automatic weights, or a 3x3x3 lattice around the mesh, each animated over frames 1..48.
+demo scenes and for any mesh file without an armature of its own: an armature chain along
+the longest axis with automatic weights, or a 3x3x3 lattice around the mesh, each animated
+over frames 1..48.
 """
 
 import math
