@@ -12,18 +12,21 @@ import numpy as np
 
 from ..errors import VDNIFError
 from .read_mesh import deform_modifiers, deformers_disabled
+from .uncaptured import check_captured
 
 _NOT_COPIED = {"rna_type", "name", "type", "is_active", "is_override_data", "persistent_uid",
                "show_expanded", "execution_time", "use_pin_to_last"}
 
 
 def check_deformers(obj):
-    """Raises a VDNIFError for a deform modifier that cannot deform anything."""
+    """Raises a VDNIFError for a deform modifier that cannot deform anything, and for any
+    deformation of ``obj`` that the corners would not follow (``uncaptured``)."""
     for modifier in deform_modifiers(obj):
         if modifier.object is None:
             kind = modifier.type.lower()
             raise VDNIFError(f"{kind} modifier '{modifier.name}' of '{obj.name}' has no "
                              f"{kind} object")
+    check_captured(obj)
 
 
 class CornerDeformer:

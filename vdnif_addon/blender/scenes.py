@@ -1,9 +1,10 @@
-"""Scene sources: the embedded demo scenes, meshes from files with a procedural rig, and
-objects from .blend files.
+"""Scene sources: the embedded demo scenes, meshes from files (their own armature, else a
+procedural rig), and objects from .blend files.
 
 Every source returns the mesh object to capture. The procedural rigs are the same for the
-demo scenes and for any mesh a user gives: an armature chain along the longest axis with
-automatic weights, or a 3x3x3 lattice around the mesh, each animated over frames 1..48.
+demo scenes and for any mesh file without an armature of its own: an armature chain along
+the longest axis with automatic weights, or a 3x3x3 lattice around the mesh, each animated
+over frames 1..48.
 """
 
 import math
@@ -13,18 +14,13 @@ import bpy
 import numpy as np
 
 from ..errors import VDNIFError
+from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
 from .rig import bend_twist
 
 DEMO_SCENES = ("arm", "lattice", "spot", "bunny")
 RIGS = ("armature", "lattice")
 FRAME_START, FRAME_END = 1, 48
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
-MESH_IMPORTERS = {
-    ".obj": lambda path: bpy.ops.wm.obj_import(filepath=path),
-    ".ply": lambda path: bpy.ops.wm.ply_import(filepath=path),
-    ".gltf": lambda path: _import_gltf(path),
-    ".glb": lambda path: _import_gltf(path),
-}
 
 
 def demo_scene(name, rig=None, meshes_dir=MESHES):
@@ -49,10 +45,22 @@ def demo_scene(name, rig=None, meshes_dir=MESHES):
     return add_rig(obj, rig)
 
 
-def mesh_scene(path, rig):
-    """Imports a mesh file (OBJ, PLY, glTF) into an emptied file and rigs it."""
+def mesh_scene(path, rig=None):
+    """Imports a mesh file into an emptied file: a skinned mesh keeps the file's own
+    armature and animation (frames over its actions), any other gets the procedural ``rig``
+    (default armature)."""
     _reset_file()
-    return add_rig(import_mesh(path), rig)
+    obj = import_mesh(path)
+    armature = own_armature(obj)
+    if armature is None:
+        return add_rig(obj, rig or "armature")
+    if rig is not None:
+        raise VDNIFError(f"mesh file '{path}' has its own armature '{armature.name}': a "
+                         "procedural rig is only for a mesh without one (leave out --rig)")
+    animation_on_timeline(armature, FRAME_START)
+    bpy.context.scene.frame_set(bpy.context.scene.frame_start)
+    bpy.context.view_layer.objects.active = obj
+    return obj
 
 
 def blend_scene(path, object_name):
@@ -63,7 +71,7 @@ def blend_scene(path, object_name):
     try:
         bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     except RuntimeError as exc:
-        raise VDNIFError(f"cannot open blend file '{path}': {_first_line(exc)}") from None
+        raise VDNIFError(f"cannot open blend file '{path}': {first_line(exc)}") from None
     return find_object(object_name)
 
 
@@ -91,28 +99,6 @@ def find_camera(name=None):
     return obj
 
 
-def import_mesh(path, name=None):
-    """Imports a mesh file and returns one mesh object (several are joined)."""
-    path = pathlib.Path(path)
-    importer = MESH_IMPORTERS.get(path.suffix.lower())
-    if importer is None:
-        raise VDNIFError(f"cannot read mesh file '{path}': use one of "
-                         f"{', '.join(sorted(MESH_IMPORTERS))}")
-    if not path.is_file():
-        raise VDNIFError(f"mesh file '{path}' does not exist")
-    before = set(bpy.data.objects)
-    try:
-        importer(str(path))
-    except RuntimeError as exc:
-        raise VDNIFError(f"cannot read mesh file '{path}': {_first_line(exc)}") from None
-    meshes = [o for o in bpy.data.objects if o not in before and o.type == "MESH"]
-    if not meshes or not any(len(o.data.polygons) for o in meshes):
-        raise VDNIFError(f"mesh file '{path}' holds no faces")
-    obj = _join(meshes)
-    obj.name = name or path.stem
-    return obj
-
-
 def add_rig(obj, rig):
     """Adds the procedural armature or lattice rig with its animation to ``obj``."""
     if rig not in RIGS:
@@ -130,30 +116,6 @@ def add_rig(obj, rig):
 
 def _reset_file():
     bpy.ops.wm.read_homefile(use_empty=True)
-
-
-def _first_line(exc):
-    return str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-
-
-def _import_gltf(path):
-    import addon_utils
-
-    addon_utils.enable("io_scene_gltf2", default_set=False)
-    bpy.ops.import_scene.gltf(filepath=path)
-
-
-def _join(meshes):
-    for obj in bpy.context.view_layer.objects:
-        obj.select_set(obj in meshes)
-    bpy.context.view_layer.objects.active = meshes[0]
-    if len(meshes) > 1:
-        bpy.ops.object.join()
-    obj = bpy.context.view_layer.objects.active
-    for other in list(bpy.data.objects):
-        if other is not obj and other.type != "MESH" and other.users_collection:
-            bpy.data.objects.remove(other)
-    return obj
 
 
 def _mesh_object(name, vertices, faces):

@@ -41,11 +41,11 @@ def add_scene_options(parser):
     source.add_argument("--scene", choices=DEMO_SCENES,
                         help=f"an embedded demo scene (default: {PIPELINE_SCENE})")
     source.add_argument("--mesh", type=pathlib.Path, metavar="FILE",
-                        help="an OBJ, PLY or glTF file, rigged procedurally (see --rig)")
+                        help="an OBJ, PLY, glTF or FBX file: its own armature, else --rig")
     source.add_argument("--blend", type=pathlib.Path, metavar="FILE",
                         help="a .blend file; the object is --object or the active one")
     group.add_argument("--rig", choices=RIGS,
-                       help="procedural rig for --mesh (default armature) or a demo scene")
+                       help="procedural rig of a --mesh without one (default armature) or a scene")
     group.add_argument("--object", metavar="NAME", help="the mesh object in --blend")
 
 
@@ -54,7 +54,7 @@ def load_scene(args):
     from ..blender import scenes
 
     if args.mesh is not None:
-        return scenes.mesh_scene(args.mesh, args.rig or "armature")
+        return scenes.mesh_scene(args.mesh, args.rig)
     if args.blend is not None:
         return scenes.blend_scene(args.blend, args.object)
     return scenes.demo_scene(args.scene or PIPELINE_SCENE, rig=args.rig)
