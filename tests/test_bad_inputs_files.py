@@ -531,4 +531,6 @@ def test_an_object_named_like_a_path_is_trained_into_out_by_a_file_name(files, t
     assert result.returncode == 0, result.stderr
     written = sorted(str(path.relative_to(tmp_path)) for path in tmp_path.rglob("*")
                      if path.is_file())
-    assert written == ["a/b/out/_.._x_evil-proposed.vdnif"]
+    # the model and its loss plot beside it, both named by the slug
+    assert written == ["a/b/out/_.._x_evil-proposed-training.png",
+                       "a/b/out/_.._x_evil-proposed.vdnif"]

@@ -285,6 +285,7 @@ def validate_arguments(args):
     at_least("batch", *BOUNDS["batch_size"])
     at_least("steps", *BOUNDS["steps"])
     at_least("ao_samples", *BOUNDS["ao_samples"])
+    at_least("preview", *BOUNDS["image_side"])
     if isinstance(getattr(args, "resolution", None), int):
         check_resolution(args.resolution)
     for name in ("surface_fraction", "grazing_fraction", "secondary_fraction", "max_angle",
