@@ -364,7 +364,7 @@ def _add_side_by_side(commands):
     parser.add_argument("--preview", type=int, metavar="N",
                         help="also time an NxN preview (default 64 with --crossover)")
     parser.add_argument("--threads", nargs="+", dest="thread_settings", default=["1", "all"],
-                        metavar="N|all", help="thread settings to time (default: 1 and all)")
+                        metavar="N|all", help="thread settings to time (default: 1 all)")
     add_device_option(parser, default="cpu")
     parser.add_argument("--train", type=pathlib.Path, metavar="DIR", help=(
         "train each scene without --model by the recipe into DIR (kept for the next run)"))
