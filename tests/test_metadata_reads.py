@@ -53,3 +53,14 @@ def test_a_planted_string_key_read_is_found(tmp_path):
     found = string_key_reads(tmp_path)
     assert sorted(entry.split(":")[0] for entry in found) == sorted(planted)
     assert all(entry.endswith(planted[entry.split(":")[0]]) for entry in found)
+
+
+def test_the_rest_pose_needs_no_frame_and_every_other_pose_does():
+    """A static variant trains on the rest pose (``poses.REST_POSE``), which has no frame; any
+    other pose must carry a finite one."""
+    from vdnif_addon.model.metadata import poses_problem
+
+    assert poses_problem([{"rest": True}], "poses are") is None
+    assert poses_problem([{"frame": 3.0, "bones": {}}], "poses are") is None
+    for bad in ([{"rest": False}], [{"rest": 1}], [{}], [{"frame": "3"}]):
+        assert "pose 0 has no finite frame number" in poses_problem(bad, "poses are")

@@ -32,15 +32,16 @@ are refused (retrain them)."""
 def poses_problem(poses: Any, subject: str) -> str | None:
     """Why ``poses`` (a dataset header's or a model's training poses, ``subject`` naming
     them with their verb: "poses are") is not a list of pose descriptions
-    (``poses.make_poses``: plain-data mappings with text keys, each with a finite frame), or
-    None. Call after ``check_depth``."""
+    (``poses.make_poses``: plain-data mappings with text keys, each with a finite frame, or
+    the rest pose ``{"rest": True}`` that a static variant trains on), or None. Call after
+    ``check_depth``."""
     if not isinstance(poses, (list, tuple)) or not all(
             isinstance(pose, Mapping) for pose in poses):
         return f"{subject} not a list of pose descriptions (JSON objects)"
     if (bad := first_non_plain(poses)) is not None:
         return f"pose figure 'poses{bad}' is not a finite number or plain data"
     for index, pose in enumerate(poses):
-        if not finite_number(pose.get("frame")):
+        if pose.get("rest") is not True and not finite_number(pose.get("frame")):
             return f"pose {index} has no finite frame number"
     return None
 
