@@ -1,6 +1,7 @@
 """Per-pose work over a captured object: training datasets and the two references."""
 
 import dataclasses
+import json
 import platform
 import time
 
@@ -94,7 +95,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         "grid": dataset.grid_header(capture.grid, capture.mesh).to_dict(),
         "voxel_size": capture.grid.voxel_size,
         "heads": capture.mesh.heads(), "albedo_table": capture.mesh.albedo_table().tolist(),
-        "poses": capture.poses[start:stop], "pose_range": [start, stop], "seed": seed,
+        # as the file holds them: JSON writes a lattice pose's integer point indices as text
+        "poses": json.loads(json.dumps(capture.poses[start:stop])),
+        "pose_range": [start, stop], "seed": seed,
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
         "grazing_fraction": grazing_fraction, "secondary_fraction": secondary_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
