@@ -46,18 +46,19 @@ def rays(rng, count, low=-1.0, high=2.0):
     return origins, directions / np.linalg.norm(directions, axis=1, keepdims=True)
 
 
-def brute_force(vertices, triangles, origins, directions):
-    """(hit, t) of the float32 inputs Embree sees, cast in float64."""
+def brute_force(vertices, triangles, origins, directions, max_distance=np.inf):
+    """(index, t) of the float32 inputs Embree sees, cast in float64."""
     as_float32 = [np.asarray(x, np.float32).astype(np.float64)
                   for x in (vertices, origins, directions)]
-    index, t = BruteForceCaster(as_float32[0][triangles]).cast(
-        as_float32[1], as_float32[2], np.full(len(origins), np.inf))
-    return index >= 0, t
+    return BruteForceCaster(as_float32[0][triangles]).cast(
+        as_float32[1], as_float32[2], np.broadcast_to(max_distance, (len(origins),)))
 
 
 def assert_same_hits(cast, expected):
-    (hit, t), (expected_hit, expected_t) = cast, expected
-    np.testing.assert_array_equal(hit, expected_hit)
+    """The same triangle hit (or missed) by every ray, at the same distance."""
+    (index, t), (expected_index, expected_t) = cast, expected
+    np.testing.assert_array_equal(index, expected_index)
+    hit = index >= 0
     np.testing.assert_allclose(t[hit], expected_t[hit], rtol=0, atol=DISTANCE_TOLERANCE)
     assert np.isinf(t[~hit]).all()
 
@@ -83,7 +84,7 @@ def test_first_hits_equal_brute_force_before_and_after_the_vertices_move(device,
                 scene.commit()
             origins, directions = rays(rng, 3001)    # not a whole number of packets
             expected = brute_force(vertices, triangles, origins, directions)
-            assert 300 < expected[0].sum() < 2900    # some hit, some miss
+            assert 300 < (expected[0] >= 0).sum() < 2900    # some hit, some miss
             assert_same_hits(scene.cast(origins, directions), expected)
     finally:
         scene.close()
@@ -101,12 +102,34 @@ def test_rays_from_inside_a_closed_mesh_hit_its_inner_side(device, refit):
                 scene.vertices[:] = vertices
                 scene.commit()
             origins, directions = rays(rng, 500, -0.5, 0.5)
-            hit, t = scene.cast(origins, directions)
-            assert hit.all()
-            assert_same_hits((hit, t), brute_force(vertices, triangles, origins, directions))
+            index, t = scene.cast(origins, directions)
+            assert (index >= 0).all()
+            assert_same_hits((index, t), brute_force(vertices, triangles, origins, directions))
             # outward rays from the centre: the faceted sphere's inner side, just inside
-            hit, t = scene.cast(np.zeros_like(origins), directions)
-            assert hit.all() and (t <= scale + 1e-6).all() and (t > 0.95 * scale).all()
+            index, t = scene.cast(np.zeros_like(origins), directions)
+            assert (index >= 0).all() and (t <= scale + 1e-6).all() and (t > 0.95 * scale).all()
+    finally:
+        scene.close()
+
+
+def test_a_reach_stops_rays_as_brute_force_does(device):
+    """Per-ray reaches (as secondary rays have): a hit beyond its ray's reach is a miss; a
+    smaller cast after a larger one (the packets of the larger kept) sets every lane again."""
+    rng = np.random.default_rng(6)
+    vertices, triangles = soup(rng)
+    scene = embree.EmbreeScene(device, vertices, triangles, refit=True)
+    try:
+        origins, directions = rays(rng, 3001)
+        scene.cast(origins, directions)
+        for count in (1000, 37):
+            origins, directions = rays(rng, count)
+            reach = rng.uniform(0.0, 3.0, count)
+            expected = brute_force(vertices, triangles, origins, directions, reach)
+            unbounded = brute_force(vertices, triangles, origins, directions)
+            assert ((expected[0] < 0) & (unbounded[0] >= 0)).sum() > count // 20
+            assert_same_hits(scene.cast(origins, directions, reach), expected)
+            assert_same_hits(scene.cast(origins, directions, 0.5),
+                             brute_force(vertices, triangles, origins, directions, 0.5))
     finally:
         scene.close()
 
@@ -115,12 +138,12 @@ def test_few_rays_and_none(device):
     vertices, triangles = sphere()
     scene = embree.EmbreeScene(device, vertices, triangles, refit=True)
     try:
-        hit, t = scene.cast(np.zeros((5, 3)), np.tile([[1.0, 0, 0]], (5, 1)))
-        assert hit.all() and np.allclose(t, 1.0, atol=0.02)
-        hit, t = scene.cast(np.full((3, 3), 5.0), np.tile([[1.0, 0, 0]], (3, 1)))
-        assert not hit.any() and np.isinf(t).all()           # pointing away: all miss
-        hit, t = scene.cast(np.empty((0, 3)), np.empty((0, 3)))
-        assert hit.shape == t.shape == (0,)
+        index, t = scene.cast(np.zeros((5, 3)), np.tile([[1.0, 0, 0]], (5, 1)))
+        assert (index >= 0).all() and np.allclose(t, 1.0, atol=0.02)
+        index, t = scene.cast(np.full((3, 3), 5.0), np.tile([[1.0, 0, 0]], (3, 1)))
+        assert (index == -1).all() and np.isinf(t).all()      # pointing away: all miss
+        index, t = scene.cast(np.empty((0, 3)), np.empty((0, 3)))
+        assert index.shape == t.shape == (0,)
     finally:
         scene.close()
 
@@ -188,8 +211,10 @@ def test_packets_hit_what_embreexs_own_loop_hits():
     device = embree.EmbreeDevice(2)
     scene = embree.EmbreeScene(device, vertices, triangles, refit=False)
     try:
-        hit, t = scene.cast(origins, directions)
+        index, t = scene.cast(origins, directions)
+        hit = index >= 0
         np.testing.assert_array_equal(hit, expected_hit)
+        np.testing.assert_array_equal(index[hit], ran["primID"][hit])
         np.testing.assert_array_equal(t[hit], ran["tfar"][hit])
     finally:
         scene.close()

@@ -43,7 +43,8 @@ def posed_casts(extension):
         true = core("kernels.surface").SurfaceCaster(vertices, mesh.triangles, normals)
         views = [rays.orbit_rays(vertices.min(0), vertices.max(0), view, 32, 32)
                  for view in rays.orbit_viewpoints(3)]
-        casts = {baseline.name: [baseline.cast(*view) for view in views]
+        casts = {baseline.name: [(index >= 0, t) for index, t in
+                                 (baseline.cast(*view) for view in views)]
                  for baseline in baselines}
     finally:
         made.close_baselines(baselines, embree)

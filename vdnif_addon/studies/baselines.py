@@ -3,7 +3,9 @@ deforming mesh runs per pose, each starting from Blender's evaluation of the pos
 classical path needs the deformed vertices) and casting the same rays in the object's local
 space. Each ``rebuild`` returns the pose's steps in seconds: ``evaluate_s`` (Blender's
 evaluation of the deformed mesh), ``read_s`` (reading its vertices), ``build_s`` (the BVH's
-refit or build); ``cast`` returns the first hits; ``threads`` says on how many threads each
+refit or build); ``cast`` returns the first hits within a reach (``kernels.cast.MeshCaster``'s
+interface: the hit triangle, BVHTree's hit polygon, and the distance); Warp's and Embree's
+``vertices`` hold the pose's vertices once read; ``threads`` says on how many threads each
 step ran at a run's thread setting; ``bvh_bytes`` how many bytes the acceleration structure
 holds, and ``bytes_source`` how that was found.
 
@@ -95,12 +97,12 @@ class BVHTreeBaseline:
         self.tree = BVHTree.FromObject(obj, bpy.context.evaluated_depsgraph_get())
         return {"evaluate_s": evaluate_s, "build_s": time.perf_counter() - start}
 
-    def cast(self, origins, directions):
-        """(hit (N,) bool, distance (N,) float64, inf on a miss)."""
+    def cast(self, origins, directions, max_distance=np.inf):
+        """(index (N,) int64, -1 on a miss; distance (N,) float64, inf on a miss)."""
         caster = BVHCaster.__new__(BVHCaster)
         caster.tree = self.tree
-        index, t = caster.cast(origins, directions, np.full(len(origins), np.inf))
-        return index >= 0, t
+        return caster.cast(origins, directions, np.broadcast_to(
+            np.asarray(max_distance, np.float64), (len(origins),)))
 
     def bvh_bytes(self):
         return bvhtree_bytes(self.triangles)
@@ -129,23 +131,23 @@ class WarpRefitBaseline:
         self.triangles = len(mesh.triangles)
         self.device = runtime.device(device)
         self.caster = MeshCaster(mesh.vertices, mesh.triangles, self.device)
+        self.vertices = None
         on = 1 if self.device == "cpu" else self.device
         self.threads = {"build": on, "casts": on}
 
     def rebuild(self, obj):
         evaluate_s = evaluation_s(obj)
         start = time.perf_counter()
-        vertices = evaluated_vertices(obj, self.vertex_count)
+        self.vertices = evaluated_vertices(obj, self.vertex_count)
         read_s = time.perf_counter() - start
         start = time.perf_counter()
-        self.caster.refit(vertices)
+        self.caster.refit(self.vertices)
         runtime.init().synchronize_device(self.device)
         return {"evaluate_s": evaluate_s, "read_s": read_s,
                 "build_s": time.perf_counter() - start}
 
-    def cast(self, origins, directions):
-        index, t = self.caster.cast(origins, directions, np.inf)
-        return index >= 0, t
+    def cast(self, origins, directions, max_distance=np.inf):
+        return self.caster.cast(origins, directions, max_distance)
 
     def bvh_bytes(self):
         return warp_bvh_bytes(self.triangles)
@@ -173,6 +175,7 @@ class EmbreeBaseline:
     def __init__(self, mesh, device, refit):
         self.name = "embree_refit" if refit else "embree_rebuild"
         self.scene = EmbreeScene(device, mesh.vertices, mesh.triangles, refit)
+        self.vertices = self.scene.vertices
         self.threads = {"build": device.threads, "casts": device.threads}
 
     def rebuild(self, obj):
@@ -185,8 +188,8 @@ class EmbreeBaseline:
         return {"evaluate_s": evaluate_s, "read_s": read_s,
                 "build_s": time.perf_counter() - start}
 
-    def cast(self, origins, directions):
-        return self.scene.cast(origins, directions)
+    def cast(self, origins, directions, max_distance=np.inf):
+        return self.scene.cast(origins, directions, max_distance)
 
     def bvh_bytes(self):
         return self.scene.bvh_bytes()

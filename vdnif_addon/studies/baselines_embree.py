@@ -207,8 +207,10 @@ class EmbreeScene:
         self.lib.rtcCommitScene(self.scene)
         self.device.check("commit the scene")
 
-    def cast(self, origins, directions):
-        """(hit (N,) bool, t (N,) float64, inf on a miss): first hits with t >= 0."""
+    def cast(self, origins, directions, max_distance=np.inf):
+        """(index (N,) int64 of the hit triangle, -1 on a miss; t (N,) float64, inf on a
+        miss): first hits with 0 <= t <= ``max_distance`` (a number or (N,)), the
+        interface of ``kernels.cast.MeshCaster``."""
         count = len(origins)
         block = self._packets(count)
         width, packets = block.shape[2], len(block)
@@ -220,7 +222,10 @@ class EmbreeScene:
                 block[:full, row] = values[:full * width, axis].reshape(full, width)
                 block[full:, row] = 0                 # the last packet's spare lanes
                 block[full:, row, :rest] = values[full * width:, axis]
-        block[:, ROW["tfar"]] = np.inf
+        limits = np.broadcast_to(np.asarray(max_distance, np.float32), (count,))
+        block[:full, ROW["tfar"]] = limits[:full * width].reshape(full, width)
+        block[full:, ROW["tfar"]] = np.inf
+        block[full:, ROW["tfar"], :rest] = limits[full * width:]
         block[:, ROW["geomID"]].view(np.uint32)[:] = RTC_INVALID_GEOMETRY_ID
         rays = (block.ctypes.data + block.strides[0] * np.arange(packets)).tolist()
         masks = [self.masks.ctypes.data] * packets
@@ -239,19 +244,20 @@ class EmbreeScene:
         hit = block[:, ROW["geomID"]].view(np.uint32).reshape(-1)[:count] \
             != RTC_INVALID_GEOMETRY_ID
         t = block[:, ROW["tfar"]].reshape(-1)[:count].astype(np.float64)
-        return hit, np.where(hit, t, np.inf)
+        index = block[:, ROW["primID"]].view(np.uint32).reshape(-1)[:count].astype(np.int64)
+        return np.where(hit, index, -1), np.where(hit, t, np.inf)
 
     def _packets(self, count):
-        """The RTCRayHitN packets of ``count`` rays, kept between casts of as many rays:
-        the rows a cast does not set keep their values (tnear, time, id, flags 0, every
-        mask bit)."""
+        """The RTCRayHitN packets of ``count`` rays: the first packets of a block kept for
+        the largest cast so far (secondary rays come in several counts per pose), whose rows
+        a cast does not set keep their values (tnear, time, id, flags 0, every mask bit)."""
         width = self.device.width
         packets = -(-count // width)
-        if self._block is None or len(self._block) != packets:
+        if self._block is None or len(self._block) < packets:
             self._block = aligned_empty((packets, len(ROWS), width), np.float32)
             self._block[:] = 0
             self._block[:, ROW["mask"]].view(np.uint32)[:] = EVERY_MASK_BIT
-        return self._block
+        return self._block[:packets]
 
     def _cast_packets(self, masks, rays):
         collections.deque(map(self.intersect, masks, itertools.repeat(self.scene), rays,
