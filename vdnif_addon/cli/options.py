@@ -128,12 +128,15 @@ def add_capture_options(parser, default_poses):
     add_pose_options(parser, default_poses)
 
 
-def add_secondary_options(parser):
-    """``--secondary`` with ``--ao-samples`` and ``--ao-distance``: the AO and shadow passes."""
+SECONDARY_HELP = ("also the ambient-occlusion and shadow passes (light: the scene's first sun "
+                  "or point light, else a default direction)")
+
+
+def add_secondary_options(parser, secondary_help=SECONDARY_HELP):
+    """``--secondary`` with ``--ao-samples`` and ``--ao-distance``: the AO and shadow rays
+    (``secondary_help`` says what ``--secondary`` does in the command)."""
     group = parser.add_argument_group("secondary rays")
-    group.add_argument("--secondary", action="store_true", help=(
-        "also the ambient-occlusion and shadow passes (light: the scene's first sun or point "
-        "light, else a default direction)"))
+    group.add_argument("--secondary", action="store_true", help=secondary_help)
     group.add_argument("--ao-samples", type=int, default=AO_SAMPLES, metavar="N",
                        help="ambient-occlusion rays per pixel")
     group.add_argument("--ao-distance", type=float, default=AO_DISTANCE, metavar="D",

@@ -11,10 +11,12 @@ from ..settings import DEMO_SCENE, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
     add_device_option,
+    add_secondary_options,
     check_resolution,
     output_file,
     print_evaluation,
     report_training,
+    secondary_settings,
     write_json,
 )
 
@@ -136,12 +138,13 @@ def cmd_side_by_side(args):
     for name in scenes:
         obj = load_side_by_side_scene(name)
         captured, model = _scene_capture(obj, models.get(name), args, device)
+        secondary = secondary_settings(args, obj)
         for (width, height), threads in ((size, t) for size in sizes for t in settings):
             progress = Progress(f"side by side '{obj.name}', {width}x{height}, {threads} "
                                 "thread setting", args.repeats, "repeats")
             result = compare_paths(obj, captured, model, width, height, args.repeats,
                                    progress=lambda done, _: progress.update(done),
-                                   device=device, threads=threads)
+                                   device=device, threads=threads, secondary=secondary)
             result["scene"] = name
             results.append(result)
             _print_result(result)
@@ -202,6 +205,8 @@ def command_line(args):
              str(args.repeats), "--width", str(args.width), "--height", str(args.height),
              "--threads", *args.thread_settings, "--device", args.device]
     line += ["--quick"] if args.quick else []
+    line += (["--secondary", "--ao-samples", str(args.ao_samples), "--ao-distance",
+              str(args.ao_distance)] if args.secondary else [])
     for option in ("preview", "train", "json", "markdown", "plots", "performance",
                    "crossover"):
         value = getattr(args, option)
@@ -266,6 +271,10 @@ def _print_result(result):
                                          for b in BASELINES)
           + f"; deformed walk {ratio('walk_deformed_over_static')} the static DDA walk, "
           f"{ratio('walk_and_network_deformed_over_static')} with the network")
+    if "secondary" in result:
+        from ..studies.side_by_side_secondary import secondary_line
+
+        print(secondary_line(result))
 
 
 def add_commands(commands):
@@ -383,4 +392,7 @@ def _add_side_by_side(commands):
         "write crossover.json, .md and .png into DIR: where neural meets each baseline"))
     parser.add_argument("--save-blend", type=pathlib.Path, metavar="DIR", help=(
         "only save each scene as DIR/<scene>.blend (for 'train --blend') and stop"))
+    add_secondary_options(parser, secondary_help=(
+        "also time each path's ambient-occlusion and shadow rays, at 1 and --ao-samples per "
+        "pixel"))
     parser.set_defaults(run=cmd_side_by_side)

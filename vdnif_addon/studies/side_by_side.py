@@ -13,7 +13,8 @@ deformation-aware walk (entry BVH + face intersections) is timed against the sta
 of the same rays: both are Warp kernels with the same segment buffers and launches. Every
 figure is timed alternately in one process after one untimed pass and reported as the median
 over repeats, so background load affects all sides alike. On CUDA the clock is read only
-after the device's queued work is done.
+after the device's queued work is done. With secondary rays (``side_by_side_secondary``) each
+path also casts the ambient-occlusion and shadow rays of its own primary hits per pose.
 
 Speeds of the neural render come only from a model file that predicts hits: its hit IoU
 against the true reference, on the same views in the same run, must reach
@@ -56,6 +57,7 @@ from .baselines import (
     evaluation_s,
     make_baselines,
 )
+from .side_by_side_secondary import secondary_record, secondary_summary, withhold
 
 NO_MODEL = "no model file for this scene (--model): only a trained model has speeds"
 # Keys of a pose record that time the neural render, withheld with its speed.
@@ -63,9 +65,10 @@ RENDER_KEYS = ("neural_render_s", "neural_walk_s", "neural_network_s", "neural_s
 
 
 def compare_paths(obj, capture, model, width, height, repeats, progress=None, device="cpu",
-                  threads=1):
+                  threads=1, secondary=None):
     """Times the classical baselines and the neural path on every pose of ``capture`` of
-    ``obj`` at the thread setting ``threads`` (see the module).
+    ``obj`` at the thread setting ``threads`` (see the module), with ``secondary``
+    (``SecondarySettings``) each path's secondary rays too (``side_by_side_secondary``).
 
     ``model`` is a ``neural.SceneModel`` (or an object with its ``network``,
     ``albedo_table``, ``device``, ``path`` and ``variant``), or None: then the neural render
@@ -98,7 +101,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
 
             def pose_record(pose, view, check=False):
                 return _pose_record(obj, posed_object, baselines, model, pose, view, width,
-                                    height, check)
+                                    height, check, secondary)
 
             # one untimed pass: kernels load (or compile, the first time on a machine), torch
             # and Embree set themselves up on first use, which no pose should be charged with
@@ -130,8 +133,12 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
             for record in run["poses"]:
                 for key in RENDER_KEYS:
                     record.pop(key, None)
+                withhold(record)
     result = _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
-    return dict(result, threads=thread_counts, embree=packets)
+    result.update(threads=thread_counts, embree=packets)
+    if secondary is not None:
+        result["secondary"] = secondary_summary(result, secondary)
+    return result
 
 
 def torch_setting(threads):
@@ -160,7 +167,8 @@ def synchronize(device):
         torch.cuda.synchronize()
 
 
-def _pose_record(obj, posed_object, baselines, model, pose, view, width, height, check):
+def _pose_record(obj, posed_object, baselines, model, pose, view, width, height, check,
+                 secondary):
     """(seconds of every path for one pose, each side's own Blender evaluation included;
     with ``check`` also the passes to check them: the true reference, the baselines' hits
     and the prediction)."""
@@ -183,7 +191,7 @@ def _pose_record(obj, posed_object, baselines, model, pose, view, width, height,
         start = time.perf_counter()
         casts[baseline.name] = baseline.cast(origins, directions)
         record[f"{baseline.name}_cast_s"] = time.perf_counter() - start
-        record[f"{baseline.name}_hits"] = int(casts[baseline.name][0].sum())
+        record[f"{baseline.name}_hits"] = int((casts[baseline.name][0] >= 0).sum())
     predicted = None
     if model is not None:
         synchronize(posed_object.device)
@@ -194,6 +202,11 @@ def _pose_record(obj, posed_object, baselines, model, pose, view, width, height,
         record["neural_render_s"] = time.perf_counter() - start
         record.update(neural_walk_s=stats["walk_s"], neural_network_s=stats["network_s"],
                       neural_segments=stats["segments"], neural_hits=int(predicted.hit.sum()))
+    if secondary is not None:
+        record.update(secondary_record(
+            baselines, casts, model, predicted, geometry.cells, capture.grid,
+            capture.mesh.triangles, (origins, directions), capture.mesh.size, secondary,
+            lambda: synchronize(posed_object.device)))
     if not check:
         return record, None
     true = true_reference(capture.mesh, geometry.mesh_caster(capture.mesh.triangles),
@@ -248,7 +261,7 @@ def _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
     keys = dict.fromkeys(key for run in runs for record in run["poses"] + run["rest"]
                          for key in record)
     medians = {key: statistics.median(_mean(run, key) for run in runs) for key in keys
-               if key.endswith(("_s", "segments", "hits"))}
+               if key.endswith(("_s", "segments", "hits", "rays"))}
     rays = width * height
     speeds = {name: _median_or_none([_per_second(rays, _mean(run, key)) for run in runs])
               for name, key in (("neural", "neural_render_s"),
@@ -277,7 +290,7 @@ def _agreement(checks, object_size):
     true_distance = np.concatenate([c["true"].distance for c in checks])
     result = {}
     for name in BASELINES:
-        hit = np.concatenate([c["casts"][name][0] for c in checks])
+        hit = np.concatenate([c["casts"][name][0] >= 0 for c in checks])
         distance = np.concatenate([c["casts"][name][1] for c in checks])
         both = hit & true_hit
         result[name] = {

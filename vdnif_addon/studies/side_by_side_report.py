@@ -10,6 +10,7 @@ from ..text import percent
 from .baselines import BASELINES, BLENDER_THREADS
 from .report import write_section
 from .side_by_side_plots import SHORT, pose_total, write_plots
+from .side_by_side_secondary import secondary_markdown
 
 SECTION = "side-by-side"
 TITLE = "Side by side with the classical baselines"
@@ -78,7 +79,8 @@ def _ratio_text(value, runs, subject="neural"):
 
 def side_by_side_markdown(results, command=None, machine=None, plots=None):
     """Markdown lines of one or more ``compare_paths`` results, one column per scene:
-    targets, speeds, ratios, steps, agreement of the baselines, models, bytes, settings.
+    targets, speeds, pose totals (and secondary rays where timed), ratios, steps, agreement
+    of the baselines, models, bytes, settings.
     ``command`` is the command that measured them, ``machine`` a ``machine_text`` line, and
     ``plots`` {"speed" | "bytes": relative path} the plot files to show."""
     heads = " | ".join(column_head(r) for r in results)
@@ -119,6 +121,7 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
                    "repeats, and the threads each step ran on.", speed_rows)
     lines += table("Pose total, milliseconds per pose (Blender's evaluation included on "
                    "every side).", total_rows)
+    lines += secondary_markdown(results, table, threads_text)
     ratio_rows = []
     for b in BASELINES:
         for kind, text in (("prepare", "per-pose preparation"), ("render", "render / casts"),
