@@ -97,8 +97,14 @@ def test_the_trade_point_is_exact_for_totals_linear_in_the_samples(extension):
     assert row["text"].startswith("neural cheaper up to 9 AO samples")
     row = secondary.trade_point(path(20.0, 40.0), path(10.0, 50.0), [1, 17])
     assert row["samples"] == pytest.approx(9.0) and "from 9 AO" in row["text"]
+    # the gap closes by 10 ms over 16 samples from 20 ms: the lines meet at 33, past 17
     row = secondary.trade_point(path(30.0, 60.0), path(10.0, 50.0), [1, 17])
     assert row["samples"] is None and row["text"].startswith("classical cheaper at 1 and 17")
+    assert row["beyond"] == pytest.approx(33.0)
+    assert row["text"].endswith("the lines meet at 33 AO samples (extrapolated)")
+    row = secondary.trade_point(path(30.0, 80.0), path(10.0, 50.0), [1, 17])
+    assert row["beyond"] is None and row["text"].endswith("(neural / classical 3 at 1, 1.6 "
+                                                          "at 17)")
     row = secondary.trade_point(path(None, None), path(10.0, 50.0), [1, 17])
     assert row["text"] == "n/a (no neural speed)"
 

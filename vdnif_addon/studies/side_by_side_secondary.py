@@ -164,24 +164,31 @@ def _figures(result, name, samples):
 
 
 def trade_point(neural, classical, counts):
-    """Where the neural pose total meets a classical one between 1 and N AO samples, both
-    linear in the samples between the two measured counts."""
+    """Where the neural pose total meets a classical one, both taken as linear in the AO
+    samples through the two measured counts: "samples" where they meet between them (None
+    otherwise), "beyond" where the lines meet past N (an extrapolation, None otherwise)."""
     totals = [(neural[str(s)]["pose_total_ms"], classical[str(s)]["pose_total_ms"])
               for s in counts]
     if any(n is None for n, _ in totals):
-        return {"samples": None, "text": "n/a (no neural speed)"}
+        return {"samples": None, "beyond": None, "text": "n/a (no neural speed)"}
     ratios = ", ".join(f"{n / c:.3g} at {s}" for (n, c), s in zip(totals, counts))
     differences = [n - c for n, c in totals]
-    if len(counts) == 2 and differences[0] * differences[1] < 0:
+    meet = None
+    if len(counts) == 2 and differences[0] != differences[1]:
         low, high = counts
-        samples = low + (high - low) * differences[0] / (differences[0] - differences[1])
+        meet = low + (high - low) * differences[0] / (differences[0] - differences[1])
+    if meet is not None and counts[0] < meet < counts[-1]:
         way = "from" if differences[0] > 0 else "up to"
-        return {"samples": samples,
-                "text": f"neural cheaper {way} {samples:.3g} AO samples (neural / "
+        return {"samples": meet, "beyond": None,
+                "text": f"neural cheaper {way} {meet:.3g} AO samples (neural / "
                         f"classical {ratios})"}
     side = "neural" if differences[-1] < 0 else "classical"
-    return {"samples": None, "text": f"{side} cheaper at {' and '.join(map(str, counts))} "
-                                     f"AO samples (neural / classical {ratios})"}
+    beyond = meet if meet is not None and meet >= counts[-1] else None
+    text = (f"{side} cheaper at {' and '.join(map(str, counts))} AO samples (neural / "
+            f"classical {ratios})")
+    if beyond is not None:
+        text += f"; the lines meet at {beyond:.3g} AO samples (extrapolated)"
+    return {"samples": None, "beyond": beyond, "text": text}
 
 
 def secondary_markdown(results, table, threads_text):
