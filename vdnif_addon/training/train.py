@@ -141,7 +141,7 @@ class TrainingStep:
     that step on.
 
     Reading a value on the host waits for the device to finish everything queued, so the
-    flags are read only at check points: the steps that end a progress record (every
+    flags are read only at check points: the steps that end a progress window (every
     ``log_interval`` steps and the last, where the loop reads its losses and validates
     anyway) and a cancel this process sees alone. Between them the non-finite flag stays on
     the device, sticky, as the fused Adam's ``found_inf`` (the flag ``GradScaler`` hands
@@ -222,8 +222,9 @@ def train(
     log-variances, samples/s, ETA seconds and validation metrics on a fixed subset of the
     held-out poses; the stopping rule (``training.stopping``, ``config.stop_patience``)
     may end training there, status "converged". ``cancel`` (e.g. a threading.Event): once
-    set, training stops before the next update and returns the model as it is, status
-    "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
+    set, training stops before the next update (under ``torchrun``, before the update of the
+    step due to report next, where the processes agree on it) and returns the model as it
+    is, status "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
     ``segments[rank::world]`` with gradients averaged by DistributedDataParallel; every rank
     returns the same weights.
     """
