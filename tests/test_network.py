@@ -2,6 +2,7 @@ import math
 
 import pytest
 import torch
+from host_reads import counting_host_reads
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.model.metadata import Thresholds
@@ -266,6 +267,31 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     assert plain.albedo_field is None and "albedo" not in plain(p0, p1, hit_frac)
     with pytest.raises(VDNIFError, match="albedo_mode"):
         NetworkConfig(albedo_mode="texture")
+
+
+def test_predict_reads_the_device_once_whatever_its_batches():
+    """Finding the candidates that read the albedo field reads the device on the host (on
+    CUDA a wait for all work queued): once per call, not once per batch; the albedo is the
+    field's at every candidate's predicted hit all the same."""
+    torch.manual_seed(4)
+    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
+                           heads=Heads(albedo=True, material_count=1))
+    network = IntersectionNetwork(config)
+    p0, p1 = torch.rand(2, 500, 3)
+    rest_len = torch.full((500,), 0.1)
+    with torch.no_grad():                   # half the segments are candidates
+        median = float(torch.sigmoid(network(p0, p1)["occlusion"]).median())
+    network.thresholds = Thresholds(median, median)
+    with counting_host_reads() as reads:
+        predicted = network.predict(p0, p1, rest_len, 0.05, batch=64)   # 8 batches
+    assert len(reads) <= 1, reads
+    candidate = predicted["candidate"]
+    assert 0 < candidate.sum() < len(candidate)
+    point = p0 + predicted["fraction"][:, None] * (p1 - p0)
+    with torch.no_grad():
+        torch.testing.assert_close(predicted["albedo"][candidate],
+                                   network.albedo_at(point[candidate]))
+    assert (predicted["albedo"][~candidate] == 0).all()
 
 
 def test_predict_keeps_float32_albedo_when_the_field_answers_in_float16(monkeypatch):

@@ -121,7 +121,8 @@ class IntersectionNetwork(nn.Module):
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
         ``forward`` at the model's ``thresholds``, without autograd, ``batch``
         segments at a time to bound memory. An albedo field is read at each candidate
-        segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of the others is 0).
+        segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of the others is 0),
+        once every batch has its predictions.
 
         On the CPU the encoder of batch k+1 runs in a worker thread (one core: a Warp CPU
         launch is serial and releases the GIL) while this thread runs the MLP of batch k
@@ -138,21 +139,8 @@ class IntersectionNetwork(nn.Module):
 
         def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
                         ) -> dict[str, torch.Tensor]:
-            q0, q1, length = chunks[index]
-            part = readout(self.heads(features), mode, voxel_size, length, self.thresholds)
-            if self.albedo_field is not None:
-                # Only candidates can place a hit (hits are candidates too): most of a
-                # wave's segments are not, and skip the field. Its encoder launch waits for
-                # the worker's (runtime.LAUNCHES).
-                chosen = part["candidate"].nonzero().squeeze(1)
-                point = q0[chosen] + part["fraction"][chosen].to(q0.dtype).unsqueeze(1) * (
-                    q1[chosen] - q0[chosen])
-                albedo = q0.new_zeros(len(q0), 3)
-                # CUDA's autocast gives the field's float16 output and does not promote it
-                # for index_copy as the CPU's does: cast to the destination's dtype.
-                part["albedo"] = albedo.index_copy(
-                    0, chosen, self.albedo_at(point).to(albedo.dtype))
-            return part
+            return readout(self.heads(features), mode, voxel_size, chunks[index][2],
+                           self.thresholds)
 
         parts = []
         if p0.device.type != "cpu" or len(chunks) == 1:
@@ -167,7 +155,21 @@ class IntersectionNetwork(nn.Module):
                     if index + 1 < len(chunks):
                         pending = worker.submit(encode, index + 1)
                     parts.append(predictions(index, features))
-        return {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
+        result = {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
+        if self.albedo_field is not None:
+            # Only candidates can place a hit (hits are candidates too): most segments are
+            # not, and skip the field. They are found once, over every batch: finding them
+            # reads the device on the host, and on CUDA that waits for all work queued.
+            chosen = result["candidate"].nonzero().squeeze(1)
+            albedo = p0.new_zeros(len(p0), 3)
+            for rows in chosen.split(batch):
+                point = p0[rows] + result["fraction"][rows].to(p0.dtype).unsqueeze(1) * (
+                    p1[rows] - p0[rows])
+                # CUDA's autocast gives the field's float16 output and does not promote it
+                # for index_copy as the CPU's does: cast to the destination's dtype.
+                albedo.index_copy_(0, rows, self.albedo_at(point).to(albedo.dtype))
+            result["albedo"] = albedo
+        return result
 
 
 class AlbedoField(nn.Module):

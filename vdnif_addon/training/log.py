@@ -12,6 +12,12 @@ if TYPE_CHECKING:
     from jaxtyping import Float
 
 
+def record_due(step: int, log_interval: int, steps: int) -> bool:
+    """Whether step ``step`` (1-based) of ``steps`` ends a reporting window: every
+    ``log_interval`` steps and the last."""
+    return step % log_interval == 0 or step == steps
+
+
 class ProgressLog:
     """Sums the losses of each step until a record is due, every ``log_interval`` steps and
     at the last of ``steps``; ``samples_per_step``: segments per step over all processes.
@@ -43,7 +49,7 @@ class ProgressLog:
     @property
     def due(self) -> bool:
         """Whether the step just added ends a reporting window."""
-        return self.steps_done % self.log_interval == 0 or self.steps_done == self.steps
+        return record_due(self.steps_done, self.log_interval, self.steps)
 
     def record(self, log_variances: dict[str, float],
                validation: dict[str, float] | None) -> dict[str, Any]:

@@ -6,7 +6,8 @@ and threshold (``validation``), the progress records (``training.log``) and the 
 group (``distributed``) have modules of their own; this one holds the loop.
 
 Non-finite values: training raises VDNIFError naming the step (1-based, before its update),
-rather than skipping steps silently.
+rather than skipping steps silently; it finds out at the next progress record (or cancel),
+and applies no update from that step on (``TrainingStep``).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from ..settings import NetworkConfig, TrainConfig
 from .data import Batches, Segments, split_data
 from .distributed import ProcessGroup, resolve_device
 from .header import DatasetHeader
-from .log import ProgressLog
+from .log import ProgressLog, record_due
 from .losses import make_weighting, task_losses
 from .stopping import StoppingRule
 from .validation import calibrate_candidate_threshold, calibrate_threshold, validate
@@ -131,12 +132,23 @@ def _optimizer(
 
 
 class TrainingStep:
-    """One optimizer step of ``train``: forward, losses, backward, the finite check and the
-    cancel flag (one collective that every process answers alike), Adam, learning-rate decay.
+    """One optimizer step of ``train``: forward, losses, backward, the finite check, Adam,
+    learning-rate decay, and the cancel flag.
 
     ``model`` is ``objective`` or its DistributedDataParallel wrapper. Calling it with a batch
     returns (cancelled, total loss, task losses); a non-finite loss or gradient raises
-    VDNIFError naming the step (1-based, before its update).
+    VDNIFError naming the step (1-based, before its update), and no update is applied from
+    that step on.
+
+    Reading a value on the host waits for the device to finish everything queued, so the
+    flags are read only at check points: the steps that end a progress window (every
+    ``log_interval`` steps and the last, where the loop reads its losses and validates
+    anyway) and a cancel this process sees alone. Between them the non-finite flag stays on
+    the device, sticky, as the fused Adam's ``found_inf`` (the flag ``GradScaler`` hands
+    it): Adam skips its update on the device while the flag is 1, so the weights stay those
+    before the first bad step. The processes of a ``torchrun`` group agree on the flag at
+    every step (a collective the device queues, without a host wait), so that all skip the
+    same updates, and on a cancel at the check points, which all of them reach together.
     """
 
     def __init__(self, objective: Objective, config: TrainConfig, model: nn.Module | None = None,
@@ -146,7 +158,15 @@ class TrainingStep:
         self.optimizer, self.decay = _optimizer(objective, config)
         self.params = list(objective.parameters())
         self.tasks = list(objective.network.head_sizes)
-        self.taken = 0
+        self.log_interval, self.steps = config.log_interval, config.steps
+        self.calls = 0
+        device = self.params[0].device
+        # 1 from the first non-finite step on (the fused Adam skips only at exactly 1, in
+        # float32), that step's number and its task losses, for the error.
+        self.diverged = torch.zeros((), dtype=torch.float32, device=device)
+        self.first_bad = torch.zeros((), dtype=torch.int64, device=device)
+        self.bad_losses = torch.zeros(len(self.tasks), device=device)
+        self.optimizer.found_inf = self.diverged  # read by every step, updated in place
 
     def __call__(self, batch: Segments, cancel: threading.Event | None = None
                  ) -> tuple[bool, Float[torch.Tensor, ""], Float[torch.Tensor, " tasks"]]:
@@ -156,25 +176,34 @@ class TrainingStep:
         grad_norm = torch.nn.utils.get_total_norm(
             [p.grad for p in self.params if p.grad is not None]
         )
-        requested = torch.tensor(cancel is not None and cancel.is_set(), device=total.device)
-        flags = torch.stack(
-            [~(torch.isfinite(total) & torch.isfinite(grad_norm)), requested]
-        ).float()
-        diverged, cancelled = self.group.max(flags).tolist()
-        if diverged:
-            detail = ", ".join(
-                f"{task}={value:.4g}" for task, value in zip(self.tasks, losses.tolist())
-            )
-            raise VDNIFError(
-                f"training stopped at step {self.taken + 1}: "
-                f"the loss or its gradient is not finite ({detail})"
-            )
-        if cancelled:
+        self.calls += 1
+        bad = self.group.max((~(torch.isfinite(total) & torch.isfinite(grad_norm))).float())
+        first = bad > self.diverged
+        self.first_bad.masked_fill_(first, self.calls)
+        self.bad_losses.copy_(torch.where(first, losses.detach(), self.bad_losses))
+        torch.maximum(self.diverged, bad, out=self.diverged)
+        requested = cancel is not None and cancel.is_set()
+        if (record_due(self.calls, self.log_interval, self.steps)
+                or (requested and not self.group.active)) and self._check(requested):
             return True, total, losses
         self.optimizer.step()
         self.decay.step()
-        self.taken += 1
         return False, total, losses
+
+    def _check(self, requested: bool) -> bool:
+        """Reads the flags on the host (the one wait for the device): raises for the first
+        non-finite step; whether any process asked to cancel (``requested``: this one)."""
+        flags = torch.stack([self.diverged, torch.full_like(self.diverged, float(requested))])
+        diverged, cancelled = self.group.max(flags).tolist()
+        if diverged:
+            detail = ", ".join(
+                f"{task}={value:.4g}" for task, value in zip(self.tasks, self.bad_losses.tolist())
+            )
+            raise VDNIFError(
+                f"training stopped at step {int(self.first_bad)}: "
+                f"the loss or its gradient is not finite ({detail})"
+            )
+        return bool(cancelled)
 
 
 def train(
@@ -193,8 +222,9 @@ def train(
     log-variances, samples/s, ETA seconds and validation metrics on a fixed subset of the
     held-out poses; the stopping rule (``training.stopping``, ``config.stop_patience``)
     may end training there, status "converged". ``cancel`` (e.g. a threading.Event): once
-    set, training stops before the next update and returns the model as it is, status
-    "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
+    set, training stops before the next update (under ``torchrun``, before the update of the
+    step due to report next, where the processes agree on it) and returns the model as it
+    is, status "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
     ``segments[rank::world]`` with gradients averaged by DistributedDataParallel; every rank
     returns the same weights.
     """
