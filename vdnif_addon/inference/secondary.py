@@ -106,9 +106,8 @@ class SecondarySettings:
                 "light_position": None if light.position is None else list(light.position)}
 
 
-# The walk's own max_distance does not serve secondary rays: it drops the segment that
-# crosses it, and a ray that starts inside the occupied set is lost when the set's boundary
-# ahead lies beyond it. So the walked paths walk each ray to its first hit and compare.
+# The walked paths end each ray at its max distance (``traverse``): the cell that crosses it
+# comes whole, so its hit may lie beyond and is compared here.
 
 
 def exact_occluded(caster: Any) -> Occluded:
@@ -128,7 +127,7 @@ def embedded_occluded(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCa
     from ..tracing.traverse import traverse
 
     def occluded(origins, directions, max_distance):
-        segments = traverse(cells, origins, directions)         # to its first hit (above)
+        segments = traverse(cells, origins, directions, max_distance)
         targets = segment_targets(mesh, rest_caster, segments)
         passes = embedded_reference(cells, segments, targets, len(origins))
         return passes.hit & (passes.distance <= max_distance)
@@ -143,7 +142,7 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
     def occluded(origins, directions, max_distance):
         start = time.perf_counter()
         passes, _ = neural_passes(network, grid, albedo_table, cells, origins, directions,
-                                  device)                       # to its first hit (above)
+                                  device, max_distance=max_distance)
         if stats is not None:
             stats["rays"] = stats.get("rays", 0) + len(origins)
             stats["seconds"] = stats.get("seconds", 0.0) + time.perf_counter() - start
