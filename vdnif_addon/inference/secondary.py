@@ -37,7 +37,6 @@ from ..settings import (
     SECONDARY_SEED,
 )
 from ..tracing.rays import cosine_directions
-from .neural_render import neural_passes
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -146,6 +145,9 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
                     device: Any = "cpu", stats: dict[str, float] | None = None) -> Occluded:
     """Occlusion as the network answers it through the deformed walk; ``stats`` (when
     given) accumulates the rays and the seconds of its renders."""
+    # torch and Warp: imported here, so that the panel reads this module without them
+    from .neural_render import neural_passes
+
     def occluded(origins, directions, max_distance):
         start = time.perf_counter()
         passes, _ = neural_passes(network, grid, albedo_table, cells, origins, directions,
