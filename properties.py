@@ -120,6 +120,15 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                        description="Height of the rendered pass images in pixels")
     eval_poses: _int("Evaluation Poses", "poses", defaults.EVALUATION_POSES,
                      description="Unseen poses the model is evaluated on")
+    ao_samples: _int("AO Samples", "ao_samples", defaults.AO_SAMPLES, soft_max=256,
+                     description="Ambient-occlusion rays per pixel: more give a smoother "
+                                 "image and take longer")
+    ao_distance: FloatProperty(name="AO Distance", default=defaults.AO_DISTANCE,
+                               min=BOUNDS["ao_distance"][0], max=BOUNDS["ao_distance"][1],
+                               soft_max=1.0, precision=3,
+                               description="How far an ambient-occlusion ray looks for an "
+                                           "occluder, in object units (the object's longest "
+                                           "side is 1)")
     dataset_dir: StringProperty(name="Dataset Folder", subtype="DIR_PATH",
                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                                 description="Where the training examples are written. Empty: "
@@ -225,12 +234,17 @@ class VDNIFSettings(bpy.types.PropertyGroup):
 _PASS_TEXT = {"normal": "Which way the surface faces (normal)",
               "albedo": "The surface's colour without lighting (diffuse colour)",
               "distance": "How far the surface is along the ray (depth)",
-              "material": "The material slot of the surface (material index)"}
+              "material": "The material slot of the surface (material index)",
+              "ao": "Ambient occlusion: the share of rays from the surface that meet nothing "
+                    "within the AO distance. Chosen, Render Passes and Evaluate cast them "
+                    "too (slower)",
+              "shadow": "Whether the scene's first sun or point light reaches the surface. "
+                        "Chosen, Render Passes and Evaluate cast shadow rays too"}
 
 
 class VDNIFViewer(bpy.types.PropertyGroup):
     pass_name: EnumProperty(name="Pass", items=[
-        (name, viewer.PASS_TITLES[name], _PASS_TEXT[name]) for name in viewer.PASSES],
+        (name, viewer.PASS_TITLES[name], _PASS_TEXT[name]) for name in viewer.SHOWN],
         description="The pass the Image Editor shows",
         update=lambda choice, context: viewer.show(context, choice))
     source: EnumProperty(name="Show", items=[(name, name.title(), text) for name, text in (

@@ -13,15 +13,20 @@ from .vdnif_addon.blender.capture_scene import capture
 from .vdnif_addon.blender.deform import CornerDeformer
 from .vdnif_addon.errors import VDNIFError
 from .vdnif_addon.geometry.voxels import inverted_cells
-from .vdnif_addon.inference.evaluation import view_images
+from .vdnif_addon.inference.evaluation import secondary_view_images, view_images
 from .vdnif_addon.inference.images import PASSES
-from .vdnif_addon.passes import COMPOSITOR_SOURCES
+from .vdnif_addon.passes import COMPOSITOR_SOURCES, SECONDARY_PASSES
 from .vdnif_addon.settings import PoseSpec
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}
-PASS_TITLES = {field: name for name, field in COMPOSITOR_SOURCES.items()}
-"""The title of each pass in the images' names: its name in the multilayer EXR."""
+PASS_TITLES = {**{field: name for name, field in COMPOSITOR_SOURCES.items()},
+               "ao": "AO", "shadow": "Shadow"}
+"""The title of each pass in the images' names: its name in the multilayer EXR, or of the
+secondary passes (their own files)."""
+SHOWN = (*PASSES, *SECONDARY_PASSES)
+"""The passes the viewer offers: AO and shadow are rendered only while one of them is chosen
+(``operators.passes.secondary_settings``)."""
 # (12, 2) the corners of a cell's edges, corner c = dx + 2 dy + 4 dz: pairs one bit apart.
 CELL_EDGES = np.array([(c, c | bit) for bit in (1, 2, 4) for c in range(8) if not c & bit])
 
@@ -88,11 +93,16 @@ def image_name(pass_name, source):
     return f"VDNIF {PASS_TITLES[pass_name]} ({source})"
 
 
-def set_view(reference, predicted, width, height, object_size):
-    """Keeps the images of a rendered view (reference and predicted Passes) for the viewer and
-    writes each into its own float image: both passes on one distance scale, the error as
-    heat maps; alpha is the hit mask (the error images are opaque)."""
+def set_view(reference, predicted, width, height, object_size, secondary=None):
+    """Keeps the images of a rendered view (reference and predicted Passes; with
+    ``secondary``, {"true", "predicted": SecondaryPasses}, the AO and shadow passes too) for
+    the viewer and writes each into its own float image: both passes on one distance scale,
+    the error as heat maps; alpha is the hit mask (the error images are opaque)."""
     shown = view_images(reference, predicted, height, width, object_size)
+    if secondary is not None:
+        more = secondary_view_images(secondary["true"], secondary["predicted"], height, width)
+        for source, images in more.items():
+            shown[source].update(images)
     alphas = {"reference": reference.hit, "predicted": predicted.hit,
               "error": np.ones(height * width, bool)}
     _view.clear()
@@ -100,29 +110,36 @@ def set_view(reference, predicted, width, height, object_size):
         alpha = alphas[source].reshape(height, width, 1).astype(np.float32)
         _view[source] = {name: np.concatenate([image, alpha], axis=2)
                          for name, image in images.items()}
-        for name in PASSES:
+        for name in images:
             colorspace = "Non-Color" if source == "error" else COLORSPACES.get(name, "Non-Color")
             write_image(image_name(name, source), _view[source][name], colorspace)
 
 
 def write_files(obj, result, slots, width, height, frame):
     """Writes the predicted and the reference passes of a render (``neural.RenderResult`` of
-    world rays, its material pass in used-slot indices mapped by ``slots``) into the
-    object's passes folder as the render command does: PNG previews and one multilayer EXR
-    each for ``frame``. Returns the predicted EXR's path."""
+    world rays, its material pass in used-slot indices mapped by ``slots``), and its AO and
+    shadow passes when it has them, into the object's passes folder as the render command
+    does: PNG previews and one multilayer EXR each for ``frame``, AO and shadow as PNG and
+    EXR. Returns the predicted EXR's path."""
     from . import storage
-    from .vdnif_addon.blender.jobs import write_passes
+    from .vdnif_addon.blender.jobs import write_passes, write_secondary
 
     folder = storage.passes_folder(obj)
     written = write_passes(folder, result.predicted, height, width, result.world_scale,
                            slots=slots, frame=frame, world_matrix=result.matrix_world)
     write_passes(folder, result.true, height, width, result.world_scale, prefix="true-",
                  slots=slots, frame=frame, world_matrix=result.matrix_world)
+    if result.secondary is not None:
+        for name, prefix in (("predicted", ""), ("true", "true-")):
+            write_secondary(folder, result.secondary[name], height, width, prefix, frame)
     return written[-1]
 
 
-def viewed():
-    """The kept view: {source: {pass: (H, W, 4) image}}, empty before the first render."""
+def viewed(pass_name=None):
+    """The kept view: {source: {pass: (H, W, 4) image}}, empty before the first render, or
+    before one with ``pass_name`` (AO and shadow are rendered only when asked for)."""
+    if pass_name is not None and pass_name not in _view.get("predicted", {}):
+        return {}
     return _view
 
 
@@ -148,8 +165,9 @@ def image_editor(screen):
 
 def show(context, viewer):
     """Shows the image of the viewer's pass and source in the screen's first Image Editor, if
-    there is one. Returns that image, or None when nothing was rendered in this file yet."""
-    if not _view:
+    there is one. Returns that image, or None when that pass was not rendered in this file
+    yet."""
+    if not viewed(viewer.pass_name):
         return None
     name = image_name(viewer.pass_name, viewer.source)
     image = bpy.data.images.get(name)

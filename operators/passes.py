@@ -7,7 +7,8 @@ import json
 import bpy
 
 from .. import storage, viewer
-from ..vdnif_addon.text import metrics_line
+from ..vdnif_addon.passes import SECONDARY_PASSES
+from ..vdnif_addon.text import metrics_line, secondary_line
 from .running import JobOperator, Stage, outcome
 
 
@@ -22,6 +23,23 @@ def model_capture(obj, evaluation_count=None):
     spec = obj.vdnif.pose_spec()
     return loaded, capture_for_model(obj, loaded[1], spec, evaluation_count is not None,
                                      count=evaluation_count)
+
+
+def secondary_settings(context, obj):
+    """The AO and shadow passes' ``SecondarySettings`` while the pass viewer shows one of
+    them (the object's AO samples and distance, the scene's light in the object's local
+    space as it stands now), else None: they cost rays, so they are cast only when asked
+    for."""
+    from ..vdnif_addon.blender.lights import scene_light
+    from ..vdnif_addon.inference.secondary import SecondarySettings
+
+    if context.scene.vdnif_viewer.pass_name not in SECONDARY_PASSES:
+        return None
+    # The property holds float32, whose value at the range's ends lies just outside the
+    # range the core checks: the decimal the panel shows (7 digits) is the one set.
+    distance = float(f"{obj.vdnif.ao_distance:.7g}")
+    return SecondarySettings(samples=obj.vdnif.ao_samples, distance=distance,
+                             light=scene_light(context.scene, obj))
 
 
 def region_3d(context):
@@ -43,10 +61,10 @@ def render_view(context, obj):
 
 
 def frames_stage(context, obj, frames, width, height, on_frame, references=False,
-                 camera=None, view=None):
+                 camera=None, view=None, secondary=None):
     """The ``make`` of a Stage rendering ``frames`` of the object's model
-    (``ui_jobs.frames_job``); ``on_frame(frame, result, captured)`` runs on the main thread
-    for each frame."""
+    (``ui_jobs.frames_job``, ``secondary`` its AO and shadow settings);
+    ``on_frame(frame, result, captured)`` runs on the main thread for each frame."""
     name, device = obj.name, obj.vdnif.device_name(context)
 
     def make():
@@ -56,7 +74,8 @@ def frames_stage(context, obj, frames, width, height, on_frame, references=False
         loaded, captured = model_capture(obj)
         return frames_job(obj, captured, storage.model_path(obj), frames, width, height,
                           device, lambda frame, result: on_frame(frame, result, captured),
-                          camera=camera, view=view, references=references, loaded=loaded)
+                          camera=camera, view=view, references=references, loaded=loaded,
+                          secondary=secondary)
 
     return make
 
@@ -87,7 +106,8 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             kept.update(result=result, slots=captured.mesh.material_slots)
 
         make = frames_stage(context, obj, [frame], width, height, keep, references=True,
-                               camera=camera, view=view)
+                            camera=camera, view=view,
+                            secondary=secondary_settings(context, obj))
 
         def finish(obj, state):
             outcome(state)
@@ -95,7 +115,7 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
                 return f"'{obj.name}': {state.message}"
             result, slots = kept["result"], kept["slots"]   # the material pass: the slots
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
-                            width, height, result.object_size)
+                            width, height, result.object_size, result.secondary)
             exr = viewer.write_files(obj, result, slots, width, height, frame)
             image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None
@@ -119,6 +139,7 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
     def stages(self, context, obj):
         name, settings = obj.name, obj.vdnif
         device = settings.device_name(context)
+        secondary = secondary_settings(context, obj)
 
         def make():
             from ..vdnif_addon.blender.ui_jobs import evaluation_job
@@ -127,7 +148,8 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
             settings = obj.vdnif
             loaded, captured = model_capture(obj, settings.eval_poses)
             return evaluation_job(obj, captured, storage.model_path(obj),
-                                  settings.image_width, settings.image_height, device, loaded)
+                                  settings.image_width, settings.image_height, device, loaded,
+                                  secondary)
 
         def finish(obj, state):
             outcome(state)
@@ -135,8 +157,10 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
                 return f"'{obj.name}': {state.message}"
             report = state.result
             obj.vdnif.metrics = json.dumps(report)
-            return (f"'{obj.name}': {metrics_line(report['vs_true'])} on {report['poses']} "
-                    "poses")
+            more = (f"; {secondary_line(report['vs_true'])}" if "ao_mae" in report["vs_true"]
+                    else "")
+            return (f"'{obj.name}': {metrics_line(report['vs_true'])}{more} on "
+                    f"{report['poses']} poses")
 
         return [Stage(make, finish)]
 

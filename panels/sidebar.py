@@ -21,8 +21,9 @@ from ..operators.scene import (
 )
 from ..operators.training import VDNIF_OT_estimate, VDNIF_OT_train, fresh_estimate, needs_dataset
 from ..vdnif_addon.inference.metrics import verdict
+from ..vdnif_addon.passes import SECONDARY_PASSES
 from ..vdnif_addon.presets import PRESET_NAMES
-from ..vdnif_addon.text import metrics_line
+from ..vdnif_addon.text import metrics_line, secondary_line
 
 WRAP = 42   # characters per line of wrapped messages
 
@@ -235,11 +236,27 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
         layout.use_property_split = False
         layout.row().prop(choice, "pass_name", expand=True)
         layout.row().prop(choice, "source", expand=True)
-        if viewer.viewed():
+        draw_secondary(layout, context, settings)
+        if viewer.viewed(choice.pass_name):
             layout.label(text=f"Image: {viewer.image_name(choice.pass_name, choice.source)}"
                          " (Image Editor)", icon="IMAGE_DATA")
         else:
             layout.label(text="Render the passes to fill the images", icon="INFO")
+
+
+def draw_secondary(layout, context, settings):
+    """While AO or shadow is the chosen pass (Render Passes and Evaluate then cast their
+    rays): the AO settings, or the light the shadow rays go to."""
+    from ..vdnif_addon.blender.lights import scene_light
+
+    chosen = context.scene.vdnif_viewer.pass_name
+    if chosen == "ao":
+        layout.use_property_split = True
+        properties(layout, settings, ("ao_samples", "ao_distance"))
+        layout.use_property_split = False
+    elif chosen == "shadow":
+        layout.label(text=f"Light: {scene_light(context.scene, context.active_object).source}",
+                     icon="LIGHT_SUN")
 
 
 def draw_animation(layout, context, settings):
@@ -267,6 +284,8 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
     def draw_step(self, layout, context, settings):
         layout.prop(settings, "eval_poses")
         button(layout, context, VDNIF_OT_evaluate, "GRAPH")
+        if context.scene.vdnif_viewer.pass_name in SECONDARY_PASSES:
+            lines(layout, "With AO and shadow: the pass chosen under Passes", "INFO")
         report = settings.parsed("metrics")
         if not report:
             return
@@ -279,6 +298,8 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
             box = layout.box()
             box.label(text=title)
             lines(box, metrics_line(report[name]))
+            if "ao_mae" in report[name]:
+                lines(box, secondary_line(report[name]))
         speed = report.get("timings", {}).get("render_rays_per_s")
         if speed is not None:
             layout.label(text=f"{speed:,.0f} rays/s")

@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import struct
 import subprocess
 import sys
 
@@ -210,6 +211,23 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
         + ["passes.exr"])
     assert report["training_plot"] == str(out / "training.png")
     assert "![training loss per task](training.png)" in (out / "report.md").read_text()
+    # the AO and shadow rows, from the network's own hits and from the true ones, and figure
+    for reference in ("vs_true", "vs_embedded"):
+        for key in ("ao_mae", "shadow_false_lit_rate", "shadow_false_shadow_rate"):
+            for suffix in ("", "_true_hit"):
+                number = report[reference][f"{key}{suffix}"]
+                assert number is not None and 0 <= number <= 1, (reference, key, suffix)
+    markdown = (out / "report.md").read_text()
+    rows = [line for line in markdown.splitlines() if line.startswith(("| true |",
+                                                                       "| embedded |"))]
+    assert len(rows) == 2 and all("n/a" not in row and row.count("%") == 4 for row in rows)
+    assert "![AO and shadow: reference, predicted, error](figure-secondary-vs-true.png)" in (
+        markdown)
+    assert report["figures"]["figure_secondary_vs_true"] == str(
+        out / "figure-secondary-vs-true.png")
+    header = (out / "figure-secondary-vs-true.png").read_bytes()[16:24]     # PNG's IHDR
+    assert struct.unpack(">II", header) == (3 * 32 + 2 * 4, 2 * 24 + 4)  # AO, shadow rows
+    assert report["secondary"]["network_offset"] > report["secondary"]["offset"]
 
 
 @pytest.mark.slow
@@ -228,10 +246,10 @@ def test_render_and_evaluate_with_the_demo_model(quick_demo, tmp_path):
         assert (tmp_path / "r" / f"{prefix}distance.png").is_file()
     code, printed, err = run_batch("evaluate", "--model", model, "--scene", "arm", "--poses", 2,
                                    "--width", 32, "--height", 24, "--json", tmp_path / "e.json",
-                                   "--out", tmp_path / "e")
+                                   "--out", tmp_path / "e", "--secondary")
     assert code == 0, err
     report = json.loads((tmp_path / "e.json").read_text())
-    # the demo evaluated the same unseen poses with the same cameras
+    # the demo evaluated the same unseen poses with the same cameras, AO and shadow rays
     assert report["vs_true"] == demo_report["vs_true"]
     assert (tmp_path / "e" / "figure-vs-embedded.png").is_file()
 

@@ -148,6 +148,33 @@ def test_renderer_equals_the_old_renderer(albedo):
     assert stats["truncated"] == old_stats["truncated"] == 0
 
 
+def test_a_limited_render_finds_the_unlimited_hits_within_its_limit():
+    """``max_distance`` ends each ray's walk after the cell that crosses it: the walk is a
+    prefix of the unlimited one, so every hit within the limit is the unlimited render's
+    (same distance), and a hit beyond it only one the unlimited render has too. Rays from
+    outside and from inside the ball (as secondary rays start)."""
+    mesh, grid, bend = bent_ball(12)
+    cells = DeviceCells(grid, corners=bend)
+    rng = np.random.default_rng(8)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.3, -0.5, 1]) /
+                                          np.linalg.norm([0.3, -0.5, 1]), 30, 20)
+    inside = rng.uniform(0.8 * bend.min(0), 0.8 * bend.max(0), (400, 3))
+    origins = np.concatenate([origins, inside])
+    directions = np.concatenate([directions, rng.normal(size=(400, 3))])
+    network = OracleNetwork(mesh, grid)
+    whole, _ = render.neural_passes(network, grid, mesh.albedo_table(), cells, origins,
+                                    directions)
+    limits = rng.uniform(0.0, 2.0, len(origins))
+    cut, _ = render.neural_passes(network, grid, mesh.albedo_table(), cells, origins,
+                                  directions, max_distance=limits)
+    within = whole.hit & (whole.distance <= limits)
+    assert within.sum() > 150 and (whole.hit & ~within).sum() > 150
+    assert within[600:].sum() > 50                          # from inside, too
+    np.testing.assert_array_equal(cut.hit & (cut.distance <= limits), within)
+    assert not (cut.hit & ~whole.hit).any()
+    np.testing.assert_array_equal(cut.distance[cut.hit], whole.distance[cut.hit])
+
+
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 def test_renderer_on_cuda_equals_the_cpu():
     """``--device cuda``: the cells, the walk and the resolve on the GPU with the network."""

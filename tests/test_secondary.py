@@ -209,9 +209,63 @@ def test_without_the_offset_the_surface_occludes_itself(scene, monkeypatch):
                                        settings).ao < 1).any()
 
 
+def tilted_hits(points, angle, error):
+    """Primary Passes of rays at ``angle`` (radians) from the plane's normal onto ``points``
+    (N, 3) of the plane, from 3 away, their distances off by ``error`` (N,) along the ray."""
+    count = len(points)
+    azimuth = np.linspace(0.0, 2 * np.pi, count, endpoint=False)
+    directions = np.stack([np.sin(angle) * np.cos(azimuth), np.sin(angle) * np.sin(azimuth),
+                           np.full(count, -np.cos(angle))], 1)
+    passes = Passes(hit=np.ones(count, bool), distance=3.0 + error,
+                    normal=np.tile([0.0, 0.0, 1.0], (count, 1)),
+                    albedo=np.zeros((count, 3), np.float32), material=np.zeros(count, np.int32))
+    return passes, points - 3.0 * directions, directions
+
+
+@pytest.mark.parametrize("path", ["brute", "embedded", "neural"])
+def test_a_network_hit_off_the_surface_by_its_error_does_not_occlude_itself(scene, path):
+    """Plane hits away from the box, seen head-on and at 60 degrees, moved along their rays
+    by up to the network offset's tolerance (a point within the offset less the exact hits'
+    of the surface along the normal): their rays, started ``network_offset`` off them, never
+    meet the plane they left (AO 1, every one lit), on every path. With the exact hits'
+    offset, a hit that far below the plane occludes itself."""
+    mesh, grid, cells = scene
+    occluded = occluders(mesh, grid, cells)[path]
+    offset = secondary.network_offset(mesh.size, grid.voxel_size)
+    exact = SECONDARY_OFFSET * mesh.size
+    assert offset == pytest.approx(0.25 * grid.voxel_size) and offset > 10 * exact
+    tolerance = offset - exact
+    points = np.stack([np.linspace(1.0, 1.8, 24), np.linspace(-1.8, 1.8, 24), np.zeros(24)], 1)
+    settings = secondary.SecondarySettings(
+        samples=16, light=secondary.Light(direction=(1.0, 0.0, 1.0), source="t"))
+    for angle in (0.0, np.pi / 3):
+        error = np.linspace(-0.999, 0.999, 24) * tolerance / np.cos(angle)
+        result = secondary.secondary_passes(*tilted_hits(points, angle, error), occluded,
+                                            mesh.size, settings, offset)
+        np.testing.assert_array_equal(result.ao, 1.0)
+        assert result.lit.all()
+    below = secondary.secondary_passes(*tilted_hits(points, 0.0, np.full(24, tolerance)),
+                                       occluded, mesh.size, settings, exact)
+    assert (below.ao < 0.5).all() and not below.lit.any()
+
+
+def test_a_network_offset_follows_its_voxel_and_its_error():
+    """The most of the exact hits' offset, a share of a voxel and a multiple of the
+    held-out distance error, as settings.py states it."""
+    from vdnif_addon import settings
+    size, h = 4.0, 0.05
+    assert secondary.network_offset(size, h) == settings.SECONDARY_OFFSET_VOXELS * h
+    mae = 2 * settings.SECONDARY_OFFSET_VOXELS / settings.SECONDARY_OFFSET_ERRORS
+    assert secondary.network_offset(size, h, mae) == pytest.approx(
+        settings.SECONDARY_OFFSET_ERRORS * mae * h)
+    assert secondary.network_offset(size, 1e-6, mae) == SECONDARY_OFFSET * size
+
+
 def test_the_neural_path_from_a_camera_matches_the_exact_one(scene):
     """A camera's primary hits by the oracle network and by the exact mesh, each with its
-    own secondary rays: the same AO and shadow (the embedding is exact at rest)."""
+    own secondary rays: the same AO and shadow (the embedding is exact at rest, and the
+    oracle's hits are exact, so its rays start as the exact hits' do: only the paths
+    differ)."""
     mesh, grid, cells = scene
     paths = occluders(mesh, grid, cells)
     origins, directions = rays.look_at_rays(np.array([2.5, -3.0, 2.5]), np.zeros(3),
@@ -225,7 +279,7 @@ def test_the_neural_path_from_a_camera_matches_the_exact_one(scene):
     views = secondary.secondary_views(
         {"predicted": predicted, "true": true, "embedded": true}, origins, directions,
         {"neural": paths["neural"], "exact": paths["exact"], "embedded": paths["embedded"]},
-        mesh.size, settings)
+        mesh.size, settings, SECONDARY_OFFSET * mesh.size)   # the oracle's hits are exact
     assert set(views) == {"predicted", "true", "embedded", "predicted_true_hit",
                           "embedded_true_hit"}
     assert true.hit.sum() > 200 and (~views["true"].lit[true.hit]).sum() > 10

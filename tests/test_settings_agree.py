@@ -51,8 +51,8 @@ DEFAULTS = {
     "grazing fraction": (None, ("dataset", "grazing_fraction"), RECIPE.grazing_fraction),
     "secondary fraction": (None, ("dataset", "secondary_fraction"),
                            RECIPE.secondary_fraction),
-    "ao samples": (None, ("evaluate", "ao_samples"), settings.AO_SAMPLES),
-    "ao distance": (None, ("evaluate", "ao_distance"), settings.AO_DISTANCE),
+    "ao samples": ("ao_samples", ("evaluate", "ao_samples"), settings.AO_SAMPLES),
+    "ao distance": ("ao_distance", ("evaluate", "ao_distance"), settings.AO_DISTANCE),
     "image width": (None, ("evaluate", "width"), settings.COMMAND_IMAGE[0]),
     "image height": (None, ("evaluate", "height"), settings.COMMAND_IMAGE[1]),
 }
@@ -69,8 +69,8 @@ RANGES = {
     "surface_fraction": ([], ("dataset", ["--surface-fraction"]), None),
     "grazing_fraction": ([], ("dataset", ["--grazing-fraction"]), None),
     "secondary_fraction": ([], ("dataset", ["--secondary-fraction"]), None),
-    "ao_samples": ([], ("references", ["--ao-samples"]), None),
-    "ao_distance": ([], ("references", ["--ao-distance"]), None),
+    "ao_samples": (["ao_samples"], ("references", ["--ao-samples"]), "secondary"),
+    "ao_distance": (["ao_distance"], ("references", ["--ao-distance"]), "secondary"),
     "levels": (["levels"], ("train", ["--levels"]), "network"),
     "base_resolution": (["base_resolution"], ("train", ["--base-resolution"]), "network"),
     "growth": ([], ("train", ["--growth"]), "network"),
@@ -169,6 +169,9 @@ def core_refuses(kind, name, value):
             PoseSpec(count=value)
         elif kind == "max angle":
             PoseSpec(max_angle_deg=value)
+        elif kind == "secondary":
+            from vdnif_addon.inference.secondary import SecondarySettings
+            SecondarySettings(**{name.removeprefix("ao_"): value})
     except VDNIFError:
         return True
     return False

@@ -243,6 +243,56 @@ def test_pass_viewer_switches_pass_and_source(session):
     assert np.allclose(pixels("VDNIF Depth (reference)"), viewed["reference"]["distance"])
 
 
+def test_choosing_ao_renders_and_evaluates_the_secondary_passes(session):
+    """With AO chosen in the pass viewer, Render Passes casts the AO and shadow rays of the
+    object's AO samples and distance: their images (reference, predicted, error) and files.
+    An AO distance below the exact hits' offset meets nothing: the reference's AO is 1 on
+    every hit, exactly. Evaluate then reports the AO and shadow errors."""
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    bpy.context.view_layer.objects.active = obj
+    viewer = bpy.context.scene.vdnif_viewer
+    settings = module("vdnif_addon.settings")
+    assert (obj.vdnif.ao_samples, obj.vdnif.ao_distance) == (
+        settings.AO_SAMPLES, pytest.approx(settings.AO_DISTANCE))
+    bpy.ops.vdnif.render_passes()                    # Normal chosen: no AO is cast
+    assert not module("viewer").viewed("ao") and "VDNIF AO (predicted)" not in bpy.data.images
+    viewer.pass_name = "ao"
+    obj.vdnif.ao_samples = 4
+    bpy.ops.vdnif.render_passes()
+    viewed = module("viewer").viewed("ao")
+    hit = {source: viewed[source]["normal"][..., 3] > 0.5 for source in ("reference",
+                                                                         "predicted")}
+    assert hit["reference"].sum() > 10
+    for source in ("reference", "predicted", "error"):
+        for name in ("AO", "Shadow"):
+            image = pixels(f"VDNIF {name} ({source})")
+            assert image.shape == (24, 32, 4) and np.isfinite(image).all(), (name, source)
+    for source in ("reference", "predicted"):
+        image = pixels(f"VDNIF AO ({source})")
+        np.testing.assert_array_equal(image[..., 3] > 0.5, hit[source])
+        ao = image[..., 0][hit[source]]
+        assert ao.min() >= 0 and ao.max() <= 1
+        np.testing.assert_allclose(ao * 4, np.round(ao * 4), atol=1e-6)     # 4 rays each
+    frame = f"{bpy.context.scene.frame_current:04d}"
+    files = {path.name for path in module("storage").passes_folder(obj).iterdir()}
+    assert {f"{prefix}{name}.{frame}.{suffix}" for prefix in ("", "true-")
+            for name in ("ao", "shadow") for suffix in ("png", "exr")} <= files
+    obj.vdnif.ao_distance = settings.BOUNDS["ao_distance"][0]
+    bpy.ops.vdnif.render_passes()
+    np.testing.assert_array_equal(pixels("VDNIF AO (reference)")[..., 0][hit["reference"]], 1)
+    viewer.pass_name = "shadow"                      # rendered with AO: shown at once
+    assert module("viewer").viewed("shadow")
+    bpy.ops.vdnif.evaluate()
+    report = json.loads(obj.vdnif.metrics)
+    for reference in ("vs_true", "vs_embedded"):
+        for key in ("ao_mae", "ao_mae_true_hit", "shadow_false_lit_rate",
+                    "shadow_false_shadow_rate"):
+            assert math.isfinite(report[reference][key]), (reference, key)
+    assert report["secondary"]["ao_samples"] == 4
+    assert report["secondary"]["network_offset"] > report["secondary"]["offset"]
+
+
 def test_viewport_view_renders_the_3d_viewports_perspective(session):
     """The hits lie where the viewport's projection puts the object (pinhole through the
     pixel centres, the view's horizontal angle, the image's aspect)."""

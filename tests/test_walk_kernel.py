@@ -130,7 +130,11 @@ def test_missing_grazing_zero_and_limited_rays(blob):
     got = assert_same_walk(blob, blob.corner_positions(), origins, directions,
                            max_distance=limits)
     assert not np.isin(got.ray, np.arange(60)).any()
-    assert (got.t1 <= limits[got.ray]).all()
+    assert (got.t0 <= limits[got.ray]).all()            # the last one may cross its limit
+    crossing = got.t1 > limits[got.ray]
+    assert crossing.sum() > 100
+    last = np.r_[got.ray[1:] != got.ray[:-1], True]
+    assert not (crossing & ~last).any()
 
 
 def test_step_limit_truncates_the_same_rays(blob):
@@ -303,3 +307,52 @@ def test_a_lost_walker_re_seeks_whatever_its_max_distance():
         np.testing.assert_array_equal(got.cell, [0, 2])        # B lost (no segment), C reached
         np.testing.assert_allclose(np.c_[got.t0, got.t1], [[2.0, 3.0], [5.0, 6.0]])
         assert got.truncated == 0
+
+
+def test_a_ray_starting_inside_walks_to_its_max_distance():
+    """Six cells in a row along x (a unit grid); rays start inside the first one and the
+    set's boundary ahead (x = 7) lies beyond their limit. Each walks its cells up to the
+    limit, the one that crosses it whole, at rest and bent (the walk used to cast for the
+    set's boundary only within the limit, found none and lost the ray). A ray from outside
+    whose entry lies beyond its limit still walks nothing."""
+    grid = grid_of([[i, 1, 1] for i in range(1, 7)], (8, 3, 3))
+    origins = np.array([[1.5, 1.5, 1.5], [1.5, 1.4, 1.6], [1.5, 1.5, 1.5], [-3.0, 1.5, 1.5]])
+    directions = np.tile([1.0, 0.0, 0.0], (4, 1))
+    limits = np.array([2.2, 0.3, np.inf, 3.9])
+    got = assert_same_walk(grid, grid.corner_positions(), origins, directions,
+                           max_distance=limits)
+    np.testing.assert_array_equal(got.ray, [0, 0, 0, 1, 2, 2, 2, 2, 2, 2])
+    np.testing.assert_array_equal(got.cell, [0, 1, 2, 0, 0, 1, 2, 3, 4, 5])
+    np.testing.assert_allclose(got.t0, [0, 0.5, 1.5, 0, 0, 0.5, 1.5, 2.5, 3.5, 4.5], atol=1e-12)
+    np.testing.assert_allclose(got.t1, [0.5, 1.5, 2.5, 0.5, 0.5, 1.5, 2.5, 3.5, 4.5, 5.5],
+                               atol=1e-12)
+    np.testing.assert_allclose(got.p0, origins[got.ray] + got.t0[:, None] * [1, 0, 0],
+                               atol=1e-12)
+    assert got.truncated == 0
+    bent = grid.corner_positions()
+    bent[:, 1] += 0.1 * bent[:, 0]                      # a shear: the row tilts up in y
+    along = np.array([[1.0, 0.1, 0.0]])
+    sheared = assert_same_walk(grid, bent, np.array([[1.5, 1.65, 1.5]]), along,
+                               max_distance=1.6 * np.linalg.norm(along))
+    np.testing.assert_array_equal(sheared.cell, [0, 1, 2])
+    np.testing.assert_allclose(sheared.p0[0], [1.5, 1.5, 1.5], atol=1e-12)
+
+
+def test_a_limited_walk_is_the_unlimited_walk_up_to_its_limit(blob):
+    """Rays from inside and outside the occupied set with random limits: their segments are
+    those of the unlimited walk that begin within the limit, the last one whole."""
+    rng = np.random.default_rng(14)
+    bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
+        size=blob.corners.shape)
+    inside = inside_rays(rng, blob, 400)
+    outside = outside_rays(rng, 400)
+    origins, directions = (np.concatenate(pair) for pair in zip(inside, outside))
+    limits = rng.uniform(0.0, 4.0, len(origins))
+    whole = assert_same_walk(blob, bent, origins, directions)
+    cut = assert_same_walk(blob, bent, origins, directions, max_distance=limits)
+    keep = whole.t0 <= limits[whole.ray]
+    assert 2000 < keep.sum() < len(whole) - 2000
+    assert (cut.t1 > limits[cut.ray]).sum() > 150       # the segments crossing a limit
+    assert len(np.unique(cut.ray[cut.ray < 400])) > 150  # rays from inside walk
+    for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+        np.testing.assert_array_equal(getattr(cut, name), getattr(whole, name)[keep])

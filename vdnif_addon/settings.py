@@ -1,8 +1,7 @@
 """Every setting's one home: the names a setting may take, its default, its range and its
 validation, read by the batch commands' parser, the panel's properties and the core alike
 (DESIGN section 8 for the recipe). Holds the configurations of a run: ``NetworkConfig``
-(with ``Heads``), ``TrainConfig``, ``PoseSpec`` and the variants; the extreme pose a PoseSpec
-may add is ``extreme_deform``'s.
+(with ``Heads``), ``TrainConfig``, ``PoseSpec`` (its extreme pose: ``extreme_deform``'s).
 
 Imports neither torch, nor bpy, nor Warp, nor numpy, so the UI and the command-line parser can
 read it cheaply. Hard memory caps live in ``limits``; the ranges here are read from them.
@@ -77,14 +76,16 @@ SUGGEST_POSES = 4
 SUGGEST_VIEW_SIZE = 96
 
 # --------------------------------------------------------------------------- secondary rays
-# Ambient occlusion: AO_SAMPLES rays per pixel (a pixel's standard error at most 0.125),
-# each looking AO_DISTANCE object units for an occluder (a tenth of the object: contacts and
-# folds darken, the far side does not). A ray that starts on the surface (rendered or
-# trained on) is pushed SECONDARY_OFFSET object units along the normal so that it does not
-# hit the surface it leaves. DEFAULT_LIGHT_DIRECTION: towards the light, object space, where
-# the scene has no sun or point light. SECONDARY_SEED: the directions' seed (repeatable).
-AO_SAMPLES, AO_DISTANCE, SECONDARY_OFFSET = 16, 0.1, 1e-3
-DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = (0.3, -0.4, 0.866), 0
+# Ambient occlusion: AO_SAMPLES rays per pixel (standard error at most 0.125, directions from
+# SECONDARY_SEED), each looking AO_DISTANCE object units (a tenth of the object: contacts and
+# folds darken, the far side does not); shadow rays go to DEFAULT_LIGHT_DIRECTION (object
+# space) where the scene has no sun or point light. A secondary ray starts off its hit along
+# the normal, on the primary ray's side, lest it hit the surface it leaves: SECONDARY_OFFSET
+# object units off an exact hit (off by rounding only); a network's hit is off by its distance
+# error (on a trained bunny about 0.003 object units), so the most of SECONDARY_OFFSET,
+# SECONDARY_OFFSET_VOXELS voxels and SECONDARY_OFFSET_ERRORS x its held-out distance MAE.
+AO_SAMPLES, AO_DISTANCE, DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = 16, 0.1, (0.3, -0.4, 0.866), 0
+SECONDARY_OFFSET, SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS = 1e-3, 0.25, 3.0
 
 # --------------------------------------------------------------------------- names
 

@@ -33,8 +33,8 @@ class StaticGrid:
         """All rest-space Segments of the rays (N, 3), ordered by ray then distance.
 
         Same conventions as ``traverse.traverse``: directions are normalized here, rays that
-        start inside a cell are cut at their origin (``t0 = 0``), and a piece that leaves the
-        cell beyond ``max_distance`` ends the ray and is not recorded.
+        start inside a cell are cut at their origin (``t0 = 0``), and the piece that crosses
+        ``max_distance`` is the ray's last, recorded whole.
         """
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)
@@ -62,7 +62,7 @@ class StaticGrid:
             t_out = crossing[rows, axis]
             index = self.lookup[cell[:, 0], cell[:, 1], cell[:, 2]]
             within = t_out <= far[ray]
-            record = within & (index >= 0) & (t_out - t > self.min_piece)
+            record = (t <= far[ray]) & (index >= 0) & (t_out - t > self.min_piece)
             pieces.append((ray[record], index[record], t[record], t_out[record]))
             cell[rows, axis] += np.where(up[rows, axis], 1, -1)
             go_on = within & (cell[rows, axis] >= 0) & (cell[rows, axis] < self.dims[axis])

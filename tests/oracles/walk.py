@@ -128,7 +128,9 @@ class Walk:
             ok = remaining >= 0
             rays, t_from, remaining = rays[ok], t_from[ok], remaining[ok]
             start = self.origins[rays] + t_from[:, None] * self.directions[rays]
-            index, t = self._cast(start, self.directions[rays], remaining)
+            # the first cast looks for the boundary ahead however far: whether it starts inside
+            index, t = self._cast(start, self.directions[rays],
+                                  np.full(len(rays), np.inf) if first else remaining)
             hit = index >= 0
             rays, index, t_from = rays[hit], index[hit], t_from[hit]
             t, u, v, leaving = self._crossing(rays, index, t[hit] + t_from)
@@ -140,6 +142,9 @@ class Walk:
                 u[rows], v[rows] = back_u[found], back_v[found]
                 leaving[:] = False
                 first = False
+                near = t <= self.far[rays]              # else it enters beyond its limit
+                rays, index, t, u, v, leaving, t_from = (
+                    x[near] for x in (rays, index, t, u, v, leaving, t_from))
             else:
                 self._entered_behind(rays, index, t, u, v, leaving, t_from)
             self._enter(rays[~leaving], index[~leaving], t[~leaving], u[~leaving],
@@ -235,7 +240,7 @@ class Walk:
         p_out = self.cells.rest_point(cell, exit_triangle, u[rows, exit_triangle],
                                       v[rows, exit_triangle])
         beyond = t_out <= self.far[ray]
-        record = has_ahead & beyond
+        record = has_ahead & (t_in <= self.far[ray])    # the cell crossing the limit whole
         self._record(ray[record], cell[record], t_in[record], t_out[record],
                      p_in[record], p_out[record])
         exit_face = exit_triangle // 2

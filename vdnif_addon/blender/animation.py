@@ -72,7 +72,9 @@ def render_frames(source, captured, model, frames, width, height, view=None,
                             "rays_per_s": timings["rays"] / timings["render_s"],
                             "timings": timings})
             if settings is not None:
-                figures[-1]["secondary"] = settings.describe()
+                size = captured.mesh.size
+                figures[-1]["secondary"] = settings.describe(model.secondary_offset(size)
+                                                             / size)
             if each is not None:
                 each(frame, result)
             if progress is not None:

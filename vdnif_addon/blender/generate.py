@@ -42,7 +42,9 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         grazing_fraction = RECIPE.grazing_fraction
     if secondary_fraction is None:
         secondary_fraction = RECIPE.secondary_fraction
-    offset = SECONDARY_OFFSET * capture.mesh.size       # object units to local ones
+    # The training rays leave exact surface points, off by rounding only: the exact hits'
+    # offset (object units to local ones), not a network's
+    offset = SECONDARY_OFFSET * capture.mesh.size
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)

@@ -7,7 +7,12 @@ import pathlib
 import numpy as np
 
 from ..inference import images
-from ..inference.evaluation import distance_range, figure, world_distances
+from ..inference.evaluation import (
+    distance_range,
+    figure,
+    secondary_view_images,
+    world_distances,
+)
 from ..inference.exr import write_multilayer
 from ..model.variants import variant_config
 from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
@@ -163,10 +168,9 @@ def write_figures(folder, view, height, width, object_size):
     for name in ("distance", "normal"):
         paths[f"error_{name}"] = save_image(folder / f"error-{name}.png", errors[name])
     if "secondary" in view:             # reference | predicted | error, a row per pass
-        shown = view["secondary"]
-        errors = images.secondary_errors(shown["predicted"], shown["true"], height, width)
-        rows = [[images.secondary_images(shown[source], height, width)["display"][name]
-                 for source in ("true", "predicted")] + [errors[name]]
+        shown = secondary_view_images(view["secondary"]["true"],
+                                      view["secondary"]["predicted"], height, width)
+        rows = [[shown[source][name] for source in ("reference", "predicted", "error")]
                 for name in SECONDARY_PASSES]
         paths["figure_secondary_vs_true"] = save_image(
             folder / "figure-secondary-vs-true.png", images.comparison_figure(rows))

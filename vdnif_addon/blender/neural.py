@@ -21,6 +21,7 @@ from ..inference.neural_render import neural_passes
 from ..inference.secondary import (
     embedded_occluded,
     exact_occluded,
+    network_offset,
     neural_occluded,
     secondary_views,
 )
@@ -51,6 +52,13 @@ class SceneModel:
     @property
     def albedo_table(self):
         return self.metadata.albedo_colors()
+
+    def secondary_offset(self, object_size):
+        """Local units the secondary rays of its hits start off them (``network_offset``:
+        its voxel and held-out distance error), an object unit ``object_size`` local ones."""
+        validation = self.metadata.training.validation or {}
+        return network_offset(object_size, self.grid.voxel_size,
+                              validation.get("distance_mae_voxels"))
 
 
 def load_scene_model(path, capture, device="auto", loaded=None):
@@ -229,13 +237,15 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
         "truncated_rays": sum(r.timings["truncated_rays"] for r in results),
     }
     if secondary is not None:
-        _secondary_report(report, results, secondary)
+        size = capture.mesh.size
+        _secondary_report(report, results, secondary, model.secondary_offset(size) / size)
     return report, views
 
 
-def _secondary_report(report, results, settings):
-    """Adds the AO and shadow metrics (joined and per pose), their settings and the
-    network's secondary rays per second to an evaluation ``report``."""
+def _secondary_report(report, results, settings, network_offset):
+    """Adds the AO and shadow metrics (joined and per pose), their settings (the network's
+    offset ``network_offset`` object units) and the network's secondary rays per second to
+    an evaluation ``report``."""
     joined = {name: SecondaryPasses.concatenate([r.secondary[name] for r in results])
               for name in results[0].secondary}
     for reference, metrics in compare_secondary_both(joined).items():
@@ -243,7 +253,7 @@ def _secondary_report(report, results, settings):
     for row, result in zip(report["per_pose"], results):
         for reference, metrics in compare_secondary_both(result.secondary).items():
             row[reference].update(metrics)
-    report["secondary"] = settings.describe()
+    report["secondary"] = settings.describe(network_offset)
     rays = sum(r.timings["secondary_rays"] for r in results)
     seconds = sum(r.timings["secondary_s"] for r in results)
     report["timings"]["secondary_rays_per_s"] = (
@@ -290,7 +300,7 @@ def _render_secondary(result, model, posed_object, geometry, origins, directions
                                                   posed_object.rest_caster)
         primaries.update(true=result.true, embedded=result.embedded)
     result.secondary = secondary_views(primaries, origins, directions, occluders, mesh.size,
-                                       settings)
+                                       settings, model.secondary_offset(mesh.size))
     result.timings.update(secondary_rays=stats.get("rays", 0),
                           secondary_s=stats.get("seconds", 0.0))
 

@@ -98,30 +98,36 @@ def replace_shards(source, folder):
         os.replace(path, folder / path.name)
 
 
-def evaluation_job(obj, captured, model_path, width, height, device, loaded=None):
+def evaluation_job(obj, captured, model_path, width, height, device, loaded=None,
+                   secondary=None):
     """Evaluates the model file on the evaluation poses of ``captured``
-    (``jobs.evaluate_file``). Result: the report."""
+    (``jobs.evaluate_file``; the AO and shadow passes too with ``secondary``, their
+    ``SecondarySettings``). Result: the report."""
 
     def work(source, progress, _deliver):
         report, _ = evaluate_file(source, captured, model_path, width, height, device,
-                                  progress=progress, loaded=loaded)
+                                  progress=progress, loaded=loaded, secondary=secondary)
         return f"{report['poses']} poses evaluated", report
 
     return pose_job("evaluation", "poses", obj, captured, reads_of(captured), work)
 
 
 def frames_job(obj, captured, model_path, frames, width, height, device, on_frame,
-               camera=None, view=None, references=False, loaded=None):
+               camera=None, view=None, references=False, loaded=None, secondary=None):
     """Renders ``frames`` (``animation.render_frames``) through ``camera`` (read in each
-    frame), else the fixed ``view``, else an orbit viewpoint; ``on_frame(frame, result)``
-    runs on the main thread for each (it writes the images). Result: the per-frame figures."""
+    frame), else the fixed ``view``, else an orbit viewpoint; the AO and shadow passes too
+    with ``secondary`` (their ``SecondarySettings`` for every frame, read before the job:
+    Blender's data are read on the main thread only); ``on_frame(frame, result)`` runs on the
+    main thread for each (it writes the images). Result: the per-frame figures."""
     read_view = None if camera is None else (lambda: camera_view(camera, width, height))
 
     def work(source, progress, deliver):
         model = load_scene_model(model_path, captured, device, loaded)
         figures = render_frames(source, captured, model, frames, width, height, view,
                                 references, each=lambda frame, result: deliver(
-                                    (frame, result)), progress=progress)
+                                    (frame, result)), progress=progress,
+                                secondary=None if secondary is None else (
+                                    lambda _frame: secondary))
         return f"{len(frames)} frames rendered", figures
 
     return pose_job("render", "frames", obj, captured, [frame_pose(f) for f in frames], work,

@@ -11,7 +11,14 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..passes import Passes, SecondaryPasses
-from .images import PASSES, comparison_figure, display, error_images
+from .images import (
+    PASSES,
+    comparison_figure,
+    display,
+    error_images,
+    secondary_errors,
+    secondary_images,
+)
 from .metrics import common_pixels, compare, compare_secondary, speed_withheld
 
 if TYPE_CHECKING:
@@ -161,6 +168,15 @@ def view_images(reference: Passes, predicted: Passes, height: int, width: int,
     return {"reference": display(reference, height, width, near_far),
             "predicted": display(predicted, height, width, near_far),
             "error": error_images(predicted, reference, height, width, object_size)}
+
+
+def secondary_view_images(reference: SecondaryPasses, predicted: SecondaryPasses, height: int,
+                          width: int) -> dict[str, dict[str, Float[np.ndarray, "H W 3"]]]:
+    """{"reference" | "predicted" | "error": {"ao" | "shadow": (H, W, 3) image}} of one
+    view's secondary passes: grey levels and the prediction's errors as heat maps."""
+    return {"reference": secondary_images(reference, height, width)["display"],
+            "predicted": secondary_images(predicted, height, width)["display"],
+            "error": secondary_errors(predicted, reference, height, width)}
 
 
 def figure(reference: Passes, predicted: Passes, height: int, width: int, object_size: float

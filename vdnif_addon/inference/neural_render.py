@@ -66,7 +66,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
                   device: str | torch.device = "cpu", schedule: Sequence[int] = WAVE_SEGMENTS,
                   overlap: bool | None = None,
-                  max_wave_segments: int = limits.MAX_WAVE_SEGMENTS
+                  max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
+                  max_distance: float | Float[np.ndarray, " N"] | None = None
                   ) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
@@ -80,8 +81,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
     the network evaluates the other lane's wave; by default only on the CPU with a core that
     torch's threads leave free (else the walk would slow the network down as much as it
-    saves). A wave walks at most ``max_wave_segments`` segments. Running out of memory is a
-    VDNIFError saying what to lower.
+    saves). A wave walks at most ``max_wave_segments`` segments. ``max_distance`` ends the
+    walk (``traverse``): a hit beyond it in the cell that crosses it is still reported.
+    Running out of memory is a VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
     if weights is not None and runtime.device(weights.device) != runtime.device(device):
@@ -99,7 +101,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
     with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
           _worker(overlap) as pool):
-        walk = RayWalk(cells, origins, directions, lanes=2 if overlap else 1)
+        walk = RayWalk(cells, origins, directions, max_distance, lanes=2 if overlap else 1)
         waves = _Waves(network, grid, walk, schedule, albedo_table, stats, max_wave_segments)
         ready = {}                      # lane -> segments walked, awaiting the network
         while True:

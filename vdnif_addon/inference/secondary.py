@@ -3,10 +3,12 @@ network (the deformed walk in waves, ``neural_render``), by the exact deformed m
 BVH, ``kernels.cast.MeshCaster``) or by the embedded reference (the walk and the exact
 segment ground truth).
 
-A secondary ray starts at the primary hit pushed ``SECONDARY_OFFSET`` object units along the
-normal turned towards the primary ray's origin: started on the surface itself it would hit
-the surface it leaves (the classic self-hit), and the network's hit, which lies off the
-surface by its distance error, even more so. Ambient occlusion casts ``samples``
+A secondary ray starts at the primary hit pushed along the normal turned towards the
+primary ray's origin: started on the surface itself it would hit the surface it leaves (the
+classic self-hit). An exact hit is pushed ``SECONDARY_OFFSET`` object units (it is off the
+surface by rounding only); the network's hit lies off the surface by its distance error, so
+it is pushed ``network_offset``, sized to the model's voxel and held-out error. Ambient
+occlusion casts ``samples``
 cosine-weighted rays of that hemisphere up to ``distance`` object units; its pass is the
 fraction unoccluded. Shadow casts one ray towards the light; a hit whose normal faces away
 from the light is in its own shadow without a cast.
@@ -30,10 +32,11 @@ from ..settings import (
     BOUNDS,
     DEFAULT_LIGHT_DIRECTION,
     SECONDARY_OFFSET,
+    SECONDARY_OFFSET_ERRORS,
+    SECONDARY_OFFSET_VOXELS,
     SECONDARY_SEED,
 )
 from ..tracing.rays import cosine_directions
-from .neural_render import neural_passes
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -97,18 +100,20 @@ class SecondarySettings:
             raise VDNIFError(f"AO distance {self.distance} must be in {low:g}..{high:g} "
                              "object units")
 
-    def describe(self) -> dict[str, Any]:
-        """The settings as the JSON reports state them."""
+    def describe(self, network_offset: float | None = None) -> dict[str, Any]:
+        """The settings as the JSON reports state them, with the offsets in object units:
+        the exact hits' and (``network_offset``, when given) the network's."""
         light = self.light
         return {"ao_samples": self.samples, "ao_distance": self.distance,
-                "offset": SECONDARY_OFFSET, "light": light.source,
+                "offset": SECONDARY_OFFSET,
+                **({} if network_offset is None else {"network_offset": network_offset}),
+                "light": light.source,
                 "light_direction": None if light.direction is None else list(light.direction),
                 "light_position": None if light.position is None else list(light.position)}
 
 
-# The walk's own max_distance does not serve secondary rays: it drops the segment that
-# crosses it, and a ray that starts inside the occupied set is lost when the set's boundary
-# ahead lies beyond it. So the walked paths walk each ray to its first hit and compare.
+# The walked paths end each ray at its max distance (``traverse``): the cell that crosses it
+# comes whole, so its hit may lie beyond and is compared here.
 
 
 def exact_occluded(caster: Any) -> Occluded:
@@ -128,7 +133,7 @@ def embedded_occluded(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCa
     from ..tracing.traverse import traverse
 
     def occluded(origins, directions, max_distance):
-        segments = traverse(cells, origins, directions)         # to its first hit (above)
+        segments = traverse(cells, origins, directions, max_distance)
         targets = segment_targets(mesh, rest_caster, segments)
         passes = embedded_reference(cells, segments, targets, len(origins))
         return passes.hit & (passes.distance <= max_distance)
@@ -140,10 +145,13 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
                     device: Any = "cpu", stats: dict[str, float] | None = None) -> Occluded:
     """Occlusion as the network answers it through the deformed walk; ``stats`` (when
     given) accumulates the rays and the seconds of its renders."""
+    # torch and Warp: imported here, so that the panel reads this module without them
+    from .neural_render import neural_passes
+
     def occluded(origins, directions, max_distance):
         start = time.perf_counter()
         passes, _ = neural_passes(network, grid, albedo_table, cells, origins, directions,
-                                  device)                       # to its first hit (above)
+                                  device, max_distance=max_distance)
         if stats is not None:
             stats["rays"] = stats.get("rays", 0) + len(origins)
             stats["seconds"] = stats.get("seconds", 0.0) + time.perf_counter() - start
@@ -151,30 +159,44 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
     return occluded
 
 
+def network_offset(object_size: float, voxel_size: float,
+                   distance_mae_voxels: float | None = None) -> float:
+    """How far (local units) the secondary rays of a network's hits start off them, for a
+    model with voxels of ``voxel_size`` local units and its held-out distance MAE in voxels
+    (None where training held out no poses): the most of SECONDARY_OFFSET object units,
+    SECONDARY_OFFSET_VOXELS voxels and SECONDARY_OFFSET_ERRORS x that MAE."""
+    voxels = max(SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS * (distance_mae_voxels or 0.0))
+    return max(SECONDARY_OFFSET * object_size, voxels * voxel_size)
+
+
 def secondary_starts(primary: Passes, origins: Float[np.ndarray, "R 3"],
-                     directions: Float[np.ndarray, "R 3"], object_size: float
+                     directions: Float[np.ndarray, "R 3"], offset: float
                      ) -> tuple[Float[np.ndarray, "H 3"], Float[np.ndarray, "H 3"]]:
     """(start points (H, 3), unit normals (H, 3)) of the secondary rays of the H primary
     hits of ``primary`` (rays ``origins`` + t ``directions`` (R, 3), local units): the hit
-    pushed SECONDARY_OFFSET object units along its normal turned towards the ray's origin."""
+    pushed ``offset`` local units along its normal turned towards the ray's origin."""
     hit = np.flatnonzero(primary.hit)
     direction = normalize(np.asarray(directions, np.float64)[hit], np.array([0.0, 0.0, 1.0]))
     point = np.asarray(origins, np.float64)[hit] + primary.distance[hit, None] * direction
     normal = normalize(primary.normal[hit], -direction)
     normal = np.where(((normal * direction).sum(1) > 0)[:, None], -normal, normal)
-    return point + SECONDARY_OFFSET * object_size * normal, normal
+    return point + offset * normal, normal
 
 
 def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
                      directions: Float[np.ndarray, "R 3"], occluded: Occluded,
-                     object_size: float, settings: SecondarySettings = SecondarySettings()
-                     ) -> SecondaryPasses:
+                     object_size: float, settings: SecondarySettings = SecondarySettings(),
+                     offset: float | None = None) -> SecondaryPasses:
     """AO and shadow of the primary hits of ``primary`` (rays (R, 3) in local units, an
-    object unit ``object_size`` local ones) as ``occluded`` answers their secondary rays.
+    object unit ``object_size`` local ones) as ``occluded`` answers their secondary rays,
+    started ``offset`` local units off the hits (by default an exact hit's,
+    SECONDARY_OFFSET object units; ``network_offset`` for a network's hits).
     Pixel i's AO directions come from the same uniform numbers whoever renders it, so two
     renders of one view differ by their answers, not by their noise."""
     rays = len(primary.hit)
-    start, normal = secondary_starts(primary, origins, directions, object_size)
+    if offset is None:
+        offset = SECONDARY_OFFSET * object_size
+    start, normal = secondary_starts(primary, origins, directions, offset)
     rng = np.random.default_rng([settings.seed, rays])
     uniform = rng.random((rays, settings.samples, 2))[primary.hit].reshape(-1, 2)
     samples = np.repeat(normal, settings.samples, axis=0)
@@ -194,18 +216,23 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
 
 def secondary_views(primaries: dict[str, Passes], origins: Float[np.ndarray, "R 3"],
                     directions: Float[np.ndarray, "R 3"], occluders: dict[str, Occluded],
-                    object_size: float, settings: SecondarySettings
-                    ) -> dict[str, SecondaryPasses]:
+                    object_size: float, settings: SecondarySettings,
+                    offset: float | None = None) -> dict[str, SecondaryPasses]:
     """The secondary passes an evaluation compares, from the primary ``primaries``
     {"predicted", "true", "embedded"} and the ``occluders`` {"neural", "exact",
-    "embedded"}: "predicted" (the network from its own hits), "true" and "embedded" (each
-    reference from its own), and "predicted_true_hit" and "embedded_true_hit" (the network
-    and the embedded reference from the true hits: their error is the secondary rays' own,
-    without the primary hits')."""
+    "embedded"}: "predicted" (the network from its own hits, started ``offset`` local
+    units off them: ``network_offset``, needed with "predicted"), "true" and "embedded"
+    (each reference from its own exact hits), and "predicted_true_hit" and
+    "embedded_true_hit" (the network and the embedded reference from the true hits: their
+    error is the secondary rays' own, without the primary hits')."""
+    if "predicted" in primaries and offset is None:
+        raise VDNIFError("the network's secondary rays need its offset (network_offset)")
+    offsets = {"predicted": offset}         # the exact hits' own: secondary_passes' default
     plan = {"predicted": ("predicted", "neural"), "true": ("true", "exact"),
             "embedded": ("embedded", "embedded"), "predicted_true_hit": ("true", "neural"),
             "embedded_true_hit": ("true", "embedded")}
     return {name: secondary_passes(primaries[primary], origins, directions,
-                                   occluders[occluder], object_size, settings)
+                                   occluders[occluder], object_size, settings,
+                                   offsets.get(primary))
             for name, (primary, occluder) in plan.items()
             if primary in primaries and occluder in occluders}

@@ -150,7 +150,7 @@ def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
         t_out, axis = first_wall(tx, ty, tz)
         index = grid.lookup[i + grid.dims[0] * (j + grid.dims[1] * k)]
         within = t_out <= far
-        if within and index >= 0 and t_out - t > grid.min_piece:
+        if t <= far and index >= 0 and t_out - t > grid.min_piece:   # the last one whole
             if emit(out, r, index, t, t_out, o + d * t, o + d * t_out) < 0:
                 break                                      # buffer full: redo this step later
         inside = False

@@ -20,6 +20,10 @@ kernel replaced (kept as the oracle in ``tests/oracles/walk.py``):
   touches; a zero-length pass counts, and after ``ZERO_PASS_LIMIT`` in a row, a lost walker
   (no exit) or an exit into an empty cell the ray re-seeks (a lost one past the farthest
   crossing of its cell);
+- a ray's max distance ends it: the cell it crosses in is its last, recorded whole (a
+  network answers whole cells; the caller compares the hit's distance with the limit); the
+  first seek looks for the boundary ahead however far, so that a ray that starts inside
+  walks its cells up to its limit even where the boundary lies beyond it;
 - every ray makes at most ``max_steps`` cell steps; rays still walking then are truncated.
 
 Segments are written to a ``kernels.segments.SegmentBuffer``, as the static DDA's are.
@@ -138,7 +142,7 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
             p_out = rest_point(cells, cell, exit_k, exit_u, exit_v)
             exit_face = exit_k // 2
             neighbour = cells.neighbours[cell, exit_face]
-        if ahead >= 0 and beyond and (not (clip_from < wp.float64(0.0))
+        if ahead >= 0 and t <= far and (not (clip_from < wp.float64(0.0))
                                       or t_out > wp.float64(0.0)):
             t0 = t
             p0 = p

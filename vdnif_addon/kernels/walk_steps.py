@@ -50,7 +50,10 @@ def seek_entry(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, far: wp.float64, mod
         if not (remaining >= wp.float64(0.0)):
             mode = DONE
             break
-        found, face, cast_t = entry_cast(cells, o + d * t, d, remaining)
+        reach = remaining
+        if mode == SEEK_FIRST:
+            reach = INF                            # whether it starts inside: the boundary
+        found, face, cast_t = entry_cast(cells, o + d * t, d, reach)    # ahead, however far
         if not found:
             mode = DONE
             break
@@ -63,6 +66,9 @@ def seek_entry(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, far: wp.float64, mod
                     hit_t, u, v, leaving = boundary_crossing(cells, o, d, face, -back_t)
                     clip_from = hit_t
             leaving = False
+            if hit_t > far:                        # it enters beyond its limit
+                mode = DONE
+                break
         elif leaving and hit_t > t + step and t > behind_from:
             # the seek starts inside the occupied set: a re-seek starts step beyond an exit,
             # and a cell across an edge or corner of the cell left can begin sooner; its

@@ -1,11 +1,13 @@
 """The main job: on an embedded demo scene, capture, dataset, train the proposed variant (the
-static one where nothing deforms the scene), evaluate on unseen poses, write the passes, the
-figure and a short report."""
+static one where nothing deforms the scene), evaluate on unseen poses (the AO and shadow
+passes too), write the passes, the figures and a short report."""
 
 import pathlib
 import shlex
 import sys
 import tempfile
+
+import bpy
 
 from ..blender.capture_scene import capture
 from ..blender.jobs import (
@@ -16,8 +18,10 @@ from ..blender.jobs import (
     write_passes,
     write_training_plot,
 )
+from ..blender.lights import scene_light
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
+from ..inference.secondary import SecondarySettings
 from ..model.variants import choose_variant
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import RECIPE, TEST_POSES, PoseSpec
@@ -38,7 +42,9 @@ SIZES = {   # full: the main job, the default recipe at the resolution of the sc
 def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
              stress=lambda obj, spec: spec):
     """Runs the demo into folder ``out`` and returns the report (also written as
-    ``out/report.json`` and ``out/report.md`` with ``out/figure-vs-true.png``).
+    ``out/report.json`` and ``out/report.md`` with ``out/figure-vs-true.png`` and the AO
+    and shadow figure ``out/figure-secondary-vs-true.png``; the light: the scene's first sun
+    or point light, else the default direction).
     ``stress(obj, spec)`` may scale the scene and return the pose spec with an extreme pose
     (``extremes.apply_stress``)."""
     size = SIZES["quick" if quick else "full"]
@@ -60,7 +66,9 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     evaluated = evaluation_poses(obj, resolution, spec, count=size["eval_poses"],
                                  pose_set=TEST_POSES)
     width, height = size["width"], size["height"]
-    report, views = evaluate_file(obj, evaluated, model, width, height, device)
+    secondary = SecondarySettings(light=scene_light(bpy.context.scene, obj))
+    report, views = evaluate_file(obj, evaluated, model, width, height, device,
+                                  secondary=secondary)
     figures = write_figures(out, views[0], height, width, captured.mesh.size)
     passes = write_passes(out / "passes", views[0]["predicted"], height, width)
     plot = write_training_plot(out / "training.png", summary["history"])
@@ -73,7 +81,6 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     command = shlex.join(["python", "vdnif_addon/batch.py", "--",
                           *sys.argv[sys.argv.index("--") + 1:]] if "--" in sys.argv
                          else ["python", "vdnif_addon/batch.py", "--", "demo"])
-    write_text_atomic(out / "report.md", demo_markdown(report, command, "figure-vs-true.png"),
-                      "markdown file")
+    write_text_atomic(out / "report.md", demo_markdown(report, command), "markdown file")
     write_json_atomic(out / "report.json", report)
     return report

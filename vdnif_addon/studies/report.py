@@ -47,6 +47,48 @@ def metrics_table(rows):
     return "\n".join(lines)
 
 
+def secondary_table(vs_true, vs_embedded):
+    """A markdown table of the AO and shadow errors against each reference
+    (``metrics.compare_secondary``): from the network's own hits and from the true ones
+    (the secondary rays' own error, without the primary hits')."""
+    lines = ["| reference | AO MAE | AO MAE (true hits) | false lit | false lit (true hits) "
+             "| false shadow | false shadow (true hits) |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]
+    for name, m in (("true", vs_true), ("embedded", vs_embedded)):
+        cells = [value(m[f"ao_mae{suffix}"], 3) for suffix in ("", "_true_hit")]
+        cells += [percent(m[f"shadow_{kind}_rate{suffix}"]) for kind in ("false_lit",
+                                                                           "false_shadow")
+                  for suffix in ("", "_true_hit")]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def secondary_section(report):
+    """The demo report's AO and shadow lines: what was cast, the table and the figure; none
+    for a report without them."""
+    if "ao_mae" not in report["vs_true"]:
+        return []
+    shown = report["secondary"]
+    return [
+        f"Ambient occlusion ({shown['ao_samples']} rays per hit pixel, looking "
+        f"{value(shown['ao_distance'])} object units) and shadow (towards {shown['light']}), "
+        f"from the network's own hits (pushed {value(shown['network_offset'], 3)} object "
+        f"units off the surface) and from the true hits (pushed {value(shown['offset'])}): "
+        "AO MAE is the mean absolute difference of the unoccluded share; false lit are the "
+        "reference's shadowed hits the network lights, false shadow its lit hits the network "
+        "shadows.",
+        "",
+        secondary_table(report["vs_true"], report["vs_embedded"]),
+        "",
+        "![AO and shadow: reference, predicted, error](figure-secondary-vs-true.png)",
+        "",
+        "Rows: AO, shadow. Columns: the true reference, the prediction, the error (AO "
+        "difference bright at 0.25; shadow red where falsely lit, blue where falsely "
+        "shadowed).",
+        "",
+    ]
+
+
 def common_pixels_line(labels, metrics, seeds=1):
     """What the errors of the compared models ``labels`` (each trained with ``seeds``
     seeds) are taken over (DESIGN section 10), from one of their compare_both results on
@@ -149,8 +191,9 @@ def goal_line(metrics):
             f"reference): **{'reached' if reached else 'not reached'}**.")
 
 
-def demo_markdown(report, command, figure_name):
-    """The demo's report: what ran, the metrics against both references, timings, figure."""
+def demo_markdown(report, command):
+    """The demo's report: what ran, the metrics against both references (the AO and shadow
+    errors where it has them), timings, figures."""
     t = report["timings"]
     return "\n".join([
         f"# VDNIF demo: {report['object']}",
@@ -180,12 +223,13 @@ def demo_markdown(report, command, figure_name):
         f"{t['prepare_pose_s'] * 1e3:.1f} ms |",
         f"| model file | {report['model_bytes']:,} bytes |",
         "",
-        f"![reference, predicted, error per pass]({figure_name})",
+        "![reference, predicted, error per pass](figure-vs-true.png)",
         "",
         "Rows: normal, albedo, distance, material. Columns: the true reference (Blender's "
         "deformed mesh), the prediction, the error (distance error bright at 0.05 object "
         "units, normal error bright at 45 deg; white where only one of them hits).",
         "",
+        *secondary_section(report),
         *([f"![training loss per task]({pathlib.Path(report['training_plot']).name})", "",
            "Each task's training loss (solid) and its loss on the held-out training poses "
            "(dashed) over the steps, log scale.", ""] if report.get("training_plot") else []),

@@ -68,8 +68,8 @@ class StaticGrid:
         """All rest-space Segments of the rays (N, 3), ordered by ray then distance.
 
         Same conventions as ``traverse.traverse``: directions are normalized here, rays that
-        start inside a cell are cut at their origin (``t0 = 0``), and a piece that leaves the
-        cell beyond ``max_distance`` ends the ray and is not recorded.
+        start inside a cell are cut at their origin (``t0 = 0``), and the piece that crosses
+        ``max_distance`` is the ray's last, recorded whole.
         """
         from ..kernels.dda import dda_segments
 

@@ -35,7 +35,9 @@ def traverse(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
     walk) and returns all their rest-space Segments, ordered by ray then distance.
 
     ``directions`` are normalized here; ``t`` is measured in the units of ``origins``.
-    ``max_distance`` (scalar or (N,)) ends rays; ``max_steps`` bounds each ray's cell steps
-    (default ``step_budget``); rays that hit a bound are counted in ``truncated``.
+    ``max_distance`` (scalar or (N,)) ends rays: the segment that crosses it is a ray's
+    last, whole (its ``t1`` lies beyond: compare a hit's distance); ``max_steps`` bounds each
+    ray's cell steps (default ``step_budget``); rays that hit a bound are counted in
+    ``truncated``.
     """
     return walk_segments(cells, origins, directions, max_distance, max_steps)
