@@ -39,6 +39,29 @@ atexit.register(shutil.rmtree, os.environ["BLENDER_USER_RESOURCES"], True)
 # Compiled kernels are cached inside the checkout (ignored by git), not in the user's home.
 os.environ.setdefault("VDNIF_KERNEL_CACHE", str(REPO / ".kernel-cache"))
 
+# The suite's exit status, kept for ``pytest_unconfigure``.
+_SESSION_STATUS: list[int] = []
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _SESSION_STATUS.append(int(exitstatus))
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    """Ends a suite that imported bpy once every report is out, as ``batch.py`` ends a
+    command: the exit handlers run, then ``os._exit`` skips the C++ static destructors.
+    bpy 4.5's audio ``GlobalState`` destructor destroys a condition variable that its own
+    delayed-close thread still waits on whenever the bpy module outlives interpreter
+    teardown, and glibc then waits forever: the whole suite passed and its process never
+    ended."""
+    if not _SESSION_STATUS or "bpy" not in sys.modules:
+        return
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    os._exit(_SESSION_STATUS[-1])
+
 
 @pytest.fixture(scope="session")
 def extension():
