@@ -15,6 +15,7 @@ from .options import (
     add_capture_options,
     add_scene_options,
     add_secondary_options,
+    add_stress_options,
     add_training_options,
     check_resolution,
     load_posed_scene,
@@ -221,8 +222,6 @@ def _train_on_scene(args):
 
 def _scene_command(commands, name, run, default_poses, notes):
     """A command that reads a scene: scene, resolution, pose and stress options."""
-    from ..blender.extremes import add_stress_options
-
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     add_scene_options(parser)
     add_capture_options(parser, default_poses)
@@ -233,8 +232,6 @@ def _scene_command(commands, name, run, default_poses, notes):
 
 def add_commands(commands):
     """Adds the pipeline's commands to the batch parser's subcommands ``commands``."""
-    from ..blender.extremes import add_stress_options
-
     capture = _scene_command(commands, "capture", cmd_capture, 8, (
         "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
         "inverted_cells (per pose), heads and capture_s."))
