@@ -335,6 +335,9 @@ def validate_arguments(args):
             check_output_folder(args.out, "--out folder")
     if given("work"):
         check_output_folder(args.work, "--work folder")
+    if args.command == "train" and not given("data") and not names_scene(args):
+        raise VDNIFError("give --data DIR (a dataset folder) or scene options "
+                         "(--scene, --mesh or --blend)")
 
 
 def _validate_network_options(args, limits):

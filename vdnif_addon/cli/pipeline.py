@@ -150,25 +150,26 @@ def _truncation_warning(truncated, rays):
 def cmd_train(args):
     """Train a network on a dataset folder (or on a scene, generating its dataset first)
     and write the model file."""
-    from ..blender.jobs import write_training_plot
-    from ..training.dataset import read_dataset
-    from ..training.fit import fit_model
-
+    # Each import where it is used: a missing or broken --data is refused before Blender
+    # and Warp load.
     if names_scene(args):
         result, summary = _train_on_scene(args)
     else:
-        if args.data is None:
-            raise VDNIFError("give --data DIR (a dataset folder) or scene options "
-                             "(--scene, --mesh or --blend)")
+        from ..training.dataset import read_dataset
+
         header = read_dataset(args.data)[0].header
         variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
         check_output_file(out, "model file")            # before training, not after it
         pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
+        from ..training.fit import fit_model
+
         result, summary = fit_model(args.data, variant, out, network_overrides(args),
                                     progress=report_training)
     if not result.is_main:
         return 0
+    from ..blender.jobs import write_training_plot
+
     model = pathlib.Path(summary["model"])
     summary["plot"] = str(write_training_plot(model.with_name(f"{model.stem}-training.png"),
                                               summary["history"]))
