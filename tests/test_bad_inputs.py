@@ -8,9 +8,10 @@ existing_dir/), {data} (a dataset folder of the arm at R 8), {model} (a model tr
 {bad_data:KIND}, {bad_model:KIND}, {blend:NAME}, {mesh:NAME} (see the builders below).
 
 How it runs: every case runs as users run it, ``batch.py`` in a subprocess (under a second
-each when it fails before any work: the batch parser imports neither torch nor Warp). The
-fourth column says so; "main" (``cli.main(argv)`` in this process, what ``batch.py``
-calls) remains for a case that needs to look inside the process.
+each when it fails before any work: the batch parser and the option checks import neither
+bpy, torch nor Warp, tests/test_batch.py). The fourth column says so; "main"
+(``cli.main(argv)`` in this process, what ``batch.py`` calls) remains for a case that needs
+to look inside the process.
 """
 
 import hashlib

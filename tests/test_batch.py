@@ -137,6 +137,47 @@ def test_help_documents_every_command():
         assert option in out
 
 
+# Runs every command's --help and refused command lines through ``cli.main`` as
+# ``batch.py`` calls it, and prints, per command line, its exit code and which of the heavy
+# modules it left imported.
+PARSE_ONLY = """
+import argparse, contextlib, io, json, sys
+from vdnif_addon.cli import build_parser, main
+HEAVY = ("bpy", "torch", "warp")
+commands = next(a for a in build_parser()._actions
+                if isinstance(a, argparse._SubParsersAction)).choices
+lines = [["--help"], *([name, flag] for name in commands
+                       for flag in ("--help", "--no-such-option"))] + [
+    line.split() for line in sys.argv[1:]]
+report = []
+for argv in lines:
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        code = main(argv)
+    report.append([argv, code, err.getvalue(), [m for m in HEAVY if m in sys.modules]])
+print(json.dumps(report))
+"""
+
+
+def test_help_and_refused_command_lines_import_neither_bpy_torch_nor_warp():
+    """The parser and the checks that run before any work import no heavy module: a refused
+    command line or --help of every command answers at once under plain ``python``."""
+    refused = ["capture --seed -1", "capture --scale 0", "capture --deform bend:inf",
+               "render --model m.vdnif --frames x", "demo --scene moon",
+               "dataset --out d --rays-per-pose 0", "train --data d --growth 99", "train"]
+    result = subprocess.run([sys.executable, "-c", PARSE_ONLY, *refused], cwd=REPO,
+                            capture_output=True, text=True, timeout=120, check=True)
+    report = json.loads(result.stdout)
+    commands = {argv[0] for argv, *_ in report}
+    assert {"capture", "dataset", "references", "train", "render", "evaluate", "demo",
+            "bench-network", "side-by-side"} <= commands
+    for argv, code, err, heavy in report:
+        refusal = argv[-1] != "--help"
+        assert code == (1 if refusal else 0), (argv, err)
+        assert len(error_lines(err)) == refusal, (argv, err)
+        assert heavy == [], (argv, heavy)
+
+
 def test_help_states_every_default_it_has():
     """Every option with a default shows it in --help, and help text that names a default
     by hand names the one argparse will use."""

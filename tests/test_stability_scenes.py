@@ -13,7 +13,7 @@ EXTREMES = ("bend:170", "twist:360", "stretch:4", "squash:0.1")
 
 def stress_args(core, *argv):
     parser = argparse.ArgumentParser()
-    core("blender.extremes").add_stress_options(parser)
+    core("cli.options").add_stress_options(parser)
     return parser.parse_args(list(argv))
 
 

@@ -1,6 +1,7 @@
-"""The extreme pose that a ``settings.PoseSpec`` may put on top of every pose (``--deform
-KIND:VALUE``): its kinds, their checks and its pose key; ``blender/extremes.py`` applies it.
-Like ``settings``, it imports neither bpy nor numpy."""
+"""The stress values: the extreme pose that a ``settings.PoseSpec`` may put on top of every
+pose (``--deform KIND:VALUE``: its kinds, their checks and its pose key) and the uniform object
+scale (``--scale S``); ``blender/extremes.py`` applies them. Like ``settings``, it imports
+neither bpy nor numpy, so the command-line parser checks them cheaply."""
 
 from __future__ import annotations
 
@@ -21,6 +22,17 @@ MAX_FACTOR = 100.0
 """Largest stretch and the inverse of the smallest squash: at stretch 1000 the arm (3 units
 long, a tenth as thick) lies across 3,000 units and covers no pixel of a 64x64 orbit view, so
 every figure is n/a; a hundredfold keeps it in view."""
+
+
+def parse_scale(text: Any) -> float:
+    """A uniform object scale from text: a finite number > 0."""
+    try:
+        scale = float(text)
+    except ValueError:
+        raise VDNIFError(f"object scale '{text}' is not a number") from None
+    if not (math.isfinite(scale) and scale > 0):
+        raise VDNIFError(f"object scale {text} must be a finite number greater than 0")
+    return scale
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,8 @@ OCCLUSION_THRESHOLD = 0.5
 thresholds on held-out poses (``model.metadata.Thresholds``), and the calibration's choice
 among equally good ones."""
 
+DEMO_SCENES, RIGS = ("arm", "lattice", "spot", "bunny"), ("armature", "lattice")
+"""Embedded demo scenes; procedural rigs of a scene or a rigless mesh (``blender/scenes.py``)."""
 DEMO_SCENE = "spot"
 """The main job's scene (``make demo``): textured and armature-rigged."""
 
@@ -356,8 +358,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
 deformed poses (``deformed_data``) or the rest pose alone."""
 TRAINABLE_VARIANTS = ("lsnif", "deformed", "proposed")
 """The methods a user trains (``train --variant``, the panel); the ablations are studies'."""
-DEFAULT_VARIANT = "proposed"
-STATIC_VARIANT = "lsnif"
+DEFAULT_VARIANT, STATIC_VARIANT = "proposed", "lsnif"
 AUTO_VARIANT = "auto"
 """The panel's choice of DEFAULT_VARIANT or STATIC_VARIANT by the scene (``choose_variant``)."""
 

@@ -28,7 +28,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..errors import VDNIFError
-from ..extreme_deform import ExtremeDeform
+from ..extreme_deform import ExtremeDeform, parse_scale
 from .read_mesh import deform_modifiers
 from .rig import bend_twist, influencing_bones, lattice_cells, offset_lattice
 
@@ -36,34 +36,9 @@ _BONE_CHANNELS = ("location", "rotation_quaternion", "rotation_euler", "rotation
                   "scale")
 
 
-def parse_scale(text):
-    """A uniform object scale from text: a finite number > 0."""
-    try:
-        scale = float(text)
-    except ValueError:
-        raise VDNIFError(f"object scale '{text}' is not a number") from None
-    if not (math.isfinite(scale) and scale > 0):
-        raise VDNIFError(f"object scale {text} must be a finite number greater than 0")
-    return scale
-
-
-def add_stress_options(parser):
-    """Adds ``--scale S`` and ``--deform KIND:VALUE`` to an argparse parser (bad values raise
-    VDNIFError while parsing)."""
-    group = parser.add_argument_group("stress", description=(
-        "Errors in object units should not change with --scale. Bend and twist are summed "
-        "along the bone chain or the lattice's longest axis; stretch and squash keep the "
-        "cross-section (no volume preservation)."))
-    group.add_argument("--scale", type=parse_scale, default=1.0, metavar="S",
-                       help="make the object's rest geometry and rig S times larger before "
-                            "capture")
-    group.add_argument("--deform", type=ExtremeDeform.parse, metavar="KIND:VALUE",
-                       help="an extreme pose on top of every pose of the rig: bend:DEG, "
-                            "twist:DEG, stretch:X (X >= 1) or squash:X (0 < X <= 1)")
-
-
 def apply_stress(args, obj, spec):
-    """Applies ``args.scale`` and ``args.deform`` (see ``add_stress_options``) to ``obj``.
+    """Applies ``args.scale`` and ``args.deform`` (``cli.options.add_stress_options``) to
+    ``obj``.
 
     Call once, right after the scene is loaded and before anything reads the rest mesh
     (capture). Scales ``obj`` and its rig now and returns the PoseSpec ``spec`` with the

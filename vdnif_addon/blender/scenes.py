@@ -14,11 +14,10 @@ import bpy
 import numpy as np
 
 from ..errors import VDNIFError
+from ..settings import DEMO_SCENES, RIGS
 from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
 from .rig import bend_twist
 
-DEMO_SCENES = ("arm", "lattice", "spot", "bunny")
-RIGS = ("armature", "lattice")
 FRAME_START, FRAME_END = 1, 48
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
 

@@ -11,6 +11,7 @@ from .options import (
     add_pose_options,
     add_scene_options,
     add_secondary_options,
+    add_stress_options,
     check_resolution,
     frames_option,
     load_posed_scene,
@@ -137,8 +138,6 @@ def cmd_evaluate(args):
 
 def _model_command(commands, name, run, default_poses, notes):
     """A command that uses a trained model on a scene; the resolution is the model's."""
-    from ..blender.extremes import add_stress_options
-
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
                         help="a model file written by 'train' or 'demo'")

@@ -10,6 +10,7 @@ import pathlib
 import sys
 
 from ..errors import VDNIFError
+from ..extreme_deform import ExtremeDeform, parse_scale
 from ..settings import (
     ALBEDO_MODES,
     AO_DISTANCE,
@@ -17,6 +18,7 @@ from ..settings import (
     AUTO_RESOLUTION,
     BOUNDS,
     DEFAULT_DEVICE,
+    DEMO_SCENES,
     DEVICES,
     EMBEDDING_ERROR_SHARE,
     MAX_RESOLUTION,
@@ -24,6 +26,7 @@ from ..settings import (
     PE_SCALES,
     POSE_SOURCES,
     RECIPE,
+    RIGS,
     PoseSpec,
 )
 from ..text import metrics_line, secondary_line, speed_line
@@ -34,8 +37,6 @@ PIPELINE_SCENE = "arm"
 
 def add_scene_options(parser):
     """``--scene NAME | --mesh FILE --rig R | --blend FILE --object NAME``."""
-    from ..blender.scenes import DEMO_SCENES, RIGS
-
     group = parser.add_argument_group("scene (one of)")
     source = group.add_mutually_exclusive_group()
     source.add_argument("--scene", choices=DEMO_SCENES,
@@ -47,6 +48,21 @@ def add_scene_options(parser):
     group.add_argument("--rig", choices=RIGS,
                        help="procedural rig of a --mesh without one (default armature) or a scene")
     group.add_argument("--object", metavar="NAME", help="the mesh object in --blend")
+
+
+def add_stress_options(parser):
+    """Adds ``--scale S`` and ``--deform KIND:VALUE`` (``blender/extremes.py`` applies them)
+    to an argparse parser (bad values raise VDNIFError while parsing)."""
+    group = parser.add_argument_group("stress", description=(
+        "Errors in object units should not change with --scale. Bend and twist are summed "
+        "along the bone chain or the lattice's longest axis; stretch and squash keep the "
+        "cross-section (no volume preservation)."))
+    group.add_argument("--scale", type=parse_scale, default=1.0, metavar="S",
+                       help="make the object's rest geometry and rig S times larger before "
+                            "capture")
+    group.add_argument("--deform", type=ExtremeDeform.parse, metavar="KIND:VALUE",
+                       help="an extreme pose on top of every pose of the rig: bend:DEG, "
+                            "twist:DEG, stretch:X (X >= 1) or squash:X (0 < X <= 1)")
 
 
 def load_scene(args):
@@ -319,6 +335,9 @@ def validate_arguments(args):
             check_output_folder(args.out, "--out folder")
     if given("work"):
         check_output_folder(args.work, "--work folder")
+    if args.command == "train" and not given("data") and not names_scene(args):
+        raise VDNIFError("give --data DIR (a dataset folder) or scene options "
+                         "(--scene, --mesh or --blend)")
 
 
 def _validate_network_options(args, limits):

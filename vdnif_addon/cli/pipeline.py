@@ -15,6 +15,7 @@ from .options import (
     add_capture_options,
     add_scene_options,
     add_secondary_options,
+    add_stress_options,
     add_training_options,
     check_resolution,
     load_posed_scene,
@@ -149,25 +150,26 @@ def _truncation_warning(truncated, rays):
 def cmd_train(args):
     """Train a network on a dataset folder (or on a scene, generating its dataset first)
     and write the model file."""
-    from ..blender.jobs import write_training_plot
-    from ..training.dataset import read_dataset
-    from ..training.fit import fit_model
-
+    # Each import where it is used: a missing or broken --data is refused before Blender
+    # and Warp load.
     if names_scene(args):
         result, summary = _train_on_scene(args)
     else:
-        if args.data is None:
-            raise VDNIFError("give --data DIR (a dataset folder) or scene options "
-                             "(--scene, --mesh or --blend)")
+        from ..training.dataset import read_dataset
+
         header = read_dataset(args.data)[0].header
         variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
         check_output_file(out, "model file")            # before training, not after it
         pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
+        from ..training.fit import fit_model
+
         result, summary = fit_model(args.data, variant, out, network_overrides(args),
                                     progress=report_training)
     if not result.is_main:
         return 0
+    from ..blender.jobs import write_training_plot
+
     model = pathlib.Path(summary["model"])
     summary["plot"] = str(write_training_plot(model.with_name(f"{model.stem}-training.png"),
                                               summary["history"]))
@@ -221,8 +223,6 @@ def _train_on_scene(args):
 
 def _scene_command(commands, name, run, default_poses, notes):
     """A command that reads a scene: scene, resolution, pose and stress options."""
-    from ..blender.extremes import add_stress_options
-
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     add_scene_options(parser)
     add_capture_options(parser, default_poses)
@@ -233,8 +233,6 @@ def _scene_command(commands, name, run, default_poses, notes):
 
 def add_commands(commands):
     """Adds the pipeline's commands to the batch parser's subcommands ``commands``."""
-    from ..blender.extremes import add_stress_options
-
     capture = _scene_command(commands, "capture", cmd_capture, 8, (
         "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
         "inverted_cells (per pose), heads and capture_s."))

@@ -7,11 +7,12 @@ import pathlib
 from ..errors import VDNIFError
 from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..safe_io import write_text_atomic
-from ..settings import DEMO_SCENE, RECIPE
+from ..settings import DEMO_SCENE, DEMO_SCENES, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
     add_device_option,
     add_secondary_options,
+    add_stress_options,
     check_resolution,
     output_file,
     print_evaluation,
@@ -279,9 +280,6 @@ def _print_result(result):
 
 def add_commands(commands):
     """Adds the studies' commands to the batch parser's subcommands ``commands``."""
-    from ..blender.extremes import add_stress_options
-    from ..blender.scenes import DEMO_SCENES
-
     demo = commands.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
     demo.add_argument("--scene", choices=DEMO_SCENES, default=DEMO_SCENE,
                       help=f"an embedded demo scene (default {DEMO_SCENE})")
