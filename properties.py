@@ -17,6 +17,7 @@ from bpy.props import (
 from . import preferences, viewer
 from .operators import live_preview
 from .vdnif_addon import settings as defaults
+from .vdnif_addon.pose_sets import PoseSpec
 from .vdnif_addon.presets import PRESET_VARIANT
 from .vdnif_addon.presets import SETTINGS as PRESET_SETTINGS
 from .vdnif_addon.settings import BOUNDS, RECIPE
@@ -58,16 +59,16 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     resolution: _int("Voxel Resolution", "resolution", RECIPE.resolution,
                      description="Voxels along the object's longest side: more follow finer "
                                  "detail and bends, and make the dataset larger")
-    pose_source: EnumProperty(name="Poses", default=defaults.PoseSpec.source, items=[
+    pose_source: EnumProperty(name="Poses", default=PoseSpec.source, items=[
         (name, *_POSE_SOURCE_TEXT[name]) for name in defaults.POSE_SOURCES],
         description="Where the poses the network learns from come from")
     pose_count: _int("Pose Count", "poses", RECIPE.poses, soft_max=1024,
                      description="Poses the network learns from: more poses cover more of "
                                  "the rig's motion; each adds to the dataset and its time")
-    seed: _int("Seed", "seed", defaults.PoseSpec.seed,
+    seed: _int("Seed", "seed", PoseSpec.seed,
                description="Starting number of the random poses and of training's random "
                            "choices: another seed gives other poses")
-    max_angle: FloatProperty(name="Maximum Angle", default=defaults.PoseSpec.max_angle_deg,
+    max_angle: FloatProperty(name="Maximum Angle", default=PoseSpec.max_angle_deg,
                              min=BOUNDS["max_angle"][0], max=BOUNDS["max_angle"][1],
                              description="Largest random bone rotation per axis in degrees, "
                                          "for bones without rotation limits")
@@ -182,9 +183,9 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     preview: PointerProperty(type=bpy.types.Object, name="Voxel Preview",
                              description="The wireframe object that shows the voxels")
 
-    def pose_spec(self, count: int | None = None) -> defaults.PoseSpec:
+    def pose_spec(self, count: int | None = None) -> PoseSpec:
         """The poses these settings choose (``count`` of them, default ``pose_count``)."""
-        return defaults.PoseSpec(source=self.pose_source, count=count or self.pose_count,
+        return PoseSpec(source=self.pose_source, count=count or self.pose_count,
                                  seed=self.seed, max_angle_deg=self.max_angle)
 
     def device_name(self, context: bpy.types.Context) -> str:

@@ -16,7 +16,7 @@ from .vdnif_addon.geometry.voxels import inverted_cells
 from .vdnif_addon.inference.evaluation import secondary_view_images, view_images
 from .vdnif_addon.inference.images import PASSES
 from .vdnif_addon.passes import COMPOSITOR_SOURCES, SECONDARY_PASSES
-from .vdnif_addon.settings import PoseSpec
+from .vdnif_addon.pose_sets import PoseSpec
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}

@@ -10,9 +10,9 @@ from conftest import REPO
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.inference.metrics import speed_withheld
+from vdnif_addon.pose_sets import DEVELOPMENT_POSES
 from vdnif_addon.presets import PRESET_ERROR, PRESETS_FILE, SETTINGS, load_presets
 from vdnif_addon.safe_io import exclusive_lock
-from vdnif_addon.settings import DEVELOPMENT_POSES
 from vdnif_addon.studies.pareto import derive_presets, pareto_front
 
 

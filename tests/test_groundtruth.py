@@ -186,7 +186,7 @@ def test_references_equal_the_golden_metrics(empty_scene, core):
     poses = core("blender.poses")
     # the poses tests/golden/make_goldens.py drew
     capture = core("blender.jobs").evaluation_poses(obj, 12, poses.PoseSpec(count=2, seed=0),
-                                                    pose_set=core("settings").DEVELOPMENT_POSES)
+                                                    pose_set=core("pose_sets").DEVELOPMENT_POSES)
     report = core("blender.generate").reference_run(obj, capture, 32, 24)
     golden = json.loads((GOLDEN / "arm-references.json").read_text())
     assert report["segments_per_ray"] == pytest.approx(golden["segments_per_ray"], abs=1e-12)

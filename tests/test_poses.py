@@ -139,7 +139,7 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
     development poses, the reported tables (experiments) and ``evaluate`` use the test poses;
     the two and the training poses share no pose."""
     poses, capture = core("blender.poses"), core("blender.capture_scene").capture
-    settings = core("settings")
+    settings = core("pose_sets")
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
     spec = poses.PoseSpec(count=4)

@@ -52,7 +52,7 @@ def test_embedding_error_falls_with_resolution_on_a_bent_arm(empty_scene, core):
     poses = core("blender.poses")
     # two poses bent enough that the second-order error stands above the silhouettes' noise
     spec = poses.evaluation_spec(poses.PoseSpec(count=2),
-                                 pose_set=core("settings").DEVELOPMENT_POSES)
+                                 pose_set=core("pose_sets").DEVELOPMENT_POSES)
     errors = [references(core, obj, resolution, size=48, spec=spec)["embedded_vs_true"]
               for resolution in (16, 32, 64)]
     distance = [e["distance_mae"] for e in errors]

@@ -22,7 +22,8 @@ from vdnif_addon import settings
 from vdnif_addon.cli import build_parser
 from vdnif_addon.cli.options import validate_arguments
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.settings import BOUNDS, RECIPE, NetworkConfig, PoseSpec, TrainConfig
+from vdnif_addon.pose_sets import PoseSpec
+from vdnif_addon.settings import BOUNDS, RECIPE, NetworkConfig, TrainConfig
 
 NETWORK = NetworkConfig()
 TRAIN = TrainConfig()

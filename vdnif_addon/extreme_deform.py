@@ -1,4 +1,4 @@
-"""The stress values: the extreme pose that a ``settings.PoseSpec`` may put on top of every
+"""The stress values: the extreme pose that a ``pose_sets.PoseSpec`` may put on top of every
 pose (``--deform KIND:VALUE``: its kinds, their checks and its pose key) and the uniform object
 scale (``--scale S``); ``blender/extremes.py`` applies them. Like ``settings``, it imports
 neither bpy nor numpy, so the command-line parser checks them cheaply."""

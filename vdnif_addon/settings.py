@@ -1,7 +1,8 @@
 """Every setting's one home: the names a setting may take, its default, its range and its
 validation, read by the batch commands' parser, the panel's properties and the core alike
 (DESIGN section 8 for the recipe). Holds the configurations of a run: ``NetworkConfig``
-(with ``Heads``), ``TrainConfig``, ``PoseSpec`` (its extreme pose: ``extreme_deform``'s).
+(with ``Heads``), ``TrainConfig``; the evaluation pose sets and ``PoseSpec`` are
+``pose_sets``'.
 
 Imports neither torch, nor bpy, nor Warp, nor numpy, so the UI and the command-line parser can
 read it cheaply. Hard memory caps live in ``limits``; the ranges here are read from them.
@@ -13,14 +14,11 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from . import limits
 from .checks import check_choice, check_int, check_number
 from .errors import VDNIFError
-
-if TYPE_CHECKING:
-    from .extreme_deform import ExtremeDeform
 
 
 @dataclass(frozen=True)
@@ -361,41 +359,3 @@ TRAINABLE_VARIANTS = ("lsnif", "deformed", "proposed")
 DEFAULT_VARIANT, STATIC_VARIANT = "proposed", "lsnif"
 AUTO_VARIANT = "auto"
 """The panel's choice of DEFAULT_VARIANT or STATIC_VARIANT by the scene (``choose_variant``)."""
-
-# --------------------------------------------------------------------------- poses
-
-DEVELOPMENT_POSES, TEST_POSES = "development", "test"
-POSE_SETS = {DEVELOPMENT_POSES: 1_000_003, TEST_POSES: 2_000_029}
-"""Evaluation pose set -> its random seed's offset from the training seed. Development poses
-serve every choice (recipe, threshold grids, presets, bench points, stopping rules); test
-poses serve none: the reported tables, the demo's report and ``evaluate`` alone."""
-
-
-@dataclass(frozen=True)
-class PoseSpec:
-    """How to choose poses (``blender/poses.py`` draws them): ``count`` random poses from
-    ``seed`` or frames of the range; ``deform``: an extreme pose on top of every pose;
-    ``avoid`` (``poses.evaluation_spec``): the training poses these must be disjoint from, as
-    the PoseSpec that chose them or as a tuple of a model's pose dicts."""
-
-    source: str = "random"
-    count: int = EVALUATION_POSES
-    seed: int = 0
-    max_angle_deg: float = 45.0
-    lattice_fraction: float = 0.3
-    deform: ExtremeDeform | None = None
-    avoid: PoseSpec | tuple[dict[str, Any], ...] | None = None
-
-    def __post_init__(self) -> None:
-        if self.source not in POSE_SOURCES:
-            raise VDNIFError(f"unknown pose source '{self.source}': "
-                             f"choose one of {', '.join(POSE_SOURCES)}")
-        low, high = BOUNDS["poses"]
-        if not low <= self.count <= high:
-            raise VDNIFError(f"pose count {self.count} is outside {low}..{high}")
-        low, high = BOUNDS["max_angle"]
-        if not low <= self.max_angle_deg <= high:
-            raise VDNIFError(f"maximum angle {self.max_angle_deg} degrees is outside "
-                             f"{low:g}..{high:g}")
-        if not 0 < self.lattice_fraction <= 1:
-            raise VDNIFError(f"lattice offset fraction {self.lattice_fraction} is outside (0, 1]")

@@ -48,7 +48,7 @@ from vdnif_addon.blender.poses import posed  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.inference.neural_render import neural_passes  # noqa: E402
-from vdnif_addon.settings import DEVELOPMENT_POSES, PoseSpec  # noqa: E402
+from vdnif_addon.pose_sets import DEVELOPMENT_POSES, PoseSpec  # noqa: E402
 from vdnif_addon.tracing.rays import orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.training import dataset  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402

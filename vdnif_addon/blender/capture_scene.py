@@ -8,7 +8,7 @@ import numpy as np
 from ..errors import VDNIFError
 from ..geometry import voxels
 from ..geometry.capture import Capture
-from ..settings import PoseSpec
+from ..pose_sets import PoseSpec
 from .deform import CornerDeformer, check_deformers
 from .poses import make_poses, posed
 from .read_mesh import check_mesh_object, deform_modifiers, read_rest_mesh

@@ -16,7 +16,7 @@ from ..inference.evaluation import (
 from ..inference.exr import write_multilayer
 from ..model.variants import variant_config
 from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
-from ..settings import TEST_POSES
+from ..pose_sets import TEST_POSES
 from ..training.fit import fit_model
 from ..training.history import plot
 from .capture_scene import capture
@@ -46,7 +46,7 @@ def variant_capture(captured, variant, rays_per_pose):
 def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None,
                      pose_set=TEST_POSES):
     """A capture of ``obj`` (corners left to per-pose work) whose ``count`` poses (default
-    ``spec.count``) are evaluation poses of ``pose_set`` (``settings.POSE_SETS``) disjoint
+    ``spec.count``) are evaluation poses of ``pose_set`` (``pose_sets.POSE_SETS``) disjoint
     from the training poses (``trained``, a model's stored training poses, else those of the
     training ``spec``), or ``count`` views of the rest pose with ``rest``. A request that
     cannot be disjoint raises a VDNIFError naming the object (``poses.make_poses``)."""

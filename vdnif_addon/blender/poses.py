@@ -24,7 +24,7 @@ import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
-from ..settings import POSE_SETS, TEST_POSES, PoseSpec
+from ..pose_sets import POSE_SETS, TEST_POSES, PoseSpec
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
 
@@ -36,7 +36,7 @@ MIN_FRAME_SPACING = 1e-3
 
 def evaluation_spec(spec, count=None, trained=None, pose_set=TEST_POSES):
     """The pose spec for evaluating a model trained on the poses of ``spec``: ``count``
-    poses (default ``spec.count``) of the named ``pose_set`` (``settings.POSE_SETS``: its
+    poses (default ``spec.count``) of the named ``pose_set`` (``pose_sets.POSE_SETS``: its
     own random seed; frames have none, so both sets of frames are the frames between the
     training frames), disjoint from the training poses: ``trained`` (a model's stored
     training poses) when given, else those ``spec`` chooses."""

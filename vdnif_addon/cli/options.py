@@ -11,6 +11,7 @@ import sys
 
 from ..errors import VDNIFError
 from ..extreme_deform import ExtremeDeform, parse_scale
+from ..pose_sets import PoseSpec
 from ..settings import (
     ALBEDO_MODES,
     AO_DISTANCE,
@@ -27,7 +28,6 @@ from ..settings import (
     POSE_SOURCES,
     RECIPE,
     RIGS,
-    PoseSpec,
 )
 from ..text import metrics_line, secondary_line, speed_line
 

@@ -240,7 +240,7 @@ def _scene_capture(obj, model_path, args, device):
     from ..blender.neural import load_scene_model
     from ..blender.resolution import recipe_resolution
     from ..model.model_file import load_model
-    from ..settings import PoseSpec
+    from ..pose_sets import PoseSpec
 
     loaded = None if model_path is None else load_model(model_path)
     metadata = None if loaded is None else loaded[1]

@@ -21,9 +21,10 @@ from ..blender.capture_scene import capture
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.scenes import demo_scene
 from ..inference.evaluation import compare_common, concatenated
+from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
 from ..presets import PRESET_ERROR, PRESET_VARIANT
 from ..safe_io import exclusive_lock, write_json_atomic
-from ..settings import DEVELOPMENT_POSES, RECIPE, NetworkConfig, PoseSpec
+from ..settings import RECIPE, NetworkConfig
 from ..training.fit import fit_model
 from .bench_report import point_label, sweep_markdown, write_outputs
 from .pareto import derive_presets
@@ -173,7 +174,7 @@ def _train_points(obj, spec, size, points, numbers, work, scratch, device, progr
 
 
 def _evaluate_points(obj, spec, size, points, work, device):
-    """Every point's model evaluated on the development poses (``settings.POSE_SETS``: the
+    """Every point's model evaluated on the development poses (``pose_sets.POSE_SETS``: the
     presets and the front are choices) of its resolution, in this one process: the CSV's rows
     with the common-set errors. One short render times a point only roughly, so each renders
     once per round for ``speed_rounds`` rounds and its speed is the median; its errors are the

@@ -23,8 +23,9 @@ from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..inference.secondary import SecondarySettings
 from ..model.variants import choose_variant
+from ..pose_sets import TEST_POSES, PoseSpec
 from ..safe_io import write_json_atomic, write_text_atomic
-from ..settings import RECIPE, TEST_POSES, PoseSpec
+from ..settings import RECIPE
 from .report import demo_markdown
 
 SIZES = {   # full: the main job, the default recipe at the resolution of the scene's mesh

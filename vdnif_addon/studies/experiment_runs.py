@@ -20,7 +20,8 @@ from ..blender.scenes import demo_scene
 from ..inference import images
 from ..inference.evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..model.variants import variant_config
-from ..settings import RECIPE, TEST_POSES, PoseSpec
+from ..pose_sets import TEST_POSES, PoseSpec
+from ..settings import RECIPE
 from ..tracing.rays import orbit_viewpoints
 from ..tracing.references import true_reference
 from ..training.fit import fit_model
@@ -83,7 +84,7 @@ class Experiment:
         return self.resolutions[obj.name]
 
     def evaluation(self, obj, rest=False):
-        """Test poses (``settings.POSE_SETS``: the reported tables choose nothing) disjoint
+        """Test poses (``pose_sets.POSE_SETS``: the reported tables choose nothing) disjoint
         from the training poses, or views of the rest pose."""
         return evaluation_poses(obj, self.resolution(obj), self.spec, rest=rest,
                                 count=self.size["eval_poses"], pose_set=TEST_POSES)

@@ -10,7 +10,8 @@ from ..blender.capture_scene import capture
 from ..blender.jobs import train_variant
 from ..blender.resolution import recipe_resolution
 from ..model.variants import choose_variant
-from ..settings import RECIPE, PoseSpec
+from ..pose_sets import PoseSpec
+from ..settings import RECIPE
 from .side_by_side_scenes import load_side_by_side_scene
 
 SIZES = {   # full: the recipe; quick: a tiny training, for tests (its models predict no hits)
