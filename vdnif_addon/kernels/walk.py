@@ -27,7 +27,6 @@ Segments are written to a ``kernels.segments.SegmentBuffer``, as the static DDA'
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -52,6 +51,8 @@ from .walk_steps import (
     farthest_crossing,
     seek_entry,
 )
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
@@ -80,7 +81,7 @@ class RayState:
     behind_from: wp.array(dtype=wp.float64)  # seek start of the last entry found behind it
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
               max_steps: wp.int32, per_wave: wp.int32, out: SegmentBuffer):
     r = active[wp.tid()]
@@ -177,7 +178,7 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
     rays.behind_from[r] = behind_from
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32), keep: wp.array(
         dtype=wp.int32), cursor: wp.array(dtype=wp.int32)):
     r = active[wp.tid()]
@@ -185,7 +186,7 @@ def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32), keep: wp.ar
         keep[wp.atomic_add(cursor, 0, 1)] = r
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _count_truncated(rays: RayState, count: wp.array(dtype=wp.int32)):
     if rays.mode[wp.tid()] == TRUNCATED:
         wp.atomic_add(count, 0, 1)
@@ -211,7 +212,7 @@ class RayWalk:
                  directions: Float[np.ndarray, "N 3"],
                  max_distance: float | Float[np.ndarray, " N"] | None = None,
                  max_steps: int | None = None, lanes: int = 1) -> None:
-        runtime.load(sys.modules[__name__], cells.device)
+        runtime.load(WARP_MODULE, cells.device)
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)
         norms = np.linalg.norm(directions, axis=1)
