@@ -92,3 +92,31 @@ def test_every_kernel_lives_in_a_warp_module_named_apart_from_the_import_path():
     assert {key: names[0] for key, names in found.items()} == {
         key: names[1] for key, names in found.items()}
     assert all(names[0].startswith("vdnif.kernels.") for names in found.values())
+
+
+def test_load_all_loads_every_kernel_module_once_and_times_it(monkeypatch, capsys):
+    """Every module of kernels/ that declares kernels is loaded, the time said on stderr;
+    a second call finds them loaded, takes no time and says nothing. Warp's loading is a
+    stand-in that takes 0.1 s per module."""
+    import importlib
+    import pkgutil
+    import time
+
+    import warp as wp
+
+    from vdnif_addon import kernels
+
+    declared = {importlib.import_module(f"{kernels.__name__}.{info.name}").WARP_MODULE
+                for info in pkgutil.iter_modules(kernels.__path__)
+                if hasattr(importlib.import_module(f"{kernels.__name__}.{info.name}"),
+                           "WARP_MODULE")}
+    loaded = []
+    monkeypatch.setattr(wp, "load_module", lambda name, device: (
+        loaded.append((name, device)), time.sleep(0.1)))
+    monkeypatch.setattr(runtime, "_loaded", set())
+    seconds = runtime.load_all("cpu")
+    assert sorted(loaded) == sorted((name, "cpu") for name in declared)
+    assert len(declared) >= 7 and seconds >= 0.1 * len(declared)
+    assert f"kernels ready for cpu in {seconds:.1f} s" in capsys.readouterr().err
+    assert runtime.load_all("cpu") < 0.1 and len(loaded) == len(declared)
+    assert capsys.readouterr().err == ""

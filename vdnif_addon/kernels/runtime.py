@@ -12,8 +12,10 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import hashlib
+import importlib
 import os
 import pathlib
+import pkgutil
 import platform
 import sys
 import threading
@@ -185,3 +187,22 @@ def load(module: ModuleType | str, device_name: str) -> None:
         print(f"vdnif: compiled the '{name.rsplit('.', 1)[-1]}' kernels for {device_name} in "
               f"{seconds:.1f} s (cached in {cache_dir()})", file=sys.stderr, flush=True)
     _loaded.add(key)
+
+
+def load_all(device_name: str) -> float:
+    """Compiles (first use on this machine) or loads every kernel module of the package for
+    a device. What reports a speed calls it before its clock starts, so that a first run's
+    compile is in no speed: the time is said apart, on stderr, when this call loaded any
+    module. Returns the seconds."""
+    package = __name__.rpartition(".")[0]
+    start, loaded = time.perf_counter(), len(_loaded)
+    for info in pkgutil.iter_modules(sys.modules[package].__path__):
+        name = getattr(importlib.import_module(f"{package}.{info.name}"), "WARP_MODULE", None)
+        if name is not None:
+            load(name, device_name)
+    seconds = time.perf_counter() - start
+    if len(_loaded) > loaded:
+        print(f"vdnif: kernels ready for {device_name} in {seconds:.1f} s (compiled, or loaded "
+              f"from {cache_dir()}), apart from every speed reported", file=sys.stderr,
+              flush=True)
+    return seconds

@@ -83,6 +83,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
         raise VDNIFError(f"side by side of '{obj.name}': thread setting {threads} must be "
                          "at least 1")
     device = runtime.device(device if model is None else model.device)
+    kernels_s = runtime.load_all(device)        # a first compile, said apart from the speeds
     viewpoints = orbit_viewpoints(len(capture.poses))
     static_grid = StaticGrid(capture.grid, device)
     torch_threads = torch.get_num_threads()
@@ -131,7 +132,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
                 for key in RENDER_KEYS:
                     record.pop(key, None)
     result = _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
-    return dict(result, threads=thread_counts, embree=packets)
+    return dict(result, threads=thread_counts, embree=packets, kernels_s=kernels_s)
 
 
 def torch_setting(threads):
