@@ -9,7 +9,7 @@ def header_dict(name="Ball", seed=0, pose_range=(0, 1), voxel_size=0.125, albedo
     start, stop = pose_range
     poses = stop - start
     return {
-        "format": "vdnif-dataset", "version": 1, "object": name, "mode": "armature",
+        "format": "vdnif-dataset", "version": 2, "object": name, "mode": "armature",
         "object_size": 1.0,
         "grid": {"origin": [0.0, 0.0, 0.0], "voxel_size": voxel_size, "dims": [8, 8, 8],
                  "resolution": 8, "extent": voxel_size * 8, "occupied_voxels": 100},

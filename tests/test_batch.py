@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 import struct
 import subprocess
 import sys
@@ -73,6 +74,13 @@ def test_dataset_then_references(tmp_path):
                                        "--pose-range", pose_range)
         assert code == 0, err
         assert "segments/s" in printed and "ETA" in err
+        # the size it expected (stderr, before the walk) and the size it wrote
+        start, stop = map(int, pose_range.split(":"))
+        shard = out / f"shard-{start:06d}-{stop:06d}"
+        written = sum(shard.with_suffix(suffix).stat().st_size for suffix in (".npz", ".json"))
+        found = re.search(r"on disk \S+ \S+ \(([\d,]+) bytes; estimated (\S+ \S+)\)", printed)
+        assert found and int(found[1].replace(",", "")) == written, printed
+        assert f"dataset about {found[2]} on disk" in err.split("ETA")[0]
     headers = sorted(out.glob("*.json"))
     assert [h.stem for h in headers] == ["shard-000000-000001", "shard-000001-000003"]
     header = json.loads(headers[1].read_text())

@@ -41,15 +41,63 @@ def test_presets_are_the_fastest_the_knee_and_the_most_accurate_of_the_front():
         derive_presets([point(None, 10.0, 8)])
 
 
+def on_unit_front(unit_error, unit_cost, resolution):
+    """A point whose log error and log cost, normalized over a front spanning 10x in each,
+    are ``unit_error`` and ``unit_cost``."""
+    return point(1e-3 * 10 ** unit_error, 1e6 / 10 ** unit_cost, resolution)
+
+
+def test_balanced_is_the_knee_of_the_fronts_interior_points():
+    # three front points: the middle one is balanced although, over the whole front, both
+    # ends lie nearer the ideal corner (distance 1) than it does (hypot(0.98, 0.99))
+    three = [on_unit_front(1, 0, 8), on_unit_front(0.98, 0.99, 16), on_unit_front(0, 1, 32),
+             on_unit_front(1, 1, 64)]                     # the last one is dominated
+    presets = derive_presets(three)
+    assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
+        8, 16, 32]
+    # five front points at hand-placed unit coordinates: distances to the corner 1 (end),
+    # hypot(0.5, 0.1) = 0.51, hypot(0.2, 0.3) = 0.36, hypot(0.05, 0.8) = 0.80, 1 (end)
+    five = [on_unit_front(e, c, r) for e, c, r in (
+        (1, 0, 8), (0.5, 0.1, 12), (0.2, 0.3, 16), (0.05, 0.8, 24), (0, 1, 32),
+        (0.3, 0.35, 48))]                                 # the last one is dominated
+    presets = derive_presets(five)
+    assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
+        8, 16, 32]
+
+
+def test_a_two_point_front_takes_balanced_from_the_point_nearest_it():
+    """Fast (0.02, 1000 rays/s) and accurate (0.01, 500 rays/s) are the front. A point
+    that fast beats must gain min(ln(0.025 / 0.02), ln(1000 / 900)) = ln(1.111) = 0.105 in
+    both to join it; one that accurate beats min(ln(0.011 / 0.01), ln(500 / 450)) =
+    ln(1.1) = 0.095: the second is balanced."""
+    fast, accurate = point(0.02, 1000.0, 16), point(0.01, 500.0, 64)
+    by_fast, by_accurate = point(0.025, 900.0, 24), point(0.011, 450.0, 32)
+    presets = derive_presets([fast, by_fast, by_accurate, accurate])
+    assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
+        16, 32, 64]
+    assert presets["balanced"]["measured"] == {"error": 0.011, "render_rays_per_s": 450.0}
+    # beaten by fast 10 % less on each: the nearer one now
+    nearer = point(0.02 * 1.09, 1000.0 / 1.09, 12)
+    presets = derive_presets([fast, by_fast, by_accurate, accurate, nearer])
+    assert presets["balanced"]["resolution"] == 12
+    # no third point, or one point the fastest and the most accurate: refused
+    with pytest.raises(VDNIFError, match="no third for balanced; widen the sweep"):
+        derive_presets([fast, accurate])
+    with pytest.raises(VDNIFError, match="both the fastest and the most accurate.*widen the "
+                                         "sweep"):
+        derive_presets([fast, point(0.03, 900.0, 8), point(0.04, 100.0, 12)])
+
+
 def test_shipped_presets_come_from_a_full_sweep():
     shipped = json.loads(PRESETS_FILE.read_text())
     assert shipped["source"] == "bench"                   # not a --quick run
     presets = load_presets()
-    assert presets["fast"]["measured"]["render_rays_per_s"] >= \
-        presets["balanced"]["measured"]["render_rays_per_s"] >= \
-        presets["accurate"]["measured"]["render_rays_per_s"]
-    errors = [presets[name]["measured"][PRESET_ERROR] for name in ("fast", "balanced", "accurate")]
-    assert errors == sorted(errors, reverse=True)
+    # three distinct points; fast and accurate are the front's ends, the one faster and
+    # the other more accurate
+    assert len({tuple(presets[name][key] for key in SETTINGS) for name in presets}) == 3
+    fast, accurate = presets["fast"]["measured"], presets["accurate"]["measured"]
+    assert fast["render_rays_per_s"] > accurate["render_rays_per_s"]
+    assert fast[PRESET_ERROR] > accurate[PRESET_ERROR]
 
 
 def test_shipped_presets_are_the_front_of_the_points_that_predict_hits():
@@ -88,6 +136,13 @@ def test_bad_presets_files_are_refused(tmp_path):
     broken.write_text(json.dumps(older))
     with pytest.raises(VDNIFError, match="by 'vs_true_distance_mae', not "
                                          "'common_vs_true_distance_mae': run bench again"):
+        load_presets(broken)
+    # a file whose balanced repeats fast's settings (what a two-point front once gave)
+    older["error"] = PRESET_ERROR
+    older["presets"]["balanced"] = dict(older["presets"]["fast"])
+    broken.write_text(json.dumps(older))
+    with pytest.raises(VDNIFError, match="gives fast and balanced the same settings: run "
+                                         "bench again"):
         load_presets(broken)
 
 
@@ -209,13 +264,22 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     assert rows[1]["vs_true_distance_mae"] == pytest.approx(0.08)      # its own pixels
     assert [r[PRESET_ERROR] for r in rows[:2]] == pytest.approx([0.1, 0.05])
     assert rows[2][PRESET_ERROR] is None
-    presets = derive_presets(rows, PRESET_ERROR)
-    assert presets["fast"]["width"] == 32 and presets["accurate"]["width"] == 64
+    # two points to compare: too few for three distinct presets
+    with pytest.raises(VDNIFError, match="no third for balanced; widen the sweep") as refused:
+        derive_presets(rows, PRESET_ERROR)
     bench_report.write_outputs(tmp_path, rows)
     assert (tmp_path / "pareto.png").stat().st_size > 10_000
+    text = "\n".join(bench_report.sweep_markdown(rows, str(refused.value),
+                                                 bench.SIZES["quick"], "cmd", tmp_path, None))
+    assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text
+    assert "Presets: n/a, the sweep has two points that predict hits" in text
+    presets = derive_presets(rows + [dict(rows[1], width=96, render_rays_per_s=900.0)],
+                             PRESET_ERROR)
+    assert [presets[name]["width"] for name in ("fast", "balanced", "accurate")] == [
+        32, 96, 64]
     text = "\n".join(bench_report.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
                                                  tmp_path, None))
-    assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text
+    assert "| balanced | 16 | 2 | 12 | 3 | 96 | 500 | 0.05 | 900 |" in text
 
 
 def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rounds(

@@ -1,6 +1,7 @@
 """Warp's start-up as every command sees it: quiet on a machine without the NVIDIA driver,
 standard error intact afterwards."""
 
+import os
 import subprocess
 import sys
 
@@ -27,3 +28,95 @@ def test_start_up_is_silenced_only_where_warp_has_no_cuda():
     wp = runtime.init()
     if not runtime.cuda_driver_present():
         assert not wp.is_cuda_available() and wp.get_cuda_device_count() == 0
+
+
+# Imports the core under the module name argv[1] (its parent packages made empty, as
+# Blender's bl_ext.<repository> are to the extension) and loads one kernel module on the CPU.
+IMPORT_AS = """
+import importlib, importlib.util, pathlib, sys, types
+name, root = sys.argv[1], pathlib.Path(sys.argv[2])
+parts = name.split(".")
+for end in range(1, len(parts)):
+    sys.modules[".".join(parts[:end])] = types.ModuleType(".".join(parts[:end]))
+spec = importlib.util.spec_from_file_location(name, root / "__init__.py",
+                                              submodule_search_locations=[str(root)])
+sys.modules[name] = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(sys.modules[name])
+cast = importlib.import_module(name + ".kernels.cast")
+importlib.import_module(name + ".kernels.runtime").load(cast.WARP_MODULE, "cpu")
+print(cast._first_hits.module.name)
+"""
+
+
+@pytest.mark.slow
+def test_the_kernel_cache_serves_every_import_path(tmp_path):
+    """The command line imports the core as ``vdnif_addon``, Blender as
+    ``bl_ext.user_default.vdnif_addon``: the second, on the same cache, compiles nothing
+    (Warp writes each compiled module's files into the cache as it builds it)."""
+    def cached_files():
+        return sorted(path.relative_to(tmp_path) for path in tmp_path.rglob("*")
+                      if path.is_file())
+
+    environment = dict(os.environ, VDNIF_KERNEL_CACHE=str(tmp_path))
+    seen = []
+    for name in ("vdnif_addon", "bl_ext.user_default.vdnif_addon"):
+        result = subprocess.run([sys.executable, "-c", IMPORT_AS, name,
+                                 str(REPO / "vdnif_addon")], capture_output=True, text=True,
+                                cwd=tmp_path, env=environment, timeout=300)
+        assert result.returncode == 0, result.stderr
+        seen.append((result.stdout.strip(), cached_files()))
+    (first_module, first_files), (second_module, second_files) = seen
+    assert any(path.suffix == ".o" for path in first_files)      # the first one compiled
+    assert second_files == first_files
+    assert first_module == second_module == "vdnif.kernels.cast"
+
+
+def test_every_kernel_lives_in_a_warp_module_named_apart_from_the_import_path():
+    """What the cache test checks for one module, for all of them: each kernel of the core
+    is declared in its module's fixed Warp module."""
+    import importlib
+    import pkgutil
+
+    import warp as wp
+
+    from vdnif_addon import kernels
+
+    found = {}
+    for info in pkgutil.iter_modules(kernels.__path__):
+        module = importlib.import_module(f"{kernels.__name__}.{info.name}")
+        for value in vars(module).values():
+            if isinstance(value, wp.Kernel) and value.func.__module__ == module.__name__:
+                found[module.__name__, value.key] = (value.module.name,
+                                                     runtime.warp_module(module.__name__))
+    assert len(found) >= 20
+    assert {key: names[0] for key, names in found.items()} == {
+        key: names[1] for key, names in found.items()}
+    assert all(names[0].startswith("vdnif.kernels.") for names in found.values())
+
+
+def test_load_all_loads_every_kernel_module_once_and_times_it(monkeypatch, capsys):
+    """Every module of kernels/ that declares kernels is loaded, the time said on stderr;
+    a second call finds them loaded, takes no time and says nothing. Warp's loading is a
+    stand-in that takes 0.1 s per module."""
+    import importlib
+    import pkgutil
+    import time
+
+    import warp as wp
+
+    from vdnif_addon import kernels
+
+    declared = {importlib.import_module(f"{kernels.__name__}.{info.name}").WARP_MODULE
+                for info in pkgutil.iter_modules(kernels.__path__)
+                if hasattr(importlib.import_module(f"{kernels.__name__}.{info.name}"),
+                           "WARP_MODULE")}
+    loaded = []
+    monkeypatch.setattr(wp, "load_module", lambda name, device: (
+        loaded.append((name, device)), time.sleep(0.1)))
+    monkeypatch.setattr(runtime, "_loaded", set())
+    seconds = runtime.load_all("cpu")
+    assert sorted(loaded) == sorted((name, "cpu") for name in declared)
+    assert len(declared) >= 7 and seconds >= 0.1 * len(declared)
+    assert f"kernels ready for cpu in {seconds:.1f} s" in capsys.readouterr().err
+    assert runtime.load_all("cpu") < 0.1 and len(loaded) == len(declared)
+    assert capsys.readouterr().err == ""

@@ -26,27 +26,39 @@ that predict hits (DESIGN section 10). A presets file names it as its ``error``.
 def describe_preset(name: str, presets: dict[str, dict[str, Any]]) -> str:
     """One line for the panel's tooltip and the Apply Preset report: preset ``name``'s
     settings in the panel's words and what ``bench`` measured with them (PRESET_ERROR, rays/s,
-    each where the file holds it); a preset whose settings another one shares says so."""
+    each where the file holds it); a preset that another one beats on both (balanced, where
+    the sweep's front has no third point) says so."""
     preset = presets[name]
     measured = preset.get("measured", {})
     error, speed = measured.get(PRESET_ERROR), measured.get("render_rays_per_s")
     figures = [f"a distance error of {error:.3g} object units" if error is not None else "",
                f"{speed:,.0f} rays/s" if speed else ""]
-    twins = [other.title() for other in PRESET_NAMES if other != name
-             and all(presets[other][key] == preset[key] for key in SETTINGS)]
+    beaten_by = [other.title() for other in PRESET_NAMES if error is not None and speed
+                 and _beats(presets[other].get("measured", {}), error, speed)]
     return (f"{name.title()}: the {PRESET_VARIANT.title()} variant at resolution "
             f"{preset['resolution']}, {preset['levels']} hash-grid levels of "
             f"2^{preset['log2_table_size']} entries, {preset['pe_bands']} positional-encoding "
             f"bands, width {preset['width']}, {preset['steps']:,} steps"
             + (f"; bench measured {' and '.join(f for f in figures if f)}" if any(figures)
                else "")
-            + (f" (the same settings as {' and '.join(twins)}: the measured sweep has no "
-               "point between them)" if twins else ""))
+            + (f" ({' and '.join(beaten_by)} measured no slower and no less accurate: the "
+               "sweep's front has no third point, and this one lies nearest it)"
+               if beaten_by else ""))
+
+
+def _beats(measured: dict[str, Any], error: float, speed: float) -> bool:
+    """Whether figures ``measured`` are at least as good as ``error`` and ``speed`` on both
+    and better on one."""
+    other_error = measured.get(PRESET_ERROR)
+    other_speed = measured.get("render_rays_per_s")
+    return (other_error is not None and bool(other_speed) and other_error <= error
+            and other_speed >= speed and (other_error, other_speed) != (error, speed))
 
 
 def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, Any]]:
     """The presets written by ``bench`` (default: the shipped file); a missing or malformed
-    file, or one whose presets measured another error than PRESET_ERROR (an older bench's),
+    file, one whose presets measured another error than PRESET_ERROR (an older bench's), or
+    one where two presets share their settings (the panel offers three distinct points),
     raises VDNIFError."""
     path = pathlib.Path(path or PRESETS_FILE)
     try:
@@ -63,4 +75,9 @@ def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, 
     if data.get("error") != PRESET_ERROR:
         raise VDNIFError(f"presets file '{path}' measures its presets by "
                          f"{data.get('error')!r}, not {PRESET_ERROR!r}: run bench again")
+    shared = [f"{a} and {b}" for i, a in enumerate(PRESET_NAMES) for b in PRESET_NAMES[i + 1:]
+              if all(presets[a][key] == presets[b][key] for key in SETTINGS)]
+    if shared:
+        raise VDNIFError(f"presets file '{path}' gives {shared[0]} the same settings: run "
+                         "bench again")
     return presets

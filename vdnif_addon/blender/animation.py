@@ -48,10 +48,12 @@ def render_frames(source, captured, model, frames, width, height, view=None,
     animates with the scene); else the fixed pinhole ``view`` (world matrix, horizontal
     field of view in degrees: the 3D Viewport's); else an orbit viewpoint around the first
     frame's bounds, kept for the whole range so that the images line up."""
+    from ..kernels import runtime
     from ..tracing.rays import orbit_viewpoints
     from .neural import orbit_view, render_orbit_rays, render_world, view_rays
     from .pose_geometry import PosedObject
 
+    runtime.load_all(runtime.device(model.device))      # a first compile is in no rays/s
     figures, orbit = [], None
     with PosedObject(source, captured, model.device) as posed_object:
         for index, frame in enumerate(frames):

@@ -35,23 +35,29 @@ def probe_poses(captured):
             if not pose.get("rest")]
 
 
-def measure(source, captured, variant, overrides, scratch, seed=0):
+def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose=PROBE_RAYS,
+            **mix):
     """Rates of the sample of ``captured`` (the variant's capture, ``jobs.variant_capture``)
     written under the folder ``scratch`` (emptied first, removed after): segments per ray,
     bytes per segment, seconds per pose and per ray, the rest surface's seconds, the write
     speed and training samples per second (``overrides``: the NetworkConfig / TrainConfig
-    fields of the run, ``batch_size`` among them)."""
+    fields of the run, ``batch_size`` among them; ``variant`` None: the dataset alone, no
+    training timed). The sample walks at most ``rays_per_pose`` rays per pose, with the ray
+    ``mix`` of ``generate_dataset`` (the recipe's unless given)."""
     scratch = pathlib.Path(scratch)
     shutil.rmtree(scratch, ignore_errors=True)
+    records = []
     try:
         generate_dataset(source, dataclasses.replace(captured, poses=captured.poses[:1]),
-                         scratch / "warm", WARM_RAYS, seed=seed)
+                         scratch / "warm", WARM_RAYS, seed=seed, **mix)
         sample = dataclasses.replace(captured, poses=captured.poses[:PROBE_POSES])
-        header = generate_dataset(source, sample, scratch / "data", PROBE_RAYS, seed=seed)
+        header = generate_dataset(source, sample, scratch / "data",
+                                  min(PROBE_RAYS, rays_per_pose), seed=seed, **mix)
         written = sum(path.stat().st_size for path in (scratch / "data").iterdir())
-        records = []
-        fit_model(scratch / "data", variant, scratch / "sample.vdnif",
-                  dict(overrides, steps=PROBE_STEPS, log_interval=1), progress=records.append)
+        if variant is not None:
+            fit_model(scratch / "data", variant, scratch / "sample.vdnif",
+                      dict(overrides, steps=PROBE_STEPS, log_interval=1),
+                      progress=records.append)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     timings, counts = header.timings, header.counts
@@ -64,19 +70,26 @@ def measure(source, captured, variant, overrides, scratch, seed=0):
         "rest_surface_s": timings["rest_surface_s"],
         "write_bytes_per_s": written / max(timings["write_s"], 1e-6),
         "samples_per_s": statistics.median(record["samples_per_s"]
-                                           for record in records[PROBE_STEPS // 2:]),
+                                           for record in records[PROBE_STEPS // 2:])
+        if records else None,
     }
 
 
-def estimate(rates, poses, rays_per_pose, steps, batch_size):
-    """The run's figures from ``measure``'s rates: ``poses`` walked with ``rays_per_pose``
-    rays each (the variant's capture), ``steps`` of ``batch_size`` samples."""
+def dataset_estimate(rates, poses, rays_per_pose):
+    """The dataset's figures from ``measure``'s rates: ``poses`` walked with
+    ``rays_per_pose`` rays each (the variant's capture): segments, bytes on disk, seconds."""
     rays = poses * rays_per_pose
     segments = rays * rates["segments_per_ray"]
     size = segments * rates["bytes_per_segment"]
     dataset_s = (rates["rest_surface_s"] + poses * rates["pose_s"] + rays * rates["ray_s"]
                  + size / rates["write_bytes_per_s"])
-    return {"segments": round(segments), "bytes": round(size), "dataset_s": dataset_s,
+    return {"segments": round(segments), "bytes": round(size), "dataset_s": dataset_s}
+
+
+def estimate(rates, poses, rays_per_pose, steps, batch_size):
+    """The run's figures from ``measure``'s rates: the dataset's (``dataset_estimate``) and
+    ``steps`` of ``batch_size`` samples of training."""
+    return {**dataset_estimate(rates, poses, rays_per_pose),
             "train_s": steps * batch_size / rates["samples_per_s"], "rates": rates}
 
 
@@ -89,9 +102,10 @@ def size_text(size):
 
 
 def describe(figures, dataset=True):
-    """One line of an estimate: disk and time (with ``dataset`` False, training alone)."""
-    train = f"training about {duration(figures['train_s'])}"
-    if not dataset:
-        return train
-    return (f"dataset about {size_text(figures['bytes'])} on disk and "
-            f"{duration(figures['dataset_s'])} to walk, {train}")
+    """One line of an estimate: disk and time (with ``dataset`` False, training alone;
+    without a training time, the dataset alone)."""
+    parts = ([f"dataset about {size_text(figures['bytes'])} on disk and "
+              f"{duration(figures['dataset_s'])} to walk"] if dataset else [])
+    if figures.get("train_s") is not None:
+        parts.append(f"training about {duration(figures['train_s'])}")
+    return ", ".join(parts)

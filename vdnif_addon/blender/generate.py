@@ -90,7 +90,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
     timings["records_s"] += time.perf_counter() - clock
     timings["total_s"] = sum(timings.values())
-    name = f"shard-{start:06d}-{stop:06d}"
+    name = dataset.shard_name(start, stop)
     header = DatasetHeader.from_dict({                   # the reader's checks, before writing
         "format": FORMAT, "version": VERSION,
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,

@@ -50,10 +50,12 @@ def cmd_render(args):
     from ..blender.pose_reader import PoseReader
     from ..blender.poses import posed
     from ..blender.scenes import find_camera
+    from ..kernels import runtime
     from ..progress import Progress
 
     loaded, obj, captured = _model_scene(args)
     model = load_scene_model(args.model, captured, args.device, loaded)
+    kernels_s = runtime.load_all(runtime.device(model.device))     # apart from the rays/s
     sequence = args.frames is not None
     frames = args.frames if sequence else [
         bpy.context.scene.frame_current if args.frame is None else args.frame]
@@ -86,7 +88,7 @@ def cmd_render(args):
     finally:
         reader.close()
     summary = {"model": str(args.model), "object": obj.name, "view": view,
-               "width": args.width, "height": args.height,
+               "width": args.width, "height": args.height, "kernels_s": kernels_s,
                "files": [str(path) for path in written]}
     if sequence:
         summary["frames"] = figures

@@ -59,10 +59,14 @@ def cmd_capture(args):
 
 def cmd_dataset(args):
     """Generate a training dataset shard: walked segments with their ground truth."""
+    import tempfile
+
     from ..blender.capture_scene import capture
+    from ..blender.estimate import dataset_estimate, describe, measure, size_text
     from ..blender.generate import generate_dataset
+    from ..blender.ui_jobs import SHARD_SUFFIXES
     from ..progress import Progress
-    from ..training.dataset import DatasetIdentity, check_folder, grid_header
+    from ..training.dataset import DatasetIdentity, check_folder, grid_header, shard_name
 
     check_resolution(args.resolution)
     if args.rays_per_pose < 1:
@@ -72,16 +76,26 @@ def cmd_dataset(args):
     pose_range = parse_range(args.pose_range, len(result.poses))
     check_folder(args.out, DatasetIdentity(result.mesh.name, args.seed,        # before work
                                            grid_header(result.grid)))
+    mix = dict(surface_fraction=args.surface_fraction, grazing_fraction=args.grazing_fraction,
+               secondary_fraction=args.secondary_fraction)
+    with tempfile.TemporaryDirectory(prefix="vdnif-sample-") as scratch:
+        rates = measure(obj, result, None, None, pathlib.Path(scratch) / "sample", args.seed,
+                        args.rays_per_pose, **mix)
+    expected = dataset_estimate(rates, pose_range[1] - pose_range[0], args.rays_per_pose)
+    print(f"dataset '{obj.name}': {describe(expected)} (estimated from a sample)",
+          file=sys.stderr, flush=True)
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
-    header = generate_dataset(obj, result, args.out, args.rays_per_pose,
-                              args.surface_fraction, args.seed, pose_range,
-                              progress=lambda done, _: progress.update(done),
-                              grazing_fraction=args.grazing_fraction,
-                              secondary_fraction=args.secondary_fraction)
+    header = generate_dataset(obj, result, args.out, args.rays_per_pose, seed=args.seed,
+                              pose_range=pose_range,
+                              progress=lambda done, _: progress.update(done), **mix)
+    size = sum((pathlib.Path(args.out) / f"{shard_name(*pose_range)}{suffix}").stat().st_size
+               for suffix in SHARD_SUFFIXES)
     counts, timings = header.counts, header.timings
     walk_and_truth = timings["walk_s"] + timings["ground_truth_s"]
     print(f"dataset '{header.object}' poses {pose_range[0]}:{pose_range[1]} -> {args.out}")
     print(f"  rays {counts.rays}, segments {counts.segments}, hits {counts.hits}")
+    print(f"  on disk {size_text(size)} ({size:,} bytes; estimated "
+          f"{size_text(expected['bytes'])})")
     print(f"  {counts.segments / walk_and_truth:,.0f} segments/s, "
           f"{counts.rays / walk_and_truth:,.0f} rays/s of walk + ground truth; walk "
           f"{timings['walk_s']:.2f} s (kernel, entry BVH included), ground truth "

@@ -65,7 +65,6 @@ def cmd_bench(args):
     converges; derive the presets."""
     from ..presets import PRESETS_FILE
     from ..studies.bench import run_bench
-    from ..studies.bench_report import NO_PRESETS
 
     quick_dir = pathlib.Path("out/bench-quick")
     out = args.out or (quick_dir if args.quick else pathlib.Path("docs/bench"))
@@ -80,8 +79,8 @@ def cmd_bench(args):
               "by this run")
         return 0
     print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
-          + (f"-> {presets}" if derived is not None else f"n/a ({NO_PRESETS}; {presets} "
-             "left as it was)")
+          + (f"-> {presets}" if not isinstance(derived, str) else f"n/a ({derived}; "
+             f"{presets} left as it was)")
           + (f"; section of {performance}" if performance else ""))
     return 0
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -95,7 +94,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     if runtime.device(device) != runtime.device(warp_device):
         raise VDNIFError(f"the network runs on {device} but the cells are on {warp_device}: "
                          "render with both on one device")
-    runtime.load(sys.modules[kernel.__name__], warp_device)
+    runtime.load(kernel.WARP_MODULE, warp_device)
     overlap = _core_to_spare(device) if overlap is None else overlap
     rays = len(origins)
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)

@@ -11,7 +11,6 @@ hit on its triangle in float64.
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,11 +18,13 @@ import warp as wp
 
 from . import runtime
 
+WARP_MODULE = runtime.warp_module(__name__)
+
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _first_hits(
     mesh: wp.uint64,
     origins: wp.array(dtype=wp.vec3),
@@ -51,7 +52,7 @@ class MeshCaster:
     def __init__(self, vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
                  device: str = "cpu") -> None:
         wp_ = runtime.init()
-        runtime.load(sys.modules[__name__], device)
+        runtime.load(WARP_MODULE, device)
         self.device = device
         triangles = np.asarray(triangles, np.int32).reshape(-1, 3)
         self.triangle_count = len(triangles)

@@ -21,7 +21,6 @@ numpy does (the oracle in ``tests/oracles/walk.py`` gives the same bits).
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,6 +30,8 @@ from ..errors import VDNIFError
 from ..geometry.walk_rules import BARYCENTRIC_TOLERANCE, CELL_TRIANGLES, step_budget
 from . import runtime
 from .cast import MeshCaster
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -170,7 +171,7 @@ def rest_point(cells: CellArrays, cell: wp.int32, triangle: wp.int32, u: wp.floa
     return a + (b - a) * (u / scale) + (c - a) * (v / scale)
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _face_triangles(cells: CellArrays):
     cell, k = wp.tid()
     a = cells.corners[cells.cell_corners[cell, cells.local[k, 0]]]
@@ -197,7 +198,7 @@ class DeviceCells:
         """Builds the topology and the entry BVH on ``device``, posed at ``corners`` (C, 3)
         (default: the rest corners)."""
         wp_ = runtime.init()
-        runtime.load(sys.modules[__name__], device)
+        runtime.load(WARP_MODULE, device)
         if len(grid.cells) == 0:
             raise VDNIFError("voxel grid has no occupied cells: nothing to traverse")
         self.grid, self.device = grid, device

@@ -10,7 +10,6 @@ the numpy DDA's that this kernel replaced (``tests/oracles/dda.py``): crossing d
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -18,6 +17,8 @@ import warp as wp
 
 from . import runtime
 from .segments import SegmentBuffer, collect, emit, reusable_buffer, segment_buffer, segments_from
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -118,7 +119,7 @@ def step_index(i: wp.int32, d: wp.float64, count: wp.int32):
     return i, i >= 0 and i < count
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
              out: SegmentBuffer):
     r = active[wp.tid()]
@@ -171,7 +172,7 @@ def dda_rays(grid: Grid, rays: DDAState, active: wp.array(dtype=wp.int32),
     rays.cell[r] = wp.vec3i(i, j, k)
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _still_walking(rays: DDAState, active: wp.array(dtype=wp.int32),
                    keep: wp.array(dtype=wp.int32), cursor: wp.array(dtype=wp.int32)):
     r = active[wp.tid()]
@@ -191,7 +192,7 @@ def dda_segments(static_grid: GridOwner, origins: Float[np.ndarray, "N 3"],
                  capacity: int | None = None) -> Segments:
     """Segments of rays (N, 3) with unit (or zero) ``directions`` and limits ``far`` (N,)
     through a static grid (its ``arrays`` on ``device``)."""
-    runtime.load(sys.modules[__name__], device)
+    runtime.load(WARP_MODULE, device)
     count = len(origins)
     state = DDAState()
     state.origin = wp.array(origins, dtype=wp.vec3d, device=device)

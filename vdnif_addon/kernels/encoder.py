@@ -29,13 +29,14 @@ On the CPU a launch is serial and latency-bound on the table reads: at the paper
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING, Any
 
 import torch
 import warp as wp
 
 from . import launches, runtime
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
@@ -213,7 +214,7 @@ def _next_band(s: wp.vec3d, c: wp.vec3d):
 # instead of 6F (1.1-1.25x the throughput at F = 3, measured on one CPU thread).
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _encode(
     p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int, bands: int,
     scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
@@ -238,7 +239,7 @@ def _encode(
             s, c = _next_band(s, c)
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _encode_backward(
     p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int, bands: int,
     scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
@@ -305,7 +306,7 @@ def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
     launch goes to torch's current stream, so it is ordered with torch's work; what the host
     reads of its output (through torch) waits for that stream."""
     device = runtime.device(tensor.device)
-    runtime.load(sys.modules[__name__], device)
+    runtime.load(WARP_MODULE, device)
     if tensor.device.type != "cuda":
         return device, None
     return device, launches.warp_stream(torch.cuda.current_stream(tensor.device))

@@ -12,7 +12,6 @@ renderer (``inference/neural_render.py``) and the embedded reference
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -24,6 +23,8 @@ from .cells import CellArrays, cross, dot
 from .segments import SegmentBuffer
 from .walk import RayState
 from .walk_steps import DONE, TRUNCATED
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
@@ -125,7 +126,7 @@ def write_hit(cells: CellArrays, passes: Passes, ray: wp.int32, cell: wp.int32,
     passes.material[ray] = material
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _hits(cells: CellArrays, passes: Passes, ray: wp.array(dtype=wp.int32),
           cell: wp.array(dtype=wp.int32), t0: wp.array(dtype=wp.float64),
           t1: wp.array(dtype=wp.float64), p0: wp.array(dtype=wp.vec3d),
@@ -138,7 +139,7 @@ def _hits(cells: CellArrays, passes: Passes, ray: wp.array(dtype=wp.int32),
     passes.hit[ray[i]] = 1
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def network_inputs(out: SegmentBuffer, origin: wp.vec3d, extent: wp.float64,
                    p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
                    rest_length: wp.array(dtype=wp.float32)):
@@ -154,7 +155,7 @@ def network_inputs(out: SegmentBuffer, origin: wp.vec3d, extent: wp.float64,
     rest_length[s] = wp.float32(wp.sqrt(dot(b - a, b - a)))
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def first_hits(out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype=wp.int32),
                candidate: wp.array(dtype=wp.int32)):
     """The earliest segment of each ray that the network says is hit, and the earliest
@@ -166,7 +167,7 @@ def first_hits(out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype
         wp.atomic_min(first, out.ray[s], s)
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
             out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype=wp.int32),
             candidate: wp.array(dtype=wp.int32), placed: wp.array(dtype=wp.int32),
@@ -196,7 +197,7 @@ def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
         rays.mode[r] = DONE
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def clear_misses(passes: Passes):
     """Rays that end with no segment above the occlusion threshold are misses: their
     passes lose what a candidate placed."""
@@ -208,7 +209,7 @@ def clear_misses(passes: Passes):
         passes.material[r] = 0
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def unresolved_truncated(rays: RayState, passes: Passes, count: wp.array(dtype=wp.int32)):
     """Counts rays truncated without a hit."""
     r = wp.tid()
@@ -240,7 +241,7 @@ def write_hits(cells: DeviceCells, passes: Passes, ray: Int[np.ndarray, " H"],
     if count == 0:
         return
     device = cells.device
-    runtime.load(sys.modules[__name__], device)
+    runtime.load(WARP_MODULE, device)
     local = empty_passes(count, device)
     arrays = [wp.array(np.asarray(x, dtype), dtype=kind, device=device) for x, dtype, kind in (
         (np.arange(count), np.int32, wp.int32), (cell, np.int32, wp.int32),

@@ -12,8 +12,10 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import hashlib
+import importlib
 import os
 import pathlib
+import pkgutil
 import platform
 import sys
 import threading
@@ -160,18 +162,47 @@ def device(torch_device: str | torch.device) -> str:
     return text
 
 
-def load(module: ModuleType, device_name: str) -> None:
+def warp_module(name: str) -> str:
+    """The Warp module that the kernels of this package's module ``name`` (``__name__`` of
+    a module of ``kernels/``) are declared in. Warp names a module's cache folder after it,
+    so a name that followed the import path (``vdnif_addon.kernels.walk`` from the command
+    line, ``bl_ext.user_default.vdnif_addon.kernels.walk`` in Blender) would compile every
+    kernel again for each; this one depends only on the module's own name."""
+    return f"vdnif.kernels.{name.rpartition('.')[2]}"
+
+
+def load(module: ModuleType | str, device_name: str) -> None:
     """Compiles (first use on this machine) or loads the kernels of ``module`` for a device,
-    saying on stderr when a compile takes a noticeable time."""
+    saying on stderr when a compile takes a noticeable time. ``module`` is a Warp module's
+    name (``warp_module``) or a Python module whose kernels Warp names after it."""
     init()
-    key = (getattr(module, "__name__", str(module)), device_name)
+    name = module if isinstance(module, str) else module.__name__
+    key = (name, device_name)
     if key in _loaded:
         return
     start = time.perf_counter()
-    wp.load_module(module, device=device_name)
+    wp.load_module(name, device=device_name)
     seconds = time.perf_counter() - start
     if seconds > 0.5:
-        name = key[0].rsplit(".", 1)[-1]
-        print(f"vdnif: compiled the '{name}' kernels for {device_name} in {seconds:.1f} s "
-              f"(cached in {cache_dir()})", file=sys.stderr, flush=True)
+        print(f"vdnif: compiled the '{name.rsplit('.', 1)[-1]}' kernels for {device_name} in "
+              f"{seconds:.1f} s (cached in {cache_dir()})", file=sys.stderr, flush=True)
     _loaded.add(key)
+
+
+def load_all(device_name: str) -> float:
+    """Compiles (first use on this machine) or loads every kernel module of the package for
+    a device. What reports a speed calls it before its clock starts, so that a first run's
+    compile is in no speed: the time is said apart, on stderr, when this call loaded any
+    module. Returns the seconds."""
+    package = __name__.rpartition(".")[0]
+    start, loaded = time.perf_counter(), len(_loaded)
+    for info in pkgutil.iter_modules(sys.modules[package].__path__):
+        name = getattr(importlib.import_module(f"{package}.{info.name}"), "WARP_MODULE", None)
+        if name is not None:
+            load(name, device_name)
+    seconds = time.perf_counter() - start
+    if len(_loaded) > loaded:
+        print(f"vdnif: kernels ready for {device_name} in {seconds:.1f} s (compiled, or loaded "
+              f"from {cache_dir()}), apart from every speed reported", file=sys.stderr,
+              flush=True)
+    return seconds

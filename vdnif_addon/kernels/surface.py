@@ -21,7 +21,6 @@ caster per posed object, ``refit`` to each pose's vertices and normals (same tri
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +30,8 @@ import warp as wp
 from ..errors import VDNIFError
 from ..geometry.attributes import DEGENERATE_SIN2, FALLBACK_NORMAL
 from . import runtime
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
@@ -142,7 +143,7 @@ def _surface_hit(
     return face, t, weights, normal
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _ray_hits(
     mesh: wp.uint64,
     item_triangle: wp.array(dtype=wp.int32),
@@ -171,7 +172,7 @@ def _ray_hits(
     normal[i] = n
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _segment_hits(
     mesh: wp.uint64,
     item_triangle: wp.array(dtype=wp.int32),
@@ -210,7 +211,7 @@ def _segment_hits(
     normal[i] = n
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _cell_triangles(
     mesh: wp.uint64,
     corners: wp.array(dtype=wp.vec3d),
@@ -244,14 +245,14 @@ def _cell_triangles(
     counts[c] = found
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _gather_corners(vertices: wp.array(dtype=wp.vec3d), triangles: wp.array(dtype=wp.int32),
                     corners: wp.array(dtype=wp.vec3d)):
     k = wp.tid()
     corners[k] = vertices[triangles[k]]
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _group_roots(mesh: wp.uint64, roots: wp.array(dtype=wp.int32)):
     c = wp.tid()
     roots[c] = wp.mesh_get_group_root(mesh, c)
@@ -272,7 +273,7 @@ class SurfaceCaster:
                  corner_normals: Float[np.ndarray, "T 3 3"], device: str = "cpu",
                  cell_boxes: tuple[Float[np.ndarray, "C 3"], Float[np.ndarray, "C 3"]]
                  | None = None, cell_margin: float = 0.0) -> None:
-        runtime.load(sys.modules[__name__], device)
+        runtime.load(WARP_MODULE, device)
         self.device = device
         self._on_cpu = wp.get_device(device).is_cpu
         self.triangles = np.asarray(triangles, np.int32).reshape(-1, 3)

@@ -31,7 +31,6 @@ Segments are written to a ``kernels.segments.SegmentBuffer``, as the static DDA'
 
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -56,6 +55,8 @@ from .walk_steps import (
     farthest_crossing,
     seek_entry,
 )
+
+WARP_MODULE = runtime.warp_module(__name__)
 
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
@@ -84,7 +85,7 @@ class RayState:
     behind_from: wp.array(dtype=wp.float64)  # seek start of the last entry found behind it
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
               max_steps: wp.int32, per_wave: wp.int32, out: SegmentBuffer):
     r = active[wp.tid()]
@@ -181,7 +182,7 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
     rays.behind_from[r] = behind_from
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32), keep: wp.array(
         dtype=wp.int32), cursor: wp.array(dtype=wp.int32)):
     r = active[wp.tid()]
@@ -189,7 +190,7 @@ def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32), keep: wp.ar
         keep[wp.atomic_add(cursor, 0, 1)] = r
 
 
-@wp.kernel
+@wp.kernel(module=WARP_MODULE)
 def _count_truncated(rays: RayState, count: wp.array(dtype=wp.int32)):
     if rays.mode[wp.tid()] == TRUNCATED:
         wp.atomic_add(count, 0, 1)
@@ -215,7 +216,7 @@ class RayWalk:
                  directions: Float[np.ndarray, "N 3"],
                  max_distance: float | Float[np.ndarray, " N"] | None = None,
                  max_steps: int | None = None, lanes: int = 1) -> None:
-        runtime.load(sys.modules[__name__], cells.device)
+        runtime.load(WARP_MODULE, cells.device)
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)
         norms = np.linalg.norm(directions, axis=1)

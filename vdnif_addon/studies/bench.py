@@ -20,13 +20,14 @@ import numpy as np
 from ..blender.capture_scene import capture
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.scenes import demo_scene
+from ..errors import VDNIFError
 from ..inference.evaluation import compare_common, concatenated
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
 from ..presets import PRESET_ERROR, PRESET_VARIANT
 from ..safe_io import exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig
 from ..training.fit import fit_model
-from .bench_report import point_label, sweep_markdown, write_outputs
+from .bench_report import NO_PRESETS, point_label, sweep_markdown, write_outputs
 from .pareto import derive_presets
 from .report import write_section
 
@@ -91,8 +92,8 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     Several runs on one ``work`` folder share the training: a point being trained holds
     its lock (``safe_io.exclusive_lock``), and the others pass it by. A run that finds,
     after its own points, one still training in another run stops there; the run that
-    finishes last evaluates every point, alone. Returns (rows, presets or None), or
-    (None, None) when this run left the evaluation to another."""
+    finishes last evaluates every point, alone. Returns (rows, the presets or why there are
+    none), or (None, None) when this run left the evaluation to another."""
     size = SIZES["quick" if quick else "full"]
     out, work = pathlib.Path(out), pathlib.Path(work)
     work.mkdir(parents=True, exist_ok=True)
@@ -119,10 +120,15 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
         return None, None
     with evaluation:
         rows = _evaluate_points(obj, spec, size, points, work, device)
-    # No presets from models that do not predict hits: the presets file is then left as it
-    # was, and the section says why.
-    presets = (derive_presets(rows, PRESET_ERROR)
-               if any(row["speed_withheld"] is None for row in rows) else None)
+    # No presets from models that do not predict hits, nor from a sweep with too few points
+    # for three distinct ones: the presets file is then left as it was, and the section
+    # says why.
+    presets, no_presets = None, NO_PRESETS
+    if any(row["speed_withheld"] is None for row in rows):
+        try:
+            presets = derive_presets(rows, PRESET_ERROR)
+        except VDNIFError as error:
+            no_presets = str(error)
     out.mkdir(parents=True, exist_ok=True)
     write_outputs(out, rows)
     if presets is not None:
@@ -133,9 +139,10 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
         command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
                                         + (["--quick"] if quick else []))
         write_section(performance, "bench", "Speed/accuracy sweep",
-                      sweep_markdown(rows, presets, size, command, out, performance),
+                      sweep_markdown(rows, presets or no_presets, size, command, out,
+                                     performance),
                       PERFORMANCE_PREAMBLE)
-    return rows, presets
+    return rows, presets or no_presets
 
 
 def _point_files(work, number):

@@ -93,7 +93,8 @@ def rule_text(convergence):
 
 
 def sweep_markdown(rows, presets, size, command, out, performance):
-    """The sweep's table, plot and presets for docs/performance.md."""
+    """The sweep's table, plot and ``presets`` (or why there are none, a text) for
+    docs/performance.md."""
     relative = pathlib.Path(out).resolve().relative_to(
         pathlib.Path(performance).resolve().parent) if performance else out
     import torch
@@ -138,11 +139,15 @@ def sweep_markdown(rows, presets, size, command, out, performance):
             f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f} | {speed} | "
             f"{r['model_bytes']:,} |")
     lines += ["", f"![Pareto fronts]({relative}/pareto.png)", ""]
-    if presets is None:
-        return lines + [f"Presets: n/a, {NO_PRESETS}.", "",
+    if isinstance(presets, str):
+        return lines + [f"Presets: n/a, {presets}.", "",
                         f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
     lines += [f"Presets (the panel's preset menu), from the front of {PRESET_ERROR} vs render "
-              "speed:",
+              "speed: fast is its fastest point, accurate its most accurate, balanced the knee "
+              "of the points between them (closest to the ideal corner in log space); where "
+              "the front has no point between them, balanced is the point nearest the front "
+              "(the smallest gain, the same factor in speed and in error, that would put it "
+              "there):",
               "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s |",
               "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
     for name, preset in presets.items():

@@ -26,14 +26,32 @@ def pareto_front(error: Sequence[float], cost: Sequence[float]) -> list[int]:
     return front
 
 
+def front_distance(error: Sequence[float], cost: Sequence[float],
+                   front: Sequence[int]) -> np.ndarray:
+    """Per point, how far it lies from ``front`` (indices of ``pareto_front``): the smallest
+    log factor by which its error and its cost would both have to shrink for no front point
+    to be at least as good on both (the additive epsilon indicator in log space); 0 on the
+    front."""
+    log_error, log_cost = np.log(np.asarray(error, np.float64)), np.log(
+        np.asarray(cost, np.float64))
+    distance = np.zeros(len(log_error))
+    for f in front:
+        beaten = (log_error >= log_error[f]) & (log_cost >= log_cost[f])
+        gain = np.minimum(log_error - log_error[f], log_cost - log_cost[f])
+        distance = np.where(beaten, np.maximum(distance, gain), distance)
+    return distance
+
+
 def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
                    speed_key: str = "render_rays_per_s",
                    iou_key: str = "vs_true_hit_iou") -> dict[str, dict[str, Any]]:
-    """{fast, balanced, accurate} from the sweep ``points`` (dicts with SETTINGS, the error,
-    the speed and the hit IoU against the true reference): on the front of error vs
-    1/speed of the points that predict hits (metrics.speed_withheld), the fastest point,
-    the most accurate one, and the one closest to the ideal corner in normalized log space
-    (the knee)."""
+    """{fast, balanced, accurate}, three distinct sweep ``points`` (dicts with SETTINGS, the
+    error, the speed and the hit IoU against the true reference). On the front of error vs
+    1/speed of the points that predict hits (metrics.speed_withheld): the fastest point, the
+    most accurate one, and between them the knee, the interior point closest to the ideal
+    corner in log space normalized over the front. A front of two points has no interior:
+    balanced is then the point nearest the front (``front_distance``). A front of one point,
+    or two points and no other, raises VDNIFError."""
     usable = [p for p in points if p.get(error_key) is not None and p.get(speed_key)
               and speed_withheld(p.get(iou_key)) is None]
     if not usable:
@@ -42,14 +60,32 @@ def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
     error = np.array([p[error_key] for p in usable])
     cost = 1.0 / np.array([p[speed_key] for p in usable])
     front = pareto_front(error, cost)
-    log_error, log_cost = np.log(error[front]), np.log(cost[front])
+    if len(front) == 1:
+        raise VDNIFError(f"one sweep point of {len(usable)} is both the fastest and the most "
+                         "accurate: fast, balanced and accurate would not differ; widen the "
+                         "sweep")
+    if len(front) >= 3:
+        log_error, log_cost = np.log(error[front]), np.log(cost[front])
 
-    def unit(values):
-        span = values.max() - values.min()
-        return (values - values.min()) / span if span > 0 else np.zeros_like(values)
+        def unit(values):
+            return (values - values.min()) / (values.max() - values.min())
 
-    knee = front[int(np.argmin(np.hypot(unit(log_error), unit(log_cost))))]
-    chosen = {"fast": front[0], "balanced": knee, "accurate": front[-1]}
+        corner = np.hypot(unit(log_error), unit(log_cost))
+        balanced = front[1 + int(np.argmin(corner[1:-1]))]
+    elif len(usable) == 2:
+        raise VDNIFError("the sweep has two points that predict hits, fast and accurate, and "
+                         "no third for balanced; widen the sweep")
+    else:
+        # Two front points have nothing between them: every other point is beaten on both
+        # error and speed by one of them. Refusing would leave the panel without presets
+        # after a sweep of hours, and repeating fast or accurate would offer one setting
+        # under two names; the point the smallest gain would put on the front is the
+        # closest a measured setting comes to lying between them, and the panel says which
+        # preset beats it (presets.describe_preset).
+        distance = front_distance(error, cost, front)
+        distance[front] = np.inf
+        balanced = int(np.argmin(distance))
+    chosen = {"fast": front[0], "balanced": balanced, "accurate": front[-1]}
     return {name: {**{key: usable[i][key] for key in SETTINGS},
                    "measured": {error_key: usable[i][error_key],
                                 speed_key: usable[i][speed_key]}}

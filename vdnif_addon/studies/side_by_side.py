@@ -86,6 +86,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
         raise VDNIFError(f"side by side of '{obj.name}': thread setting {threads} must be "
                          "at least 1")
     device = runtime.device(device if model is None else model.device)
+    kernels_s = runtime.load_all(device)        # a first compile, said apart from the speeds
     viewpoints = orbit_viewpoints(len(capture.poses))
     static_grid = StaticGrid(capture.grid, device)
     torch_threads = torch.get_num_threads()
@@ -135,7 +136,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
                     record.pop(key, None)
                 withhold(record)
     result = _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
-    result.update(threads=thread_counts, embree=packets)
+    result.update(threads=thread_counts, embree=packets, kernels_s=kernels_s)
     if secondary is not None:
         result["secondary"] = secondary_summary(result, secondary)
     return result

@@ -1,7 +1,8 @@
 """Training datasets: every walked segment with its targets, stored as shards.
 
-A shard is ``<name>.npz`` (the arrays below, one row per segment) with ``<name>.json`` beside
-it (its ``header.DatasetHeader``: grid, heads, poses, seed, counts, versions). Separate
+A shard is ``<name>.npz`` (the arrays below, one row per segment, stored compactly:
+``packing``) with ``<name>.json`` beside it (its ``header.DatasetHeader``: grid, heads, poses,
+seed, counts, versions). Separate
 processes write separate shards of disjoint pose ranges (``--pose-range``) into one folder;
 training reads them all, lazily (``np.load`` of an npz reads an array only when it is used),
 after checking every file is a regular one and every npz's sizes before reading an array.
@@ -15,7 +16,7 @@ import os
 import pathlib
 import zipfile
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,7 +24,8 @@ import numpy as np
 from .. import limits
 from ..errors import VDNIFError
 from ..safe_io import open_regular, unpacked_size
-from .header import DatasetHeader, DatasetIdentity, GridHeader
+from .header import VERSION, DatasetHeader, DatasetIdentity, GridHeader
+from .packing import PackedShard, pack, stored_names
 
 if TYPE_CHECKING:
     from ..geometry.restmesh import RestMesh
@@ -83,6 +85,12 @@ def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> GridHeader:
                       mesh_fingerprint=fingerprint)
 
 
+def shard_name(start: int, stop: int) -> str:
+    """The name of the shard of poses ``start`` to ``stop`` (excluded): its files are
+    ``<name>.npz`` and ``<name>.json``."""
+    return f"shard-{start:06d}-{stop:06d}"
+
+
 MANIFEST = "vdnif-dataset.manifest"
 """The folder's manifest (JSON, ``DatasetIdentity``): the object, grid and seed its shards
 were made of, so that a shard of another object, grid or seed is refused instead of replacing
@@ -111,9 +119,11 @@ def check_folder(folder: str | os.PathLike, identity: DatasetIdentity) -> None:
 
 def write_shard(folder: str | os.PathLike, name: str, records: dict[str, np.ndarray],
                 header: DatasetHeader) -> pathlib.Path:
-    """Writes ``name.npz`` and ``name.json`` into ``folder`` atomically (``safe_io``), after
-    ``check_folder``; records the folder's manifest with the first shard. Returns the npz
-    path."""
+    """Writes ``name.npz`` (the rows ``records``, ``ARRAYS``, packed: ``packing``) and
+    ``name.json`` (``header``, as of this format version) into ``folder`` atomically
+    (``safe_io``), after ``check_folder``; records the folder's manifest with the first
+    shard. Returns the npz path."""
+
     from ..safe_io import atomic_path, json_text, write_text_atomic
 
     folder = pathlib.Path(folder)
@@ -121,6 +131,7 @@ def write_shard(folder: str | os.PathLike, name: str, records: dict[str, np.ndar
         raise VDNIFError(f"dataset shard '{name}': its header says {header.segments} "
                          f"segments, its arrays have {len(records['pose'])}")
     check_folder(folder, header.identity())
+    header = replace(header, version=VERSION)
     text = json_text(header.to_dict(), f"dataset header of shard '{name}'", indent=1)
     if not (folder / MANIFEST).exists():
         write_text_atomic(folder / MANIFEST,
@@ -128,7 +139,7 @@ def write_shard(folder: str | os.PathLike, name: str, records: dict[str, np.ndar
                           "dataset manifest")
     target = folder / f"{name}.npz"
     with atomic_path(target, "dataset shard") as temporary:
-        _write_npz(temporary, records)
+        _write_npz(temporary, pack(records, header.heads))
     write_text_atomic(folder / f"{name}.json", text, "dataset header")
     return target
 
@@ -185,7 +196,7 @@ def read_dataset(folder: str | os.PathLike) -> tuple[Dataset, list[Shard]]:
     _check_overlap(paths, headers)
     shards = []
     for path, header in zip(paths, headers):
-        shards.append(_open_shard(path.with_suffix(".npz")))
+        shards.append(_open_shard(path.with_suffix(".npz"), header))
         _check_shard(path.with_suffix(".npz"), shards[-1], header)
     merged = Dataset(header=headers[0], shards=tuple(path.stem for path in paths),
                      poses=tuple(pose for header in headers for pose in header.poses),
@@ -237,9 +248,10 @@ def _read_header(path: pathlib.Path) -> DatasetHeader:
                                    f"dataset header '{path}'")
 
 
-def _open_shard(path: pathlib.Path) -> Shard:
-    """The shard's npz, its zip directory and array headers checked before any array is
-    read: every ``ARRAYS`` member, their sizes within ``limits.MAX_SHARD_SEGMENTS`` rows, each
+def _open_shard(path: pathlib.Path, header: DatasetHeader) -> Shard:
+    """The shard's rows (its npz as it is for a version 1 shard, else ``PackedShard``), its
+    zip directory and array headers checked before any array is read: every member its
+    version stores for its heads, their sizes within ``limits.MAX_SHARD_SEGMENTS`` rows, each
     array's header claiming the bytes its member holds."""
     file = open_regular(path, f"dataset shard '{path}'")
     size, unpacked = os.fstat(file.fileno()).st_size, unpacked_size(file)
@@ -255,7 +267,8 @@ def _open_shard(path: pathlib.Path) -> Shard:
         raise VDNIFError(f"dataset shard '{path}' cannot be read: {exc}") from None
     if not isinstance(shard, np.lib.npyio.NpzFile):
         raise VDNIFError(f"dataset shard '{path}' is not an npz archive")
-    missing = set(ARRAYS) - set(shard.files)
+    names = tuple(ARRAYS) if header.version == 1 else stored_names(tuple(ARRAYS), header.heads)
+    missing = set(names) - set(shard.files)
     if missing:
         raise VDNIFError(f"dataset shard '{path}' lacks {', '.join(sorted(missing))}")
     members = shard.zip.infolist()
@@ -265,9 +278,10 @@ def _open_shard(path: pathlib.Path) -> Shard:
         raise VDNIFError(f"dataset shard '{path}' unpacks to {size:,} bytes, more than the "
                          f"limit {cap:,} ({limits.MAX_SHARD_SEGMENTS:,} segments, "
                          "vdnif_addon/limits.py)")
-    for name in ARRAYS:
+    for name in names:
         _check_member(path, shard, name)
-    return shard
+    return shard if header.version == 1 else PackedShard(shard, path, ARRAYS, header.heads,
+                                                         header.albedo_table)
 
 
 _ROW_BYTES = sum(np.dtype(dtype).itemsize * math.prod(trailing)

@@ -4,7 +4,8 @@ the folder's manifest, as frozen dataclasses.
 ``DatasetHeader.from_dict`` validates a header once, where it is read or written (types,
 finite numbers, a complete grid, counts, pose range, heads and albedo table that agree);
 readers then use attributes. ``to_dict`` gives the JSON shape on disk, ``FORMAT`` version
-``VERSION``; another version is refused with a line that says to generate the dataset again.
+``VERSION`` (or 1, read as well); another version is refused with a line that says to
+generate the dataset again.
 """
 
 from __future__ import annotations
@@ -32,7 +33,9 @@ from ..safe_io import check_depth, finite_number, shown
 from ..settings import MAX_MATERIALS, MAX_RESOLUTION, MIN_RESOLUTION, Heads
 
 FORMAT = "vdnif-dataset"
-VERSION = 1
+VERSION = 2
+"""The format this VDNIF writes: version 2 stores the rows compactly (``packing``); version 1
+(every array one row per segment) is read as well."""
 
 
 def _fail(where: str, message: str) -> NoReturn:
@@ -314,9 +317,10 @@ class DatasetHeader:
         check_depth(data, where)
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise VDNIFError(f"{where} is not a VDNIF dataset header")
-        if not _is_int(data.get("version")) or data["version"] != VERSION:
+        if not _is_int(data.get("version")) or not 1 <= data["version"] <= VERSION:
             raise VDNIFError(f"{where} has format version {shown(data.get('version'))}, this "
-                             f"VDNIF reads version {VERSION}: generate the dataset again")
+                             f"VDNIF reads versions 1 to {VERSION}: generate the dataset "
+                             "again")
         grid = GridHeader.from_dict(data.get("grid"), where)
         _keys(where, "header", data, HEADER_KEYS, ("grazing_fraction", "secondary_fraction"))
         name = _name(where, data["object"])
@@ -348,7 +352,7 @@ class DatasetHeader:
             _fail(where, "versions are not all strings")
         grazing, secondary = data.get("grazing_fraction"), data.get("secondary_fraction")
         return cls(
-            version=VERSION, object=name, mode=mode,
+            version=data["version"], object=name, mode=mode,
             object_size=_number(where, "object size", data["object_size"], MIN_OBJECT_SIZE,
                                 MAX_OBJECT_SIZE),
             grid=grid, heads=heads,
