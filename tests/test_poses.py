@@ -139,18 +139,18 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
     development poses, the reported tables (experiments) and ``evaluate`` use the test poses;
     the two and the training poses share no pose."""
     poses, capture = core("blender.poses"), core("blender.capture_scene").capture
-    settings = core("pose_sets")
+    pose_sets = core("pose_sets")
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
     spec = poses.PoseSpec(count=4)
     keys = {}
     drawn = {"training": spec, **{name: poses.evaluation_spec(spec, pose_set=name)
-                                  for name in settings.POSE_SETS}}
+                                  for name in pose_sets.POSE_SETS}}
     for name, chosen in drawn.items():
         captured = capture(box, 8, chosen, deform_corners=False)
         keys[name] = {poses.pose_key(p) for p in captured.poses}
         assert len(keys[name]) == 4
-    assert set(keys) == {"training", settings.DEVELOPMENT_POSES, settings.TEST_POSES}
+    assert set(keys) == {"training", pose_sets.DEVELOPMENT_POSES, pose_sets.TEST_POSES}
     for first, second in itertools.combinations(keys.values(), 2):
         assert not first & second
     with pytest.raises(core("errors").VDNIFError, match="unknown pose set 'other'"):
@@ -159,11 +159,11 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
     # evaluate (a model's capture, here of a model not yet trained on spec) draws test poses
     evaluated = core("blender.jobs").model_capture(box, None, spec, evaluation=True,
                                                    resolution=8)
-    assert {poses.pose_key(p) for p in evaluated.poses} == keys[settings.TEST_POSES]
+    assert {poses.pose_key(p) for p in evaluated.poses} == keys[pose_sets.TEST_POSES]
 
     # the experiments evaluate on test poses of their own training spec
     runs = core("studies.experiment_runs")
     size = dict(runs.SIZES["quick"], poses=4, eval_poses=4, resolution=8)
     experiment = runs.Experiment(size, "unused", None, "cpu", None, ())
     drawn = {poses.pose_key(p) for p in experiment.evaluation(box).poses}
-    assert experiment.spec == spec and drawn == keys[settings.TEST_POSES]
+    assert experiment.spec == spec and drawn == keys[pose_sets.TEST_POSES]
