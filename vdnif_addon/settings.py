@@ -42,6 +42,8 @@ class Recipe:
     rays_per_pose: int = 65536
     surface_fraction: float = 0.4
     grazing_fraction: float = 0.3
+    # None: the network's secondary rays leave its own hits, which the offset sized to the
+    # model serves as well without them, and a share costs primary distance (results.md).
     secondary_fraction: float = 0.0
     # A cap the stopping rule may end sooner; clean passes need 3,000 (DESIGN section 8).
     steps: int = 3000
