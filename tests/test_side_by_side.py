@@ -60,9 +60,12 @@ class NeverHits(OracleNetwork):
 def stand_in_model(network, capture, path):
     """What compare_paths reads of a neural.SceneModel, around ``network``."""
     path.write_bytes(b"\0" * 1000)
+    network_offset = core("inference.secondary").network_offset
     return types.SimpleNamespace(network=network, albedo_table=capture.mesh.albedo_table(),
                                  device=torch.device("cpu"), path=str(path),
-                                 variant=type(network).__name__)
+                                 variant=type(network).__name__,
+                                 secondary_offset=lambda size: network_offset(
+                                     size, capture.grid.voxel_size))
 
 
 @pytest.fixture(scope="module")

@@ -138,7 +138,9 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
     result = _summary(obj, capture, runs, checks, network, sizes, width, height, repeats)
     result.update(threads=thread_counts, embree=packets, kernels_s=kernels_s)
     if secondary is not None:
-        result["secondary"] = secondary_summary(result, secondary)
+        size = capture.mesh.size
+        result["secondary"] = secondary_summary(
+            result, secondary, None if model is None else model.secondary_offset(size) / size)
     return result
 
 

@@ -76,21 +76,22 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
     for baseline in baselines:
         if baseline.name in SECONDARY_BASELINES:
             paths[baseline.name] = (lambda b=baseline: (
-                classical_primary(b, triangles, *casts[b.name]), exact_occluded(b)))
+                classical_primary(b, triangles, *casts[b.name]), exact_occluded(b)), None)
     if model is not None:
         occluded = neural_occluded(model.network, grid, model.albedo_table, cells,
                                    model.device)
-        paths["neural"] = lambda: (predicted, occluded)
+        # The network's hits start their rays off by its own error, as its passes do.
+        paths["neural"] = (lambda: (predicted, occluded), model.secondary_offset(object_size))
     record = {}
     for samples in sample_counts(settings):
         at = dataclasses.replace(settings, samples=samples)
-        for name, prepare in paths.items():
+        for name, (prepare, offset) in paths.items():
             calls = []
             sync()
             start = time.perf_counter()
             primary, occluded = prepare()
             passes = secondary_passes(primary, *rays, _counted(occluded, calls),
-                                      object_size, at)
+                                      object_size, at, offset)
             sync()
             seconds = time.perf_counter() - start
             # secondary_passes asks for the AO rays first, then the shadow rays
@@ -121,8 +122,9 @@ def withhold(record):
         del record[name]
 
 
-def secondary_summary(result, settings):
-    """The secondary table of a ``compare_paths`` ``result`` timed with ``settings``: per
+def secondary_summary(result, settings, network_offset=None):
+    """The secondary table of a ``compare_paths`` ``result`` timed with ``settings`` (the
+    network's hits started ``network_offset`` object units off, when it ran): per
     path and AO sample count, the rays per pose, their milliseconds and rays per second,
     the pose total, the mean AO and lit share (medians over repeats; None where not run
     or withheld), and per classical path where the cheaper side changes."""
@@ -130,7 +132,7 @@ def secondary_summary(result, settings):
     paths = {}
     for name in SECONDARY_PATHS:
         paths[name] = {str(samples): _figures(result, name, samples) for samples in counts}
-    return {"settings": dict(settings.describe(), samples=counts),
+    return {"settings": dict(settings.describe(network_offset), samples=counts),
             "paths": paths, "skipped": SKIPPED,
             "trade": {b: trade_point(paths["neural"], paths[b], counts)
                       for b in SECONDARY_BASELINES}}
