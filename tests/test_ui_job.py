@@ -155,3 +155,15 @@ def test_progress_shows_the_sum_of_the_task_losses_not_the_weighted_total(data_d
                             "losses": {"occlusion": 0.25, "distance": 0.5, "normal": 0.125}})
     assert job.state.loss == 0.875
     assert job.state.line() == "step 5/20, loss 0.8750, ETA 3 s"
+
+
+def test_the_command_line_shows_the_same_loss_as_the_panel(capsys):
+    """``train``'s progress line shows the task losses' sum too, never the weighted total."""
+    from vdnif_addon.cli.options import report_training
+
+    report_training({"step": 5, "steps": 20, "total": -1.3832, "eta_s": 3.0,
+                     "samples_per_s": 1.0,
+                     "losses": {"occlusion": 0.25, "distance": 0.5, "normal": 0.125}})
+    assert capsys.readouterr().err == ("train: step 5/20, loss 0.8750 (occlusion 0.2500, "
+                                       "distance 0.5000, normal 0.1250), 1 samples/s, "
+                                       "ETA 3 s\n")

@@ -230,8 +230,11 @@ def network_overrides(args):
 
 
 def report_training(record):
+    """The progress line: the task losses and their sum, as the panel shows it (the weighted
+    objective that training minimizes goes negative with the learned weights)."""
     losses = ", ".join(f"{k} {v:.4f}" for k, v in record["losses"].items())
-    print(f"train: step {record['step']}/{record['steps']}, loss {record['total']:.4f} "
+    total = sum(record["losses"].values())
+    print(f"train: step {record['step']}/{record['steps']}, loss {total:.4f} "
           f"({losses}), {record['samples_per_s']:,.0f} samples/s, "
           f"ETA {record['eta_s']:.0f} s", file=sys.stderr, flush=True)
 
