@@ -25,7 +25,7 @@ from ..inference.evaluation import compare_common, concatenated
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
 from ..presets import PRESET_ERROR, PRESET_VARIANT
 from ..safe_io import exclusive_lock, write_json_atomic
-from ..settings import RECIPE, NetworkConfig
+from ..settings import RECIPE, NetworkConfig, TrainConfig
 from ..training.fit import fit_model
 from .bench_report import NO_PRESETS, point_label, sweep_markdown, write_outputs
 from .pareto import derive_presets
@@ -33,9 +33,10 @@ from .report import write_section
 
 # The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose
 # and their mix, batch) with the network's default architecture; the full sweep moves one
-# setting at a time from it, and the convergence rule replaces the recipe's step count. The
-# quick size is a small one for tests.
-_NETWORK = NetworkConfig()
+# setting at a time from it, and every point trains by the recipe's own stopping rule and
+# step cap, so that a preset is a point a user's training reaches. The quick size is a small
+# one for tests.
+_NETWORK, _TRAIN = NetworkConfig(), TrainConfig()
 SIZES = {
     "full": dict(
         poses=RECIPE.poses, rays_per_pose=RECIPE.rays_per_pose, speed_rounds=7,
@@ -45,7 +46,8 @@ SIZES = {
                   width=_NETWORK.width),
         axes={"resolution": [16, 32, 64], "grid": [(2, 14), (2, 16), (4, 18)],
               "pe_bands": [0, 3, 6], "width": [32, 64, 128]},
-        convergence=dict(validate_every=100, patience=10, min_gain=0.02, max_steps=20000)),
+        convergence=dict(validate_every=_TRAIN.log_interval, patience=_TRAIN.stop_patience,
+                         min_gain=_TRAIN.stop_min_gain, max_steps=RECIPE.steps)),
     "quick": dict(
         poses=4, rays_per_pose=1024, eval_poses=2, width=32, height=24, speed_rounds=2,
         overrides=dict(batch_size=4096),
