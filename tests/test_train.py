@@ -505,13 +505,19 @@ def _ddp_worker(rank, port, folder):
     )
 
 
-@pytest.mark.slow
-def test_two_cpu_processes_train_to_identical_weights(tmp_path):
+def run_two_processes(worker, folder):
+    """Runs ``worker(rank, port, folder)`` in two CPU processes of one gloo group on a free
+    port and returns what each saved as ``folder/rank{r}.pt``."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    mp.spawn(_ddp_worker, args=(port, str(tmp_path)), nprocs=2, join=True)
-    first, second = (torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in (0, 1))
+    mp.spawn(worker, args=(port, str(folder)), nprocs=2, join=True)
+    return [torch.load(folder / f"rank{r}.pt", weights_only=True) for r in (0, 1)]
+
+
+@pytest.mark.slow
+def test_two_cpu_processes_train_to_identical_weights(tmp_path):
+    first, second = run_two_processes(_ddp_worker, tmp_path)
     assert (first["rank"], second["rank"]) == (0, 1) and first["steps"] == second["steps"] == 20
     assert (first["calls"], second["calls"]) == (2, 0)  # only the main process reports
     assert all(torch.equal(first["state"][key], second["state"][key]) for key in first["state"])

@@ -6,15 +6,13 @@ The oracle is the step as it was, reading both flags on the host after every bac
 
 import math
 import os
-import socket
 import threading
 
 import pytest
 import torch
-import torch.multiprocessing as mp
 from host_reads import counting_host_reads
 from oracles import training_step as oracle
-from test_train import SMALL, header, sphere_shards
+from test_train import SMALL, header, run_two_processes, sphere_shards
 from torch.nn.parallel import DistributedDataParallel
 
 from vdnif_addon.errors import VDNIFError
@@ -210,11 +208,7 @@ def _group_worker(rank, port, folder):
 
 @pytest.mark.slow
 def test_the_processes_of_a_group_skip_and_stop_alike(tmp_path):
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    mp.spawn(_group_worker, args=(port, str(tmp_path)), nprocs=2, join=True)
-    first, second = (torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in (0, 1))
+    first, second = run_two_processes(_group_worker, tmp_path)
     for result in (first, second):
         assert result["calls"] == 9 and "stopped at step 4" in result["error"]
         assert result["cancelled_at"] == 10  # the first check point after the cancel
