@@ -152,6 +152,8 @@ def test_cuda_runs_the_same_kernels():
     p0, p1 = points(64), points(64, seed=1)
     weights = torch.randn(len(p0), encoder.output_dim)
     features, gradient = forward_and_gradient(encoder, p0, p1, weights)
+    # ``Module.cuda`` moves a parameter's gradient in place: keep the CPU copy apart.
+    gradient = gradient.clone()
     encoder.cuda()
     cuda_features, cuda_gradient = forward_and_gradient(
         encoder, p0.cuda(), p1.cuda(), weights.cuda()

@@ -232,7 +232,8 @@ def test_corners_of_another_grid_are_one_line(blob):
 @pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs CUDA")
 def test_cuda_walks_the_same_segments_as_the_cpu(blob):
     """The same kernels on CUDA: same segments once sorted (a CUDA launch writes rays in any
-    order), a buffer too small for one launch included."""
+    order), a buffer too small for one launch included. The same rays and cells; distances and
+    points within 1e-13 (measured: 4e-15), since the GPU's compiler fuses multiply-adds."""
     rng = np.random.default_rng(11)
     origins, directions = outside_rays(rng, 500)
     bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
@@ -242,8 +243,11 @@ def test_cuda_walks_the_same_segments_as_the_cpu(blob):
     for got in (traverse.traverse(cells, origins, directions),
                 walk_segments(cells, origins, directions, capacity=100)):
         assert got.truncated == cpu.truncated and len(got) == len(cpu) > 1000
-        for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+        for name in ("ray", "cell"):
             np.testing.assert_array_equal(getattr(got, name), getattr(cpu, name))
+        for name in ("t0", "t1", "p0", "p1"):
+            np.testing.assert_allclose(getattr(got, name), getattr(cpu, name), rtol=1e-13,
+                                       atol=1e-13)
 
 
 def grid_of(cells, dims):
