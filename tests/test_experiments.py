@@ -94,10 +94,35 @@ def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed
     line = targets_line("bunny", proposed, deformed)
     assert line.startswith("- **bunny** (values against the true / embedded reference): "
                            "targets met: false negatives 0.4 % / 0.4 % <= 0.5 %; material")
-    assert "Proposed beats deformed on 7 of 12 metric/reference pairs; **not** on " in line
+    assert "Proposed's median beats deformed's on 7 of 12 metric/reference pairs; **not** on " in line
+    assert "settle" not in line                   # no seeds given, no verdict
     assert "every metric" in targets_line("arm", deformed, metrics(
         distance_mae=0.04, normal_error_deg=13, hit_iou=0.9, false_negative_rate=0.02,
         false_positive_rate=0.02, material_accuracy=0.5))
+
+
+def test_a_difference_is_settled_only_where_the_seeds_ranges_do_not_overlap(core):
+    report = core("studies.report")
+    settled, SETTLED, NOT_SETTLED = report.settled, report.SETTLED, report.NOT_SETTLED
+    assert settled([1.0, 1.2, 1.1], [1.3, 1.5, 1.4]) == SETTLED
+    assert settled([1.3, 1.5, 1.4], [1.0, 1.2, 1.1]) == SETTLED
+    assert settled([1.0, 1.3, 1.1], [1.3, 1.5, 1.4]) == NOT_SETTLED      # touching ranges
+    assert settled([1.0, 2.0], [1.4, 1.5]) == NOT_SETTLED                 # one inside
+    assert settled([1.0], [2.0]) == NOT_SETTLED                           # one seed
+    assert settled([1.0, None, 1.1], [2.0, 2.1]) == SETTLED               # missing skipped
+
+    proposed = [metrics(distance_mae=d, normal_error_deg=3.0, hit_iou=0.9,
+                        false_negative_rate=0.004, false_positive_rate=0.004)
+                for d in (0.010, 0.011, 0.012)]
+    deformed = [metrics(distance_mae=d, normal_error_deg=n, hit_iou=0.9,
+                        false_negative_rate=0.004, false_positive_rate=0.004)
+                for d, n in ((0.020, 2.0), (0.021, 4.0), (0.022, 5.0))]
+    median = report.beat_checks(proposed[1], deformed[1], (proposed, deformed))
+    texts = dict(median)
+    assert texts["distance MAE vs true (0.011 vs 0.021, settled)"]
+    assert texts["normal error vs true (3 deg vs 4 deg, not settled)"]
+    line = report.targets_line("arm", proposed[1], deformed[1], seeds=(proposed, deformed))
+    assert "The seeds settle 2 of the 4 it wins" in line
 
 
 def test_each_ablation_takes_one_part_of_proposed_back_to_the_baseline(core):
@@ -201,7 +226,8 @@ def test_ablation_experiment_quick(tmp_path):
     assert record["scenes"] == ["arm"] and record["settings"]["seeds"] == [0]
     configs = {}
     for label in ("deformed", "proposed", "no positional encoding", "no log distance",
-                  "no uncertainty weighting", "proposed, sin(pi 2^k x)"):
+                  "no uncertainty weighting", "proposed, sin(pi 2^k x)",
+                  "proposed, log-MSE of d/h"):
         (seed,) = record["runs"][f"arm/{label}"]["seeds"]
         assert seed["unseen_poses"] and seed["validation_history"][-1]["step"] == 20
         assert seed["dataset"] == record["runs"]["arm/proposed"]["seeds"][0]["dataset"]
@@ -214,11 +240,14 @@ def test_ablation_experiment_quick(tmp_path):
         "no positional encoding": (0, "paper", "log1p-fraction", "uncertainty"),
         "no log distance": (3, "paper", "fraction", "uncertainty"),
         "no uncertainty weighting": (3, "paper", "log1p-fraction", "fixed"),
-        "proposed, sin(pi 2^k x)": (3, "pi", "log1p-fraction", "uncertainty")}
+        "proposed, sin(pi 2^k x)": (3, "pi", "log1p-fraction", "uncertainty"),
+        "proposed, log-MSE of d/h": (3, "paper", "log-distance", "uncertainty")}
     text = results.read_text()
     assert "Command: `python vdnif_addon/batch.py -- experiment ablation --quick --scenes arm " \
            "--seeds 1`" in text
     assert "| arm: no log distance | true |" in text and "- arm: no positional encoding:" in text
+    # one seed settles nothing
+    assert "(not settled)" in text and "(settled)" not in text
     assert "<!-- experiment ablation, arm, 1 seed -->" in text
     assert re.search(r"Ran on \d{4}-\d\d-\d\d from \d\d:\d\d to \d\d:\d\d UTC \(wall "
                      r"\d+ min, torch on \d+ threads?, \d+ CPU cores\)\.", text)

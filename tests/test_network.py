@@ -102,9 +102,22 @@ def test_readout_log1p_fraction_mode_gives_the_segment_fraction():
                  "normal": torch.ones(1, 3)}, "log1p-fraction", 0.0, torch.ones(1))
 
 
-def test_the_distance_modes_are_the_fraction_and_its_log():
-    """log1p(d/h), the proposed form before log1p(t/l), is no mode any more."""
-    assert DISTANCE_MODES == ("fraction", "log1p-fraction")
+def test_readout_log_distance_mode_places_the_hit_at_d_over_h():
+    """log-distance (the paper's written form, the ablation's): the head regresses
+    log1p(d/h); the hit is h expm1(y) from the segment's start, kept in the segment."""
+    h = 0.5
+    y = torch.tensor([0.0, math.log1p(0.5), math.log1p(1.0), 5.0, 1.0])
+    rest_len = torch.tensor([1.0, 1.0, 1.0, 1.0, 0.0])
+    p = readout({"occlusion": torch.zeros(5), "distance": y, "normal": torch.ones(5, 3)},
+                "log-distance", h, rest_len)
+    # d = 0, 0.25, 0.5, beyond the segment (kept at its end), and a zero-length segment
+    torch.testing.assert_close(p["distance"], torch.tensor([0.0, 0.25, 0.5, 1.0, 0.0]))
+    torch.testing.assert_close(p["fraction"], torch.tensor([0.0, 0.25, 0.5, 1.0, 0.0]))
+
+
+def test_the_distance_modes_are_the_fraction_its_log_and_the_papers_log_distance():
+    """log1p(d/h) is the ablation's mode, named for what it is; a bare "log1p" is none."""
+    assert DISTANCE_MODES == ("fraction", "log1p-fraction", "log-distance")
     with pytest.raises(VDNIFError, match="log1p"):
         NetworkConfig(distance_mode="log1p")
 

@@ -138,6 +138,13 @@ def test_distance_targets_follow_the_mode():
     # in that fraction (expm1(0) = 0 against 0.5)
     torch.testing.assert_close(
         task_losses(outputs, batch, "log1p-fraction")["distance"], torch.tensor(0.5 ** 2 / 2))
+    # log1p(d/h), the paper's written form: its error in log space, d = 0.5 * 4 = 2 voxel
+    # edges of 1 against an output of 0 (the first hit) and 0 against 0 (the second)
+    torch.testing.assert_close(
+        task_losses(outputs, batch, "log-distance", voxel_size=1.0)["distance"],
+        torch.tensor(math.log(3.0) ** 2 / 2))
+    with pytest.raises(VDNIFError, match="voxel size"):
+        task_losses(outputs, batch, "log-distance")
     exact = dict(outputs, distance=torch.tensor([math.log1p(0.5), 0.0, 9.0]))
     assert task_losses(exact, batch, "log1p-fraction")["distance"] < 1e-12
     assert task_losses(outputs, batch, "fraction")["normal"] == 0

@@ -96,9 +96,11 @@ DEVICES = ("auto", "cpu", "cuda")
 DEFAULT_DEVICE = "auto"
 POSE_SOURCES = ("random", "frames")
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
-DISTANCE_MODES = ("fraction", "log1p-fraction")
+DISTANCE_MODES = ("fraction", "log1p-fraction", "log-distance")
 """``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l),
-scale-invariant, its error taken in t/l (``losses.distance_error``)."""
+scale-invariant, its error taken in t/l (``losses.distance_error``). ``log-distance``: the
+paper's written form, ReLU log1p(d/h) of the rest distance d from the segment's start in
+voxel edges h, unbounded, its MSE taken in log space (the ablation's; DESIGN section 8)."""
 ALBEDO_MODES = ("segment", "hit")
 """``segment``: the paper's albedo head over the segment's end points. ``hit``: an albedo field
 of the rest point, read at the placed hit (``IntersectionNetwork.albedo_at``; DESIGN 8)."""

@@ -55,8 +55,8 @@ class IntersectionNetwork(nn.Module):
             layers += [nn.Linear(width_in, config.width), nn.ReLU()]
             width_in = config.width
         output = nn.Linear(width_in, sum(self.mlp_heads.values()))
-        if config.distance_mode == "log1p-fraction":
-            # ReLU output: start it in its active range (log1p of half the segment), or a
+        if config.distance_mode != "fraction":
+            # ReLU output: start it in its active range (log1p of one half), or a
             # head whose first outputs are all negative never gets a gradient (a dead ReLU).
             distance_column = list(self.mlp_heads).index("distance")
             start = sum(list(self.mlp_heads.values())[:distance_column])
@@ -75,8 +75,8 @@ class IntersectionNetwork(nn.Module):
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
 
-        ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l or ReLU log1p(t/l)
-        per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
+        ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l, ReLU log1p(t/l)
+        or ReLU log1p(d/h) per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
         (N, 3) in [0,1]; ``material`` (N, M) logits. Only the heads of ``config.heads`` are
         present. With an albedo field (``albedo_mode`` "hit") the albedo is the field's at
         ``p0 + hit_frac (p1 - p0)``, the reference's hit (N,) t/l, and absent without it.
@@ -212,6 +212,11 @@ def readout(
     probability = torch.sigmoid(outputs["occlusion"])
     if distance_mode == "fraction":
         fraction = outputs["distance"]
+    elif distance_mode == "log-distance":
+        # d = h expm1(y) from the segment's start; the hit stays in its segment.
+        local = voxel_size * torch.expm1(outputs["distance"].clamp(max=20.0))
+        fraction = torch.where(rest_len > 0, local / rest_len.clamp_min(1e-30),
+                               0.0).clamp(0.0, 1.0)
     else:
         fraction = torch.expm1(outputs["distance"]).clamp(0.0, 1.0)
     distance = fraction * rest_len

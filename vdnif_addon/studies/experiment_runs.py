@@ -41,11 +41,13 @@ SIZES = {
                   overrides=dict(log2_table_size=10, batch_size=1024)),
 }
 PI_FORM = "proposed, sin(pi 2^k x)"
+PAPER_LOSS = "proposed, log-MSE of d/h"
 RUNS = {   # label: (variant, extra settings)
     "lsnif": ("lsnif", {}),
     "deformed": ("deformed", {}),
     "proposed": ("proposed", {}),
     PI_FORM: ("proposed", {"pe_form": "pi"}),
+    PAPER_LOSS: ("proposed", {"distance_mode": "log-distance"}),
     "no positional encoding": ("proposed-no-pe", {}),
     "no log distance": ("proposed-no-log", {}),
     "no uncertainty weighting": ("proposed-no-uncertainty", {}),

@@ -40,6 +40,7 @@ from ..text import value
 from ..tracing.rays import orbit_viewpoints
 from ..training.fit import fit_model
 from .experiment_runs import (
+    PAPER_LOSS,
     PI_FORM,
     RUNS,
     SIZES,
@@ -50,12 +51,19 @@ from .experiment_runs import (
     scene_record,
     table_rows,
 )
-from .report import common_pixels_line, metrics_table, spread_table, targets_line, write_section
+from .report import (
+    common_pixels_line,
+    metrics_table,
+    settled,
+    spread_table,
+    targets_line,
+    write_section,
+)
 
 RESULTS_PREAMBLE = ("# Results of the paper's experiments\n\nEach section is written by the "
                     "command it names; numbers are measured, not copied.\n")
 ABLATION_RUNS = ("deformed", "proposed", "no positional encoding", "no log distance",
-                 "no uncertainty weighting", PI_FORM)
+                 "no uncertainty weighting", PI_FORM, PAPER_LOSS)
 SCENES = {"static": ("spot", "bunny"), "deformation": ("arm", "lattice", "spot", "bunny"),
           "ablation": ("arm", "lattice", "spot"), "per-pose": ("arm",)}
 ORIGINAL = "original (rest pose)"
@@ -115,7 +123,9 @@ def deformation(run):
         notes.append(f"- {runs.common_note} The {ORIGINAL} row: the rest pose's true "
                      "reference on the same rays, over its own pixels (where it and the "
                      "reference both hit).")
-        goals.append(targets_line(scene, runs.medians["proposed"], runs.medians["deformed"]))
+        goals.append(targets_line(scene, runs.medians["proposed"], runs.medians["deformed"],
+                                  seeds=(_per_seed(runs, "proposed"),
+                                         _per_seed(runs, "deformed"))))
         view = runs.first_views
         figures.append(scene_figure(
             run, f"deformation-{scene}{run.suffix}.png", view["proposed"]["true"],
@@ -145,8 +155,8 @@ def deformation(run):
 
 def ablation(run):
     """Proposed with each of its parts removed in turn (positional encoding, log distance
-    with ReLU, uncertainty weighting) and with sin(pi 2^k x), against deformed and
-    proposed on the arm, the lattice Suzanne and spot."""
+    with ReLU, uncertainty weighting), with sin(pi 2^k x) and with the paper's log-MSE of
+    d/h, against deformed and proposed on the arm, the lattice Suzanne and spot."""
     rows, spreads, records, notes, effects = [], [], {}, [], []
     for scene in run.scenes:
         runs = run_scene(run, scene, ABLATION_RUNS)
@@ -156,7 +166,7 @@ def ablation(run):
         records.update({f"{scene}/{label}": scene_record(runs, label)
                         for label in ABLATION_RUNS})
         notes.append(f"- {runs.common_note}")
-        effects.append(_ablation_line(scene, runs.medians))
+        effects.append(_ablation_line(scene, runs))
     parts = ", ".join(f"{label} (`{RUNS[label][0]}`)" for label in ABLATION_RUNS[2:5])
     lines = [
         f"Every run trains on the same data ({run.size['poses']} random poses, the same "
@@ -164,7 +174,10 @@ def ablation(run):
         f"{run.size['eval_poses']} test poses at {run.size['width']}x{run.size['height']}; "
         f"each figure is the median over {_seeds(run)}. The ablations each take one part of "
         f"proposed back to the deformed baseline's: {parts}; `{PI_FORM}` is proposed with "
-        "the PEPS sinusoids instead of the paper's `sin(2^k x)`.", "",
+        "the PEPS sinusoids instead of the paper's `sin(2^k x)`; `{PAPER_LOSS}` is proposed "
+        "with the paper's distance as written: ReLU log1p(d/h) of the rest distance from the "
+        "segment's start in voxel edges, its MSE in log space (DESIGN section 8). A "
+        "difference is settled where the seeds' ranges do not overlap.", "",
         metrics_table(rows), "", *notes, "",
         "What each change does to proposed (medians against the true reference, common "
         "pixel set; the rates over every pixel):", "", *effects, "",
@@ -173,14 +186,28 @@ def ablation(run):
     return records, lines
 
 
-def _ablation_line(scene, medians):
-    base = medians["proposed"]["vs_true"]
+def _per_seed(runs, label):
+    """The per-seed results of ``label`` on the scene's common pixel set."""
+    return [report["common"] for report in runs.reports[label]]
+
+
+def _ablation_line(scene, runs):
+    """How each ablation's medians differ from proposed's, each difference marked settled
+    or not by the seeds (``report.settled``)."""
+    base, base_seeds = runs.medians["proposed"]["vs_true"], _per_seed(runs, "proposed")
+
+    def change(label, m, name, pick):
+        seeds = [pick(result["vs_true"]) for result in _per_seed(runs, label)]
+        ours = [pick(result["vs_true"]) for result in base_seeds]
+        return f"{name} {_change(pick(m), pick(base))} ({settled(seeds, ours)})"
+
     parts = []
     for label in ABLATION_RUNS[2:]:
-        m = medians[label]["vs_true"]
-        parts.append(f"{label}: distance MAE {_change(m['distance_mae'], base['distance_mae'])}"
-                     f", normal error {_change(m['normal_error_deg'], base['normal_error_deg'])}"
-                     f", holes + extras {_change(_holes_extras(m), _holes_extras(base))}")
+        m = runs.medians[label]["vs_true"]
+        parts.append(", ".join([
+            f"{label}: " + change(label, m, "distance MAE", lambda r: r["distance_mae"]),
+            change(label, m, "normal error", lambda r: r["normal_error_deg"]),
+            change(label, m, "holes + extras", _holes_extras)]))
     return f"- {scene}: " + "; ".join(parts) + "."
 
 

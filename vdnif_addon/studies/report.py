@@ -151,34 +151,66 @@ def target_checks(scene, metrics, rates=True):
     return checks
 
 
-def beat_checks(proposed, baseline):
+SETTLED, NOT_SETTLED = "settled", "not settled"
+
+
+def settled(ours, theirs):
+    """Whether a difference between two runs is an effect: ``SETTLED`` when their seeds'
+    values (lists, at least two each) span ranges that do not overlap, else ``NOT_SETTLED``
+    (a difference inside the seed spread, or one seed, says nothing)."""
+    ours, theirs = [v for v in ours if v is not None], [v for v in theirs if v is not None]
+    if min(len(ours), len(theirs)) < 2:
+        return NOT_SETTLED
+    apart = max(ours) < min(theirs) or max(theirs) < min(ours)
+    return SETTLED if apart else NOT_SETTLED
+
+
+def seed_values(seeds, name, key):
+    """The values of metric ``key`` against reference ``name`` over per-seed compare_both
+    results (empty without seeds)."""
+    return [result[f"vs_{name}"].get(key) for result in seeds or ()]
+
+
+def beat_checks(proposed, baseline, seeds=None):
     """[(text, beaten)]: per metric and reference where both have a value, whether
-    ``proposed`` is strictly better than ``baseline`` (compare_both results)."""
+    ``proposed`` is strictly better than ``baseline`` (compare_both results: the medians).
+    ``seeds``: (proposed's, baseline's) per-seed results, to say of each difference whether
+    the seeds settle it (``settled``)."""
     checks = []
     for name in REFERENCES:
         for key, higher in HIGHER_IS_BETTER.items():
             a, b = proposed[f"vs_{name}"].get(key), baseline[f"vs_{name}"].get(key)
             if a is None or b is None:
                 continue
+            verdict = ""
+            if seeds is not None:
+                verdict = ", " + settled(seed_values(seeds[0], name, key),
+                                         seed_values(seeds[1], name, key))
             checks.append((f"{NAMES[key]} vs {name} ({metric_text(key, a)} vs "
-                           f"{metric_text(key, b)})", a > b if higher else a < b))
+                           f"{metric_text(key, b)}{verdict})", a > b if higher else a < b))
     return checks
 
 
-def targets_line(scene, proposed, deformed=None, rates=True):
+def targets_line(scene, proposed, deformed=None, rates=True, seeds=None):
     """One line for ``scene``: which targets the proposed model's metrics meet and which
-    not, and, given the deformed baseline's, on which metrics proposed beats it."""
+    not, and, given the deformed baseline's, on which metrics proposed beats it; with
+    ``seeds`` (see ``beat_checks``) how many of those differences the seeds settle."""
     checks = target_checks(scene, proposed, rates)
     met = [text for text, ok in checks if ok]
     missed = [text for text, ok in checks if not ok]
     line = (f"- **{scene}** (values against the true / embedded reference): targets met: "
             f"{'; '.join(met) or 'none'}. **Not met**: {'; '.join(missed) or 'none'}.")
     if deformed is not None:
-        beats = beat_checks(proposed, deformed)
+        beats = beat_checks(proposed, deformed, seeds)
         lost = [text for text, ok in beats if not ok]
-        line += (f" Proposed beats deformed on {len(beats) - len(lost)} of {len(beats)} "
+        won = [text for text, ok in beats if ok]
+        line += (f" Proposed's median beats deformed's on {len(won)} of {len(beats)} "
                  "metric/reference pairs" + (f"; **not** on {'; '.join(lost)}." if lost
-                                              else ": **every metric**."))
+                                              else ": every metric."))
+        if seeds is not None:
+            firm = sum(text.endswith(f", {SETTLED})") for text in won)
+            line += (f" The seeds settle {firm} of the {len(won)} it wins (their ranges do "
+                     "not overlap); the rest are not settled.")
     return line
 
 

@@ -9,6 +9,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..checks import check_choice
+from ..errors import VDNIFError
 from ..settings import DEFAULT_WEIGHTING_START, WEIGHTING_STARTS, WEIGHTINGS
 
 CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
@@ -16,16 +17,23 @@ CLASSIFICATION_TASKS = frozenset({"occlusion", "material"})
 
 
 def distance_error(
-    distance: torch.Tensor, hit_frac: torch.Tensor, distance_mode: str
+    distance: torch.Tensor, hit_frac: torch.Tensor, distance_mode: str,
+    rest_len: torch.Tensor | None = None, voxel_size: float | None = None,
 ) -> torch.Tensor:
     """Squared error (N,) of the distance head's output ``distance`` (N,) against the hit:
-    t/l (``fraction``), or expm1 of the ReLU log1p(t/l) output against t/l
-    (``log1p-fraction``).
+    t/l (``fraction``), expm1 of the ReLU log1p(t/l) output against t/l
+    (``log1p-fraction``), or the ReLU output against log1p(d/h) in log space
+    (``log-distance``, which alone needs ``rest_len`` and ``voxel_size``).
 
     hit_frac: (N,), t/l, the hit's fraction of the segment: the error is scale-invariant.
+    rest_len: (N,) rest segment lengths; voxel_size: h, in the same rest units.
     """
     if distance_mode == "fraction":
         return (distance - hit_frac).square()
+    if distance_mode == "log-distance":
+        if rest_len is None or voxel_size is None:
+            raise VDNIFError("the log-distance loss needs the rest lengths and the voxel size")
+        return (distance - torch.log1p(hit_frac * rest_len / voxel_size)).square()
     # The head outputs log1p(t/l); its error is taken in t/l, the unit the hit is placed
     # in. In log space an error at t/l near 1 weighs (1 / (1 + t/l))^2, a quarter of one
     # near 0, which left far hits worse placed than the sigmoid's (DESIGN section 8). The
@@ -38,8 +46,10 @@ def task_losses(
     outputs: Mapping[str, torch.Tensor],
     batch: Mapping[str, torch.Tensor],
     distance_mode: str,
+    voxel_size: float | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Scalar loss per head present in ``outputs``.
+    """Scalar loss per head present in ``outputs``; ``voxel_size`` (h, rest units) only for
+    the ``log-distance`` mode.
 
     batch: ``hit`` (N,) bool, ``hit_frac`` (N,), ``rest_len`` (N,), ``normal`` (N, 3),
     ``albedo`` (N, 3), ``material`` (N,) int64. Occlusion (BCE with logits) averages over all
@@ -57,7 +67,7 @@ def task_losses(
             outputs["occlusion"], hit.to(outputs["occlusion"].dtype)
         ),
         "distance": over_hits(distance_error(outputs["distance"], batch["hit_frac"],
-                                             distance_mode)),
+                                             distance_mode, batch["rest_len"], voxel_size)),
         "normal": over_hits(1.0 - F.cosine_similarity(outputs["normal"], batch["normal"], dim=1)),
     }
     if "albedo" in outputs:

@@ -101,7 +101,7 @@ class Objective(nn.Module):
     ) -> tuple[Float[torch.Tensor, ""], Float[torch.Tensor, " tasks"]]:
         """(total loss, task losses in head order) of ``batch``."""
         outputs = self.network(batch["p0"], batch["p1"], batch["hit_frac"])
-        losses = task_losses(outputs, batch, self.network.config.distance_mode)
+        losses = task_losses(outputs, batch, self.network.config.distance_mode, self.voxel_size)
         return self.weighting(losses), torch.stack(list(losses.values()))
 
 

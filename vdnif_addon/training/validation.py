@@ -56,7 +56,7 @@ def evaluation_sums(
     for start in range(0, data["p0"].shape[0], batch):
         part = {key: value[start : start + batch] for key, value in data.items()}
         outputs = network(part["p0"], part["p1"], part["hit_frac"])
-        losses = task_losses(outputs, part, mode)
+        losses = task_losses(outputs, part, mode, voxel_size)
         predicted = readout(outputs, mode, voxel_size, part["rest_len"], network.thresholds)
         hit = part["hit"]
         n, hits = hit.numel(), hit.sum()
