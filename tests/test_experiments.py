@@ -94,7 +94,8 @@ def test_targets_line_says_what_is_met_and_where_proposed_does_not_beat_deformed
     line = targets_line("bunny", proposed, deformed)
     assert line.startswith("- **bunny** (values against the true / embedded reference): "
                            "targets met: false negatives 0.4 % / 0.4 % <= 0.5 %; material")
-    assert "Proposed's median beats deformed's on 7 of 12 metric/reference pairs; **not** on " in line
+    assert ("Proposed's median beats deformed's on 7 of 12 metric/reference pairs; **not** "
+            "on ") in line
     assert "settle" not in line                   # no seeds given, no verdict
     assert "every metric" in targets_line("arm", deformed, metrics(
         distance_mae=0.04, normal_error_deg=13, hit_iou=0.9, false_negative_rate=0.02,
