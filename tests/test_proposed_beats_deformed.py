@@ -2,29 +2,27 @@
 the common pixel set (DESIGN section 10), through the experiments' own code path
 (``experiment_runs.run_scene``: same data, same steps, evaluation on unseen poses).
 
-The size (``SIZE``) is small enough for the suite (about 25 s on a loaded 2-core machine)
-and large enough that the baseline predicts hits (at 1,500 steps it often predicts almost
-none, and then there are no common pixels to compare on). The tolerance comes from the
-measured spread: with this size, seeds 0-4 (torch on one thread; ``python
-tests/test_proposed_beats_deformed.py`` prints them; measured after the uncertainty
-weighting came to start every task at weight 1, ``TrainConfig.weighting_start``) gave,
-against the true reference,
+The size (``SIZE``) is small enough for the suite (about 1 min on a loaded 2-core machine)
+and large enough that the baseline predicts hits. Both variants train at the recipe's rates
+and calibrate their thresholds on held-out poses (``val_fraction``), as every trained model
+does. The bounds come from the measured spread: with this size, seeds 0-4 (torch on one
+thread; ``python tests/test_proposed_beats_deformed.py`` prints them) gave, against the true
+reference,
 
 | seed | common pixels | distance MAE ratio | normal error ratio | hit IoU deformed / proposed |
 | --- | --- | --- | --- | --- |
-| 0 | 404 | 0.403 | 0.417 | 0.693 / 0.920 |
-| 1 | 368 | 0.203 | 0.270 | 0.642 / 0.936 |
-| 2 | 298 | 0.186 | 0.211 | 0.566 / 0.906 |
-| 3 | 303 | 0.275 | 0.292 | 0.554 / 0.890 |
-| 4 | 336 | 0.380 | 0.434 | 0.625 / 0.825 |
+| 0 | 324 | 0.157 | 0.171 | 0.591 / 0.964 |
+| 1 | 391 | 0.223 | 0.262 | 0.689 / 0.946 |
+| 2 | 403 | 0.162 | 0.247 | 0.668 / 0.968 |
+| 3 | 425 | 0.200 | 0.253 | 0.736 / 0.964 |
+| 4 | 343 | 0.125 | 0.180 | 0.571 / 0.966 |
 
-(ratio: proposed / deformed on the common pixels). The test trains seed 0 and asks, against
-both references, for ratios at most ``MAX_RATIO`` (above the largest measured, 0.43; with
-the error in log space it was 0.59 and the bound 0.85) and a hit IoU gain of at least
-``MIN_IOU_GAIN`` (seed 0 gains 0.227; the smallest measured, seed 4's 0.200, sits at the
-bound, which was set below the 0.23 that the earlier start, occlusion at twice a regression
-task's weight, gave at worst) and at least ``MIN_COMMON_PIXELS`` common pixels (below the
-fewest measured, 298).
+(ratio: proposed / deformed on the common pixels; against the embedded reference within
+0.02 of these). The test trains seed 0 and asks, against both references, for ratios at
+most ``MAX_RATIO`` (0.4: the worst seed's 0.26 with room for a platform's rounding, and
+still a cut of more than half), a hit IoU gain of at least ``MIN_IOU_GAIN`` (0.15; the
+smallest measured is 0.228), fewer holes, and at least ``MIN_COMMON_PIXELS`` common pixels
+(half the fewest measured, 324).
 """
 
 import sys
@@ -34,15 +32,12 @@ import torch
 
 SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2, width=48,
             height=48, seeds=(0,),
-            # val_fraction 0: every pose trains (the evaluation poses are unseen anyway),
-            # and no validation passes cost time.
-            # lr_mlp 1e-3: the MLP rate these bounds were measured at (the recipe's is 2e-2;
-            # at it the IoU gain measured 0.19996, on the bound, not yet remeasured).
-            overrides=dict(batch_size=512, log2_table_size=12, width=32, val_fraction=0.0,
-                           log_interval=2000, lr_mlp=1e-3))
-MAX_RATIO = {"distance_mae": 0.6, "normal_error_deg": 0.6}
-MIN_IOU_GAIN = 0.2
-MIN_COMMON_PIXELS = 100
+            # log_interval 500: four validations, too few for the stopping rule to end a
+            # run early; the last one calibrates the thresholds.
+            overrides=dict(batch_size=512, log2_table_size=12, width=32, log_interval=500))
+MAX_RATIO = {"distance_mae": 0.4, "normal_error_deg": 0.4}
+MIN_IOU_GAIN = 0.15
+MIN_COMMON_PIXELS = 160
 
 
 def compare(experiment_runs, tmp_path, seed):
