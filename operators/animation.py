@@ -1,11 +1,13 @@
 """Render Animation: the passes of a frame range (the scene's by default) as image sequences
 in the output folder, in a worker (``running``): each frame's pose and camera are read on the
-main thread, rendered in the worker, and its images written on the main thread again."""
+main thread, rendered in the worker, and its images written on the main thread again. While
+the pass viewer shows AO or Shadow, as for Render Passes, their sequences are rendered too
+(toward the light as it stands when the render starts)."""
 
 import bpy
 
 from .. import storage
-from .passes import VDNIF_OT_render_passes, frames_stage, render_view
+from .passes import VDNIF_OT_render_passes, frames_stage, render_view, secondary_settings
 from .running import JobOperator, Stage, outcome
 
 
@@ -46,7 +48,7 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
 
         camera, view = render_view(context, obj)
         make = frames_stage(context, obj, frames, width, height, write, camera=camera,
-                            view=view)
+                            view=view, secondary=secondary_settings(context, obj))
 
         def finish(obj, state):
             outcome(state)

@@ -96,10 +96,18 @@ def test_render_animation_over_the_scene_range_or_the_objects(trained,  # noqa: 
     folder = module("storage").frames_folder(obj)
     assert folder == blend.parent / "vdnif" / "Arm-frames"
     assert sequence(folder) == [2, 3, 4] and sequence(folder, "passes", ".exr") == [2, 3, 4]
+    # AO and shadow are cast only while the viewer shows one of them
+    assert sequence(folder, "ao") == [] and sequence(folder, "shadow", ".exr") == []
     obj.vdnif.use_scene_frames = False
     obj.vdnif.frame_start, obj.vdnif.frame_end, obj.vdnif.frame_step = 10, 18, 4
+    scene.vdnif_viewer.pass_name = "ao"
     bpy.ops.vdnif.render_animation()
     assert sequence(folder) == [2, 3, 4, 10, 14, 18]
+    for stem in ("ao", "shadow"):
+        assert sequence(folder, stem) == sequence(folder, stem, ".exr") == [10, 14, 18]
+    ao = image_pixels(folder / "ao.0014.png")
+    assert ao.shape[-1] == 4 and 0 < ao[..., :3].mean() < 1
+    scene.vdnif_viewer.pass_name = "normal"
 
     obj.vdnif.frame_start, obj.vdnif.frame_end, obj.vdnif.frame_step = 20, 40, 1
     render = module("operators.animation").VDNIF_OT_render_animation
