@@ -210,7 +210,8 @@ def targets_line(scene, proposed, deformed=None, rates=True, seeds=None):
         if seeds is not None:
             firm = sum(text.endswith(f", {SETTLED})") for text in won)
             line += (f" The seeds settle {firm} of the {len(won)} it wins (their ranges do "
-                     "not overlap); the rest are not settled.")
+                     "not overlap)" + ("." if firm == len(won) else
+                                       "; the rest are not settled."))
     return line
 
 
