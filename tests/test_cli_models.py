@@ -88,3 +88,26 @@ def test_no_printed_speed_includes_compiling_the_kernels(small_model, tmp_path, 
                      *VIEW, "--device", "cpu", "--json", str(tmp_path / "evaluate.json")]) == 0
     timings = json.loads((tmp_path / "evaluate.json").read_text())["timings"]
     assert len(loads) == 2 * modules and timings["kernels_s"] >= modules
+
+
+def test_evaluate_reports_on_the_test_poses_unless_asked_for_the_development_ones(
+        small_model, monkeypatch, tmp_path):
+    """``--pose-set`` reaches the capture: the test poses by default, the development poses
+    (another seed, for choices such as time-to-clean's) when asked for, and they differ."""
+    import importlib
+
+    cli, model = small_model
+    jobs = importlib.import_module(cli.__name__.rpartition(".")[0] + ".blender.jobs")
+    original, seen = jobs.model_capture, []
+
+    def spy(*args, **kwargs):
+        captured = original(*args, **kwargs)
+        seen.append((kwargs["pose_set"], captured.poses))
+        return captured
+
+    monkeypatch.setattr(jobs, "model_capture", spy)
+    for chosen in ((), ("--pose-set", "development"), ("--pose-set", "test")):
+        assert cli.main(["evaluate", "--model", str(model), "--scene", "lattice", "--poses",
+                         "2", *VIEW, "--device", "cpu", *chosen]) == 0
+    assert [name for name, _ in seen] == ["test", "development", "test"]
+    assert seen[0][1] == seen[2][1] and seen[0][1] != seen[1][1]

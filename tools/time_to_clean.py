@@ -1,9 +1,9 @@
 """How long until a model is clean: trains the proposed variant by the recipe (or with
 TrainConfig / NetworkConfig overrides) on one dataset folder, prints when the held-out
 occlusion accuracy leaves the share of misses (the all-miss answer), the training's wall
-seconds and steps, and then evaluates the model on the development poses (``--dev-seed``)
-and the test poses (``--seed``, ``evaluate``'s default) at 256x256 against the true
-reference: holes (false-negative rate), extras (false-positive rate), distance and normal.
+seconds and steps, and then evaluates the model on the development poses and the test poses
+(``evaluate --pose-set``; test is its default) at 256x256 against the true reference:
+holes (false-negative rate), extras (false-positive rate), distance and normal.
 
     python vdnif_addon/batch.py -- dataset --scene bunny --out out/bunny-data
     OMP_NUM_THREADS=1 python tools/time_to_clean.py --data out/bunny-data --scene bunny \\
@@ -45,8 +45,8 @@ def main():
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a TrainConfig or NetworkConfig field (JSON value)")
     parser.add_argument("--threads", type=int, default=None, help="torch threads")
-    parser.add_argument("--dev-seed", type=int, default=7, help="development pose seed")
-    parser.add_argument("--seed", type=int, default=0, help="test pose seed")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="the training pose seed whose unseen poses are evaluated")
     parser.add_argument("--json", required=True, help="write the figures here")
     args = parser.parse_args()
     overrides = dict(parse_setting(item) for item in args.set)
@@ -61,12 +61,13 @@ def main():
         report = {"data": args.data, "scene": args.scene, "overrides": overrides,
                   "torch_threads": threads, "status": result.status, "steps": result.steps,
                   "train_s": result.seconds, "wall_s": wall, "occlusion_history": history}
-        for name, seed in (("dev", args.dev_seed), ("test", args.seed)):
+        for name, pose_set in (("dev", "development"), ("test", "test")):
             out = pathlib.Path(scratch) / f"{name}.json"
             subprocess.run([sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--",
                             "evaluate", "--model", str(model), "--scene", args.scene,
                             "--poses", "8", "--width", "256", "--height", "256",
-                            "--seed", str(seed), "--device", "cpu", "--json", str(out)],
+                            "--seed", str(args.seed), "--pose-set", pose_set,
+                            "--device", "cpu", "--json", str(out)],
                            check=True, stdout=subprocess.DEVNULL)
             figures = json.loads(out.read_text())["vs_true"]
             figures["clean"] = (figures["false_negative_rate"] <= CLEAN_RATE

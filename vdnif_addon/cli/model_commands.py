@@ -5,6 +5,7 @@ once and captures the scene of the options again as the model was trained on it
 import pathlib
 
 from ..inference.metrics import verdict
+from ..pose_sets import POSE_SETS, TEST_POSES
 from ..settings import COMMAND_IMAGE, EVALUATION_POSES
 from .options import (
     add_device_option,
@@ -34,7 +35,8 @@ def _model_scene(args, evaluation=False):
     loaded, asked = load_model(args.model), args.resolution
     obj, spec = load_posed_scene(args)
     captured = model_capture(obj, loaded[1], spec, evaluation, resolution=asked,
-                             rest=getattr(args, "rest_pose", False))
+                             rest=getattr(args, "rest_pose", False),
+                             pose_set=getattr(args, "pose_set", TEST_POSES))
     args.resolution = captured.grid.resolution
     return loaded, obj, captured
 
@@ -180,6 +182,9 @@ def add_commands(commands):
         "albedo_psnr, material_accuracy), timings and model_bytes."))
     evaluate.add_argument("--rest-pose", action="store_true",
                           help="evaluate on views of the undeformed rest pose instead")
+    evaluate.add_argument("--pose-set", choices=tuple(POSE_SETS), default=TEST_POSES,
+                          help="the unseen poses: the test set, reported; or the "
+                               "development set, for choices (default test)")
     evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
                           help="write the figures, error images and first pose's passes here")
     evaluate.add_argument("--json", type=output_file, metavar="PATH")
