@@ -267,7 +267,8 @@ def test_a_narrowed_run_names_its_scenes_and_seeds(core):
         "experiment deformation, spot, 1 seed", "deformation-spot-1-seed", "-1-seed")
     assert name("static", ("bunny", "spot"), (0, 1), (0, 1, 2)) == (
         "experiment static, 2 seeds", "static-2-seeds", "-2-seeds")
-    started = experiments.datetime.datetime(2026, 11, 24, 23, 50,
+    # a run that crosses midnight names both days
+    started = experiments.datetime.datetime(2000, 1, 1, 23, 50,
                                             tzinfo=experiments.datetime.timezone.utc)
     assert experiments.ran_line(started, 50 * 60, 1).startswith(
-        "Ran on 2026-11-24/25 from 23:50 to 00:40 UTC (wall 50 min, torch on 1 thread, ")
+        "Ran on 2000-01-01/02 from 23:50 to 00:40 UTC (wall 50 min, torch on 1 thread, ")
