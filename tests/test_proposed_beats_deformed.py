@@ -20,7 +20,7 @@ reference,
 (ratio: proposed / deformed on the common pixels; against the embedded reference within
 0.02 of these). The test trains seed 0 and asks, against both references, for ratios at
 most ``MAX_RATIO`` (0.4: the worst seed's 0.26 with room for a platform's rounding, and
-still a cut of more than half), a hit IoU gain of at least ``MIN_IOU_GAIN`` (0.15; the
+still a cut of more than half), a hit IoU gain of at least ``MIN_IOU_GAIN`` (0.2; the
 smallest measured is 0.228), fewer holes, and at least ``MIN_COMMON_PIXELS`` common pixels
 (half the fewest measured, 324).
 """
@@ -33,10 +33,10 @@ import torch
 SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2, width=48,
             height=48, seeds=(0,),
             # log_interval 500: four validations, too few for the stopping rule to end a
-            # run early; the last one calibrates the thresholds.
+            # run early; the thresholds are calibrated on the held-out poses after training.
             overrides=dict(batch_size=512, log2_table_size=12, width=32, log_interval=500))
 MAX_RATIO = {"distance_mae": 0.4, "normal_error_deg": 0.4}
-MIN_IOU_GAIN = 0.15
+MIN_IOU_GAIN = 0.2
 MIN_COMMON_PIXELS = 160
 
 
