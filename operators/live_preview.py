@@ -1,5 +1,6 @@
 """The live preview: while an object's Live Preview is on, a frame change re-renders its
-predicted passes at the preview size into the images "VDNIF Preview <Pass>".
+predicted passes at the preview size into the images "VDNIF Preview <Pass>" (AO and Shadow
+too while the pass viewer shows one of them, as Render Passes casts them).
 
 The frame-change handler only notes the frame (``preview.LatestFrame``: at most one render
 runs and one frame waits, a newer frame replaces it), so scrubbing the timeline never waits;
@@ -13,6 +14,7 @@ from dataclasses import dataclass, field
 import bpy
 
 from .. import storage, viewer
+from ..vdnif_addon.passes import SECONDARY_PASSES
 from .common import JOBS
 
 TICK_S = 0.03
@@ -103,6 +105,7 @@ def _start(obj, scene, session):
     """Reads the pose the scene is in now (the newest frame) and starts its render."""
     from ..vdnif_addon.blender.neural import camera_view
     from ..vdnif_addon.blender.pose_reader import PoseReader
+    from .passes import secondary_settings
 
     try:
         renderer = _renderer(obj, scene, session)
@@ -121,11 +124,12 @@ def _start(obj, scene, session):
             snapshot = reader.read_current({"frame": float(scene.frame_current)})
         finally:
             reader.close()
+        secondary = secondary_settings(bpy.context, obj)
     except Exception as exc:     # shown under the toggle; the next frame change tries again
         session.error = f"'{obj.name}': live preview failed: {exc}"
         session.frames.running = session.frames.waiting = None
         return
-    renderer.start(snapshot)
+    renderer.start(snapshot, secondary)
 
 
 def _show(obj, session, frame, images):
@@ -135,8 +139,13 @@ def _show(obj, session, frame, images):
     session.error = ""
     session.shown.append(frame)
     for name, image in images.items():
-        viewer.write_image(IMAGE.format(name.title()), image,
+        viewer.write_image(IMAGE.format(title(name)), image,
                            viewer.COLORSPACES.get(name, "Non-Color"))
+
+
+def title(name):
+    """A pass's title in its preview image's name: Normal, Albedo, ..., AO, Shadow."""
+    return viewer.PASS_TITLES[name] if name in SECONDARY_PASSES else name.title()
 
 
 def error(obj):

@@ -180,6 +180,65 @@ def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
     assert "Arm" not in preview._sessions
 
 
+@pytest.mark.slow
+def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  # noqa: F811
+    """With the pass viewer on AO, the preview renders the AO and shadow passes as well, the
+    same as Render Animation's render of that frame with the object's AO settings and the
+    scene's light; on Normal it casts none."""
+    blend, _ = trained
+    obj = reopen(blend)
+    scene = bpy.context.scene
+    scene.frame_set(3)
+    for name in ("VDNIF Preview AO", "VDNIF Preview Shadow"):
+        if name in bpy.data.images:
+            bpy.data.images.remove(bpy.data.images[name])
+    preview = module("operators.live_preview")
+    scene.vdnif_viewer.pass_name = "ao"
+    obj.vdnif.ao_samples = 4
+    try:
+        obj.vdnif.live_preview = True
+        while preview.tick() is not None:
+            pass
+        session = preview._sessions["Arm"]
+        assert session.shown == [3] and session.error == ""
+        width, height = preview.preview_size(obj.vdnif)
+        shown = {}
+        for name in ("AO", "Shadow", "Normal"):
+            image = bpy.data.images[f"VDNIF Preview {name}"]
+            assert tuple(image.size) == (width, height)
+            pixels = np.empty(width * height * 4, np.float32)
+            image.pixels.foreach_get(pixels)
+            shown[name] = pixels.reshape(height, width, 4)[::-1]
+        secondary = module("operators.passes").secondary_settings(bpy.context, obj)
+        assert secondary is not None and secondary.samples == 4
+    finally:
+        obj.vdnif.live_preview = False
+
+    capture = module("vdnif_addon.blender.capture_scene").capture
+    captured = capture(obj, 12, obj.vdnif.pose_spec(1), deform_corners=False)
+    neural = module("vdnif_addon.blender.neural")
+    model = neural.load_scene_model(module("storage").model_path(obj), captured)
+    reader = module("vdnif_addon.blender.pose_reader").PoseReader(
+        obj, captured, lambda: neural.camera_view(scene.camera, width, height))
+    kept = []
+    try:
+        module("vdnif_addon.blender.animation").render_frames(
+            reader, captured, model, [3], width, height, each=lambda _, r: kept.append(r),
+            secondary=lambda _frame: secondary)
+    finally:
+        reader.close()
+    lit = kept[0].secondary["predicted"]
+    assert lit.hit.any(), "the preview's view sees the arm"
+    expected = module("vdnif_addon.blender.preview").images(kept[0].predicted, height, width,
+                                                            lit)
+    assert np.allclose(shown["AO"], expected["ao"], atol=1e-6)
+    assert np.allclose(shown["Shadow"], expected["shadow"], atol=1e-6)
+    assert np.allclose(shown["Normal"], expected["normal"], atol=1e-6)
+
+    scene.vdnif_viewer.pass_name = "normal"       # back on a primary pass: no rays cast
+    assert module("operators.passes").secondary_settings(bpy.context, obj) is None
+
+
 def test_latest_frame_rule(extension):
     frames = module("vdnif_addon.blender.preview").LatestFrame()
     assert frames.request(1) and not frames.request(2) and not frames.request(3)

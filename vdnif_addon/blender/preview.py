@@ -10,7 +10,7 @@ import threading
 import numpy as np
 
 from ..inference.evaluation import distance_range
-from ..inference.images import display
+from ..inference.images import display, secondary_images
 from ..tracing.rays import orbit_viewpoints
 from .neural import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
 from .pose_geometry import PosedObject
@@ -57,10 +57,12 @@ class PreviewRenderer:
     def busy(self):
         return self._thread is not None
 
-    def start(self, snapshot):
-        """Renders ``snapshot`` in a worker thread (none may be running)."""
+    def start(self, snapshot, secondary=None):
+        """Renders ``snapshot`` in a worker thread (none may be running); the AO and shadow
+        passes too with ``secondary`` (their ``SecondarySettings``, read on the main
+        thread: the light may move from frame to frame)."""
         self._outcome = None
-        self._thread = threading.Thread(target=self._render, args=(snapshot,),
+        self._thread = threading.Thread(target=self._render, args=(snapshot, secondary),
                                         name="vdnif-preview", daemon=True)
         self._thread.start()
 
@@ -76,7 +78,7 @@ class PreviewRenderer:
         self._thread = None
         return self._outcome
 
-    def _render(self, snapshot):
+    def _render(self, snapshot, secondary):
         try:
             if self._model is None:
                 self._model = load_scene_model(self.model_path, self.captured, self.device)
@@ -85,20 +87,26 @@ class PreviewRenderer:
             chosen = snapshot.view if snapshot.view is not None else self.view
             if chosen is not None:
                 result = render_world(self._model, self._posed, geometry,
-                                      *view_rays(chosen, self.width, self.height))
+                                      *view_rays(chosen, self.width, self.height),
+                                      secondary=secondary)
             else:
                 if self._orbit is None:
                     self._orbit = orbit_view(geometry, orbit_viewpoints(1)[0], self.width,
                                              self.height)
-                result = render_orbit_rays(self._model, self._posed, geometry, *self._orbit)
+                result = render_orbit_rays(self._model, self._posed, geometry, *self._orbit,
+                                           secondary=secondary)
+            predicted = None if result.secondary is None else result.secondary["predicted"]
             self._outcome = (snapshot.pose["frame"], images(result.predicted, self.height,
-                                                            self.width))
+                                                            self.width, predicted))
         except Exception as exc:   # shown in the panel; the preview must not stop Blender
             self._outcome = (snapshot.pose["frame"], exc)
 
 
-def images(passes, height, width):
-    """{pass: (H, W, 4) display image} of predicted Passes, alpha the hit mask."""
+def images(passes, height, width, secondary=None):
+    """{pass: (H, W, 4) display image} of predicted Passes, alpha the hit mask; "ao" and
+    "shadow" too with ``secondary``, the predicted SecondaryPasses of the same rays."""
     alpha = passes.hit.reshape(height, width, 1).astype(np.float32)
-    return {name: np.concatenate([image, alpha], axis=2) for name, image in
-            display(passes, height, width, distance_range(passes)).items()}
+    shown = display(passes, height, width, distance_range(passes))
+    if secondary is not None:
+        shown.update(secondary_images(secondary, height, width)["display"])
+    return {name: np.concatenate([image, alpha], axis=2) for name, image in shown.items()}
