@@ -172,7 +172,9 @@ def test_help_and_refused_command_lines_import_neither_bpy_torch_nor_warp():
     command line or --help of every command answers at once under plain ``python``."""
     refused = ["capture --seed -1", "capture --scale 0", "capture --deform bend:inf",
                "render --model m.vdnif --frames x", "demo --scene moon",
-               "dataset --out d --rays-per-pose 0", "train --data d --growth 99", "train"]
+               "dataset --out d --rays-per-pose 0", "train --data d --growth 99", "train",
+               "capture --mesh nowhere.obj", "dataset --blend nowhere.blend --out d",
+               "train --mesh . --out m.vdnif"]
     result = subprocess.run([sys.executable, "-c", PARSE_ONLY, *refused], cwd=REPO,
                             capture_output=True, text=True, timeout=120, check=True)
     report = json.loads(result.stdout)

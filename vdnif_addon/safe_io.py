@@ -255,6 +255,20 @@ def file_kind(mode: int) -> str:
     return "not a regular file"
 
 
+def check_input_file(path: str | os.PathLike, label: str) -> None:
+    """Refuses ``path`` on one line that starts with ``label`` and the path ("mesh file
+    'x.obj'") unless it is a regular file: checked before any heavy import, so a mistyped
+    name fails at once."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise VDNIFError(f"{label} '{path}' does not exist") from None
+    except OSError as exc:
+        raise VDNIFError(f"{label} '{path}' cannot be read: {_reason(exc)}") from None
+    if not stat.S_ISREG(mode):
+        raise VDNIFError(f"{label} '{path}' is {file_kind(mode)}, not a file")
+
+
 def open_regular(path: str | os.PathLike, label: str) -> BinaryIO:
     """``path`` opened for reading in binary, refused on one line that starts with
     ``label`` (what and which file, e.g. "model file m.vdnif") unless it is a regular file:

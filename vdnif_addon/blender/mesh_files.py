@@ -14,6 +14,7 @@ import pathlib
 import bpy
 
 from ..errors import VDNIFError
+from ..safe_io import check_input_file
 
 
 def _import_gltf(path):
@@ -44,8 +45,7 @@ def import_mesh(path, name=None):
     if importer is None:
         raise VDNIFError(f"cannot read mesh file '{path}': use one of "
                          f"{', '.join(sorted(MESH_IMPORTERS))}")
-    if not path.is_file():
-        raise VDNIFError(f"mesh file '{path}' does not exist")
+    check_input_file(path, "mesh file")
     before = set(bpy.data.objects)
     try:
         importer(str(path))

@@ -14,6 +14,7 @@ import bpy
 import numpy as np
 
 from ..errors import VDNIFError
+from ..safe_io import check_input_file
 from ..settings import DEMO_SCENES, RIGS
 from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
 from .rig import bend_twist
@@ -65,8 +66,7 @@ def mesh_scene(path, rig=None):
 def blend_scene(path, object_name):
     """Opens a .blend file and returns the named object (checked later by capture)."""
     path = pathlib.Path(path)
-    if not path.is_file():
-        raise VDNIFError(f"blend file '{path}' does not exist")
+    check_input_file(path, "blend file")
     try:
         bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     except RuntimeError as exc:

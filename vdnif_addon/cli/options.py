@@ -288,7 +288,7 @@ def validate_arguments(args):
     """Checks every option that can be wrong on its own, and every input and output place,
     before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
     from .. import limits
-    from ..safe_io import check_output_file, check_output_folder
+    from ..safe_io import check_input_file, check_output_file, check_output_folder
 
     def given(name):
         return getattr(args, name, None) is not None
@@ -298,6 +298,9 @@ def validate_arguments(args):
             limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
                                low, high)
 
+    for name in ("mesh", "blend"):
+        if given(name):
+            check_input_file(getattr(args, name), f"{name} file")
     at_least("seed", *BOUNDS["seed"])
     at_least("poses", *BOUNDS["poses"])
     at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
