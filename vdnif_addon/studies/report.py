@@ -176,18 +176,25 @@ def beat_checks(proposed, baseline, seeds=None):
     ``proposed`` is strictly better than ``baseline`` (compare_both results: the medians).
     ``seeds``: (proposed's, baseline's) per-seed results, to say of each difference whether
     the seeds settle it (``settled``)."""
+    return [(text, beaten) for text, beaten, _ in _beats(proposed, baseline, seeds)]
+
+
+def _beats(proposed, baseline, seeds):
+    """``beat_checks``' pairs with a third value: whether the seeds settle the difference
+    (False without ``seeds``)."""
     checks = []
     for name in REFERENCES:
         for key, higher in HIGHER_IS_BETTER.items():
             a, b = proposed[f"vs_{name}"].get(key), baseline[f"vs_{name}"].get(key)
             if a is None or b is None:
                 continue
-            verdict = ""
+            verdict, firm = "", False
             if seeds is not None:
-                verdict = ", " + settled(seed_values(seeds[0], name, key),
-                                         seed_values(seeds[1], name, key))
+                verdict = settled(seed_values(seeds[0], name, key),
+                                  seed_values(seeds[1], name, key))
+                firm, verdict = verdict == SETTLED, ", " + verdict
             checks.append((f"{NAMES[key]} vs {name} ({metric_text(key, a)} vs "
-                           f"{metric_text(key, b)}{verdict})", a > b if higher else a < b))
+                           f"{metric_text(key, b)}{verdict})", a > b if higher else a < b, firm))
     return checks
 
 
@@ -201,14 +208,14 @@ def targets_line(scene, proposed, deformed=None, rates=True, seeds=None):
     line = (f"- **{scene}** (values against the true / embedded reference): targets met: "
             f"{'; '.join(met) or 'none'}. **Not met**: {'; '.join(missed) or 'none'}.")
     if deformed is not None:
-        beats = beat_checks(proposed, deformed, seeds)
-        lost = [text for text, ok in beats if not ok]
-        won = [text for text, ok in beats if ok]
+        beats = _beats(proposed, deformed, seeds)
+        lost = [text for text, ok, _ in beats if not ok]
+        won = [firm for _, ok, firm in beats if ok]
         line += (f" Proposed's median beats deformed's on {len(won)} of {len(beats)} "
                  "metric/reference pairs" + (f"; **not** on {'; '.join(lost)}." if lost
                                               else ": every metric."))
         if seeds is not None:
-            firm = sum(text.endswith(f", {SETTLED})") for text in won)
+            firm = sum(won)
             line += (f" The seeds settle {firm} of the {len(won)} it wins (their ranges do "
                      "not overlap)" + ("." if firm == len(won) else
                                        "; the rest are not settled."))
