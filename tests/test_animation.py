@@ -131,6 +131,25 @@ def test_render_animation_over_the_scene_range_or_the_objects(trained,  # noqa: 
     assert any(re.search(r"render: \d+/21 frames, ETA \d+ s", text) for text in status)
 
 
+def rendered_frame(obj, frame, width, height, secondary=None):
+    """Render Animation's RenderResult of ``frame`` of the Arm through the scene's camera at
+    the preview's size (with ``secondary``, its AO and shadow settings)."""
+    capture = module("vdnif_addon.blender.capture_scene").capture
+    captured = capture(obj, 12, obj.vdnif.pose_spec(1), deform_corners=False)
+    neural = module("vdnif_addon.blender.neural")
+    model = neural.load_scene_model(module("storage").model_path(obj), captured)
+    reader = module("vdnif_addon.blender.pose_reader").PoseReader(
+        obj, captured, lambda: neural.camera_view(bpy.context.scene.camera, width, height))
+    kept = []
+    try:
+        module("vdnif_addon.blender.animation").render_frames(
+            reader, captured, model, [frame], width, height, each=lambda _, r: kept.append(r),
+            secondary=None if secondary is None else (lambda _frame: secondary))
+    finally:
+        reader.close()
+    return kept[0]
+
+
 @pytest.mark.slow
 def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
     """A scrub over several frames while a render runs leaves one frame waiting, the newest;
@@ -162,19 +181,8 @@ def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
     pixels = np.empty(width * height * 4, np.float32)
     shown.pixels.foreach_get(pixels)
 
-    capture = module("vdnif_addon.blender.capture_scene").capture
-    captured = capture(obj, 12, obj.vdnif.pose_spec(1), deform_corners=False)
-    neural = module("vdnif_addon.blender.neural")
-    model = neural.load_scene_model(module("storage").model_path(obj), captured)
-    reader = module("vdnif_addon.blender.pose_reader").PoseReader(
-        obj, captured, lambda: neural.camera_view(scene.camera, width, height))
-    kept = []
-    try:
-        module("vdnif_addon.blender.animation").render_frames(
-            reader, captured, model, [6], width, height, each=lambda _, r: kept.append(r))
-    finally:
-        reader.close()
-    expected = module("vdnif_addon.blender.preview").images(kept[0].predicted, height, width)
+    expected = module("vdnif_addon.blender.preview").images(
+        rendered_frame(obj, 6, width, height).predicted, height, width)
     assert np.allclose(pixels.reshape(height, width, 4)[::-1], expected["normal"], atol=1e-6)
     obj.vdnif.live_preview = False
     assert "Arm" not in preview._sessions
@@ -214,22 +222,10 @@ def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  
     finally:
         obj.vdnif.live_preview = False
 
-    capture = module("vdnif_addon.blender.capture_scene").capture
-    captured = capture(obj, 12, obj.vdnif.pose_spec(1), deform_corners=False)
-    neural = module("vdnif_addon.blender.neural")
-    model = neural.load_scene_model(module("storage").model_path(obj), captured)
-    reader = module("vdnif_addon.blender.pose_reader").PoseReader(
-        obj, captured, lambda: neural.camera_view(scene.camera, width, height))
-    kept = []
-    try:
-        module("vdnif_addon.blender.animation").render_frames(
-            reader, captured, model, [3], width, height, each=lambda _, r: kept.append(r),
-            secondary=lambda _frame: secondary)
-    finally:
-        reader.close()
-    lit = kept[0].secondary["predicted"]
+    rendered = rendered_frame(obj, 3, width, height, secondary)
+    lit = rendered.secondary["predicted"]
     assert lit.hit.any(), "the preview's view sees the arm"
-    expected = module("vdnif_addon.blender.preview").images(kept[0].predicted, height, width,
+    expected = module("vdnif_addon.blender.preview").images(rendered.predicted, height, width,
                                                             lit)
     assert np.allclose(shown["AO"], expected["ao"], atol=1e-6)
     assert np.allclose(shown["Shadow"], expected["shadow"], atol=1e-6)
