@@ -36,34 +36,32 @@ def _beside_blend(obj, name):
     return pathlib.Path(bpy.path.abspath(f"//vdnif/{slug(obj)}{name}"))
 
 
-def dataset_folder(obj):
-    """The object's dataset folder: its setting, else beside the .blend, else (unsaved
-    .blend) in the user folder."""
-    chosen = obj.vdnif.dataset_dir
+def _chosen_folder(obj, chosen, suffix, kind):
+    """The folder ``chosen`` in the object's settings, else beside the .blend (named with
+    ``suffix``), else (unsaved .blend) the user folder's ``kind``."""
     if chosen:
         return pathlib.Path(bpy.path.abspath(chosen))
     if bpy.data.filepath:
-        return _beside_blend(obj, "-dataset")
-    return user_folder("datasets", slug(obj))
+        return _beside_blend(obj, suffix)
+    return user_folder(kind, slug(obj))
+
+
+def dataset_folder(obj):
+    """The object's dataset folder: its setting, else beside the .blend, else (unsaved
+    .blend) in the user folder."""
+    return _chosen_folder(obj, obj.vdnif.dataset_dir, "-dataset", "datasets")
 
 
 def frames_folder(obj):
     """Where Render Animation writes the object's image sequences: its setting, else beside
     the .blend, else (unsaved .blend) in the user folder."""
-    chosen = obj.vdnif.frames_dir
-    if chosen:
-        return pathlib.Path(bpy.path.abspath(chosen))
-    if bpy.data.filepath:
-        return _beside_blend(obj, "-frames")
-    return user_folder("frames", slug(obj))
+    return _chosen_folder(obj, obj.vdnif.frames_dir, "-frames", "frames")
 
 
 def passes_folder(obj):
     """Where Render Passes writes the object's previews and multilayer EXRs: beside the
     .blend, else (unsaved .blend) in the user folder."""
-    if bpy.data.filepath:
-        return _beside_blend(obj, "-passes")
-    return user_folder("passes", slug(obj))
+    return _chosen_folder(obj, "", "-passes", "passes")
 
 
 def has_dataset(obj):
