@@ -39,8 +39,28 @@ def duration(seconds: float | None) -> str:
     return f"{seconds // 60}:{seconds % 60:02d}" if seconds >= 60 else f"{seconds} s"
 
 
+class Progress:
+    """What every job's state shares (a dataclass with ``status``, ``cancelling`` and
+    ``message`` fields, and ``done_of()``: (done, total) in its own unit)."""
+
+    @property
+    def done(self) -> bool:
+        return self.status != "running"
+
+    @property
+    def fraction(self) -> float:
+        count, total = self.done_of()
+        return count / total if total else 0.0
+
+    def _line(self, text: str) -> str:
+        """The panel's line: ``text`` (what runs) while running, else the message."""
+        if self.done:
+            return self.message
+        return text + (", cancelling" if self.cancelling else "")
+
+
 @dataclass
-class WorkState:
+class WorkState(Progress):
     """What the UI shows of a job. Changed only by ``WorkerJob.poll`` (the main thread)."""
 
     title: str                    # what the job does, for the status bar: "dataset"
@@ -54,21 +74,14 @@ class WorkState:
     result: Any = None            # the work's result, once completed
     started: float = field(default_factory=time.monotonic)
 
-    @property
-    def done(self) -> bool:
-        return self.status != "running"
-
-    @property
-    def fraction(self) -> float:
-        return self.count / self.total if self.total else 0.0
+    def done_of(self) -> tuple[int, int]:
+        return self.count, self.total
 
     def line(self) -> str:
         """One line for the panel and the status bar."""
-        if self.done:
-            return self.message
         text = f"{self.title}: {self.count}/{self.total} {self.unit}"
-        text += f", ETA {duration(self.eta_s)}" if self.count else ", starting"
-        return text + (", cancelling" if self.cancelling else "")
+        return self._line(text + (f", ETA {duration(self.eta_s)}" if self.count
+                                  else ", starting"))
 
 
 class Feed:

@@ -21,7 +21,7 @@ from typing import Any
 
 from ..errors import VDNIFError
 from ..memory import release_cached_memory
-from ..worker import duration
+from ..worker import Progress, duration
 
 
 def progress_interval(steps: int) -> int:
@@ -30,7 +30,7 @@ def progress_interval(steps: int) -> int:
 
 
 @dataclass
-class JobState:
+class JobState(Progress):
     """What the UI shows of a job. Changed only by ``TrainingJob.poll`` (the UI's thread)."""
 
     steps: int
@@ -44,24 +44,15 @@ class JobState:
     model: str | None = None             # the model file written, None if none was
     history: list = field(default_factory=list)     # the progress records so far
 
-    @property
-    def done(self) -> bool:
-        return self.status != "running"
-
-    @property
-    def fraction(self) -> float:
-        return self.step / self.steps if self.steps else 0.0
+    def done_of(self) -> tuple[int, int]:
+        return self.step, self.steps
 
     def line(self) -> str:
         """One line for the panel and the status bar."""
-        if self.done:
-            return self.message
         if self.loss is None:
-            text = f"step 0/{self.steps}, starting"
-        else:
-            text = (f"step {self.step}/{self.steps}, loss {self.loss:.4f}, "
-                    f"ETA {duration(self.eta_s)}")
-        return text + (", cancelling" if self.cancelling else "")
+            return self._line(f"step 0/{self.steps}, starting")
+        return self._line(f"step {self.step}/{self.steps}, loss {self.loss:.4f}, "
+                          f"ETA {duration(self.eta_s)}")
 
 
 class TrainingJob:
