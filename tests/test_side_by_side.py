@@ -246,6 +246,13 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
                      if line.startswith("| neural render (walk"))
     assert speed_row.count("n/a") == 2 and f"{results['oracle']['rays_per_s']['neural']:,.0f}" \
         in speed_row
+    # the network's share: its segments/s in the render's waves over one batch's
+    median = results["oracle"]["median"]
+    share = (median["neural_segments"] * median["all_segments_network_s"]) / (
+        median["neural_network_s"] * median["walk_segments"])
+    row = next(line for line in text.splitlines() if line.startswith("| network inside"))
+    assert row.split("|")[2].strip().startswith(f"{share * 100:.0f} %")
+    assert row.split("|")[4].strip() == "n/a"                     # no model: not rendered
     walk = results["oracle"]["ratios"]["walk_deformed_over_static"]
     row = next(line for line in text.splitlines()
                if line.startswith(f"| walk: deformed / static DDA <= {report.TARGET_WALK} |"))
