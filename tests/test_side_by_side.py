@@ -237,6 +237,18 @@ def test_markdown_says_every_figure_and_why_one_is_missing(tiny):
         assert label in text
     for label, *_ in report.TARGETS:
         assert label in text
+    # at a glance: a row per result, the neural pose over the cheapest classical one
+    plots = core("studies.side_by_side_plots")
+    oracle = results["oracle"]
+    baselines = core("studies.baselines").BASELINES
+    cheapest = min(baselines, key=lambda b: plots.pose_total(oracle, b))
+    glance = [line for line in text.splitlines()
+              if line.startswith("| Suzanne (3,936) | 16x16 | 1 |")]
+    assert len(glance) == 3
+    assert glance[0].split("|")[-3].strip() == (
+        f"{oracle['ratios'][f'pose_neural_over_{cheapest}']:.3g} "
+        f"({plots.SHORT[cheapest]})")
+    assert glance[2].split("|")[-3].strip() == "n/a"               # no model
     tables = [line for line in text.splitlines() if line.startswith("| | ")]
     assert len(tables) == 9 and all(
         line.count("Suzanne (3,936 triangles), 16x16, 1 thread setting") == 3

@@ -118,6 +118,7 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
     if machine is not None:
         lines += [machine, ""]
     lines += _withheld_lines(results)
+    lines += glance_table(results)
     lines += table("Targets (met / missed; n/a where the figure is withheld or not run).",
                    [(label, [f"{text}{_met(met)}" for text, met in cells])
                     for label, *cells in _transpose_targets(results)])
@@ -186,6 +187,36 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
         ("DDA and deformed walk give the same cells",
          [_match_text(r) for r in results])])
     return lines
+
+
+def glance_table(results):
+    """Markdown lines of the table a reader wants first: one row per mesh, image size and
+    thread setting, each path's pose total (milliseconds, Blender's evaluation included),
+    the neural pose over the cheapest classical one (the median of each repeat's ratio, as
+    in the targets), and the model's holes and extras."""
+    heads = ["mesh (triangles)", "image", "threads", "neural",
+             *(SHORT[b] for b in BASELINES), "neural / cheapest classical",
+             "holes / extras (vs true)"]
+    lines = ["At a glance: milliseconds per pose, median over repeats (the tables below "
+             "hold every step and figure).", "", "| " + " | ".join(heads) + " |",
+             "|---" * len(heads) + "|"]
+    for r in results:
+        totals = {name: pose_total(r, name) for name in ("neural", *BASELINES)}
+        classical = [(totals[b], b) for b in BASELINES if totals[b] is not None]
+        ratio = "n/a"
+        if totals["neural"] is not None and classical:
+            cheapest = min(classical)[1]
+            ratio = f"{r['ratios'][f'pose_neural_over_{cheapest}']:.3g} ({SHORT[cheapest]})"
+        network = r["network"]
+        rates = ("n/a" if network.get("false_negative_rate") is None else
+                 f"{percent(network['false_negative_rate'])} / "
+                 f"{percent(network['false_positive_rate'])}")
+        cells = [f"{r['object']} ({r['triangles']:,})", f"{r['width']}x{r['height']}",
+                 str(r["threads"]["setting"]),
+                 *("n/a" if totals[name] is None else f"{totals[name]:.1f}"
+                   for name in ("neural", *BASELINES)), ratio, rates]
+        lines.append("| " + " | ".join(cells) + " |")
+    return [*lines, ""]
 
 
 def _step_rows():
