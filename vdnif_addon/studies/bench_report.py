@@ -81,7 +81,7 @@ def point_label(row):
 
 def rule_text(convergence):
     """The convergence rule of ``Convergence`` in words, with the size's numbers."""
-    return (f"Every point trains until it converges: the training validates on its "
+    return (f"Every point trains until the stopping rule ends it: the training validates on its "
             f"held-out training poses every {convergence['validate_every']} steps, and stops "
             f"once {convergence['patience']} validations in a row ("
             f"{convergence['patience'] * convergence['validate_every']:,} steps) have not "
@@ -89,7 +89,7 @@ def rule_text(convergence):
             f"error by more than {100 * convergence['min_gain']:g} % below its last mark; "
             f"at most {convergence['max_steps']:,} steps (a point stopped there says so), "
             f"the learning rate decaying over those {convergence['max_steps']:,} steps for "
-            "every point. Training time is the time to converge.")
+            "every point. Training time is the time to that stop, the rule's or the cap's.")
 
 
 def sweep_markdown(rows, presets, size, command, out, performance):
