@@ -61,8 +61,8 @@ def cmd_experiment(args):
 
 
 def cmd_bench(args):
-    """Sweep resolution, hash grid, PE bands and width, each point trained until it
-    converges; derive the presets."""
+    """Sweep resolution, hash grid, PE bands and width, each point trained until the
+    stopping rule or the step cap ends it; derive the presets."""
     from ..presets import PRESETS_FILE
     from ..studies.bench import run_bench
 
