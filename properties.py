@@ -172,8 +172,9 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     live_preview: BoolProperty(
         name="Live Preview", default=False,
         update=lambda settings, context: live_preview.toggled(settings, context),
-        description="Render the predicted passes at the preview size whenever the frame "
-                    "changes (frames are skipped rather than queued while one renders)")
+        description="Render the predicted passes at the preview size into the images "
+                    "'VDNIF Preview <Pass>' whenever the frame changes (frames are skipped "
+                    "rather than queued while one renders)")
     preview_percent: IntProperty(name="Preview Size", default=25, min=5, max=100,
                                  subtype="PERCENTAGE",
                                  description="The live preview's size, in percent of the "
