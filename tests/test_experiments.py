@@ -215,7 +215,7 @@ def test_deformation_experiment_quick(tmp_path):
 
 
 @pytest.mark.slow
-def test_ablation_experiment_quick(tmp_path):
+def test_ablation_experiment_quick(tmp_path, core):
     """The ablation end to end on one scene and seed: each run trains the configuration it
     names (one part of proposed taken back to the baseline's) on the same data and steps."""
     results = tmp_path / "docs" / "results.md"
@@ -247,6 +247,9 @@ def test_ablation_experiment_quick(tmp_path):
     assert "Command: `python vdnif_addon/batch.py -- experiment ablation --quick --scenes arm " \
            "--seeds 1`" in text
     assert "| arm: no log distance | true |" in text and "- arm: no positional encoding:" in text
+    paper_loss = core("studies.experiment_runs").PAPER_LOSS
+    assert f"`{paper_loss}` is proposed with the paper's distance" in text
+    assert not re.search(r"\{[A-Z_]+\}", text), "a name left unformatted"
     # one seed settles nothing
     assert "(not settled)" in text and "(settled)" not in text
     assert "<!-- experiment ablation, arm, 1 seed -->" in text

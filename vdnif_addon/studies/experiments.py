@@ -174,7 +174,7 @@ def ablation(run):
         f"{run.size['eval_poses']} test poses at {run.size['width']}x{run.size['height']}; "
         f"each figure is the median over {_seeds(run)}. The ablations each take one part of "
         f"proposed back to the deformed baseline's: {parts}; `{PI_FORM}` is proposed with "
-        "the PEPS sinusoids instead of the paper's `sin(2^k x)`; `{PAPER_LOSS}` is proposed "
+        f"the PEPS sinusoids instead of the paper's `sin(2^k x)`; `{PAPER_LOSS}` is proposed "
         "with the paper's distance as written: ReLU log1p(d/h) of the rest distance from the "
         "segment's start in voxel edges, its MSE in log space (DESIGN section 8). A "
         "difference is settled where the seeds' ranges do not overlap.", "",
