@@ -271,7 +271,8 @@ def test_the_stored_thresholds_decide_the_predicted_hits_and_candidates(tmp_path
     candidate one."""
     p0, p1 = torch.rand(2, 400, 3)
     rest_len = (p1 - p0).norm(dim=1)
-    probability = torch.sigmoid(network(p0, p1)["occlusion"])
+    with torch.no_grad():
+        probability = torch.sigmoid(network(p0, p1)["occlusion"])
     # Thresholds among the untrained network's probabilities, so that each one tells
     # segments apart.
     low, middle, high = (float(probability.quantile(q)) for q in (0.2, 0.5, 0.8))
