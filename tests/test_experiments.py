@@ -273,5 +273,7 @@ def test_a_narrowed_run_names_its_scenes_and_seeds(core):
     # a run that crosses midnight names both days
     started = experiments.datetime.datetime(2000, 1, 1, 23, 50,
                                             tzinfo=experiments.datetime.timezone.utc)
+    ended = started + experiments.datetime.timedelta(minutes=50)
     assert experiments.ran_line(started, 50 * 60, 1).startswith(
-        "Ran on 2000-01-01/02 from 23:50 to 00:40 UTC (wall 50 min, torch on 1 thread, ")
+        f"Ran on {started:%Y-%m-%d}/{ended:%d} from 23:50 to 00:40 UTC (wall 50 min, torch on "
+        "1 thread, ")
