@@ -207,10 +207,7 @@ def glance_table(results):
         if totals["neural"] is not None and classical:
             cheapest = min(classical)[1]
             ratio = f"{r['ratios'][f'pose_neural_over_{cheapest}']:.3g} ({SHORT[cheapest]})"
-        network = r["network"]
-        rates = ("n/a" if network.get("false_negative_rate") is None else
-                 f"{percent(network['false_negative_rate'])} / "
-                 f"{percent(network['false_positive_rate'])}")
+        rates = _rates_text(r["network"])
         cells = [f"{r['object']} ({r['triangles']:,})", f"{r['width']}x{r['height']}",
                  str(r["threads"]["setting"]),
                  *("n/a" if totals[name] is None else f"{totals[name]:.1f}"
@@ -347,7 +344,14 @@ def _agreement_text(agreement):
 def _iou_text(network):
     if network["hit_iou"] is None:
         return "n/a"
-    return (f"{network['hit_iou']:.4f}, {percent(network['false_negative_rate'])} / "
+    return f"{network['hit_iou']:.4f}, {_rates_text(network)}"
+
+
+def _rates_text(network):
+    """The model's false-negative / false-positive rates against the true reference."""
+    if network.get("false_negative_rate") is None:
+        return "n/a"
+    return (f"{percent(network['false_negative_rate'])} / "
             f"{percent(network['false_positive_rate'])}")
 
 
