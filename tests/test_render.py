@@ -221,3 +221,66 @@ def test_display_images_and_figure():
     np.testing.assert_allclose(errors["distance"][0, 2], 1.0)                # only one hits
     figure = images.comparison_figure([[shown["normal"]] * 3, [shown["distance"]] * 3], gap=1)
     assert figure.shape == (5, 11, 3) and (figure[2] == 1).all()
+
+
+@pytest.mark.parametrize("size", [(128, 96), (161, 97)])
+def test_the_walk_beside_the_encoder_renders_what_serial_launches_render(monkeypatch, size):
+    """The overlapped render walks one lane while the Warp encoder of the trained network's
+    kind encodes the other (``kernels.launches``): run after run it must give the passes of
+    the same render with every Warp launch made alone, bit for bit, and its launches must
+    have run at once (else nothing was tested)."""
+    import threading
+    import time
+
+    import warp as wp
+
+    from vdnif_addon.model.metadata import Thresholds
+    from vdnif_addon.model.network import IntersectionNetwork
+    from vdnif_addon.settings import Heads, NetworkConfig
+    from vdnif_addon.tracing.traverse import traverse
+
+    mesh, grid, bend = bent_ball(16)
+    cells = DeviceCells(grid, corners=bend)
+    torch.manual_seed(size[0])
+    network = IntersectionNetwork(NetworkConfig(
+        levels=4, base_resolution=8, log2_table_size=12, width=32, depth=2, pe_bands=2,
+        heads=Heads(albedo=True, material_count=2)))
+    network.eval()
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.4, -0.3, 1]) /
+                                          np.linalg.norm([0.4, -0.3, 1]), *size)
+    # thresholds at quantiles of the untrained network's probabilities over the walked
+    # segments, so that rays stop at a share of their segments and walk on past the others
+    walked = traverse(cells, origins, directions)
+    probability = render.predict_segments(network, grid, walked, "cpu")["hit_probability"]
+    network.thresholds = Thresholds(*(float(probability.quantile(q)) for q in (0.9, 0.8)))
+    launch, alone = wp.launch, threading.Lock()
+    spans = []
+
+    def serial(*args, **kwargs):
+        with alone:
+            return launch(*args, **kwargs)
+
+    def timed(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return launch(*args, **kwargs)
+        finally:
+            spans.append((start, time.perf_counter(), threading.get_ident(), args[0].key))
+
+    def passes_with(wrapper):
+        monkeypatch.setattr(wp, "launch", wrapper)
+        try:
+            return render.neural_passes(network, grid, mesh.albedo_table(), cells, origins,
+                                        directions, overlap=True, schedule=(1, 2))[0]
+        finally:
+            monkeypatch.setattr(wp, "launch", launch)
+
+    expected = passes_with(serial)
+    assert 0.05 * len(origins) < expected.hit.sum() < 0.9 * len(origins)
+    for _ in range(8):
+        got = passes_with(timed)
+        for name in ("hit", "distance", "normal", "albedo", "material"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(expected, name), name)
+    spans.sort()
+    assert any(b[0] < a[1] and b[2] != a[2] for a, b in zip(spans, spans[1:])), \
+        "no two launches ran at once: nothing was tested"

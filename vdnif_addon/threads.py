@@ -61,8 +61,7 @@ def use_encoder_threads(count: int | None) -> None:
 @contextlib.contextmanager
 def encoder_on_one_thread() -> Iterator[None]:
     """Inside, the encoder's launches run on one thread: for the renderer, whose walk runs on
-    the other core beside the encoder (split there, the encoder's slices and the walk took
-    turns on the cores and the bunny's render lost about a fifth of its rays/s)."""
+    the other core beside the encoder."""
     before = _encoder["threads"]
     _encoder["threads"] = 1
     try:
@@ -71,11 +70,12 @@ def encoder_on_one_thread() -> Iterator[None]:
         _encoder["threads"] = before
 
 
-def encoder_pool() -> ThreadPoolExecutor:
-    """The worker threads that run the encoder's CPU slices, ``encoder_threads()`` of them,
-    made once per process."""
+def launch_pool(count: int | None = None) -> ThreadPoolExecutor:
+    """``count`` worker threads (default ``encoder_threads()``) that run the slices of a
+    split Warp CPU launch (the encoder's, a baseline's casts), made once per process and
+    count."""
     with _pool_lock:
-        count = encoder_threads()
+        count = count or encoder_threads()
         if count not in _pool:
             _pool[count] = ThreadPoolExecutor(count, thread_name_prefix="vdnif-encoder")
         return _pool[count]

@@ -135,9 +135,8 @@ class _Waves:
     """The three steps of a wave of one lane: ``advance`` (Warp only: the walk kernel and
     the network inputs), ``predict`` (the network: the Warp encoder and torch's MLP),
     ``resolve`` (Warp: hits placed and made, finished rays out). The renderer runs
-    ``advance`` of one lane beside ``predict`` of the other, then ``resolve`` alone;
-    ``runtime.LAUNCHES`` keeps the walk's and the encoder's launches from running at once, so
-    only the MLP overlaps the walk."""
+    ``advance`` of one lane beside ``predict`` of the other (the walk's launches beside the
+    encoder's: they write disjoint memory, ``kernels.launches``), then ``resolve`` alone."""
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
@@ -169,14 +168,13 @@ class _Waves:
             self.inputs[lane] = [wp.empty(need, dtype=dtype, device=self.device)
                                  for dtype in (wp.vec3, wp.vec3, wp.float32)]
         buffer = self.buffers[lane]
-        with runtime.LAUNCHES:          # beside predict's encoder launches on another thread
-            buffer.cursor.zero_()
-            count = self.walk.advance(buffer, per_wave, lane)
-            if count:
-                wp.launch(kernel.network_inputs, dim=count,
-                          inputs=[buffer, wp.vec3d(*self.grid.origin),
-                                  wp.float64(self.grid.extent), *self.inputs[lane]],
-                          device=self.device)
+        buffer.cursor.zero_()
+        count = self.walk.advance(buffer, per_wave, lane)
+        if count:
+            wp.launch(kernel.network_inputs, dim=count,
+                      inputs=[buffer, wp.vec3d(*self.grid.origin), wp.float64(self.grid.extent),
+                              *self.inputs[lane]],
+                      device=self.device)
         self.stats["walk_s"] += time.perf_counter() - clock
         return count
 

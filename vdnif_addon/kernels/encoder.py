@@ -354,12 +354,11 @@ def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch
     width = vector_width(enc.feature_dim)
     rows = _vectors(table, width)
     chunks = enc.feature_dim // width
-    with runtime.LAUNCHES:
-        parts = launches.parts(device, p0.shape[0])
-        slices = _launches(enc, p0, p1, ends, parts)
-        launches.run(_FORWARD[width], device, stream, parts,
-             [((stop - first) * ends, args + [rows, chunks, _vectors(out[first:stop], width)])
-              for first, stop, args in slices])
+    parts = launches.parts(device, p0.shape[0])
+    slices = _launches(enc, p0, p1, ends, parts)
+    launches.run(_FORWARD[width], device, stream, parts,
+                 [((stop - first) * ends, args + [rows, chunks, _vectors(out[first:stop], width)])
+                  for first, stop, args in slices])
     return out
 
 
@@ -376,14 +375,12 @@ def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
     width = vector_width(enc.feature_dim)
     grad_out = grad_out.to(torch.float32).contiguous()
     chunks = enc.feature_dim // width
-    with runtime.LAUNCHES:
-        parts = launches.parts(device, p0.shape[0])
-        slices = _launches(enc, p0, p1, ends, parts)
-        grads = torch.zeros(parts, rows, enc.feature_dim, dtype=torch.float32,
-                            device=p0.device)
-        launches.run(_BACKWARD[width], device, stream, parts,
-             [((stop - first) * ends,
-               args + [_vectors(grad_out[first:stop], width), chunks,
-                       _vectors(grads[i % parts], width)])
-              for i, (first, stop, args) in enumerate(slices)])
+    parts = launches.parts(device, p0.shape[0])
+    slices = _launches(enc, p0, p1, ends, parts)
+    grads = torch.zeros(parts, rows, enc.feature_dim, dtype=torch.float32, device=p0.device)
+    launches.run(_BACKWARD[width], device, stream, parts,
+                 [((stop - first) * ends,
+                   args + [_vectors(grad_out[first:stop], width), chunks,
+                           _vectors(grads[i % parts], width)])
+                  for i, (first, stop, args) in enumerate(slices)])
     return grads[0] if parts == 1 else grads.sum(0)

@@ -1,5 +1,16 @@
 """How the encoder's launches are placed: split over CPU threads (a Warp CPU launch runs on
-one), or on the Warp stream of torch's current CUDA stream."""
+one), or on the Warp stream of torch's current CUDA stream.
+
+Warp CPU launches from several threads at once. Warp's documentation promises nothing here (it
+says a CPU launch is synchronous and runs serially); what makes it safe for this package's
+kernels, read in Warp 1.19: a launch builds its arguments per call and calls the compiled
+entry through ctypes, which releases the GIL; the entry loops over the tasks passing each
+index as an argument (an older Warp kept it in a global); the one global a launch writes is
+the tile storage pointer, which only tile kernels read, and no kernel here uses tiles. So
+launches that write disjoint memory may run at once: the encoder's slices here, and the
+renderer's walk of one lane beside the encoder of the other. Kernel modules are loaded before
+(``runtime.load``, one at a time). The tests hold threaded launches to one launch's result,
+run after run (``tests/test_encoder_threads.py``, ``tests/test_render.py``)."""
 
 from __future__ import annotations
 
@@ -28,21 +39,20 @@ def warp_stream(stream: torch.cuda.Stream) -> wp.Stream:
     return found
 
 
-def parts(device: str, count: int) -> int:
-    """Slices a launch over ``count`` points is split into: one per CPU thread of
-    ``threads.encoder_threads()`` with at least ``MIN_SLICE_POINTS`` points each, one on CUDA
-    (a CUDA launch is parallel already)."""
+def parts(device: str, count: int, workers: int | None = None) -> int:
+    """Slices a launch over ``count`` points is split into: one per CPU thread of ``workers``
+    (default ``threads.encoder_threads()``) with at least ``MIN_SLICE_POINTS`` points each,
+    one on CUDA (a CUDA launch is parallel already)."""
     if not str(device).startswith("cpu"):
         return 1
-    return max(1, min(threads.encoder_threads(), count // MIN_SLICE_POINTS))
+    return max(1, min(workers or threads.encoder_threads(), count // MIN_SLICE_POINTS))
 
 
 def run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
         jobs: list[tuple[int, list[Any]]]) -> None:
     """Launches ``kernel`` once per (dim, arguments) of ``jobs``. With ``workers`` > 1
-    (the CPU only) job i runs on worker i % workers of ``threads.encoder_pool()``, each
-    worker's jobs in order, the workers at once: a launch is serial and releases the GIL
-    in its ctypes call, and a kernel without tiles keeps no state between tasks."""
+    (the CPU only) job i runs on worker i % workers of ``threads.launch_pool(workers)``,
+    each worker's jobs in order, the workers at once (safe: see the module)."""
     def in_order(share: list[tuple[int, list[Any]]]) -> None:
         for dim, inputs in share:
             wp.launch(kernel, dim=dim, inputs=inputs, device=device, stream=stream)
@@ -50,4 +60,5 @@ def run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
     if workers == 1:
         in_order(jobs)
     else:
-        list(threads.encoder_pool().map(in_order, [jobs[k::workers] for k in range(workers)]))
+        shares = [jobs[k::workers] for k in range(workers)]
+        list(threads.launch_pool(workers).map(in_order, shares))

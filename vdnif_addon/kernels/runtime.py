@@ -34,6 +34,7 @@ if TYPE_CHECKING:
 CACHE_ENV = "VDNIF_KERNEL_CACHE"
 
 _lock = threading.Lock()
+_loading = threading.Lock()
 _state = {"ready": False, "root": None}
 _loaded: set = set()
 
@@ -43,12 +44,6 @@ the CPU and LBVH on CUDA: two trees traverse in another order, and where a ray m
 triangles at the same distance (an edge, a vertex) each device could report another one. A
 CUDA mesh built with SAH is built on the host and copied (slower to build than LBVH; meshes
 are built once per object and refitted per pose)."""
-
-LAUNCHES = threading.RLock()
-"""Held around every Warp launch that may run beside another thread's: the renderer walks one
-lane on a worker thread while ``network.predict`` encodes the other lane on its own worker,
-and Warp's launches are not made to run from two threads at once. Torch's work (the MLP)
-still overlaps either; only Warp launches take turns."""
 
 
 def set_cache_root(path: str | os.PathLike) -> None:
@@ -180,13 +175,16 @@ def load(module: ModuleType | str, device_name: str) -> None:
     key = (name, device_name)
     if key in _loaded:
         return
-    start = time.perf_counter()
-    wp.load_module(name, device=device_name)
-    seconds = time.perf_counter() - start
-    if seconds > 0.5:
-        print(f"vdnif: compiled the '{name.rsplit('.', 1)[-1]}' kernels for {device_name} in "
-              f"{seconds:.1f} s (cached in {cache_dir()})", file=sys.stderr, flush=True)
-    _loaded.add(key)
+    with _loading:              # Warp's concurrent CPU module loads can lose a kernel
+        if key in _loaded:
+            return
+        start = time.perf_counter()
+        wp.load_module(name, device=device_name)
+        seconds = time.perf_counter() - start
+        if seconds > 0.5:
+            print(f"vdnif: compiled the '{name.rsplit('.', 1)[-1]}' kernels for {device_name} "
+                  f"in {seconds:.1f} s (cached in {cache_dir()})", file=sys.stderr, flush=True)
+        _loaded.add(key)
 
 
 def load_all(device_name: str) -> float:
