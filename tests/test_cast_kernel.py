@@ -1,6 +1,7 @@
 """The Warp mesh caster against brute force: same first triangle, same distance (float32)."""
 
 import numpy as np
+import pytest
 from oracles.geometry import BruteForceCaster
 
 from vdnif_addon.kernels.cast import MeshCaster
@@ -53,3 +54,25 @@ def test_empty_mesh_and_no_rays():
     index, t = MeshCaster(*random_soup(np.random.default_rng(2))[1:]).cast(
         np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     assert index.shape == (0,) and t.shape == (0,)
+
+
+@pytest.mark.parametrize("threads", [2, 3, 4])
+def test_casts_split_over_threads_equal_brute_force_run_after_run(threads):
+    """Launches of slices at once (``kernels.launches``), at a ray count that splits
+    unevenly: the first hits of one launch and of brute force, every run."""
+    from vdnif_addon.kernels import launches
+
+    rng = np.random.default_rng(threads)
+    soup, vertices, triangles = random_soup(rng, 400)
+    origins, directions = random_rays(rng, 4 * launches.MIN_SLICE_POINTS + 7)
+    limits = rng.random(len(origins)) * 2.5
+    caster = MeshCaster(vertices, triangles)
+    expected_index, expected_t = BruteForceCaster(soup).cast(origins, directions, limits)
+    one = caster.cast(origins, directions, limits)
+    assert launches.parts("cpu", len(origins), threads) == threads
+    assert (one[0] >= 0).sum() > 300
+    np.testing.assert_array_equal(one[0], expected_index)
+    for _ in range(5):
+        index, t = caster.cast(origins, directions, limits, threads)
+        np.testing.assert_array_equal(index, one[0])
+        np.testing.assert_array_equal(t, one[1])

@@ -146,7 +146,7 @@ def test_every_row_says_how_many_threads_it_used(tiny):
         assert result["threads"] == {
             "setting": setting, "torch": 1, "encoder": setting,
             "bvhtree": {"build": blender, "casts": 1},
-            "warp": {"build": 1, "casts": 1},
+            "warp": {"build": 1, "casts": setting},
             "embree_refit": {"build": setting, "casts": setting},
             "embree_rebuild": {"build": setting, "casts": setting}}
         assert result["embree"]["width"] == 16 and result["embree"]["version"] >= 40000
@@ -156,7 +156,8 @@ def test_every_row_says_how_many_threads_it_used(tiny):
             "2 thread(s), casts on 2 thread(s) |") in text
     assert ("| BVHTree (Python loop): threads | rebuild on Blender's threads, casts on 1 "
             "thread(s) | rebuild on Blender's threads, casts on 1 thread(s) |") in text
-    assert "| Warp refit: threads | refit on 1 thread(s), casts on 1 thread(s) |" in text
+    assert ("| Warp refit: threads | refit on 1 thread(s), casts on 1 thread(s) | refit on 1 "
+            "thread(s), casts on 2 thread(s) |") in text
     assert "Suzanne (3,936 triangles), 16x16, 2 thread setting" in text
     side = core("studies.side_by_side")
     cores = core("studies.baselines").available_cores()

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
-from . import runtime
+from . import launches, runtime
 
 WARP_MODULE = runtime.warp_module(__name__)
 
@@ -71,10 +71,11 @@ class MeshCaster:
             self.mesh.refit()
 
     def cast(self, origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
-             max_distance: float | Float[np.ndarray, " N"]
+             max_distance: float | Float[np.ndarray, " N"], threads: int = 1
              ) -> tuple[Int[np.ndarray, " N"], Float[np.ndarray, " N"]]:
         """(index (N,) int64, -1 on a miss; t (N,) float64, inf on a miss): the first hit
-        with 0 <= t <= max_distance (a negative limit casts nothing)."""
+        with 0 <= t <= max_distance (a negative limit casts nothing). On the CPU the rays
+        are split over ``threads`` launches at once (``kernels.launches``)."""
         count = len(origins)
         if self.mesh is None or count == 0:
             return np.full(count, -1, np.int64), np.full(count, np.inf)
@@ -84,6 +85,11 @@ class MeshCaster:
                   for x, t in ((origins, wp.vec3), (directions, wp.vec3), (limits, wp.float32))]
         face = wp.empty(count, dtype=wp.int32, device=self.device)
         distance = wp.empty(count, dtype=wp.float32, device=self.device)
-        wp.launch(_first_hits, dim=count, inputs=[self.mesh.id, *arrays, face, distance],
-                  device=self.device)
+        workers = launches.parts(self.device, count, threads)
+        step = -(-count // workers)
+        bounds = [(first, min(first + step, count)) for first in range(0, count, step)]
+        launches.run(_first_hits, self.device, None, workers,
+                     [(stop - first, [self.mesh.id, *(x[first:stop]
+                                                      for x in (*arrays, face, distance))])
+                      for first, stop in bounds])
         return face.numpy().astype(np.int64), distance.numpy().astype(np.float64)

@@ -14,9 +14,8 @@ holds, and ``bytes_source`` how that was found.
   (mathutils has no batch API, and the loop holds the GIL): one thread at any setting.
 - ``warp``: Warp's mesh BVH over the rest triangles, built once; per pose the evaluated
   vertices are copied in and the BVH is ``refit``, then one kernel of ``mesh_query_ray``
-  casts (``kernels.cast.MeshCaster``). A Warp CPU launch and Warp's CPU refit run on one
-  thread, and Warp's launches are not made to run from two threads at once
-  (``runtime.LAUNCHES``): one thread at any setting.
+  casts (``kernels.cast.MeshCaster``). Warp's CPU refit runs on one thread; the casts are
+  split over the setting's threads, a launch each (a Warp CPU launch runs on one).
 - ``embree_refit`` and ``embree_rebuild``: Embree, the CPU ray tracer inside Cycles, through
   its C API (``baselines_embree``): the evaluated vertices are read into the vertex array
   Embree shares, then the commit refits the BVH or builds a new one; packets of rays split
@@ -126,14 +125,16 @@ class WarpRefitBaseline:
                     "bounds (24 bytes, kept for refits) and a primitive index (4), and "
                     "2 T - 1 nodes of two 16-byte halves and a parent index (36 each)")
 
-    def __init__(self, mesh, device="cpu"):
+    def __init__(self, mesh, device="cpu", threads=1):
         self.vertex_count = len(mesh.vertices)
         self.triangles = len(mesh.triangles)
         self.device = runtime.device(device)
         self.caster = MeshCaster(mesh.vertices, mesh.triangles, self.device)
         self.vertices = None
-        on = 1 if self.device == "cpu" else self.device
-        self.threads = {"build": on, "casts": on}
+        cpu = self.device == "cpu"
+        self.cast_threads = threads if cpu else 1
+        self.threads = {"build": 1 if cpu else self.device,
+                        "casts": threads if cpu else self.device}
 
     def rebuild(self, obj):
         evaluate_s = evaluation_s(obj)
@@ -147,7 +148,7 @@ class WarpRefitBaseline:
                 "build_s": time.perf_counter() - start}
 
     def cast(self, origins, directions, max_distance=np.inf):
-        return self.caster.cast(origins, directions, max_distance)
+        return self.caster.cast(origins, directions, max_distance, self.cast_threads)
 
     def bvh_bytes(self):
         return warp_bvh_bytes(self.triangles)
@@ -200,12 +201,13 @@ class EmbreeBaseline:
 
 def make_baselines(mesh, device="cpu", threads=1):
     """(every baseline of ``BASELINES`` for the rest ``mesh``, the Embree device they
-    share): the Warp one on ``device``, the Embree ones on an Embree device of ``threads``
-    threads. ``close_baselines`` releases them."""
+    share): the Warp one on ``device`` (its CPU casts over ``threads`` threads), the Embree
+    ones on an Embree device of ``threads`` threads. ``close_baselines`` releases them."""
     embree = EmbreeDevice(threads)
     made = []
     try:
-        for make in (lambda: BVHTreeBaseline(mesh), lambda: WarpRefitBaseline(mesh, device),
+        for make in (lambda: BVHTreeBaseline(mesh),
+                     lambda: WarpRefitBaseline(mesh, device, threads),
                      lambda: EmbreeBaseline(mesh, embree, refit=True),
                      lambda: EmbreeBaseline(mesh, embree, refit=False)):
             made.append(make())

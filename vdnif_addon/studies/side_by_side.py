@@ -5,10 +5,10 @@ refit, Embree refit and Embree rebuilt) starts from Blender's evaluation of the 
 mesh, reads its vertices, prepares its BVH and casts every ray; the neural path deforms the
 voxel corners and refits the entry BVH over the deformed cells, then renders with a trained
 model. A run has one thread setting (1, or every core): the Embree baselines build and cast
-on that many threads, torch runs on that many less the encoder's core (at least one) and the
-encoder's launches are split over that many where no walk runs beside them; the BVHTree
-loop and Warp's other CPU launches run on one whatever the setting, and each result says
-what ran on how many. On the rest pose, the
+on that many threads, Warp's casts are split over that many, torch runs on that many less
+the encoder's core (at least one) and the encoder's launches are split over that many where
+no walk runs beside them; the BVHTree loop, Warp's refit and its other CPU launches run on
+one whatever the setting, and each result says what ran on how many. On the rest pose, the
 deformation-aware walk (entry BVH + face intersections) is timed against the static DDA walk
 of the same rays: both are Warp kernels with the same segment buffers and launches. Every
 figure is timed alternately in one process after one untimed pass and reported as the median
