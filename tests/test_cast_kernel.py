@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 from oracles.geometry import BruteForceCaster
 
 from vdnif_addon.kernels.cast import MeshCaster
@@ -76,3 +77,16 @@ def test_casts_split_over_threads_equal_brute_force_run_after_run(threads):
         index, t = caster.cast(origins, directions, limits, threads)
         np.testing.assert_array_equal(index, one[0])
         np.testing.assert_array_equal(t, one[1])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_casts_on_cuda_equal_the_cpu():
+    rng = np.random.default_rng(5)
+    soup, vertices, triangles = random_soup(rng, 400)
+    origins, directions = random_rays(rng, 3 * 2048 + 5)
+    limits = rng.random(len(origins)) * 2.5
+    cpu = MeshCaster(vertices, triangles).cast(origins, directions, limits)
+    gpu = MeshCaster(vertices, triangles, "cuda:0").cast(origins, directions, limits, 4)
+    assert (cpu[0] >= 0).sum() > 300
+    np.testing.assert_array_equal(gpu[0], cpu[0])
+    np.testing.assert_allclose(gpu[1], cpu[1], rtol=0, atol=1e-5)
