@@ -102,3 +102,38 @@ def test_the_render_keeps_the_encoder_on_one_thread_beside_its_walk(encoder_thre
                              directions, overlap=overlap)
         assert seen and set(seen) == {expected}
         assert threads.encoder_threads() == 4
+
+
+def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch):
+    """``threads.use_cores`` (a benchmark's thread setting): with one core the render does
+    not walk beside the network and ``predict`` does not encode beside its MLP; with two
+    (torch on one) both do."""
+    import threading
+
+    from vdnif_addon.inference.neural_render import walks_beside
+    from vdnif_addon.model.network import IntersectionNetwork
+    from vdnif_addon.settings import NetworkConfig
+
+    network = IntersectionNetwork(NetworkConfig(levels=2, base_resolution=8, log2_table_size=10,
+                                                width=16, depth=1, pe_bands=1))
+    network.eval()
+    encode, seen = network.encoder.forward, []
+
+    def recording(*args, **kwargs):
+        seen.append(threading.current_thread() is threading.main_thread())
+        return encode(*args, **kwargs)
+
+    monkeypatch.setattr(network.encoder, "forward", recording)
+    p0, p1 = torch.rand(2, 300, 3)
+    torch_threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        for cores, beside in ((1, False), (2, True)):
+            threads.use_cores(cores)
+            seen.clear()
+            network.predict(p0, p1, (p1 - p0).norm(dim=1), 0.1, batch=100)
+            assert walks_beside("cpu") is beside
+            assert len(seen) == 3 and all(on_main is not beside for on_main in seen)
+    finally:
+        threads.use_cores(None)
+        torch.set_num_threads(torch_threads)

@@ -20,10 +20,26 @@ ENCODER_CORES = 1
 """Cores left to the encoder's thread (a Warp CPU launch runs on one)."""
 
 
-def cores() -> int:
-    """The cores this process may use."""
+def machine_cores() -> int:
+    """The cores this process may run on."""
     allowed = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
     return len(allowed) if allowed else os.cpu_count() or 1
+
+
+_cores = {"count": None}
+
+
+def cores() -> int:
+    """The cores this process's work may use: ``use_cores``'s count, else
+    ``machine_cores()``."""
+    return _cores["count"] or machine_cores()
+
+
+def use_cores(count: int | None) -> None:
+    """Makes ``cores()`` ``count`` (None: the machine's): a benchmark's thread setting, so
+    that the renderer walks beside the network and ``predict`` encodes beside the MLP only
+    where the setting has a core for it."""
+    _cores["count"] = count
 
 
 def default_threads() -> int:

@@ -15,7 +15,6 @@ its own segments in walk order, so the split changes nothing but the number of w
 from __future__ import annotations
 
 import contextlib
-import os
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -78,10 +77,11 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     from ``albedo_table`` (M, 3) by material. ``device`` is the
     network's torch device; the cells' Warp device must be the same. With ``overlap`` the
     rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
-    the network evaluates the other lane's wave; by default only on the CPU with a core that
-    torch's threads leave free (else the walk would slow the network down as much as it
-    saves). A wave walks at most ``max_wave_segments`` segments. ``max_distance`` ends the
-    walk (``traverse``): a hit beyond it in the cell that crosses it is still reported.
+    the network evaluates the other lane's wave; by default (``walks_beside``) only on the
+    CPU with a core that torch's threads leave free (else the walk would slow the network
+    down as much as it saves). A wave walks at most ``max_wave_segments`` segments.
+    ``max_distance`` ends the walk (``traverse``): a hit beyond it in the cell that crosses it
+    is still reported.
     Running out of memory is a VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
@@ -95,7 +95,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
         raise VDNIFError(f"the network runs on {device} but the cells are on {warp_device}: "
                          "render with both on one device")
     runtime.load(kernel.WARP_MODULE, warp_device)
-    overlap = _core_to_spare(device) if overlap is None else overlap
+    overlap = walks_beside(device) if overlap is None else overlap
     rays = len(origins)
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
     with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
@@ -234,10 +234,10 @@ class _Done:
         return self.value
 
 
-def _core_to_spare(device: str | torch.device) -> bool:
-    """True on the CPU when torch runs on fewer threads than this process has cores."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return torch.device(device).type == "cpu" and torch.get_num_threads() < (cores or 1)
+def walks_beside(device: str | torch.device) -> bool:
+    """Whether the render walks one lane beside the network's wave of the other: on the CPU
+    when torch runs on fewer threads than ``threads.cores()``."""
+    return torch.device(device).type == "cpu" and torch.get_num_threads() < threads.cores()
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .. import threads
 from ..errors import VDNIFError
 from ..settings import NetworkConfig
 from .encoding import HashGrid, SegmentEncoder
@@ -124,9 +125,10 @@ class IntersectionNetwork(nn.Module):
         segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of the others is 0),
         once every batch has its predictions.
 
-        On the CPU the encoder of batch k+1 runs in a worker thread (one core: a Warp CPU
-        launch is serial and releases the GIL) while this thread runs the MLP of batch k
-        (torch's threads); only the worker launches kernels meanwhile.
+        On the CPU with more than one core (``threads.cores()``) the encoder of batch k+1
+        runs in a worker thread (one core: a Warp CPU launch is serial and releases the GIL)
+        while this thread runs the MLP of batch k (torch's threads); only the worker launches
+        kernels meanwhile.
         """
         chunks = list(zip(p0.split(batch), p1.split(batch), rest_len.split(batch)))
         if not chunks:
@@ -143,8 +145,9 @@ class IntersectionNetwork(nn.Module):
                            self.thresholds)
 
         parts = []
-        if p0.device.type != "cpu" or len(chunks) == 1:
-            # CUDA launches are asynchronous already: the stream overlaps them with the host.
+        if p0.device.type != "cpu" or len(chunks) == 1 or threads.cores() == 1:
+            # CUDA launches are asynchronous already: the stream overlaps them with the host;
+            # one core has nothing to run the encoder beside the MLP on.
             for index in range(len(chunks)):
                 parts.append(predictions(index, encode(index)))
         else:

@@ -22,13 +22,13 @@ holds, and ``bytes_source`` how that was found.
   over the setting's threads, which also build.
 """
 
-import os
 import time
 
 import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
+from .. import threads as thread_use
 from ..blender.bvh import BVHCaster
 from ..errors import VDNIFError
 from ..kernels import runtime
@@ -46,9 +46,7 @@ BVH_NODE_BYTES = 32 + 6 * 4 + BVH_TREE_TYPE * 8 + 8
 
 def available_cores():
     """The cores this process may run on: the 'all cores' thread setting."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0)) or 1
-    return os.cpu_count() or 1
+    return thread_use.machine_cores()
 
 
 def evaluation_s(obj):

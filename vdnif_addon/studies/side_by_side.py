@@ -6,7 +6,9 @@ mesh, reads its vertices, prepares its BVH and casts every ray; the neural path 
 voxel corners and refits the entry BVH over the deformed cells, then renders with a trained
 model. A run has one thread setting (1, or every core): the Embree baselines build and cast
 on that many threads, Warp's casts are split over that many, torch runs on that many less
-the encoder's core (at least one) and the encoder's launches are split over that many where
+the encoder's core (at least one); the neural render walks one lane beside the network's
+wave of the other, and the network encodes beside its MLP, only where the setting has a core
+for it (``threads.use_cores``), and the encoder's launches are split over that many where
 no walk runs beside them; the BVHTree loop, Warp's refit and its other CPU launches run on
 one whatever the setting, and each result says what ran on how many. On the rest pose, the
 deformation-aware walk (entry BVH + face intersections) is timed against the static DDA walk
@@ -40,7 +42,7 @@ from ..blender.pose_geometry import PosedObject
 from ..blender.poses import posed
 from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
-from ..inference.neural_render import neural_passes, predict_segments
+from ..inference.neural_render import neural_passes, predict_segments, walks_beside
 from ..kernels import runtime
 from ..model.network import IntersectionNetwork
 from ..passes import Passes
@@ -92,6 +94,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
     torch_threads = torch.get_num_threads()
     torch.set_num_threads(torch_setting(threads))
     thread_use.use_encoder_threads(threads)
+    thread_use.use_cores(threads)
     baselines, embree = make_baselines(capture.mesh, device, threads)
     runs, checks = [], []
     try:
@@ -122,12 +125,14 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
         sizes = _bytes(capture, model, baselines)
         thread_counts = {"setting": threads, "torch": torch.get_num_threads(),
                          "encoder": thread_use.encoder_threads(),
+                         "walk_beside": walks_beside(device),
                          **{baseline.name: baseline.threads for baseline in baselines}}
         packets = {"width": embree.width, "native": embree.native, "version": embree.version}
     finally:
         close_baselines(baselines, embree)
         torch.set_num_threads(torch_threads)
         thread_use.use_encoder_threads(None)
+        thread_use.use_cores(None)
     network = _model_info(model, capture, checks)
     if network["speed_withheld"] is not None:
         for run in runs:

@@ -288,7 +288,9 @@ def _what_is_timed(result):
         "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
         "Embree builds and casts on N threads, Warp's casts are split over N launches at "
         "once (a Warp CPU launch runs on one thread), torch runs the MLP on N - 1 (at least "
-        "one) and the Warp encoder's launches over N where no walk runs beside them; the "
+        "one), the neural render walks one lane beside the network's wave of the other and "
+        "the network encodes its next batch beside its MLP only where N > 1, and the Warp "
+        "encoder's launches run over N where no walk runs beside them; the "
         "`ray_cast` loop, Warp's refit and its other CPU launches run on one thread at any "
         "setting; Blender's evaluation and `BVHTree.FromObject` run on Blender's own threads. "
         "On the rest pose, the "
@@ -323,6 +325,9 @@ def threads_text(result, name):
     """On how many threads each step of path ``name`` ran in ``result``."""
     threads = result["threads"]
     if name == "neural":
+        if not threads.get("walk_beside", True):    # a run without the flag walked beside
+            return (f"walk, Warp encoder and MLP in turn: the MLP on {threads['torch']} torch "
+                    f"thread(s), the encoder over {threads.get('encoder', 1)}")
         return (f"MLP on {threads['torch']} torch thread(s); the Warp encoder on one beside the "
                 f"walk's, split over {threads.get('encoder', 1)} where the render has no walk "
                 "beside it")
