@@ -290,11 +290,10 @@ def _what_is_timed(result):
         "once (a Warp CPU launch runs on one thread), torch runs the MLP on N - 1 (at least "
         "one), the neural render walks one lane beside the network's wave of the other and "
         "the network encodes its next batch beside its MLP only where N > 1, and the Warp "
-        "encoder's launches run over N where no walk runs beside them; the "
-        "`ray_cast` loop, Warp's refit and its other CPU launches run on one thread at any "
-        "setting; Blender's evaluation and `BVHTree.FromObject` run on Blender's own threads. "
-        "On the rest pose, the "
-        "deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
+        "encoder's launches run over N where no walk runs beside them; the `ray_cast` loop, "
+        "Warp's refit and its other CPU launches run on one thread at any setting; Blender's "
+        "evaluation and `BVHTree.FromObject` run on Blender's own threads. On the rest pose, "
+        "the deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
         "(`tracing.static_grid.StaticGrid`) of the same rays, and the network over every "
         "walked segment is added to both. Each ratio is computed within one repeat from the "
         "per-pose means of both sides, timed alternately in one process after one untimed "
@@ -325,12 +324,11 @@ def threads_text(result, name):
     """On how many threads each step of path ``name`` ran in ``result``."""
     threads = result["threads"]
     if name == "neural":
+        mlp, encoder = f"MLP on {threads['torch']} torch thread(s)", threads.get("encoder", 1)
         if not threads.get("walk_beside", True):    # a run without the flag walked beside
-            return (f"walk, Warp encoder and MLP in turn: the MLP on {threads['torch']} torch "
-                    f"thread(s), the encoder over {threads.get('encoder', 1)}")
-        return (f"MLP on {threads['torch']} torch thread(s); the Warp encoder on one beside the "
-                f"walk's, split over {threads.get('encoder', 1)} where the render has no walk "
-                "beside it")
+            return f"walk, Warp encoder and MLP in turn: the {mlp}, the encoder over {encoder}"
+        return (f"{mlp}; the Warp encoder on one beside the walk's, split over {encoder} where "
+                "the render has no walk beside it")
     counts = threads[name]
 
     def count(value):
