@@ -137,3 +137,16 @@ def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch)
     finally:
         threads.use_cores(None)
         torch.set_num_threads(torch_threads)
+
+
+@pytest.mark.parametrize("count, parts, most", [(10, 3, None), (10, 3, 2), (7, 8, None),
+                                                (0, 2, None), (5, 1, 0)])
+def test_launch_bounds_cover_the_points_once_in_order(count, parts, most):
+    bounds = launches.bounds(count, parts, most)
+    assert [i for first, stop in bounds for i in range(first, stop)] == list(range(count))
+    sizes = [stop - first for first, stop in bounds]
+    assert len(bounds) >= min(parts, count)
+    # one step for every slice but the last, which holds the rest
+    assert len(set(sizes[:-1])) <= 1 and all(0 < size <= sizes[0] for size in sizes)
+    if most:
+        assert sizes[0] <= most

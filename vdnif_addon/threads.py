@@ -93,5 +93,5 @@ def launch_pool(count: int | None = None) -> ThreadPoolExecutor:
     with _pool_lock:
         count = count or encoder_threads()
         if count not in _pool:
-            _pool[count] = ThreadPoolExecutor(count, thread_name_prefix="vdnif-encoder")
+            _pool[count] = ThreadPoolExecutor(count, thread_name_prefix="vdnif-launch")
         return _pool[count]

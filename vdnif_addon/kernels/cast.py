@@ -86,10 +86,8 @@ class MeshCaster:
         face = wp.empty(count, dtype=wp.int32, device=self.device)
         distance = wp.empty(count, dtype=wp.float32, device=self.device)
         workers = launches.parts(self.device, count, threads)
-        step = -(-count // workers)
-        bounds = [(first, min(first + step, count)) for first in range(0, count, step)]
         launches.run(_first_hits, self.device, None, workers,
                      [(stop - first, [self.mesh.id, *(x[first:stop]
                                                       for x in (*arrays, face, distance))])
-                      for first, stop in bounds])
+                      for first, stop in launches.bounds(count, workers)])
         return face.numpy().astype(np.int64), distance.numpy().astype(np.float64)

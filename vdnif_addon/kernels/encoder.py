@@ -319,16 +319,12 @@ def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],
     and of at most ``MAX_LAUNCH_VECTORS`` output vectors each, with the launch arguments of
     the slice."""
     per_point = enc.width(ends) // vector_width(enc.feature_dim)
-    count = p0.shape[0]
-    step = max(1, min(MAX_LAUNCH_VECTORS // per_point, -(-count // parts)))
     shared = [ends, enc.bands, float(enc.scale), enc.dense, wp.uint32(enc.mask),
               wp.from_torch(enc.levels, requires_grad=False, return_ctype=True)]
-    slices = []
-    for first in range(0, count, step):
-        stop = min(first + step, count)
-        ends_ = [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
-        slices.append((first, stop, ends_ + shared))
-    return slices
+    return [(first, stop, [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
+             + shared)
+            for first, stop in launches.bounds(p0.shape[0], parts,
+                                               MAX_LAUNCH_VECTORS // per_point)]
 
 
 def _vec3(points: Float[torch.Tensor, "N 3"]):

@@ -48,6 +48,14 @@ def parts(device: str, count: int, workers: int | None = None) -> int:
     return max(1, min(workers or threads.encoder_threads(), count // MIN_SLICE_POINTS))
 
 
+def bounds(count: int, parts: int, most: int | None = None) -> list[tuple[int, int]]:
+    """``(first, stop)`` of at least ``parts`` slices of ``count`` points, as even as may be,
+    each of at most ``most`` points (at least one)."""
+    step = -(-count // parts) if most is None else min(most, -(-count // parts))
+    step = max(1, step)
+    return [(first, min(first + step, count)) for first in range(0, count, step)]
+
+
 def run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
         jobs: list[tuple[int, list[Any]]]) -> None:
     """Launches ``kernel`` once per (dim, arguments) of ``jobs``. With ``workers`` > 1

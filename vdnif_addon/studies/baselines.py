@@ -129,8 +129,8 @@ class WarpRefitBaseline:
         self.device = runtime.device(device)
         self.caster = MeshCaster(mesh.vertices, mesh.triangles, self.device)
         self.vertices = None
+        self.cast_threads = threads             # MeshCaster splits CPU casts only
         cpu = self.device == "cpu"
-        self.cast_threads = threads if cpu else 1
         self.threads = {"build": 1 if cpu else self.device,
                         "casts": threads if cpu else self.device}
 
