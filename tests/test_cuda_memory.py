@@ -93,14 +93,14 @@ def test_a_capped_wave_splits_the_render_with_the_same_passes(monkeypatch, cap):
     table = np.array([[0.2, 0.4, 0.6], [0.9, 0.1, 0.0]], np.float32)
     network = RandomNetwork(albedo=True)
     whole, whole_stats = render.neural_passes(network, grid, table, cells, origins, directions,
-                                              overlap=False)
+                                              lanes=1)
     capacities = []
     made = render.segment_buffer
     monkeypatch.setattr(render, "segment_buffer",
                         lambda capacity, device: capacities.append(capacity) or made(capacity,
                                                                                      device))
     split, stats = render.neural_passes(network, grid, table, cells, origins, directions,
-                                        overlap=False, max_wave_segments=cap)
+                                        lanes=1, max_wave_segments=cap)
     assert max(capacities) == cap, "no wave was capped, or one passed the cap"
     assert stats["waves"] >= whole_stats["waves"]
     assert whole.hit.sum() > 300 and stats["truncated"] == 0

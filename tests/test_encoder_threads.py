@@ -76,9 +76,9 @@ def test_small_batches_and_cuda_stay_one_launch(encoder_threads):
     assert launches.parts("cuda:0", launches.MIN_SLICE_POINTS * 100) == 1
 
 
-def test_the_render_keeps_the_encoder_on_one_thread_beside_its_walk(encoder_threads):
-    """With the waves overlapping (the walk of one lane on the other core) the encoder is not
-    split; without overlap, and after the render, it is split as set."""
+def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
+    """The render's network batch holds every lane's segments and runs after their walks,
+    so its encoder is split as set, in one lane or several, and stays so after."""
     import numpy as np
     from test_render import RandomNetwork, bent_ball
 
@@ -96,21 +96,22 @@ def test_the_render_keeps_the_encoder_on_one_thread_beside_its_walk(encoder_thre
     origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.0, 0.0, 1.0]),
                                           24, 16)
     encoder_threads(4)
-    for overlap, expected in ((True, 1), (False, 4)):
+    for lanes in (1, 2):
         seen = []
         render.neural_passes(Recording(), grid, np.ones((2, 3), np.float32), cells, origins,
-                             directions, overlap=overlap)
-        assert seen and set(seen) == {expected}
+                             directions, lanes=lanes)
+        assert seen and set(seen) == {4}
         assert threads.encoder_threads() == 4
 
 
 def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch):
-    """``threads.use_cores`` (a benchmark's thread setting): with one core the render does
-    not walk beside the network and ``predict`` does not encode beside its MLP; with two
-    (torch on one) both do."""
+    """``threads.use_cores`` (a benchmark's thread setting): with one core the render walks
+    one lane and ``predict`` does not encode beside its MLP; with two (torch on one) it walks
+    two lanes of a large image (one of a small one, one on CUDA) and encodes beside."""
     import threading
 
-    from vdnif_addon.inference.neural_render import walks_beside
+    from vdnif_addon.inference.neural_render import walk_lanes
+    from vdnif_addon.kernels.launches import MIN_SLICE_POINTS
     from vdnif_addon.model.network import IntersectionNetwork
     from vdnif_addon.settings import NetworkConfig
 
@@ -132,7 +133,9 @@ def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch)
             threads.use_cores(cores)
             seen.clear()
             network.predict(p0, p1, (p1 - p0).norm(dim=1), 0.1, batch=100)
-            assert walks_beside("cpu") is beside
+            assert walk_lanes("cpu", 64 * MIN_SLICE_POINTS) == cores
+            assert walk_lanes("cpu", 2 * MIN_SLICE_POINTS - 1) == 1
+            assert walk_lanes("cuda", 64 * MIN_SLICE_POINTS) == 1
             assert len(seen) == 3 and all(on_main is not beside for on_main in seen)
     finally:
         threads.use_cores(None)

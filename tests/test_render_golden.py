@@ -1,6 +1,6 @@
 """The neural renderer in a Blender scene: the arm's golden passes rendered again, also with
-the walk's Warp launches beside the encoder's (``test_render.py`` holds the renderer's tests
-without Blender)."""
+its lanes' Warp launches at once (``test_render.py`` holds the renderer's tests without
+Blender)."""
 
 import pathlib
 
@@ -32,11 +32,11 @@ def test_renderer_reproduces_its_golden_passes(core):
     np.testing.assert_array_equal(passes.material, golden["material"])
 
 
-def test_overlapped_launches_reproduce_the_golden_passes(core, monkeypatch):
-    """The overlapped render walks one lane on a worker thread while the network encodes the
-    other lane: Warp launches run from two threads at once (``kernels.launches``), and the
-    passes are still the golden ones. Each launch is stretched by a millisecond so that
-    launches from the two threads meet."""
+def test_lanes_walked_at_once_reproduce_the_golden_passes(core, monkeypatch):
+    """The render in two lanes walks and resolves them on two threads at once: Warp launches
+    run from two threads at once (``kernels.launches``), and the passes are still the golden
+    ones. Each launch is stretched by a millisecond so that launches from the two threads
+    meet."""
     import threading
     import time
 
@@ -67,7 +67,7 @@ def test_overlapped_launches_reproduce_the_golden_passes(core, monkeypatch):
     monkeypatch.setattr(wp, "launch", stretched)
     render = core("inference.neural_render")
     passes, _ = render.neural_passes(network, grid, table, cells, golden["origins"],
-                                     golden["directions"], overlap=True, schedule=(1,))
-    assert len(seen["threads"]) >= 2, "the render did not overlap: nothing was tested"
+                                     golden["directions"], lanes=2, schedule=(1,))
+    assert len(seen["threads"]) >= 2, "the lanes did not run at once: nothing was tested"
     assert seen["most"] == 2
     np.testing.assert_array_equal(passes.hit, golden["hit"])

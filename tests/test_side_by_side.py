@@ -144,7 +144,8 @@ def test_every_row_says_how_many_threads_it_used(tiny):
     for key, setting in (("none", 1), ("none, 2 threads", 2)):
         result = results[key]
         assert result["threads"] == {
-            "setting": setting, "torch": 1, "encoder": setting, "walk_beside": setting > 1,
+            "setting": setting, "torch": 1, "encoder": setting,
+            "walk_lanes": max(1, min(setting, RAYS * RAYS // 2048)),
             "bvhtree": {"build": blender, "casts": 1},
             "warp": {"build": 1, "casts": setting},
             "embree_refit": {"build": setting, "casts": setting},

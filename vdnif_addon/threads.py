@@ -10,10 +10,8 @@ a descheduled thread, slowing inference and training many times (DESIGN section 
 
 from __future__ import annotations
 
-import contextlib
 import os
 import threading
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 ENCODER_CORES = 1
@@ -37,8 +35,8 @@ def cores() -> int:
 
 def use_cores(count: int | None) -> None:
     """Makes ``cores()`` ``count`` (None: the machine's): a benchmark's thread setting, so
-    that the renderer walks beside the network and ``predict`` encodes beside the MLP only
-    where the setting has a core for it."""
+    that the renderer walks one lane per core of the setting and ``predict`` encodes beside
+    the MLP only where the setting has a core for it."""
     _cores["count"] = count
 
 
@@ -72,18 +70,6 @@ def encoder_threads() -> int:
 def use_encoder_threads(count: int | None) -> None:
     """Splits the encoder's CPU launches over ``count`` threads (None: every core)."""
     _encoder["threads"] = count
-
-
-@contextlib.contextmanager
-def encoder_on_one_thread() -> Iterator[None]:
-    """Inside, the encoder's launches run on one thread: for the renderer, whose walk runs on
-    the other core beside the encoder."""
-    before = _encoder["threads"]
-    _encoder["threads"] = 1
-    try:
-        yield
-    finally:
-        _encoder["threads"] = before
 
 
 def launch_pool(count: int | None = None) -> ThreadPoolExecutor:

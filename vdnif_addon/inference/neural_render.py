@@ -10,14 +10,19 @@ the next launch and the network batch. A wave holds at most ``limits.MAX_WAVE_SE
 segments: beyond it a ray walks fewer segments, and past one per ray only part of the rays
 walk on (the walk pauses the others when the buffer is full); a ray's passes depend only on
 its own segments in walk order, so the split changes nothing but the number of waves.
+
+On the CPU the rays are split into lanes, one per core (``walk_lanes``): a Warp CPU launch
+runs on one thread, so each wave walks the lanes at once, one launch each, evaluates their
+segments in one network batch, and resolves the lanes at once. The lanes hold disjoint rays
+and write disjoint memory (``kernels.launches`` says why such launches may run together), and
+a ray's passes are the same in any lane, but for the rounding of the network's batch.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -63,7 +68,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   albedo_table: Float[np.ndarray, "M 3"], cells: DeviceCells,
                   origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
                   device: str | torch.device = "cpu", schedule: Sequence[int] = WAVE_SEGMENTS,
-                  overlap: bool | None = None,
+                  lanes: int | None = None,
                   max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
                   max_distance: float | Float[np.ndarray, " N"] | None = None
                   ) -> tuple[Passes, dict[str, Any]]:
@@ -75,11 +80,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     threshold (``network.thresholds``, both calibrated in training): distance
     ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo head or, without one,
     from ``albedo_table`` (M, 3) by material. ``device`` is the
-    network's torch device; the cells' Warp device must be the same. With ``overlap`` the
-    rays are split into two lanes and one lane's walk (a Warp launch, one core) runs while
-    the network evaluates the other lane's wave; by default (``walks_beside``) only on the
-    CPU with a core that torch's threads leave free (else the walk would slow the network
-    down as much as it saves). A wave walks at most ``max_wave_segments`` segments.
+    network's torch device; the cells' Warp device must be the same. The rays are walked in
+    ``lanes`` lanes at once (default ``walk_lanes``). A wave walks at most
+    ``max_wave_segments`` segments, its lanes' share each.
     ``max_distance`` ends the walk (``traverse``): a hit beyond it in the cell that crosses it
     is still reported.
     Running out of memory is a VDNIFError saying what to lower.
@@ -95,29 +98,23 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
         raise VDNIFError(f"the network runs on {device} but the cells are on {warp_device}: "
                          "render with both on one device")
     runtime.load(kernel.WARP_MODULE, warp_device)
-    overlap = walks_beside(device) if overlap is None else overlap
     rays = len(origins)
+    lanes = walk_lanes(device, rays) if lanes is None else lanes
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
-    with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
-          _worker(overlap) as pool):
-        walk = RayWalk(cells, origins, directions, max_distance, lanes=2 if overlap else 1)
-        waves = _Waves(network, grid, walk, schedule, albedo_table, stats, max_wave_segments)
-        ready = {}                      # lane -> segments walked, awaiting the network
-        while True:
-            to_walk = [i for i, lane in enumerate(walk.lanes) if lane.count and i not in ready]
-            to_evaluate = next(iter(ready), None)
-            if not to_walk and to_evaluate is None:
-                break
-            job = None
-            if to_walk:
-                job = (pool.submit(waves.advance, to_walk[0]) if to_evaluate is not None
-                       and pool is not None else _Done(waves.advance(to_walk[0])))
-            if to_evaluate is not None:
-                prediction = waves.predict(to_evaluate, ready[to_evaluate])
-            if job is not None:
-                ready[to_walk[0]] = job.result()
-            if to_evaluate is not None:
-                waves.resolve(to_evaluate, ready.pop(to_evaluate), prediction)
+    with out_of_memory("rendering", RENDER_ADVICE), _device_stream(device):
+        walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
+        waves = _Waves(network, grid, walk, schedule, albedo_table,
+                       max(1, max_wave_segments // lanes))
+        while live := [i for i, lane in enumerate(walk.lanes) if lane.count]:
+            clock = time.perf_counter()
+            counts = _each(waves.advance, live)
+            walked = time.perf_counter()
+            predictions = waves.predict(live, counts)
+            _each(waves.resolve, live, counts, predictions)
+            stats["walk_s"] += walked - clock
+            stats["network_s"] += time.perf_counter() - walked
+            stats["segments"] += sum(counts)
+            stats["waves"] += 1
         counter = wp.zeros(1, dtype=wp.int32, device=warp_device)
         if rays:
             wp.launch(kernel.clear_misses, dim=rays, inputs=[waves.passes], device=warp_device)
@@ -131,18 +128,25 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     return result, stats
 
 
+def _each(step: Callable[..., Any], *arguments: Sequence[Any]) -> list[Any]:
+    """``step`` of each lane: at once on the launch pool where there are several (their
+    launches write disjoint memory), else on this thread."""
+    if len(arguments[0]) == 1:
+        return [step(*(values[0] for values in arguments))]
+    return list(threads.launch_pool(len(arguments[0])).map(step, *arguments))
+
+
 class _Waves:
-    """The three steps of a wave of one lane: ``advance`` (Warp only: the walk kernel and
-    the network inputs), ``predict`` (the network: the Warp encoder and torch's MLP),
-    ``resolve`` (Warp: hits placed and made, finished rays out). The renderer runs
-    ``advance`` of one lane beside ``predict`` of the other (the walk's launches beside the
-    encoder's: they write disjoint memory, ``kernels.launches``), then ``resolve`` alone."""
+    """The three steps of a wave: ``advance`` of a lane (Warp only: the walk kernel and the
+    network inputs), ``predict`` of the lanes' segments in one batch (the network: the Warp
+    encoder and torch's MLP), ``resolve`` of a lane (Warp: hits placed and made, finished rays
+    out). ``advance`` and ``resolve`` of different lanes run at once."""
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
-                 stats: dict[str, Any], max_segments: int) -> None:
+                 max_segments: int) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
-        self.stats, self.device, self.max_segments = stats, walk.device, max_segments
+        self.device, self.max_segments = walk.device, max_segments
         self.passes = kernel.empty_passes(walk.rays, self.device)
         self.first = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32, device=self.device)
         self.candidate = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32,
@@ -157,7 +161,6 @@ class _Waves:
     def advance(self, lane: int) -> int:
         """Walks ``lane`` on by its next wave's k segments per ray, fewer where the wave would
         pass ``max_segments``; returns how many segments it walked."""
-        clock = time.perf_counter()
         rays = self.walk.lanes[lane].count
         per_wave = max(1, min(wave_segments(self.waves[lane], self.schedule),
                               self.max_segments // rays))
@@ -175,32 +178,38 @@ class _Waves:
                       inputs=[buffer, wp.vec3d(*self.grid.origin), wp.float64(self.grid.extent),
                               *self.inputs[lane]],
                       device=self.device)
-        self.stats["walk_s"] += time.perf_counter() - clock
         return count
 
-    def predict(self, lane: int, count: int) -> Prediction | None:
-        """The network's predictions for the ``count`` segments of ``lane``'s wave."""
-        if not count:
-            return None
-        clock = time.perf_counter()
-        p0, p1, rest_length = (wp.to_torch(x)[:count] for x in self.inputs[lane])
+    def predict(self, lanes: list[int], counts: list[int]) -> list[Prediction | None]:
+        """The network's predictions for the ``counts`` segments of each of ``lanes``' wave,
+        in one batch."""
+        if not sum(counts):
+            return [None] * len(lanes)
+        inputs = [[wp.to_torch(x)[:count] for x in self.inputs[lane]]
+                  for lane, count in zip(lanes, counts) if count]
+        p0, p1, rest_length = (torch.cat(parts) if len(parts) > 1 else parts[0]
+                               for parts in zip(*inputs))
         prediction = self.network.predict(p0, p1, rest_length, self.grid.voxel_size)
         tensors = {"hit": prediction["hit"].to(torch.int32),
                    "candidate": prediction["candidate"].to(torch.int32),
                    "fraction": prediction["fraction"].to(torch.float64),
                    "normal": prediction["normal"].to(torch.float64),
                    "material": prediction["material"].to(torch.int64)}
-        tensors["albedo"] = (prediction["albedo"].to(torch.float32) if "albedo" in prediction
-                             else torch.zeros((1, 3), device=tensors["hit"].device))
-        self.stats["network_s"] += time.perf_counter() - clock
-        return {name: value.contiguous() for name, value in tensors.items()}, \
-            "albedo" in prediction
+        has_albedo = "albedo" in prediction
+        if has_albedo:
+            tensors["albedo"] = prediction["albedo"].to(torch.float32)
+        no_albedo = torch.zeros((1, 3), device=tensors["hit"].device)
+        ends = np.cumsum(counts).tolist()
+        return [None if not count else
+                ({**{name: value[end - count:end].contiguous()
+                     for name, value in tensors.items()},
+                  **({} if has_albedo else {"albedo": no_albedo})}, has_albedo)
+                for count, end in zip(counts, ends)]
 
     def resolve(self, lane: int, count: int, prediction: Prediction | None) -> None:
         """Each ray's first candidate segment, unless one is placed already, into its passes,
         and a ray with a segment above the occlusion threshold made a hit (its walk ends
         there); finished rays leave the lane."""
-        clock = time.perf_counter()
         if count:
             tensors, has_albedo = prediction
             view = kernel.Prediction()
@@ -218,38 +227,14 @@ class _Waves:
                               view, self.first, self.candidate, self.placed,
                               int(has_albedo), self.passes],
                       device=self.device)
-            self.stats["segments"] += count
         self.walk.drop_finished(lane)
-        self.stats["waves"] += 1
-        self.stats["network_s"] += time.perf_counter() - clock
 
 
-class _Done:
-    """An already computed result, shaped like a future."""
-
-    def __init__(self, value: int) -> None:
-        self.value = value
-
-    def result(self) -> int:
-        return self.value
-
-
-def walks_beside(device: str | torch.device) -> bool:
-    """Whether the render walks one lane beside the network's wave of the other: on the CPU
-    when torch runs on fewer threads than ``threads.cores()``."""
-    return torch.device(device).type == "cpu" and torch.get_num_threads() < threads.cores()
-
-
-@contextlib.contextmanager
-def _worker(overlap: bool) -> Iterator[ThreadPoolExecutor | None]:
-    """One worker thread for the walk when waves overlap, else None; the encoder then keeps
-    to one thread beside it."""
-    if not overlap:
-        yield None
-        return
-    with (ThreadPoolExecutor(1, thread_name_prefix="vdnif-walk") as pool,
-          threads.encoder_on_one_thread()):
-        yield pool
+def walk_lanes(device: str | torch.device, rays: int) -> int:
+    """Lanes a render of ``rays`` rays walks at once: one per core this process may use
+    (``threads.cores()``) on the CPU, each of at least ``launches.MIN_SLICE_POINTS`` rays; one
+    on CUDA, where a launch is parallel already."""
+    return launches.parts(str(torch.device(device)), rays, threads.cores())
 
 
 @contextlib.contextmanager

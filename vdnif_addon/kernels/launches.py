@@ -8,7 +8,7 @@ entry through ctypes, which releases the GIL; the entry loops over the tasks pas
 index as an argument (an older Warp kept it in a global); the one global a launch writes is
 the tile storage pointer, which only tile kernels read, and no kernel here uses tiles. So
 launches that write disjoint memory may run at once: the encoder's slices here, and the
-renderer's walk of one lane beside the encoder of the other. Kernel modules are loaded before
+renderer's lanes (``inference.neural_render``). Kernel modules are loaded before
 (``runtime.load``, one at a time). The tests hold threaded launches to one launch's result,
 run after run (``tests/test_encoder_threads.py``, ``tests/test_render.py``)."""
 

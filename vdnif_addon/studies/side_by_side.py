@@ -6,11 +6,11 @@ mesh, reads its vertices, prepares its BVH and casts every ray; the neural path 
 voxel corners and refits the entry BVH over the deformed cells, then renders with a trained
 model. A run has one thread setting (1, or every core): the Embree baselines build and cast
 on that many threads, Warp's casts are split over that many, torch runs on that many less
-the encoder's core (at least one); the neural render walks one lane beside the network's
-wave of the other, and the network encodes beside its MLP, only where the setting has a core
-for it (``threads.use_cores``), and the encoder's launches are split over that many where
-no walk runs beside them; the BVHTree loop, Warp's refit and its other CPU launches run on
-one whatever the setting, and each result says what ran on how many. On the rest pose, the
+the encoder's core (at least one); the neural render walks one lane per core of the
+setting at once, the network encodes beside its MLP only where the setting has a core for it
+(``threads.use_cores``), and the encoder's launches are split over that many; the BVHTree
+loop, Warp's refit and its other CPU launches run on one whatever the setting, and each
+result says what ran on how many. On the rest pose, the
 deformation-aware walk (entry BVH + face intersections) is timed against the static DDA walk
 of the same rays: both are Warp kernels with the same segment buffers and launches. Every
 figure is timed alternately in one process after one untimed pass and reported as the median
@@ -42,7 +42,7 @@ from ..blender.pose_geometry import PosedObject
 from ..blender.poses import posed
 from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
-from ..inference.neural_render import neural_passes, predict_segments, walks_beside
+from ..inference.neural_render import neural_passes, predict_segments, walk_lanes
 from ..kernels import runtime
 from ..model.network import IntersectionNetwork
 from ..passes import Passes
@@ -125,7 +125,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
         sizes = _bytes(capture, model, baselines)
         thread_counts = {"setting": threads, "torch": torch.get_num_threads(),
                          "encoder": thread_use.encoder_threads(),
-                         "walk_beside": walks_beside(device),
+                         "walk_lanes": walk_lanes(device, width * height),
                          **{baseline.name: baseline.threads for baseline in baselines}}
         packets = {"width": embree.width, "native": embree.native, "version": embree.version}
     finally:

@@ -288,9 +288,9 @@ def _what_is_timed(result):
         "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
         "Embree builds and casts on N threads, Warp's casts are split over N launches at "
         "once (a Warp CPU launch runs on one thread), torch runs the MLP on N - 1 (at least "
-        "one), the neural render walks one lane beside the network's wave of the other and "
-        "the network encodes its next batch beside its MLP only where N > 1, and the Warp "
-        "encoder's launches run over N where no walk runs beside them; the `ray_cast` loop, "
+        "one), the neural render walks N lanes at once (one Warp launch each) and the "
+        "network encodes its next batch beside its MLP only where N > 1, and the Warp "
+        "encoder's launches are split over N; the `ray_cast` loop, "
         "Warp's refit and its other CPU launches run on one thread at any setting; Blender's "
         "evaluation and `BVHTree.FromObject` run on Blender's own threads. On the rest pose, "
         "the deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
@@ -325,10 +325,9 @@ def threads_text(result, name):
     threads = result["threads"]
     if name == "neural":
         mlp, encoder = f"MLP on {threads['torch']} torch thread(s)", threads.get("encoder", 1)
-        if not threads.get("walk_beside", True):    # a run without the flag walked beside
-            return f"walk, Warp encoder and MLP in turn: the {mlp}, the encoder over {encoder}"
-        return (f"{mlp}; the Warp encoder on one beside the walk's, split over {encoder} where "
-                "the render has no walk beside it")
+        lanes = threads["walk_lanes"]
+        return (f"{mlp}; the walk in {lanes} lane(s) at once, one Warp launch each; the Warp "
+                f"encoder split over {encoder}")
     counts = threads[name]
 
     def count(value):
