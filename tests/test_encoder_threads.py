@@ -110,8 +110,7 @@ def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch)
     two lanes of a large image (one of a small one, one on CUDA) and encodes beside."""
     import threading
 
-    from vdnif_addon.inference.neural_render import walk_lanes
-    from vdnif_addon.kernels.launches import MIN_SLICE_POINTS
+    from vdnif_addon.inference.neural_render import MIN_LANE_RAYS, walk_lanes
     from vdnif_addon.model.network import IntersectionNetwork
     from vdnif_addon.settings import NetworkConfig
 
@@ -133,9 +132,9 @@ def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch)
             threads.use_cores(cores)
             seen.clear()
             network.predict(p0, p1, (p1 - p0).norm(dim=1), 0.1, batch=100)
-            assert walk_lanes("cpu", 64 * MIN_SLICE_POINTS) == cores
-            assert walk_lanes("cpu", 2 * MIN_SLICE_POINTS - 1) == 1
-            assert walk_lanes("cuda", 64 * MIN_SLICE_POINTS) == 1
+            assert walk_lanes("cpu", 64 * MIN_LANE_RAYS) == cores
+            assert walk_lanes("cpu", 2 * MIN_LANE_RAYS - 1) == 1
+            assert walk_lanes("cuda", 64 * MIN_LANE_RAYS) == 1
             assert len(seen) == 3 and all(on_main is not beside for on_main in seen)
     finally:
         threads.use_cores(None)

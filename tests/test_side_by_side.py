@@ -141,11 +141,12 @@ def test_every_row_says_how_many_threads_it_used(tiny):
     _, results = tiny
     report = core("studies.side_by_side_report")
     blender = core("studies.baselines").BLENDER_THREADS
+    lane_rays = core("inference.neural_render").MIN_LANE_RAYS
     for key, setting in (("none", 1), ("none, 2 threads", 2)):
         result = results[key]
         assert result["threads"] == {
             "setting": setting, "torch": 1, "encoder": setting,
-            "walk_lanes": max(1, min(setting, RAYS * RAYS // 2048)),
+            "walk_lanes": max(1, min(setting, RAYS * RAYS // lane_rays)),
             "bvhtree": {"build": blender, "casts": 1},
             "warp": {"build": 1, "casts": setting},
             "embree_refit": {"build": setting, "casts": setting},

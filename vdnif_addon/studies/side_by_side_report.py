@@ -288,7 +288,7 @@ def _what_is_timed(result):
         "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
         "Embree builds and casts on N threads, Warp's casts are split over N launches at "
         "once (a Warp CPU launch runs on one thread), torch runs the MLP on N - 1 (at least "
-        "one), the neural render walks N lanes at once (one Warp launch each) and the "
+        "one), the neural render walks up to N lanes at once (one Warp launch each) and the "
         "network encodes its next batch beside its MLP only where N > 1, and the Warp "
         "encoder's launches are split over N; the `ray_cast` loop, "
         "Warp's refit and its other CPU launches run on one thread at any setting; Blender's "
