@@ -206,12 +206,15 @@ class _Waves:
         if has_albedo:
             tensors["albedo"] = prediction["albedo"].to(torch.float32)
         no_albedo = torch.zeros((1, 3), device=tensors["hit"].device)
-        ends = np.cumsum(counts).tolist()
-        return [None if not count else
-                ({**{name: value[end - count:end].contiguous()
-                     for name, value in tensors.items()},
-                  **({} if has_albedo else {"albedo": no_albedo})}, has_albedo)
-                for count, end in zip(counts, ends)]
+        pieces, first = [], 0
+        for count in counts:
+            piece = {name: value[first:first + count].contiguous()
+                     for name, value in tensors.items()}
+            if not has_albedo:
+                piece["albedo"] = no_albedo
+            pieces.append((piece, has_albedo) if count else None)
+            first += count
+        return pieces
 
     def resolve(self, lane: int, count: int, prediction: Prediction | None) -> None:
         """Each ray's first candidate segment, unless one is placed already, into its passes,
