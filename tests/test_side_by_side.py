@@ -162,7 +162,7 @@ def test_every_row_says_how_many_threads_it_used(tiny):
             "thread(s), casts on 2 thread(s) |") in text
     assert "Suzanne (3,936 triangles), 16x16, 2 thread setting" in text
     side = core("studies.side_by_side")
-    cores = core("studies.baselines").available_cores()
+    cores = core("threads").machine_cores()
     assert side.thread_settings(["1", "all", "1"]) == sorted({1, cores})
     assert [side.torch_setting(n) for n in (1, 2, 16)] == [1, 1, 15]
 

@@ -28,7 +28,6 @@ import bpy
 import numpy as np
 from mathutils.bvhtree import BVHTree
 
-from .. import threads as thread_use
 from ..blender.bvh import BVHCaster
 from ..errors import VDNIFError
 from ..kernels import runtime
@@ -42,11 +41,6 @@ BLENDER_THREADS = "Blender's"      # steps on Blender's own task threads, which 
 # node a 32-byte BVHNode, 6 floats of bounds, 4 child pointers and 1 node pointer.
 BVH_TREE_TYPE = 4
 BVH_NODE_BYTES = 32 + 6 * 4 + BVH_TREE_TYPE * 8 + 8
-
-
-def available_cores():
-    """The cores this process may run on: the 'all cores' thread setting."""
-    return thread_use.machine_cores()
 
 
 def evaluation_s(obj):

@@ -54,7 +54,6 @@ from ..tracing.static_grid import StaticGrid
 from ..tracing.traverse import traverse
 from .baselines import (
     BASELINES,
-    available_cores,
     close_baselines,
     evaluation_s,
     make_baselines,
@@ -160,7 +159,8 @@ def thread_settings(values):
     'all' is every core this process may use."""
     settings = []
     for value in values:
-        count = available_cores() if value == "all" else int(value) if value.isdigit() else 0
+        count = (thread_use.machine_cores() if value == "all"
+                 else int(value) if value.isdigit() else 0)
         if count < 1:
             raise VDNIFError(f"thread setting '{value}' must be a count of at least 1 or 'all'")
         settings += [] if count in settings else [count]
@@ -383,7 +383,7 @@ def machine(load_before, device):
     except OSError:
         pass
     warp = runtime.init()
-    return {"cpu": cpu, "cores": available_cores(), "load_before": load_before,
+    return {"cpu": cpu, "cores": thread_use.machine_cores(), "load_before": load_before,
             "load_after": os.getloadavg()[0],
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
             "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
