@@ -59,10 +59,9 @@ if TYPE_CHECKING:
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
 
 
-# Rays per lane at least: a lane's wave costs a fixed overhead on its thread (launches, host
-# reads of its counts) that short launches do not repay. Measured on a trained bunny, two
-# cores, torch on one thread: two lanes ran at 0.81-0.86x one lane's speed at 128x128 (8,192
-# rays a lane), 1.14x at 192x192 (18,432), 1.22x at 256x256 (32,768).
+# Rays per lane at least: a lane's wave costs a fixed overhead on its thread that short
+# launches do not repay; two lanes of fewer rays rendered slower than one lane
+# (docs/performance.md, threads).
 MIN_LANE_RAYS = 16384
 
 
