@@ -104,6 +104,39 @@ def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
         assert threads.encoder_threads() == 4
 
 
+def test_the_render_caps_torch_threads_and_gives_them_back(monkeypatch):
+    """The render's network runs on at most ``RENDER_TORCH_THREADS`` of torch's threads;
+    torch's own count comes back after it, and a count under the cap is left alone."""
+    import numpy as np
+    from test_render import RandomNetwork, bent_ball
+
+    from vdnif_addon.inference import neural_render as render
+    from vdnif_addon.kernels.cells import DeviceCells
+    from vdnif_addon.tracing import rays
+
+    class Recording(RandomNetwork):
+        def predict(self, *args, **kwargs):
+            seen.append(torch.get_num_threads())
+            return super().predict(*args, **kwargs)
+
+    mesh, grid, bend = bent_ball()
+    cells = DeviceCells(grid, corners=bend)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.0, 0.0, 1.0]),
+                                          24, 16)
+    monkeypatch.setattr(threads, "RENDER_TORCH_THREADS", 1)
+    before = torch.get_num_threads()
+    try:
+        for own, during in ((2, 1), (1, 1)):
+            torch.set_num_threads(own)
+            seen = []
+            render.neural_passes(Recording(), grid, np.ones((2, 3), np.float32), cells,
+                                 origins, directions)
+            assert seen and set(seen) == {during}
+            assert torch.get_num_threads() == own
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch):
     """``threads.use_cores`` (a benchmark's thread setting): with one core the render walks
     one lane and ``predict`` does not encode beside its MLP; with two (torch on one) it walks

@@ -10,12 +10,19 @@ a descheduled thread, slowing inference and training many times (DESIGN section 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 ENCODER_CORES = 1
 """Cores left to the encoder's thread (a Warp CPU launch runs on one)."""
+
+RENDER_TORCH_THREADS = 4
+"""Torch threads at most while a render's network runs: a wave's batch (thousands to tens of
+thousands of segments) gains nothing from more, and on 16 cores the default 15 made a large
+render slower than 4 or 8 (docs/performance.md, threads)."""
 
 
 def machine_cores() -> int:
@@ -53,6 +60,23 @@ def use_threads(threads: int | None = None) -> int:
 
     torch.set_num_threads(threads or default_threads())
     return torch.get_num_threads()
+
+
+@contextlib.contextmanager
+def torch_threads_at_most(count: int) -> Iterator[None]:
+    """Within the block torch uses at most ``count`` threads; its own count comes back
+    after. Imports torch."""
+    import torch
+
+    before = torch.get_num_threads()
+    if before <= count:
+        yield
+        return
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 _pool: dict[int, ThreadPoolExecutor] = {}

@@ -15,7 +15,8 @@ On the CPU the rays are split into lanes, one per core (``walk_lanes``): a Warp 
 runs on one thread, so each wave walks the lanes at once, one launch each, evaluates their
 segments in one network batch, and resolves the lanes at once. The lanes hold disjoint rays
 and write disjoint memory (``kernels.launches`` says why such launches may run together), and
-a ray's passes are the same in any lane, but for the rounding of the network's batch.
+a ray's passes are the same in any lane, but for the rounding of the network's batch. Torch
+runs the batch on at most ``threads.RENDER_TORCH_THREADS`` threads.
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     rays = len(origins)
     lanes = walk_lanes(device, rays) if lanes is None else lanes
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
-    with out_of_memory("rendering", RENDER_ADVICE), _device_stream(device):
+    with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
+          threads.torch_threads_at_most(threads.RENDER_TORCH_THREADS)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
         waves = _Waves(network, grid, walk, schedule, albedo_table,
                        max(1, max_wave_segments // lanes))
