@@ -294,3 +294,15 @@ def test_lanes_walked_at_once_render_what_one_lane_renders(monkeypatch, size):
     spans.sort()
     assert any(b[0] < a[1] and b[2] != a[2] for a, b in zip(spans, spans[1:])), \
         "no two launches ran at once: nothing was tested"
+
+
+def test_a_render_in_no_lanes_is_refused():
+    from vdnif_addon.errors import VDNIFError
+
+    mesh, grid, bend = bent_ball()
+    cells = DeviceCells(grid, corners=bend)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.0, 0.0, 1.0]),
+                                          8, 8)
+    with pytest.raises(VDNIFError, match="at least one lane, not 0"):
+        render.neural_passes(RandomNetwork(), grid, mesh.albedo_table(), cells, origins,
+                             directions, lanes=0)

@@ -107,6 +107,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     runtime.load(kernel.WARP_MODULE, warp_device)
     rays = len(origins)
     lanes = walk_lanes(device, rays) if lanes is None else lanes
+    if lanes < 1:
+        raise VDNIFError(f"a render walks at least one lane, not {lanes}")
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
     with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
           threads.torch_threads_at_most(threads.RENDER_TORCH_THREADS)):
@@ -115,10 +117,10 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                        max(1, max_wave_segments // lanes))
         while live := [i for i, lane in enumerate(walk.lanes) if lane.count]:
             clock = time.perf_counter()
-            counts = _each(waves.advance, live)
+            counts = _each(lanes, waves.advance, live)
             walked = time.perf_counter()
             predictions = waves.predict(live, counts)
-            _each(waves.resolve, live, counts, predictions)
+            _each(lanes, waves.resolve, live, counts, predictions)
             stats["walk_s"] += walked - clock
             stats["network_s"] += time.perf_counter() - walked
             stats["segments"] += sum(counts)
@@ -136,12 +138,13 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     return result, stats
 
 
-def _each(step: Callable[..., Any], *arguments: Sequence[Any]) -> list[Any]:
-    """``step`` of each lane: at once on the launch pool where there are several (their
-    launches write disjoint memory), else on this thread."""
+def _each(lanes: int, step: Callable[..., Any], *arguments: Sequence[Any]) -> list[Any]:
+    """``step`` of each lane in ``arguments``: at once on the pool of the render's ``lanes``
+    threads where there are several (their launches write disjoint memory), else on this
+    thread."""
     if len(arguments[0]) == 1:
         return [step(*(values[0] for values in arguments))]
-    return list(threads.launch_pool(len(arguments[0])).map(step, *arguments))
+    return list(threads.launch_pool(lanes).map(step, *arguments))
 
 
 class _Waves:
