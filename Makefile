@@ -18,8 +18,12 @@ $(STAMP): requirements.txt
 demo: $(STAMP)
 	$(PY) vdnif_addon/batch.py -- demo --out out/demo
 
+# Two worker processes (pytest-xdist): most tests run one thread each (a batch.py
+# subprocess, a one-thread kernel), so one process leaves a core idle.
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS)
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
