@@ -174,7 +174,8 @@ def test_help_and_refused_command_lines_import_neither_bpy_torch_nor_warp():
                "render --model m.vdnif --frames x", "demo --scene moon",
                "dataset --out d --rays-per-pose 0", "train --data d --growth 99", "train",
                "capture --mesh nowhere.obj", "dataset --blend nowhere.blend --out d",
-               "train --mesh . --out m.vdnif"]
+               "train --mesh . --out m.vdnif", "render --model nowhere.vdnif --out r",
+               "evaluate --model ."]
     result = subprocess.run([sys.executable, "-c", PARSE_ONLY, *refused], cwd=REPO,
                             capture_output=True, text=True, timeout=120, check=True)
     report = json.loads(result.stdout)

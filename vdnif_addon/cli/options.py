@@ -288,7 +288,7 @@ def validate_arguments(args):
     """Checks every option that can be wrong on its own, and every input and output place,
     before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
     from .. import limits
-    from ..safe_io import check_input_file, check_output_file, check_output_folder
+    from ..safe_io import check_input_file, check_output_file, check_output_folder, open_regular
 
     def given(name):
         return getattr(args, name, None) is not None
@@ -301,6 +301,10 @@ def validate_arguments(args):
     for name in ("mesh", "blend"):
         if given(name):
             check_input_file(getattr(args, name), f"{name} file")
+    if isinstance(getattr(args, "model", None), pathlib.Path):
+        # the loader's own first check, before torch and bpy are imported
+        with open_regular(args.model, f"model file {args.model}"):
+            pass
     at_least("seed", *BOUNDS["seed"])
     at_least("poses", *BOUNDS["poses"])
     at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
