@@ -77,6 +77,32 @@ def test_training_rows_stay_on_the_host_and_each_batch_moves_to_the_device():
         assert torch.equal(batch[key], value[index]), key
 
 
+def test_batches_gathered_ahead_are_the_generators_draws_in_order():
+    """The next batch's host rows are gathered on another thread while a step computes;
+    batch after batch they are still the rows of the generator's draws, in order."""
+    import threading
+
+    config = TrainConfig(val_fraction=0.25, batch_size=64, val_segments=30, device="cpu")
+    rows, held_out, _ = split_data(shards(), config, Heads(albedo=True, material_count=2),
+                                   torch.device("cpu"), ProcessGroup())
+    gathered_on = []
+
+    class Recording(Batches):
+        def _gather(self, index):
+            gathered_on.append(threading.get_ident())
+            return super()._gather(index)
+
+    batches, generator = Recording(rows, 64, seed=3), torch.Generator().manual_seed(3)
+    order = torch.randperm(held_out["p0"].shape[0], generator=generator)[:30]
+    torch.testing.assert_close(batches.subset(held_out, 30)["p0"], held_out["p0"][order])
+    for _ in range(5):
+        index = torch.randint(rows["p0"].shape[0], (64,), generator=generator)
+        batch = batches.next()
+        for key, value in rows.items():
+            assert torch.equal(batch[key], value[index]), key
+    assert len(gathered_on) == 6 and threading.get_ident() not in gathered_on
+
+
 @pytest.mark.parametrize("cap", [100, 300])
 def test_a_capped_wave_splits_the_render_with_the_same_passes(monkeypatch, cap):
     """A wave over the cap walks part of the rays (the first waves: 1500 rays, a few hundred
