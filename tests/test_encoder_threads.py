@@ -76,9 +76,8 @@ def test_small_batches_and_cuda_stay_one_launch(encoder_threads):
     assert launches.parts("cuda:0", launches.MIN_SLICE_POINTS * 100) == 1
 
 
-def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
-    """The render's network batch holds every lane's segments and runs after their walks,
-    so its encoder is split as set, in one lane or several, and stays so after."""
+def values_at_network_calls(probe, **options):
+    """``probe()`` at each network call of a small render of the bent ball."""
     import numpy as np
     from test_render import RandomNetwork, bent_ball
 
@@ -86,20 +85,28 @@ def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
     from vdnif_addon.kernels.cells import DeviceCells
     from vdnif_addon.tracing import rays
 
+    seen = []
+
     class Recording(RandomNetwork):
         def predict(self, *args, **kwargs):
-            seen.append(threads.encoder_threads())
+            seen.append(probe())
             return super().predict(*args, **kwargs)
 
     mesh, grid, bend = bent_ball()
     cells = DeviceCells(grid, corners=bend)
     origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.0, 0.0, 1.0]),
                                           24, 16)
+    render.neural_passes(Recording(), grid, np.ones((2, 3), np.float32), cells, origins,
+                         directions, **options)
+    return seen
+
+
+def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
+    """The render's network batch holds every lane's segments and runs after their walks,
+    so its encoder is split as set, in one lane or several, and stays so after."""
     encoder_threads(4)
     for lanes in (1, 2):
-        seen = []
-        render.neural_passes(Recording(), grid, np.ones((2, 3), np.float32), cells, origins,
-                             directions, lanes=lanes)
+        seen = values_at_network_calls(threads.encoder_threads, lanes=lanes)
         assert seen and set(seen) == {4}
         assert threads.encoder_threads() == 4
 
@@ -107,30 +114,12 @@ def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
 def test_the_render_caps_torch_threads_and_gives_them_back(monkeypatch):
     """The render's network runs on at most ``RENDER_TORCH_THREADS`` of torch's threads;
     torch's own count comes back after it, and a count under the cap is left alone."""
-    import numpy as np
-    from test_render import RandomNetwork, bent_ball
-
-    from vdnif_addon.inference import neural_render as render
-    from vdnif_addon.kernels.cells import DeviceCells
-    from vdnif_addon.tracing import rays
-
-    class Recording(RandomNetwork):
-        def predict(self, *args, **kwargs):
-            seen.append(torch.get_num_threads())
-            return super().predict(*args, **kwargs)
-
-    mesh, grid, bend = bent_ball()
-    cells = DeviceCells(grid, corners=bend)
-    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.0, 0.0, 1.0]),
-                                          24, 16)
     monkeypatch.setattr(threads, "RENDER_TORCH_THREADS", 1)
     before = torch.get_num_threads()
     try:
         for own, during in ((2, 1), (1, 1)):
             torch.set_num_threads(own)
-            seen = []
-            render.neural_passes(Recording(), grid, np.ones((2, 3), np.float32), cells,
-                                 origins, directions)
+            seen = values_at_network_calls(torch.get_num_threads)
             assert seen and set(seen) == {during}
             assert torch.get_num_threads() == own
     finally:
