@@ -22,7 +22,7 @@ ENCODER_CORES = 1
 RENDER_TORCH_THREADS = 4
 """Torch threads at most while a render's network runs: a wave's batch (thousands to tens of
 thousands of segments) gains nothing from more, and on 16 cores the default 15 made a large
-render slower than 4 or 8 (docs/performance.md, threads)."""
+render slower than 4 or 8 (docs/performance.md, many cores)."""
 
 
 def machine_cores() -> int:
