@@ -301,10 +301,6 @@ def validate_arguments(args):
     for name in ("mesh", "blend"):
         if given(name):
             check_input_file(getattr(args, name), f"{name} file")
-    if isinstance(getattr(args, "model", None), pathlib.Path):
-        # the loader's own first check, before torch and bpy are imported
-        with open_regular(args.model, f"model file {args.model}"):
-            pass
     at_least("seed", *BOUNDS["seed"])
     at_least("poses", *BOUNDS["poses"])
     at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
@@ -333,6 +329,10 @@ def validate_arguments(args):
         limits.check_image(args.width, args.height)
     if args.command == "train":
         _validate_network_options(args, limits)
+    if isinstance(getattr(args, "model", None), pathlib.Path):
+        # the loader's own first check, before torch and bpy are imported
+        with open_regular(args.model, f"model file {args.model}"):
+            pass
     for name in OUTPUT_FILES:
         if given(name):
             check_output_file(getattr(args, name), f"--{name}")
