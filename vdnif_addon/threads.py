@@ -21,8 +21,8 @@ ENCODER_CORES = 1
 
 RENDER_TORCH_THREADS = 4
 """Torch threads at most while a render's network runs: a wave's batch (thousands to tens of
-thousands of segments) gains nothing from more, and on 16 cores the default 15 made a large
-render slower than 4 or 8 (docs/performance.md, many cores)."""
+thousands of segments) is too small to gain from more, and on many cores more made a large
+render slower (docs/performance.md, many cores)."""
 
 
 def machine_cores() -> int:

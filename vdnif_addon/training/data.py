@@ -188,10 +188,10 @@ class Batches:
     memory (seed + rank: each process draws its own batches) and moved to the training device
     (``TrainingRows.device``; plain Segments train where they are).
 
-    Rows in host memory are gathered one batch ahead on a thread of their own: a gather
-    waits on memory (random rows of gigabytes, about 2 ms a column on the CPU), so it runs
-    while the step before computes. The indices are drawn on the caller's thread in the same
-    order as without it, so the batches are the same."""
+    Rows in host memory are gathered one batch ahead on a thread of their own: a gather of
+    random rows out of gigabytes waits on memory, so it runs while the step before computes.
+    The indices are drawn on the caller's thread in the same order as without it, so the
+    batches are the same."""
 
     def __init__(self, data: Segments, batch_size: int, seed: int) -> None:
         self.data = data
