@@ -99,7 +99,8 @@ def use_encoder_threads(count: int | None) -> None:
 def launch_pool(count: int | None = None) -> ThreadPoolExecutor:
     """``count`` worker threads (default ``encoder_threads()``) that run the slices of a
     split Warp CPU launch (the encoder's, a baseline's casts) or the render's lanes, made once
-    per process and count."""
+    per process and count; the pool of one gathers the training's next batch (a one-slice
+    launch or a one-lane render runs on its caller's thread)."""
     with _pool_lock:
         count = count or encoder_threads()
         if count not in _pool:

@@ -15,14 +15,14 @@ header (``header.DatasetHeader``) gives the voxel size h (rest units) and the he
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
+from .. import threads
 from ..errors import VDNIFError
 from ..settings import Heads, TrainConfig
 from .distributed import ProcessGroup
@@ -212,9 +212,9 @@ class Batches:
         if self.data["p0"].device.type != "cpu":
             return select(self.data, self._index().to(self.data["p0"].device))
         if self._ahead is None:
-            self._ahead = _gatherer().submit(self._gather, self._index())
+            self._ahead = threads.launch_pool(1).submit(self._gather, self._index())
         rows = self._ahead.result()
-        self._ahead = _gatherer().submit(self._gather, self._index())
+        self._ahead = threads.launch_pool(1).submit(self._gather, self._index())
         return {key: value.to(self.device, non_blocking=True) for key, value in rows.items()}
 
     def _index(self) -> Int64[torch.Tensor, " batch"]:
@@ -225,12 +225,6 @@ class Batches:
         if self.device.type == "cuda":
             return {key: _staged(value, index) for key, value in self.data.items()}
         return select(self.data, index)
-
-
-@functools.cache
-def _gatherer() -> ThreadPoolExecutor:
-    """The thread that gathers the next batch's host rows, made once per process."""
-    return ThreadPoolExecutor(1, thread_name_prefix="vdnif-batches")
 
 
 def _staged(column: torch.Tensor, index: Int64[torch.Tensor, " chosen"]) -> torch.Tensor:
