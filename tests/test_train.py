@@ -33,6 +33,7 @@ from vdnif_addon.training.validation import (
     calibrate_candidate_threshold,
     calibrate_threshold,
     evaluate,
+    head_outputs,
 )
 
 SMALL = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
@@ -534,7 +535,7 @@ def test_two_cpu_processes_train_to_identical_weights(tmp_path):
 class _Logit(torch.nn.Module):
     """Stands in for the network: occlusion logit 8 (x - 0.5) of p0's x."""
 
-    def forward(self, p0, p1):
+    def forward(self, p0, p1, hit_frac=None):
         return {"occlusion": 8.0 * (p0[:, 0] - 0.5)}
 
 
@@ -545,16 +546,16 @@ def test_threshold_calibration_minimizes_held_out_errors_by_brute_force():
     generator = torch.Generator().manual_seed(3)
     x = torch.rand(20000, 3, generator=generator)
     hit = (x[:, 0] > 0.7) ^ (torch.rand(20000, generator=generator) < 0.1)
-    data = {"p0": x, "p1": x, "hit": hit}
+    data = {"p0": x, "p1": x, "hit": hit, "hit_frac": torch.zeros(len(x))}
     probability = torch.sigmoid(8.0 * (x[:, 0] - 0.5))
     candidates = torch.arange(5, 46) / 50
     errors = [int(((probability > t) != hit).sum()) for t in candidates.tolist()]
     best = min(range(len(errors)), key=lambda i: (errors[i], abs(candidates[i] - 0.5)))
-    threshold = calibrate_threshold(_Logit(), data)
+    threshold = calibrate_threshold(head_outputs(_Logit(), data), data)
     assert threshold == pytest.approx(candidates[best].item())
     assert 0.78 <= threshold <= 0.88
     empty = {key: value[:0] for key, value in data.items()}
-    assert calibrate_threshold(_Logit(), empty) == 0.5
+    assert calibrate_threshold(head_outputs(_Logit(), empty), empty) == 0.5
 
 
 class _Table(torch.nn.Module):
@@ -566,7 +567,7 @@ class _Table(torch.nn.Module):
         self.logit, self.distance = logit, distance
         self.config = NetworkConfig(**SMALL, distance_mode="log1p-fraction")
 
-    def forward(self, p0, p1):
+    def forward(self, p0, p1, hit_frac=None):
         row = p0[:, 0].long()
         return {"occlusion": self.logit[row], "distance": self.distance[row],
                 "normal": torch.ones(len(row), 3)}
@@ -618,9 +619,12 @@ def test_candidate_calibration_places_hits_best_by_brute_force():
               for t in tried]
     best = min(range(len(tried)), key=lambda k: (errors[k], -k))
     assert errors[best] < errors[-1]          # the case is one where a lower threshold helps
-    assert calibrate_candidate_threshold(network, data, h, 0.5) == pytest.approx(tried[best])
+    outputs = head_outputs(network, data)
+    assert (calibrate_candidate_threshold(outputs, data, h, 0.5, "log1p-fraction")
+            == pytest.approx(tried[best]))
     empty = {key: value[:0] for key, value in data.items()}
-    assert calibrate_candidate_threshold(network, empty, h, 0.5) == 0.5
+    assert calibrate_candidate_threshold(head_outputs(network, empty), empty, h, 0.5,
+                                         "log1p-fraction") == 0.5
 
 
 @pytest.mark.parametrize("variant, poses", [("lsnif", 1), ("deformed", 8), ("proposed", 8)])
@@ -681,6 +685,10 @@ def test_every_variant_calibrates_its_thresholds_on_held_out_data(monkeypatch, v
     assert both.any()
     chosen = max(k for k in range(len(candidates)) if error[k] == min(error))
     assert result.thresholds.candidate == pytest.approx(candidates[chosen])
+
+    # The final validation reads the calibrations' pass over the held-out rows: the same
+    # figures as a fresh evaluation with the calibrated thresholds.
+    assert result.validation == evaluate(result.network, held_out, 0.125)
 
 
 def test_device_names():

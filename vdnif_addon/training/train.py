@@ -34,7 +34,12 @@ from .header import DatasetHeader
 from .log import ProgressLog, record_due
 from .losses import make_weighting, task_losses
 from .stopping import StoppingRule
-from .validation import calibrate_candidate_threshold, calibrate_threshold, validate
+from .validation import (
+    calibrate_candidate_threshold,
+    calibrate_threshold,
+    head_outputs,
+    validate,
+)
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -292,16 +297,17 @@ def _train(
                 break
 
     network.eval()
-    occlusion = calibrate_threshold(network, val_data, group)
-    network.thresholds = Thresholds(
-        occlusion, calibrate_candidate_threshold(network, val_data, h, occlusion, group))
+    outputs = head_outputs(network, val_data)
+    occlusion = calibrate_threshold(outputs, val_data, group)
+    network.thresholds = Thresholds(occlusion, calibrate_candidate_threshold(
+        outputs, val_data, h, occlusion, network_config.distance_mode, group))
     return TrainResult(
         network=network,
         network_config=network_config,
         config=config,
         status=status,
         steps=log.steps_done,
-        validation=validate(network, val_data, h, group),
+        validation=validate(network, val_data, h, group, outputs),
         log_variances=weighting.log_variances(),
         history=log.history,
         seconds=log.seconds,

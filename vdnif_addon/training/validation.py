@@ -1,7 +1,9 @@
 """How a network does on held-out segments: task losses and metrics (``evaluate``, summed
 over processes by ``validate``) and the calibrated thresholds of DESIGN section 9: the
 occlusion threshold that says whether a ray hits (``calibrate_threshold``) and the lower
-candidate threshold that says where (``calibrate_candidate_threshold``)."""
+candidate threshold that says where (``calibrate_candidate_threshold``). All three read the
+network's outputs on the held-out rows (``head_outputs``), so that the end of training runs
+the network over them once."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from .distributed import ProcessGroup
 from .losses import task_losses
 
 if TYPE_CHECKING:
-    from jaxtyping import Bool, Float64, Int64
+    from jaxtyping import Bool, Float, Float64, Int64
 
     from .data import Segments
 
@@ -46,18 +48,35 @@ rises steeply above them (DESIGN section 8, the candidate threshold)."""
 
 
 @torch.inference_mode()
+def head_outputs(
+    network: IntersectionNetwork, data: Segments, batch: int = 2**16
+) -> dict[str, Float[torch.Tensor, "segments ..."]]:
+    """The network's head outputs over every row of ``data`` (the albedo at the reference's
+    hit), in chunks of ``batch`` rows: the one pass over the held-out poses that both
+    calibrations and the final validation read (each pass is seconds on a CPU)."""
+    parts = []
+    for start in range(0, data["p0"].shape[0], batch):
+        rows = slice(start, start + batch)
+        parts.append(network(data["p0"][rows], data["p1"][rows], data["hit_frac"][rows]))
+    return {key: torch.cat([part[key] for part in parts]) for key in parts[0]} if parts else {}
+
+
+@torch.inference_mode()
 def evaluation_sums(
-    network: IntersectionNetwork, data: Segments, voxel_size: float, batch: int
+    network: IntersectionNetwork, outputs: dict[str, torch.Tensor], data: Segments,
+    voxel_size: float, batch: int = 2**16,
 ) -> Float64[torch.Tensor, " quantities"]:
-    """Per-quantity sums (len(SUMS),) float64 over ``data`` (``training.data.Segments``),
-    summable across processes."""
+    """Per-quantity sums (len(SUMS),) float64 over ``data`` (``training.data.Segments``)
+    given the network's ``head_outputs`` on it, summable across processes; the network
+    gives the distance mode and its thresholds."""
     mode = network.config.distance_mode
     sums = torch.zeros(len(SUMS), dtype=torch.float64, device=data["p0"].device)
     for start in range(0, data["p0"].shape[0], batch):
         part = {key: value[start : start + batch] for key, value in data.items()}
-        outputs = network(part["p0"], part["p1"], part["hit_frac"])
-        losses = task_losses(outputs, part, mode, voxel_size)
-        predicted = readout(outputs, mode, voxel_size, part["rest_len"], network.thresholds)
+        predicted_outputs = {key: value[start : start + batch] for key, value in outputs.items()}
+        losses = task_losses(predicted_outputs, part, mode, voxel_size)
+        predicted = readout(predicted_outputs, mode, voxel_size, part["rest_len"],
+                            network.thresholds)
         hit = part["hit"]
         n, hits = hit.numel(), hit.sum()
         cos = (predicted["normal"] * part["normal"]).sum(1).clamp(-1.0, 1.0)
@@ -123,9 +142,9 @@ def evaluate(
     Hit-dependent metrics use the true hits: ``distance_mae`` (rest units; also in voxels),
     ``normal_error_deg``, ``material_accuracy``; ``occlusion_accuracy`` uses every segment.
     """
-    return metrics(
-        evaluation_sums(network, data, voxel_size, batch), voxel_size, network.config.heads
-    )
+    outputs = head_outputs(network, data, batch)
+    return metrics(evaluation_sums(network, outputs, data, voxel_size, batch), voxel_size,
+                   network.config.heads)
 
 
 def validate(
@@ -133,37 +152,38 @@ def validate(
     data: Segments,
     voxel_size: float,
     group: ProcessGroup,
+    outputs: dict[str, torch.Tensor] | None = None,
 ) -> dict[str, float] | None:
-    """Metrics on held-out data summed over processes; None when no process holds any."""
+    """Metrics on held-out data summed over processes (``outputs``: the network's
+    ``head_outputs`` on it, computed here without them); None when no process holds any."""
     was_training = network.training
     network.eval()
-    sums = group.sum(evaluation_sums(network, data, voxel_size, 2**16))
+    if outputs is None:
+        outputs = head_outputs(network, data)
+    sums = group.sum(evaluation_sums(network, outputs, data, voxel_size))
     network.train(was_training)
     return metrics(sums, voxel_size, network.config.heads) if sums[0] > 0 else None
 
 
 @torch.inference_mode()
 def calibrate_threshold(
-    network: IntersectionNetwork,
+    outputs: dict[str, torch.Tensor],
     data: Segments,
     group: ProcessGroup | None = None,
-    batch: int = 2**16,
 ) -> float:
     """The occlusion threshold that misclassifies the fewest segments of ``data`` (the
-    held-out poses), among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to
-    the one nearest OCCLUSION_THRESHOLD, and without held-out segments it is
-    OCCLUSION_THRESHOLD. A hole is a hit segment below the threshold, an extra a miss
-    segment above it (DESIGN section 9)."""
+    held-out poses), given the network's ``head_outputs`` on them, among the multiples of
+    1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to the one nearest OCCLUSION_THRESHOLD, and
+    without held-out segments it is OCCLUSION_THRESHOLD. A hole is a hit segment below the
+    threshold, an extra a miss segment above it (DESIGN section 9)."""
     group = group or ProcessGroup()
     device = data["p0"].device
     counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
-    for start in range(0, data["p0"].shape[0], batch):
-        outputs = network(data["p0"][start : start + batch], data["p1"][start : start + batch])
+    if data["p0"].shape[0]:
         probability = torch.sigmoid(outputs["occlusion"].float())
         bins = (probability * THRESHOLD_BINS).long().clamp(0, THRESHOLD_BINS - 1)
-        hit = data["hit"][start : start + batch].long()
-        counts.index_put_((hit, bins), torch.ones_like(probability, dtype=torch.float64),
-                          accumulate=True)
+        counts.index_put_((data["hit"].long(), bins),
+                          torch.ones_like(probability, dtype=torch.float64), accumulate=True)
     counts = group.sum(counts)
     if counts.sum() == 0:
         return OCCLUSION_THRESHOLD
@@ -179,15 +199,16 @@ def calibrate_threshold(
 
 @torch.inference_mode()
 def calibrate_candidate_threshold(
-    network: IntersectionNetwork,
+    outputs: dict[str, torch.Tensor],
     data: Segments,
     voxel_size: float,
     occlusion: float,
+    distance_mode: str,
     group: ProcessGroup | None = None,
-    batch: int = 2**16,
 ) -> float:
     """The candidate threshold that places hits best on ``data`` (the held-out poses, with
-    ``training.data.RAY_FIELDS``; a ray's rows in walk order): among CANDIDATE_THRESHOLDS
+    ``training.data.RAY_FIELDS``; a ray's rows in walk order), given the network's
+    ``head_outputs`` on them (of ``distance_mode``): among CANDIDATE_THRESHOLDS
     below the ``occlusion`` threshold and that threshold itself, the one with the least
     mean |D - D_ref| over the rays that the reference and the network both hit, D the
     deformed distance ``t0 + fraction * seg_len`` on the ray's first segment above it, D_ref
@@ -197,18 +218,10 @@ def calibrate_candidate_threshold(
     thresholds = [t for t in CANDIDATE_THRESHOLDS if t < occlusion] + [occlusion]
     device = data["p0"].device
     sums = torch.zeros(len(thresholds) + 1, dtype=torch.float64, device=device)
-    count = data["p0"].shape[0]
-    if count:
-        probability, distance = [], []
-        for start in range(0, count, batch):
-            part = slice(start, start + batch)
-            outputs = network(data["p0"][part], data["p1"][part])
-            predicted = readout(outputs, network.config.distance_mode, voxel_size,
-                                data["rest_len"][part])
-            probability.append(predicted["hit_probability"].float())
-            distance.append(data["t0"][part].double()
-                            + predicted["fraction"].double() * data["seg_len"][part].double())
-        probability, distance = torch.cat(probability), torch.cat(distance)
+    if data["p0"].shape[0]:
+        predicted = readout(outputs, distance_mode, voxel_size, data["rest_len"])
+        probability = predicted["hit_probability"].float()
+        distance = data["t0"].double() + predicted["fraction"].double() * data["seg_len"].double()
         _, ray = torch.unique(data["pose"] * (int(data["ray"].max()) + 1) + data["ray"],
                               return_inverse=True)
         rays = int(ray.max()) + 1
