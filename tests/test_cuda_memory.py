@@ -1,5 +1,6 @@
-"""GPU memory on the CUDA path, checked on the CPU: the training rows stay in host memory and
-each step's batch moves to the device ("meta" stands in for a GPU); a render's waves are
+"""GPU memory on the CUDA path, checked on the CPU: the training rows stay in host memory (the
+split's columns against the concatenate-then-mask oracle) and each step's batch moves to the
+device ("meta" stands in for a GPU); a render's waves are
 capped and split with the same passes; an out-of-memory failure of torch or Warp is one
 VDNIFError line that says what to lower; a training job hands torch's cached GPU memory
 back (``torch.cuda`` faked)."""
@@ -9,6 +10,7 @@ import pathlib
 import numpy as np
 import pytest
 import torch
+from oracles import split_data as oracle
 from test_render import RandomNetwork, bent_ball
 
 from vdnif_addon import memory
@@ -45,6 +47,23 @@ def shards(rows=400, poses=4, seed=0):
             "pose": rng.integers(0, poses, rows).astype(np.int32),
             "ray": np.arange(rows, dtype=np.int32)})
     return out
+
+
+@pytest.mark.parametrize("poses, heads", [(4, Heads(albedo=True, material_count=2)),
+                                          (1, Heads()), (3, Heads(material_count=2))])
+def test_the_split_is_the_concatenated_rows_masked(poses, heads):
+    """Each column written once, shard by shard, holds the rows, order and dtype of the
+    shards concatenated and then masked by the held-out poses (or rays, with one pose)."""
+    config = TrainConfig(batch_size=64, val_fraction=0.25, device="cpu")
+    rows, held_out, val_poses = split_data(shards(poses=poses), config, heads,
+                                           torch.device("cpu"), ProcessGroup())
+    expected = oracle.split_data(shards(poses=poses), config, heads, ProcessGroup())
+    assert val_poses == expected[2] and (val_poses == []) == (poses == 1)
+    for got, want in zip((rows, held_out), expected[:2]):
+        assert got.keys() == want.keys()
+        for key in want:
+            assert got[key].dtype == want[key].dtype and torch.equal(got[key], want[key]), key
+    assert 0 < len(held_out["p0"]) < len(rows["p0"])
 
 
 def test_training_rows_stay_on_the_host_and_each_batch_moves_to_the_device():

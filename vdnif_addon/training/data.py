@@ -60,6 +60,16 @@ def load_segments(
     Errors name the shard and field: missing or misshapen arrays, non-finite values,
     ``hit_frac`` outside [0,1], negative ``rest_len``, material indices outside [0, M) on hits.
     """
+    arrays = _read_shards(shards, heads)
+    everything = [np.ones(len(shard["p0"]), bool) for shard in arrays]
+    return {key: _column(arrays, key, everything).to(device) for key in arrays[0]}
+
+
+def _read_shards(
+    shards: Sequence[Mapping[str, np.ndarray]], heads: Heads
+) -> list[dict[str, np.ndarray]]:
+    """The fields training uses of every shard, each read once (npz shards load lazily) and
+    validated (``load_segments`` says how)."""
     keys = [
         key
         for key in FIELDS
@@ -67,16 +77,14 @@ def load_segments(
     ]
     if len(shards) == 0:
         raise VDNIFError("no training segments: the dataset has no shards")
-    columns: dict[str, list[np.ndarray]] = {key: [] for key in keys}
+    out = []
     for number, shard in enumerate(shards):
         missing = [key for key in keys if key not in shard]
         if missing:
             raise VDNIFError(
                 f"dataset shard {number} lacks {', '.join(repr(key) for key in missing)}"
             )
-        arrays = {
-            key: np.asarray(shard[key]) for key in keys
-        }  # each read once (npz shards load lazily)
+        arrays = {key: np.asarray(shard[key]) for key in keys}
         length = arrays["p0"].shape[0] if arrays["p0"].ndim else 0
         for key, array in arrays.items():
             expected = (length,) + FIELDS[key][1]
@@ -87,28 +95,39 @@ def load_segments(
                 )
             if array.dtype.kind == "f" and not np.isfinite(array).all():
                 raise VDNIFError(f"dataset shard {number} field '{key}' has non-finite values")
-            columns[key].append(array)
-    data = {key: np.concatenate(arrays) for key, arrays in columns.items()}
-    if data["p0"].shape[0] == 0:
+        out.append(arrays)
+    if sum(len(arrays["p0"]) for arrays in out) == 0:
         raise VDNIFError("no training segments: every shard is empty")
-    hit = data["hit"] != 0
-    if ((data["hit_frac"] < 0) | (data["hit_frac"] > 1)).any():
-        raise VDNIFError("dataset field 'hit_frac' has values outside [0, 1]")
-    if (data["rest_len"] < 0).any():
-        raise VDNIFError("dataset field 'rest_len' has negative values")
-    if (
-        heads.material
-        and ((data["material"][hit] < 0) | (data["material"][hit] >= heads.material_count)).any()
-    ):
-        raise VDNIFError(
-            f"dataset field 'material' has indices outside [0, {heads.material_count}) on hits"
-        )
-    return {
-        key: torch.from_numpy(np.ascontiguousarray(data[key])).to(
-            device=device, dtype=FIELDS[key][0]
-        )
-        for key in keys
-    }
+    for arrays in out:
+        if ((arrays["hit_frac"] < 0) | (arrays["hit_frac"] > 1)).any():
+            raise VDNIFError("dataset field 'hit_frac' has values outside [0, 1]")
+        if (arrays["rest_len"] < 0).any():
+            raise VDNIFError("dataset field 'rest_len' has negative values")
+        hit = arrays["hit"] != 0
+        if heads.material and (
+            (arrays["material"][hit] < 0) | (arrays["material"][hit] >= heads.material_count)
+        ).any():
+            raise VDNIFError(
+                f"dataset field 'material' has indices outside [0, {heads.material_count}) "
+                "on hits"
+            )
+    return out
+
+
+def _column(arrays: list[dict[str, np.ndarray]], key: str,
+            rows: Sequence[np.ndarray]) -> torch.Tensor:
+    """A host tensor of ``FIELDS``' dtype for field ``key`` holding the rows ``rows[i]`` (a
+    boolean mask) of every shard ``arrays[i]``, in shard order. Written once, shard by
+    shard: a dataset is gigabytes, and a first write to fresh memory costs more than the copy
+    itself."""
+    dtype, trailing = FIELDS[key]
+    counts = [int(mask.sum()) for mask in rows]
+    column = torch.empty((sum(counts), *trailing), dtype=dtype)
+    start = 0
+    for shard, mask, count in zip(arrays, rows, counts):
+        column[start : start + count] = torch.from_numpy(shard[key][mask])
+        start += count
+    return column
 
 
 def select(data: Mapping[str, torch.Tensor], index: Int64[torch.Tensor, " chosen"]) -> Segments:
@@ -157,21 +176,25 @@ def split_data(
             f"process {group.rank} has no dataset shard: "
             f"{len(segments)} shards for {group.world} processes"
         )
-    data = load_segments(shards, heads)
-    val_poses = split_poses(data["pose"], config.val_fraction, config.seed, group)
-    held_out = (torch.isin(data["pose"], torch.tensor(val_poses, dtype=torch.int64))
-                if val_poses else held_out_rays(data["ray"], config.val_fraction, config.seed))
-    kept = ~held_out
-    train_rows, val_data = TrainingRows(device), {}
-    for key in list(data):
-        column = data.pop(key)      # one field at a time: no second copy of the whole data
-        val_data[key] = column[held_out].to(device)
-        if key not in RAY_FIELDS:
-            train_rows[key] = column[kept]
-    if train_rows["p0"].shape[0] == 0:
+    arrays = _read_shards(shards, heads)
+    poses = torch.from_numpy(np.unique(np.concatenate(
+        [np.unique(shard["pose"]) for shard in arrays])).astype(np.int64))
+    val_poses = split_poses(poses, config.val_fraction, config.seed, group)
+    held_out = [np.isin(shard["pose"], val_poses) if val_poses else
+                held_out_rays(torch.from_numpy(shard["ray"]).long(), config.val_fraction,
+                              config.seed).numpy() for shard in arrays]
+    kept = [~mask for mask in held_out]
+    if not any(mask.any() for mask in kept):
         raise VDNIFError(
             f"process {group.rank} has no training segments after holding out poses {val_poses}"
         )
+    train_rows, val_data = TrainingRows(device), {}
+    for key in list(arrays[0]):
+        val_data[key] = _column(arrays, key, held_out).to(device)
+        if key not in RAY_FIELDS:
+            train_rows[key] = _column(arrays, key, kept)
+        for shard in arrays:        # one field at a time: no second copy of the whole data
+            del shard[key]
     return train_rows, val_data, val_poses
 
 
