@@ -26,6 +26,8 @@ def test_a_setting_is_a_key_and_a_json_value():
      "not KEY=VALUE"),
     (["--data", "{tmp}", "--scene", "arm", "--set", "steps=-1", "--json", "{tmp}/x.json"],
      "steps"),
+    (["--data", "{tmp}", "--scene", "arm", "--repeats", "0", "--json", "{tmp}/x.json"],
+     "--repeats must be at least 1"),
 ])
 def test_bad_input_ends_in_one_error_line(tmp_path, arguments, message):
     line = one_error_line(TOOL, [a.format(tmp=tmp_path) for a in arguments])

@@ -3,16 +3,19 @@ TrainConfig / NetworkConfig overrides) on one dataset folder, prints when the he
 occlusion accuracy leaves the share of misses (the all-miss answer), the training's wall
 seconds and steps, and then evaluates the model on the development poses and the test poses
 (``evaluate --pose-set``; test is its default) at 256x256 against the true reference:
-holes (false-negative rate), extras (false-positive rate), distance and normal.
+holes (false-negative rate), extras (false-positive rate), distance and normal. With
+``--repeats N`` it trains N times and reports every run's wall seconds and their median; the
+runs draw the same batches, so they give the same model, and the last one is evaluated.
 
     python vdnif_addon/batch.py -- dataset --scene bunny --out out/bunny-data
     OMP_NUM_THREADS=1 python tools/time_to_clean.py --data out/bunny-data --scene bunny \\
-        --json out/bunny-clean.json [--set lr_mlp=0.01 --set steps=3000]
+        --json out/bunny-clean.json [--repeats 3] [--set lr_mlp=0.01 --set steps=3000]
 """
 
 import argparse
 import json
 import pathlib
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -47,20 +50,29 @@ def main():
     parser.add_argument("--threads", type=int, default=None, help="torch threads")
     parser.add_argument("--seed", type=int, default=0,
                         help="the training pose seed whose unseen poses are evaluated")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="trainings timed (the median is reported); the last is evaluated")
     parser.add_argument("--json", required=True, help="write the figures here")
     args = parser.parse_args()
+    if args.repeats < 1:
+        raise VDNIFError(f"--repeats must be at least 1, got {args.repeats}")
     overrides = dict(parse_setting(item) for item in args.set)
     threads = use_threads(args.threads)
     with tempfile.TemporaryDirectory() as scratch:
         model = pathlib.Path(scratch) / "model.vdnif"
-        start = time.perf_counter()
-        result, _ = fit_model(args.data, "proposed", model, overrides)
-        wall = time.perf_counter() - start
+        walls, steps_s = [], []
+        for _ in range(args.repeats):
+            start = time.perf_counter()
+            result, _ = fit_model(args.data, "proposed", model, overrides)
+            walls.append(time.perf_counter() - start)
+            steps_s.append(result.seconds)
         history = [(r["step"], (r["validation"] or {}).get("occlusion_accuracy"))
                    for r in result.history]
         report = {"data": args.data, "scene": args.scene, "overrides": overrides,
                   "torch_threads": threads, "status": result.status, "steps": result.steps,
-                  "train_s": result.seconds, "wall_s": wall, "occlusion_history": history}
+                  "train_s": statistics.median(steps_s), "wall_s": statistics.median(walls),
+                  "train_s_runs": steps_s, "wall_s_runs": walls,
+                  "occlusion_history": history}
         for name, pose_set in (("dev", "development"), ("test", "test")):
             out = pathlib.Path(scratch) / f"{name}.json"
             subprocess.run([sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--",
