@@ -288,7 +288,8 @@ def test_plots_and_the_performance_section(tiny, tmp_path):
     report = core("studies.side_by_side_report")
     performance = tmp_path / "performance.md"
     performance.write_text("# Performance\n\n<!-- bench -->\n## Sweep\nkept\n<!-- end bench -->\n")
-    machine = {"cpu": "test CPU", "cores": 2, "load_before": 0.5, "load_after": 0.7,
+    machine = {"cpu": "test CPU", "vector": "AVX2", "cores": 2, "load_before": 0.5,
+               "load_after": 0.7,
                "omp_num_threads": "1", "torch": "2", "torch_threads": 1, "warp": "1",
                "warp_device": "cpu", "embreex": "4", "blender": "4.5"}
     rows = [results["oracle"], results["never"]]
@@ -296,11 +297,20 @@ def test_plots_and_the_performance_section(tiny, tmp_path):
         paths = report.write_performance(performance, rows, "python batch.py -- y", machine)
     text = performance.read_text()
     assert text.count("<!-- side-by-side -->") == 1 and "kept" in text
-    assert "test CPU, 2 cores" in text and "OMP_NUM_THREADS=1" in text
+    assert "test CPU (AVX2), 2 cores" in text and "OMP_NUM_THREADS=1" in text
     for name, path in paths.items():
         assert path.parent == tmp_path / "side-by-side"
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 10_000
         assert f"](side-by-side/{path.name})" in text
+
+
+def test_the_machine_names_its_widest_vector_extensions():
+    """The report names AVX-512 (with BF16) or AVX2 from the CPU's flags."""
+    widest = core("kernels.runtime").vector_extensions
+    assert widest({"avx2", "avx512f", "avx512_bf16"}) == "AVX-512 with BF16"
+    assert widest({"avx2", "avx512f"}) == "AVX-512"
+    assert widest({"avx", "avx2", "fma"}) == "AVX2"
+    assert widest({"sse4_2"}) == "no AVX2"
 
 
 def test_the_command_writes_json_plots_and_section(extension, tmp_path, capsys):

@@ -29,7 +29,6 @@ import importlib.metadata
 import io
 import os
 import pathlib
-import platform
 import statistics
 import time
 
@@ -375,15 +374,10 @@ def _bytes(capture, model, baselines):
 def machine(load_before, device):
     """The machine and thread settings of a run on torch ``device``, for the report
     (``load_before``: the load average when it started)."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
-            cpu = next((line.split(":", 1)[1].strip() for line in info
-                        if line.startswith("model name")), cpu)
-    except OSError:
-        pass
+    cpu, vector = runtime.cpu_description()
     warp = runtime.init()
-    return {"cpu": cpu, "cores": thread_use.machine_cores(), "load_before": load_before,
+    return {"cpu": cpu, "vector": vector, "cores": thread_use.machine_cores(),
+            "load_before": load_before,
             "load_after": os.getloadavg()[0],
             "omp_num_threads": os.environ.get("OMP_NUM_THREADS", "unset"),
             "torch": torch.__version__, "torch_threads": torch.get_num_threads(),

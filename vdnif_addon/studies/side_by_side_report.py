@@ -374,7 +374,8 @@ def _bytes_table(results, table):
 def machine_text(machine):
     """One line naming the machine and the thread settings of a run (``side_by_side.
     machine``)."""
-    return (f"Machine: {machine['cpu']}, {machine['cores']} cores available; load average "
+    vector = f" ({machine['vector']})" if machine.get("vector") else ""
+    return (f"Machine: {machine['cpu']}{vector}, {machine['cores']} cores available; load average "
             f"{machine['load_before']:.2f} before and {machine['load_after']:.2f} after the "
             f"run (other work on the machine slows every side alike only roughly: compare "
             f"ratios, not absolute times). OMP_NUM_THREADS={machine['omp_num_threads']}, torch "
