@@ -53,15 +53,21 @@ def set_cache_root(path: str | os.PathLike) -> None:
             _state["root"] = pathlib.Path(path)
 
 
-def host_key() -> str:
-    """12 hex digits naming this machine's CPU model and features and Warp's version."""
-    cpu = platform.processor() or platform.machine()
+def _cpuinfo() -> list[str] | None:
+    """The lines of ``/proc/cpuinfo``; None where it cannot be read (not Linux)."""
     try:
         with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
-            wanted = ("model name", "flags", "Features", "CPU implementer", "CPU part")
-            cpu = "\n".join(sorted({line.strip() for line in info if line.startswith(wanted)}))
+            return info.read().splitlines()
     except OSError:
-        pass
+        return None
+
+
+def host_key() -> str:
+    """12 hex digits naming this machine's CPU model and features and Warp's version."""
+    cpu, lines = platform.processor() or platform.machine(), _cpuinfo()
+    if lines is not None:
+        wanted = ("model name", "flags", "Features", "CPU implementer", "CPU part")
+        cpu = "\n".join(sorted({line.strip() for line in lines if line.startswith(wanted)}))
     text = f"{platform.system()}|{platform.machine()}|{cpu}|warp {wp.__version__}"
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
@@ -79,12 +85,7 @@ def cpu_description() -> tuple[str, str | None]:
     """(this machine's CPU model, its ``vector_extensions``; None where the flags are not
     readable)."""
     cpu, flags = platform.processor() or platform.machine(), None
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as info:
-            lines = info.read().splitlines()
-    except OSError:
-        return cpu, None
-    for line in lines:
+    for line in _cpuinfo() or []:
         key, _, value = line.partition(":")
         if key.strip() == "model name":
             cpu = value.strip()
