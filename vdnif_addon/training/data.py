@@ -177,9 +177,9 @@ def split_data(
             f"{len(segments)} shards for {group.world} processes"
         )
     arrays = _read_shards(shards, heads)
-    poses = torch.from_numpy(np.unique(np.concatenate(
-        [np.unique(shard["pose"]) for shard in arrays])).astype(np.int64))
-    val_poses = split_poses(poses, config.val_fraction, config.seed, group)
+    poses = np.concatenate([np.unique(shard["pose"]) for shard in arrays])
+    val_poses = split_poses(torch.from_numpy(poses).long(), config.val_fraction, config.seed,
+                            group)
     held_out = [np.isin(shard["pose"], val_poses) if val_poses else
                 held_out_rays(torch.from_numpy(shard["ray"]).long(), config.val_fraction,
                               config.seed).numpy() for shard in arrays]
