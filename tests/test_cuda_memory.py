@@ -119,6 +119,7 @@ def test_batches_gathered_ahead_are_the_generators_draws_in_order():
         batch = batches.next()
         for key, value in rows.items():
             assert torch.equal(batch[key], value[index]), key
+    batches._ahead.result()     # the sixth batch's gather, submitted by the fifth next()
     assert len(gathered_on) == 6 and threading.get_ident() not in gathered_on
 
 
