@@ -101,14 +101,26 @@ def values_at_network_calls(probe, **options):
     return seen
 
 
-def test_the_render_splits_the_encoder_as_set_in_any_lanes(encoder_threads):
-    """The render's network batch holds every lane's segments and runs after their walks,
-    so its encoder is split as set, in one lane or several, and stays so after."""
+def test_each_lane_encodes_on_its_share_of_the_cores(encoder_threads):
+    """Each lane runs its own network calls on a lane thread of its own, its encoder split
+    over the lane's share of the cores (at least one), and the setting comes back after."""
+    import threading
+
+    def probe():
+        return threading.current_thread().name, threads.encoder_threads(), threads.cores()
+
     encoder_threads(4)
-    for lanes in (1, 2):
-        seen = values_at_network_calls(threads.encoder_threads, lanes=lanes)
-        assert seen and set(seen) == {4}
-        assert threads.encoder_threads() == 4
+    threads.use_cores(4)
+    try:
+        for lanes, share in ((1, 4), (2, 2), (3, 1)):
+            seen = values_at_network_calls(probe, lanes=lanes)
+            assert seen and {(cores, split) for _, cores, split in seen} == {(share, share)}
+            names = {name for name, _, _ in seen}
+            assert names == {threading.current_thread().name,
+                             *(f"vdnif-lane-{lane}" for lane in range(1, lanes))}
+            assert threads.encoder_threads() == 4 and threads.cores() == 4
+    finally:
+        threads.use_cores(None)
 
 
 def test_the_render_caps_torch_threads_and_gives_them_back(monkeypatch):
@@ -174,3 +186,30 @@ def test_launch_bounds_cover_the_points_once_in_order(count, parts, most):
     assert len(set(sizes[:-1])) <= 1 and all(0 < size <= sizes[0] for size in sizes)
     if most:
         assert sizes[0] <= most
+
+
+def test_at_once_runs_every_task_beside_the_others_and_raises_the_first_error():
+    """Four tasks that each wait for all four to have started: run one after the other
+    they would time out. Results come back in order; a task's error reaches the caller
+    after every thread has ended."""
+    import threading
+
+    barrier = threading.Barrier(4, timeout=10)
+
+    def task(index):
+        barrier.wait()
+        return index * index, threading.current_thread().name
+
+    results = threads.at_once(task, 4, "test-lane")
+    assert [value for value, _ in results] == [0, 1, 4, 9]
+    assert len({name for _, name in results}) == 4
+    ended = []
+
+    def failing(index):
+        if index == 1:
+            raise ValueError("lane 1 broke")
+        ended.append(index)
+
+    with pytest.raises(ValueError, match="lane 1 broke"):
+        threads.at_once(failing, 3, "test-lane")
+    assert sorted(ended) == [0, 2]

@@ -13,8 +13,11 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 ENCODER_CORES = 1
 """Cores left to the encoder's thread (a Warp CPU launch runs on one)."""
@@ -34,10 +37,26 @@ def machine_cores() -> int:
 _cores = {"count": None}
 
 
+_lane = threading.local()
+
+
 def cores() -> int:
-    """The cores this process's work may use: ``use_cores``'s count, else
-    ``machine_cores()``."""
-    return _cores["count"] or machine_cores()
+    """The cores this thread's work may use: a render lane's share (``lane_cores``), else
+    ``use_cores``'s count, else ``machine_cores()``."""
+    return getattr(_lane, "cores", None) or _cores["count"] or machine_cores()
+
+
+@contextlib.contextmanager
+def lane_cores(count: int) -> Iterator[None]:
+    """Within the block, on this thread, ``cores()`` and ``encoder_threads()`` are ``count``:
+    a render lane's share of the cores, which its encoder and network keep to while the
+    other lanes run beside it."""
+    before = getattr(_lane, "cores", None)
+    _lane.cores = count
+    try:
+        yield
+    finally:
+        _lane.cores = before
 
 
 def use_cores(count: int | None) -> None:
@@ -88,7 +107,7 @@ def encoder_threads() -> int:
     """CPU threads the encoder's launches are split over: ``use_encoder_threads``'s count,
     else every core this process may use (training runs the encoder and the MLP one after
     the other, so while it encodes torch's threads wait)."""
-    return _encoder["threads"] or cores()
+    return getattr(_lane, "cores", None) or _encoder["threads"] or cores()
 
 
 def use_encoder_threads(count: int | None) -> None:
@@ -98,11 +117,37 @@ def use_encoder_threads(count: int | None) -> None:
 
 def launch_pool(count: int | None = None) -> ThreadPoolExecutor:
     """``count`` worker threads (default ``encoder_threads()``) that run the slices of a
-    split Warp CPU launch (the encoder's, a baseline's casts) or the render's lanes, made once
-    per process and count; the pool of one gathers the training's next batch (a one-slice
-    launch or a one-lane render runs on its caller's thread)."""
+    split Warp CPU launch (the encoder's, a baseline's casts), made once per process and
+    count; the pool of one gathers the training's next batch (a one-slice launch runs on its
+    caller's thread)."""
     with _pool_lock:
         count = count or encoder_threads()
         if count not in _pool:
             _pool[count] = ThreadPoolExecutor(count, thread_name_prefix="vdnif-launch")
         return _pool[count]
+
+
+def at_once(work: Callable[[int], T], count: int, name: str) -> list[T]:
+    """``[work(0), ..., work(count - 1)]``, each on a thread of its own, all at once: 0 on
+    this thread, the others on threads started for them and named ``name-i``. Not a pool: a
+    pool's worker may take a second task before another worker takes the first, and run the
+    two one after the other. The first error raised is raised here, after every thread ends."""
+    results: list[Any] = [None] * count
+    errors: list[BaseException] = []
+
+    def run(index: int) -> None:
+        try:
+            results[index] = work(index)
+        except BaseException as error:      # handed to the caller's thread below
+            errors.append(error)
+
+    started = [threading.Thread(target=run, args=(index,), name=f"{name}-{index}")
+               for index in range(1, count)]
+    for thread in started:
+        thread.start()
+    run(0)
+    for thread in started:
+        thread.join()
+    if errors:
+        raise errors[0]
+    return results

@@ -12,18 +12,20 @@ walk on (the walk pauses the others when the buffer is full); a ray's passes dep
 its own segments in walk order, so the split changes nothing but the number of waves.
 
 On the CPU the rays are split into lanes, one per core (``walk_lanes``): a Warp CPU launch
-runs on one thread, so each wave walks the lanes at once, one launch each, evaluates their
-segments in one network batch, and resolves the lanes at once. The lanes hold disjoint rays
-and write disjoint memory (``kernels.launches`` says why such launches may run together), and
-a ray's passes are the same in any lane, but for the rounding of the network's batch. Torch
-runs the batch on at most ``threads.RENDER_TORCH_THREADS`` threads.
+runs on one thread, and so, at one torch thread, does a small batch's MLP. Each lane renders
+its own rays wave after wave on a thread of its own (walk, network, resolve), beside the
+others, with its share of the cores (``threads.lane_cores``): while one lane runs its MLP,
+another walks. The lanes hold disjoint rays and write disjoint memory
+(``kernels.launches`` says why such launches may run together); a ray's passes are the same in
+any lane but for the rounding of the network's batch, which holds its lane's segments.
+Torch runs a lane's batch on at most ``threads.RENDER_TORCH_THREADS`` threads.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -60,10 +62,11 @@ if TYPE_CHECKING:
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
 
 
-# Rays per lane at least: a lane's wave costs a fixed overhead on its thread that short
-# launches do not repay; two lanes of fewer rays rendered slower than one lane
+# Rays per lane at least: a lane's wave costs a fixed overhead on its thread (launches, a
+# network call) that short lanes do not repay. On 2 cores, bunny model: two lanes rendered
+# 128x128 1.4-1.6x faster than one, and 64x64 (2,048 rays a lane) no faster
 # (docs/performance.md, threads).
-MIN_LANE_RAYS = 16384
+MIN_LANE_RAYS = 8192
 
 
 def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:
@@ -109,22 +112,19 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     lanes = walk_lanes(device, rays) if lanes is None else lanes
     if lanes < 1:
         raise VDNIFError(f"a render walks at least one lane, not {lanes}")
-    stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
+    torch_threads = max(1, min(threads.RENDER_TORCH_THREADS, threads.cores() // lanes))
     with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
-          threads.torch_threads_at_most(threads.RENDER_TORCH_THREADS)):
+          threads.torch_threads_at_most(torch_threads)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
         waves = _Waves(network, grid, walk, schedule, albedo_table,
                        max(1, max_wave_segments // lanes))
-        while live := [i for i, lane in enumerate(walk.lanes) if lane.count]:
-            clock = time.perf_counter()
-            counts = _each(lanes, waves.advance, live)
-            walked = time.perf_counter()
-            predictions = waves.predict(live, counts)
-            _each(lanes, waves.resolve, live, counts, predictions)
-            stats["walk_s"] += walked - clock
-            stats["network_s"] += time.perf_counter() - walked
-            stats["segments"] += sum(counts)
-            stats["waves"] += 1
+        share = max(1, threads.cores() // lanes)
+        lane_stats = threads.at_once(lambda lane: _render_lane(waves, lane, share), lanes,
+                                     "vdnif-lane")
+        stats = {"segments": sum(s["segments"] for s in lane_stats),
+                 "waves": max(s["waves"] for s in lane_stats),
+                 **{name: sum(s[name] for s in lane_stats) / lanes
+                    for name in ("walk_s", "network_s")}}
         counter = wp.zeros(1, dtype=wp.int32, device=warp_device)
         if rays:
             wp.launch(kernel.clear_misses, dim=rays, inputs=[waves.passes], device=warp_device)
@@ -138,13 +138,23 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     return result, stats
 
 
-def _each(lanes: int, step: Callable[..., Any], *arguments: Sequence[Any]) -> list[Any]:
-    """``step`` of each lane in ``arguments``: at once on the pool of the render's ``lanes``
-    threads where there are several (their launches write disjoint memory), else on this
-    thread."""
-    if len(arguments[0]) == 1:
-        return [step(*(values[0] for values in arguments))]
-    return list(threads.launch_pool(lanes).map(step, *arguments))
+def _render_lane(waves: _Waves, lane: int, cores: int) -> dict[str, float]:
+    """Renders ``lane`` wave by wave (walk, network, resolve) until its rays are done, on
+    this thread with ``cores`` cores of its own (``threads.lane_cores``); returns its
+    segments, waves and the seconds it spent walking and in the network (with the
+    resolve)."""
+    stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
+    with threads.lane_cores(cores):
+        while waves.walk.lanes[lane].count:
+            clock = time.perf_counter()
+            count = waves.advance(lane)
+            walked = time.perf_counter()
+            waves.resolve(lane, count, waves.predict([lane], [count])[0])
+            stats["walk_s"] += walked - clock
+            stats["network_s"] += time.perf_counter() - walked
+            stats["segments"] += count
+            stats["waves"] += 1
+    return stats
 
 
 class _Waves:

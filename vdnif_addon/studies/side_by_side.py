@@ -6,17 +6,18 @@ mesh, reads its vertices, prepares its BVH and casts every ray; the neural path 
 voxel corners and refits the entry BVH over the deformed cells, then renders with a trained
 model. A run has one thread setting (1, or every core): the Embree baselines build and cast
 on that many threads, Warp's casts are split over that many, torch runs on that many less
-the encoder's core (at least one); the neural render walks up to one lane per core of
-the setting at once (``walk_lanes``), the network encodes beside its MLP only where the
-setting has a core for it (``threads.use_cores``), and the encoder's launches are split over
-that many; the BVHTree loop, Warp's refit and its other CPU launches run on one whatever the
-setting, and each result says what ran on how many. On the rest pose, the deformation-aware
-walk (entry BVH + face intersections) is timed against the static DDA walk
-of the same rays: both are Warp kernels with the same segment buffers and launches. Every
-figure is timed alternately in one process after one untimed pass and reported as the median
-over repeats, so background load affects all sides alike. On CUDA the clock is read only
-after the device's queued work is done. With secondary rays (``side_by_side_secondary``) each
-path also casts the ambient-occlusion and shadow rays of its own primary hits per pose.
+the encoder's core (at least one); the neural render renders up to one lane per core of
+the setting at once (``walk_lanes``), each on a thread of its own with its share of the
+setting's cores (``threads.use_cores``), and one lane's network encodes beside its MLP only
+where the setting has a core for it; the BVHTree loop, Warp's refit and its other CPU
+launches run on one whatever the setting, and each result says what ran on how many. On
+the rest pose, the deformation-aware walk (entry BVH + face intersections) is timed against
+the static DDA walk of the same rays: both are Warp kernels with the same segment buffers
+and launches. Every figure is timed alternately in one process after one untimed pass and
+reported as the median over repeats, so background load affects all sides alike. On CUDA the
+clock is read only after the device's queued work is done. With secondary rays
+(``side_by_side_secondary``) each path also casts the ambient-occlusion and shadow rays of
+its own primary hits per pose.
 
 Speeds of the neural render come only from a model file that predicts hits: its hit IoU
 against the true reference, on the same views in the same run, must reach

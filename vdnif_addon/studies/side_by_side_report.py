@@ -1,12 +1,12 @@
-"""What a ``side-by-side`` run reports: the markdown tables (one column per scene, image size
-and thread setting), the targets it is held to and its section of ``docs/performance.md``
-(plots: ``side_by_side_plots``). Works on ``compare_paths`` results alone (JSON-ready dicts):
-no bpy, no timing."""
+"""What a ``side-by-side`` run reports: the markdown tables (a column per scene, image size and
+thread setting), its targets and its section of ``docs/performance.md`` (plots apart), from
+``compare_paths`` results alone (JSON-ready dicts): no bpy, no timing."""
 
 import pathlib
 
 from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..text import percent
+from ..threads import RENDER_TORCH_THREADS
 from .baselines import BASELINES, BLENDER_THREADS
 from .report import write_section
 from .side_by_side_plots import SHORT, pose_total, write_plots
@@ -234,8 +234,8 @@ def _step_rows():
             ("neural: read corners + refit cells and entry BVH (`prepare_s`)",
              "neural_prepare_s"),
             ("neural: render (walk + network)", "neural_render_s"),
-            ("neural render: walk (seconds inside the render)", "neural_walk_s"),
-            ("neural render: network (seconds inside the render)", "neural_network_s"),
+            ("neural render: walk (seconds in it, the lanes' mean)", "neural_walk_s"),
+            ("neural render: network (seconds in it, the lanes' mean)", "neural_network_s"),
             ("rest view: deformed walk (`tracing.traverse.traverse`)", "deformed_walk_s"),
             ("rest view: static DDA walk (`tracing.static_grid.StaticGrid`)", "static_walk_s"),
             ("rest view: network over every walked segment", "all_segments_network_s"))
@@ -288,9 +288,9 @@ def _what_is_timed(result):
         "+ network in waves, a ray stops at its first predicted hit). A thread setting of N: "
         "Embree builds and casts on N threads, Warp's casts are split over N launches at "
         "once (a Warp CPU launch runs on one thread), torch runs the MLP on N - 1 (at least "
-        "one), the neural render walks up to N lanes at once (one Warp launch each) and the "
-        "network encodes its next batch beside its MLP only where N > 1, and the Warp "
-        "encoder's launches are split over N; the `ray_cast` loop, "
+        "one), the neural render renders up to N lanes of rays at once, each on a thread of "
+        "its own (walk, Warp encoder and MLP; one lane encodes its next batch beside its MLP "
+        "where N > 1); the `ray_cast` loop, "
         "Warp's refit and its other CPU launches run on one thread at any setting; Blender's "
         "evaluation and `BVHTree.FromObject` run on Blender's own threads. On the rest pose, "
         "the deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
@@ -303,11 +303,10 @@ def _what_is_timed(result):
 def _withheld_lines(results):
     withheld = dict.fromkeys((r["object"], r["speed_withheld"]) for r in results
                              if r["speed_withheld"] is not None)
-    if not withheld:
-        return []
-    return [f"Neural speeds n/a (only a trained model whose hit IoU against the true "
-            f"reference reaches {SPEED_MIN_HIT_IOU} on these views has speeds):", "",
-            *(f"- {name}: {reason}." for name, reason in withheld), ""]
+    return [] if not withheld else [
+        f"Neural speeds n/a (only a trained model whose hit IoU against the true reference "
+        f"reaches {SPEED_MIN_HIT_IOU} on these views has speeds):", "",
+        *(f"- {name}: {reason}." for name, reason in withheld), ""]
 
 
 def _transpose_targets(results):
@@ -324,10 +323,11 @@ def threads_text(result, name):
     """On how many threads each step of path ``name`` ran in ``result``."""
     threads = result["threads"]
     if name == "neural":
-        mlp, encoder = f"MLP on {threads['torch']} torch thread(s)", threads.get("encoder", 1)
-        lanes = threads["walk_lanes"]
-        return (f"{mlp}; the walk in {lanes} lane(s) at once, one Warp launch each; the Warp "
-                f"encoder split over {encoder}")
+        lanes, share = threads["walk_lanes"], threads["setting"] // threads["walk_lanes"]
+        split, mlp = ((threads.get("encoder", 1), threads["torch"]) if lanes == 1 else
+                      (share, min(threads["torch"], RENDER_TORCH_THREADS, share)))
+        return (f"{lanes} lane(s) at once, each on a thread of its own: its walk, its Warp "
+                f"encoder split over {split}, its MLP on {mlp} torch thread(s)")
     counts = threads[name]
 
     def count(value):
