@@ -2,6 +2,8 @@
 inside a cell, and the ambient-occlusion and shadow passes of the exact, embedded and neural
 paths on a box standing on a plane, where both are known in closed form (no bpy)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from oracle_network import OracleNetwork
@@ -284,6 +286,8 @@ def test_the_neural_path_from_a_camera_matches_the_exact_one(scene):
                           "embedded_true_hit"}
     assert true.hit.sum() > 200 and (~views["true"].lit[true.hit]).sum() > 10
     assert views["true"].ao[true.hit].min() < 0.9           # the box's foot is occluded
+    for passes in views.values():       # a hit that faces away from the light is not lit
+        assert passes.facing[passes.hit].any() and not (passes.lit & ~passes.facing).any()
     metrics = compare_secondary_both(views)
     for name in ("vs_true", "vs_embedded"):
         assert metrics[name]["ao_mae"] < 0.01 and metrics[name]["ao_mae_true_hit"] < 0.01
@@ -292,15 +296,26 @@ def test_the_neural_path_from_a_camera_matches_the_exact_one(scene):
 
 
 def test_secondary_metrics_count_against_the_reference():
+    # rays 0-2 are compared: 0 falsely shadowed (the prediction faces away from the light),
+    # 1 agreed, 2 falsely lit (the reference faces away)
     reference = SecondaryPasses(hit=np.array([1, 1, 1, 1, 0], bool),
                                 ao=np.array([1.0, 0.5, 0.0, 1.0, 0.0], np.float32),
-                                lit=np.array([1, 1, 0, 0, 0], bool))
+                                lit=np.array([1, 1, 0, 0, 0], bool),
+                                facing=np.array([1, 1, 0, 1, 0], bool))
     predicted = SecondaryPasses(hit=np.array([1, 1, 1, 0, 1], bool),
                                 ao=np.array([0.5, 0.5, 0.5, 1.0, 1.0], np.float32),
-                                lit=np.array([0, 1, 1, 1, 1], bool))
+                                lit=np.array([0, 1, 1, 1, 1], bool),
+                                facing=np.array([0, 1, 1, 1, 1], bool))
     result = compare_secondary(predicted, reference, suffix="_x")
     assert result == {"secondary_rays_x": 3, "ao_mae_x": pytest.approx(1 / 3),
-                      "shadow_false_lit_rate_x": 1.0, "shadow_false_shadow_rate_x": 0.5}
+                      "shadow_false_lit_rate_x": 1.0, "shadow_false_shadow_rate_x": 0.5,
+                      "shadow_false_lit_facing_rate_x": 1.0,
+                      "shadow_false_shadow_facing_rate_x": 0.5}
+    # the same errors from cast shadows: both sides face the light
+    cast = compare_secondary(dataclasses.replace(predicted, facing=np.ones(5, bool)),
+                             dataclasses.replace(reference, facing=np.ones(5, bool)))
+    assert cast["shadow_false_lit_rate"] == 1.0 and cast["shadow_false_shadow_rate"] == 0.5
+    assert cast["shadow_false_lit_facing_rate"] == cast["shadow_false_shadow_facing_rate"] == 0
     empty = compare_secondary(predicted, reference, np.zeros(5, bool))
     assert empty["ao_mae"] is None and empty["shadow_false_lit_rate"] is None
 

@@ -75,10 +75,13 @@ class SecondaryPasses:
     hit: Bool[np.ndarray, " R"]       # the primary hit the secondary rays start from
     ao: Float[np.ndarray, " R"]       # float32 fraction unoccluded; 0 without a primary hit
     lit: Bool[np.ndarray, " R"]       # the light reached; False without a primary hit
+    # the hit's normal faces the light (no shadow ray is cast from one that does not);
+    # False without a primary hit
+    facing: Bool[np.ndarray, " R"]
 
     @classmethod
     def concatenate(cls, passes: Iterable[SecondaryPasses]) -> SecondaryPasses:
         """The rays of ``passes`` one after the other."""
         passes = list(passes)
         return cls(*(np.concatenate([getattr(p, name) for p in passes])
-                     for name in ("hit", "ao", "lit")))
+                     for name in ("hit", "ao", "lit", "facing")))

@@ -89,8 +89,11 @@ def compare_secondary(predicted: SecondaryPasses, reference: SecondaryPasses,
     both start from a primary hit (and ``pixels`` (R,) when given): ``ao_mae``, the mean
     absolute AO difference (0..1); ``shadow_false_lit_rate``, rays the prediction lights
     over those the reference shadows; ``shadow_false_shadow_rate``, rays it shadows over
-    those the reference lights (None without any); ``secondary_rays``, how many; every key
-    ends in ``suffix``."""
+    those the reference lights (None without any); the part of each that a normal facing
+    away from the light decides, with no shadow ray cast (the reference's for false lit,
+    the prediction's for false shadow): ``shadow_false_lit_facing_rate`` and
+    ``shadow_false_shadow_facing_rate``, over the same rays (the rest are cast shadows);
+    ``secondary_rays``, how many; every key ends in ``suffix``."""
     both = predicted.hit & reference.hit
     if pixels is not None:
         both = both & pixels
@@ -101,6 +104,10 @@ def compare_secondary(predicted: SecondaryPasses, reference: SecondaryPasses,
                    if both.any() else None),
         "shadow_false_lit_rate": _share((shadowed & predicted.lit).sum(), shadowed.sum()),
         "shadow_false_shadow_rate": _share((lit & ~predicted.lit).sum(), lit.sum()),
+        "shadow_false_lit_facing_rate": _share(
+            (shadowed & predicted.lit & ~reference.facing).sum(), shadowed.sum()),
+        "shadow_false_shadow_facing_rate": _share(
+            (lit & ~predicted.lit & ~predicted.facing).sum(), lit.sum()),
     }
     return {f"{key}{suffix}": value for key, value in result.items()}
 

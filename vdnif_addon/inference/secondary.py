@@ -209,9 +209,9 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     facing = (normal * towards).sum(1) > 0
     lit_hits = facing.copy()
     lit_hits[facing] = ~occluded(start[facing], towards[facing], distance[facing])
-    lit = np.zeros(rays, bool)
-    lit[primary.hit] = lit_hits
-    return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit)
+    lit, faces = np.zeros(rays, bool), np.zeros(rays, bool)
+    lit[primary.hit], faces[primary.hit] = lit_hits, facing
+    return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit, facing=faces)
 
 
 def secondary_views(primaries: dict[str, Passes], origins: Float[np.ndarray, "R 3"],
