@@ -149,7 +149,7 @@ def _render_lane(waves: _Waves, lane: int, cores: int) -> dict[str, float]:
             clock = time.perf_counter()
             count = waves.advance(lane)
             walked = time.perf_counter()
-            waves.resolve(lane, count, waves.predict([lane], [count])[0])
+            waves.resolve(lane, count, waves.predict(lane, count))
             stats["walk_s"] += walked - clock
             stats["network_s"] += time.perf_counter() - walked
             stats["segments"] += count
@@ -158,10 +158,10 @@ def _render_lane(waves: _Waves, lane: int, cores: int) -> dict[str, float]:
 
 
 class _Waves:
-    """The three steps of a wave: ``advance`` of a lane (Warp only: the walk kernel and the
-    network inputs), ``predict`` of the lanes' segments in one batch (the network: the Warp
-    encoder and torch's MLP), ``resolve`` of a lane (Warp: hits placed and made, finished rays
-    out). ``advance`` and ``resolve`` of different lanes run at once."""
+    """The three steps of a lane's wave: ``advance`` (Warp only: the walk kernel and the
+    network inputs), ``predict`` of its segments in one batch (the network: the Warp encoder
+    and torch's MLP), ``resolve`` (Warp: hits placed and made, finished rays out). Different
+    lanes' steps run at once."""
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
@@ -201,34 +201,22 @@ class _Waves:
                       device=self.device)
         return count
 
-    def predict(self, lanes: list[int], counts: list[int]) -> list[Prediction | None]:
-        """The network's predictions for the ``counts`` segments of each of ``lanes``' wave,
-        in one batch."""
-        if not sum(counts):
-            return [None] * len(lanes)
-        inputs = [[wp.to_torch(x)[:count] for x in self.inputs[lane]]
-                  for lane, count in zip(lanes, counts) if count]
-        p0, p1, rest_length = (torch.cat(parts) if len(parts) > 1 else parts[0]
-                               for parts in zip(*inputs))
+    def predict(self, lane: int, count: int) -> Prediction | None:
+        """The network's predictions for the ``count`` segments of ``lane``'s wave, in one
+        batch (None without any)."""
+        if not count:
+            return None
+        p0, p1, rest_length = (wp.to_torch(x)[:count] for x in self.inputs[lane])
         prediction = self.network.predict(p0, p1, rest_length, self.grid.voxel_size)
+        has_albedo = "albedo" in prediction
         tensors = {"hit": prediction["hit"].to(torch.int32),
                    "candidate": prediction["candidate"].to(torch.int32),
                    "fraction": prediction["fraction"].to(torch.float64),
                    "normal": prediction["normal"].to(torch.float64),
-                   "material": prediction["material"].to(torch.int64)}
-        has_albedo = "albedo" in prediction
-        if has_albedo:
-            tensors["albedo"] = prediction["albedo"].to(torch.float32)
-        no_albedo = torch.zeros((1, 3), device=tensors["hit"].device)
-        pieces, first = [], 0
-        for count in counts:
-            piece = {name: value[first:first + count].contiguous()
-                     for name, value in tensors.items()}
-            if not has_albedo:
-                piece["albedo"] = no_albedo
-            pieces.append((piece, has_albedo) if count else None)
-            first += count
-        return pieces
+                   "material": prediction["material"].to(torch.int64),
+                   "albedo": (prediction["albedo"].to(torch.float32) if has_albedo
+                              else p0.new_zeros((1, 3)))}
+        return {name: value.contiguous() for name, value in tensors.items()}, has_albedo
 
     def resolve(self, lane: int, count: int, prediction: Prediction | None) -> None:
         """Each ray's first candidate segment, unless one is placed already, into its passes,
