@@ -111,6 +111,11 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         ("PREFERENCES", "Preferences", "The device chosen in the add-on's preferences"),
         *preferences.DEVICES],
         description="Where training and rendering run: the CPU or an NVIDIA GPU")
+    precision: EnumProperty(name="Precision", default=defaults.DEFAULT_PRECISION, items=[
+        ("float32", "Float32", "Full precision"),
+        ("bfloat16", "BFloat16", "Faster where the device has bfloat16 instructions (an NVIDIA "
+                                 "GPU, a CPU with AVX-512 BF16 or AMX), a little less exact")],
+        description="The arithmetic of the network's layers when it renders")
     view: EnumProperty(name="View", default="CAMERA", items=[
         ("CAMERA", "Camera", "Render through the scene's active camera"),
         ("VIEWPORT", "Viewport", "Render the 3D Viewport's view")],

@@ -91,12 +91,12 @@ def _renderer(obj, scene, session):
     settings = obj.vdnif
     width, height = preview_size(settings)
     device = settings.device_name(bpy.context)
-    key = (settings.model_info, settings.model_path, width, height, device)
+    key = (settings.model_info, settings.model_path, width, height, device, settings.precision)
     if session.renderer is None or session.key != key:
         resolution = settings.parsed("model_info")["resolution"]
         captured = capture(obj, resolution, settings.pose_spec(1), deform_corners=False)
         session.renderer = PreviewRenderer(storage.model_path(obj), captured, device, width,
-                                           height)
+                                           height, precision=settings.precision)
         session.key = key
     return session.renderer
 

@@ -65,7 +65,7 @@ def frames_stage(context, obj, frames, width, height, on_frame, references=False
     """The ``make`` of a Stage rendering ``frames`` of the object's model
     (``ui_jobs.frames_job``, ``secondary`` its AO and shadow settings);
     ``on_frame(frame, result, captured)`` runs on the main thread for each frame."""
-    name, device = obj.name, obj.vdnif.device_name(context)
+    name, device, precision = obj.name, obj.vdnif.device_name(context), obj.vdnif.precision
 
     def make():
         from ..vdnif_addon.blender.ui_jobs import frames_job
@@ -75,7 +75,7 @@ def frames_stage(context, obj, frames, width, height, on_frame, references=False
         return frames_job(obj, captured, storage.model_path(obj), frames, width, height,
                           device, lambda frame, result: on_frame(frame, result, captured),
                           camera=camera, view=view, references=references, loaded=loaded,
-                          secondary=secondary)
+                          secondary=secondary, precision=precision)
 
     return make
 
@@ -149,7 +149,7 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
             loaded, captured = model_capture(obj, settings.eval_poses)
             return evaluation_job(obj, captured, storage.model_path(obj),
                                   settings.image_width, settings.image_height, device, loaded,
-                                  secondary)
+                                  secondary, settings.precision)
 
         def finish(obj, state):
             outcome(state)

@@ -229,7 +229,7 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
 
     def draw_step(self, layout, context, settings):
         layout.prop(settings, "view")
-        properties(layout, settings, ("image_width", "image_height"))
+        properties(layout, settings, ("image_width", "image_height", "precision"))
         button(layout, context, VDNIF_OT_render_passes, "RENDER_STILL")
         draw_animation(layout, context, settings)
         choice = context.scene.vdnif_viewer

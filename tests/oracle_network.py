@@ -25,6 +25,7 @@ class OracleNetwork:
         self.walk_rules = core_module(mesh, "geometry.walk_rules")
         self.caster = self.groundtruth.rest_surface(mesh)      # segments in no given cell
         self.queries = 0
+        self.precision = "float32"          # exact answers: no arithmetic to lower
 
     def parameters(self):
         """No weights: it answers on the device its inputs are on."""

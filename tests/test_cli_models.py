@@ -111,3 +111,36 @@ def test_evaluate_reports_on_the_test_poses_unless_asked_for_the_development_one
                          "2", *VIEW, "--device", "cpu", *chosen]) == 0
     assert [name for name, _ in seen] == ["test", "development", "test"]
     assert seen[0][1] == seen[2][1] and seen[0][1] != seen[1][1]
+
+
+def test_bfloat16_runs_the_network_in_bfloat16_where_the_device_has_it(small_model, tmp_path,
+                                                                       capsys, monkeypatch):
+    """``--precision bfloat16`` reaches the network: evaluate and side-by-side say so in their
+    JSON (``test_network`` holds its arithmetic to an oracle); on a device without bfloat16
+    instructions (made so here, as it is made to have them first) the command refuses it
+    in one line and exits non-zero, writing nothing."""
+    import importlib
+
+    cli, model = small_model
+    runtime = importlib.import_module(f"{cli.__name__.rpartition('.')[0]}.kernels.runtime")
+    monkeypatch.setattr(runtime, "bfloat16_native", lambda device: True)
+    for precision in ("float32", "bfloat16"):
+        path = tmp_path / f"{precision}.json"
+        assert cli.main(["evaluate", "--model", str(model), "--scene", "lattice", "--poses",
+                         "1", *VIEW, "--device", "cpu", "--precision", precision, "--json",
+                         str(path)]) == 0
+        assert json.loads(path.read_text())["precision"] == precision
+    assert cli.main(["side-by-side", "--scene", "lattice", "--model", f"lattice={model}",
+                     "--poses", "1", "--repeats", "1", *VIEW, "--precision", "bfloat16",
+                     "--json", str(tmp_path / "sbs.json")]) == 0
+    result = json.loads((tmp_path / "sbs.json").read_text())["results"][0]
+    assert result["network"]["precision"] == "bfloat16"
+    assert "--precision bfloat16" in json.loads((tmp_path / "sbs.json").read_text())["command"]
+    capsys.readouterr()
+    monkeypatch.setattr(runtime, "bfloat16_native", lambda device: False)
+    assert cli.main(["render", "--model", str(model), "--scene", "lattice", *VIEW,
+                     "--device", "cpu", "--precision", "bfloat16",
+                     "--out", str(tmp_path / "refused")]) == 1
+    error = capsys.readouterr().err.strip()
+    assert error.count("\n") == 0 and "has no bfloat16 instructions" in error
+    assert not (tmp_path / "refused").exists()

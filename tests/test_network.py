@@ -332,3 +332,47 @@ def test_the_render_refuses_a_network_on_another_device():
     network = IntersectionNetwork(NetworkConfig(**SMALL)).to("meta")
     with pytest.raises(VDNIFError, match="weights are on meta but the render runs on cpu"):
         neural_passes(network, None, None, None, None, None, device="cpu")
+
+
+def test_bfloat16_precision_runs_both_mlps_in_bfloat16_and_reads_out_in_float32():
+    """``precision`` "bfloat16": predict equals the readout of the MLPs run on bfloat16
+    copies of their weights and inputs (the oracle; the hash grids' features stay float32),
+    the albedo field's too, with float32 outputs; float32 is the default and differs from
+    it, so the setting took effect."""
+    import copy
+
+    torch.manual_seed(6)
+    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
+                           heads=Heads(albedo=True, material_count=2))
+    network = IntersectionNetwork(config)
+    with torch.no_grad():
+        for grid in (network.encoder.grid, network.albedo_field.grid):
+            grid.table.normal_()
+    p0, p1 = torch.rand(2, 400, 3)
+    rest_len = torch.rand(400) * 0.1
+    with torch.no_grad():                   # half the segments are candidates
+        median = float(torch.sigmoid(network(p0, p1)["occlusion"]).median())
+    network.thresholds = Thresholds(median, median)
+    assert network.precision == "float32"
+    full = network.predict(p0, p1, rest_len, 0.05, batch=128)
+    network.precision = "bfloat16"
+    half = network.predict(p0, p1, rest_len, 0.05, batch=128)
+    mlp = copy.deepcopy(network.mlp).to(torch.bfloat16)
+    field = copy.deepcopy(network.albedo_field.mlp).to(torch.bfloat16)
+    with torch.no_grad():
+        raw = mlp(network.encoder(p0, p1).to(torch.bfloat16)).float()
+        columns = dict(zip(network.mlp_heads, raw.split(list(network.mlp_heads.values()), 1)))
+        outputs = {"occlusion": columns["occlusion"].squeeze(1),
+                   "distance": torch.relu(columns["distance"].squeeze(1)),
+                   "normal": columns["normal"], "material": columns["material"]}
+        expected = readout(outputs, config.distance_mode, 0.05, rest_len, network.thresholds)
+        point = p0 + expected["fraction"][:, None] * (p1 - p0)
+        albedo = torch.sigmoid(field(network.albedo_field.grid(point).to(torch.bfloat16)).float())
+    for key in expected:
+        torch.testing.assert_close(half[key], expected[key], rtol=1e-5, atol=1e-6)
+        assert half[key].dtype == full[key].dtype
+    candidate = expected["candidate"]
+    assert candidate.any()
+    torch.testing.assert_close(half["albedo"][candidate], albedo[candidate], rtol=1e-5, atol=1e-6)
+    assert half["albedo"].dtype == torch.float32
+    assert not torch.equal(half["hit_probability"], full["hit_probability"])

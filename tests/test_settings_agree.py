@@ -239,6 +239,10 @@ def test_choices_agree(panel, parser):
     for command in ("train", "evaluate", "render", "demo", "bench-network"):
         assert choices(command, "device") == list(settings.DEVICES), command
         assert command_defaults_device(parser, command) == settings.DEFAULT_DEVICE
+    assert items(properties["precision"]) == list(settings.PRECISIONS)
+    assert properties["precision"].default == settings.DEFAULT_PRECISION
+    for command in ("render", "evaluate", "side-by-side"):
+        assert choices(command, "precision") == list(settings.PRECISIONS), command
     assert items(properties["pose_source"]) == choices("capture", "pose_source") == list(
         settings.POSE_SOURCES)
     assert sorted(items(properties["variant"])) == sorted(

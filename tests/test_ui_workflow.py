@@ -293,6 +293,26 @@ def test_choosing_ao_renders_and_evaluates_the_secondary_passes(session):
     assert report["secondary"]["network_offset"] > report["secondary"]["offset"]
 
 
+def test_the_chosen_precision_reaches_the_evaluation_or_is_refused(session, monkeypatch):
+    """The Passes panel's Precision: Evaluate runs the network in it (its report says so);
+    bfloat16 on a device without bfloat16 instructions (made so here, as it is made to
+    have them first) fails in one line naming the reason and keeps the last metrics."""
+    bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
+    obj = bpy.data.objects["Arm"]
+    bpy.context.view_layer.objects.active = obj
+    runtime = module("vdnif_addon.kernels.runtime")
+    assert obj.vdnif.precision == module("vdnif_addon.settings").DEFAULT_PRECISION
+    monkeypatch.setattr(runtime, "bfloat16_native", lambda device: True)
+    obj.vdnif.precision = "bfloat16"
+    bpy.ops.vdnif.evaluate()
+    kept = obj.vdnif.metrics
+    assert json.loads(kept)["precision"] == "bfloat16"
+    monkeypatch.setattr(runtime, "bfloat16_native", lambda device: False)
+    with pytest.raises(RuntimeError, match="has no bfloat16 instructions"):
+        bpy.ops.vdnif.evaluate()
+    assert obj.vdnif.metrics == kept and "bfloat16" in obj.vdnif.last_error
+
+
 def test_viewport_view_renders_the_3d_viewports_perspective(session):
     """The hits lie where the viewport's projection puts the object (pinhole through the
     pixel centres, the view's horizontal angle, the image's aspect)."""

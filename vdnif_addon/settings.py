@@ -94,6 +94,11 @@ SECONDARY_OFFSET, SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS = 1e-3, 0.25,
 DEVICES = ("auto", "cpu", "cuda")
 """Where the network runs: auto is CUDA where torch has it, else the CPU."""
 DEFAULT_DEVICE = "auto"
+PRECISIONS = ("float32", "bfloat16")
+"""The arithmetic of a render's MLPs: float32, or bfloat16 where the device has bfloat16
+instructions (CUDA, a CPU with AVX-512 BF16 or AMX), faster and a little less exact; the
+hash grids and the readout stay float32."""
+DEFAULT_PRECISION = "float32"
 POSE_SOURCES = ("random", "frames")
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
 DISTANCE_MODES = ("fraction", "log1p-fraction", "log-distance")

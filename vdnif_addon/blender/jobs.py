@@ -18,6 +18,7 @@ from ..kernels import runtime
 from ..model.variants import variant_config
 from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
 from ..pose_sets import TEST_POSES
+from ..settings import DEFAULT_PRECISION
 from ..training.fit import fit_model
 from ..training.history import plot
 from .capture_scene import capture
@@ -79,13 +80,15 @@ def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
-                  viewpoints=None, seen=False, loaded=None, secondary=None):
+                  viewpoints=None, seen=False, loaded=None, secondary=None,
+                  precision=DEFAULT_PRECISION):
     """(report, views) of the model file on the poses of ``captured``, with the model's
     training figures and size added to the report (``seen``: see ``evaluate_model``;
-    ``loaded``: see ``neural.load_scene_model``; ``secondary``: the AO and shadow
-    passes' ``SecondarySettings``, see ``evaluate_model``). The kernels are compiled or
-    loaded first, timed apart (``timings.kernels_s``), so that no speed includes them."""
-    model = load_scene_model(model_path, captured, device, loaded)
+    ``loaded`` and ``precision``: see ``neural.load_scene_model``; ``secondary``: the AO
+    and shadow passes' ``SecondarySettings``, see ``evaluate_model``). The kernels are
+    compiled or loaded first, timed apart (``timings.kernels_s``), so that no speed
+    includes them."""
+    model = load_scene_model(model_path, captured, device, loaded, precision)
     kernels_s = runtime.load_all(runtime.device(model.device))   # apart from the speeds
     report, views = evaluate_model(obj, captured, model, width, height, viewpoints, progress,
                                    seen, secondary)

@@ -27,6 +27,7 @@ from ..inference.secondary import (
 )
 from ..kernels.cast import MeshCaster
 from ..passes import Passes, SecondaryPasses
+from ..settings import DEFAULT_PRECISION, PRECISIONS
 from ..text import article
 from ..tracing.rays import camera_rays as pinhole_rays
 from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
@@ -61,17 +62,26 @@ class SceneModel:
                               validation.get("distance_mae_voxels"))
 
 
-def load_scene_model(path, capture, device="auto", loaded=None):
+def load_scene_model(path, capture, device="auto", loaded=None, precision=DEFAULT_PRECISION):
     """Loads the model file ``path`` for ``capture``'s object (``loaded``: its
-    ``model_file.load_model`` result when the caller read it already); a file that is
-    corrupt, of another format, or trained on another object or resolution raises a
+    ``model_file.load_model`` result when the caller read it already), its MLPs to run in
+    ``precision`` (``settings.PRECISIONS``); a file that is corrupt, of another format, or
+    trained on another object or resolution, or bfloat16 on a device without it, raises a
     one-line VDNIFError."""
+    from ..kernels.runtime import bfloat16_native
     from ..model.model_file import load_model
     from ..training.distributed import resolve_device
 
     network, metadata = load_model(path) if loaded is None else loaded
     check_model_fits(path, metadata, capture.mesh, capture.grid)
     device = resolve_device(device)
+    if precision not in PRECISIONS:
+        raise VDNIFError(f"precision '{precision}': choose one of {', '.join(PRECISIONS)}")
+    if precision == "bfloat16" and not bfloat16_native(device):
+        raise VDNIFError(f"precision bfloat16: {device} has no bfloat16 instructions "
+                         "(CUDA, or a CPU with AVX-512 BF16 or AMX): it would run slower "
+                         "than float32")
+    network.precision = precision
     return SceneModel(network=network.to(device), metadata=metadata, grid=capture.grid,
                       path=str(path), device=device)
 
@@ -229,7 +239,7 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
         "object": capture.mesh.name, "mode": capture.mode, "variant": model.variant,
         "model": model.path, "resolution": capture.grid.resolution, "poses": len(poses),
         "width": width, "height": height, "voxel_size": h, "unseen_poses": unseen,
-        **metrics,
+        "precision": model.network.precision, **metrics,
         "per_pose": [dict(compare_both(r.predicted, r.true, r.embedded, capture.mesh, h),
                           inverted_cells=r.inverted_cells) for r in results],
         "timings": timings,

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..inference.evaluation import distance_range
 from ..inference.images import display, secondary_images
+from ..settings import DEFAULT_PRECISION
 from ..tracing.rays import orbit_viewpoints
 from .neural import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
 from .pose_geometry import PosedObject
@@ -47,8 +48,10 @@ class PreviewRenderer:
     """Renders PoseSnapshots of one object's model at ``width`` x ``height``, one at a time in
     a worker thread: the model is loaded and the device cells are built by the first."""
 
-    def __init__(self, model_path, captured, device, width, height, view=None):
+    def __init__(self, model_path, captured, device, width, height, view=None,
+                 precision=DEFAULT_PRECISION):
         self.model_path, self.captured, self.device = model_path, captured, device
+        self.precision = precision
         self.width, self.height, self.view = width, height, view
         self._model = self._posed = self._orbit = None
         self._thread, self._outcome = None, None
@@ -81,7 +84,8 @@ class PreviewRenderer:
     def _render(self, snapshot, secondary):
         try:
             if self._model is None:
-                self._model = load_scene_model(self.model_path, self.captured, self.device)
+                self._model = load_scene_model(self.model_path, self.captured, self.device,
+                                               precision=self.precision)
                 self._posed = PosedObject(PoseSource(), self.captured, self._model.device)
             geometry = self._posed.place(snapshot)
             chosen = snapshot.view if snapshot.view is not None else self.view

@@ -14,6 +14,7 @@ import pathlib
 import shutil
 import threading
 
+from ..settings import DEFAULT_PRECISION
 from ..training.dataset import MANIFEST
 from ..worker import DirectCalls, MainCalls, WorkerJob
 from . import estimate as estimates
@@ -99,21 +100,23 @@ def replace_shards(source, folder):
 
 
 def evaluation_job(obj, captured, model_path, width, height, device, loaded=None,
-                   secondary=None):
+                   secondary=None, precision=DEFAULT_PRECISION):
     """Evaluates the model file on the evaluation poses of ``captured``
     (``jobs.evaluate_file``; the AO and shadow passes too with ``secondary``, their
-    ``SecondarySettings``). Result: the report."""
+    ``SecondarySettings``; the MLPs in ``precision``). Result: the report."""
 
     def work(source, progress, _deliver):
         report, _ = evaluate_file(source, captured, model_path, width, height, device,
-                                  progress=progress, loaded=loaded, secondary=secondary)
+                                  progress=progress, loaded=loaded, secondary=secondary,
+                                  precision=precision)
         return f"{report['poses']} poses evaluated", report
 
     return pose_job("evaluation", "poses", obj, captured, reads_of(captured), work)
 
 
 def frames_job(obj, captured, model_path, frames, width, height, device, on_frame,
-               camera=None, view=None, references=False, loaded=None, secondary=None):
+               camera=None, view=None, references=False, loaded=None, secondary=None,
+               precision=DEFAULT_PRECISION):
     """Renders ``frames`` (``animation.render_frames``) through ``camera`` (read in each
     frame), else the fixed ``view``, else an orbit viewpoint; the AO and shadow passes too
     with ``secondary`` (their ``SecondarySettings`` for every frame, read before the job:
@@ -122,7 +125,7 @@ def frames_job(obj, captured, model_path, frames, width, height, device, on_fram
     read_view = None if camera is None else (lambda: camera_view(camera, width, height))
 
     def work(source, progress, deliver):
-        model = load_scene_model(model_path, captured, device, loaded)
+        model = load_scene_model(model_path, captured, device, loaded, precision)
         figures = render_frames(source, captured, model, frames, width, height, view,
                                 references, each=lambda frame, result: deliver(
                                     (frame, result)), progress=progress,

@@ -10,6 +10,7 @@ from ..settings import COMMAND_IMAGE, EVALUATION_POSES
 from .options import (
     add_device_option,
     add_pose_options,
+    add_precision_option,
     add_scene_options,
     add_secondary_options,
     add_stress_options,
@@ -56,7 +57,7 @@ def cmd_render(args):
     from ..progress import Progress
 
     loaded, obj, captured = _model_scene(args)
-    model = load_scene_model(args.model, captured, args.device, loaded)
+    model = load_scene_model(args.model, captured, args.device, loaded, args.precision)
     kernels_s = runtime.load_all(runtime.device(model.device))     # apart from the rays/s
     sequence = args.frames is not None
     frames = args.frames if sequence else [
@@ -119,7 +120,8 @@ def evaluated(args):
     progress = Progress(f"evaluate '{obj.name}'", len(captured.poses), "poses")
     report, views = evaluate_file(obj, captured, args.model, args.width, args.height,
                                   args.device, lambda done, _: progress.update(done),
-                                  loaded=loaded, secondary=secondary_settings(args, obj))
+                                  loaded=loaded, secondary=secondary_settings(args, obj),
+                                  precision=args.precision)
     return report, views, captured
 
 
@@ -153,6 +155,7 @@ def _model_command(commands, name, run, default_poses, notes):
     parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
     parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
     add_device_option(parser)
+    add_precision_option(parser)
     add_secondary_options(parser)
     parser.set_defaults(run=run)
     return parser

@@ -19,6 +19,7 @@ from ..settings import (
     AUTO_RESOLUTION,
     BOUNDS,
     DEFAULT_DEVICE,
+    DEFAULT_PRECISION,
     DEMO_SCENES,
     DEVICES,
     EMBEDDING_ERROR_SHARE,
@@ -26,6 +27,7 @@ from ..settings import (
     MIN_RESOLUTION,
     PE_SCALES,
     POSE_SOURCES,
+    PRECISIONS,
     RECIPE,
     RIGS,
 )
@@ -177,6 +179,13 @@ def add_device_option(parser, default=DEFAULT_DEVICE):
     """``--device auto|cpu|cuda`` (settings.DEVICES): auto takes CUDA where torch has it."""
     parser.add_argument("--device", choices=DEVICES, default=default,
                         help=f"where the network runs (default {default})")
+
+
+def add_precision_option(parser):
+    """``--precision float32|bfloat16`` (settings.PRECISIONS): the arithmetic of the MLPs."""
+    parser.add_argument("--precision", choices=PRECISIONS, default=DEFAULT_PRECISION,
+                        help="the network MLPs' arithmetic: bfloat16 is faster where the device "
+                             f"has it, a little less exact (default {DEFAULT_PRECISION})")
 
 
 def add_training_options(parser):

@@ -7,10 +7,11 @@ import pathlib
 from ..errors import VDNIFError
 from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..safe_io import write_text_atomic
-from ..settings import DEMO_SCENE, DEMO_SCENES, RECIPE
+from ..settings import DEFAULT_PRECISION, DEMO_SCENE, DEMO_SCENES, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
     add_device_option,
+    add_precision_option,
     add_secondary_options,
     add_stress_options,
     check_resolution,
@@ -204,6 +205,7 @@ def command_line(args):
     line += ["--poses", str(args.poses), "--seed", str(args.seed), "--repeats",
              str(args.repeats), "--width", str(args.width), "--height", str(args.height),
              "--threads", *args.thread_settings, "--device", args.device]
+    line += ["--precision", args.precision] if args.precision != DEFAULT_PRECISION else []
     line += ["--quick"] if args.quick else []
     line += (["--secondary", "--ao-samples", str(args.ao_samples), "--ao-distance",
               str(args.ao_distance)] if args.secondary else [])
@@ -248,7 +250,7 @@ def _scene_capture(obj, model_path, args, device):
     captured = model_capture(obj, metadata, PoseSpec(count=args.poses, seed=args.seed),
                              evaluation=True, resolution=resolution)
     model = (None if loaded is None
-             else load_scene_model(model_path, captured, device, loaded))
+             else load_scene_model(model_path, captured, device, loaded, args.precision))
     return captured, model
 
 
@@ -372,6 +374,7 @@ def _add_side_by_side(commands):
     parser.add_argument("--threads", nargs="+", dest="thread_settings", default=["1", "all"],
                         metavar="N|all", help="thread settings to time (default: 1 all)")
     add_device_option(parser, default="cpu")
+    add_precision_option(parser)
     parser.add_argument("--train", type=pathlib.Path, metavar="DIR", help=(
         "train each scene without --model by the recipe into DIR (kept for the next run)"))
     parser.add_argument("--quick", action="store_true",

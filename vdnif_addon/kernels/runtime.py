@@ -81,6 +81,23 @@ def vector_extensions(flags: set[str]) -> str:
     return "AVX2" if "avx2" in flags else "no AVX2"
 
 
+def bfloat16_native(device: torch.device) -> bool:
+    """Whether ``device`` multiplies bfloat16 matrices in hardware: a CUDA GPU where torch
+    says so, a CPU whose flags name AVX-512 BF16 or AMX (elsewhere torch emulates it, slower
+    than float32)."""
+    if device.type == "cuda":
+        import torch
+
+        return torch.cuda.is_bf16_supported()
+    flags = set()
+    for line in _cpuinfo() or []:
+        key, _, value = line.partition(":")
+        if key.strip() == "flags":
+            flags = set(value.split())
+            break
+    return bool(flags & {"avx512_bf16", "amx_bf16"})
+
+
 def cpu_description() -> tuple[str, str | None]:
     """(this machine's CPU model, its ``vector_extensions``; None where the flags are not
     readable)."""

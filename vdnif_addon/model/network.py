@@ -18,7 +18,7 @@ from torch import nn
 
 from .. import threads
 from ..errors import VDNIFError
-from ..settings import NetworkConfig
+from ..settings import DEFAULT_PRECISION, NetworkConfig
 from .encoding import HashGrid, SegmentEncoder
 from .metadata import Thresholds
 
@@ -69,6 +69,8 @@ class IntersectionNetwork(nn.Module):
         # model file's metadata carries them and ``load_model`` hands them over; ``predict``
         # applies them.
         self.thresholds = Thresholds()
+        # Not saved either: how ``predict`` runs the MLPs, a render's setting (PRECISIONS).
+        self.precision = DEFAULT_PRECISION
 
     def forward(
         self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"],
@@ -95,7 +97,8 @@ class IntersectionNetwork(nn.Module):
         self, features: Float[torch.Tensor, "batch features"]
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """Head outputs (see ``forward``) of encoded segments, features (N, encoder.output_dim)."""
-        columns = self.mlp(features).split(list(self.mlp_heads.values()), dim=1)
+        # float32 from here: under bfloat16 autocast only the MLP's layers are bfloat16
+        columns = self.mlp(features).float().split(list(self.mlp_heads.values()), dim=1)
         raw = dict(zip(self.mlp_heads, columns))
         distance_activation = torch.sigmoid if self.config.distance_mode == "fraction" else F.relu
         out = {
@@ -120,10 +123,10 @@ class IntersectionNetwork(nn.Module):
     ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
-        ``forward`` at the model's ``thresholds``, without autograd, ``batch``
-        segments at a time to bound memory. An albedo field is read at each candidate
-        segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of the others is 0),
-        once every batch has its predictions.
+        ``forward`` at the model's ``thresholds``, its MLPs in its ``precision``, without
+        autograd, ``batch`` segments at a time to bound memory. An albedo field is read at
+        each candidate segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of
+        the others is 0), once every batch has its predictions.
 
         On the CPU with more than one core (``threads.cores()``) the encoder of batch k+1
         runs in a worker thread (one core: a Warp CPU launch is serial and releases the GIL)
@@ -141,8 +144,9 @@ class IntersectionNetwork(nn.Module):
 
         def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
                         ) -> dict[str, torch.Tensor]:
-            return readout(self.heads(features), mode, voxel_size, chunks[index][2],
-                           self.thresholds)
+            with self._arithmetic(features.device):
+                outputs = self.heads(features)
+            return readout(outputs, mode, voxel_size, chunks[index][2], self.thresholds)
 
         parts = []
         if p0.device.type != "cpu" or len(chunks) == 1 or threads.cores() == 1:
@@ -170,9 +174,18 @@ class IntersectionNetwork(nn.Module):
                     p1[rows] - p0[rows])
                 # CUDA's autocast gives the field's float16 output and does not promote it
                 # for index_copy as the CPU's does: cast to the destination's dtype.
-                albedo.index_copy_(0, rows, self.albedo_at(point).to(albedo.dtype))
+                with self._arithmetic(point.device):
+                    field = self.albedo_at(point)
+                albedo.index_copy_(0, rows, field.to(albedo.dtype))
             result["albedo"] = albedo
         return result
+
+
+    def _arithmetic(self, device: torch.device) -> torch.autocast:
+        """The MLPs' arithmetic in ``predict``: bfloat16 where ``precision`` says so (the
+        hash grids keep float32 under autocast)."""
+        return torch.autocast(device.type, dtype=torch.bfloat16,
+                              enabled=self.precision == "bfloat16")
 
 
 class AlbedoField(nn.Module):
@@ -188,7 +201,7 @@ class AlbedoField(nn.Module):
                                  nn.Linear(config.width, 3))
 
     def forward(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
-        return torch.sigmoid(self.mlp(self.grid(points)))
+        return torch.sigmoid(self.mlp(self.grid(points)).float())
 
 
 def readout(

@@ -258,7 +258,8 @@ def _model_info(model, capture, checks):
     true = Passes.concatenate([check["true"] for check in checks])
     vs_true = compare(predicted, true, capture.mesh.size)
     return {"trained": True, "model": str(model.path), "variant": model.variant,
-            "device": str(model.device), "hit_iou": vs_true["hit_iou"],
+            "device": str(model.device), "precision": model.network.precision,
+            "hit_iou": vs_true["hit_iou"],
             "false_negative_rate": vs_true["false_negative_rate"],
             "false_positive_rate": vs_true["false_positive_rate"],
             "speed_withheld": speed_withheld(vs_true["hit_iou"])}

@@ -171,8 +171,9 @@ def side_by_side_markdown(results, command=None, machine=None, plots=None):
                     for b in BASELINES])
     lines += table("Models: the neural side's hit IoU against the true reference on the same "
                    "views decides whether it has speeds.", [
-                       ("model", [f"`{r['network']['model']}` ({r['network']['variant']})"
-                                  if r["network"]["model"] else "none" for r in results]),
+                       ("model (variant, MLP arithmetic)", [
+                           f"`{n['model']}` ({n['variant']}, {n.get('precision', 'float32')})"
+                           if (n := r["network"])["model"] else "none" for r in results]),
                        ("hit IoU, false negatives / positives (vs true)",
                         [_iou_text(r["network"]) for r in results])])
     lines += _bytes_table(results, table)
@@ -353,8 +354,7 @@ def _rates_text(network):
     """The model's false-negative / false-positive rates against the true reference."""
     if network.get("false_negative_rate") is None:
         return "n/a"
-    return (f"{percent(network['false_negative_rate'])} / "
-            f"{percent(network['false_positive_rate'])}")
+    return f"{percent(network['false_negative_rate'])} / {percent(network['false_positive_rate'])}"
 
 
 def _bytes_table(results, table):
