@@ -29,6 +29,7 @@ class OracleNetwork:
         groundtruth = core("tracing.groundtruth")
         self.mesh, self.grid, self.targets = mesh, grid, groundtruth.segment_targets
         self.caster = groundtruth.rest_surface(mesh)
+        self.precision = "float32"          # exact answers: no arithmetic to lower
 
     def parameters(self):
         """No weights: it answers on the device its inputs are on."""
