@@ -233,18 +233,25 @@ def test_log1p_distance_head_starts_alive():
     assert (distance > 0).float().mean() > 0.9
 
 
+def albedo_field_network(seed):
+    """A small network with an albedo field (``albedo_mode`` "hit") whose hash grids vary
+    as trained ones do."""
+    torch.manual_seed(seed)
+    network = IntersectionNetwork(NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
+                                                heads=Heads(albedo=True, material_count=2)))
+    with torch.no_grad():
+        for grid in (network.encoder.grid, network.albedo_field.grid):
+            grid.table.normal_()
+    return network
+
+
 def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     """``albedo_mode`` "hit": the MLP loses its albedo columns (the task stays); forward gives
     the field's albedo at p0 + hit_frac (p1 - p0), and predict, batch by batch in the worker
     pipeline, the field's at p0 + fraction (p1 - p0), the fraction it predicts, on the
     candidate segments (the only ones that can place a hit), 0 on the others."""
-    torch.manual_seed(5)
-    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
-                           heads=Heads(albedo=True, material_count=2))
-    network = IntersectionNetwork(config)
-    with torch.no_grad():
-        for grid in (network.encoder.grid, network.albedo_field.grid):
-            grid.table.normal_()
+    network = albedo_field_network(5)
+    config = network.config
     assert network.head_sizes == Heads(albedo=True, material_count=2).sizes()
     assert network.mlp[-1].out_features == 1 + 1 + 3 + 2
     p0, p1 = torch.rand(2, 500, 3)
@@ -341,13 +348,8 @@ def test_bfloat16_precision_runs_both_mlps_in_bfloat16_and_reads_out_in_float32(
     it, so the setting took effect."""
     import copy
 
-    torch.manual_seed(6)
-    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit"},
-                           heads=Heads(albedo=True, material_count=2))
-    network = IntersectionNetwork(config)
-    with torch.no_grad():
-        for grid in (network.encoder.grid, network.albedo_field.grid):
-            grid.table.normal_()
+    network = albedo_field_network(6)
+    config = network.config
     p0, p1 = torch.rand(2, 400, 3)
     rest_len = torch.rand(400) * 0.1
     with torch.no_grad():                   # half the segments are candidates
