@@ -102,8 +102,9 @@ def values_at_network_calls(probe, **options):
 
 
 def test_each_lane_encodes_on_its_share_of_the_cores(encoder_threads):
-    """Each lane runs its own network calls on a lane thread of its own, its encoder split
-    over the lane's share of the cores (at least one), and the setting comes back after."""
+    """Each lane runs its own network calls on a lane thread of its own with its share of
+    the cores (at least one); one lane splits its encoder as set, several run each one's
+    on its own thread; the setting comes back after."""
     import threading
 
     def probe():
@@ -112,9 +113,9 @@ def test_each_lane_encodes_on_its_share_of_the_cores(encoder_threads):
     encoder_threads(4)
     threads.use_cores(4)
     try:
-        for lanes, share in ((1, 4), (2, 2), (3, 1)):
+        for lanes, share, split in ((1, 4, 4), (2, 2, 1), (3, 1, 1)):
             seen = values_at_network_calls(probe, lanes=lanes)
-            assert seen and {(cores, split) for _, cores, split in seen} == {(share, share)}
+            assert seen and {(cores, encoder) for _, encoder, cores in seen} == {(share, split)}
             names = {name for name, _, _ in seen}
             assert names == {threading.current_thread().name,
                              *(f"vdnif-lane-{lane}" for lane in range(1, lanes))}

@@ -47,16 +47,17 @@ def cores() -> int:
 
 
 @contextlib.contextmanager
-def lane_cores(count: int) -> Iterator[None]:
-    """Within the block, on this thread, ``cores()`` and ``encoder_threads()`` are ``count``:
-    a render lane's share of the cores, which its encoder and network keep to while the
-    other lanes run beside it."""
-    before = getattr(_lane, "cores", None)
-    _lane.cores = count
+def lane_cores(count: int, encoder: int | None = None) -> Iterator[None]:
+    """Within the block, on this thread, ``cores()`` is ``count``, a render lane's share of
+    the cores that its network keeps to while the other lanes run beside it, and
+    ``encoder_threads()`` is ``encoder`` where given (one where several lanes run: the
+    launch pool is shared, and their split launches would queue behind each other)."""
+    before = getattr(_lane, "cores", None), getattr(_lane, "encoder", None)
+    _lane.cores, _lane.encoder = count, encoder
     try:
         yield
     finally:
-        _lane.cores = before
+        _lane.cores, _lane.encoder = before
 
 
 def use_cores(count: int | None) -> None:
@@ -104,10 +105,11 @@ _encoder = {"threads": None}
 
 
 def encoder_threads() -> int:
-    """CPU threads the encoder's launches are split over: ``use_encoder_threads``'s count,
-    else every core this process may use (training runs the encoder and the MLP one after
-    the other, so while it encodes torch's threads wait)."""
-    return getattr(_lane, "cores", None) or _encoder["threads"] or cores()
+    """CPU threads the encoder's launches are split over: a render lane's (``lane_cores``),
+    else ``use_encoder_threads``'s count, else every core this process may use (training
+    runs the encoder and the MLP one after the other, so while it encodes torch's threads
+    wait)."""
+    return getattr(_lane, "encoder", None) or _encoder["threads"] or cores()
 
 
 def use_encoder_threads(count: int | None) -> None:

@@ -14,11 +14,12 @@ its own segments in walk order, so the split changes nothing but the number of w
 On the CPU the rays are split into lanes, one per core (``walk_lanes``): a Warp CPU launch
 runs on one thread, and so, at one torch thread, does a small batch's MLP. Each lane renders
 its own rays wave after wave on a thread of its own (walk, network, resolve), beside the
-others, with its share of the cores (``threads.lane_cores``): while one lane runs its MLP,
-another walks. The lanes hold disjoint rays and write disjoint memory
-(``kernels.launches`` says why such launches may run together); a ray's passes are the same in
-any lane but for the rounding of the network's batch, which holds its lane's segments.
-Torch runs a lane's batch on at most ``threads.RENDER_TORCH_THREADS`` threads.
+others, its MLP on its share of the cores and its encoder on its own thread
+(``threads.lane_cores``): while one lane runs its MLP, another walks. The lanes hold
+disjoint rays and write disjoint memory (``kernels.launches`` says why such launches may run
+together); a ray's passes are the same in any lane but for the rounding of the network's
+batch, which holds its lane's segments. Torch runs a lane's batch on at most
+``threads.RENDER_TORCH_THREADS`` threads.
 """
 
 from __future__ import annotations
@@ -119,8 +120,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
         waves = _Waves(network, grid, walk, schedule, albedo_table,
                        max(1, max_wave_segments // lanes))
         share = max(1, threads.cores() // lanes)
-        lane_stats = threads.at_once(lambda lane: _render_lane(waves, lane, share), lanes,
-                                     "vdnif-lane")
+        encoder = None if lanes == 1 else 1
+        lane_stats = threads.at_once(lambda lane: _render_lane(waves, lane, share, encoder),
+                                     lanes, "vdnif-lane")
         stats = {"segments": sum(s["segments"] for s in lane_stats),
                  "waves": max(s["waves"] for s in lane_stats),
                  **{name: sum(s[name] for s in lane_stats) / lanes
@@ -138,13 +140,14 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     return result, stats
 
 
-def _render_lane(waves: _Waves, lane: int, cores: int) -> dict[str, float]:
+def _render_lane(waves: _Waves, lane: int, cores: int, encoder: int | None
+                 ) -> dict[str, float]:
     """Renders ``lane`` wave by wave (walk, network, resolve) until its rays are done, on
-    this thread with ``cores`` cores of its own (``threads.lane_cores``); returns its
-    segments, waves and the seconds it spent walking and in the network (with the
-    resolve)."""
+    this thread with ``cores`` cores of its own and its encoder split over ``encoder``
+    threads (``threads.lane_cores``); returns its segments, waves and the seconds it spent
+    walking and in the network (with the resolve)."""
     stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
-    with threads.lane_cores(cores):
+    with threads.lane_cores(cores, encoder):
         while waves.walk.lanes[lane].count:
             clock = time.perf_counter()
             count = waves.advance(lane)

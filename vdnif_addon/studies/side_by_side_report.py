@@ -290,8 +290,8 @@ def _what_is_timed(result):
         "Embree builds and casts on N threads, Warp's casts are split over N launches at "
         "once (a Warp CPU launch runs on one thread), torch runs the MLP on N - 1 (at least "
         "one), the neural render renders up to N lanes of rays at once, each on a thread of "
-        "its own (walk, Warp encoder and MLP; one lane encodes its next batch beside its MLP "
-        "where N > 1); the `ray_cast` loop, "
+        "its own (walk, Warp encoder and MLP; one lane splits its encoder over N and encodes "
+        "its next batch beside its MLP where N > 1); the `ray_cast` loop, "
         "Warp's refit and its other CPU launches run on one thread at any setting; Blender's "
         "evaluation and `BVHTree.FromObject` run on Blender's own threads. On the rest pose, "
         "the deformed walk (`tracing.traverse.traverse`) is timed against the static DDA walk "
@@ -326,7 +326,7 @@ def threads_text(result, name):
     if name == "neural":
         lanes, share = threads["walk_lanes"], threads["setting"] // threads["walk_lanes"]
         split, mlp = ((threads.get("encoder", 1), threads["torch"]) if lanes == 1 else
-                      (share, min(threads["torch"], RENDER_TORCH_THREADS, share)))
+                      (1, min(threads["torch"], RENDER_TORCH_THREADS, share)))
         return (f"{lanes} lane(s) at once, each on a thread of its own: its walk, its Warp "
                 f"encoder split over {split}, its MLP on {mlp} torch thread(s)")
     counts = threads[name]
