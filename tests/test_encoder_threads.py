@@ -145,9 +145,9 @@ def test_a_one_core_setting_walks_and_encodes_on_the_calling_thread(monkeypatch)
     two lanes of a large image (one of a small one, one on CUDA) and encodes beside."""
     import threading
 
-    from vdnif_addon.inference.neural_render import MIN_LANE_RAYS, walk_lanes
     from vdnif_addon.model.network import IntersectionNetwork
     from vdnif_addon.settings import NetworkConfig
+    from vdnif_addon.threads import MIN_LANE_RAYS, walk_lanes
 
     network = IntersectionNetwork(NetworkConfig(levels=2, base_resolution=8, log2_table_size=10,
                                                 width=16, depth=1, pe_bands=1))

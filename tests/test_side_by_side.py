@@ -142,7 +142,7 @@ def test_every_row_says_how_many_threads_it_used(tiny):
     _, results = tiny
     report = core("studies.side_by_side_report")
     blender = core("studies.baselines").BLENDER_THREADS
-    lane_rays = core("inference.neural_render").MIN_LANE_RAYS
+    lane_rays = core("threads").MIN_LANE_RAYS
     for key, setting in (("none", 1), ("none, 2 threads", 2)):
         result = results[key]
         assert result["threads"] == {

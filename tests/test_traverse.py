@@ -219,3 +219,23 @@ def test_face_triangles_cover_each_face_and_point_outward():
         from_minus[..., axis] += 1                               # the neighbour's -face
         assert {frozenset(map(tuple, t)) for t in from_plus} == \
             {frozenset(map(tuple, t)) for t in from_minus}
+
+
+@pytest.mark.parametrize("lanes", [2, 3])
+def test_a_walk_in_lanes_gives_one_lanes_segments(blob, lanes):
+    """A walk in lanes walks them at once, each on a thread of its own with a buffer of its
+    own (also one that fills and grows): the Segments, sorted by ray, equal one lane's bit
+    for bit, run after run."""
+    from vdnif_addon.kernels.walk import walk_segments
+
+    bend = np.array([[1.1, 0.3, 0.0], [-0.2, 0.9, 0.1], [0.0, 0.1, 1.2]])
+    cells = DeviceCells(blob, corners=blob.corner_positions() @ bend.T)
+    origins, directions = random_rays(np.random.default_rng(11), 3000, radius=4.0)
+    one = tv.traverse(cells, origins, directions, lanes=1)
+    assert len(one) > 3000
+    for capacity in (None, 256):
+        for _ in range(3):
+            many = walk_segments(cells, origins, directions, capacity=capacity, lanes=lanes)
+            for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
+                np.testing.assert_array_equal(getattr(many, name), getattr(one, name), name)
+            assert many.truncated == one.truncated

@@ -37,7 +37,22 @@ def machine_cores() -> int:
 _cores = {"count": None}
 
 
+MIN_LANE_RAYS = 8192
+"""Rays per lane at least: a lane's wave costs a fixed overhead on its thread (launches, a
+network call) that short lanes do not repay. On 2 cores, bunny model: two lanes rendered
+128x128 1.4-1.6x faster than one, and 64x64 (2,048 rays a lane) no faster
+(docs/performance.md, threads)."""
+
 _lane = threading.local()
+
+
+def walk_lanes(device: object, rays: int) -> int:
+    """Lanes a render or a walk of ``rays`` rays runs at once: one per core this process may
+    use (``cores()``) on the CPU, each of at least ``MIN_LANE_RAYS`` rays; one on CUDA,
+    where a launch is parallel already. ``device``: a torch or Warp device, or its name."""
+    if not str(device).startswith("cpu"):
+        return 1
+    return max(1, min(cores(), rays // MIN_LANE_RAYS))
 
 
 def cores() -> int:

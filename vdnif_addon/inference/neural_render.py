@@ -11,10 +11,10 @@ segments: beyond it a ray walks fewer segments, and past one per ray only part o
 walk on (the walk pauses the others when the buffer is full); a ray's passes depend only on
 its own segments in walk order, so the split changes nothing but the number of waves.
 
-On the CPU the rays are split into lanes, one per core (``walk_lanes``): a Warp CPU launch
-runs on one thread, and so, at one torch thread, does a small batch's MLP. Each lane renders
-its own rays wave after wave on a thread of its own (walk, network, resolve), beside the
-others, its MLP on its share of the cores and its encoder on its own thread
+On the CPU the rays are split into lanes, one per core (``threads.walk_lanes``): a Warp CPU
+launch runs on one thread, and so, at one torch thread, does a small batch's MLP. Each lane
+renders its own rays wave after wave on a thread of its own (walk, network, resolve), beside
+the others, its MLP on its share of the cores and its encoder on its own thread
 (``threads.lane_cores``): while one lane runs its MLP, another walks. The lanes hold
 disjoint rays and write disjoint memory (``kernels.launches`` says why such launches may run
 together); a ray's passes are the same in any lane but for the rounding of the network's
@@ -63,13 +63,6 @@ if TYPE_CHECKING:
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
 
 
-# Rays per lane at least: a lane's wave costs a fixed overhead on its thread (launches, a
-# network call) that short lanes do not repay. On 2 cores, bunny model: two lanes rendered
-# 128x128 1.4-1.6x faster than one, and 64x64 (2,048 rays a lane) no faster
-# (docs/performance.md, threads).
-MIN_LANE_RAYS = 8192
-
-
 def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:
     """k of wave ``wave``: the schedule's entry, its last one beyond it."""
     return schedule[min(wave, len(schedule) - 1)]
@@ -92,7 +85,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     ``t0 + fraction * l``, normal by ``J^-T``, albedo from the albedo head or, without one,
     from ``albedo_table`` (M, 3) by material. ``device`` is the
     network's torch device; the cells' Warp device must be the same. The rays are walked in
-    ``lanes`` lanes at once (default ``walk_lanes``). A wave walks at most
+    ``lanes`` lanes at once (default ``threads.walk_lanes``). A wave walks at most
     ``max_wave_segments`` segments, its lanes' share each.
     ``max_distance`` ends the walk (``traverse``): a hit beyond it in the cell that crosses it
     is still reported.
@@ -110,7 +103,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                          "render with both on one device")
     runtime.load(kernel.WARP_MODULE, warp_device)
     rays = len(origins)
-    lanes = walk_lanes(device, rays) if lanes is None else lanes
+    lanes = threads.walk_lanes(device, rays) if lanes is None else lanes
     if lanes < 1:
         raise VDNIFError(f"a render walks at least one lane, not {lanes}")
     torch_threads = max(1, min(threads.RENDER_TORCH_THREADS, threads.cores() // lanes))
@@ -245,13 +238,6 @@ class _Waves:
         self.walk.drop_finished(lane)
 
 
-def walk_lanes(device: str | torch.device, rays: int) -> int:
-    """Lanes a render of ``rays`` rays walks at once: one per core this process may use
-    (``threads.cores()``) on the CPU, each of at least ``MIN_LANE_RAYS`` rays; one on CUDA,
-    where a launch is parallel already."""
-    if torch.device(device).type != "cpu":
-        return 1
-    return max(1, min(threads.cores(), rays // MIN_LANE_RAYS))
 
 
 @contextlib.contextmanager

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import warp as wp
 
+from .. import threads
 from ..geometry.walk_rules import step_budget
 from . import runtime
 from .cells import (
@@ -279,17 +280,28 @@ class RayWalk:
 def walk_segments(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
                   directions: Float[np.ndarray, "N 3"],
                   max_distance: float | Float[np.ndarray, " N"] | None = None,
-                  max_steps: int | None = None, capacity: int | None = None) -> Segments:
-    """All Segments of the rays through ``cells`` (``traverse.traverse``)."""
-    walk = RayWalk(cells, origins, directions, max_distance, max_steps)
-    buffer = (segment_buffer(capacity, cells.device) if capacity
-              else reusable_buffer(cells, max(8 * walk.rays, 1024), cells.device))
-    pieces = []
-    while walk.count:
-        buffer.cursor.zero_()
-        written = walk.advance(buffer)
-        if written:
-            pieces.append(collect(buffer, written, cells.device))
-        if walk.drop_finished() and written == buffer.capacity:
-            buffer = segment_buffer(2 * buffer.capacity, cells.device)    # full: grow
-    return segments_from(pieces, walk.truncated())
+                  max_steps: int | None = None, capacity: int | None = None,
+                  lanes: int = 1) -> Segments:
+    """All Segments of the rays through ``cells`` (``traverse.traverse``), walked in
+    ``lanes`` lanes at once, each on a thread of its own with a buffer of its own: the
+    lanes hold disjoint rays and write disjoint memory (``kernels.launches``), and their
+    segments, sorted by ray, are one lane's."""
+    walk = RayWalk(cells, origins, directions, max_distance, max_steps, lanes=lanes)
+    size = capacity or max(8 * walk.rays // lanes, 1024)
+
+    def walk_lane(lane: int) -> list:
+        buffer = (reusable_buffer(cells, size, cells.device) if lane == 0 and not capacity
+                  else segment_buffer(size, cells.device))
+        pieces = []
+        while walk.lanes[lane].count:
+            buffer.cursor.zero_()
+            written = walk.advance(buffer, lane=lane)
+            if written:
+                pieces.append(collect(buffer, written, cells.device))
+            if walk.drop_finished(lane) and written == buffer.capacity:
+                buffer = segment_buffer(2 * buffer.capacity, cells.device)    # full: grow
+        return pieces
+
+    lane_pieces = threads.at_once(walk_lane, lanes, "vdnif-walk")
+    return segments_from([piece for pieces in lane_pieces for piece in pieces],
+                         walk.truncated())

@@ -42,7 +42,7 @@ from ..blender.pose_geometry import PosedObject
 from ..blender.poses import posed
 from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
-from ..inference.neural_render import neural_passes, predict_segments, walk_lanes
+from ..inference.neural_render import neural_passes, predict_segments
 from ..kernels import runtime
 from ..model.network import IntersectionNetwork
 from ..passes import Passes
@@ -124,7 +124,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
         sizes = _bytes(capture, model, baselines)
         thread_counts = {"setting": threads, "torch": torch.get_num_threads(),
                          "encoder": thread_use.encoder_threads(),
-                         "walk_lanes": walk_lanes(device, width * height),
+                         "walk_lanes": thread_use.walk_lanes(device, width * height),
                          **{baseline.name: baseline.threads for baseline in baselines}}
         packets = {"width": embree.width, "native": embree.native, "version": embree.version}
     finally:
@@ -227,7 +227,7 @@ def _rest_record(rest, static_grid, model, grid, origins, directions, device):
     network over every walked segment (the same segments for both walks)."""
     synchronize(device)
     start = time.perf_counter()
-    deformed = traverse(rest.cells, origins, directions)
+    deformed = traverse(rest.cells, origins, directions, lanes=1)   # as the DDA: one launch
     synchronize(device)
     deformed_walk_s = time.perf_counter() - start
     start = time.perf_counter()

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..kernels.walk import walk_segments
+from ..threads import walk_lanes
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
 def traverse(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
              directions: Float[np.ndarray, "N 3"],
              max_distance: float | Float[np.ndarray, " N"] | None = None,
-             max_steps: int | None = None) -> Segments:
+             max_steps: int | None = None, lanes: int | None = None) -> Segments:
     """Walks rays (N, 3) through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose to
     walk) and returns all their rest-space Segments, ordered by ray then distance.
 
@@ -38,6 +39,10 @@ def traverse(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
     ``max_distance`` (scalar or (N,)) ends rays: the segment that crosses it is a ray's
     last, whole (its ``t1`` lies beyond: compare a hit's distance); ``max_steps`` bounds each
     ray's cell steps (default ``step_budget``); rays that hit a bound are counted in
-    ``truncated``.
+    ``truncated``. ``lanes`` lanes of rays are walked at once, each on a thread of its own
+    (default ``threads.walk_lanes``: one per core on the CPU); the Segments are the same in
+    any number.
     """
-    return walk_segments(cells, origins, directions, max_distance, max_steps)
+    if lanes is None:
+        lanes = walk_lanes(cells.device, len(origins))
+    return walk_segments(cells, origins, directions, max_distance, max_steps, lanes=lanes)
