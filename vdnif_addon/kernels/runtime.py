@@ -89,26 +89,30 @@ def bfloat16_native(device: torch.device) -> bool:
         import torch
 
         return torch.cuda.is_bf16_supported()
-    flags = set()
-    for line in _cpuinfo() or []:
-        key, _, value = line.partition(":")
-        if key.strip() == "flags":
-            flags = set(value.split())
-            break
-    return bool(flags & {"avx512_bf16", "amx_bf16"})
+    return bool(_cpu_fields().get("flags", set()) & {"avx512_bf16", "amx_bf16"})
 
 
 def cpu_description() -> tuple[str, str | None]:
     """(this machine's CPU model, its ``vector_extensions``; None where the flags are not
     readable)."""
-    cpu, flags = platform.processor() or platform.machine(), None
+    fields = _cpu_fields()
+    cpu = fields.get("model name") or platform.processor() or platform.machine()
+    flags = fields.get("flags")
+    return cpu, None if flags is None else vector_extensions(flags)
+
+
+def _cpu_fields() -> dict:
+    """The first CPU's ``model name`` (a string) and ``flags`` (a set) in ``/proc/cpuinfo``,
+    those it names."""
+    fields: dict = {}
     for line in _cpuinfo() or []:
         key, _, value = line.partition(":")
-        if key.strip() == "model name":
-            cpu = value.strip()
-        elif key.strip() == "flags" and flags is None:
-            flags = set(value.split())
-    return cpu, None if flags is None else vector_extensions(flags)
+        key = key.strip()
+        if key == "model name" and key not in fields:
+            fields[key] = value.strip()
+        elif key == "flags" and key not in fields:
+            fields[key] = set(value.split())
+    return fields
 
 
 def cache_dir() -> pathlib.Path:

@@ -172,14 +172,13 @@ class IntersectionNetwork(nn.Module):
             for rows in chosen.split(batch):
                 point = p0[rows] + result["fraction"][rows].to(p0.dtype).unsqueeze(1) * (
                     p1[rows] - p0[rows])
-                # CUDA's autocast gives the field's float16 output and does not promote it
-                # for index_copy as the CPU's does: cast to the destination's dtype.
+                # index_copy does not promote on CUDA as it does on the CPU: a field that
+                # answers in another dtype is cast to the destination's.
                 with self._arithmetic(point.device):
                     field = self.albedo_at(point)
                 albedo.index_copy_(0, rows, field.to(albedo.dtype))
             result["albedo"] = albedo
         return result
-
 
     def _arithmetic(self, device: torch.device) -> torch.autocast:
         """The MLPs' arithmetic in ``predict``: bfloat16 where ``precision`` says so (the
