@@ -138,6 +138,8 @@ CASES = [
      "proc"),
     ("train-albedo-mode", "train --data {data} --albedo-mode texture",
      r"--albedo-mode 'texture' must be one of 'segment', 'hit'", "proc"),
+    ("train-normal-mode", "train --data {data} --normal-mode vertex",
+     r"--normal-mode 'vertex' must be one of 'segment', 'hit'", "proc"),
     ("train-out-is-folder", "train --data {data} --out {tmp}/existing_dir",
      r"--out model file '.*existing_dir' is a folder", "proc"),
     ("train-json-is-folder", "train --data {data} --json {tmp}/existing_dir",

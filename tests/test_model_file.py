@@ -70,22 +70,32 @@ def test_round_trip_gives_identical_outputs_and_metadata(saved, network):
     assert os.stat(saved).st_mode & 0o777 == 0o644     # readable by the farm, like any file
 
 
-def test_an_albedo_field_round_trips(tmp_path):
-    """A network whose albedo is a field at the hit (``albedo_mode`` "hit") keeps its mode
-    and the field's table and MLP: the loaded one predicts the same albedo."""
+def test_point_fields_round_trip(tmp_path):
+    """A network whose albedo and normal are fields at the hit (``albedo_mode`` and
+    ``normal_mode`` "hit") keeps its modes and the fields' tables and MLPs: the loaded one
+    predicts the same albedo and normal."""
     torch.manual_seed(1)
-    config = dataclasses.replace(CONFIG, heads=Heads(albedo=True), albedo_mode="hit")
+    config = dataclasses.replace(CONFIG, heads=Heads(albedo=True), albedo_mode="hit",
+                                 normal_mode="hit")
     network = IntersectionNetwork(config)
     with torch.no_grad():
         network.albedo_field.grid.table.normal_()
+        network.normal_field.grid.table.normal_()
     path = tmp_path / "field.vdnif"
     save_model(path, network, metadata(config))
     loaded, meta = load_model(path)
-    assert meta.network_config.albedo_mode == "hit" and loaded.albedo_field is not None
+    assert (meta.network_config.albedo_mode, meta.network_config.normal_mode) == ("hit", "hit")
+    assert loaded.albedo_field is not None and loaded.normal_field is not None
     p0, p1 = torch.rand(2, 50, 3)
     rest_len = torch.rand(50) * 0.1
-    expected = network.predict(p0, p1, rest_len, 0.1)["albedo"]
-    assert torch.equal(loaded.predict(p0, p1, rest_len, 0.1)["albedo"], expected)
+    with torch.no_grad():                   # half the segments are candidates
+        median = float(torch.sigmoid(network(p0, p1)["occlusion"]).median())
+    network.thresholds = loaded.thresholds = Thresholds(median, median)
+    expected = network.predict(p0, p1, rest_len, 0.1)
+    actual = loaded.predict(p0, p1, rest_len, 0.1)
+    assert expected["candidate"].any() and expected["normal"].abs().sum() > 0
+    for key in ("albedo", "normal"):
+        assert torch.equal(actual[key], expected[key])
 
 
 def test_write_is_atomic_and_leaves_no_temporary_files(tmp_path, saved, network, monkeypatch):
@@ -259,10 +269,19 @@ def test_the_golden_files_predict_what_the_torch_encoder_predicts():
         with torch.no_grad():
             expected = readout(network.heads(reference(p0, p1)), network.config.distance_mode,
                                0.05, length, network.thresholds)
-        assert predicted.keys() == expected.keys()
+        assert predicted.keys() == expected.keys() | set(network.point_fields())
         for key in expected:
             torch.testing.assert_close(predicted[key], expected[key], rtol=1e-5, atol=1e-6)
         assert predicted["hit_probability"].std() > 1e-3  # varies from segment to segment
+        if network.normal_field is not None:    # the field reads the kernel's grid too
+            chosen = predicted["candidate"]
+            point = p0 + predicted["fraction"][:, None] * (p1 - p0)
+            with torch.no_grad():
+                grid = oracle.from_product(network.normal_field.grid)
+                normal = torch.nn.functional.normalize(
+                    network.normal_field.mlp(grid(point[chosen])), dim=1)
+            torch.testing.assert_close(predicted["normal"][chosen], normal, rtol=1e-5,
+                                       atol=1e-6)
 
 
 def test_the_stored_thresholds_decide_the_predicted_hits_and_candidates(tmp_path, network):

@@ -1,3 +1,4 @@
+import copy
 import math
 
 import pytest
@@ -9,9 +10,10 @@ from vdnif_addon.model.metadata import Thresholds
 from vdnif_addon.model.network import IntersectionNetwork, readout
 from vdnif_addon.settings import DISTANCE_MODES, Heads, NetworkConfig
 
-# The paper's albedo head over the segment; the albedo field has tests of its own.
+# The paper's albedo and normal heads over the segment; the point fields have tests of their
+# own.
 SMALL = {"levels": 2, "base_resolution": 8, "log2_table_size": 10, "width": 16, "depth": 2,
-         "albedo_mode": "segment"}
+         "albedo_mode": "segment", "normal_mode": "segment"}
 
 
 @pytest.mark.parametrize(
@@ -40,7 +42,7 @@ def test_heads_present_only_when_the_scene_needs_them(heads, expected):
 
 
 def test_paper_architecture():
-    network = IntersectionNetwork(NetworkConfig(albedo_mode="segment"))
+    network = IntersectionNetwork(NetworkConfig(albedo_mode="segment", normal_mode="segment"))
     linears = [layer for layer in network.mlp if isinstance(layer, torch.nn.Linear)]
     assert [(layer.in_features, layer.out_features) for layer in linears] == [
         (84, 64),
@@ -272,7 +274,7 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     assert 0 < candidate.sum() < len(candidate)
     with torch.no_grad():
         torch.testing.assert_close(predicted["albedo"][candidate],
-                                   network.albedo_at(point[candidate]))
+                                   network.field_at("albedo", point[candidate]))
         assert (predicted["albedo"][~candidate] == 0).all()
         whole = readout(network(p0, p1), config.distance_mode, 0.05, rest_len,
                         network.thresholds)
@@ -287,6 +289,73 @@ def test_albedo_field_is_read_at_the_hit_it_is_given_or_predicts():
     assert plain.albedo_field is None and "albedo" not in plain(p0, p1, hit_frac)
     with pytest.raises(VDNIFError, match="albedo_mode"):
         NetworkConfig(albedo_mode="texture")
+
+
+def test_normal_field_is_read_at_the_hit_and_made_unit():
+    """``normal_mode`` "hit": the MLP loses its normal columns (the task stays). forward gives
+    the field's normal at p0 + hit_frac (p1 - p0) on the rows it is given (0 on the others),
+    predict the field's at each candidate's predicted hit, unit, beside the albedo field's,
+    and the readout of the MLP's heads for the rest; bfloat16 runs the field in bfloat16."""
+    torch.manual_seed(7)
+    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit", "normal_mode": "hit"},
+                           heads=Heads(albedo=True, material_count=2))
+    network = IntersectionNetwork(config)
+    with torch.no_grad():
+        for grid in (network.encoder.grid, network.albedo_field.grid, network.normal_field.grid):
+            grid.table.normal_()
+    assert network.head_sizes == Heads(albedo=True, material_count=2).sizes()
+    assert network.mlp[-1].out_features == 1 + 1 + 2
+    assert list(network.point_fields()) == ["normal", "albedo"]
+    p0, p1 = torch.rand(2, 500, 3)
+    hit_frac, rest_len = torch.rand(500), torch.rand(500) * 0.1
+    hit = torch.rand(500) < 0.3
+    assert not {"normal", "albedo"} & set(network(p0, p1))
+    with torch.no_grad():
+        outputs = network(p0, p1, hit_frac, hit.nonzero().squeeze(1))
+        point = p0 + hit_frac[:, None] * (p1 - p0)
+        normal = network.normal_field.mlp(network.normal_field.grid(point))
+    torch.testing.assert_close(outputs["normal"][hit], normal[hit])
+    assert (outputs["normal"][~hit] == 0).all() and (outputs["albedo"][~hit] == 0).all()
+    with torch.no_grad():
+        torch.testing.assert_close(network(p0, p1, hit_frac)["normal"], normal)
+        median = float(torch.sigmoid(outputs["occlusion"]).median())
+    network.thresholds = Thresholds(median, median)
+    predicted = network.predict(p0, p1, rest_len, 0.05, batch=64)
+    candidate = predicted["candidate"]
+    assert 0 < candidate.sum() < len(candidate)
+    placed = p0 + predicted["fraction"][:, None] * (p1 - p0)
+    with torch.no_grad():
+        expected = torch.nn.functional.normalize(
+            network.normal_field.mlp(network.normal_field.grid(placed[candidate])), dim=1)
+        whole = readout(network(p0, p1), config.distance_mode, 0.05, rest_len,
+                        network.thresholds)
+    torch.testing.assert_close(predicted["normal"][candidate], expected)
+    torch.testing.assert_close(predicted["normal"][candidate].norm(dim=1),
+                               torch.ones(int(candidate.sum())))
+    assert (predicted["normal"][~candidate] == 0).all()
+    assert whole.keys() | {"albedo", "normal"} == predicted.keys()
+    for key in whole:
+        torch.testing.assert_close(predicted[key], whole[key], rtol=1e-5, atol=1e-6)
+    network.precision = "bfloat16"
+    half = network.predict(p0, p1, rest_len, 0.05, batch=64)
+    field = copy.deepcopy(network.normal_field.mlp).to(torch.bfloat16)
+    with torch.no_grad():
+        placed = p0 + half["fraction"][:, None] * (p1 - p0)
+        features = network.normal_field.grid(placed).to(torch.bfloat16)
+        expected = torch.nn.functional.normalize(field(features).float(), dim=1)
+    chosen = half["candidate"]
+    torch.testing.assert_close(half["normal"][chosen], expected[chosen], rtol=1e-5, atol=1e-6)
+    with pytest.raises(VDNIFError, match="normal_mode"):
+        NetworkConfig(normal_mode="vertex")
+
+
+def test_a_model_file_without_the_normal_mode_has_the_normal_head():
+    """Files written before the normal field existed store no ``normal_mode``: they read as
+    ``segment`` (their weights have the normal columns), while a new network gets the field."""
+    stored = NetworkConfig().to_dict()
+    assert stored.pop("normal_mode") == "hit"
+    assert NetworkConfig.from_dict(stored).normal_mode == "segment"
+    assert NetworkConfig.from_dict({**stored, "normal_mode": "hit"}).normal_mode == "hit"
 
 
 def test_predict_reads_the_device_once_whatever_its_batches():
@@ -310,7 +379,7 @@ def test_predict_reads_the_device_once_whatever_its_batches():
     point = p0 + predicted["fraction"][:, None] * (p1 - p0)
     with torch.no_grad():
         torch.testing.assert_close(predicted["albedo"][candidate],
-                                   network.albedo_at(point[candidate]))
+                                   network.field_at("albedo", point[candidate]))
     assert (predicted["albedo"][~candidate] == 0).all()
 
 
@@ -322,12 +391,12 @@ def test_predict_keeps_float32_albedo_when_the_field_answers_in_float16(monkeypa
                            heads=Heads(albedo=True, material_count=1))
     network = IntersectionNetwork(config)
     network.thresholds = Thresholds(1e-9, 1e-9)        # every segment a candidate
-    field = network.albedo_at
-    monkeypatch.setattr(network, "albedo_at", lambda points: field(points).half())
+    field = network.field_at
+    monkeypatch.setattr(network, "field_at", lambda name, points: field(name, points).half())
     p0, p1 = torch.rand(2, 50, 3)
     predicted = network.predict(p0, p1, torch.full((50,), 0.1), 0.05, batch=64)
     assert predicted["albedo"].dtype == torch.float32
-    expected = field(p0 + predicted["fraction"][:, None] * (p1 - p0)).half().float()
+    expected = field("albedo", p0 + predicted["fraction"][:, None] * (p1 - p0)).half().float()
     torch.testing.assert_close(predicted["albedo"], expected)
 
 
@@ -346,8 +415,6 @@ def test_bfloat16_precision_runs_both_mlps_in_bfloat16_and_reads_out_in_float32(
     copies of their weights and inputs (the oracle; the hash grids' features stay float32),
     the albedo field's too, with float32 outputs; float32 is the default and differs from
     it, so the setting took effect."""
-    import copy
-
     network = albedo_field_network(6)
     config = network.config
     p0, p1 = torch.rand(2, 400, 3)

@@ -272,15 +272,18 @@ def test_the_core_refuses_what_settings_does_not_name():
         assert NetworkConfig(pe_form=name).pe_form == name
     for name in settings.ALBEDO_MODES:
         assert NetworkConfig(albedo_mode=name).albedo_mode == name
+    for name in settings.NORMAL_MODES:
+        assert NetworkConfig(normal_mode=name).normal_mode == name
     for field, value in (("device", "tpu"), ("weighting", "equal")):
         with pytest.raises(VDNIFError, match=field):
             TrainConfig(**{field: value})
     for field, value in (("distance_mode", "linear"), ("pe_form", "cosine"),
-                         ("albedo_mode", "texture")):
+                         ("albedo_mode", "texture"), ("normal_mode", "vertex")):
         with pytest.raises(VDNIFError, match=field):
             NetworkConfig(**{field: value})
     with pytest.raises(VDNIFError, match="pose source"):
         PoseSpec(source="timeline")
     assert [field.name for field in dataclasses.fields(NetworkConfig)] == [
         "levels", "base_resolution", "growth", "log2_table_size", "feature_dim", "pe_bands",
-        "pe_form", "width", "depth", "distance_mode", "albedo_mode", "heads"]  # model files' keys
+        "pe_form", "width", "depth", "distance_mode", "albedo_mode", "normal_mode",
+        "heads"]  # model files' keys

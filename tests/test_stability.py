@@ -244,15 +244,16 @@ def test_autocast_keeps_positions_and_hash_lookup_in_float32(device, dtype):
     length = (p1 - p0).norm(dim=1)
     with torch.no_grad():
         features = network.encoder(p0, p1)
-        full_normal = network(p0, p1)["normal"]
+        full_distance = network(p0, p1)["distance"]
         full = network.predict(p0, p1, length, 0.03)
         with torch.autocast(device, dtype=dtype):
             reduced_features = network.encoder(p0, p1)
-            reduced_normal = network(p0, p1)["normal"]
+            reduced_distance = network(p0, p1)["distance"]
             reduced = network.predict(p0, p1, length, 0.03)
         rounded = network.encoder(p0.to(dtype).float(), p1.to(dtype).float())
     # autocast is active: the MLP runs reduced; the heads' activations come out float32
-    assert reduced_normal.dtype == torch.float32 and not torch.equal(reduced_normal, full_normal)
+    assert reduced_distance.dtype == torch.float32
+    assert not torch.equal(reduced_distance, full_distance)
     assert reduced_features.dtype == torch.float32 and torch.equal(reduced_features, features)
     # what the guard avoids: positions rounded to the reduced type change the features
     assert (rounded - features).abs().max() > 0.1

@@ -108,7 +108,10 @@ paper's written form, ReLU log1p(d/h) of the rest distance d from the segment's 
 voxel edges h, unbounded, its MSE taken in log space (the ablation's; DESIGN section 8)."""
 ALBEDO_MODES = ("segment", "hit")
 """``segment``: the paper's albedo head over the segment's end points. ``hit``: an albedo field
-of the rest point, read at the placed hit (``IntersectionNetwork.albedo_at``; DESIGN 8)."""
+of the rest point, read at the placed hit (``IntersectionNetwork.point_fields``; DESIGN 8)."""
+NORMAL_MODES = ("segment", "hit")
+"""``segment``: the paper's normal head over the segment's end points. ``hit``: a normal field
+of the rest point, read at the placed hit, as the albedo's (DESIGN 8)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
 WEIGHTING_STARTS = ("zero", "equal")
@@ -257,6 +260,8 @@ class NetworkConfig:
     # The field at the placed hit: a sharper albedo, and the MLP freed of the albedo columns
     # places hits better (ALBEDO_MODES).
     albedo_mode: str = "hit"
+    # The same for the normal: it follows the placed hit, and the shadow's facing test with it.
+    normal_mode: str = "hit"
     heads: Heads = field(default_factory=Heads)
 
     def __post_init__(self) -> None:
@@ -268,6 +273,7 @@ class NetworkConfig:
         check_int("depth", self.depth, *BOUNDS["depth"])
         check_choice("distance_mode", self.distance_mode, DISTANCE_MODES)
         check_choice("albedo_mode", self.albedo_mode, ALBEDO_MODES)
+        check_choice("normal_mode", self.normal_mode, NORMAL_MODES)
         if not isinstance(self.heads, Heads):
             raise VDNIFError(f"setting heads must be a Heads, got {self.heads!r}")
 
@@ -282,7 +288,8 @@ class NetworkConfig:
         unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise VDNIFError(f"network config has unknown entries {sorted(unknown)}")
-        values = dict(data)
+        # Files written before the normal field existed have the normal head.
+        values = {"normal_mode": "segment", **data}
         if "heads" in values:
             heads = values["heads"]
             if not isinstance(heads, Mapping) or not set(heads) <= {"albedo", "material_count"}:
@@ -309,6 +316,9 @@ class TrainConfig:
     # tests/test_proposed_beats_deformed.py loses most of its hits (DESIGN section 8).
     lr_weighting: float = 1e-3
     final_lr_fraction: float = 0.1
+    # The point fields learn at the reference's hit moved along its ray by N(0, this many
+    # voxels): the render reads them at the hit it places, a few hundredths of a voxel off.
+    field_jitter: float = 0.05
     weighting: str = "uncertainty"
     # "equal" (every task at weight 1), not "zero" (occlusion at twice a regression task's
     # weight): the log-variances never settle at the recipe, so the start sets the balance of
@@ -338,6 +348,7 @@ class TrainConfig:
                     or not 0 < value <= 1):
                 raise VDNIFError(f"setting {name} must be a number in (0, 1], got {value!r}")
         check_number("val_fraction", self.val_fraction, 0.0, 0.9)
+        check_number("field_jitter", self.field_jitter, 0.0, 1.0)
         check_choice("weighting", self.weighting, WEIGHTINGS)
         check_choice("weighting_start", self.weighting_start, WEIGHTING_STARTS)
         check_choice("device", self.device, DEVICES)

@@ -25,6 +25,7 @@ from ..settings import (
     EMBEDDING_ERROR_SHARE,
     MAX_RESOLUTION,
     MIN_RESOLUTION,
+    NORMAL_MODES,
     PE_SCALES,
     POSE_SOURCES,
     PRECISIONS,
@@ -225,6 +226,8 @@ NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
     "--depth": ("depth", int, "MLP hidden layers"),
     "--albedo-mode": ("albedo_mode", str, "albedo from the MLP over the segment ('segment') "
                       "or from a field of the rest point read at the placed hit ('hit')"),
+    "--normal-mode": ("normal_mode", str, "normal from the MLP over the segment ('segment') "
+                      "or from a field of the rest point read at the placed hit ('hit')"),
 }
 
 
@@ -372,6 +375,7 @@ def _validate_network_options(args, limits):
     if args.pe_form is not None and args.pe_form not in PE_SCALES:
         raise VDNIFError(f"--pe-form '{args.pe_form}' must be one of "
                          f"{', '.join(map(repr, PE_SCALES))}")
-    if args.albedo_mode is not None and args.albedo_mode not in ALBEDO_MODES:
-        raise VDNIFError(f"--albedo-mode '{args.albedo_mode}' must be one of "
-                         f"{', '.join(map(repr, ALBEDO_MODES))}")
+    for option, choices in (("albedo_mode", ALBEDO_MODES), ("normal_mode", NORMAL_MODES)):
+        if getattr(args, option) is not None and getattr(args, option) not in choices:
+            raise VDNIFError(f"--{option.replace('_', '-')} '{getattr(args, option)}' must be "
+                             f"one of {', '.join(map(repr, choices))}")

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 
 def hash_grid(config: NetworkConfig) -> HashGrid:
-    """A hash grid of ``config``'s grid settings (the encoder's, and the albedo field's)."""
+    """A hash grid of ``config``'s grid settings (the encoder's, and each point field's)."""
     return HashGrid(config.levels, config.base_resolution, config.growth,
                     config.log2_table_size, config.feature_dim)
 
@@ -44,12 +44,16 @@ class IntersectionNetwork(nn.Module):
         self.config = config
         self.encoder = SegmentEncoder(hash_grid(config), config.pe_bands, config.pe_form)
         # The tasks (the losses' and the weighting's), and the MLP's output columns: the
-        # same heads, less the albedo when an albedo field at the hit point gives it.
+        # same heads, less those that a field of the rest point gives at the hit.
         self.head_sizes = config.heads.sizes()
-        self.albedo_field = (AlbedoField(config) if "albedo" in self.head_sizes
+        self.albedo_field = (PointField(config, hidden=2) if "albedo" in self.head_sizes
                              and config.albedo_mode == "hit" else None)
+        # One hidden layer: the table holds the normal (two were no better on the bunny's
+        # held-out hits), and the render reads the field at every hit.
+        self.normal_field = (PointField(config, hidden=1) if config.normal_mode == "hit"
+                             else None)
         self.mlp_heads = {name: size for name, size in self.head_sizes.items()
-                          if not (name == "albedo" and self.albedo_field is not None)}
+                          if name not in self.point_fields()}
         layers: list[nn.Module] = []
         width_in = self.encoder.output_dim
         for _ in range(config.depth):
@@ -75,23 +79,43 @@ class IntersectionNetwork(nn.Module):
     def forward(
         self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"],
         hit_frac: Float[torch.Tensor, " batch"] | None = None,
+        rows: Int64[torch.Tensor, " rows"] | None = None,
     ) -> dict[str, Float[torch.Tensor, "batch ..."]]:
         """p0, p1: (N, 3) normalized rest coordinates in [0,1] -> head outputs.
 
         ``occlusion`` (N,) logit; ``distance`` (N,) sigmoid fraction t/l, ReLU log1p(t/l)
         or ReLU log1p(d/h) per ``distance_mode``; ``normal`` (N, 3) unnormalized; ``albedo``
         (N, 3) in [0,1]; ``material`` (N, M) logits. Only the heads of ``config.heads`` are
-        present. With an albedo field (``albedo_mode`` "hit") the albedo is the field's at
-        ``p0 + hit_frac (p1 - p0)``, the reference's hit (N,) t/l, and absent without it.
+        present. A head that a field gives (``point_fields``) is the field's at
+        ``p0 + hit_frac (p1 - p0)``, the reference's hit (N,) t/l, on the row indices
+        ``rows`` (every row without them; 0 on the others, where no loss reads it), and
+        absent without ``hit_frac``.
         """
         outputs = self.heads(self.encoder(p0, p1))
-        if self.albedo_field is not None and hit_frac is not None:
-            outputs["albedo"] = self.albedo_at(p0 + hit_frac.unsqueeze(1) * (p1 - p0))
+        fields = self.point_fields()
+        if fields and hit_frac is not None:
+            if rows is None:
+                rows = torch.arange(len(p0), device=p0.device)
+            point = p0[rows] + hit_frac[rows].unsqueeze(1) * (p1[rows] - p0[rows])
+            for name in fields:
+                value = self.field_at(name, point)
+                outputs[name] = value.new_zeros(len(p0), value.shape[1]).index_copy(
+                    0, rows, value)
         return outputs
 
-    def albedo_at(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
-        """The albedo field (``albedo_mode`` "hit") at normalized rest points (N, 3), in [0,1]."""
-        return self.albedo_field(points)
+    def point_fields(self) -> dict[str, PointField]:
+        """Heads that a field of the rest point gives at the hit (``albedo_mode``,
+        ``normal_mode`` "hit"), in head order."""
+        return {name: field for name, field in (("normal", self.normal_field),
+                                                ("albedo", self.albedo_field))
+                if field is not None}
+
+    def field_at(self, name: str, points: Float[torch.Tensor, "batch 3"]
+                 ) -> Float[torch.Tensor, "batch 3"]:
+        """Head ``name``'s field at normalized rest points (N, 3): the albedo in [0,1], the
+        normal unnormalized (as the MLP's heads give them)."""
+        value = self.point_fields()[name](points)
+        return torch.sigmoid(value) if name == "albedo" else value
 
     def heads(
         self, features: Float[torch.Tensor, "batch features"]
@@ -104,8 +128,9 @@ class IntersectionNetwork(nn.Module):
         out = {
             "occlusion": raw["occlusion"].squeeze(1),
             "distance": distance_activation(raw["distance"].squeeze(1)),
-            "normal": raw["normal"],
         }
+        if "normal" in raw:
+            out["normal"] = raw["normal"]
         if "albedo" in raw:
             out["albedo"] = torch.sigmoid(raw["albedo"])
         if "material" in raw:
@@ -124,9 +149,10 @@ class IntersectionNetwork(nn.Module):
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
         ``forward`` at the model's ``thresholds``, its MLPs in its ``precision``, without
-        autograd, ``batch`` segments at a time to bound memory. An albedo field is read at
-        each candidate segment's predicted hit, ``p0 + fraction (p1 - p0)`` (the albedo of
-        the others is 0), once every batch has its predictions.
+        autograd, ``batch`` segments at a time to bound memory. The point fields
+        (``point_fields``) are read at each candidate segment's predicted hit,
+        ``p0 + fraction (p1 - p0)`` (their heads are 0 on the other segments), once every
+        batch has its predictions; a field's normal is made unit as the head's is.
 
         On the CPU with more than one core (``threads.cores()``) the encoder of batch k+1
         runs in a worker thread (one core: a Warp CPU launch is serial and releases the GIL)
@@ -163,21 +189,25 @@ class IntersectionNetwork(nn.Module):
                         pending = worker.submit(encode, index + 1)
                     parts.append(predictions(index, features))
         result = {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
-        if self.albedo_field is not None:
+        fields = self.point_fields()
+        if fields:
             # Only candidates can place a hit (hits are candidates too): most segments are
-            # not, and skip the field. They are found once, over every batch: finding them
+            # not, and skip the fields. They are found once, over every batch: finding them
             # reads the device on the host, and on CUDA that waits for all work queued.
             chosen = result["candidate"].nonzero().squeeze(1)
-            albedo = p0.new_zeros(len(p0), 3)
+            answers = {name: p0.new_zeros(len(p0), 3) for name in fields}
             for rows in chosen.split(batch):
                 point = p0[rows] + result["fraction"][rows].to(p0.dtype).unsqueeze(1) * (
                     p1[rows] - p0[rows])
-                # index_copy does not promote on CUDA as it does on the CPU: a field that
-                # answers in another dtype is cast to the destination's.
-                with self._arithmetic(point.device):
-                    field = self.albedo_at(point)
-                albedo.index_copy_(0, rows, field.to(albedo.dtype))
-            result["albedo"] = albedo
+                for name, answer in answers.items():
+                    with self._arithmetic(point.device):
+                        value = self.field_at(name, point)
+                    if name == "normal":
+                        value = F.normalize(value.float(), dim=1)
+                    # index_copy does not promote on CUDA as it does on the CPU: a field
+                    # that answers in another dtype is cast to the destination's.
+                    answer.index_copy_(0, rows, value.to(answer.dtype))
+            result.update(answers)
         return result
 
     def _arithmetic(self, device: torch.device) -> torch.autocast:
@@ -187,20 +217,25 @@ class IntersectionNetwork(nn.Module):
                               enabled=self.precision == "bfloat16")
 
 
-class AlbedoField(nn.Module):
-    """Albedo of a normalized rest-space point (N, 3) -> (N, 3) in [0,1]: a hash grid of the
-    network's grid settings and a ReLU MLP of its width, two hidden layers (the field that
-    ``tools/albedo_ceiling.py`` measures against the model's albedo head)."""
+class PointField(nn.Module):
+    """A head's value at a normalized rest-space point (N, 3) -> (N, 3): a hash grid of the
+    network's grid settings and a ReLU MLP of its width with ``hidden`` layers (the albedo
+    field that ``tools/albedo_ceiling.py`` measures against the model's albedo head). A
+    point decides the albedo and the normal of the surface through it; the MLP's heads read
+    them from the segment's two end points, so theirs do not follow where the hit is placed."""
 
-    def __init__(self, config: NetworkConfig) -> None:
+    def __init__(self, config: NetworkConfig, hidden: int) -> None:
         super().__init__()
         self.grid = hash_grid(config)
-        self.mlp = nn.Sequential(nn.Linear(self.grid.output_dim, config.width), nn.ReLU(),
-                                 nn.Linear(config.width, config.width), nn.ReLU(),
-                                 nn.Linear(config.width, 3))
+        layers: list[nn.Module] = []
+        width_in = self.grid.output_dim
+        for _ in range(hidden):
+            layers += [nn.Linear(width_in, config.width), nn.ReLU()]
+            width_in = config.width
+        self.mlp = nn.Sequential(*layers, nn.Linear(width_in, 3))
 
     def forward(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
-        return torch.sigmoid(self.mlp(self.grid(points)).float())
+        return self.mlp(self.grid(points)).float()
 
 
 def readout(
@@ -220,7 +255,8 @@ def readout(
     ``distance`` (N,) rest-space local distance d from p0, ``fraction`` (N,) d / rest_len in
     [0,1] (the renderer's t = fraction * l),
     ``normal`` (N, 3) unit (zero where the head output is zero), ``material`` (N,) int64
-    (0 without a material head) and, with an albedo head, ``albedo`` (N, 3).
+    (0 without a material head) and, with an albedo head, ``albedo`` (N, 3); the normal
+    and the albedo only where ``outputs`` has them (not where a point field gives them).
     """
     if not (isinstance(voxel_size, numbers.Real) and math.isfinite(voxel_size) and voxel_size > 0):
         raise VDNIFError(f"voxel size must be a positive number, got {voxel_size!r}")
@@ -241,11 +277,12 @@ def readout(
         "candidate": probability > thresholds.candidate,
         "distance": distance,
         "fraction": fraction,
-        "normal": F.normalize(outputs["normal"], dim=1),
         "material": outputs["material"].argmax(1)
         if "material" in outputs
         else torch.zeros_like(probability, dtype=torch.int64),
     }
+    if "normal" in outputs:
+        predictions["normal"] = F.normalize(outputs["normal"], dim=1)
     if "albedo" in outputs:
         predictions["albedo"] = outputs["albedo"]
     return predictions

@@ -13,6 +13,7 @@ and applies no update from that step on (``TrainingStep``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -42,7 +43,7 @@ from .validation import (
 )
 
 if TYPE_CHECKING:
-    from jaxtyping import Float
+    from jaxtyping import Bool, Float
 
 
 @dataclass
@@ -91,23 +92,56 @@ class TrainResult:
 
 
 class Objective(nn.Module):
-    """network + weighting: batch -> (total loss, per-task losses stacked in head order)."""
+    """network + weighting: batch -> (total loss, per-task losses stacked in head order).
+
+    In training mode the point fields (``IntersectionNetwork.point_fields``) learn at the
+    reference's hit moved along the segment by N(0, ``field_jitter`` voxels), drawn from a
+    generator of its own (``seed``): read at the hit the network places, off by its distance
+    error, they answer as at the surface.
+
+    The fields are read on ``field_rows`` rows of a batch, its hits first (``field_rows``),
+    not on every row: only the hits' losses read them, and a batch's hit count is not known
+    on the host without waiting for the device."""
 
     def __init__(
-        self, network: IntersectionNetwork, weighting: nn.Module, voxel_size: float
+        self, network: IntersectionNetwork, weighting: nn.Module, voxel_size: float,
+        field_jitter: float = 0.0, seed: int = 0, field_rows: int | None = None,
     ) -> None:
         super().__init__()
         self.network = network
         self.weighting = weighting
         self.voxel_size = voxel_size
+        self.field_jitter = field_jitter
+        self.field_rows = field_rows
+        self.seed = seed
+        self._jitter: torch.Generator | None = None   # on the batch's device, at first use
 
     def forward(
         self, batch: Segments
     ) -> tuple[Float[torch.Tensor, ""], Float[torch.Tensor, " tasks"]]:
         """(total loss, task losses in head order) of ``batch``."""
-        outputs = self.network(batch["p0"], batch["p1"], batch["hit_frac"])
+        at = batch["hit_frac"]
+        if self.training and self.field_jitter > 0 and self.network.point_fields():
+            shift = self.field_jitter * self.voxel_size / batch["rest_len"].clamp_min(1e-30)
+            if self._jitter is None:
+                self._jitter = torch.Generator(at.device).manual_seed(self.seed)
+            at = at + torch.randn(at.shape, generator=self._jitter, device=at.device) * shift
+        rows = None
+        if self.field_rows is not None and self.field_rows < len(at):
+            rows = torch.argsort((~batch["hit"]).to(torch.int8), stable=True)[:self.field_rows]
+        outputs = self.network(batch["p0"], batch["p1"], at, rows)
         losses = task_losses(outputs, batch, self.network.config.distance_mode, self.voxel_size)
         return self.weighting(losses), torch.stack(list(losses.values()))
+
+
+def field_rows(hit: Bool[torch.Tensor, " segments"], batch_size: int) -> int:
+    """Rows of a batch that cover its hits: a batch of ``batch_size`` rows drawn with
+    replacement from rows of which a share p hit holds Binomial(batch_size, p) hits; their
+    mean and 6 standard deviations (a batch with more leaves its excess hits out of the
+    fields' losses once in about 10^9 batches)."""
+    share = float(hit.float().mean()) if hit.numel() else 1.0
+    spread = 6.0 * math.sqrt(batch_size * share * (1.0 - share))
+    return min(batch_size, math.ceil(batch_size * share + spread) + 1)
 
 
 def _optimizer(
@@ -268,7 +302,8 @@ def _train(
         network = IntersectionNetwork(network_config)
     weighting = make_weighting(config.weighting, list(network.head_sizes),
                                config.weighting_start)
-    objective = Objective(network, weighting, h).to(device)
+    objective = Objective(network, weighting, h, config.field_jitter, config.seed + group.rank,
+                          field_rows(train_data["hit"], config.batch_size)).to(device)
     model = (
         nn.parallel.DistributedDataParallel(objective, broadcast_buffers=False)
         if group.active

@@ -51,13 +51,15 @@ rises steeply above them (DESIGN section 8, the candidate threshold)."""
 def head_outputs(
     network: IntersectionNetwork, data: Segments, batch: int = 2**16
 ) -> dict[str, Float[torch.Tensor, "segments ..."]]:
-    """The network's head outputs over every row of ``data`` (the albedo at the reference's
-    hit), in chunks of ``batch`` rows: the one pass over the held-out poses that both
+    """The network's head outputs over every row of ``data`` (a point field's at the
+    reference's hit), in chunks of ``batch`` rows: the one pass over the held-out poses that both
     calibrations and the final validation read (each pass is seconds on a CPU)."""
     parts = []
     for start in range(0, data["p0"].shape[0], batch):
         rows = slice(start, start + batch)
-        parts.append(network(data["p0"][rows], data["p1"][rows], data["hit_frac"][rows]))
+        # the fields only where a loss or figure reads them: at the hits
+        hits = data["hit"][rows].nonzero().squeeze(1)
+        parts.append(network(data["p0"][rows], data["p1"][rows], data["hit_frac"][rows], hits))
     return {key: torch.cat([part[key] for part in parts]) for key in parts[0]} if parts else {}
 
 
