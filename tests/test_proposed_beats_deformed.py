@@ -11,18 +11,20 @@ reference,
 
 | seed | common pixels | distance MAE ratio | normal error ratio | hit IoU deformed / proposed |
 | --- | --- | --- | --- | --- |
-| 0 | 324 | 0.157 | 0.171 | 0.591 / 0.964 |
-| 1 | 391 | 0.223 | 0.262 | 0.689 / 0.946 |
-| 2 | 403 | 0.162 | 0.247 | 0.668 / 0.968 |
-| 3 | 425 | 0.200 | 0.253 | 0.736 / 0.964 |
-| 4 | 343 | 0.125 | 0.180 | 0.571 / 0.966 |
+| 0 | 459 | 0.236 | 0.330 | 0.812 / 0.960 |
+| 1 | 466 | 0.302 | 0.283 | 0.822 / 0.964 |
+| 2 | 450 | 0.281 | 0.277 | 0.806 / 0.960 |
+| 3 | 459 | 0.353 | 0.316 | 0.803 / 0.953 |
+| 4 | 456 | 0.224 | 0.259 | 0.816 / 0.958 |
 
-(ratio: proposed / deformed on the common pixels; against the embedded reference within
-0.02 of these). The test trains seed 0 and asks, against both references, for ratios at
-most ``MAX_RATIO`` (0.4: the worst seed's 0.26 with room for a platform's rounding, and
-still a cut of more than half), a hit IoU gain of at least ``MIN_IOU_GAIN`` (0.2; the
-smallest measured is 0.228), fewer holes, and at least ``MIN_COMMON_PIXELS`` common pixels
-(half the fewest measured, 324).
+(ratio: proposed / deformed on the common pixels). The test trains seed 0 and asks, against
+both references, for ratios at most ``MAX_RATIO`` (0.4: the worst seed's 0.353 with room for
+a platform's rounding, and still a cut of more than half), a hit IoU gain of at least
+``MIN_IOU_GAIN`` (0.1; the smallest measured is 0.142), fewer holes, and at least
+``MIN_COMMON_PIXELS`` common pixels (half the fewest measured, 450). With the normal read
+from a field at the hit (``normal_mode`` "hit", both variants) the baseline's hit IoU rose
+from 0.57-0.74 to 0.80-0.82 and proposed's stayed at 0.95-0.97, so the gain bound, 0.2 with
+the normal head, is lower.
 """
 
 import sys
@@ -36,8 +38,8 @@ SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2
             # run early; the thresholds are calibrated on the held-out poses after training.
             overrides=dict(batch_size=512, log2_table_size=12, width=32, log_interval=500))
 MAX_RATIO = {"distance_mae": 0.4, "normal_error_deg": 0.4}
-MIN_IOU_GAIN = 0.2
-MIN_COMMON_PIXELS = 160
+MIN_IOU_GAIN = 0.1
+MIN_COMMON_PIXELS = 225
 
 
 def compare(experiment_runs, tmp_path, seed):

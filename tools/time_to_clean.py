@@ -9,7 +9,8 @@ runs draw the same batches, so they give the same model, and the last one is eva
 
     python vdnif_addon/batch.py -- dataset --scene bunny --out out/bunny-data
     OMP_NUM_THREADS=1 python tools/time_to_clean.py --data out/bunny-data --scene bunny \\
-        --json out/bunny-clean.json [--repeats 3] [--set lr_mlp=0.01 --set steps=3000]
+        --json out/bunny-clean.json [--repeats 3] [--set lr_mlp=0.01 --set steps=3000] \\
+        [--model out/bunny.vdnif]
 """
 
 import argparse
@@ -53,13 +54,15 @@ def main():
     parser.add_argument("--repeats", type=int, default=1,
                         help="trainings timed (the median is reported); the last is evaluated")
     parser.add_argument("--json", required=True, help="write the figures here")
+    parser.add_argument("--model", type=pathlib.Path,
+                        help="keep the evaluated model here (default: discarded)")
     args = parser.parse_args()
     if args.repeats < 1:
         raise VDNIFError(f"--repeats must be at least 1, got {args.repeats}")
     overrides = dict(parse_setting(item) for item in args.set)
     threads = use_threads(args.threads)
     with tempfile.TemporaryDirectory() as scratch:
-        model = pathlib.Path(scratch) / "model.vdnif"
+        model = args.model or pathlib.Path(scratch) / "model.vdnif"
         walls, steps_s = [], []
         for _ in range(args.repeats):
             start = time.perf_counter()
