@@ -99,9 +99,9 @@ class Objective(nn.Module):
     generator of its own (``seed``): read at the hit the network places, off by its distance
     error, they answer as at the surface.
 
-    The fields are read on ``field_rows`` rows of a batch, its hits first (``field_rows``),
-    not on every row: only the hits' losses read them, and a batch's hit count is not known
-    on the host without waiting for the device."""
+    The fields are read on the first ``field_rows`` rows of a batch ordered hits first (the
+    module's ``field_rows``), not on every row: only the hits' losses read them, and a
+    batch's hit count is not known on the host without waiting for the device."""
 
     def __init__(
         self, network: IntersectionNetwork, weighting: nn.Module, voxel_size: float,

@@ -52,8 +52,8 @@ def head_outputs(
     network: IntersectionNetwork, data: Segments, batch: int = 2**16
 ) -> dict[str, Float[torch.Tensor, "segments ..."]]:
     """The network's head outputs over every row of ``data`` (a point field's at the
-    reference's hit), in chunks of ``batch`` rows: the one pass over the held-out poses that both
-    calibrations and the final validation read (each pass is seconds on a CPU)."""
+    reference's hit), in chunks of ``batch`` rows: the one pass over the held-out poses that
+    both calibrations and the final validation read (each pass is seconds on a CPU)."""
     parts = []
     for start in range(0, data["p0"].shape[0], batch):
         rows = slice(start, start + batch)
