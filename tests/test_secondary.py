@@ -251,6 +251,46 @@ def test_a_network_hit_off_the_surface_by_its_error_does_not_occlude_itself(scen
     assert (below.ao < 0.5).all() and not below.lit.any()
 
 
+def test_a_secondary_ray_starts_the_offset_above_the_surface_along_itself():
+    """Every start lies ``offset`` above the tangent plane; a ray at least
+    SECONDARY_GRAZING_COSINE from grazing starts on its own line (no sideways shift), a
+    grazing one at most offset / that cosine along it, the rest along the normal."""
+    from vdnif_addon.settings import SECONDARY_GRAZING_COSINE as grazing
+    rng = np.random.default_rng(5)
+    normals = rng.normal(size=(4000, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    directions = rays.cosine_directions(normals, rng.random((4000, 2)))
+    points, offset = rng.random((4000, 3)), 0.03
+    start, along = secondary.leave_surface(points, normals, directions, offset)
+    gap = start - points
+    np.testing.assert_allclose((gap * normals).sum(1), offset, rtol=1e-9)
+    cosine = (normals * directions).sum(1)
+    steep = cosine >= grazing
+    assert 0 < steep.mean() < 1
+    np.testing.assert_allclose(gap[steep], along[steep, None] * directions[steep], atol=1e-12)
+    np.testing.assert_allclose(along[~steep], offset / grazing)
+    assert (along <= offset / grazing + 1e-12).all()
+
+
+@pytest.mark.parametrize("path", ["brute", "exact", "neural"])
+def test_a_large_offset_does_not_move_the_shadows_edge(scene, path):
+    """Plane points half the network offset either side of the edge of the box's shadow
+    under a sun at 45 degrees (the edge at x = -1.5, in closed form): shadowed inside, lit
+    outside. A push of the start along the normal would move the edge by the offset and
+    light the points inside."""
+    mesh, grid, cells = scene
+    occluded = occluders(mesh, grid, cells)[path]
+    offset = secondary.network_offset(mesh.size, grid.voxel_size)
+    settings = secondary.SecondarySettings(
+        samples=1, light=secondary.Light(direction=(1.0, 0.0, 1.0), source="t"))
+    y = np.linspace(-0.4, 0.4, 16)
+    inside = np.stack([np.full(16, -1.5 + offset / 2), y, np.zeros(16)], 1)
+    outside = np.stack([np.full(16, -1.5 - offset / 2), y, np.zeros(16)], 1)
+    lit = secondary.secondary_passes(*ground_hits(np.concatenate([inside, outside])),
+                                     occluded, mesh.size, settings, offset).lit
+    assert not lit[:16].any() and lit[16:].all()
+
+
 def test_a_network_offset_follows_its_voxel_and_its_error():
     """The most of the exact hits' offset, a share of a voxel and a multiple of the
     held-out distance error, as settings.py states it."""

@@ -81,13 +81,17 @@ SUGGEST_VIEW_SIZE = 96
 # Ambient occlusion: AO_SAMPLES rays per pixel (standard error at most 0.125, directions from
 # SECONDARY_SEED), each looking AO_DISTANCE object units (a tenth of the object: contacts and
 # folds darken, the far side does not); shadow rays go to DEFAULT_LIGHT_DIRECTION (object
-# space) where the scene has no sun or point light. A secondary ray starts off its hit along
-# the normal, on the primary ray's side, lest it hit the surface it leaves: SECONDARY_OFFSET
-# object units off an exact hit (off by rounding only); a network's hit is off by its distance
+# space) where the scene has no sun or point light. A secondary ray starts above its hit, on
+# the primary ray's side, lest it hit the surface it leaves: SECONDARY_OFFSET object units
+# above an exact hit (off by rounding only); a network's hit is off by its distance
 # error (on a trained bunny about 0.003 object units), so the most of SECONDARY_OFFSET,
 # SECONDARY_OFFSET_VOXELS voxels and SECONDARY_OFFSET_ERRORS x its held-out distance MAE.
 AO_SAMPLES, AO_DISTANCE, DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = 16, 0.1, (0.3, -0.4, 0.866), 0
 SECONDARY_OFFSET, SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS = 1e-3, 0.25, 3.0
+# The height is reached along the ray itself, not along the normal, which would shift the ray
+# sideways and a cast shadow's edge by the offset; a ray whose cosine to the normal is below
+# SECONDARY_GRAZING_COSINE moves at most offset / it along itself, the rest along the normal.
+SECONDARY_GRAZING_COSINE = 0.2
 
 # --------------------------------------------------------------------------- names
 

@@ -3,15 +3,16 @@ network (the deformed walk in waves, ``neural_render``), by the exact deformed m
 BVH, ``kernels.cast.MeshCaster``) or by the embedded reference (the walk and the exact
 segment ground truth).
 
-A secondary ray starts at the primary hit pushed along the normal turned towards the
-primary ray's origin: started on the surface itself it would hit the surface it leaves (the
-classic self-hit). An exact hit is pushed ``SECONDARY_OFFSET`` object units (it is off the
-surface by rounding only); the network's hit lies off the surface by its distance error, so
-it is pushed ``network_offset``, sized to the model's voxel and held-out error. Ambient
-occlusion casts ``samples``
-cosine-weighted rays of that hemisphere up to ``distance`` object units; its pass is the
-fraction unoccluded. Shadow casts one ray towards the light; a hit whose normal faces away
-from the light is in its own shadow without a cast.
+A secondary ray leaves the primary hit on the side of the normal turned towards the primary
+ray's origin: started on the surface itself it would hit the surface it leaves (the classic
+self-hit). It starts an offset above the tangent plane, reached along the ray itself
+(``leave_surface``): a push along the normal would shift the ray sideways and a cast
+shadow's edge with it. An exact hit's offset is ``SECONDARY_OFFSET`` object units (it is off
+the surface by rounding only); the network's hit lies off the surface by its distance error,
+so its offset is ``network_offset``, sized to the model's voxel and held-out error. Ambient
+occlusion casts ``samples`` cosine-weighted rays of that hemisphere up to ``distance``
+object units from the hit; its pass is the fraction unoccluded. Shadow casts one ray towards
+the light; a hit whose normal faces away from the light is in its own shadow without a cast.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from ..settings import (
     AO_SAMPLES,
     BOUNDS,
     DEFAULT_LIGHT_DIRECTION,
+    SECONDARY_GRAZING_COSINE,
     SECONDARY_OFFSET,
     SECONDARY_OFFSET_ERRORS,
     SECONDARY_OFFSET_VOXELS,
@@ -170,17 +172,33 @@ def network_offset(object_size: float, voxel_size: float,
 
 
 def secondary_starts(primary: Passes, origins: Float[np.ndarray, "R 3"],
-                     directions: Float[np.ndarray, "R 3"], offset: float
+                     directions: Float[np.ndarray, "R 3"]
                      ) -> tuple[Float[np.ndarray, "H 3"], Float[np.ndarray, "H 3"]]:
-    """(start points (H, 3), unit normals (H, 3)) of the secondary rays of the H primary
-    hits of ``primary`` (rays ``origins`` + t ``directions`` (R, 3), local units): the hit
-    pushed ``offset`` local units along its normal turned towards the ray's origin."""
+    """(points (H, 3), unit normals (H, 3)) of the H primary hits of ``primary`` (rays
+    ``origins`` + t ``directions`` (R, 3), local units), each normal turned towards its
+    ray's origin: the side its secondary rays leave from."""
     hit = np.flatnonzero(primary.hit)
     direction = normalize(np.asarray(directions, np.float64)[hit], np.array([0.0, 0.0, 1.0]))
     point = np.asarray(origins, np.float64)[hit] + primary.distance[hit, None] * direction
     normal = normalize(primary.normal[hit], -direction)
     normal = np.where(((normal * direction).sum(1) > 0)[:, None], -normal, normal)
-    return point + offset * normal, normal
+    return point, normal
+
+
+def leave_surface(points: Float[np.ndarray, "N 3"], normals: Float[np.ndarray, "N 3"],
+                  directions: Float[np.ndarray, "N 3"], offset: float
+                  ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, " N"]]:
+    """(start points (N, 3), distances moved along the ray (N,)) of rays that leave
+    ``points`` of the surface with unit ``normals`` in unit ``directions``: ``offset`` local
+    units above the tangent plane, reached along the ray itself, which a push along the
+    normal would shift sideways (and a shadow's edge with it); a ray that grazes the surface
+    (cosine to the normal below SECONDARY_GRAZING_COSINE) moves at most
+    offset / SECONDARY_GRAZING_COSINE along itself and the rest of the height along the
+    normal."""
+    cosine = (normals * directions).sum(1)
+    along = offset / np.maximum(cosine, SECONDARY_GRAZING_COSINE)
+    rest = np.maximum(offset - along * cosine, 0.0)
+    return points + along[:, None] * directions + rest[:, None] * normals, along
 
 
 def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
@@ -196,19 +214,21 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     rays = len(primary.hit)
     if offset is None:
         offset = SECONDARY_OFFSET * object_size
-    start, normal = secondary_starts(primary, origins, directions, offset)
+    point, normal = secondary_starts(primary, origins, directions)
     rng = np.random.default_rng([settings.seed, rays])
     uniform = rng.random((rays, settings.samples, 2))[primary.hit].reshape(-1, 2)
     samples = np.repeat(normal, settings.samples, axis=0)
-    reach = np.full(len(samples), settings.distance * object_size)
-    blocked = occluded(np.repeat(start, settings.samples, axis=0),
-                       cosine_directions(samples, uniform), reach)
+    sampled = cosine_directions(samples, uniform)
+    start, along = leave_surface(np.repeat(point, settings.samples, axis=0), samples, sampled,
+                                 offset)
+    blocked = occluded(start, sampled, settings.distance * object_size - along)
     ao = np.zeros(rays, np.float32)
     ao[primary.hit] = 1.0 - blocked.reshape(-1, settings.samples).mean(1)
-    towards, distance = settings.light.towards(start)
+    towards, distance = settings.light.towards(point)
     facing = (normal * towards).sum(1) > 0
+    start, along = leave_surface(point[facing], normal[facing], towards[facing], offset)
     lit_hits = facing.copy()
-    lit_hits[facing] = ~occluded(start[facing], towards[facing], distance[facing])
+    lit_hits[facing] = ~occluded(start, towards[facing], distance[facing] - along)
     lit, faces = np.zeros(rays, bool), np.zeros(rays, bool)
     lit[primary.hit], faces[primary.hit] = lit_hits, facing
     return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit, facing=faces)
