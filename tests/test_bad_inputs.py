@@ -130,6 +130,8 @@ CASES = [
     ("train-batch-zero", "train --data {data} --batch 0", r"--batch 0 must be at least 1", "proc"),
     ("train-table-huge", "train --data {data} --log2-table-size 40",
      r"--log2-table-size 40 is more than the limit 24", "proc"),
+    ("train-normal-table-huge", "train --data {data} --normal-log2-table-size 40",
+     r"--normal-log2-table-size 40 is more than the limit 24", "proc"),
     ("train-growth-nan", "train --data {data} --growth nan", r"--growth nan must be a number",
      "proc"),
     ("train-levels-zero", "train --data {data} --levels 0", r"--levels 0 must be at least 1",

@@ -358,6 +358,29 @@ def test_a_model_file_without_the_normal_mode_has_the_normal_head():
     assert NetworkConfig.from_dict({**stored, "normal_mode": "hit"}).normal_mode == "hit"
 
 
+def test_the_normal_field_has_its_own_grid():
+    """The normal field's grid has ``normal_levels`` levels and 2^``normal_log2_table_size``
+    rows (the encoder's base resolution, growth and features); the albedo field keeps the
+    encoder's. Files written before it had its own grid store neither setting: they read the
+    encoder's, which their field was built with."""
+    config = NetworkConfig(**{**SMALL, "albedo_mode": "hit", "normal_mode": "hit"},
+                           normal_levels=3, normal_log2_table_size=12, heads=Heads(albedo=True))
+    network = IntersectionNetwork(config)
+    grids = {name: network.point_fields()[name].grid for name in ("normal", "albedo")}
+    assert (grids["normal"].levels, grids["normal"].log2_table_size) == (3, 12)
+    assert (grids["albedo"].levels, grids["albedo"].log2_table_size) == (2, 10)
+    for grid in (grids["normal"], grids["albedo"], network.encoder.grid):
+        assert (grid.base_resolution, grid.growth, grid.feature_dim) == (8, 2.0, 3)
+    stored = config.to_dict()
+    del stored["normal_levels"], stored["normal_log2_table_size"]
+    old = NetworkConfig.from_dict(stored)
+    assert (old.normal_levels, old.normal_log2_table_size) == (2, 10)
+    with pytest.raises(VDNIFError, match="normal_levels"):
+        NetworkConfig(normal_levels=0)
+    with pytest.raises(VDNIFError, match="normal field's hash grid"):
+        NetworkConfig(normal_levels=12)
+
+
 def test_predict_reads_the_device_once_whatever_its_batches():
     """Finding the candidates that read the albedo field reads the device on the host (on
     CUDA a wait for all work queued): once per call, not once per batch; the albedo is the

@@ -72,10 +72,11 @@ RANGES = {
     "secondary_fraction": ([], ("dataset", ["--secondary-fraction"]), None),
     "ao_samples": (["ao_samples"], ("references", ["--ao-samples"]), "secondary"),
     "ao_distance": (["ao_distance"], ("references", ["--ao-distance"]), "secondary"),
-    "levels": (["levels"], ("train", ["--levels"]), "network"),
+    "levels": (["levels"], ("train", ["--levels", "--normal-levels"]), "network"),
     "base_resolution": (["base_resolution"], ("train", ["--base-resolution"]), "network"),
     "growth": ([], ("train", ["--growth"]), "network"),
-    "log2_table_size": (["log2_table_size"], ("train", ["--log2-table-size"]), "network"),
+    "log2_table_size": (["log2_table_size"],
+                        ("train", ["--log2-table-size", "--normal-log2-table-size"]), "network"),
     "feature_dim": (["feature_dim"], ("train", ["--feature-dim"]), "network"),
     "pe_bands": (["pe_bands"], ("train", ["--pe-bands"]), "network"),
     "width": (["width"], ("train", ["--width"]), "network"),
@@ -160,7 +161,8 @@ def core_refuses(kind, name, value):
         if kind == "network":
             # One level for the largest base resolution, no growth for the most levels: else
             # the finest level passes its own cap first.
-            alone = {"base_resolution": {"levels": 1}, "levels": {"growth": 1.0}}
+            alone = {"base_resolution": {"levels": 1, "normal_levels": 1},
+                     "levels": {"growth": 1.0}}
             NetworkConfig(**{name: value, **alone.get(name, {})})
         elif kind == "train":
             TrainConfig(**{name: value})
@@ -286,4 +288,4 @@ def test_the_core_refuses_what_settings_does_not_name():
     assert [field.name for field in dataclasses.fields(NetworkConfig)] == [
         "levels", "base_resolution", "growth", "log2_table_size", "feature_dim", "pe_bands",
         "pe_form", "width", "depth", "distance_mode", "albedo_mode", "normal_mode",
-        "heads"]  # model files' keys
+        "normal_levels", "normal_log2_table_size", "heads"]  # model files' keys

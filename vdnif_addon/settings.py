@@ -176,23 +176,27 @@ MAX_MATERIALS = 2**15
 
 
 def check_grid_settings(
-    levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int
+    levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int,
+    prefix: str = "",
 ) -> None:
-    """Validate hash grid settings with messages that name the setting."""
+    """Validate hash grid settings with messages that name the setting (the level and table
+    settings' names start with ``prefix``: a point field's own grid)."""
     for name, value in (("levels", levels), ("base_resolution", base_resolution),
                         ("log2_table_size", log2_table_size), ("feature_dim", feature_dim)):
-        check_int(name, value, *BOUNDS[name])
+        named = prefix + name if name in ("levels", "log2_table_size") else name
+        check_int(named, value, *BOUNDS[name])
     check_number("growth", growth, *BOUNDS["growth"])
+    grid = "normal field's hash grid" if prefix else "hash grid"
     finest = math.floor(base_resolution * growth ** (levels - 1))
     if finest > MAX_GRID_RESOLUTION:
-        raise VDNIFError(f"hash grid finest resolution {finest} exceeds "
+        raise VDNIFError(f"{grid} finest resolution {finest} exceeds "
                          f"{MAX_GRID_RESOLUTION} cells per axis")
     resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
     floats = feature_dim * sum(min((res + 1) ** 3, 2**log2_table_size) for res in resolutions)
     if floats > limits.MAX_TABLE_FLOATS:
         raise VDNIFError(
-            f"hash grid table of {floats} floats is too large: at most {limits.MAX_TABLE_FLOATS}"
-            f" (lower log2_table_size, levels or feature_dim)"
+            f"{grid} table of {floats} floats is too large: at most {limits.MAX_TABLE_FLOATS}"
+            f" (lower {prefix}log2_table_size, {prefix}levels or feature_dim)"
         )
 
 
@@ -266,12 +270,19 @@ class NetworkConfig:
     albedo_mode: str = "hit"
     # The same for the normal: it follows the placed hit, and the shadow's facing test with it.
     normal_mode: str = "hit"
+    # The normal field's own grid (the base resolution, growth and features of the one above),
+    # finer than the encoder's: a scanned surface's normal varies within a voxel, and the
+    # shadow's facing test reads it at the terminator.
+    normal_levels: int = 3
+    normal_log2_table_size: int = 17
     heads: Heads = field(default_factory=Heads)
 
     def __post_init__(self) -> None:
         check_grid_settings(
             self.levels, self.base_resolution, self.growth, self.log2_table_size, self.feature_dim
         )
+        check_grid_settings(self.normal_levels, self.base_resolution, self.growth,
+                            self.normal_log2_table_size, self.feature_dim, "normal_")
         check_encoding_settings(self.pe_bands, self.pe_form)
         check_int("width", self.width, *BOUNDS["width"])
         check_int("depth", self.depth, *BOUNDS["depth"])
@@ -292,8 +303,11 @@ class NetworkConfig:
         unknown = set(data) - {f.name for f in dataclasses.fields(cls)}
         if unknown:
             raise VDNIFError(f"network config has unknown entries {sorted(unknown)}")
-        # Files written before the normal field existed have the normal head.
-        values = {"normal_mode": "segment", **data}
+        # Files written before the normal field existed have the normal head; those written
+        # before it had its own grid read it with the encoder's.
+        values = {"normal_mode": "segment", "normal_levels": data.get("levels", cls.levels),
+                  "normal_log2_table_size": data.get("log2_table_size", cls.log2_table_size),
+                  **data}
         if "heads" in values:
             heads = values["heads"]
             if not isinstance(heads, Mapping) or not set(heads) <= {"albedo", "material_count"}:

@@ -54,7 +54,7 @@ from vdnif_addon.training import dataset  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402
 
 RESOLUTION, POSES, RAYS, SEED, FRACTION = 12, 3, 256, 0, 0.6
-SMALL = dict(log2_table_size=12, device="cpu", seed=0)
+SMALL = dict(log2_table_size=12, normal_log2_table_size=12, device="cpu", seed=0)
 
 
 def dataset_golden(obj, captured):

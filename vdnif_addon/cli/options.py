@@ -228,6 +228,9 @@ NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
                       "or from a field of the rest point read at the placed hit ('hit')"),
     "--normal-mode": ("normal_mode", str, "normal from the MLP over the segment ('segment') "
                       "or from a field of the rest point read at the placed hit ('hit')"),
+    "--normal-levels": ("normal_levels", int, "the normal field's hash-grid levels"),
+    "--normal-log2-table-size": ("normal_log2_table_size", int,
+                                 "the normal field's hash table size 2^T per level"),
 }
 
 
@@ -364,10 +367,10 @@ def validate_arguments(args):
 
 def _validate_network_options(args, limits):
     for name in ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
-                 "width", "depth"):
+                 "width", "depth", "normal_levels", "normal_log2_table_size"):
         if getattr(args, name, None) is not None:
             limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name),
-                               *BOUNDS[name])
+                               *BOUNDS[name.removeprefix("normal_")])
     low, high = BOUNDS["growth"]
     if args.growth is not None and not (math.isfinite(args.growth)
                                         and low <= args.growth <= high):

@@ -26,10 +26,15 @@ if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int64
 
 
-def hash_grid(config: NetworkConfig) -> HashGrid:
-    """A hash grid of ``config``'s grid settings (the encoder's, and each point field's)."""
-    return HashGrid(config.levels, config.base_resolution, config.growth,
-                    config.log2_table_size, config.feature_dim)
+def hash_grid(config: NetworkConfig, levels: int | None = None,
+              log2_table_size: int | None = None) -> HashGrid:
+    """A hash grid of ``config``'s grid settings (the encoder's and the albedo field's), or
+    of its base resolution, growth and features with other ``levels`` and
+    ``log2_table_size`` (the normal field's)."""
+    return HashGrid(config.levels if levels is None else levels, config.base_resolution,
+                    config.growth,
+                    config.log2_table_size if log2_table_size is None else log2_table_size,
+                    config.feature_dim)
 
 
 class IntersectionNetwork(nn.Module):
@@ -46,12 +51,15 @@ class IntersectionNetwork(nn.Module):
         # The tasks (the losses' and the weighting's), and the MLP's output columns: the
         # same heads, less those that a field of the rest point gives at the hit.
         self.head_sizes = config.heads.sizes()
-        self.albedo_field = (PointField(config, hidden=2) if "albedo" in self.head_sizes
-                             and config.albedo_mode == "hit" else None)
+        self.albedo_field = (PointField(hash_grid(config), config.width, hidden=2)
+                             if "albedo" in self.head_sizes and config.albedo_mode == "hit"
+                             else None)
         # One hidden layer: the table holds the normal (two were no better on the bunny's
         # held-out hits), and the render reads the field at every hit.
-        self.normal_field = (PointField(config, hidden=1) if config.normal_mode == "hit"
-                             else None)
+        self.normal_field = (PointField(hash_grid(config, config.normal_levels,
+                                                  config.normal_log2_table_size),
+                                        config.width, hidden=1)
+                             if config.normal_mode == "hit" else None)
         self.mlp_heads = {name: size for name, size in self.head_sizes.items()
                           if name not in self.point_fields()}
         layers: list[nn.Module] = []
@@ -218,20 +226,20 @@ class IntersectionNetwork(nn.Module):
 
 
 class PointField(nn.Module):
-    """A head's value at a normalized rest-space point (N, 3) -> (N, 3): a hash grid of the
-    network's grid settings and a ReLU MLP of its width with ``hidden`` layers (the albedo
-    field that ``tools/albedo_ceiling.py`` measures against the model's albedo head). A
+    """A head's value at a normalized rest-space point (N, 3) -> (N, 3): a hash ``grid`` and
+    a ReLU MLP of ``width`` with ``hidden`` layers (the albedo field that
+    ``tools/albedo_ceiling.py`` measures against the model's albedo head). A
     point decides the albedo and the normal of the surface through it; the MLP's heads read
     them from the segment's two end points, so theirs do not follow where the hit is placed."""
 
-    def __init__(self, config: NetworkConfig, hidden: int) -> None:
+    def __init__(self, grid: HashGrid, width: int, hidden: int) -> None:
         super().__init__()
-        self.grid = hash_grid(config)
+        self.grid = grid
         layers: list[nn.Module] = []
         width_in = self.grid.output_dim
         for _ in range(hidden):
-            layers += [nn.Linear(width_in, config.width), nn.ReLU()]
-            width_in = config.width
+            layers += [nn.Linear(width_in, width), nn.ReLU()]
+            width_in = width
         self.mlp = nn.Sequential(*layers, nn.Linear(width_in, 3))
 
     def forward(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
