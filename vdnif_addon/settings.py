@@ -179,14 +179,15 @@ def check_grid_settings(
     levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int,
     prefix: str = "",
 ) -> None:
-    """Validate hash grid settings with messages that name the setting (the level and table
-    settings' names start with ``prefix``: a point field's own grid)."""
+    """Validate hash grid settings with messages that name the setting (a point field's own
+    grid: ``prefix`` is its level and table settings' prefix, "normal_" for the normal
+    field's, and the messages name that field)."""
     for name, value in (("levels", levels), ("base_resolution", base_resolution),
                         ("log2_table_size", log2_table_size), ("feature_dim", feature_dim)):
         named = prefix + name if name in ("levels", "log2_table_size") else name
         check_int(named, value, *BOUNDS[name])
     check_number("growth", growth, *BOUNDS["growth"])
-    grid = "normal field's hash grid" if prefix else "hash grid"
+    grid = f"{prefix.removesuffix('_')} field's hash grid" if prefix else "hash grid"
     finest = math.floor(base_resolution * growth ** (levels - 1))
     if finest > MAX_GRID_RESOLUTION:
         raise VDNIFError(f"{grid} finest resolution {finest} exceeds "
