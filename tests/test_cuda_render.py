@@ -11,6 +11,7 @@ import pytest
 import torch
 from test_render import bent_ball
 
+from vdnif_addon.inference import secondary
 from vdnif_addon.inference.neural_render import neural_passes
 from vdnif_addon.kernels import runtime
 from vdnif_addon.kernels.cells import DeviceCells
@@ -23,8 +24,8 @@ CUDA = torch.cuda.is_available() and runtime.cuda_device_count() > 0
 SETTINGS = {"levels": 2, "base_resolution": 16, "log2_table_size": 12, "width": 32, "depth": 2}
 
 
-def render_both(device, **options):
-    """(CPU passes, ``device`` passes, its stats) of one view of the bent ball."""
+def view():
+    """(mesh, grid, bent corners, an untrained network, rays (R, 3) of one orbit view)."""
     mesh, grid, bend = bent_ball(12)
     torch.manual_seed(0)
     network = IntersectionNetwork(NetworkConfig(**SETTINGS,
@@ -33,9 +34,18 @@ def render_both(device, **options):
     network.eval()
     origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([-0.5, 0.4, 1]) /
                                           np.linalg.norm([-0.5, 0.4, 1]), 48, 40)
+    return mesh, grid, bend, network, origins, directions
+
+
+def render_both(device, origins=None, directions=None, **options):
+    """(CPU passes, ``device`` passes, its stats) of the bent ball, of the view's rays or
+    of ``origins``, ``directions``."""
+    mesh, grid, bend, network, view_origins, view_directions = view()
+    if origins is None:
+        origins, directions = view_origins, view_directions
     table = mesh.albedo_table()
     cpu, _ = neural_passes(network, grid, table, DeviceCells(grid, corners=bend), origins,
-                           directions)
+                           directions, **options)
     other, stats = neural_passes(copy.deepcopy(network).to(device), grid, table,
                                  DeviceCells(grid, str(torch.device(device)), corners=bend),
                                  origins, directions, device=device, **options)
@@ -57,6 +67,22 @@ def test_the_real_network_renders_alike_on_cuda_and_the_cpu(cap):
     cpu, gpu, stats = render_both("cuda:0", **options)
     assert_alike(cpu, gpu)
     assert stats["truncated"] == 0
+
+
+@pytest.mark.skipif(not CUDA, reason="needs CUDA")
+def test_secondary_rays_render_alike_on_cuda_and_the_cpu():
+    """Rays that leave the primary hits as the secondary passes cast them: each starts
+    inside an occupied cell and is walked only to a reach of its own."""
+    _, grid, _, _, origins, directions = view()
+    primary, _, _ = render_both("cuda:0")
+    point, normal = (np.repeat(value, 4, axis=0)
+                     for value in secondary.secondary_starts(primary, origins, directions))
+    rng = np.random.default_rng(0)
+    leaving = secondary.cosine_directions(normal, rng.random((len(normal), 2)))
+    start, along = secondary.leave_surface(point, normal, leaving, 0.25 * grid.voxel_size)
+    reach = rng.uniform(0.2, 2.0, len(start)) * grid.voxel_size - along
+    cpu, gpu, _ = render_both("cuda:0", start, leaving, max_distance=reach)
+    assert_alike(cpu, gpu)
 
 
 @pytest.mark.skipif(not CUDA, reason="needs CUDA")

@@ -1,11 +1,13 @@
 """Secondary rays in the side-by-side study: every path casts as many AO rays as its primary
 hits times the samples and at most one shadow ray per hit, at 1 and N samples in one run,
-each rate positive and finite; Warp's, Embree's and Blender's BVHTree's answers to the same
+each rate positive and finite; each path's rays are answered by its own occluder (the
+network's by the network); Warp's, Embree's and Blender's BVHTree's answers to the same
 secondary rays agree (three independent ray casters); where the cheaper side changes is
 exact for totals linear in the samples; and the command writes the table."""
 
 import json
 import math
+import types
 
 import numpy as np
 import pytest
@@ -53,6 +55,35 @@ def test_each_path_casts_its_hits_times_the_samples_and_a_shadow_ray_per_lit_fac
             assert abs(record[secondary.key(name, SAMPLES, "shadow_rays")]
                        - record[secondary.key("warp", SAMPLES, "shadow_rays")]) <= 2
     assert "bvhtree_secondary1_s" not in records[0]
+
+
+def test_each_path_answers_its_secondary_rays_with_its_own_occluder(extension, monkeypatch):
+    """Four hits on a plane facing the light: the network says every secondary ray is
+    blocked, the classical caster that none is, and each path's AO and lit share say so."""
+    secondary = core("studies.side_by_side_secondary")
+    passes = core("passes")
+    monkeypatch.setattr(secondary, "neural_occluded", lambda *args, **kwargs: (
+        lambda origins, directions, reach: np.ones(len(origins), bool)))
+    vertices = np.array([[-10.0, -10.0, 0.0], [10.0, -10.0, 0.0], [0.0, 10.0, 0.0]])
+    caster = types.SimpleNamespace(name="warp", vertices=vertices, cast=lambda o, d, reach: (
+        np.full(len(o), -1), np.full(len(o), np.inf)))
+    origins = np.array([[x, y, 1.0] for x in (-1.0, 1.0) for y in (-1.0, 1.0)])
+    directions = np.tile([0.0, 0.0, -1.0], (4, 1))
+    predicted = passes.Passes.empty(4)
+    predicted.hit[:] = True
+    predicted.distance[:] = 1.0
+    predicted.normal[:] = (0.0, 0.0, 1.0)
+    model = types.SimpleNamespace(network=None, albedo_table=None, device="cpu",
+                                  secondary_offset=lambda size: 0.01)
+    settings = core("inference.secondary").SecondarySettings(samples=2)
+    record = secondary.secondary_record(
+        [caster], {"warp": (np.zeros(4, int), np.ones(4))}, model, predicted, None, None,
+        np.array([[0, 1, 2]]), (origins, directions), 1.0, settings, lambda: None)
+    for samples in (1, 2):
+        assert record[secondary.key("warp", samples, "ao_mean")] == 1.0
+        assert record[secondary.key("warp", samples, "lit_share")] == 1.0
+        assert record[secondary.key("neural", samples, "ao_mean")] == 0.0
+        assert record[secondary.key("neural", samples, "lit_share")] == 0.0
 
 
 def test_rates_and_pose_totals_at_one_and_n_samples(timed):

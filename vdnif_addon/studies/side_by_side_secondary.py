@@ -78,10 +78,10 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
             paths[baseline.name] = (lambda b=baseline: (
                 classical_primary(b, triangles, *casts[b.name]), exact_occluded(b)), None)
     if model is not None:
-        occluded = neural_occluded(model.network, grid, model.albedo_table, cells,
-                                   model.device)
+        network = neural_occluded(model.network, grid, model.albedo_table, cells,
+                                  model.device)
         # The network's hits start their rays off by its own error, as its passes do.
-        paths["neural"] = (lambda: (predicted, occluded), model.secondary_offset(object_size))
+        paths["neural"] = (lambda: (predicted, network), model.secondary_offset(object_size))
     record = {}
     for samples in sample_counts(settings):
         at = dataclasses.replace(settings, samples=samples)
@@ -89,8 +89,10 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
             calls = []
             sync()
             start = time.perf_counter()
-            primary, occluded = prepare()
-            passes = secondary_passes(primary, *rays, _counted(occluded, calls),
+            # A name of its own: the neural path's lambda reads ``network`` when called, so
+            # rebinding that name here would hand it a baseline's occluder.
+            primary, answers = prepare()
+            passes = secondary_passes(primary, *rays, _counted(answers, calls),
                                       object_size, at, offset)
             sync()
             seconds = time.perf_counter() - start
