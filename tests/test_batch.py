@@ -328,6 +328,37 @@ def test_wrong_surface_tool_evaluates_as_evaluate_does(quick_demo, tmp_path):
                                                      rel=1e-3)
 
 
+@pytest.mark.slow
+def test_secondary_speed_tool_times_a_captured_pose_without_blender(quick_demo, tmp_path):
+    """tools/secondary_speed.py: ``capture`` writes a pose with Blender, ``time`` times the
+    network's and Warp's secondary rays from it in a process that never imports bpy; each
+    path casts its hits times the samples and at most a shadow ray per hit."""
+    out, _ = quick_demo
+    model, pose = out / "arm-proposed.vdnif", tmp_path / "pose.npz"
+    tool = [sys.executable, str(REPO / "tools" / "secondary_speed.py")]
+    done = subprocess.run([*tool, "capture", str(pose), "--", "--model", str(model),
+                           "--scene", "arm", "--width", "32", "--height", "24"],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    guard = "import sys; sys.modules['bpy'] = None; sys.argv = sys.argv[1:]; "
+    done = subprocess.run([sys.executable, "-c", guard + "import runpy; runpy.run_path("
+                           "sys.argv[0], run_name='__main__')", str(REPO / "tools" /
+                           "secondary_speed.py"), "time", str(pose), "--model", str(model),
+                           "--device", "cpu", "--repeats", "1", "--samples", "2"],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    for path in ("network", "Warp refit"):
+        line = next(line for line in done.stdout.splitlines()
+                    if line.startswith(f"{path}, 2 AO sample(s)"))
+        rays = int(line.split("secondary ")[1].split(" rays")[0].replace(",", ""))
+        hits = int(line.split("; ")[-1].split(" hits")[0].replace(",", ""))
+        assert hits > 50 and 2 * hits <= rays <= 3 * hits, line
+    done = subprocess.run([*tool, "time", str(REPO / "README.md"), "--model", str(model)],
+                          capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert done.returncode == 1 and len(done.stderr.strip().splitlines()) == 1
+    assert "README.md is not a readable pose file" in done.stderr
+
+
 COUNT_MODEL_READS = """
 import sys
 from vdnif_addon.model import model_file

@@ -41,7 +41,7 @@ from ..settings import (
 from ..tracing.rays import cosine_directions
 
 if TYPE_CHECKING:
-    from jaxtyping import Bool, Float
+    from jaxtyping import Bool, Float, Int
 
     from ..geometry.restmesh import RestMesh
     from ..geometry.voxels import VoxelGrid
@@ -116,6 +116,22 @@ class SecondarySettings:
 
 # The walked paths end each ray at its max distance (``traverse``): the cell that crosses it
 # comes whole, so its hit may lie beyond and is compared here.
+
+
+def mesh_primary(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, "T 3"],
+                 index: Int[np.ndarray, " R"], t: Float[np.ndarray, " R"]) -> Passes:
+    """Passes of a classical caster's primary cast (``index`` the hit row of ``triangles``,
+    -1 on a miss; ``t`` its distance): the hit, its distance and the hit triangle's
+    geometric normal from the pose's ``vertices``."""
+    hit = index >= 0
+    passes = Passes.empty(len(index))
+    passes.hit = hit
+    passes.distance = np.where(hit, t, 0.0)
+    corners = np.asarray(vertices, np.float64)[np.asarray(triangles)[index[hit]]]
+    passes.normal[hit] = normalize(np.cross(corners[:, 1] - corners[:, 0],
+                                            corners[:, 2] - corners[:, 0]),
+                                   np.array([0.0, 0.0, 1.0]))
+    return passes
 
 
 def exact_occluded(caster: Any) -> Occluded:

@@ -24,11 +24,12 @@ import dataclasses
 import statistics
 import time
 
-import numpy as np
-
-from ..geometry.attributes import normalize
-from ..inference.secondary import exact_occluded, neural_occluded, secondary_passes
-from ..passes import Passes
+from ..inference.secondary import (
+    exact_occluded,
+    mesh_primary,
+    neural_occluded,
+    secondary_passes,
+)
 from .side_by_side_plots import SHORT, pose_total
 
 SECONDARY_BASELINES = ("warp", "embree_refit", "embree_rebuild")
@@ -50,18 +51,9 @@ def key(name, samples, what):
 
 
 def classical_primary(baseline, triangles, index, t):
-    """Passes of a classical path's primary cast (``index`` the hit triangle, -1 on a miss;
-    ``t`` its distance): the hit, its distance and the hit triangle's geometric normal from
+    """Passes of a classical path's primary cast (``inference.secondary.mesh_primary``) from
     the pose's vertices (``baseline.vertices``)."""
-    hit = index >= 0
-    passes = Passes.empty(len(index))
-    passes.hit = hit
-    passes.distance = np.where(hit, t, 0.0)
-    corners = np.asarray(baseline.vertices, np.float64)[triangles[index[hit]]]
-    passes.normal[hit] = normalize(np.cross(corners[:, 1] - corners[:, 0],
-                                            corners[:, 2] - corners[:, 0]),
-                                   np.array([0.0, 0.0, 1.0]))
-    return passes
+    return mesh_primary(baseline.vertices, triangles, index, t)
 
 
 def secondary_record(baselines, casts, model, predicted, cells, grid, triangles, rays,
