@@ -63,7 +63,7 @@ def test_each_path_answers_its_secondary_rays_with_its_own_occluder(extension, m
     secondary = core("studies.side_by_side_secondary")
     passes = core("passes")
     monkeypatch.setattr(secondary, "neural_occluded", lambda *args, **kwargs: (
-        lambda origins, directions, reach: np.ones(len(origins), bool)))
+        lambda origins, directions, reach, leaving: np.ones(len(origins), bool)))
     vertices = np.array([[-10.0, -10.0, 0.0], [10.0, -10.0, 0.0], [0.0, 10.0, 0.0]])
     caster = types.SimpleNamespace(name="warp", vertices=vertices, cast=lambda o, d, reach: (
         np.full(len(o), -1), np.full(len(o), np.inf)))
@@ -91,8 +91,9 @@ def test_rates_and_pose_totals_at_one_and_n_samples(timed):
     table = timed["secondary"]
     assert table["settings"]["samples"] == [1, SAMPLES]
     # The network's hits start their rays off by its own error, as its passes do: at R 8
-    # a quarter voxel, far above an exact hit's offset.
-    assert table["settings"]["network_offset"] >= 0.25 / 8 > table["settings"]["offset"]
+    # SECONDARY_OFFSET_VOXELS of a voxel at least, above an exact hit's offset.
+    voxels = core("settings").SECONDARY_OFFSET_VOXELS
+    assert table["settings"]["network_offset"] >= voxels / 8 > table["settings"]["offset"]
     assert set(table["paths"]) == set(secondary.SECONDARY_PATHS)
     assert "bvhtree" in table["skipped"]
     for name, by_samples in table["paths"].items():

@@ -118,7 +118,7 @@ def time_paths(path, model_path, device_name, repeats, samples):
 
     def neural():
         primary, _ = neural_passes(network, grid, table, cells, origins, directions, device)
-        return primary, neural_occluded(network, grid, table, cells, device), offset
+        return primary, neural_occluded(network, grid, table, cells, offset, device), offset
 
     def warp():
         caster.refit(pose["vertices"])
@@ -139,8 +139,8 @@ def time_paths(path, model_path, device_name, repeats, samples):
                 middle = time.perf_counter()
                 passes = secondary_passes(
                     primary, origins, directions,
-                    lambda o, d, reach, occluded=occluded: cast.append(len(o)) or occluded(
-                        o, d, reach), size, settings, at)
+                    lambda o, d, reach, leaving, occluded=occluded: cast.append(len(o)) or
+                    occluded(o, d, reach, leaving), size, settings, at)
                 sync()
                 if round_:
                     primary_s.append(middle - start)

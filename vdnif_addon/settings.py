@@ -73,25 +73,25 @@ DEMO_SCENE = "spot"
 # SUGGEST_POSES poses at SUGGEST_VIEW_SIZE^2 pixels.
 RESOLUTION_CANDIDATES = (8, 12, 16, 24, 32, 48, 64, 96, 128)
 EMBEDDING_ERROR_SHARE = 0.1
-SUGGEST_PRESET = "balanced"
-SUGGEST_POSES = 4
-SUGGEST_VIEW_SIZE = 96
+SUGGEST_PRESET, SUGGEST_POSES, SUGGEST_VIEW_SIZE = "balanced", 4, 96
 
 # --------------------------------------------------------------------------- secondary rays
 # Ambient occlusion: AO_SAMPLES rays per pixel (standard error at most 0.125, directions from
-# SECONDARY_SEED), each looking AO_DISTANCE object units (a tenth of the object: contacts and
-# folds darken, the far side does not); shadow rays go to DEFAULT_LIGHT_DIRECTION (object
-# space) where the scene has no sun or point light. A secondary ray starts above its hit, on
-# the primary ray's side, lest it hit the surface it leaves: SECONDARY_OFFSET object units
-# above an exact hit (off by rounding only); a network's hit is off by its distance
-# error (on a trained bunny about 0.003 object units), so the most of SECONDARY_OFFSET,
+# SECONDARY_SEED) up to AO_DISTANCE object units (contacts and folds darken, the far side
+# does not); shadow rays go to DEFAULT_LIGHT_DIRECTION (object space) where the scene has no
+# sun or point light. A secondary ray starts above its hit on the primary ray's side, lest it
+# hit the surface it leaves: SECONDARY_OFFSET object units above an exact hit (off by
+# rounding only); a network's hit is off by its distance error, so the most of that,
 # SECONDARY_OFFSET_VOXELS voxels and SECONDARY_OFFSET_ERRORS x its held-out distance MAE.
 AO_SAMPLES, AO_DISTANCE, DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = 16, 0.1, (0.3, -0.4, 0.866), 0
-SECONDARY_OFFSET, SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS = 1e-3, 0.25, 3.0
-# The height is reached along the ray itself, not along the normal, which would shift the ray
-# sideways and a cast shadow's edge by the offset; a ray whose cosine to the normal is below
-# SECONDARY_GRAZING_COSINE moves at most offset / it along itself, the rest along the normal.
+SECONDARY_OFFSET, SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS = 1e-3, 0.125, 1.5
+# The height is reached along the ray (a push along the normal shifts a shadow's edge); a ray
+# at a cosine below SECONDARY_GRAZING_COSINE goes offset / it along, the rest along the normal.
 SECONDARY_GRAZING_COSINE = 0.2
+# A network's first hit within SECONDARY_SELF_REACH offsets whose normal is within
+# SECONDARY_SELF_COSINE of the left surface's is that surface (its hit lay below it): the ray
+# walks on from an offset past it, at most SECONDARY_SELF_SKIPS times.
+SECONDARY_SELF_REACH, SECONDARY_SELF_COSINE, SECONDARY_SELF_SKIPS = 4.0, 0.3, 3
 
 # --------------------------------------------------------------------------- names
 

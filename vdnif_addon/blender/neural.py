@@ -301,8 +301,9 @@ def _render_secondary(result, model, posed_object, geometry, origins, directions
     """The AO and shadow passes of ``result``'s primary hits (``secondary.secondary_views``):
     the network's, and each reference's where the result has them."""
     mesh, stats = posed_object.capture.mesh, {}
+    offset = model.secondary_offset(mesh.size)
     occluders = {"neural": neural_occluded(model.network, model.grid, model.albedo_table,
-                                           geometry.cells, model.device, stats)}
+                                           geometry.cells, offset, model.device, stats)}
     primaries = {"predicted": result.predicted}
     if result.true is not None:
         occluders["exact"] = exact_occluded(MeshCaster(geometry.vertices, mesh.triangles))
@@ -310,7 +311,7 @@ def _render_secondary(result, model, posed_object, geometry, origins, directions
                                                   posed_object.rest_caster)
         primaries.update(true=result.true, embedded=result.embedded)
     result.secondary = secondary_views(primaries, origins, directions, occluders, mesh.size,
-                                       settings, model.secondary_offset(mesh.size))
+                                       settings, offset)
     result.timings.update(secondary_rays=stats.get("rays", 0),
                           secondary_s=stats.get("seconds", 0.0))
 

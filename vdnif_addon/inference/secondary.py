@@ -9,10 +9,12 @@ self-hit). It starts an offset above the tangent plane, reached along the ray it
 (``leave_surface``): a push along the normal would shift the ray sideways and a cast
 shadow's edge with it. An exact hit's offset is ``SECONDARY_OFFSET`` object units (it is off
 the surface by rounding only); the network's hit lies off the surface by its distance error,
-so its offset is ``network_offset``, sized to the model's voxel and held-out error. Ambient
-occlusion casts ``samples`` cosine-weighted rays of that hemisphere up to ``distance``
-object units from the hit; its pass is the fraction unoccluded. Shadow casts one ray towards
-the light; a hit whose normal faces away from the light is in its own shadow without a cast.
+so its offset is ``network_offset``, sized to the model's voxel and held-out error, and its
+rays walk on past the surface they leave where its hit lay below it (``neural_occluded``).
+Ambient occlusion casts ``samples`` cosine-weighted rays of that hemisphere up to
+``distance`` object units from the hit; its pass is the fraction unoccluded. Shadow casts
+one ray towards the light; a hit whose normal faces away from it is in its own shadow
+without a cast.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ from ..settings import (
     SECONDARY_OFFSET_ERRORS,
     SECONDARY_OFFSET_VOXELS,
     SECONDARY_SEED,
+    SECONDARY_SELF_COSINE,
+    SECONDARY_SELF_REACH,
+    SECONDARY_SELF_SKIPS,
 )
 from ..tracing.rays import cosine_directions
 
@@ -50,8 +55,11 @@ if TYPE_CHECKING:
     from ..model.network import IntersectionNetwork
 
     Occluded = Callable[[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"],
-                         Float[np.ndarray, " N"]], Bool[np.ndarray, " N"]]
-    """Whether rays (origins, unit directions, max distances; local units) hit anything."""
+                         Float[np.ndarray, " N"], Float[np.ndarray, "N 3"]],
+                        Bool[np.ndarray, " N"]]
+    """Whether rays (origins, unit directions, max distances; local units) hit anything;
+    the last argument holds the unit normals (as their hits have them, unturned) of the
+    surfaces the rays leave."""
 
 
 @dataclass(frozen=True)
@@ -137,7 +145,7 @@ def mesh_primary(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, 
 def exact_occluded(caster: Any) -> Occluded:
     """Occlusion by a caster with ``cast(origins, directions, max_distance) -> (index, t)``
     (``MeshCaster`` of the deformed mesh; ``BruteForceCaster`` in the tests)."""
-    def occluded(origins, directions, max_distance):
+    def occluded(origins, directions, max_distance, leaving):
         return caster.cast(origins, directions, max_distance)[0] >= 0
     return occluded
 
@@ -150,7 +158,7 @@ def embedded_occluded(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCa
     from ..tracing.references import embedded_reference
     from ..tracing.traverse import traverse
 
-    def occluded(origins, directions, max_distance):
+    def occluded(origins, directions, max_distance, leaving):
         segments = traverse(cells, origins, directions, max_distance)
         targets = segment_targets(mesh, rest_caster, segments)
         passes = embedded_reference(cells, segments, targets, len(origins))
@@ -160,20 +168,40 @@ def embedded_occluded(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCa
 
 def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
                     albedo_table: Float[np.ndarray, "M 3"], cells: DeviceCells,
-                    device: Any = "cpu", stats: dict[str, float] | None = None) -> Occluded:
-    """Occlusion as the network answers it through the deformed walk; ``stats`` (when
-    given) accumulates the rays and the seconds of its renders."""
+                    offset: float, device: Any = "cpu", stats: dict[str, float] | None = None
+                    ) -> Occluded:
+    """Occlusion as the network answers it through the deformed walk, for rays started
+    ``offset`` local units off the network's hits (``network_offset``); ``stats`` (when
+    given) accumulates the rays and the seconds of its renders. A first hit within
+    SECONDARY_SELF_REACH offsets whose normal lies within SECONDARY_SELF_COSINE of the left
+    surface's is that surface, met from below where the network placed its hit under it:
+    the ray walks on from an offset past it (at most SECONDARY_SELF_SKIPS times). An
+    occluder met from outside faces the ray, and a crease's other side turns away."""
     # torch and Warp: imported here, so that the panel reads this module without them
     from .neural_render import neural_passes
 
-    def occluded(origins, directions, max_distance):
+    def occluded(origins, directions, max_distance, leaving):
         start = time.perf_counter()
-        passes, _ = neural_passes(network, grid, albedo_table, cells, origins, directions,
-                                  device, max_distance=max_distance)
+        reach = np.broadcast_to(np.asarray(max_distance, np.float64), (len(origins),))
+        walked, blocked = np.zeros(len(origins)), np.zeros(len(origins), bool)
+        rows = np.arange(len(origins))
+        for skip in range(SECONDARY_SELF_SKIPS + 1):
+            left = reach[rows] - walked[rows]
+            passes, _ = neural_passes(network, grid, albedo_table, cells,
+                                      origins[rows] + walked[rows, None] * directions[rows],
+                                      directions[rows], device, max_distance=left)
+            blocked[rows] = passes.hit & (passes.distance <= left)
+            own = blocked[rows] & (walked[rows] + passes.distance
+                                   <= SECONDARY_SELF_REACH * offset)
+            own &= (passes.normal * leaving[rows]).sum(1) > SECONDARY_SELF_COSINE
+            if skip == SECONDARY_SELF_SKIPS or not own.any():
+                break
+            walked[rows[own]] += passes.distance[own] + offset
+            rows = rows[own]
         if stats is not None:
             stats["rays"] = stats.get("rays", 0) + len(origins)
             stats["seconds"] = stats.get("seconds", 0.0) + time.perf_counter() - start
-        return passes.hit & (passes.distance <= max_distance)
+        return blocked
     return occluded
 
 
@@ -231,20 +259,23 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     if offset is None:
         offset = SECONDARY_OFFSET * object_size
     point, normal = secondary_starts(primary, origins, directions)
+    leaving = normalize(primary.normal[primary.hit], normal)      # as the hits have them
     rng = np.random.default_rng([settings.seed, rays])
     uniform = rng.random((rays, settings.samples, 2))[primary.hit].reshape(-1, 2)
     samples = np.repeat(normal, settings.samples, axis=0)
     sampled = cosine_directions(samples, uniform)
     start, along = leave_surface(np.repeat(point, settings.samples, axis=0), samples, sampled,
                                  offset)
-    blocked = occluded(start, sampled, settings.distance * object_size - along)
+    blocked = occluded(start, sampled, settings.distance * object_size - along,
+                       np.repeat(leaving, settings.samples, axis=0))
     ao = np.zeros(rays, np.float32)
     ao[primary.hit] = 1.0 - blocked.reshape(-1, settings.samples).mean(1)
     towards, distance = settings.light.towards(point)
     facing = (normal * towards).sum(1) > 0
     start, along = leave_surface(point[facing], normal[facing], towards[facing], offset)
     lit_hits = facing.copy()
-    lit_hits[facing] = ~occluded(start, towards[facing], distance[facing] - along)
+    lit_hits[facing] = ~occluded(start, towards[facing], distance[facing] - along,
+                                 leaving[facing])
     lit, faces = np.zeros(rays, bool), np.zeros(rays, bool)
     lit[primary.hit], faces[primary.hit] = lit_hits, facing
     return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit, facing=faces)

@@ -70,10 +70,11 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
             paths[baseline.name] = (lambda b=baseline: (
                 classical_primary(b, triangles, *casts[b.name]), exact_occluded(b)), None)
     if model is not None:
-        network = neural_occluded(model.network, grid, model.albedo_table, cells,
-                                  model.device)
         # The network's hits start their rays off by its own error, as its passes do.
-        paths["neural"] = (lambda: (predicted, network), model.secondary_offset(object_size))
+        offset = model.secondary_offset(object_size)
+        network = neural_occluded(model.network, grid, model.albedo_table, cells, offset,
+                                  model.device)
+        paths["neural"] = (lambda: (predicted, network), offset)
     record = {}
     for samples in sample_counts(settings):
         at = dataclasses.replace(settings, samples=samples)
@@ -103,9 +104,9 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
 
 def _counted(occluded, calls):
     """``occluded`` that appends the count of every batch of rays it answers to ``calls``."""
-    def counting(origins, directions, max_distance):
+    def counting(origins, directions, max_distance, leaving):
         calls.append(len(origins))
-        return occluded(origins, directions, max_distance)
+        return occluded(origins, directions, max_distance, leaving)
     return counting
 
 
