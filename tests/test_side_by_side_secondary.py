@@ -152,7 +152,6 @@ def test_warp_embree_and_bvhtree_answer_the_same_secondary_rays_alike(extension)
     rays = core("tracing.rays")
     inference = core("inference.secondary")
     made = core("studies.baselines")
-    secondary = core("studies.side_by_side_secondary")
     obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
     captured = core("blender.capture_scene").capture(
         obj, 8, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
@@ -167,8 +166,8 @@ def test_warp_embree_and_bvhtree_answer_the_same_secondary_rays_alike(extension)
         origins, directions = rays.orbit_rays(mesh.vertices.min(0), mesh.vertices.max(0),
                                               rays.orbit_viewpoints(1)[0], 48, 48)
         warp = by_name["warp"]
-        primary = secondary.classical_primary(warp, mesh.triangles,
-                                              *warp.cast(origins, directions))
+        primary = inference.mesh_primary(warp.vertices, mesh.triangles,
+                                         *warp.cast(origins, directions))
         answers = {name: inference.secondary_passes(
             primary, origins, directions, inference.exact_occluded(baseline), mesh.size,
             settings) for name, baseline in by_name.items()}

@@ -79,6 +79,7 @@ def time_paths(path, model_path, device_name, repeats, samples):
     from vdnif_addon.inference.neural_render import neural_passes
     from vdnif_addon.inference.secondary import (
         SecondarySettings,
+        counted,
         exact_occluded,
         mesh_primary,
         network_offset,
@@ -137,10 +138,8 @@ def time_paths(path, model_path, device_name, repeats, samples):
                 primary, occluded, at = prepare()
                 sync()
                 middle = time.perf_counter()
-                passes = secondary_passes(
-                    primary, origins, directions,
-                    lambda o, d, reach, leaving, occluded=occluded: cast.append(len(o)) or
-                    occluded(o, d, reach, leaving), size, settings, at)
+                passes = secondary_passes(primary, origins, directions,
+                                          counted(occluded, cast), size, settings, at)
                 sync()
                 if round_:
                     primary_s.append(middle - start)

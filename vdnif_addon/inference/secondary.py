@@ -205,6 +205,15 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
     return occluded
 
 
+def counted(occluded: Occluded, calls: list[int]) -> Occluded:
+    """``occluded`` that appends the count of every batch of rays it answers to ``calls``
+    (``secondary_passes`` asks for the AO rays first, then the shadow rays)."""
+    def counting(origins, directions, max_distance, leaving):
+        calls.append(len(origins))
+        return occluded(origins, directions, max_distance, leaving)
+    return counting
+
+
 def network_offset(object_size: float, voxel_size: float,
                    distance_mae_voxels: float | None = None) -> float:
     """How far (local units) the secondary rays of a network's hits start off them, for a

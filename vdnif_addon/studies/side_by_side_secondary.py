@@ -25,6 +25,7 @@ import statistics
 import time
 
 from ..inference.secondary import (
+    counted,
     exact_occluded,
     mesh_primary,
     neural_occluded,
@@ -50,12 +51,6 @@ def key(name, samples, what):
     return f"{name}_secondary{samples}_{what}"
 
 
-def classical_primary(baseline, triangles, index, t):
-    """Passes of a classical path's primary cast (``inference.secondary.mesh_primary``) from
-    the pose's vertices (``baseline.vertices``)."""
-    return mesh_primary(baseline.vertices, triangles, index, t)
-
-
 def secondary_record(baselines, casts, model, predicted, cells, grid, triangles, rays,
                      object_size, settings, sync):
     """Record entries of one pose: per path of ``SECONDARY_PATHS`` that ran and per AO
@@ -68,7 +63,7 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
     for baseline in baselines:
         if baseline.name in SECONDARY_BASELINES:
             paths[baseline.name] = (lambda b=baseline: (
-                classical_primary(b, triangles, *casts[b.name]), exact_occluded(b)), None)
+                mesh_primary(b.vertices, triangles, *casts[b.name]), exact_occluded(b)), None)
     if model is not None:
         # The network's hits start their rays off by its own error, as its passes do.
         offset = model.secondary_offset(object_size)
@@ -85,7 +80,7 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
             # A name of its own: the neural path's lambda reads ``network`` when called, so
             # rebinding that name here would hand it a baseline's occluder.
             primary, answers = prepare()
-            passes = secondary_passes(primary, *rays, _counted(answers, calls),
+            passes = secondary_passes(primary, *rays, counted(answers, calls),
                                       object_size, at, offset)
             sync()
             seconds = time.perf_counter() - start
@@ -100,14 +95,6 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
                 key(name, samples, "lit_share"): float(passes.lit[passes.hit].mean())
                 if hits else None})
     return record
-
-
-def _counted(occluded, calls):
-    """``occluded`` that appends the count of every batch of rays it answers to ``calls``."""
-    def counting(origins, directions, max_distance, leaving):
-        calls.append(len(origins))
-        return occluded(origins, directions, max_distance, leaving)
-    return counting
 
 
 def withhold(record):
