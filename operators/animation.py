@@ -13,7 +13,7 @@ from .running import JobOperator, Stage, outcome
 
 def animation_frames(scene, settings):
     """The frames Render Animation renders: the scene's range and step, or the object's."""
-    from ..vdnif_addon.blender.animation import frame_range
+    from ..vdnif_addon.posed.animation import frame_range
 
     if settings.use_scene_frames:
         return frame_range(scene.frame_start, scene.frame_end, scene.frame_step)

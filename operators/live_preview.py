@@ -54,7 +54,7 @@ def on_frame_change(scene, _depsgraph=None):
     for obj in previewed(scene):
         session = _sessions.get(obj.name)
         if session is None:
-            from ..vdnif_addon.blender.preview import LatestFrame
+            from ..vdnif_addon.posed.preview import LatestFrame
 
             session = _sessions[obj.name] = Session(LatestFrame())
         session.frames.request(scene.frame_current)
@@ -86,7 +86,7 @@ def _renderer(obj, scene, session):
     """The session's renderer, made again when the model or the preview settings changed
     (the capture, at the model's resolution, is read here on the main thread)."""
     from ..vdnif_addon.blender.capture_scene import capture
-    from ..vdnif_addon.blender.preview import PreviewRenderer
+    from ..vdnif_addon.posed.preview import PreviewRenderer
 
     settings = obj.vdnif
     width, height = preview_size(settings)
@@ -103,8 +103,8 @@ def _renderer(obj, scene, session):
 
 def _start(obj, scene, session):
     """Reads the pose the scene is in now (the newest frame) and starts its render."""
-    from ..vdnif_addon.blender.neural import camera_view
     from ..vdnif_addon.blender.pose_reader import PoseReader
+    from ..vdnif_addon.posed.render import camera_view
     from .passes import secondary_settings
 
     try:

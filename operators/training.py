@@ -143,7 +143,7 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
             self, width=420, title="Generate the dataset and train?", confirm_text="Train")
 
     def draw(self, context):
-        from ..vdnif_addon.blender.estimate import describe
+        from ..vdnif_addon.posed.estimate import describe
 
         obj = context.active_object
         figures = fresh_estimate(context, obj)
@@ -160,7 +160,7 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
 
 
 def _size(figures):
-    from ..vdnif_addon.blender.estimate import size_text
+    from ..vdnif_addon.posed.estimate import size_text
 
     return size_text(figures["bytes"])
 

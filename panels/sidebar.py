@@ -111,7 +111,7 @@ class VDNIF_PT_main(SidebarPanel, bpy.types.Panel):
 def draw_train(layout, context, obj):
     """The one Train button, with what a run from scratch will cost when it needs a dataset
     (measured by Estimate) or that the dataset is there already."""
-    from ..vdnif_addon.blender.estimate import describe
+    from ..vdnif_addon.posed.estimate import describe
 
     row = layout.row(align=True)
     row.scale_y = 1.4

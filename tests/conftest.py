@@ -1,6 +1,7 @@
 """Test harness: pure-core tests run without bpy; Blender tests load the package as a real
 extension (``bl_ext.dev.vdnif``) with user resources in a temporary folder and an empty scene
-per test (BLENDER_NOTES.md)."""
+per test (how an extension loads: Blender's manual, *Extensions*; ``bl_ext.<repo>.<id>``
+is the module name Blender gives an extension of a user repository)."""
 
 import ast
 import atexit

@@ -35,7 +35,7 @@ def sequence(folder, stem="normal", suffix=".png"):
 
 
 def test_frame_ranges_parse_like_blenders(extension):
-    animation = module("vdnif_addon.blender.animation")
+    animation = module("vdnif_addon.posed.animation")
     errors = module("vdnif_addon.errors")
     assert animation.parse_frames("1:5") == [1, 2, 3, 4, 5]
     assert animation.parse_frames("1:9:4") == [1, 5, 9]
@@ -136,13 +136,13 @@ def rendered_frame(obj, frame, width, height, secondary=None):
     the preview's size (with ``secondary``, its AO and shadow settings)."""
     capture = module("vdnif_addon.blender.capture_scene").capture
     captured = capture(obj, 12, obj.vdnif.pose_spec(1), deform_corners=False)
-    neural = module("vdnif_addon.blender.neural")
+    neural = module("vdnif_addon.posed.render")
     model = neural.load_scene_model(module("storage").model_path(obj), captured)
     reader = module("vdnif_addon.blender.pose_reader").PoseReader(
         obj, captured, lambda: neural.camera_view(bpy.context.scene.camera, width, height))
     kept = []
     try:
-        module("vdnif_addon.blender.animation").render_frames(
+        module("vdnif_addon.posed.animation").render_frames(
             reader, captured, model, [frame], width, height, each=lambda _, r: kept.append(r),
             secondary=None if secondary is None else (lambda _frame: secondary))
     finally:
@@ -181,7 +181,7 @@ def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
     pixels = np.empty(width * height * 4, np.float32)
     shown.pixels.foreach_get(pixels)
 
-    expected = module("vdnif_addon.blender.preview").images(
+    expected = module("vdnif_addon.posed.preview").images(
         rendered_frame(obj, 6, width, height).predicted, height, width)
     assert np.allclose(pixels.reshape(height, width, 4)[::-1], expected["normal"], atol=1e-6)
     obj.vdnif.live_preview = False
@@ -225,7 +225,7 @@ def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  
     rendered = rendered_frame(obj, 3, width, height, secondary)
     lit = rendered.secondary["predicted"]
     assert lit.hit.any(), "the preview's view sees the arm"
-    expected = module("vdnif_addon.blender.preview").images(rendered.predicted, height, width,
+    expected = module("vdnif_addon.posed.preview").images(rendered.predicted, height, width,
                                                             lit)
     assert np.allclose(shown["AO"], expected["ao"], atol=1e-6)
     assert np.allclose(shown["Shadow"], expected["shadow"], atol=1e-6)
@@ -236,7 +236,7 @@ def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  
 
 
 def test_latest_frame_rule(extension):
-    frames = module("vdnif_addon.blender.preview").LatestFrame()
+    frames = module("vdnif_addon.posed.preview").LatestFrame()
     assert frames.request(1) and not frames.request(2) and not frames.request(3)
     assert (frames.running, frames.waiting, frames.dropped) == (1, 3, 1)
     assert frames.finished() == 3 and frames.running == 3 and frames.waiting is None

@@ -24,7 +24,7 @@ def test_voxel_mapped_hits_and_normals_match_blenders_casts_on_a_posed_armature(
     rays_module, traverse = core("tracing.rays"), core("tracing.traverse").traverse
     targets_of = core("tracing.groundtruth").segment_targets
     embedded_reference = core("tracing.references").embedded_reference
-    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
+    with core("posed.geometry").PosedObject(obj, capture) as posed_object:
         geometry = posed_object.geometry(pose)
         direction = np.array([0.3, -1.0, 0.4]) / np.linalg.norm([0.3, -1.0, 0.4])
         origins, directions = rays_module.orbit_rays(

@@ -24,7 +24,7 @@ def test_camera_rays_go_through_the_pixels_blender_projects_to(empty_scene, core
     camera.data.lens, camera.data.sensor_fit = 35.0, fit
     empty_scene.render.resolution_x, empty_scene.render.resolution_y = width, height
     bpy.context.view_layer.update()
-    origins, directions = core("blender.neural").camera_rays(camera, width, height)
+    origins, directions = core("posed.render").camera_rays(camera, width, height)
     assert origins.shape == (width * height, 3)
     np.testing.assert_allclose(origins, np.broadcast_to(camera.location, origins.shape))
     projected = np.array([world_to_camera_view(empty_scene, camera, Vector(o + 5 * d))[:2]
@@ -37,7 +37,7 @@ def test_camera_rays_go_through_the_pixels_blender_projects_to(empty_scene, core
 def test_camera_errors_name_the_object(empty_scene, core):
     import bpy
 
-    neural = core("blender.neural")
+    neural = core("posed.render")
     errors = core("errors")
     ortho = bpy.data.objects.new("Flat", bpy.data.cameras.new("Flat"))
     ortho.data.type = "ORTHO"
@@ -62,7 +62,7 @@ def test_world_rays_of_a_moved_scaled_object_match_blenders_ray_cast(empty_scene
     obj.location, obj.rotation_euler, obj.scale = (1.0, -2.0, 0.5), (0.3, 0.2, 0.9), (2.0,) * 3
     bpy.context.view_layer.update()
     capture = core("blender.capture_scene").capture(obj, 12)
-    neural = core("blender.neural")
+    neural = core("posed.render")
     model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid),
                               metadata=capture_metadata(core, capture), grid=capture.grid,
                               path="oracle", device="cpu")
@@ -123,7 +123,7 @@ def test_a_ray_leaving_through_the_other_half_of_its_folded_entry_face_walks_on(
     jobs, rays = core("blender.jobs"), core("tracing.rays")
     obj = core("blender.scenes").demo_scene("arm")
     evaluated = jobs.evaluation_poses(obj, 32, core("blender.poses").PoseSpec(count=4))
-    with core("blender.pose_geometry").PosedObject(obj, evaluated) as posed_object:
+    with core("posed.geometry").PosedObject(obj, evaluated) as posed_object:
         geometry = posed_object.geometry(evaluated.poses[1])
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),
                                               geometry.vertices.max(0),

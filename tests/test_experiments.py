@@ -153,9 +153,9 @@ def test_original_is_the_rest_mesh_cast_with_the_rays_of_the_deformed_view(empty
     original = experiment_runs.original_views(run, runs)
     mesh = captured.mesh
     tree = core("blender.bvh").BVHCaster(mesh.vertices, mesh.triangles)
-    neural, rays = core("blender.neural"), core("tracing.rays")
+    neural, rays = core("posed.render"), core("tracing.rays")
     viewpoints = rays.orbit_viewpoints(2)
-    with core("blender.pose_geometry").PosedObject(obj, evaluated) as posed_object:
+    with core("posed.geometry").PosedObject(obj, evaluated) as posed_object:
         for pose, viewpoint, passes in zip(evaluated.poses, viewpoints, original):
             geometry = posed_object.geometry(pose)
             origins, directions = neural.orbit_view(geometry, viewpoint, 20, 20)

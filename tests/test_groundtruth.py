@@ -105,7 +105,7 @@ def walked_segments(core, obj, resolution, size):
     capture = core("blender.capture_scene").capture(
         obj, resolution, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
     rays, traverse = core("tracing.rays"), core("tracing.traverse")
-    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
+    with core("posed.geometry").PosedObject(obj, capture) as posed_object:
         geometry = posed_object.geometry(capture.poses[0])
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),
                                               geometry.vertices.max(0),
@@ -137,7 +137,7 @@ def test_dataset_equals_the_golden_shard(empty_scene, core, tmp_path):
     obj = core("blender.scenes").demo_scene("arm")
     spec = core("blender.poses").PoseSpec(count=3, seed=0)
     capture = core("blender.capture_scene").capture(obj, 12, spec, deform_corners=False)
-    header = core("blender.generate").generate_dataset(obj, capture, tmp_path, 256, 0.6, 0,
+    header = core("posed.generate").generate_dataset(obj, capture, tmp_path, 256, 0.6, 0,
                                                        grazing_fraction=0.0)
     dataset = core("training.dataset")
     (_, [new]), (golden, [old]) = (dataset.read_dataset(tmp_path),
@@ -194,7 +194,7 @@ def test_references_equal_the_golden_metrics(empty_scene, core):
     # the poses tests/golden/make_goldens.py drew
     capture = core("blender.jobs").evaluation_poses(obj, 12, poses.PoseSpec(count=2, seed=0),
                                                     pose_set=core("pose_sets").DEVELOPMENT_POSES)
-    report = core("blender.generate").reference_run(obj, capture, 32, 24)
+    report = core("posed.generate").reference_run(obj, capture, 32, 24)
     golden = json.loads((GOLDEN / "arm-references.json").read_text())
     assert report["segments_per_ray"] == pytest.approx(golden["segments_per_ray"], abs=1e-12)
     for found, expected in zip([report["embedded_vs_true"], *report["per_pose"]],
@@ -215,7 +215,7 @@ def test_one_deformed_caster_per_posed_object_follows_the_pose_asked_for(empty_s
         obj, 12, core("blender.poses").PoseSpec(count=2, seed=1), deform_corners=False)
     rays, references = core("tracing.rays"), core("tracing.references")
     surface = core("kernels.surface")
-    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
+    with core("posed.geometry").PosedObject(obj, capture) as posed_object:
         first, second = (posed_object.geometry(pose) for pose in capture.poses)
         origins, directions = rays.orbit_rays(first.vertices.min(0), first.vertices.max(0),
                                               rays.orbit_viewpoints(1)[0], 32, 32)

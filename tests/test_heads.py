@@ -50,7 +50,7 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     assert heads["material_slots"] == [1, 3]
 
     captured = core("blender.capture_scene").capture(box, 8)
-    header = core("blender.generate").generate_dataset(box, captured, tmp_path / "data", 512)
+    header = core("posed.generate").generate_dataset(box, captured, tmp_path / "data", 512)
     assert header.heads.material_slots == (1, 3)
     _, [shard] = core("training.dataset").read_dataset(tmp_path / "data")
     assert set(np.unique(shard["material"][shard["hit"] == 1])) == {0, 1}
@@ -71,7 +71,7 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     # The material pass in the slots of Blender's own faces, through an exact network.
     from oracle_network import OracleNetwork
 
-    neural = core("blender.neural")
+    neural = core("posed.render")
     oracle = neural.SceneModel(network=OracleNetwork(captured.mesh, captured.grid),
                                metadata=metadata, grid=captured.grid, path="oracle",
                                device="cpu")

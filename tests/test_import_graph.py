@@ -4,8 +4,9 @@ below them imports them; bpy only in the Blender layers; no oversized module.
 
 Layers (README, Developing), lowest first: the foundations (``vdnif_addon/*.py``: errors, limits,
 settings, ...), then the pipeline's stages ``geometry/`` < ``kernels/`` < ``tracing/`` <
-``model/`` < ``training/`` < ``inference/``, then ``blender/`` (adapters and pipeline steps)
-< ``studies/`` < ``cli/`` (and ``batch.py``), with the extension's root modules
+``model/`` < ``training/`` < ``inference/`` < ``posed/`` (a posed object, without Blender),
+then ``blender/`` (the bpy adapters and the steps that drive them) < ``studies/`` < ``cli/``
+(and ``batch.py``), with the extension's root modules
 (``__init__``, ``preferences``, ``properties``, ``storage``, ``viewer``, ``operators/``,
 ``panels/``) beside ``cli/`` above the core. A module imports its own layer or lower ones.
 """
@@ -24,8 +25,14 @@ BPY_ALLOWED = (f"{CORE}.blender", f"{CORE}.cli", f"{CORE}.studies", "", "prefere
                "properties", "storage", "viewer", "operators", "panels")
 TOP_LAYERS = (f"{CORE}.cli", f"{CORE}.studies")
 # The core's layers, lowest first; the foundations are vdnif_addon's own modules.
-STAGES = ("geometry", "kernels", "tracing", "model", "training", "inference", "blender",
-          "studies", "cli")
+STAGES = ("geometry", "kernels", "tracing", "model", "training", "inference", "posed",
+          "blender", "studies", "cli")
+# Modules of blender/ that reach no bpy import, each with why it still belongs there: every
+# other module of blender/ imports bpy, or a module of blender/ that does.
+BLENDER_WITHOUT_BPY = {
+    f"{CORE}.blender.lights": "reads the scene's light objects (Blender data, read by "
+                              "attribute: the module needs a live scene, not bpy's import)",
+}
 MAX_LINES = 400
 
 
@@ -242,6 +249,36 @@ def test_no_type_only_import_points_to_a_later_layer():
                         if mine is not None and theirs is not None and theirs > mine:
                             problems.append(f"{name} names {target}, a later layer")
     assert problems == []
+
+
+def reaches_bpy(edges, external):
+    """Modules of blender/ that import bpy (or mathutils, bmesh) or reach one of blender/'s
+    that does, through imports inside blender/."""
+    layer = f"{CORE}.blender"
+    reached = {name for name in edges if within(name, (layer,))
+               and external[name] & BLENDER_MODULES}
+    grown = True
+    while grown:
+        more = {name for name, targets in edges.items() if within(name, (layer,))
+                and name not in reached and targets & reached}
+        reached |= more
+        grown = bool(more)
+    return reached
+
+
+def test_every_module_of_blender_needs_bpy(graph):
+    """blender/ holds the bpy adapters and what drives them; the rest of the posed pipeline
+    lives in posed/, which runs without Blender. A module of blender/ that reaches no bpy is
+    one of the listed exceptions, each with its reason."""
+    _, edges, external = graph
+    layer = f"{CORE}.blender"
+    modules = {name for name in edges if within(name, (layer,)) and name != layer}
+    assert len(modules) > 8                        # the walk finds blender/
+    without = modules - reaches_bpy(edges, external)
+    assert without == set(BLENDER_WITHOUT_BPY), (
+        "modules of blender/ that need no bpy belong in posed/ (or list them with a reason)")
+    assert not any(within(name, (f"{CORE}.posed",)) and external[name] & BLENDER_MODULES
+                   for name in edges)
 
 
 def test_no_module_of_vdnif_addon_over_the_line_limit():

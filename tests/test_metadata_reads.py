@@ -32,7 +32,7 @@ def test_a_planted_string_key_read_is_found(tmp_path):
     """The scan finds each form of read where it may hide, and leaves the allowed module,
     non-string keys and other names alone."""
     planted = {
-        "vdnif_addon/blender/neural.py": 'table = model.metadata["extra"]["albedo_table"]',
+        "vdnif_addon/posed/render.py": 'table = model.metadata["extra"]["albedo_table"]',
         "vdnif_addon/cli/pipeline.py": 'resolution = extra["grid"]["resolution"]',
         "operators/passes.py": "trained = extra.get('train_poses', [])",
         "panels/sidebar.py": 'steps = metadata["train_info"]["steps"]',

@@ -185,13 +185,13 @@ def test_estimate_of_disk_against_a_real_dataset(empty_scene, extension, tmp_pat
     figures = json.loads(obj.vdnif.estimate_info)["figures"]
     training = module("operators.training")
     assert training.fresh_estimate(bpy.context, obj) == figures
-    describe = module("vdnif_addon.blender.estimate").describe
+    describe = module("vdnif_addon.posed.estimate").describe
     shown = texts(draw_all(extension))
     assert describe(figures) in shown and "operator:vdnif.train" in shown
     record = []                                  # Train's confirm dialog shows it too
     training.VDNIF_OT_train.draw(BoundTo(training.VDNIF_OT_train, RecordingLayout(record)),
                                  bpy.context)
-    size = module("vdnif_addon.blender.estimate").size_text(figures["bytes"])
+    size = module("vdnif_addon.posed.estimate").size_text(figures["bytes"])
     dialog = texts({"dialog": record})
     assert f"Dataset: about {size} in " in dialog and describe(figures).capitalize() in dialog
     bpy.ops.vdnif.generate_dataset()

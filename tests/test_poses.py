@@ -81,13 +81,13 @@ def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_pose
     trained = capture(box, 8, unlucky, deform_corners=False).poses
     evaluated = core("blender.jobs").evaluation_poses(box, 8, poses.PoseSpec(count=5),
                                                       trained=trained)
-    keys = {poses.pose_key(p) for p in trained}
+    keys = {core("pose_sets").pose_key(p) for p in trained}
     assert len(evaluated.poses) == 5
-    assert not keys & {poses.pose_key(p) for p in evaluated.poses}
+    assert not keys & {core("pose_sets").pose_key(p) for p in evaluated.poses}
     # what an unchecked evaluation (the same seed) would have drawn: the training poses
     unchecked = capture(box, 8, poses.PoseSpec(count=5, seed=offset),
                         deform_corners=False).poses
-    assert {poses.pose_key(p) for p in unchecked[:3]} == keys
+    assert {core("pose_sets").pose_key(p) for p in unchecked[:3]} == keys
     assert evaluated.poses[:2] == unchecked[3:]
 
 
@@ -106,11 +106,11 @@ def test_pose_keys_survive_a_json_file(empty_scene, core):
     """A lattice pose's point indices come back from a file as strings, in text order."""
     import json
 
-    poses = core("blender.poses")
+    pose_key = core("pose_sets").pose_key
     pose = {"frame": 1, "lattice": {"object": "Cage", "offsets": {2: [0.1, 0, 0],
                                                                   10: [0, 0.2, 0]}}}
-    assert poses.pose_key(json.loads(json.dumps(pose))) == poses.pose_key(pose)
-    assert poses.pose_key(dict(pose, frame=2)) != poses.pose_key(pose)
+    assert pose_key(json.loads(json.dumps(pose))) == pose_key(pose)
+    assert pose_key(dict(pose, frame=2)) != pose_key(pose)
 
 
 def test_evaluating_on_training_poses_is_refused(empty_scene, core):
@@ -121,7 +121,7 @@ def test_evaluating_on_training_poses_is_refused(empty_scene, core):
     sb.two_bone_rig(box)
     capture = core("blender.capture_scene").capture(
         box, 8, core("blender.poses").PoseSpec(count=2), deform_corners=False)
-    neural = core("blender.neural")
+    neural = core("posed.render")
     model = neural.SceneModel(
         network=OracleNetwork(capture.mesh, capture.grid),
         metadata=capture_metadata(core, capture, train_poses=capture.poses[1:]),
@@ -148,7 +148,7 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
                                   for name in pose_sets.POSE_SETS}}
     for name, chosen in drawn.items():
         captured = capture(box, 8, chosen, deform_corners=False)
-        keys[name] = {poses.pose_key(p) for p in captured.poses}
+        keys[name] = {core("pose_sets").pose_key(p) for p in captured.poses}
         assert len(keys[name]) == 4
     assert set(keys) == {"training", pose_sets.DEVELOPMENT_POSES, pose_sets.TEST_POSES}
     for first, second in itertools.combinations(keys.values(), 2):
@@ -159,11 +159,11 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
     # evaluate (a model's capture, here of a model not yet trained on spec) draws test poses
     evaluated = core("blender.jobs").model_capture(box, None, spec, evaluation=True,
                                                    resolution=8)
-    assert {poses.pose_key(p) for p in evaluated.poses} == keys[pose_sets.TEST_POSES]
+    assert {core("pose_sets").pose_key(p) for p in evaluated.poses} == keys[pose_sets.TEST_POSES]
 
     # the experiments evaluate on test poses of their own training spec
     runs = core("studies.experiment_runs")
     size = dict(runs.SIZES["quick"], poses=4, eval_poses=4, resolution=8)
     experiment = runs.Experiment(size, "unused", None, "cpu", None, ())
-    drawn = {poses.pose_key(p) for p in experiment.evaluation(box).poses}
+    drawn = {core("pose_sets").pose_key(p) for p in experiment.evaluation(box).poses}
     assert experiment.spec == spec and drawn == keys[pose_sets.TEST_POSES]

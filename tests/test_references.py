@@ -12,7 +12,7 @@ def references(core, obj, resolution, poses=1, rest_pose=False, size=48, spec=No
     poses_module = core("blender.poses")
     spec = spec or poses_module.evaluation_spec(poses_module.PoseSpec(count=poses))
     capture = core("blender.capture_scene").capture(obj, resolution, spec, deform_corners=False)
-    return core("blender.generate").reference_run(obj, capture, size, size, rest_pose=rest_pose)
+    return core("posed.generate").reference_run(obj, capture, size, size, rest_pose=rest_pose)
 
 
 @pytest.mark.parametrize("scene", ["spot", "bunny"])
@@ -73,7 +73,7 @@ def test_dataset_shards_split_by_pose_range_equal_one_run(empty_scene, core, tmp
     obj = core("blender.scenes").demo_scene("arm")
     spec = core("blender.poses").PoseSpec(count=4, seed=2)
     capture = core("blender.capture_scene").capture(obj, 16, spec, deform_corners=False)
-    generate = core("blender.generate").generate_dataset
+    generate = core("posed.generate").generate_dataset
     generate(obj, capture, tmp_path / "whole", 256, seed=5)
     for pose_range in ((0, 1), (1, 4)):
         generate(obj, capture, tmp_path / "split", 256, seed=5, pose_range=pose_range)

@@ -18,7 +18,7 @@ def test_the_coarsest_resolution_that_meets_the_target_is_suggested(arm, core):
     # The table's figures are reference_run's embedding errors at each resolution.
     capture = core("blender.capture_scene").capture(
         arm, 16, core("blender.poses").PoseSpec(count=1), deform_corners=False)
-    direct = core("blender.generate").reference_run(arm, capture, 24, 24)
+    direct = core("posed.generate").reference_run(arm, capture, 24, 24)
     assert table[1]["embedding_error"] == pytest.approx(
         direct["embedded_vs_true"]["distance_mae"])
     coarse, fine = (row["embedding_error"] for row in table)

@@ -20,7 +20,7 @@ def _references(core, scale):
     poses = core("blender.poses")
     spec = poses.evaluation_spec(poses.PoseSpec(count=1))
     capture = core("blender.capture_scene").capture(obj, 8, spec, deform_corners=False)
-    report = core("blender.generate").reference_run(obj, capture, 32, 32)
+    report = core("posed.generate").reference_run(obj, capture, 32, 32)
     return report["embedded_vs_true"]
 
 

@@ -27,7 +27,7 @@ def stressed_capture(core, scene, argv, spec, deform_corners=False):
 def walk_pose(core, obj, capture, pose, size=32):
     """Walk, ground truth, both references and the inverted-cell count of one pose."""
     refs, rays = core("tracing.references"), core("tracing.rays")
-    with core("blender.pose_geometry").PosedObject(obj, capture) as posed_object:
+    with core("posed.geometry").PosedObject(obj, capture) as posed_object:
         geometry = posed_object.geometry(pose)
         lo, hi = geometry.vertices.min(0), geometry.vertices.max(0)
         origins, directions = rays.orbit_rays(lo, hi, rays.orbit_viewpoints(1)[0], size, size)
@@ -53,7 +53,7 @@ def test_object_scale_leaves_errors_in_object_units_unchanged(empty_scene, core,
         obj, capture = stressed_capture(core, scene, ["--scale", str(scale)], spec)
         with poses.posed(capture.poses[0]):
             vertices, _ = core("blender.read_mesh").evaluated_surface(obj, capture.mesh)
-        report = core("blender.generate").reference_run(obj, capture, 48, 48)
+        report = core("posed.generate").reference_run(obj, capture, 48, 48)
         runs[scale] = capture, vertices, report["embedded_vs_true"]
     capture_1, vertices_1, error_1 = runs[1.0]
     assert error_1["distance_mae"] > 1e-5 and error_1["compared_rays"] > 300

@@ -36,11 +36,11 @@ POSE_KEYS = ("rest_vertices", "triangles", "resolution", "corners", "vertices", 
 
 def capture(out, evaluate_options):
     """Writes the first evaluation pose of ``evaluate``'s options to ``out`` (.npz)."""
-    from vdnif_addon.blender.neural import orbit_view
-    from vdnif_addon.blender.pose_geometry import PosedObject
     from vdnif_addon.cli import build_parser
     from vdnif_addon.cli.model_commands import _model_scene
     from vdnif_addon.cli.options import validate_arguments
+    from vdnif_addon.posed.geometry import PosedObject
+    from vdnif_addon.posed.render import orbit_view
     from vdnif_addon.tracing.rays import orbit_viewpoints
 
     args = build_parser().parse_args(["evaluate", *evaluate_options])

@@ -4,6 +4,7 @@ panel and the core; it imports neither torch, nor bpy, nor Warp, nor numpy."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -48,3 +49,9 @@ class PoseSpec:
                              f"{low:g}..{high:g}")
         if not 0 < self.lattice_fraction <= 1:
             raise VDNIFError(f"lattice offset fraction {self.lattice_fraction} is outside (0, 1]")
+
+
+def pose_key(pose: dict[str, Any]) -> str:
+    """A pose as comparable text: equal poses give equal keys, also after a trip through a
+    JSON file (dataset header, model file) that turns integer keys into strings."""
+    return json.dumps(json.loads(json.dumps(pose)), sort_keys=True)

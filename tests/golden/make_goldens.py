@@ -40,15 +40,15 @@ import bpy  # noqa: E402,F401  (before mathutils)
 from oracles import encoding_torch  # noqa: E402
 
 from vdnif_addon.blender.capture_scene import capture  # noqa: E402
-from vdnif_addon.blender.generate import generate_dataset, reference_run  # noqa: E402
 from vdnif_addon.blender.jobs import evaluation_poses  # noqa: E402
-from vdnif_addon.blender.neural import load_scene_model, orbit_view  # noqa: E402
-from vdnif_addon.blender.pose_geometry import PosedObject  # noqa: E402
 from vdnif_addon.blender.poses import posed  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.inference.neural_render import neural_passes  # noqa: E402
 from vdnif_addon.pose_sets import DEVELOPMENT_POSES, PoseSpec  # noqa: E402
+from vdnif_addon.posed.generate import generate_dataset, reference_run  # noqa: E402
+from vdnif_addon.posed.geometry import PosedObject  # noqa: E402
+from vdnif_addon.posed.render import load_scene_model, orbit_view  # noqa: E402
 from vdnif_addon.tracing.rays import orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.training import dataset  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402

@@ -18,13 +18,13 @@ from ..kernels import runtime
 from ..model.variants import variant_config
 from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
 from ..pose_sets import TEST_POSES
+from ..posed.generate import generate_dataset
+from ..posed.render import evaluate_model, load_scene_model
 from ..settings import DEFAULT_PRECISION
 from ..training.fit import fit_model
 from ..training.history import plot
 from .capture_scene import capture
-from .generate import generate_dataset
 from .image_io import save_image
-from .neural import evaluate_model, load_scene_model
 from .poses import REST_POSE, evaluation_spec
 
 

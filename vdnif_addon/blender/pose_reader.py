@@ -1,14 +1,15 @@
 """Reads a pose's Blender data (deformed corners, deformed mesh, world matrix, a camera's
 view) into a PoseSnapshot. Blender's data may only be read on its main thread: a job reads
 its poses here on that thread and hands the snapshots to its worker (``worker``,
-``pose_geometry.PoseFeed``); batch runs read them in their one thread."""
+``posed.pose_source.PoseFeed``); batch runs read them in their one thread."""
 
 import time
 
+import bpy
 import numpy as np
 
+from ..posed.pose_source import PoseSnapshot, PoseSource, register_live_source
 from .deform import CornerDeformer
-from .pose_source import PoseSnapshot, PoseSource
 from .poses import posed
 from .read_mesh import evaluated_surface
 
@@ -16,6 +17,8 @@ from .read_mesh import evaluated_surface
 class PoseReader(PoseSource):
     """Poses the live object ``obj`` of ``capture`` and reads it. ``view``: a function of
     no arguments returning the camera's view, read in each pose (None: no view)."""
+
+    host = bpy.app.version_string
 
     def __init__(self, obj, capture, view=None):
         self.obj, self.capture, self.view = obj, capture, view
@@ -47,3 +50,6 @@ class PoseReader(PoseSource):
     def close(self):
         if self.deformer is not None:
             self.deformer.close()
+
+
+register_live_source(PoseReader)

@@ -15,7 +15,6 @@ cannot be met is refused.
 """
 
 import contextlib
-import json
 import math
 from dataclasses import replace
 
@@ -24,7 +23,7 @@ import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
-from ..pose_sets import POSE_SETS, TEST_POSES, PoseSpec
+from ..pose_sets import POSE_SETS, TEST_POSES, PoseSpec, pose_key
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
 
@@ -45,12 +44,6 @@ def evaluation_spec(spec, count=None, trained=None, pose_set=TEST_POSES):
                          f"{', '.join(POSE_SETS)}")
     return replace(spec, count=count or spec.count, seed=spec.seed + POSE_SETS[pose_set],
                    avoid=replace(spec, avoid=None) if trained is None else tuple(trained))
-
-
-def pose_key(pose):
-    """A pose as comparable text: equal poses give equal keys, also after a trip through a
-    JSON file (dataset header, model file) that turns integer keys into strings."""
-    return json.dumps(json.loads(json.dumps(pose)), sort_keys=True)
 
 
 def make_poses(obj, modifiers, spec):

@@ -11,6 +11,8 @@ its albedo needs the finer embedding however small the distance error is.
 
 import dataclasses
 
+from ..posed.generate import reference_run
+from ..posed.pose_source import CalledReader
 from ..presets import PRESET_ERROR, load_presets
 from ..settings import (
     EMBEDDING_ERROR_SHARE,
@@ -22,9 +24,7 @@ from ..settings import (
 )
 from ..worker import DirectCalls
 from .capture_scene import capture
-from .generate import reference_run
 from .pose_reader import PoseReader
-from .pose_source import CalledReader
 from .read_mesh import read_rest_mesh
 
 

@@ -14,16 +14,16 @@ import pathlib
 import shutil
 import threading
 
+from ..posed import estimate as estimates
+from ..posed.animation import frame_pose, render_frames
+from ..posed.generate import generate_dataset
+from ..posed.pose_source import PoseFeed
+from ..posed.render import camera_view, load_scene_model
 from ..settings import DEFAULT_PRECISION
 from ..training.dataset import MANIFEST
 from ..worker import DirectCalls, MainCalls, WorkerJob
-from . import estimate as estimates
-from .animation import frame_pose, render_frames
-from .generate import generate_dataset
 from .jobs import evaluate_file, variant_capture
-from .neural import camera_view, load_scene_model
 from .pose_reader import PoseReader
-from .pose_source import PoseFeed
 
 SHARD_PATTERN = "shard-*.*"
 SHARD_SUFFIXES = (".json", ".npz")
@@ -35,7 +35,7 @@ def pose_job(title, unit, obj, captured, poses, work, view=None, on_output=None,
     ``view`` function read in each pose) in ``run``, a ``PoseFeed`` that the job's reads fill
     on the main thread in ``start``."""
     cancel = threading.Event()
-    feed = PoseFeed(obj.name, cancel)
+    feed = PoseFeed(obj.name, cancel, host=PoseReader.host)
 
     def reads():
         # Runs on Blender's main thread, one pose per step, between the UI's events.

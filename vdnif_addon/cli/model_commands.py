@@ -47,13 +47,13 @@ def cmd_render(args):
     trained model."""
     import bpy
 
-    from ..blender.animation import frame_pose, render_frames
     from ..blender.jobs import write_view
-    from ..blender.neural import camera_view, load_scene_model
     from ..blender.pose_reader import PoseReader
     from ..blender.poses import posed
     from ..blender.scenes import find_camera
     from ..kernels import runtime
+    from ..posed.animation import frame_pose, render_frames
+    from ..posed.render import camera_view, load_scene_model
     from ..progress import Progress
 
     loaded, obj, captured = _model_scene(args)

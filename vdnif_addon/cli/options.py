@@ -282,7 +282,7 @@ IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
 
 def frames_option(text: str) -> list[int]:
     """The type of ``render --frames A:B[:STEP]``: the frames, A to B included."""
-    from ..blender.animation import parse_frames
+    from ..posed.animation import parse_frames
 
     try:
         return parse_frames(text)

@@ -62,9 +62,9 @@ def cmd_dataset(args):
     import tempfile
 
     from ..blender.capture_scene import capture
-    from ..blender.estimate import dataset_estimate, describe, measure, size_text
-    from ..blender.generate import generate_dataset
     from ..blender.ui_jobs import SHARD_SUFFIXES
+    from ..posed.estimate import dataset_estimate, describe, measure, size_text
+    from ..posed.generate import generate_dataset
     from ..progress import Progress
     from ..training.dataset import DatasetIdentity, check_folder, grid_header, shard_name
 
@@ -124,8 +124,8 @@ def parse_range(text, count):
 def cmd_references(args):
     """Render the true and embedded references on unseen poses; report the embedding error."""
     from ..blender.capture_scene import capture
-    from ..blender.generate import reference_run
     from ..blender.poses import evaluation_spec
+    from ..posed.generate import reference_run
     from ..progress import Progress
 
     check_resolution(args.resolution)

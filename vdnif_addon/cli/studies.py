@@ -238,10 +238,10 @@ def _scene_capture(obj, model_path, args, device):
     model's training poses; the resolution is --resolution, else the model's, else the
     recipe's of the mesh."""
     from ..blender.jobs import model_capture
-    from ..blender.neural import load_scene_model
     from ..blender.resolution import recipe_resolution
     from ..model.model_file import load_model
     from ..pose_sets import PoseSpec
+    from ..posed.render import load_scene_model
 
     loaded = None if model_path is None else load_model(model_path)
     metadata = None if loaded is None else loaded[1]

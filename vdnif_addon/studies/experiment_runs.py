@@ -13,14 +13,14 @@ import numpy as np
 from ..blender.capture_scene import capture
 from ..blender.image_io import save_image
 from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
-from ..blender.neural import orbit_view
-from ..blender.pose_geometry import PosedObject
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..inference import images
 from ..inference.evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..model.variants import variant_config
 from ..pose_sets import TEST_POSES, PoseSpec
+from ..posed.geometry import PosedObject
+from ..posed.render import orbit_view
 from ..settings import RECIPE
 from ..tracing.rays import orbit_viewpoints
 from ..tracing.references import true_reference

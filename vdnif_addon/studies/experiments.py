@@ -29,11 +29,11 @@ import time
 
 import torch
 
-from ..blender.generate import generate_dataset
 from ..blender.jobs import variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_both, compare_common, concatenated
 from ..passes import Passes
+from ..posed.generate import generate_dataset
 from ..safe_io import write_json_atomic
 from ..settings import RECIPE
 from ..text import value

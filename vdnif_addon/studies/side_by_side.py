@@ -38,7 +38,6 @@ import numpy as np
 import torch
 
 from .. import threads as thread_use
-from ..blender.pose_geometry import PosedObject
 from ..blender.poses import posed
 from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
@@ -46,6 +45,7 @@ from ..inference.neural_render import neural_passes, predict_segments
 from ..kernels import runtime
 from ..model.network import IntersectionNetwork
 from ..passes import Passes
+from ..posed.geometry import PosedObject
 from ..settings import Heads, NetworkConfig
 from ..threads import ENCODER_CORES
 from ..tracing.rays import orbit_rays, orbit_viewpoints

@@ -50,8 +50,8 @@ def render_frames(source, captured, model, frames, width, height, view=None,
     frame's bounds, kept for the whole range so that the images line up."""
     from ..kernels import runtime
     from ..tracing.rays import orbit_viewpoints
-    from .neural import orbit_view, render_orbit_rays, render_world, view_rays
-    from .pose_geometry import PosedObject
+    from .geometry import PosedObject
+    from .render import orbit_view, render_orbit_rays, render_world, view_rays
 
     runtime.load_all(runtime.device(model.device))      # a first compile is in no rays/s
     figures, orbit = [], None

@@ -13,9 +13,9 @@ from ..inference.evaluation import distance_range
 from ..inference.images import display, secondary_images
 from ..settings import DEFAULT_PRECISION
 from ..tracing.rays import orbit_viewpoints
-from .neural import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
-from .pose_geometry import PosedObject
+from .geometry import PosedObject
 from .pose_source import PoseSource
+from .render import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
 
 
 class LatestFrame:

@@ -5,7 +5,6 @@ import json
 import platform
 import time
 
-import bpy
 import numpy as np
 
 from ..geometry.attributes import sample_surface
@@ -22,9 +21,7 @@ from ..tracing.references import embedded_reference, true_reference
 from ..tracing.traverse import traverse
 from ..training import dataset
 from ..training.header import FORMAT, VERSION, DatasetHeader
-from .pose_geometry import PosedObject
-
-BLENDER_VERSION = bpy.app.version_string   # read at import, on Blender's main thread
+from .geometry import PosedObject
 
 
 def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None, seed=0,
@@ -51,6 +48,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     records, counts = [], dict(rays=0, segments=0, hits=0, truncated_rays=0)
     inverted = []
     with PosedObject(obj, capture) as posed_object:
+        host = posed_object.source.host
         clock = time.perf_counter()
         rest_caster = posed_object.rest_caster
         timings["rest_surface_s"] = time.perf_counter() - clock
@@ -103,7 +101,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
         "grazing_fraction": grazing_fraction, "secondary_fraction": secondary_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
-        "versions": _versions(), "segments": len(merged["pose"]),
+        "versions": _versions(host), "segments": len(merged["pose"]),
     }, f"dataset header of shard '{name}'")
     clock = time.perf_counter()
     dataset.write_shard(out_dir, name, merged, header)
@@ -126,6 +124,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None,
                  embedded_reference_s=0.0, true_reference_s=0.0)
     segment_count = truncated = 0
     with PosedObject(obj, capture) as posed_object:
+        host = posed_object.source.host
         start = time.perf_counter()
         rest_caster = posed_object.rest_caster
         clock["rest_surface_s"] = time.perf_counter() - start
@@ -184,7 +183,7 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None,
         "rays_per_s": rays_total / neural_path_s,
         "segments_per_s": segment_count / neural_path_s,
         "segments_per_ray": segment_count / rays_total, "truncated_rays": truncated,
-        "timings": clock, "versions": _versions(),
+        "timings": clock, "versions": _versions(host),
     }
 
 
@@ -202,8 +201,10 @@ def _pose_timings(timings, geometry):
     timings["evaluate_s"] += geometry.evaluate_s
 
 
-def _versions():
+def _versions(host):
+    """The versions that made a dataset or a reference run; ``host``: Blender's, as the
+    pose source that evaluated the poses reports it."""
     from .. import __version__
 
-    return {"vdnif": __version__, "blender": BLENDER_VERSION,
+    return {"vdnif": __version__, "blender": host,
             "numpy": np.__version__, "python": platform.python_version()}

@@ -27,13 +27,13 @@ from ..inference.secondary import (
 )
 from ..kernels.cast import MeshCaster
 from ..passes import Passes, SecondaryPasses
+from ..pose_sets import pose_key
 from ..settings import DEFAULT_PRECISION, PRECISIONS
 from ..text import article
 from ..tracing.rays import camera_rays as pinhole_rays
 from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
 from ..tracing.references import embedded_passes, true_reference
-from .pose_geometry import PosedObject
-from .poses import pose_key
+from .geometry import PosedObject
 
 
 @dataclass

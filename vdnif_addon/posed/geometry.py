@@ -3,7 +3,7 @@ Blender-evaluated deformed mesh for the true reference.
 
 A pose's Blender data (deformed corners, deformed mesh, world matrix) comes from a
 ``pose_source.PoseSource`` as a ``PoseSnapshot``: read from Blender in the calling thread
-(``pose_reader.PoseReader``, made for a live object), or handed over by Blender's main
+(``blender.pose_reader.PoseReader``, made for a live object), or handed over by Blender's main
 thread to a worker thread (``PoseFeed``). Everything else here touches no Blender data, so
 that the per-pose work can run in a worker while Blender stays responsive (``worker``).
 """
@@ -21,7 +21,7 @@ from ..kernels import runtime
 from ..kernels.cells import DeviceCells
 from ..kernels.surface import SurfaceCaster
 from ..tracing.groundtruth import rest_surface
-from .pose_source import PoseSource
+from .pose_source import open_source
 
 
 @dataclass
@@ -67,11 +67,7 @@ class PosedObject:
     """
 
     def __init__(self, source, capture, device="cpu"):
-        self._owned = not isinstance(source, PoseSource)
-        if self._owned:
-            from .pose_reader import PoseReader
-
-            source = PoseReader(source, capture)
+        source, self._owned = open_source(source, capture)
         self.source, self.capture, self.device = source, capture, runtime.device(device)
         self.name = source.name
         self.cells = DeviceCells(capture.grid, self.device)
