@@ -105,7 +105,7 @@ def empty_scene(extension):
 def extension_oracle(name):
     """The oracle ``tests/oracles/NAME.py`` bound to the extension's copy of the core (its
     ``from vdnif_addon.X import`` read as ``from bl_ext.dev.vdnif.vdnif_addon.X import``),
-    so a Blender test keeps to that one identity (tests/test_module_identity.py). Call it
+    so a Blender test keeps to that one identity (tests/project/test_module_identity.py). Call it
     from a test that has the extension enabled."""
     path = REPO / "tests" / "oracles" / f"{name}.py"
     tree = ast.parse(path.read_text(), str(path))

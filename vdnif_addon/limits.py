@@ -14,7 +14,7 @@ and both references, so the cap keeps the worst image within this machine class'
 MIN_OBJECT_SIZE = 1e-5
 MAX_OBJECT_SIZE = 1e9
 """The supported sizes of a mesh (longest side of its rest bounds, local units; DESIGN section
-2). Inside it every figure in object units is the same at any scale (tests/test_scale.py);
+2). Inside it every figure in object units is the same at any scale (tests/posed/test_scale.py);
 outside, float32 parts of the pipeline under- or overflow, so such a mesh is refused."""
 
 MAX_IMAGE_SIDE = 16384

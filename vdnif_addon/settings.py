@@ -332,7 +332,7 @@ class TrainConfig:
     lr_mlp: float = 2e-2
     # The log-variances' own rate stays at the MLP's: faster, they settle, favour the
     # regression tasks over occlusion by the ratio of their losses, and the small scene of
-    # tests/test_proposed_beats_deformed.py loses most of its hits (DESIGN section 8).
+    # tests/posed/test_proposed_beats_deformed.py loses most of its hits (DESIGN section 8).
     lr_weighting: float = 1e-3
     final_lr_fraction: float = 0.1
     # The point fields learn at the reference's hit moved along its ray by N(0, this many

@@ -1,6 +1,6 @@
 """Writes ``cli.json``: the batch CLI's behaviour as users see it, recorded before the CLI
 moved out of ``vdnif_addon/commands.py`` into ``vdnif_addon/cli/`` (the commit "before the
-move"), so that ``tests/test_cli_golden.py`` can show the move changed nothing. Regenerate
+move"), so that ``tests/cli/test_cli_golden.py`` can show the move changed nothing. Regenerate
 it only for an option or default changed on purpose, and check that the diff touches only
 that (``bench --work`` and the recipe's 9,000 steps were such changes); otherwise a later
 parser must reproduce it exactly (``record`` reads today's parser, ``vdnif_addon.cli``). Run

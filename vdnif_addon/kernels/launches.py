@@ -10,7 +10,7 @@ the tile storage pointer, which only tile kernels read, and no kernel here uses 
 launches that write disjoint memory may run at once: the encoder's slices here, and the
 renderer's lanes (``inference.neural_render``). Kernel modules are loaded before
 (``runtime.load``, one at a time). The tests hold threaded launches to one launch's result,
-run after run (``tests/test_encoder_threads.py``, ``tests/test_render.py``)."""
+run after run (``tests/kernels/test_encoder_threads.py``, ``tests/inference/test_render.py``)."""
 
 from __future__ import annotations
 

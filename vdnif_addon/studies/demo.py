@@ -34,7 +34,7 @@ SIZES = {   # full: the main job, the default recipe at the resolution of the sc
                  rays_per_pose=RECIPE.rays_per_pose, steps=RECIPE.steps, eval_poses=8,
                  width=256, height=256, overrides={}),
     # quick: with every task at weight 1 from the start (TrainConfig.weighting_start), half
-    # these steps leave the arm's model short of the hits tests/test_batch.py asks for.
+    # these steps leave the arm's model short of the hits tests/cli/test_batch.py asks for.
     "quick": dict(resolution=16, poses=4, rays_per_pose=256, steps=600, eval_poses=2,
                   width=32, height=24, overrides=dict(log2_table_size=12, batch_size=2048)),
 }

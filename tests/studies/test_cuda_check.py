@@ -1,0 +1,64 @@
+"""tools/gpu_check.py: without a CUDA device that torch and Warp both see it says so in one
+line and exits at once; with one (skipped here otherwise) it trains and renders on the GPU,
+the real network's Warp encoder inside the wave loop, and its renders match the CPU's."""
+
+import pathlib
+import time
+
+import pytest
+import torch
+from tool_errors import load_tool, one_error_line
+
+from vdnif_addon.kernels import runtime
+
+TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "gpu_check.py"
+CUDA = torch.cuda.is_available() and runtime.cuda_device_count() > 0
+
+
+@pytest.mark.skipif(CUDA, reason="this machine has a CUDA device")
+def test_without_cuda_it_refuses_in_one_line_at_once():
+    start = time.perf_counter()
+    line = one_error_line(TOOL, [])
+    assert "no CUDA device to check: torch" in line and "sees no CUDA device" in line
+    assert time.perf_counter() - start < 60
+
+
+def test_a_gpu_that_warp_cannot_use_is_refused(monkeypatch):
+    """torch sees a GPU, Warp's CUDA 13 wheels do not (an old driver): refused, naming it."""
+    tool = load_tool(TOOL)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(runtime, "cuda_device_count", lambda: 0)
+    assert "Warp" in tool.cuda_problem() and "CUDA 13" in tool.cuda_problem()
+    assert tool.main([]) == 1
+    monkeypatch.setattr(runtime, "cuda_device_count", lambda: 1)
+    assert tool.cuda_problem() is None
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not CUDA, reason="needs CUDA")
+def test_the_gpu_check_passes_on_cuda():
+    """The real trained network on the GPU and on the CPU, in capped waves and under a side
+    stream: hits equal but at most one pixel, distances within 1e-5."""
+    said = []
+    assert load_tool(TOOL).check(steps=1000, size=64, say=said.append), "\n".join(said)
+
+
+@pytest.mark.skipif(not CUDA, reason="needs CUDA")
+def test_batches_move_from_host_memory_to_the_gpu_unchanged():
+    """The pinned, asynchronous copy of each batch gives the rows a CPU run draws."""
+    from test_cuda_memory import shards
+
+    from vdnif_addon.settings import Heads, TrainConfig
+    from vdnif_addon.training.data import Batches, split_data
+    from vdnif_addon.training.distributed import ProcessGroup
+
+    config = TrainConfig(val_fraction=0.25, batch_size=64, device="cpu")
+    heads = Heads(albedo=True, material_count=2)
+    got = {}
+    for device in ("cpu", "cuda:0"):
+        rows, _, _ = split_data(shards(), config, heads, torch.device(device), ProcessGroup())
+        batches = Batches(rows, 64, seed=3)
+        got[device] = [batches.next() for _ in range(3)]
+    for cpu, gpu in zip(got["cpu"], got["cuda:0"]):
+        for key, value in cpu.items():
+            assert gpu[key].device.type == "cuda" and torch.equal(gpu[key].cpu(), value), key
