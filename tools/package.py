@@ -2,10 +2,10 @@
 
 Stands in for ``blender --command extension build``, which needs a Blender executable: the
 manifest is checked against the rules of Blender's extension manifest (the Blender manual,
-*Extensions > How to Create Extensions*; the cases of tests/extension/test_package.py) and the ``[build]
-paths_exclude_pattern`` list is applied with gitignore-style matching. The studies and the
-dev tools stay out of the zip. It imports the standard library only, so that ``make
-package`` runs with a bare Python 3.11 and installs nothing.
+*Extensions > How to Create Extensions*; the cases of tests/extension/test_package.py) and
+the ``[build] paths_exclude_pattern`` list is applied with gitignore-style matching. The
+studies and the dev tools stay out of the zip. It imports the standard library only, so
+that ``make package`` runs with a bare Python 3.11 and installs nothing.
 
     python tools/package.py --out build
 """

@@ -109,7 +109,8 @@ def test_dataset_reader_refuses_bad_folders(empty_scene, core, tmp_path):
         dataset.read_dataset(foreign)
     corrupt = tmp_path / "corrupt"
     corrupt.mkdir()
-    golden = pathlib.Path(__file__).resolve().parents[1] / "golden" / "arm-dataset" / "shard-000000-000003"
+    golden = (pathlib.Path(__file__).resolve().parents[1] / "golden" / "arm-dataset"
+              / "shard-000000-000003")
     (corrupt / "s.json").write_text(golden.with_suffix(".json").read_text())   # a good header
     (corrupt / "s.npz").write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(error, match="s.npz' cannot be read"):
