@@ -1,8 +1,8 @@
 """The modal glue of every long operator (Train, Generate Dataset, Evaluate, Render Passes,
 Render Animation, the estimate): its work runs as one or more stages, each a job in a worker
-thread (``worker.WorkerJob`` or ``training.job.TrainingJob``), with progress and ETA in the
-panel and the status bar, Esc or Cancel to stop it, and Blender responsive. In background
-mode (batch runs, scripts) the same stages run synchronously.
+thread (a ``worker.WorkerJob``; training's is ``training.job.TrainingJob``), with progress
+and ETA in the panel and the status bar, Esc or Cancel to stop it, and Blender responsive.
+In background mode (batch runs, scripts) the same stages run synchronously.
 
 A window-manager timer ticks the job: on Blender's main thread it reads the poses the
 worker needs and writes the images it delivers (Blender's data is touched nowhere else),

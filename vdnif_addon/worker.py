@@ -12,6 +12,10 @@ those arrays alone. Results that must go back into Blender (images) come out thr
 
 In background mode (batch runs, scripts) ``run`` does the same work in the calling thread,
 reading Blender directly. This module imports neither bpy nor torch.
+
+``WorkerJob`` is the one job of the extension: the panel's long buttons and the batch
+commands run their work through it (``blender.ui_jobs`` makes the jobs that read poses,
+``training.job.TrainingJob`` is the one whose work reads no Blender data).
 """
 
 from __future__ import annotations
@@ -195,7 +199,7 @@ class WorkerJob:
                  reads: Callable[[], Generator[bool, None, None]] | None = None,
                  on_output: Callable[[Any], None] | None = None,
                  cancel: threading.Event | None = None) -> None:
-        self.state = WorkState(title, total, unit)
+        self.title, self.state = title, WorkState(title, total, unit)
         self._work, self._live, self.feed, self._on_output = work, live, feed, on_output
         self._cancel = cancel or threading.Event()
         self._queue: queue.Queue = queue.Queue()
@@ -219,7 +223,7 @@ class WorkerJob:
         """Starts the worker thread; the main thread must ``tick`` while it runs."""
         self._thread = threading.Thread(target=self._execute,
                                         args=(self.feed, self._outputs.put),
-                                        name=f"vdnif-{self.state.title}", daemon=True)
+                                        name=f"vdnif-{self.title}", daemon=True)
         self._thread.start()
 
     def tick(self, budget_s: float = 0.05) -> None:

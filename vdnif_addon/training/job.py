@@ -1,5 +1,6 @@
-"""Training for the UI: ``fit.fit_model`` in a worker thread, progress through a queue, and
-cancel, with no Blender data touched (the Train operator is only glue around this).
+"""Training as a job (``worker.WorkerJob``): ``fit.fit_model`` in a worker thread, its
+progress records through the job's queue, and cancel, with no Blender data touched (the
+Train operator is only glue around this).
 
 The model is written to a temporary file beside the target and moved over it only when the
 run completed, or was cancelled after at least one step with ``keep_partial``: a failure, a
@@ -13,15 +14,13 @@ from __future__ import annotations
 
 import os
 import pathlib
-import queue
-import threading
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from ..errors import VDNIFError
 from ..memory import release_cached_memory
-from ..worker import Progress, duration
+from ..worker import Progress, WorkerJob, duration
 
 
 def progress_interval(steps: int) -> int:
@@ -55,35 +54,28 @@ class JobState(Progress):
                           f"ETA {duration(self.eta_s)}")
 
 
-class TrainingJob:
-    """Trains ``variant`` on the dataset folder ``data_dir`` into the model file ``out``.
+class TrainingJob(WorkerJob):
+    """Trains ``variant`` on the dataset folder ``data_dir`` into the model file ``out``: a
+    ``worker.WorkerJob`` whose work reads no Blender data (so it needs no reads or feed),
+    whose progress records are the training's and whose state is a ``JobState``.
 
     ``overrides``: NetworkConfig / TrainConfig fields (``steps`` required); ``keep_partial``:
-    a cancelled run still writes the network of its last finished step. Call ``run()`` to
-    train in this thread (background mode), or ``start()`` for a worker thread; then
-    ``poll()`` from the UI's thread drains the queue into ``state``, ``cancel()`` asks the
-    worker to stop after its current step.
+    a cancelled run still writes the network of its last finished step. ``run()`` trains in
+    this thread (background mode), ``start()`` in a worker thread; ``poll()``, ``cancel()``,
+    ``join()`` are the WorkerJob's.
     """
 
     def __init__(self, data_dir: str | pathlib.Path, variant: str, out: str | pathlib.Path,
                  overrides: Mapping[str, Any], keep_partial: bool = False) -> None:
         if "steps" not in overrides:
             raise VDNIFError("training settings lack the number of steps")
+        super().__init__("training", overrides["steps"], "steps", work=None)
         self.data_dir, self.variant = pathlib.Path(data_dir), variant
         self.out, self.keep_partial = pathlib.Path(out), keep_partial
         self.overrides = {"log_interval": progress_interval(overrides["steps"]), **overrides}
         self.state = JobState(steps=overrides["steps"])
-        self._queue = queue.Queue()
-        self._cancel = threading.Event()
-        self._thread = None
 
-    def start(self) -> None:
-        """Trains in a daemon worker thread."""
-        self._thread = threading.Thread(target=self.run, name=f"vdnif-train-{self.out.stem}",
-                                        daemon=True)
-        self._thread.start()
-
-    def run(self) -> None:
+    def _execute(self, source: Any, deliver: Any) -> None:
         """Trains, writes the model and queues the outcome; never raises. Torch's cached GPU
         memory is handed back at the end (a render's Warp allocations need it)."""
         partial = self.out.with_name(f".{self.out.name}.training")
@@ -110,36 +102,11 @@ class TrainingJob:
         result, summary = fit_model(self.data_dir, self.variant, partial, self.overrides,
                                     progress=lambda record: self._queue.put(
                                         ("progress", record)),
-                                    cancel=self._cancel)
+                                    cancel=self.cancelled)
         if result.status == "cancelled" and (result.steps == 0 or not self.keep_partial):
             return "cancelled", result.steps
         os.replace(partial, self.out)
         return result.status, dict(summary, model=str(self.out))
-
-    def tick(self, budget_s: float = 0.0) -> None:
-        """Training reads no Blender data: nothing to do on the main thread."""
-
-    def close(self) -> None:
-        """Nothing to clean up on the main thread."""
-
-    def cancel(self) -> None:
-        self._cancel.set()
-        self.state.cancelling = not self.state.done
-
-    def poll(self) -> JobState:
-        """Applies the queued records and outcome to ``state`` and returns it."""
-        while True:
-            try:
-                kind, payload = self._queue.get_nowait()
-            except queue.Empty:
-                return self.state
-            self._apply(kind, payload)
-
-    def join(self, timeout: float | None = None) -> JobState:
-        """Waits for the worker (if any) and returns the final ``poll()``."""
-        if self._thread is not None:
-            self._thread.join(timeout)
-        return self.poll()
 
     def _apply(self, kind: str, payload: Any) -> None:
         state = self.state
