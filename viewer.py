@@ -122,7 +122,7 @@ def write_files(obj, result, slots, width, height, frame):
     does: PNG previews and one multilayer EXR each for ``frame``, AO and shadow as PNG and
     EXR. Returns the predicted EXR's path."""
     from . import storage
-    from .vdnif_addon.blender.jobs import write_passes, write_secondary
+    from .vdnif_addon.blender.steps import write_passes, write_secondary
 
     folder = storage.passes_folder(obj)
     written = write_passes(folder, result.predicted, height, width, result.world_scale,

@@ -33,7 +33,7 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
         return VDNIF_OT_render_passes.unavailable(context)
 
     def stages(self, context, obj):
-        from ..vdnif_addon.blender.jobs import write_view
+        from ..vdnif_addon.blender.steps import write_view
 
         settings = obj.vdnif
         frames = animation_frames(context.scene, settings)

@@ -34,7 +34,7 @@ class VDNIF_OT_load_model(VDNIFOperator, bpy.types.Operator, ImportHelper):
     filter_glob: FILE_FILTER
 
     def work(self, context, obj):
-        from ..vdnif_addon.blender.jobs import model_capture
+        from ..vdnif_addon.blender.steps import model_capture
         from ..vdnif_addon.inference.evaluation import check_model_fits
         from ..vdnif_addon.model.model_file import load_model
 

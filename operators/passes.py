@@ -15,8 +15,8 @@ from .running import JobOperator, Stage, outcome
 def model_capture(obj, evaluation_count=None):
     """(the object's model file read, the object captured again as its model was trained on
     it): with ``evaluation_count`` evaluation poses from the object's pose settings,
-    disjoint from the poses its model was trained on (``jobs.model_capture``)."""
-    from ..vdnif_addon.blender.jobs import model_capture as capture_for_model
+    disjoint from the poses its model was trained on (``steps.model_capture``)."""
+    from ..vdnif_addon.blender.steps import model_capture as capture_for_model
     from ..vdnif_addon.model.model_file import load_model
 
     loaded = load_model(storage.model_path(obj))

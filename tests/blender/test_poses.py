@@ -48,7 +48,7 @@ def test_frames_that_cannot_be_apart_are_refused(empty_scene, core):
     spec = poses.PoseSpec(source="frames", count=1)
     with pytest.raises(error, match=r"^'Box': the frame range 3..3 cannot hold 1 evaluation "
                                     r"frames apart from the 1 training frames"):
-        core("blender.jobs").evaluation_poses(box, 8, spec)
+        core("blender.steps").evaluation_poses(box, 8, spec)
 
 
 def test_evaluation_frames_avoid_the_frames_a_model_was_trained_on(empty_scene, core):
@@ -63,7 +63,7 @@ def test_evaluation_frames_avoid_the_frames_a_model_was_trained_on(empty_scene, 
     spread = frames_of(poses.frame_poses(1, 7, 9))
     assert np.isclose(spread[:, None], [2, 4, 6]).any(0).all()
     spec = poses.PoseSpec(source="frames", count=9)
-    evaluated = core("blender.jobs").evaluation_poses(box, 8, spec, trained=trained)
+    evaluated = core("blender.steps").evaluation_poses(box, 8, spec, trained=trained)
     frames = frames_of(evaluated.poses)
     assert len(frames) == 9 and np.abs(frames[:, None] - [2, 4, 6]).min() >= 0.3
     assert np.diff(np.sort(frames)).min() > 0.1
@@ -79,7 +79,7 @@ def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_pose
     offset = poses.POSE_SETS[poses.TEST_POSES]       # evaluation's default set
     unlucky = poses.PoseSpec(count=3, seed=offset)
     trained = capture(box, 8, unlucky, deform_corners=False).poses
-    evaluated = core("blender.jobs").evaluation_poses(box, 8, poses.PoseSpec(count=5),
+    evaluated = core("blender.steps").evaluation_poses(box, 8, poses.PoseSpec(count=5),
                                                       trained=trained)
     keys = {core("pose_sets").pose_key(p) for p in trained}
     assert len(evaluated.poses) == 5
@@ -99,7 +99,7 @@ def test_random_poses_that_cannot_vary_are_refused(empty_scene, core):
         bone.lock_rotation = (True, True, True)
     with pytest.raises(error, match=r"^'Box': random poses keep repeating the 4 training "
                                     r"poses .* cannot be disjoint"):
-        core("blender.jobs").evaluation_poses(box, 8, poses.PoseSpec(count=4))
+        core("blender.steps").evaluation_poses(box, 8, poses.PoseSpec(count=4))
 
 
 def test_pose_keys_survive_a_json_file(empty_scene, core):
@@ -157,7 +157,7 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
         poses.evaluation_spec(spec, pose_set="other")
 
     # evaluate (a model's capture, here of a model not yet trained on spec) draws test poses
-    evaluated = core("blender.jobs").model_capture(box, None, spec, evaluation=True,
+    evaluated = core("blender.steps").model_capture(box, None, spec, evaluation=True,
                                                    resolution=8)
     assert {core("pose_sets").pose_key(p) for p in evaluated.poses} == keys[pose_sets.TEST_POSES]
 

@@ -97,15 +97,15 @@ def test_evaluate_reports_on_the_test_poses_unless_asked_for_the_development_one
     import importlib
 
     cli, model = small_model
-    jobs = importlib.import_module(cli.__name__.rpartition(".")[0] + ".blender.jobs")
-    original, seen = jobs.model_capture, []
+    steps = importlib.import_module(cli.__name__.rpartition(".")[0] + ".blender.steps")
+    original, seen = steps.model_capture, []
 
     def spy(*args, **kwargs):
         captured = original(*args, **kwargs)
         seen.append((kwargs["pose_set"], captured.poses))
         return captured
 
-    monkeypatch.setattr(jobs, "model_capture", spy)
+    monkeypatch.setattr(steps, "model_capture", spy)
     for chosen in ((), ("--pose-set", "development"), ("--pose-set", "test")):
         assert cli.main(["evaluate", "--model", str(model), "--scene", "lattice", "--poses",
                          "2", *VIEW, "--device", "cpu", *chosen]) == 0

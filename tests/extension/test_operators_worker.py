@@ -56,8 +56,8 @@ def test_dataset_job_computes_on_what_the_main_thread_read(empty_scene, tmp_path
     obj.vdnif.pose_count = 3                          # within the feed: all read ahead
     capture = module("vdnif_addon.blender.capture_scene").capture
     captured = capture(obj, 12, obj.vdnif.pose_spec(), deform_corners=False)
-    jobs = module("vdnif_addon.blender.jobs")
-    jobs.variant_dataset(obj, captured, "proposed", tmp_path / "batch", 128, seed=5)
+    steps = module("vdnif_addon.blender.steps")
+    steps.variant_dataset(obj, captured, "proposed", tmp_path / "batch", 128, seed=5)
     job = module("vdnif_addon.blender.ui_jobs").dataset_job(
         obj, captured, "proposed", tmp_path / "worker", 128, seed=5)
     for _ in range(10):

@@ -40,9 +40,9 @@ import bpy  # noqa: E402,F401  (before mathutils)
 from oracles import encoding_torch  # noqa: E402
 
 from vdnif_addon.blender.capture_scene import capture  # noqa: E402
-from vdnif_addon.blender.jobs import evaluation_poses  # noqa: E402
 from vdnif_addon.blender.poses import posed  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
+from vdnif_addon.blender.steps import evaluation_poses  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.inference.neural_render import neural_passes  # noqa: E402
 from vdnif_addon.pose_sets import DEVELOPMENT_POSES, PoseSpec  # noqa: E402

@@ -34,7 +34,7 @@ def test_one_multilayer_exr_per_frame_reads_back_in_blender(empty_scene, core, t
     world = np.diag([2.0, 2.0, 0.5, 1.0])                # scaled and turned about z
     world[:2, :2] = 2.0 * np.array([[math.cos(angle), -math.sin(angle)],
                                     [math.sin(angle), math.cos(angle)]])
-    written = core("blender.jobs").write_passes(tmp_path, passes, HEIGHT, WIDTH, scale,
+    written = core("blender.steps").write_passes(tmp_path, passes, HEIGHT, WIDTH, scale,
                                                 slots=slots, frame=30, world_matrix=world)
     names = sorted(path.name for path in written)
     assert names == sorted([f"{name}.0030.png" for name in

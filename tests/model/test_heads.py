@@ -81,7 +81,7 @@ def test_material_head_counts_the_slots_faces_use(empty_scene, core, tmp_path):
     bpy.context.view_layer.update()
     origins, directions = neural.camera_rays(camera, 24, 16)
     result = neural.render_rays(box, captured, oracle, {"frame": 1.0}, origins, directions)
-    core("blender.jobs").write_passes(tmp_path / "r", result.predicted, 16, 24,
+    core("blender.steps").write_passes(tmp_path / "r", result.predicted, 16, 24,
                                       slots=captured.mesh.material_slots,
                                       world_matrix=box.matrix_world)
     _, read = read_multilayer(tmp_path / "r" / "passes.exr", 24, 16)

@@ -44,9 +44,9 @@ def test_frame_ranges_parse_like_blenders(extension):
                           ("a:b", "START:END"), ("3", "START:END"), ("1.5:3", "whole")):
         with pytest.raises(errors.VDNIFError, match=problem):
             animation.parse_frames(text)
-    jobs = module("vdnif_addon.blender.jobs")
-    assert jobs.frame_number(7) == ".0007" and jobs.frame_number(12345) == ".12345"
-    assert jobs.frame_number(-3) == ".-003" and jobs.frame_number(None) == ""
+    steps = module("vdnif_addon.blender.steps")
+    assert steps.frame_number(7) == ".0007" and steps.frame_number(12345) == ".12345"
+    assert steps.frame_number(-3) == ".-003" and steps.frame_number(None) == ""
 
 
 @pytest.mark.slow

@@ -120,9 +120,9 @@ def test_a_ray_leaving_through_the_other_half_of_its_folded_entry_face_walks_on(
     """Regression: on this unseen arm pose one orbit ray enters a cell through one triangle
     of a non-planar face and leaves through the other; the walk re-seeked from just past
     its entry, where the float32 BVH found the entry again, forever."""
-    jobs, rays = core("blender.jobs"), core("tracing.rays")
+    steps, rays = core("blender.steps"), core("tracing.rays")
     obj = core("blender.scenes").demo_scene("arm")
-    evaluated = jobs.evaluation_poses(obj, 32, core("blender.poses").PoseSpec(count=4))
+    evaluated = steps.evaluation_poses(obj, 32, core("blender.poses").PoseSpec(count=4))
     with core("posed.geometry").PosedObject(obj, evaluated) as posed_object:
         geometry = posed_object.geometry(evaluated.poses[1])
         origins, directions = rays.orbit_rays(geometry.vertices.min(0),

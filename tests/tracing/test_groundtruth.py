@@ -192,7 +192,7 @@ def test_references_equal_the_golden_metrics(empty_scene, core):
     obj = core("blender.scenes").demo_scene("arm")
     poses = core("blender.poses")
     # the poses tests/golden/make_goldens.py drew
-    capture = core("blender.jobs").evaluation_poses(obj, 12, poses.PoseSpec(count=2, seed=0),
+    capture = core("blender.steps").evaluation_poses(obj, 12, poses.PoseSpec(count=2, seed=0),
                                                     pose_set=core("pose_sets").DEVELOPMENT_POSES)
     report = core("posed.generate").reference_run(obj, capture, 32, 24)
     golden = json.loads((GOLDEN / "arm-references.json").read_text())

@@ -22,8 +22,8 @@ from ..posed.render import camera_view, load_scene_model
 from ..settings import DEFAULT_PRECISION
 from ..training.dataset import MANIFEST
 from ..worker import DirectCalls, MainCalls, WorkerJob
-from .jobs import evaluate_file, variant_capture
 from .pose_reader import PoseReader
+from .steps import evaluate_file, variant_capture
 
 SHARD_PATTERN = "shard-*.*"
 SHARD_SUFFIXES = (".json", ".npz")
@@ -60,7 +60,7 @@ def reads_of(captured):
 
 
 def dataset_job(obj, captured, variant, folder, rays_per_pose, seed=0):
-    """Generates the dataset of ``variant`` (``jobs.variant_dataset``) into ``folder``. The
+    """Generates the dataset of ``variant`` (``steps.variant_dataset``) into ``folder``. The
     shards are written beside it first and replace the folder's shards only once complete:
     a cancelled or failed run leaves the previous dataset as it was. Result: the header."""
     captured, rays_per_pose = variant_capture(captured, variant, rays_per_pose)
@@ -102,7 +102,7 @@ def replace_shards(source, folder):
 def evaluation_job(obj, captured, model_path, width, height, device, loaded=None,
                    secondary=None, precision=DEFAULT_PRECISION):
     """Evaluates the model file on the evaluation poses of ``captured``
-    (``jobs.evaluate_file``; the AO and shadow passes too with ``secondary``, their
+    (``steps.evaluate_file``; the AO and shadow passes too with ``secondary``, their
     ``SecondarySettings``; the MLPs in ``precision``). Result: the report."""
 
     def work(source, progress, _deliver):

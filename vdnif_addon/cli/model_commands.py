@@ -1,6 +1,6 @@
 """The batch commands on a trained model: render and evaluate. Each reads the --model file
 once and captures the scene of the options again as the model was trained on it
-(``jobs.model_capture``)."""
+(``steps.model_capture``)."""
 
 import pathlib
 
@@ -27,9 +27,9 @@ from .options import (
 def _model_scene(args, evaluation=False):
     """(network and metadata, mesh object, capture) of a command on the --model file: the
     model read once (``load_model`` checks it), the scene of the options captured again as
-    the model was trained on it (``jobs.model_capture``: at --resolution when given, else the
+    the model was trained on it (``steps.model_capture``: at --resolution when given, else the
     model's; with ``evaluation`` on evaluation poses, or views of the rest pose)."""
-    from ..blender.jobs import model_capture
+    from ..blender.steps import model_capture
     from ..model.model_file import load_model
 
     check_resolution(args.resolution)
@@ -47,10 +47,10 @@ def cmd_render(args):
     trained model."""
     import bpy
 
-    from ..blender.jobs import write_view
     from ..blender.pose_reader import PoseReader
     from ..blender.poses import posed
     from ..blender.scenes import find_camera
+    from ..blender.steps import write_view
     from ..kernels import runtime
     from ..posed.animation import frame_pose, render_frames
     from ..posed.render import camera_view, load_scene_model
@@ -113,7 +113,7 @@ def evaluated(args):
     """(report, views, captured) of the evaluate command's ``args``: its JSON report, per
     pose the predicted, true and embedded Passes (``neural.evaluate_model``), and the
     evaluation poses' capture. ``tools/wrong_surface.py`` reads the views as well."""
-    from ..blender.jobs import evaluate_file
+    from ..blender.steps import evaluate_file
     from ..progress import Progress
 
     loaded, obj, captured = _model_scene(args, evaluation=True)
@@ -127,7 +127,7 @@ def evaluated(args):
 
 def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
-    from ..blender.jobs import write_figures, write_passes
+    from ..blender.steps import write_figures, write_passes
 
     report, views, captured = evaluated(args)
     if args.out is not None:

@@ -182,7 +182,7 @@ def cmd_train(args):
                                     progress=report_training)
     if not result.is_main:
         return 0
-    from ..blender.jobs import write_training_plot
+    from ..blender.steps import write_training_plot
 
     model = pathlib.Path(summary["model"])
     summary["plot"] = str(write_training_plot(model.with_name(f"{model.stem}-training.png"),
@@ -216,7 +216,7 @@ def _train_on_scene(args):
     import tempfile
 
     from ..blender.capture_scene import capture
-    from ..blender.jobs import train_variant
+    from ..blender.steps import train_variant
 
     check_resolution(args.resolution)
     if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):

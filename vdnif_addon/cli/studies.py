@@ -237,8 +237,8 @@ def _scene_capture(obj, model_path, args, device):
     """(capture of unseen poses, SceneModel or None) of one scene: the poses avoid the
     model's training poses; the resolution is --resolution, else the model's, else the
     recipe's of the mesh."""
-    from ..blender.jobs import model_capture
     from ..blender.resolution import recipe_resolution
+    from ..blender.steps import model_capture
     from ..model.model_file import load_model
     from ..pose_sets import PoseSpec
     from ..posed.render import load_scene_model

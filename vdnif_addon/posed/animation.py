@@ -1,6 +1,6 @@
 """Animation: the passes of a range of frames in one run, the model loaded once and the
 device cells built once, written as image sequences named like Blender's own
-(``jobs.frame_number``).
+(``steps.frame_number``).
 
 ``render_frames`` touches no Blender data: it reads every frame through a PoseSource (a live
 ``PoseReader`` in batch runs, a ``PoseFeed`` filled on Blender's main thread in the UI). The

@@ -37,7 +37,7 @@ def probe_poses(captured):
 
 def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose=PROBE_RAYS,
             **mix):
-    """Rates of the sample of ``captured`` (the variant's capture, ``jobs.variant_capture``)
+    """Rates of the sample of ``captured`` (the variant's capture, ``steps.variant_capture``)
     written under the folder ``scratch`` (emptied first, removed after): segments per ray,
     bytes per segment, seconds per pose and per ray, the rest surface's seconds, the write
     speed and training samples per second (``overrides``: the NetworkConfig / TrainConfig

@@ -18,8 +18,8 @@ import tempfile
 import numpy as np
 
 from ..blender.capture_scene import capture
-from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.scenes import demo_scene
+from ..blender.steps import evaluate_file, evaluation_poses, variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_common, concatenated
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec

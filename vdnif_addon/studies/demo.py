@@ -10,7 +10,10 @@ import tempfile
 import bpy
 
 from ..blender.capture_scene import capture
-from ..blender.jobs import (
+from ..blender.lights import scene_light
+from ..blender.resolution import recipe_resolution
+from ..blender.scenes import demo_scene
+from ..blender.steps import (
     evaluate_file,
     evaluation_poses,
     train_variant,
@@ -18,9 +21,6 @@ from ..blender.jobs import (
     write_passes,
     write_training_plot,
 )
-from ..blender.lights import scene_light
-from ..blender.resolution import recipe_resolution
-from ..blender.scenes import demo_scene
 from ..inference.secondary import SecondarySettings
 from ..model.variants import choose_variant
 from ..pose_sets import TEST_POSES, PoseSpec

@@ -12,9 +12,9 @@ import numpy as np
 
 from ..blender.capture_scene import capture
 from ..blender.image_io import save_image
-from ..blender.jobs import evaluate_file, evaluation_poses, variant_dataset
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
+from ..blender.steps import evaluate_file, evaluation_poses, variant_dataset
 from ..inference import images
 from ..inference.evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..model.variants import variant_config

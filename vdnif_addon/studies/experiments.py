@@ -29,7 +29,7 @@ import time
 
 import torch
 
-from ..blender.jobs import variant_dataset
+from ..blender.steps import variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_both, compare_common, concatenated
 from ..passes import Passes

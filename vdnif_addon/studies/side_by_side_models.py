@@ -7,8 +7,8 @@ import sys
 import tempfile
 
 from ..blender.capture_scene import capture
-from ..blender.jobs import train_variant
 from ..blender.resolution import recipe_resolution
+from ..blender.steps import train_variant
 from ..model.variants import choose_variant
 from ..pose_sets import PoseSpec
 from ..settings import RECIPE
