@@ -163,7 +163,7 @@ POSE_SOURCE = Setting(
                  "from"),))
 SEED = Setting(
     "seed", int, 0, "random pose seed", 0, limits.MAX_SEED,
-    option=Option("--seed", (*POSE_COMMANDS, "side-by-side")),
+    option=Option("--seed", (*POSE_COMMANDS, "side-by-side"), "S"),
     panel=(Panel("seed", "Seed", "Starting number of the random poses and of training's "
                  "random choices: another seed gives other poses"),))
 MAX_ANGLE = Setting(
@@ -334,10 +334,10 @@ DEVICE = Setting(
                      Choice("PREFERENCES", "Preferences",
                             "The device chosen in the add-on's preferences"),)),))
 PRECISION = Setting(
-    # bfloat16 where the device has bfloat16 instructions (CUDA, a CPU with AVX-512 BF16 or
-    # AMX); the hash grids and the readout stay float32.
+    # The hash grids and the readout stay float32 either way.
     "precision", str, "float32", "the network MLPs' arithmetic: bfloat16 is faster where the "
-    "device has it, a little less exact",
+    "device has it (CUDA, a CPU with AVX-512 BF16 or AMX), a little less exact; refused "
+    "elsewhere",
     choices=(Choice("float32", "Float32", "Full precision"),
              Choice("bfloat16", "BFloat16", "Faster where the device has bfloat16 instructions "
                     "(an NVIDIA GPU, a CPU with AVX-512 BF16 or AMX), a little less exact")),

@@ -147,7 +147,7 @@ def _model_command(commands, name, run, notes):
                         help="a model file written by 'train' or 'demo'")
     add_scene_options(parser)
     add_setting(parser, declared.RESOLUTION, name,
-                help="voxel resolution (default: the model's; must match it)")
+                help="voxel resolution, which must match the model's (default: the model's)")
     add_pose_options(parser, name)
     add_stress_options(parser)
     add_image_options(parser, name)
@@ -165,15 +165,16 @@ def add_commands(commands):
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
         "Normal, DiffCol, IndexMA, alpha in Combined) and render.json into --out."))
     when = render.add_mutually_exclusive_group()
-    when.add_argument("--frame", type=float, metavar="F",
-                      help="the timeline frame to pose the scene at (default: current)")
+    when.add_argument("--frame", type=float, metavar="F", help="the timeline frame to pose the "
+                      "scene at (default: the scene's current frame)")
     when.add_argument("--frames", type=frames_option, metavar="A:B[:STEP]",
                       help="frames A to B every STEP, as image sequences (passes.0001.exr)")
     render.add_argument("--camera", metavar="NAME", help=(
         "camera object (default: the scene's camera, else an orbit viewpoint)"))
     render.add_argument("--references", action="store_true",
                         help="also render the true and embedded references")
-    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
+    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                        help="output folder")
 
     evaluate = _model_command(commands, "evaluate", cmd_evaluate, (
         "Poses are the evaluation poses of --seed: another random seed or frames between "
@@ -187,4 +188,5 @@ def add_commands(commands):
                                "development set, for choices (default test)")
     evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
                           help="write the figures, error images and first pose's passes here")
-    evaluate.add_argument("--json", type=output_file, metavar="PATH")
+    evaluate.add_argument("--json", type=output_file, metavar="PATH", help="write the report "
+                          "(vs_true, vs_embedded, per_pose, timings)")

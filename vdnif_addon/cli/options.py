@@ -39,9 +39,10 @@ def add_scene_options(parser):
                         help="an OBJ, PLY, glTF or FBX file: its own armature, else --rig")
     source.add_argument("--blend", type=pathlib.Path, metavar="FILE",
                         help="a .blend file; the object is --object or the active one")
-    group.add_argument("--rig", choices=RIGS,
-                       help="procedural rig of a --mesh without one (default armature) or a scene")
-    group.add_argument("--object", metavar="NAME", help="the mesh object in --blend")
+    group.add_argument("--rig", choices=RIGS, help="procedural rig of a --mesh without one, or "
+                       "of a scene (default: armature for such a mesh, else the scene's)")
+    group.add_argument("--object", metavar="NAME",
+                       help="the mesh object in --blend (default: the active one)")
 
 
 def add_stress_options(parser):

@@ -256,7 +256,8 @@ def add_commands(commands):
     for setting in (declared.RAYS_PER_POSE, declared.SURFACE_FRACTION,
                     declared.GRAZING_FRACTION, declared.SECONDARY_FRACTION):
         add_setting(data, setting, "dataset")
-    data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
+    data.add_argument("--pose-range", metavar="A:B",
+                      help="only poses A..B-1 of the N (default: all poses)")
     data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
 
@@ -274,7 +275,7 @@ def add_commands(commands):
         "(<model>-training.png beside it)."))
     training.add_argument("--data", type=pathlib.Path, metavar="DIR", help=(
         "dataset folder written by 'dataset'; with scene options the dataset is generated "
-        "into it first (default then: a temporary folder)"))
+        "into it first (default with scene options: a temporary folder)"))
     add_scene_options(training)
     add_capture_options(training, "train")
     add_stress_options(training)

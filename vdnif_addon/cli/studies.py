@@ -295,10 +295,11 @@ def add_commands(commands):
 
     experiment = commands.add_parser("experiment", help=cmd_experiment.__doc__,
                                      description=cmd_experiment.__doc__)
-    experiment.add_argument("name", choices=("static", "deformation", "ablation", "per-pose"))
+    experiment.add_argument("name", choices=("static", "deformation", "ablation", "per-pose"),
+                            help="the experiment")
     experiment.add_argument("--quick", action="store_true", help="a tiny size, for tests")
     experiment.add_argument("--scenes", metavar="A,B", help="only these of the experiment's "
-                            "scenes (default all; the section names them)")
+                            "scenes, which its section names (default: all)")
     experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
                             "size's seeds (default: all)")
     add_setting(experiment, declared.DEVICE, "experiment")
@@ -338,8 +339,10 @@ def add_commands(commands):
     add_setting(bench, declared.DEVICE, "bench-network")
     bench.add_argument("--threads", type=int, metavar="N",
                        help="torch threads (default: the product's, vdnif_addon/threads.py)")
-    bench.add_argument("--repeats", type=int, default=5)
-    bench.add_argument("--json", type=output_file, metavar="PATH")
+    bench.add_argument("--repeats", type=int, default=5, metavar="N",
+                       help="runs; medians are reported")
+    bench.add_argument("--json", type=output_file, metavar="PATH",
+                       help="write the figures as JSON")
     bench.set_defaults(run=cmd_bench_network)
 
 
