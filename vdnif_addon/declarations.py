@@ -73,8 +73,9 @@ belongs to where the command adds them together (``NETWORK_GROUP``)."""
 class Panel:
     """A property of the panel's ``Object.vdnif`` that holds the setting: its RNA name (a
     .blend stores the value under it: never rename one), label, tooltip, default (SAME or
-    its own), soft limits, subtype and shown decimals, and enum items placed before the
-    setting's choices (``extra``)."""
+    its own), soft limits, subtype and shown decimals, enum items placed before the
+    setting's choices (``extra``), and the sidebar panel class that draws it after its own
+    layout (``section``; empty where that layout places it itself)."""
 
     rna: str
     label: str
@@ -85,6 +86,7 @@ class Panel:
     subtype: str | None = None
     precision: int | None = None
     extra: tuple[Choice, ...] = ()
+    section: str = ""
 
     def default_of(self, setting: Setting) -> Any:
         return setting.default if self.default is SAME else self.default

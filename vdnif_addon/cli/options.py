@@ -134,6 +134,25 @@ def add_setting(parser, setting, command, **words):
     return parser.add_argument(option.flag, **{**keywords, **words})
 
 
+def add_declared_options(parser, command):
+    """Adds each option the declarations give ``command`` that its parser has not placed yet,
+    in the option group it declares (made where missing), so that a newly declared setting's
+    option appears without a line of parser code; returns their flags."""
+    placed = {flag for action in parser._actions for flag in action.option_strings}
+    added = []
+    for setting in declared.command_options(command):
+        if setting.option.flag in placed:
+            continue
+        group = parser
+        if setting.option.group:
+            group = next((group for group in parser._action_groups
+                          if group.title == setting.option.group), None) \
+                or parser.add_argument_group(setting.option.group)
+        add_setting(group, setting, command)
+        added.append(setting.option.flag)
+    return added
+
+
 def add_pose_options(parser, command):
     group = parser.add_argument_group("poses")
     for setting in (declared.POSES, declared.POSE_SOURCE, declared.SEED, declared.MAX_ANGLE):
