@@ -427,3 +427,21 @@ def test_the_core_refuses_what_settings_does_not_name():
         "levels", "base_resolution", "growth", "log2_table_size", "feature_dim", "pe_bands",
         "pe_form", "width", "depth", "distance_mode", "albedo_mode", "normal_mode",
         "normal_levels", "normal_log2_table_size", "heads"]  # model files' keys
+
+
+def test_a_declared_train_option_of_a_config_field_reaches_the_training(monkeypatch):
+    """``train``'s declared options that name a NetworkConfig or TrainConfig field are the
+    training's overrides: a new one needs no line of command code."""
+    from vdnif_addon.cli.options import network_overrides
+    from vdnif_addon.model.variants import variant_config
+
+    new = declared.Setting("lr_mlp", float, 2e-2, "the MLP's learning rate", 1e-6, 1.0,
+                           option=declared.Option("--lr-mlp", ("train",), "LR"))
+    monkeypatch.setattr(declared, "SETTINGS", (*declared.SETTINGS, new))
+    args = build_parser().parse_args(["train", "--data", "d", "--lr-mlp", "0.005",
+                                      "--levels", "3", "--steps", "7"])
+    overrides = network_overrides(args)
+    assert overrides == {"seed": 0, "lr_mlp": 0.005, "levels": 3, "steps": 7,
+                         "batch_size": declared.BATCH_SIZE.default, "device": "auto"}
+    chosen = variant_config("proposed", **overrides)
+    assert (chosen.train.lr_mlp, chosen.network.levels, chosen.train.steps) == (0.005, 3, 7)

@@ -5,6 +5,7 @@ several commands print. A setting's option is generated from its declaration
 (``add_setting``, ``declarations``), and checked against its declared range."""
 
 import argparse
+import dataclasses
 import math
 import os
 import pathlib
@@ -22,6 +23,8 @@ from ..settings import (
     MIN_RESOLUTION,
     RECIPE,
     RIGS,
+    NetworkConfig,
+    TrainConfig,
 )
 from ..text import metrics_line, secondary_line, speed_line
 
@@ -234,13 +237,13 @@ def check_resolution(value):
 
 
 def network_overrides(args):
-    """NetworkConfig / TrainConfig fields set on the command line."""
-    overrides = {setting.name: getattr(args, setting.option.dest)
-                 for setting in declared.command_options("train", declared.NETWORK_GROUP)
-                 if getattr(args, setting.option.dest) is not None}
-    overrides.update(steps=args.steps, batch_size=args.batch, device=args.device,
-                     seed=args.seed)
-    return overrides
+    """The NetworkConfig / TrainConfig fields that ``train``'s declared options set: each
+    one given (the network's are None, the variant's own, unless given)."""
+    fields = {field.name for config in (NetworkConfig, TrainConfig)
+              for field in dataclasses.fields(config)}
+    return {setting.name: getattr(args, setting.option.dest)
+            for setting in declared.command_options("train")
+            if setting.name in fields and getattr(args, setting.option.dest) is not None}
 
 
 def report_training(record):
