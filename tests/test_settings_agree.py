@@ -203,7 +203,7 @@ def test_a_new_declaration_reaches_the_parser_the_validation_and_the_doc(monkeyp
     assert "| `--probe-count P` | 7 | probes per pixel |" in rows
 
 
-@pytest.mark.parametrize("rna", sorted(SAVED_RNA_NAMES))
+@pytest.mark.parametrize("rna", sorted(declared.panel_properties()))
 def test_each_declared_panel_property_is_generated(panel, rna):
     properties, _ = panel
     setting, declared_panel = declared.panel_properties()[rna]
@@ -232,7 +232,7 @@ def test_each_declared_panel_property_is_generated(panel, rna):
 
 
 def test_the_declared_panel_properties_keep_their_saved_names(panel):
-    assert set(declared.panel_properties()) == SAVED_RNA_NAMES
+    assert SAVED_RNA_NAMES <= set(declared.panel_properties())
     assert SAVED_RNA_NAMES <= set(panel[0])
 
 
