@@ -279,9 +279,9 @@ def test_a_changed_doc_row_fails_the_check(tmp_path):
 
 def test_the_core_defaults_are_the_declared_ones():
     network, train, spec = NetworkConfig(), TrainConfig(), PoseSpec()
-    core = {**{name: getattr(network, name) for name in dataclasses.asdict(network)},
-            **{name: getattr(RECIPE, name) for name in dataclasses.asdict(RECIPE)},
-            "seed": train.seed, "device": train.device, "pose_source": spec.source,
+    core = {**{name: getattr(config, name) for config in (network, train, RECIPE)
+               for name in CONFIG_FIELDS[type(config)]},
+            "pose_source": spec.source,
             "max_angle": spec.max_angle_deg, "evaluation_poses": spec.count,
             "ao_samples": settings.AO_SAMPLES, "ao_distance": settings.AO_DISTANCE,
             "precision": settings.DEFAULT_PRECISION, "variant": settings.AUTO_VARIANT,
@@ -314,14 +314,16 @@ def _secondary(**values):
     SecondarySettings(**values)
 
 
-# The core's own check of each setting: a call that raises VDNIFError for a refused value
-# (None: the setting reaches the core only through a checked command or panel).
+CONFIG_FIELDS = {config: {field.name for field in dataclasses.fields(config)}
+                 for config in (NetworkConfig, TrainConfig, type(RECIPE))}
+# The core's own check of each setting outside NetworkConfig and TrainConfig (whose fields
+# check themselves): a call that raises VDNIFError for a refused value (None: the setting
+# reaches the core only through a checked command or panel).
 CORE = {
     "resolution": lambda value: __import__("vdnif_addon.geometry.voxels", fromlist=["x"])
     .build_grid(*_tetrahedron(), value),
     "poses": lambda value: PoseSpec(count=value),
     "evaluation_poses": lambda value: PoseSpec(count=value),
-    "seed": lambda value: TrainConfig(seed=value),
     "max_angle": lambda value: PoseSpec(max_angle_deg=value),
     "rays_per_pose": None,
     "surface_fraction": lambda value: _rays("surface_fraction", value),
@@ -329,8 +331,6 @@ CORE = {
     "secondary_fraction": lambda value: _rays("secondary_fraction", value),
     "ao_samples": lambda value: _secondary(samples=value),
     "ao_distance": lambda value: _secondary(distance=value),
-    "steps": lambda value: TrainConfig(steps=value),
-    "batch_size": lambda value: TrainConfig(batch_size=value),
     "image_width": lambda value: check_image(value, 1),
     "image_height": lambda value: check_image(1, value),
 }
@@ -345,9 +345,12 @@ EXPENSIVE = {"resolution"}
 def core_refuses(name, value):
     if name in CORE:
         check = CORE[name]
-    else:
+    elif name in CONFIG_FIELDS[NetworkConfig]:
         def check(value):
             NetworkConfig(**{name: value, **ALONE.get(name, {})})
+    else:
+        def check(value):
+            TrainConfig(**{name: value})
     if check is None:
         return None
     try:
@@ -393,7 +396,8 @@ def test_every_number_is_checked_somewhere():
     for setting in declared.SETTINGS:
         if setting.kind in (int, float):
             assert setting.option is not None or setting.panel, setting.name
-            assert setting.name in CORE or setting.name in dataclasses.asdict(NetworkConfig())
+            assert setting.name in CORE or any(
+                setting.name in CONFIG_FIELDS[config] for config in (NetworkConfig, TrainConfig))
 
 
 def test_the_core_refuses_what_settings_does_not_name():
@@ -441,7 +445,8 @@ def test_a_declared_train_option_of_a_config_field_reaches_the_training(monkeypa
     args = build_parser().parse_args(["train", "--data", "d", "--lr-mlp", "0.005",
                                       "--levels", "3", "--steps", "7"])
     overrides = network_overrides(args)
-    assert overrides == {"seed": 0, "lr_mlp": 0.005, "levels": 3, "steps": 7,
-                         "batch_size": declared.BATCH_SIZE.default, "device": "auto"}
+    assert {name: overrides[name] for name in ("lr_mlp", "levels", "steps", "seed")} == {
+        "lr_mlp": 0.005, "levels": 3, "steps": 7, "seed": 0}
+    assert "growth" not in overrides                    # not given: the variant's own
     chosen = variant_config("proposed", **overrides)
     assert (chosen.train.lr_mlp, chosen.network.levels, chosen.train.steps) == (0.005, 3, 7)
