@@ -43,7 +43,7 @@ class Option:
     ``parse_choices`` is false takes any word and is refused by the validation with the
     choices named (the network options, all None until the variant fills them). ``label``
     names the option in range errors (the flag unless given); ``group`` the set of options it
-belongs to where the command adds them together (``NETWORK_GROUP``)."""
+    belongs to where the command adds them together (``NETWORK_GROUP``)."""
 
     flag: str
     commands: tuple[str, ...]
@@ -96,7 +96,7 @@ class Panel:
 class Setting:
     """One user setting: ``name`` is its core field, ``kind`` int, float, str (a choice) or
     bool; ``low``..``high`` the closed range of a number (the one range the parser, the
-    panel and the core check); ``unit`` what a number counts."""
+    panel and the core check)."""
 
     name: str
     kind: type
@@ -105,7 +105,6 @@ class Setting:
     low: float | None = None
     high: float | None = None
     choices: tuple[Choice, ...] = ()
-    unit: str = ""
     option: Option | None = None
     panel: tuple[Panel, ...] = ()
 
@@ -171,7 +170,7 @@ SEED = Setting(
 MAX_ANGLE = Setting(
     # 0.1: the panel's smallest; a rotation of 0 or less makes no random pose.
     "max_angle", float, 45.0, "largest random bone rotation per axis where the bone has no "
-    "rotation limits", 0.1, 180.0, unit="degrees",
+    "rotation limits", 0.1, 180.0,
     option=Option("--max-angle", POSE_COMMANDS, "DEG"),
     panel=(Panel("max_angle", "Maximum Angle", "Largest random bone rotation per axis in "
                  "degrees, for bones without rotation limits"),))
@@ -209,7 +208,7 @@ AO_SAMPLES = Setting(
                  "smoother image and take longer", soft_max=256),))
 AO_DISTANCE = Setting(
     "ao_distance", float, 0.1, "how far an ambient-occlusion ray looks, in object units",
-    1e-6, 1e3, unit="object units",
+    1e-6, 1e3,
     option=Option("--ao-distance", IMAGE_COMMANDS, "D"),
     panel=(Panel("ao_distance", "AO Distance", "How far an ambient-occlusion ray looks for an "
                  "occluder, in object units (the object's longest side is 1)", soft_max=1.0,
@@ -230,6 +229,7 @@ LEVELS = Setting(
     panel=(Panel("levels", "Levels", "Detail levels of the hash grid, coarse to fine: more "
                  "levels hold finer detail and render a little slower", soft_max=16),))
 BASE_RESOLUTION = Setting(
+    # Its cap is the finest level's too (settings.MAX_GRID_RESOLUTION).
     "base_resolution", int, 64, "coarsest hash-grid resolution N_min", 1, 2**16,
     option=_network("--base-resolution", "N"),
     panel=(Panel("base_resolution", "Base Resolution", "Cells along each side of the coarsest "
@@ -348,14 +348,14 @@ PRECISION = Setting(
                  "renders"),))
 IMAGE_WIDTH = Setting(
     "image_width", int, 128, "image width in pixels", 1, limits.MAX_IMAGE_SIDE,
-    unit="pixels", option=Option("--width", IMAGE_COMMANDS, "W", label="image width",
+    option=Option("--width", IMAGE_COMMANDS, "W", label="image width",
                                  per_command=(("side-by-side", 256),)),
     # The panel's renders: a 4:3 picture worth looking at.
     panel=(Panel("image_width", "Width", "Width of the rendered pass images in pixels",
                  default=320, subtype="PIXEL"),))
 IMAGE_HEIGHT = Setting(
     "image_height", int, 128, "image height in pixels", 1, limits.MAX_IMAGE_SIDE,
-    unit="pixels", option=Option("--height", IMAGE_COMMANDS, "H", label="image height",
+    option=Option("--height", IMAGE_COMMANDS, "H", label="image height",
                                  per_command=(("side-by-side", 256),)),
     panel=(Panel("image_height", "Height", "Height of the rendered pass images in pixels",
                  default=240, subtype="PIXEL"),))
