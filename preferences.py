@@ -11,13 +11,10 @@ import sys
 
 import bpy
 
-from .vdnif_addon import dependencies, settings
+from .vdnif_addon import declarations, dependencies, settings
 
-_DEVICE_TEXT = {"auto": ("Auto", "CUDA when available, else the CPU"),
-                "cpu": ("CPU", "Train and render on the CPU"),
-                "cuda": ("CUDA", "Train and render on the first CUDA GPU")}
-DEVICES = [(name, *_DEVICE_TEXT[name]) for name in settings.DEVICES]
-"""The device enum's items: ``settings.DEVICES`` with their labels."""
+DEVICES = declarations.DEVICE.enum_items()
+"""The device enum's items: ``settings.DEVICES`` with their labels (``declarations``)."""
 INSTALL_HINT = "Preferences > Add-ons > VDNIF > Install PyTorch and Warp"
 WARP_REQUIREMENT = dependencies.WARP_REQUIREMENT
 

@@ -2,6 +2,7 @@
 its own voxels, poses, dataset, network, model and last metrics; and the pass viewer's
 choice (``Scene.vdnif_viewer``)."""
 
+import dataclasses
 import json
 
 import bpy
@@ -16,31 +17,11 @@ from bpy.props import (
 
 from . import preferences, viewer
 from .operators import live_preview
+from .vdnif_addon import declarations as declared
 from .vdnif_addon import settings as defaults
 from .vdnif_addon.pose_sets import PoseSpec
 from .vdnif_addon.presets import PRESET_VARIANT
 from .vdnif_addon.presets import SETTINGS as PRESET_SETTINGS
-from .vdnif_addon.settings import BOUNDS, RECIPE
-
-# Numbered: a .blend stores an enum by number, and "auto" came after the other three.
-_VARIANT_TEXT = {
-    defaults.AUTO_VARIANT: ("Automatic", "LSNIF where no armature or lattice deforms the "
-                            "object (a static scene), else Proposed; each with its own PE "
-                            "bands", 3),
-    "proposed": ("Proposed", "VDNIF: positional bands, log-space distance, uncertainty "
-                 "weighting, trained on many poses", 0),
-    "deformed": ("Deformed", "The LSNIF model trained on many poses", 1),
-    "lsnif": ("LSNIF", "The static baseline: hash grid only, trained on the rest pose", 2)}
-VARIANTS = [(name, *_VARIANT_TEXT[name])
-            for name in (defaults.AUTO_VARIANT, *reversed(defaults.TRAINABLE_VARIANTS))]
-"""The variant enum's items: Automatic, then ``settings.TRAINABLE_VARIANTS``."""
-_POSE_SOURCE_TEXT = {"random": ("Random", "Random bone rotations and lattice offsets"),
-                     "frames": ("Frame Range", "Frames spread over the scene's frame range")}
-NETWORK_FIELDS = ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
-                  "width", "depth")
-TRAIN_FIELDS = ("steps", "batch_size")
-NETWORK = defaults.NetworkConfig()
-"""The default network, whose fields are the panel's defaults."""
 
 
 def _variant_changed(settings: "VDNIFSettings", _context: bpy.types.Context) -> None:
@@ -49,92 +30,51 @@ def _variant_changed(settings: "VDNIFSettings", _context: bpy.types.Context) -> 
         settings.pe_bands = defaults.VARIANTS[settings.variant]["pe_bands"]
 
 
-def _int(name: str, setting: str, default: int, **options: object) -> IntProperty:
-    """An IntProperty whose hard range is ``settings.BOUNDS[setting]``."""
-    low, high = BOUNDS[setting]
-    return IntProperty(name=name, default=default, min=low, max=high, **options)
+_UPDATES = {"variant": _variant_changed}
+"""Panel properties that act when they change."""
 
 
+def declared_property(setting: declared.Setting, panel: declared.Panel) -> object:
+    """The Blender property that ``panel`` declares for ``setting``: its type from the
+    setting's, its hard range the setting's declared range, its items the setting's choices
+    (``declarations``)."""
+    words = {"name": panel.label, "description": panel.description,
+             "default": panel.default_of(setting)}
+    words.update((key, value) for key in ("soft_min", "soft_max", "subtype", "precision")
+                 if (value := getattr(panel, key)) is not None)
+    if panel.rna in _UPDATES:
+        words["update"] = _UPDATES[panel.rna]
+    if setting.choices:
+        return EnumProperty(items=setting.enum_items(panel.extra), **words)
+    if setting.kind is bool:
+        return BoolProperty(**words)
+    make = IntProperty if setting.kind is int else FloatProperty
+    return make(min=setting.low, max=setting.high, **words)
+
+
+DECLARED = {rna: declared_property(*pair) for rna, pair in declared.panel_properties().items()}
+"""RNA name -> property of every setting the panel holds; the names are a .blend's keys."""
+NETWORK_FIELDS, TRAIN_FIELDS = (
+    tuple(name for name in DECLARED if name in {field.name for field in dataclasses.fields(kind)})
+    for kind in (defaults.NetworkConfig, defaults.TrainConfig))
+"""The NetworkConfig and TrainConfig fields the panel holds (``adopt`` takes the first from a
+loaded model)."""
+
+
+def _declared(cls: type) -> type:
+    """Adds the declared settings' properties (``DECLARED``) to the property group ``cls``."""
+    cls.__annotations__ = {**DECLARED, **cls.__annotations__}
+    return cls
+
+
+@_declared
 class VDNIFSettings(bpy.types.PropertyGroup):
-    resolution: _int("Voxel Resolution", "resolution", RECIPE.resolution,
-                     description="Voxels along the object's longest side: more follow finer "
-                                 "detail and bends, and make the dataset larger")
-    pose_source: EnumProperty(name="Poses", default=PoseSpec.source, items=[
-        (name, *_POSE_SOURCE_TEXT[name]) for name in defaults.POSE_SOURCES],
-        description="Where the poses the network learns from come from")
-    pose_count: _int("Pose Count", "poses", RECIPE.poses, soft_max=1024,
-                     description="Poses the network learns from: more poses cover more of "
-                                 "the rig's motion; each adds to the dataset and its time")
-    seed: _int("Seed", "seed", PoseSpec.seed,
-               description="Starting number of the random poses and of training's random "
-                           "choices: another seed gives other poses")
-    max_angle: FloatProperty(name="Maximum Angle", default=PoseSpec.max_angle_deg,
-                             min=BOUNDS["max_angle"][0], max=BOUNDS["max_angle"][1],
-                             description="Largest random bone rotation per axis in degrees, "
-                                         "for bones without rotation limits")
-    rays_per_pose: _int("Rays per Pose", "rays_per_pose", RECIPE.rays_per_pose,
-                        soft_max=65536,
-                        description="Rays shot at the object in each pose to make training "
-                                    "examples: more rays, fewer holes, a larger dataset")
-    variant: EnumProperty(name="Variant", items=VARIANTS, default=defaults.AUTO_VARIANT,
-                          update=_variant_changed,
-                          description="Which kind of network to train")
-    levels: _int("Levels", "levels", NETWORK.levels, soft_max=16,
-                 description="Detail levels of the hash grid, coarse to fine: more levels "
-                             "hold finer detail and render a little slower")
-    base_resolution: _int("Base Resolution", "base_resolution", NETWORK.base_resolution,
-                          description="Cells along each side of the coarsest hash-grid level")
-    log2_table_size: _int("Table Size (log2)", "log2_table_size", NETWORK.log2_table_size,
-                          description="Entries of each hash-grid level as a power of two (16: "
-                                      "65,536): larger tables keep more detail in a larger "
-                                      "model")
-    feature_dim: _int("Feature Dim", "feature_dim", NETWORK.feature_dim,
-                      description="Numbers stored per hash-grid entry: more hold more detail "
-                                  "in a larger, slower model")
-    pe_bands: _int("PE Bands", "pe_bands", NETWORK.pe_bands,
-                   description="Positional-encoding bands: waves of rising frequency that let "
-                               "the network place fine detail (0: none; Automatic uses its "
-                               "variant's own)")
-    width: _int("Width", "width", NETWORK.width,
-                description="Neurons per layer of the network: wider learns more and renders "
-                            "slower")
-    depth: _int("Depth", "depth", NETWORK.depth,
-                description="Hidden layers of the network: deeper learns more and renders "
-                            "slower")
-    steps: _int("Steps", "steps", RECIPE.steps,
-                description="Training steps: more steps take longer and usually lower the "
-                            "error")
-    batch_size: _int("Batch Size", "batch_size", RECIPE.batch_size,
-                     description="Ray pieces the network learns from per step: larger batches "
-                                 "learn steadier and need more memory")
-    device: EnumProperty(name="Device", default="PREFERENCES", items=[
-        ("PREFERENCES", "Preferences", "The device chosen in the add-on's preferences"),
-        *preferences.DEVICES],
-        description="Where training and rendering run: the CPU or an NVIDIA GPU")
-    precision: EnumProperty(name="Precision", default=defaults.DEFAULT_PRECISION, items=[
-        ("float32", "Float32", "Full precision"),
-        ("bfloat16", "BFloat16", "Faster where the device has bfloat16 instructions (an NVIDIA "
-                                 "GPU, a CPU with AVX-512 BF16 or AMX), a little less exact")],
-        description="The arithmetic of the network's layers when it renders")
+    # The settings the panel shares with the commands and the core are DECLARED; these are
+    # the panel's own state.
     view: EnumProperty(name="View", default="CAMERA", items=[
         ("CAMERA", "Camera", "Render through the scene's active camera"),
         ("VIEWPORT", "Viewport", "Render the 3D Viewport's view")],
         description="What the passes are rendered through")
-    image_width: _int("Width", "image_side", defaults.PANEL_IMAGE[0], subtype="PIXEL",
-                      description="Width of the rendered pass images in pixels")
-    image_height: _int("Height", "image_side", defaults.PANEL_IMAGE[1], subtype="PIXEL",
-                       description="Height of the rendered pass images in pixels")
-    eval_poses: _int("Evaluation Poses", "poses", defaults.EVALUATION_POSES,
-                     description="Unseen poses the model is evaluated on")
-    ao_samples: _int("AO Samples", "ao_samples", defaults.AO_SAMPLES, soft_max=256,
-                     description="Ambient-occlusion rays per pixel: more give a smoother "
-                                 "image and take longer")
-    ao_distance: FloatProperty(name="AO Distance", default=defaults.AO_DISTANCE,
-                               min=BOUNDS["ao_distance"][0], max=BOUNDS["ao_distance"][1],
-                               soft_max=1.0, precision=3,
-                               description="How far an ambient-occlusion ray looks for an "
-                                           "occluder, in object units (the object's longest "
-                                           "side is 1)")
     dataset_dir: StringProperty(name="Dataset Folder", subtype="DIR_PATH",
                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                                 description="Where the training examples are written. Empty: "

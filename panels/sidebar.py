@@ -20,6 +20,7 @@ from ..operators.scene import (
     VDNIF_OT_voxelize,
 )
 from ..operators.training import VDNIF_OT_estimate, VDNIF_OT_train, fresh_estimate, needs_dataset
+from ..vdnif_addon import declarations as declared
 from ..vdnif_addon.inference.metrics import verdict
 from ..vdnif_addon.passes import SECONDARY_PASSES
 from ..vdnif_addon.presets import PRESET_NAMES
@@ -68,6 +69,11 @@ class StepPanel(SidebarPanel):
         layout.use_property_split = True
         layout.use_property_decorate = False
         self.draw_step(layout, context, context.active_object.vdnif)
+        # Declared settings placed in this panel without a layout line of their own.
+        placed = [rna for rna, (_, panel) in declared.panel_properties().items()
+                  if panel.section == self.bl_rna.identifier]
+        if placed:
+            properties(layout, context.active_object.vdnif, placed)
 
 
 class VDNIF_PT_main(SidebarPanel, bpy.types.Panel):

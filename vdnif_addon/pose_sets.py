@@ -8,6 +8,7 @@ import json
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from . import declarations as declared
 from .errors import VDNIFError
 from .settings import BOUNDS, EVALUATION_POSES, POSE_SOURCES
 
@@ -28,10 +29,10 @@ class PoseSpec:
     ``avoid`` (``poses.evaluation_spec``): the training poses these must be disjoint from, as
     the PoseSpec that chose them or as a tuple of a model's pose dicts."""
 
-    source: str = "random"
+    source: str = declared.POSE_SOURCE.default
     count: int = EVALUATION_POSES
-    seed: int = 0
-    max_angle_deg: float = 45.0
+    seed: int = declared.SEED.default
+    max_angle_deg: float = declared.MAX_ANGLE.default
     lattice_fraction: float = 0.3
     deform: ExtremeDeform | None = None
     avoid: PoseSpec | tuple[dict[str, Any], ...] | None = None

@@ -5,7 +5,9 @@ validation, read by the batch commands' parser, the panel's properties and the c
 ``pose_sets``'.
 
 Imports neither torch, nor bpy, nor Warp, nor numpy, so the UI and the command-line parser can
-read it cheaply. Hard memory caps live in ``limits``; the ranges here are read from them.
+read it cheaply. Hard memory caps live in ``limits``; each user setting's default, range and
+help is declared once in ``declarations``, and the values here that a user sets are read
+from there.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from . import declarations as declared
 from . import limits
 from .checks import check_choice, check_int, check_number
 from .errors import VDNIFError
@@ -32,22 +35,17 @@ class Recipe:
     the bounds; steps and batch_size: optimizer steps of batch_size segments.
     """
 
-    resolution: int = 32
+    resolution: int = declared.RESOLUTION.default
     # A textured mesh (``RestMesh.albedo_varies``) trains finer: coarser voxels alone move
     # the hits enough to blur the albedo read at them (DESIGN section 8).
     textured_resolution: int = 64
-    poses: int = 32
-    # Many distinct ray lines near silhouettes remove holes and extras (docs/HOLES.md); more
-    # than this cost memory for little gain (docs/DESIGN.md section 8, training rays per pose).
-    rays_per_pose: int = 65536
-    surface_fraction: float = 0.4
-    grazing_fraction: float = 0.3
-    # None: the network's secondary rays leave its own hits, which the offset sized to the
-    # model serves as well without them, and a share costs primary distance (results.md).
-    secondary_fraction: float = 0.0
-    # A cap the stopping rule may end sooner; clean passes need 3,000 (DESIGN section 8).
-    steps: int = 3000
-    batch_size: int = 2**14
+    poses: int = declared.POSES.default
+    rays_per_pose: int = declared.RAYS_PER_POSE.default
+    surface_fraction: float = declared.SURFACE_FRACTION.default
+    grazing_fraction: float = declared.GRAZING_FRACTION.default
+    secondary_fraction: float = declared.SECONDARY_FRACTION.default
+    steps: int = declared.STEPS.default
+    batch_size: int = declared.BATCH_SIZE.default
 
     def resolution_for(self, textured: bool) -> int:
         """The voxel resolution a mesh trains at unless told: finer where it is textured."""
@@ -83,7 +81,8 @@ SUGGEST_PRESET, SUGGEST_POSES, SUGGEST_VIEW_SIZE = "balanced", 4, 96
 # hit the surface it leaves: SECONDARY_OFFSET object units above an exact hit (off by
 # rounding only); a network's hit is off by its distance error, so the most of that,
 # SECONDARY_OFFSET_VOXELS voxels and SECONDARY_OFFSET_ERRORS x its held-out distance MAE.
-AO_SAMPLES, AO_DISTANCE, DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = 16, 0.1, (0.3, -0.4, 0.866), 0
+AO_SAMPLES, AO_DISTANCE = declared.AO_SAMPLES.default, declared.AO_DISTANCE.default
+DEFAULT_LIGHT_DIRECTION, SECONDARY_SEED = (0.3, -0.4, 0.866), 0
 SECONDARY_OFFSET, SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS = 1e-3, 0.125, 1.5
 # The height is reached along the ray (a push along the normal shifts a shadow's edge); a ray
 # at a cosine below SECONDARY_GRAZING_COSINE goes offset / it along, the rest along the normal.
@@ -95,27 +94,19 @@ SECONDARY_SELF_REACH, SECONDARY_SELF_COSINE, SECONDARY_SELF_SKIPS = 4.0, 0.3, 3
 
 # --------------------------------------------------------------------------- names
 
-DEVICES = ("auto", "cpu", "cuda")
+DEVICES, DEFAULT_DEVICE = declared.DEVICE.names, declared.DEVICE.default
 """Where the network runs: auto is CUDA where torch has it, else the CPU."""
-DEFAULT_DEVICE = "auto"
-PRECISIONS = ("float32", "bfloat16")
-"""The arithmetic of a render's MLPs: float32, or bfloat16 where the device has bfloat16
-instructions (CUDA, a CPU with AVX-512 BF16 or AMX), faster and a little less exact; the
-hash grids and the readout stay float32."""
-DEFAULT_PRECISION = "float32"
-POSE_SOURCES = ("random", "frames")
+PRECISIONS, DEFAULT_PRECISION = declared.PRECISION.names, declared.PRECISION.default
+"""The arithmetic of a render's MLPs (``declarations.PRECISION``)."""
+POSE_SOURCES = declared.POSE_SOURCE.names
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
 DISTANCE_MODES = ("fraction", "log1p-fraction", "log-distance")
 """``fraction``: LSNIF's sigmoid t/l. ``log1p-fraction``: the proposed ReLU log1p(t/l),
 scale-invariant, its error taken in t/l (``losses.distance_error``). ``log-distance``: the
 paper's written form, ReLU log1p(d/h) of the rest distance d from the segment's start in
 voxel edges h, unbounded, its MSE taken in log space (the ablation's; DESIGN section 8)."""
-ALBEDO_MODES = ("segment", "hit")
-"""``segment``: the paper's albedo head over the segment's end points. ``hit``: an albedo field
-of the rest point, read at the placed hit (``IntersectionNetwork.point_fields``; DESIGN 8)."""
-NORMAL_MODES = ("segment", "hit")
-"""``segment``: the paper's normal head over the segment's end points. ``hit``: a normal field
-of the rest point, read at the placed hit, as the albedo's (DESIGN 8)."""
+ALBEDO_MODES, NORMAL_MODES = declared.ALBEDO_MODE.names, declared.NORMAL_MODE.names
+"""Where the albedo and the normal come from (``declarations.ALBEDO_MODE``)."""
 WEIGHTINGS = ("uncertainty", "fixed")
 """Loss weighting (``losses.make_weighting``): learned log-variances, or the plain sum."""
 WEIGHTING_STARTS = ("zero", "equal")
@@ -123,51 +114,28 @@ WEIGHTING_STARTS = ("zero", "equal")
 regression task 0.5), or ``equal``, s_i = log of the task's scale (every task weighs 1)."""
 DEFAULT_WEIGHTING_START = "equal"
 """The recipe's start (``TrainConfig.weighting_start`` says why); the paper names none."""
-PE_SCALES = {"paper": 1.0, "pi": math.pi}
+PE_SCALES = dict(zip(declared.PE_FORM.names, (1.0, math.pi), strict=True))
 """``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
 AUTO_RESOLUTION = "auto"
 """``--resolution auto``: the suggested resolution of the scene."""
 
 # --------------------------------------------------------------------------- ranges
 
-MIN_RESOLUTION, MAX_RESOLUTION = 4, 256
+MIN_RESOLUTION, MAX_RESOLUTION = declared.RESOLUTION.range
 """Voxels along the object's longest side."""
-MAX_GRID_RESOLUTION = 2**16
+MAX_GRID_RESOLUTION = declared.BASE_RESOLUTION.high
 """Cells per axis of the hash grid's finest level."""
-MAX_STEPS = 10**7
-"""The panel's IntProperty holds a signed 32-bit int; this is far beyond any useful run."""
-EVALUATION_POSES = 8
+MAX_STEPS = declared.STEPS.high
+EVALUATION_POSES = declared.EVALUATION_POSES.default
 """Unseen poses a model is evaluated on unless told otherwise (panel and ``evaluate``)."""
-COMMAND_IMAGE = (128, 128)
+COMMAND_IMAGE = (declared.IMAGE_WIDTH.default, declared.IMAGE_HEIGHT.default)
 """Width and height of the batch commands' images (references, render, evaluate)."""
-PANEL_IMAGE = (320, 240)
-"""Width and height of the panel's renders: a 4:3 picture worth looking at."""
+PANEL_IMAGE = tuple(setting.panel[0].default for setting in (declared.IMAGE_WIDTH,
+                                                              declared.IMAGE_HEIGHT))
+"""Width and height of the panel's renders."""
 
-BOUNDS: dict[str, tuple[float, float]] = {
-    "resolution": (MIN_RESOLUTION, MAX_RESOLUTION),
-    "poses": (1, limits.MAX_POSES),
-    "seed": (0, limits.MAX_SEED),
-    "max_angle": (0.1, 180.0),
-    "rays_per_pose": (1, limits.MAX_RAYS_PER_POSE),
-    "surface_fraction": (0.0, 1.0),
-    "grazing_fraction": (0.0, 1.0),
-    "secondary_fraction": (0.0, 1.0),
-    "ao_samples": (1, 1024), "ao_distance": (1e-6, 1e3),
-    "levels": (1, 64),
-    "base_resolution": (1, MAX_GRID_RESOLUTION),
-    "growth": (1.0, 16.0),
-    "log2_table_size": (1, limits.MAX_LOG2_TABLE_SIZE),
-    "feature_dim": (1, 64),
-    "pe_bands": (0, 16),
-    "width": (1, 4096),
-    "depth": (1, 64),
-    "steps": (1, MAX_STEPS),
-    "batch_size": (1, limits.MAX_BATCH),
-    "image_side": (1, limits.MAX_IMAGE_SIDE),
-}
-"""Closed range [low, high] of each numeric setting, by its field name. max_angle: degrees of
-the largest random bone rotation per axis (0.1: the panel's smallest, and a rotation of 0 or
-less makes no random pose)."""
+BOUNDS: dict[str, tuple[float, float]] = declared.bounds()
+"""Closed range [low, high] of each numeric setting, by its name (``declarations``)."""
 
 _COUNT = (1, 2**40)
 """Range of the core-only counts (val_segments, log_interval): positive."""
@@ -256,26 +224,20 @@ class NetworkConfig:
     """Architecture of one intersection network; defaults are the paper's setting. Model
     files store ``to_dict()``: renaming a field breaks every stored model."""
 
-    levels: int = 2
-    base_resolution: int = 64
-    growth: float = 2.0
-    log2_table_size: int = 16
-    feature_dim: int = 3
-    pe_bands: int = 3
-    pe_form: str = "paper"
-    width: int = 64
-    depth: int = 3
+    levels: int = declared.LEVELS.default
+    base_resolution: int = declared.BASE_RESOLUTION.default
+    growth: float = declared.GROWTH.default
+    log2_table_size: int = declared.LOG2_TABLE_SIZE.default
+    feature_dim: int = declared.FEATURE_DIM.default
+    pe_bands: int = declared.PE_BANDS.default
+    pe_form: str = declared.PE_FORM.default
+    width: int = declared.WIDTH.default
+    depth: int = declared.DEPTH.default
     distance_mode: str = "log1p-fraction"
-    # The field at the placed hit: a sharper albedo, and the MLP freed of the albedo columns
-    # places hits better (ALBEDO_MODES).
-    albedo_mode: str = "hit"
-    # The same for the normal: it follows the placed hit, and the shadow's facing test with it.
-    normal_mode: str = "hit"
-    # The normal field's own grid (the base resolution, growth and features of the one above),
-    # finer than the encoder's: a scanned surface's normal varies within a voxel, and the
-    # shadow's facing test reads it at the terminator.
-    normal_levels: int = 3
-    normal_log2_table_size: int = 17
+    albedo_mode: str = declared.ALBEDO_MODE.default
+    normal_mode: str = declared.NORMAL_MODE.default
+    normal_levels: int = declared.NORMAL_LEVELS.default
+    normal_log2_table_size: int = declared.NORMAL_LOG2_TABLE_SIZE.default
     heads: Heads = field(default_factory=Heads)
 
     def __post_init__(self) -> None:
@@ -344,7 +306,7 @@ class TrainConfig:
     # the whole run, and "zero" placed the passes' head-on hits worse than deformed did
     # (DESIGN section 8).
     weighting_start: str = DEFAULT_WEIGHTING_START
-    seed: int = 0
+    seed: int = declared.SEED.default
     device: str = DEFAULT_DEVICE
     val_fraction: float = 0.1
     val_segments: int = 2**16
@@ -393,8 +355,8 @@ VARIANTS: dict[str, dict[str, Any]] = {
 }
 """Variant name -> its NetworkConfig / TrainConfig fields and whether it trains on many
 deformed poses (``deformed_data``) or the rest pose alone."""
-TRAINABLE_VARIANTS = ("lsnif", "deformed", "proposed")
+TRAINABLE_VARIANTS = declared.TRAINABLE_VARIANTS
 """The methods a user trains (``train --variant``, the panel); the ablations are studies'."""
 DEFAULT_VARIANT, STATIC_VARIANT = "proposed", "lsnif"
-AUTO_VARIANT = "auto"
+AUTO_VARIANT = declared.VARIANT.default
 """The panel's choice of DEFAULT_VARIANT or STATIC_VARIANT by the scene (``choose_variant``)."""

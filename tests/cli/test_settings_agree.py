@@ -1,136 +1,109 @@
-"""One value per setting: the panel's properties (as Blender registered them), the batch
-parser's options and the core's configurations agree on every default, range and choice
-with ``vdnif_addon/settings.py``.
+"""The generators make what the settings' declarations say (``vdnif_addon/declarations.py``):
+every declared option is in the commands that take it with the declared flag, metavar,
+default, choices and help (``cli.options.add_setting``); every declared panel property is
+registered under its RNA name with the declared type, default, range and items
+(``properties.declared_property``, read in a fresh Blender process); docs/cli.md's option
+tables are what ``tools/cli_docs.py`` writes; the core's configurations default to the
+declared values; and the parser, the panel and the core each refuse a value just past the
+declared range and take its bounds.
 
-Each row of a table below names where a setting appears: a property of ``Object.vdnif`` (or
-of the preferences), an option of a command, a field of a core configuration. The values
-are read from what was built (the registered RNA, read in a fresh Blender process, the
-parsed defaults, the dataclass defaults, the validation that refuses a value), never copied
-from settings.py.
+Values are read from what was built (the parser's actions, the registered RNA, the
+configurations, the validation that refuses a value), never copied from the declarations.
 """
 
+import argparse
 import dataclasses
+import importlib.util
 import json
 import subprocess
 import sys
 import types
 
+import numpy as np
 import pytest
-from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE
+from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE, REPO
 
+from vdnif_addon import declarations as declared
 from vdnif_addon import settings
-from vdnif_addon.cli import build_parser
+from vdnif_addon.cli import build_parser, show_default
 from vdnif_addon.cli.options import validate_arguments
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.limits import check_image
 from vdnif_addon.pose_sets import PoseSpec
-from vdnif_addon.settings import BOUNDS, RECIPE, NetworkConfig, TrainConfig
+from vdnif_addon.settings import RECIPE, NetworkConfig, TrainConfig
 
-NETWORK = NetworkConfig()
-TRAIN = TrainConfig()
-SPEC = PoseSpec()
+_spec = importlib.util.spec_from_file_location("cli_docs", REPO / "tools" / "cli_docs.py")
+cli_docs = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(cli_docs)
 
-# setting: (panel property, command and its option's dest, the core's default or None)
-DEFAULTS = {
-    # The commands' default is None, the recipe's of the mesh (test_resolution.py).
-    "resolution": ("resolution", None, RECIPE.resolution),
-    "poses": ("pose_count", ("train", "poses"), RECIPE.poses),
-    "evaluation poses": ("eval_poses", ("evaluate", "poses"), settings.EVALUATION_POSES),
-    "pose source": ("pose_source", ("train", "pose_source"), SPEC.source),
-    "seed": ("seed", ("train", "seed"), SPEC.seed),
-    "max angle": ("max_angle", ("train", "max_angle"), SPEC.max_angle_deg),
-    "rays per pose": ("rays_per_pose", ("train", "rays_per_pose"), RECIPE.rays_per_pose),
-    "steps": ("steps", ("train", "steps"), TRAIN.steps),
-    "batch size": ("batch_size", ("train", "batch"), TRAIN.batch_size),
-    "levels": ("levels", None, NETWORK.levels),
-    "base resolution": ("base_resolution", None, NETWORK.base_resolution),
-    "table size": ("log2_table_size", None, NETWORK.log2_table_size),
-    "feature dim": ("feature_dim", None, NETWORK.feature_dim),
-    "pe bands": ("pe_bands", None, NETWORK.pe_bands),
-    "width": ("width", None, NETWORK.width),
-    "depth": ("depth", None, NETWORK.depth),
-    "surface fraction": (None, ("dataset", "surface_fraction"), RECIPE.surface_fraction),
-    "grazing fraction": (None, ("dataset", "grazing_fraction"), RECIPE.grazing_fraction),
-    "secondary fraction": (None, ("dataset", "secondary_fraction"),
-                           RECIPE.secondary_fraction),
-    "ao samples": ("ao_samples", ("evaluate", "ao_samples"), settings.AO_SAMPLES),
-    "ao distance": ("ao_distance", ("evaluate", "ao_distance"), settings.AO_DISTANCE),
-    "image width": (None, ("evaluate", "width"), settings.COMMAND_IMAGE[0]),
-    "image height": (None, ("evaluate", "height"), settings.COMMAND_IMAGE[1]),
-}
-"""The network options of ``train`` default to None (the variant's own): their default is the
-core's, checked through the variant in test_train.test_variants."""
+SAVED_RNA_NAMES = {
+    "resolution", "pose_source", "pose_count", "seed", "max_angle", "rays_per_pose", "variant",
+    "levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands", "width", "depth",
+    "steps", "batch_size", "device", "precision", "image_width", "image_height", "eval_poses",
+    "ao_samples", "ao_distance"}
+"""The declared panel properties' RNA names as .blend files saved before the declarations
+store them: a renamed one would lose a saved file's value."""
 
-# BOUNDS key: (panel properties, the command and options that take it, core field or None)
-RANGES = {
-    "resolution": (["resolution"], ("capture", ["--resolution"]), None),
-    "poses": (["pose_count", "eval_poses"], ("capture", ["--poses"]), "pose count"),
-    "seed": (["seed"], ("capture", ["--seed"]), "train seed"),
-    "max_angle": (["max_angle"], ("capture", ["--max-angle"]), "max angle"),
-    "rays_per_pose": (["rays_per_pose"], ("dataset", ["--rays-per-pose"]), None),
-    "surface_fraction": ([], ("dataset", ["--surface-fraction"]), None),
-    "grazing_fraction": ([], ("dataset", ["--grazing-fraction"]), None),
-    "secondary_fraction": ([], ("dataset", ["--secondary-fraction"]), None),
-    "ao_samples": (["ao_samples"], ("references", ["--ao-samples"]), "secondary"),
-    "ao_distance": (["ao_distance"], ("references", ["--ao-distance"]), "secondary"),
-    "levels": (["levels"], ("train", ["--levels", "--normal-levels"]), "network"),
-    "base_resolution": (["base_resolution"], ("train", ["--base-resolution"]), "network"),
-    "growth": ([], ("train", ["--growth"]), "network"),
-    "log2_table_size": (["log2_table_size"],
-                        ("train", ["--log2-table-size", "--normal-log2-table-size"]), "network"),
-    "feature_dim": (["feature_dim"], ("train", ["--feature-dim"]), "network"),
-    "pe_bands": (["pe_bands"], ("train", ["--pe-bands"]), "network"),
-    "width": (["width"], ("train", ["--width"]), "network"),
-    "depth": (["depth"], ("train", ["--depth"]), "network"),
-    "steps": (["steps"], ("train", ["--steps"]), "train"),
-    "batch_size": (["batch_size"], ("train", ["--batch"]), "train"),
-    "image_side": (["image_width", "image_height"],
-                   ("references", ["--width", "--height"]), None),
-}
-"""Every BOUNDS entry appears here (test_every_bound_is_checked)."""
+WORDED = {("resolution", command) for command in declared.RESOLUTION.option.commands} | {
+    ("poses", "side-by-side"), ("seed", "side-by-side"), ("rays_per_pose", "train"),
+    ("steps", "demo")}
+"""(setting, command) whose option help the command words for itself."""
 
+REQUIRED = {"dataset": ["--out", "d"], "train": ["--data", "d"], "render": ["--model", "m",
+            "--out", "o"], "evaluate": ["--model", "m"], "experiment": ["static"]}
+"""The arguments a command needs to parse."""
 
-# Run after ENABLE_IN_FRESH_PROCESS: prints the registered properties' defaults, ranges and
-# choices as JSON.
+# Run after ENABLE_IN_FRESH_PROCESS: prints the registered properties as JSON, and what each
+# number property holds after a value past either end of its hard range was set.
 DUMP_RNA = f"""
 import json
 
 def described(prop):
-    found = {{"type": prop.type}}
+    found = {{"type": prop.type, "name": prop.name, "description": prop.description,
+              "subtype": prop.subtype}}
     if prop.type in ("BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"):
         found["default"] = prop.default
     if prop.type in ("INT", "FLOAT"):
-        found["hard_min"], found["hard_max"] = prop.hard_min, prop.hard_max
+        found["hard"] = [prop.hard_min, prop.hard_max]
+        found["soft"] = [prop.soft_min, prop.soft_max]
+    if prop.type == "FLOAT":
+        found["precision"] = prop.precision
     if prop.type == "ENUM":
-        found["enum_items"] = [item.identifier for item in prop.enum_items]
+        found["items"] = [[item.identifier, item.value] for item in prop.enum_items]
     return found
 
-def table(rna):
-    return {{name: described(prop) for name, prop in rna.properties.items()
-             if name != "rna_type" and not getattr(prop, "is_array", False)}}
-
+rna = bpy.types.Object.bl_rna.properties["vdnif"].fixed_type
+table = {{name: described(prop) for name, prop in rna.properties.items()
+          if name != "rna_type" and not getattr(prop, "is_array", False)}}
+mesh = bpy.data.meshes.new("m")
+settings = bpy.data.objects.new("o", mesh).vdnif
+for name, row in table.items():
+    if row["type"] in ("INT", "FLOAT"):
+        low, high = row["hard"]
+        past = 1 if row["type"] == "INT" else (high - low) * 1e-3
+        held = []
+        for value in (low - past, high + past):
+            if row["type"] == "INT" and not -2**31 <= value < 2**31:
+                continue
+            setattr(settings, name, value)
+            held.append(getattr(settings, name))
+        row["held"] = held
 preferences = bpy.context.preferences.addons["{EXTENSION_MODULE}"].preferences
-print(json.dumps([table(bpy.types.Object.bl_rna.properties["vdnif"].fixed_type),
-                  table(preferences.bl_rna)]))
+print(json.dumps([table, described(preferences.bl_rna.properties["device"])]))
 """
 
 
 @pytest.fixture(scope="module")
 def panel():
-    """The registered RNA of ``Object.vdnif`` and of the preferences: name -> property (its
-    type, default, hard range and enum identifiers), read in a fresh Blender process that
+    """The registered RNA of ``Object.vdnif`` (name -> its type, label, tooltip, default,
+    ranges, items) and of the preferences' device, read in a fresh Blender process that
     enables the extension, so this file keeps to one copy of the core in its own process
     (tests/project/test_module_identity.py)."""
     done = subprocess.run([sys.executable, "-c", ENABLE_IN_FRESH_PROCESS + DUMP_RNA],
                           capture_output=True, text=True, timeout=120, check=True)
-    tables = json.loads(done.stdout.strip().splitlines()[-1])
-    for rows in tables:
-        for name, row in rows.items():
-            row["enum_items"] = [types.SimpleNamespace(identifier=item)
-                                 for item in row.get("enum_items", [])]
-            rows[name] = types.SimpleNamespace(**row)
-    properties, preferences = tables
-    assert len(properties) > 20 and "device" in preferences     # the tables were read
-    return properties, preferences
+    table, device = json.loads(done.stdout.strip().splitlines()[-1])
+    assert len(table) > 30                                        # the table was read
+    return {name: types.SimpleNamespace(**row) for name, row in table.items()}, device
 
 
 @pytest.fixture(scope="module")
@@ -138,124 +111,293 @@ def parser():
     return build_parser()
 
 
-def command_defaults(parser, command):
-    """The parsed defaults of ``command`` with the fewest arguments it takes."""
-    required = {"dataset": ["--out", "d"], "evaluate": ["--model", "m"], "train": [],
-                "references": [], "capture": []}[command]
-    return parser.parse_args([command, *required])
+def command_parsers(parser):
+    return next(action for action in parser._actions
+                if isinstance(action, argparse._SubParsersAction)).choices
+
+
+def action_of(parser, command, flag):
+    return next(action for action in command_parsers(parser)[command]._actions
+                if flag in action.option_strings)
+
+
+def declared_options():
+    """(setting, command) of every declared option, for parametrize."""
+    return [pytest.param(setting, command, id=f"{command} {setting.option.flag}")
+            for setting in declared.SETTINGS if setting.option is not None
+            for command in setting.option.commands]
+
+
+def numbers():
+    return [pytest.param(setting, id=setting.name) for setting in declared.SETTINGS
+            if setting.kind in (int, float)]
+
+
+def test_declarations_are_whole():
+    names = [setting.name for setting in declared.SETTINGS]
+    assert len(names) == len(set(names)) > 20
+    rna = [panel.rna for setting in declared.SETTINGS for panel in setting.panel]
+    assert len(rna) == len(set(rna))
+    for setting in declared.SETTINGS:
+        assert setting.help and "\n" not in setting.help, setting.name
+        if setting.kind in (int, float):
+            values = [setting.default, *(p.default_of(setting) for p in setting.panel)]
+            if setting.option is not None:
+                values += [setting.option.default_for(setting, command)
+                           for command in setting.option.commands]
+            low, high = setting.range
+            assert all(low <= value <= high for value in values if value is not None), setting
+        else:
+            assert setting.default in setting.names, setting.name
+    for command in command_parsers(build_parser()):
+        flags = [setting.option.flag for setting in declared.command_options(command)]
+        assert len(flags) == len(set(flags)), command
+
+
+@pytest.mark.parametrize("setting, command", declared_options())
+def test_each_declared_option_is_generated(parser, setting, command):
+    option = setting.option
+    action = action_of(parser, command, option.flag)
+    assert action.dest == option.dest
+    assert action.default == option.default_for(setting, command)
+    assert action.metavar == option.metavar
+    parsed_choices = setting.choices and option.parse_choices
+    assert action.choices == (option.names(setting) if parsed_choices else None)
+    if (setting.name, command) not in WORDED:
+        assert action.help == (option.help or setting.help)
+    else:
+        assert action.help and action.help != setting.help
+    if setting.kind in (int, float):        # the type parses the declared bounds
+        argv = [command, *REQUIRED.get(command, []), f"{option.flag}={setting.high}"]
+        assert getattr(parser.parse_args(argv), option.dest) == setting.high
+
+
+def test_the_parsers_hold_no_undeclared_copy_of_a_setting(parser):
+    """Where a command has a declared setting's flag, the declarations give it that option:
+    no command adds one by hand past its declaration."""
+    flags = {setting.option.flag for setting in declared.SETTINGS if setting.option}
+    for name, command in command_parsers(parser).items():
+        present = {flag for action in command._actions for flag in action.option_strings}
+        wanted = {setting.option.flag for setting in declared.command_options(name)}
+        assert present & flags == wanted, name
+
+
+def test_a_new_declaration_reaches_the_parser_the_validation_and_the_doc(monkeypatch):
+    """A setting declared with an option of two commands, and nothing else: both commands
+    take it with its help and default, the validation refuses it past its range, and the
+    doc generator writes its row."""
+    new = declared.Setting("probe_count", int, 7, "probes per pixel", 1, 99,
+                           option=declared.Option("--probe-count", ("capture", "evaluate"), "P"))
+    monkeypatch.setattr(declared, "SETTINGS", (*declared.SETTINGS, new))
+    parser = build_parser()
+    for command in ("capture", "evaluate"):
+        action = action_of(parser, command, "--probe-count")
+        assert (action.default, action.help, action.metavar) == (7, "probes per pixel", "P")
+        argv = [command, *REQUIRED.get(command, [])]
+        assert parser.parse_args([*argv, "--probe-count", "99"]).probe_count == 99
+        with pytest.raises(VDNIFError, match="--probe-count 100 is more than the limit 99"):
+            validate_arguments(parser.parse_args([*argv, "--probe-count", "100"]))
+    assert "--probe-count" not in {flag for action in command_parsers(parser)["render"]._actions
+                                   for flag in action.option_strings}
+    rows = cli_docs.tables(parser)["capture"]
+    assert "| `--probe-count P` | 7 | probes per pixel |" in rows
+
+
+@pytest.mark.parametrize("rna", sorted(declared.panel_properties()))
+def test_each_declared_panel_property_is_generated(panel, rna):
+    properties, _ = panel
+    setting, declared_panel = declared.panel_properties()[rna]
+    prop = properties[rna]
+    assert (prop.name, prop.description) == (declared_panel.label, declared_panel.description)
+    default = declared_panel.default_of(setting)
+    assert prop.default == (pytest.approx(default) if setting.kind is float else default)
+    if setting.choices:
+        assert prop.type == "ENUM"
+        items = [[item[0], item[3] if len(item) > 3 else None]
+                 for item in setting.enum_items(declared_panel.extra)]
+        assert [identifier for identifier, _ in prop.items] == [i for i, _ in items]
+        assert all(value == number for (_, value), (_, number) in zip(prop.items, items)
+                   if number is not None)
+        return
+    assert prop.type == {int: "INT", float: "FLOAT"}[setting.kind]
+    assert prop.hard == pytest.approx(list(setting.range))
+    # Blender holds a value set past the range at the bound (past a C int: not tried).
+    assert prop.held == pytest.approx(list(setting.range)[:len(prop.held)]) and prop.held
+    if declared_panel.soft_max is not None:
+        assert prop.soft[1] == pytest.approx(declared_panel.soft_max)
+    if declared_panel.subtype is not None:
+        assert prop.subtype == declared_panel.subtype
+    if declared_panel.precision is not None:
+        assert prop.precision == declared_panel.precision
+
+
+def test_the_declared_panel_properties_keep_their_saved_names(panel):
+    assert SAVED_RNA_NAMES <= set(declared.panel_properties())
+    assert SAVED_RNA_NAMES <= set(panel[0])
+
+
+def test_the_preferences_device_is_the_declared_choices(panel):
+    _, device = panel
+    assert [identifier for identifier, _ in device["items"]] == list(declared.DEVICE.names)
+    assert device["default"] == declared.DEVICE.default == TrainConfig().device
+
+
+def test_the_doc_tables_are_the_generators():
+    """docs/cli.md's option tables are what ``tools/cli_docs.py --write`` writes, and each row
+    of a declared option gives its declared default and help."""
+    text = (REPO / "docs" / "cli.md").read_text()
+    assert cli_docs.rewrite(text, cli_docs.tables()) == text, \
+        "docs/cli.md differs from its generator: run python tools/cli_docs.py --write"
+    rows, heading, fenced = {}, None, False
+    for line in text.splitlines():
+        fenced ^= line.startswith("```")
+        if line.startswith("#") and not fenced:
+            heading = line.lstrip("#").strip()
+        elif line.startswith("| `--"):
+            cells = [cell.strip() for cell in line.strip("|").split(" | ")]
+            rows[heading, cells[0].strip("`").split()[0]] = cells
+    for setting in declared.SETTINGS:
+        if setting.option is None:
+            continue
+        for command in setting.option.commands:
+            spec, default, what = rows[command, setting.option.flag]
+            value = setting.option.default_for(setting, command)
+            if value is not None:
+                assert default == show_default(value), (command, spec)
+            if (setting.name, command) not in WORDED:
+                assert what == (setting.option.help or setting.help).replace("|", "\\|").split(
+                    " (default")[0], (command, spec)
+
+
+def test_a_changed_doc_row_fails_the_check(tmp_path):
+    text = (REPO / "docs" / "cli.md").read_text()
+    changed = text.replace("| `--levels L` | the variant's |", "| `--levels L` | 2 |")
+    assert changed != text
+    assert cli_docs.rewrite(changed, cli_docs.tables()) != changed
+    assert cli_docs.rewrite(changed, cli_docs.tables()) == text
+
+
+def test_the_core_defaults_are_the_declared_ones():
+    network, train, spec = NetworkConfig(), TrainConfig(), PoseSpec()
+    core = {**{name: getattr(config, name) for config in (network, train, RECIPE)
+               for name in CONFIG_FIELDS[type(config)]},
+            "pose_source": spec.source,
+            "max_angle": spec.max_angle_deg, "evaluation_poses": spec.count,
+            "ao_samples": settings.AO_SAMPLES, "ao_distance": settings.AO_DISTANCE,
+            "precision": settings.DEFAULT_PRECISION, "variant": settings.AUTO_VARIANT,
+            "image_width": settings.COMMAND_IMAGE[0], "image_height": settings.COMMAND_IMAGE[1]}
+    for setting in declared.SETTINGS:
+        assert core[setting.name] == setting.default, setting.name
+    assert (train.steps, train.batch_size) == (declared.STEPS.default,
+                                                declared.BATCH_SIZE.default)
+
+
+def _tetrahedron():
+    return (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float),
+            np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]))
+
+
+def _rays(name, value):
+    from vdnif_addon.tracing.rays import training_rays
+
+    shares = {"surface_fraction": 0.0, "grazing_fraction": 0.0, "secondary_fraction": 0.0,
+              name: value}
+    points = np.zeros((1, 3))
+    training_rays(np.zeros(3), np.ones(3), points, 1, shares.pop("surface_fraction"),
+                  np.random.default_rng(0), surface_normals=np.array([[0.0, 0.0, 1.0]]),
+                  **shares)
+
+
+def _secondary(**values):
+    from vdnif_addon.inference.secondary import SecondarySettings
+
+    SecondarySettings(**values)
+
+
+CONFIG_FIELDS = {config: {field.name for field in dataclasses.fields(config)}
+                 for config in (NetworkConfig, TrainConfig, type(RECIPE))}
+# The core's own check of each setting outside NetworkConfig and TrainConfig (whose fields
+# check themselves): a call that raises VDNIFError for a refused value (None: the setting
+# reaches the core only through a checked command or panel).
+CORE = {
+    "resolution": lambda value: __import__("vdnif_addon.geometry.voxels", fromlist=["x"])
+    .build_grid(*_tetrahedron(), value),
+    "poses": lambda value: PoseSpec(count=value),
+    "evaluation_poses": lambda value: PoseSpec(count=value),
+    "max_angle": lambda value: PoseSpec(max_angle_deg=value),
+    "rays_per_pose": None,
+    "surface_fraction": lambda value: _rays("surface_fraction", value),
+    "grazing_fraction": lambda value: _rays("grazing_fraction", value),
+    "secondary_fraction": lambda value: _rays("secondary_fraction", value),
+    "ao_samples": lambda value: _secondary(samples=value),
+    "ao_distance": lambda value: _secondary(distance=value),
+    "image_width": lambda value: check_image(value, 1),
+    "image_height": lambda value: check_image(1, value),
+}
+ALONE = {"base_resolution": {"levels": 1, "normal_levels": 1}, "levels": {"growth": 1.0},
+         "normal_levels": {"growth": 1.0}}
+"""One level for the largest base resolution, no growth for the most levels: else the
+finest level passes its own cap first."""
+EXPENSIVE = {"resolution"}
+"""Settings whose upper bound the core is not asked to take (a 256^3 voxel grid)."""
+
+
+def core_refuses(name, value):
+    if name in CORE:
+        check = CORE[name]
+    elif name in CONFIG_FIELDS[NetworkConfig]:
+        def check(value):
+            NetworkConfig(**{name: value, **ALONE.get(name, {})})
+    else:
+        def check(value):
+            TrainConfig(**{name: value})
+    if check is None:
+        return None
+    try:
+        check(value)
+    except VDNIFError:
+        return True
+    return False
 
 
 def refused(parser, command, option, value):
     """Whether ``command option value`` fails its validation (or its parsing)."""
-    required = {"dataset": ["--out", "d"], "train": ["--data", "d"]}.get(command, [])
     try:
-        validate_arguments(parser.parse_args([command, *required, f"{option}={value}"]))
+        validate_arguments(parser.parse_args([command, *REQUIRED.get(command, []),
+                                              f"{option}={value}"]))
     except VDNIFError:
         return True
     return False
 
 
-def core_refuses(kind, name, value):
-    """Whether the core configuration ``kind`` refuses ``value`` for the field ``name``."""
-    try:
-        if kind == "network":
-            # One level for the largest base resolution, no growth for the most levels: else
-            # the finest level passes its own cap first.
-            alone = {"base_resolution": {"levels": 1, "normal_levels": 1},
-                     "levels": {"growth": 1.0}}
-            NetworkConfig(**{name: value, **alone.get(name, {})})
-        elif kind == "train":
-            TrainConfig(**{name: value})
-        elif kind == "train seed":
-            TrainConfig(seed=value)
-        elif kind == "pose count":
-            PoseSpec(count=value)
-        elif kind == "max angle":
-            PoseSpec(max_angle_deg=value)
-        elif kind == "secondary":
-            from vdnif_addon.inference.secondary import SecondarySettings
-            SecondarySettings(**{name.removeprefix("ao_"): value})
-    except VDNIFError:
-        return True
-    return False
+@pytest.mark.parametrize("setting", numbers())
+def test_the_declared_range_is_enforced_by_the_parser_and_the_core(parser, setting):
+    """The panel's half: test_each_declared_panel_property_is_generated (the registered hard
+    range, and what a property holds when set past it)."""
+    low, high = setting.range
+    step = 1 if setting.kind is int else (high - low) * 1e-6
+    if setting.option is not None:
+        command = setting.option.commands[0]
+        flag = setting.option.flag
+        assert not refused(parser, command, flag, low) and not refused(parser, command, flag,
+                                                                       high)
+        assert refused(parser, command, flag, low - step)
+        assert refused(parser, command, flag, high + step)
+    if core_refuses(setting.name, low) is not None:
+        assert not core_refuses(setting.name, low)
+        assert setting.name in EXPENSIVE or not core_refuses(setting.name, high)
+        assert core_refuses(setting.name, low - step)
+        assert core_refuses(setting.name, high + step)
 
 
-def step_of(low, high):
-    """A small step past a bound: 1 for integers, a millionth of the range else."""
-    return 1 if isinstance(low, int) and isinstance(high, int) else (high - low) * 1e-6
-
-
-@pytest.mark.parametrize("name", list(DEFAULTS))
-def test_defaults_agree(name, panel, parser):
-    prop, option, core = DEFAULTS[name]
-    values = {"core": core}
-    if prop is not None:
-        values["panel"] = panel[0][prop].default
-    if option is not None:
-        command, dest = option
-        values["command"] = getattr(command_defaults(parser, command), dest)
-    assert len(values) > 1, f"{name} appears in one place only: not a row of this table"
-    assert all(value == pytest.approx(core) if isinstance(core, float) else value == core
-               for value in values.values()), values
-
-
-@pytest.mark.parametrize("name", list(RANGES))
-def test_ranges_agree(name, panel, parser):
-    low, high = BOUNDS[name]
-    props, (command, options), core = RANGES[name]
-    for prop in props:
-        rna = panel[0][prop]
-        assert (rna.hard_min, rna.hard_max) == pytest.approx((low, high)), prop
-    step = step_of(low, high)
-    for option in options:
-        assert not refused(parser, command, option, low) and not refused(
-            parser, command, option, high), (option, low, high)
-        assert refused(parser, command, option, low - step), (option, low - step)
-        assert refused(parser, command, option, high + step), (option, high + step)
-    if core is not None:
-        field = {"pose count": "count", "max angle": "max_angle_deg",
-                 "train seed": "seed"}.get(core, name)
-        assert not core_refuses(core, field, low) and not core_refuses(core, field, high)
-        assert core_refuses(core, field, low - step) and core_refuses(core, field, high + step)
-
-
-def test_every_bound_is_checked():
-    assert set(RANGES) == set(BOUNDS)
-
-
-def test_choices_agree(panel, parser):
-    properties, preferences = panel
-
-    def items(rna):
-        return [item.identifier for item in rna.enum_items]
-
-    def choices(command, dest):
-        subparsers = next(action for action in parser._actions if action.dest == "command")
-        action = next(action for action in subparsers.choices[command]._actions
-                      if action.dest == dest)
-        return list(action.choices)
-
-    assert items(preferences["device"]) == list(settings.DEVICES)
-    assert preferences["device"].default == settings.DEFAULT_DEVICE == TRAIN.device
-    assert items(properties["device"]) == ["PREFERENCES", *settings.DEVICES]
-    for command in ("train", "evaluate", "render", "demo", "bench-network"):
-        assert choices(command, "device") == list(settings.DEVICES), command
-        assert command_defaults_device(parser, command) == settings.DEFAULT_DEVICE
-    assert items(properties["precision"]) == list(settings.PRECISIONS)
-    assert properties["precision"].default == settings.DEFAULT_PRECISION
-    for command in ("render", "evaluate", "side-by-side"):
-        assert choices(command, "precision") == list(settings.PRECISIONS), command
-    assert items(properties["pose_source"]) == choices("capture", "pose_source") == list(
-        settings.POSE_SOURCES)
-    assert sorted(items(properties["variant"])) == sorted(
-        [settings.AUTO_VARIANT, *choices("train", "variant")])
-    assert choices("train", "variant") == list(settings.TRAINABLE_VARIANTS)
-    assert set(settings.TRAINABLE_VARIANTS) <= set(settings.VARIANTS)
-
-
-def command_defaults_device(parser, command):
-    required = {"evaluate": ["--model", "m"], "render": ["--model", "m", "--out", "o"]}
-    return parser.parse_args([command, *required.get(command, [])]).device
+def test_every_number_is_checked_somewhere():
+    """Each numeric setting reaches the user through an option or a panel property, and the
+    core checks it unless it names why not (CORE's None)."""
+    for setting in declared.SETTINGS:
+        if setting.kind in (int, float):
+            assert setting.option is not None or setting.panel, setting.name
+            assert setting.name in CORE or any(
+                setting.name in CONFIG_FIELDS[config] for config in (NetworkConfig, TrainConfig))
 
 
 def test_the_core_refuses_what_settings_does_not_name():
@@ -289,3 +431,22 @@ def test_the_core_refuses_what_settings_does_not_name():
         "levels", "base_resolution", "growth", "log2_table_size", "feature_dim", "pe_bands",
         "pe_form", "width", "depth", "distance_mode", "albedo_mode", "normal_mode",
         "normal_levels", "normal_log2_table_size", "heads"]  # model files' keys
+
+
+def test_a_declared_train_option_of_a_config_field_reaches_the_training(monkeypatch):
+    """``train``'s declared options that name a NetworkConfig or TrainConfig field are the
+    training's overrides: a new one needs no line of command code."""
+    from vdnif_addon.cli.options import network_overrides
+    from vdnif_addon.model.variants import variant_config
+
+    new = declared.Setting("lr_mlp", float, 2e-2, "the MLP's learning rate", 1e-6, 1.0,
+                           option=declared.Option("--lr-mlp", ("train",), "LR"))
+    monkeypatch.setattr(declared, "SETTINGS", (*declared.SETTINGS, new))
+    args = build_parser().parse_args(["train", "--data", "d", "--lr-mlp", "0.005",
+                                      "--levels", "3", "--steps", "7"])
+    overrides = network_overrides(args)
+    assert {name: overrides[name] for name in ("lr_mlp", "levels", "steps", "seed")} == {
+        "lr_mlp": 0.005, "levels": 3, "steps": 7, "seed": 0}
+    assert "growth" not in overrides                    # not given: the variant's own
+    chosen = variant_config("proposed", **overrides)
+    assert (chosen.train.lr_mlp, chosen.network.levels, chosen.train.steps) == (0.005, 3, 7)

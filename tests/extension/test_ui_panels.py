@@ -1,6 +1,7 @@
 """The sidebar panels draw against a recording layout in every state (no object, no torch,
 no model, training, trained, error), and the operators refuse bad input with a reason."""
 
+import dataclasses
 import itertools
 import json
 
@@ -64,7 +65,8 @@ class BoundTo:
         self.cls, self.layout = cls, layout
 
     def __getattr__(self, name):
-        return getattr(self.cls, name).__get__(self)
+        value = getattr(self.cls, name)
+        return value.__get__(self) if callable(value) and hasattr(value, "__get__") else value
 
 
 def draw_all(extension):
@@ -222,3 +224,18 @@ def test_operators_refuse_bad_input(empty_scene, extension):
                      "estimate"):
         with pytest.raises(RuntimeError, match="'Empty' has no faces"):
             getattr(bpy.ops.vdnif, operator)()
+
+
+def test_a_declared_property_is_drawn_in_the_panel_it_names(arm, extension, core, monkeypatch):
+    """A setting declared with a panel property and a ``section`` (a new one, with no layout
+    line of its own) is drawn by that panel: here the encoder's levels, moved to Passes."""
+    declarations = core("declarations")
+
+    def props(panel):
+        return [call[1] for call in draw_all(extension)[panel] if call[0] == "prop"]
+
+    assert "levels" not in props("VDNIF_PT_passes")
+    setting, panel = declarations.panel_properties()["levels"]
+    moved = {"levels": (setting, dataclasses.replace(panel, section="VDNIF_PT_passes"))}
+    monkeypatch.setattr(declarations, "panel_properties", lambda: moved)
+    assert props("VDNIF_PT_passes")[-1] == "levels"

@@ -17,7 +17,7 @@ from importlib.util import find_spec
 
 from ..errors import VDNIFError
 from . import pipeline
-from .options import validate_arguments
+from .options import add_declared_options, validate_arguments
 
 # The studies' commands and the studies themselves; an import error inside them still raises.
 if all(find_spec(f"{package}.studies") is not None
@@ -85,6 +85,9 @@ def build_parser():
     else:
         for name in STUDY_COMMANDS:
             commands.add_parser(name, help="developer study: needs the repository checkout")
+    for name, command in commands.choices.items():
+        if studies is not None or name not in STUDY_COMMANDS:
+            add_declared_options(command, name)
     return parser
 
 

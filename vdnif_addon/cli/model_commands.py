@@ -4,17 +4,16 @@ once and captures the scene of the options again as the model was trained on it
 
 import pathlib
 
+from .. import declarations as declared
 from ..inference.metrics import verdict
 from ..pose_sets import POSE_SETS, TEST_POSES
-from ..settings import COMMAND_IMAGE, EVALUATION_POSES
 from .options import (
-    add_device_option,
+    add_image_options,
     add_pose_options,
-    add_precision_option,
     add_scene_options,
     add_secondary_options,
+    add_setting,
     add_stress_options,
-    check_resolution,
     frames_option,
     load_posed_scene,
     output_file,
@@ -32,7 +31,6 @@ def _model_scene(args, evaluation=False):
     from ..blender.steps import model_capture
     from ..model.model_file import load_model
 
-    check_resolution(args.resolution)
     loaded, asked = load_model(args.model), args.resolution
     obj, spec = load_posed_scene(args)
     captured = model_capture(obj, loaded[1], spec, evaluation, resolution=asked,
@@ -142,43 +140,43 @@ def cmd_evaluate(args):
     return 0
 
 
-def _model_command(commands, name, run, default_poses, notes):
+def _model_command(commands, name, run, notes):
     """A command that uses a trained model on a scene; the resolution is the model's."""
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     parser.add_argument("--model", type=pathlib.Path, required=True, metavar="MODEL",
                         help="a model file written by 'train' or 'demo'")
     add_scene_options(parser)
-    parser.add_argument("--resolution", type=int, metavar="R",
-                        help="voxel resolution (default: the model's; must match it)")
-    add_pose_options(parser, default_poses)
+    add_setting(parser, declared.RESOLUTION, name,
+                help="voxel resolution, which must match the model's (default: the model's)")
+    add_pose_options(parser, name)
     add_stress_options(parser)
-    parser.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
-    parser.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
-    add_device_option(parser)
-    add_precision_option(parser)
-    add_secondary_options(parser)
+    add_image_options(parser, name)
+    add_setting(parser, declared.DEVICE, name)
+    add_setting(parser, declared.PRECISION, name)
+    add_secondary_options(parser, name)
     parser.set_defaults(run=run)
     return parser
 
 
 def add_commands(commands):
     """Adds the model commands to the batch parser's subcommands ``commands``."""
-    render = _model_command(commands, "render", cmd_render, 1, (
+    render = _model_command(commands, "render", cmd_render, (
         "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
         "Normal, DiffCol, IndexMA, alpha in Combined) and render.json into --out."))
     when = render.add_mutually_exclusive_group()
-    when.add_argument("--frame", type=float, metavar="F",
-                      help="the timeline frame to pose the scene at (default: current)")
+    when.add_argument("--frame", type=float, metavar="F", help="the timeline frame to pose the "
+                      "scene at (default: the scene's current frame)")
     when.add_argument("--frames", type=frames_option, metavar="A:B[:STEP]",
                       help="frames A to B every STEP, as image sequences (passes.0001.exr)")
     render.add_argument("--camera", metavar="NAME", help=(
         "camera object (default: the scene's camera, else an orbit viewpoint)"))
     render.add_argument("--references", action="store_true",
                         help="also render the true and embedded references")
-    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR")
+    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+                        help="output folder")
 
-    evaluate = _model_command(commands, "evaluate", cmd_evaluate, EVALUATION_POSES, (
+    evaluate = _model_command(commands, "evaluate", cmd_evaluate, (
         "Poses are the evaluation poses of --seed: another random seed or frames between "
         "the training frames, never trained on. Writes --json with variant, config, vs_true "
         "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
@@ -190,4 +188,5 @@ def add_commands(commands):
                                "development set, for choices (default test)")
     evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
                           help="write the figures, error images and first pose's passes here")
-    evaluate.add_argument("--json", type=output_file, metavar="PATH")
+    evaluate.add_argument("--json", type=output_file, metavar="PATH", help="write the report "
+                          "(vs_true, vs_embedded, per_pose, timings)")

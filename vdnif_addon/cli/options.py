@@ -1,36 +1,30 @@
 """The batch commands' shared option groups (scene, poses, capture, device, training,
 network) and what turns them into work: the scene they name, the pose spec, the resolution
 (``auto`` included), the checks of every option before any work, and the summary lines that
-several commands print."""
+several commands print. A setting's option is generated from its declaration
+(``add_setting``, ``declarations``), and checked against its declared range."""
 
 import argparse
+import dataclasses
 import math
 import os
 import pathlib
 import sys
 
+from .. import declarations as declared
 from ..errors import VDNIFError
 from ..extreme_deform import ExtremeDeform, parse_scale
 from ..pose_sets import PoseSpec
 from ..settings import (
-    ALBEDO_MODES,
-    AO_DISTANCE,
-    AO_SAMPLES,
     AUTO_RESOLUTION,
-    BOUNDS,
-    DEFAULT_DEVICE,
-    DEFAULT_PRECISION,
     DEMO_SCENES,
-    DEVICES,
     EMBEDDING_ERROR_SHARE,
     MAX_RESOLUTION,
     MIN_RESOLUTION,
-    NORMAL_MODES,
-    PE_SCALES,
-    POSE_SOURCES,
-    PRECISIONS,
     RECIPE,
     RIGS,
+    NetworkConfig,
+    TrainConfig,
 )
 from ..text import metrics_line, secondary_line, speed_line
 
@@ -48,9 +42,10 @@ def add_scene_options(parser):
                         help="an OBJ, PLY, glTF or FBX file: its own armature, else --rig")
     source.add_argument("--blend", type=pathlib.Path, metavar="FILE",
                         help="a .blend file; the object is --object or the active one")
-    group.add_argument("--rig", choices=RIGS,
-                       help="procedural rig of a --mesh without one (default armature) or a scene")
-    group.add_argument("--object", metavar="NAME", help="the mesh object in --blend")
+    group.add_argument("--rig", choices=RIGS, help="procedural rig of a --mesh without one, or "
+                       "of a scene (default: armature for such a mesh, else the scene's)")
+    group.add_argument("--object", metavar="NAME",
+                       help="the mesh object in --blend (default: the active one)")
 
 
 def add_stress_options(parser):
@@ -121,16 +116,50 @@ def resolution_option(text):
             f"expected an integer or '{AUTO_RESOLUTION}', got {text!r}") from None
 
 
-def add_pose_options(parser, default_poses=8):
+def add_setting(parser, setting, command, **words):
+    """Adds the option that ``setting`` declares (``declarations.Option``) to ``parser`` (or
+    an argument group) as ``command`` takes it: its flag, metavar, default, help, and its
+    type or choices; ``words`` are add_argument keywords the command words for itself (a
+    help that says what the setting means there, a type that also takes 'auto')."""
+    option = setting.option
+    if option is None or command not in option.commands:
+        raise ValueError(f"setting {setting.name} is not declared as an option of {command}")
+    keywords = {"default": option.default_for(setting, command),
+                "help": option.help or setting.help}
+    if option.metavar is not None:
+        keywords["metavar"] = option.metavar
+    if setting.kind is bool:
+        keywords["action"] = "store_true"
+    elif setting.choices and option.parse_choices:
+        keywords["choices"] = option.names(setting)
+    else:
+        keywords["type"] = setting.kind
+    return parser.add_argument(option.flag, **{**keywords, **words})
+
+
+def add_declared_options(parser, command):
+    """Adds each option the declarations give ``command`` that its parser has not placed yet,
+    in the option group it declares (made where missing), so that a newly declared setting's
+    option appears without a line of parser code; returns their flags."""
+    placed = {flag for action in parser._actions for flag in action.option_strings}
+    added = []
+    for setting in declared.command_options(command):
+        if setting.option.flag in placed:
+            continue
+        group = parser
+        if setting.option.group:
+            group = next((group for group in parser._action_groups
+                          if group.title == setting.option.group), None) \
+                or parser.add_argument_group(setting.option.group)
+        add_setting(group, setting, command)
+        added.append(setting.option.flag)
+    return added
+
+
+def add_pose_options(parser, command):
     group = parser.add_argument_group("poses")
-    group.add_argument("--poses", type=int, default=default_poses, metavar="N",
-                       help=f"number of poses (default {default_poses})")
-    group.add_argument("--pose-source", choices=POSE_SOURCES, default=PoseSpec.source,
-                       help="random bone rotations / lattice offsets, or timeline frames")
-    group.add_argument("--seed", type=int, default=PoseSpec.seed, help="random pose seed")
-    group.add_argument("--max-angle", type=float, default=PoseSpec.max_angle_deg, metavar="DEG",
-                       help="largest random bone rotation per axis where the bone has no "
-                            "rotation limits")
+    for setting in (declared.POSES, declared.POSE_SOURCE, declared.SEED, declared.MAX_ANGLE):
+        add_setting(group, setting, command)
 
 
 def pose_spec(args):
@@ -138,28 +167,25 @@ def pose_spec(args):
                     max_angle_deg=args.max_angle)
 
 
-def add_capture_options(parser, default_poses):
-    parser.add_argument("--resolution", type=resolution_option, metavar="R",
-                        help=f"voxels along the longest side ({MIN_RESOLUTION}.."
-                        f"{MAX_RESOLUTION}), or '{AUTO_RESOLUTION}' to suggest one (default "
-                        f"{RECIPE.resolution}, {RECIPE.textured_resolution} for a textured "
-                        "mesh)")
-    add_pose_options(parser, default_poses)
+def add_capture_options(parser, command):
+    add_setting(parser, declared.RESOLUTION, command, type=resolution_option,
+                help=f"voxels along the longest side ({MIN_RESOLUTION}..{MAX_RESOLUTION}), "
+                f"or '{AUTO_RESOLUTION}' to suggest one (default {RECIPE.resolution}, "
+                f"{RECIPE.textured_resolution} for a textured mesh)")
+    add_pose_options(parser, command)
 
 
 SECONDARY_HELP = ("also the ambient-occlusion and shadow passes (light: the scene's first sun "
                   "or point light, else a default direction)")
 
 
-def add_secondary_options(parser, secondary_help=SECONDARY_HELP):
+def add_secondary_options(parser, command, secondary_help=SECONDARY_HELP):
     """``--secondary`` with ``--ao-samples`` and ``--ao-distance``: the AO and shadow rays
     (``secondary_help`` says what ``--secondary`` does in the command)."""
     group = parser.add_argument_group("secondary rays")
     group.add_argument("--secondary", action="store_true", help=secondary_help)
-    group.add_argument("--ao-samples", type=int, default=AO_SAMPLES, metavar="N",
-                       help="ambient-occlusion rays per pixel")
-    group.add_argument("--ao-distance", type=float, default=AO_DISTANCE, metavar="D",
-                       help="how far an ambient-occlusion ray looks, in object units")
+    add_setting(group, declared.AO_SAMPLES, command)
+    add_setting(group, declared.AO_DISTANCE, command)
 
 
 def secondary_settings(args, obj):
@@ -176,26 +202,22 @@ def secondary_settings(args, obj):
                              light=scene_light(bpy.context.scene, obj))
 
 
-def add_device_option(parser, default=DEFAULT_DEVICE):
-    """``--device auto|cpu|cuda`` (settings.DEVICES): auto takes CUDA where torch has it."""
-    parser.add_argument("--device", choices=DEVICES, default=default,
-                        help=f"where the network runs (default {default})")
-
-
-def add_precision_option(parser):
-    """``--precision float32|bfloat16`` (settings.PRECISIONS): the arithmetic of the MLPs."""
-    parser.add_argument("--precision", choices=PRECISIONS, default=DEFAULT_PRECISION,
-                        help="the network MLPs' arithmetic: bfloat16 is faster where the device "
-                             f"has it, a little less exact (default {DEFAULT_PRECISION})")
+def add_image_options(parser, command):
+    """``--width W --height H``: the image's size in pixels."""
+    add_setting(parser, declared.IMAGE_WIDTH, command)
+    add_setting(parser, declared.IMAGE_HEIGHT, command)
 
 
 def add_training_options(parser):
-    parser.add_argument("--steps", type=int, default=RECIPE.steps, metavar="N",
-                        help=f"optimizer steps at most; training stops sooner once the "
-                        f"held-out poses stop improving (default {RECIPE.steps})")
-    parser.add_argument("--batch", type=int, default=RECIPE.batch_size, metavar="B",
-                        help=f"segments per step and process (default {RECIPE.batch_size})")
-    add_device_option(parser)
+    for setting in (declared.STEPS, declared.BATCH_SIZE, declared.DEVICE):
+        add_setting(parser, setting, "train")
+
+
+def add_network_options(parser):
+    """``train``'s options of the encoding and network, each the variant's unless given."""
+    group = parser.add_argument_group(declared.NETWORK_GROUP)
+    for setting in declared.command_options("train", declared.NETWORK_GROUP):
+        add_setting(group, setting, "train")
 
 
 def write_json(path, data):
@@ -214,34 +236,14 @@ def check_resolution(value):
         raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")
 
 
-NETWORK_OPTIONS = {   # option: (NetworkConfig field, type, help)
-    "--levels": ("levels", int, "hash-grid levels L"),
-    "--base-resolution": ("base_resolution", int, "coarsest hash-grid resolution N_min"),
-    "--growth": ("growth", float, "resolution growth factor b between levels"),
-    "--log2-table-size": ("log2_table_size", int, "hash table size 2^T per level"),
-    "--feature-dim": ("feature_dim", int, "features per hash-grid entry Fd"),
-    "--pe-bands": ("pe_bands", int, "positional-encoding bands F (0: plain LSNIF grid)"),
-    "--pe-form": ("pe_form", str, "sin(2^k x) ('paper') or sin(pi 2^k x) ('pi')"),
-    "--width": ("width", int, "MLP width"),
-    "--depth": ("depth", int, "MLP hidden layers"),
-    "--albedo-mode": ("albedo_mode", str, "albedo from the MLP over the segment ('segment') "
-                      "or from a field of the rest point read at the placed hit ('hit')"),
-    "--normal-mode": ("normal_mode", str, "normal from the MLP over the segment ('segment') "
-                      "or from a field of the rest point read at the placed hit ('hit')"),
-    "--normal-levels": ("normal_levels", int, "the normal field's hash-grid levels"),
-    "--normal-log2-table-size": ("normal_log2_table_size", int,
-                                 "the normal field's hash table size 2^T per level"),
-}
-
-
 def network_overrides(args):
-    """NetworkConfig / TrainConfig fields set on the command line."""
-    overrides = {field: getattr(args, option[2:].replace("-", "_"))
-                 for option, (field, _, _) in NETWORK_OPTIONS.items()
-                 if getattr(args, option[2:].replace("-", "_")) is not None}
-    overrides.update(steps=args.steps, batch_size=args.batch, device=args.device,
-                     seed=args.seed)
-    return overrides
+    """The NetworkConfig / TrainConfig fields that ``train``'s declared options set: each
+    one given (the network's are None, the variant's own, unless given)."""
+    fields = {field.name for config in (NetworkConfig, TrainConfig)
+              for field in dataclasses.fields(config)}
+    return {setting.name: getattr(args, setting.option.dest)
+            for setting in declared.command_options("train")
+            if setting.name in fields and getattr(args, setting.option.dest) is not None}
 
 
 def report_training(record):
@@ -276,8 +278,7 @@ def names_scene(args):
 
 OUTPUT_FILES = ("json", "markdown", "results", "presets", "performance")
 """Options naming a file a command writes; ``--out`` is a file for train, else a folder."""
-IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
-"""Commands whose --width/--height are an image's (train's --width is the MLP's)."""
+IMAGE_COMMANDS = declared.IMAGE_COMMANDS
 
 
 def frames_option(text: str) -> list[int]:
@@ -308,33 +309,18 @@ def validate_arguments(args):
     def given(name):
         return getattr(args, name, None) is not None
 
-    def at_least(name, low, high=None, label=None):
+    def at_least(name, low, high=None):
         if given(name):
-            limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
-                               low, high)
+            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name), low, high)
 
     for name in ("mesh", "blend"):
         if given(name):
             check_input_file(getattr(args, name), f"{name} file")
-    at_least("seed", *BOUNDS["seed"])
-    at_least("poses", *BOUNDS["poses"])
-    at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
+    check_settings(args)
     at_least("repeats", 1, limits.MAX_REPEATS)
     at_least("seeds", 1, limits.MAX_REPEATS)
     at_least("threads", 1, limits.MAX_THREADS)
-    at_least("batch", *BOUNDS["batch_size"])
-    at_least("steps", *BOUNDS["steps"])
-    at_least("ao_samples", *BOUNDS["ao_samples"])
-    at_least("preview", *BOUNDS["image_side"])
-    if isinstance(getattr(args, "resolution", None), int):
-        check_resolution(args.resolution)
-    for name in ("surface_fraction", "grazing_fraction", "secondary_fraction", "max_angle",
-                 "ao_distance"):
-        low, high = BOUNDS[name]
-        value = getattr(args, name, None)
-        if value is not None and not (math.isfinite(value) and low <= value <= high):
-            raise VDNIFError(f"--{name.replace('_', '-')} {value} must be a number in "
-                             f"{low:g}..{high:g}")
+    at_least("preview", 1, limits.MAX_IMAGE_SIDE)
     if given("frame") and not math.isfinite(args.frame):
         raise VDNIFError(f"--frame {args.frame} is not a finite number")
     if given("frame") and abs(args.frame) > limits.MAX_FRAME:
@@ -342,8 +328,6 @@ def validate_arguments(args):
                          f"{-limits.MAX_FRAME}..{limits.MAX_FRAME}")
     if args.command in IMAGE_COMMANDS and given("width") and given("height"):
         limits.check_image(args.width, args.height)
-    if args.command == "train":
-        _validate_network_options(args, limits)
     if isinstance(getattr(args, "model", None), pathlib.Path):
         # the loader's own first check, before torch and bpy are imported
         with open_regular(args.model, f"model file {args.model}"):
@@ -365,20 +349,26 @@ def validate_arguments(args):
                          "(--scene, --mesh or --blend)")
 
 
-def _validate_network_options(args, limits):
-    for name in ("levels", "base_resolution", "log2_table_size", "feature_dim", "pe_bands",
-                 "width", "depth", "normal_levels", "normal_log2_table_size"):
-        if getattr(args, name, None) is not None:
-            limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name),
-                               *BOUNDS[name.removeprefix("normal_")])
-    low, high = BOUNDS["growth"]
-    if args.growth is not None and not (math.isfinite(args.growth)
-                                        and low <= args.growth <= high):
-        raise VDNIFError(f"--growth {args.growth} must be a number in {low:g}..{high:g}")
-    if args.pe_form is not None and args.pe_form not in PE_SCALES:
-        raise VDNIFError(f"--pe-form '{args.pe_form}' must be one of "
-                         f"{', '.join(map(repr, PE_SCALES))}")
-    for option, choices in (("albedo_mode", ALBEDO_MODES), ("normal_mode", NORMAL_MODES)):
-        if getattr(args, option) is not None and getattr(args, option) not in choices:
-            raise VDNIFError(f"--{option.replace('_', '-')} '{getattr(args, option)}' must be "
-                             f"one of {', '.join(map(repr, choices))}")
+def check_settings(args):
+    """Each declared setting that the command took within its declared range or choices, the
+    one range of the setting (``declarations``): the first one outside raises VDNIFError."""
+    from .. import limits
+
+    for setting in declared.command_options(args.command):
+        option = setting.option
+        value = getattr(args, option.dest, None)
+        label = option.label or option.flag
+        if value is None:
+            continue
+        if setting is declared.RESOLUTION:
+            if isinstance(value, int):               # not 'auto'
+                check_resolution(value)
+        elif setting.kind is int:
+            limits.check_range(label, value, *setting.range)
+        elif setting.kind is float:
+            low, high = setting.range
+            if not (math.isfinite(value) and low <= value <= high):
+                raise VDNIFError(f"{label} {value} must be a number in {low:g}..{high:g}")
+        elif setting.choices and value not in option.names(setting):
+            raise VDNIFError(f"{label} '{value}' must be one of "
+                             f"{', '.join(map(repr, option.names(setting)))}")

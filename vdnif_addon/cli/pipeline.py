@@ -5,19 +5,20 @@ parsers that name them (``add_commands``)."""
 import pathlib
 import sys
 
+from .. import declarations as declared
 from ..errors import VDNIFError
 from ..safe_io import check_output_file, file_stem
-from ..settings import COMMAND_IMAGE, RECIPE, TRAINABLE_VARIANTS
 from ..text import metrics_line, percent, value
 from . import model_commands
 from .options import (
-    NETWORK_OPTIONS,
     add_capture_options,
+    add_image_options,
+    add_network_options,
     add_scene_options,
     add_secondary_options,
+    add_setting,
     add_stress_options,
     add_training_options,
-    check_resolution,
     load_posed_scene,
     names_scene,
     network_overrides,
@@ -33,7 +34,6 @@ def cmd_capture(args):
     from ..blender.capture_scene import capture
     from ..progress import Progress
 
-    check_resolution(args.resolution)
     obj, spec = load_posed_scene(args)
     progress = Progress(f"capture '{obj.name}'", spec.count, "poses")
     result = capture(obj, args.resolution, spec, progress=lambda done, _: progress.update(done))
@@ -68,7 +68,6 @@ def cmd_dataset(args):
     from ..progress import Progress
     from ..training.dataset import DatasetIdentity, check_folder, grid_header, shard_name
 
-    check_resolution(args.resolution)
     if args.rays_per_pose < 1:
         raise VDNIFError(f"rays per pose {args.rays_per_pose} must be at least 1")
     obj, spec = load_posed_scene(args)
@@ -128,7 +127,6 @@ def cmd_references(args):
     from ..posed.generate import reference_run
     from ..progress import Progress
 
-    check_resolution(args.resolution)
     obj, spec = load_posed_scene(args)
     result = capture(obj, args.resolution, evaluation_spec(spec), deform_corners=False)
     progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
@@ -218,7 +216,6 @@ def _train_on_scene(args):
     from ..blender.capture_scene import capture
     from ..blender.steps import train_variant
 
-    check_resolution(args.resolution)
     if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):
         raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
                          "folder with scene options, or train on it with --data alone")
@@ -235,11 +232,11 @@ def _train_on_scene(args):
                              network_overrides(args), args.seed, progress=report_training)
 
 
-def _scene_command(commands, name, run, default_poses, notes):
+def _scene_command(commands, name, run, notes):
     """A command that reads a scene: scene, resolution, pose and stress options."""
     parser = commands.add_parser(name, help=run.__doc__, description=f"{run.__doc__} {notes}")
     add_scene_options(parser)
-    add_capture_options(parser, default_poses)
+    add_capture_options(parser, name)
     add_stress_options(parser)
     parser.set_defaults(run=run)
     return parser
@@ -247,39 +244,30 @@ def _scene_command(commands, name, run, default_poses, notes):
 
 def add_commands(commands):
     """Adds the pipeline's commands to the batch parser's subcommands ``commands``."""
-    capture = _scene_command(commands, "capture", cmd_capture, 8, (
+    capture = _scene_command(commands, "capture", cmd_capture, (
         "Writes --json with grid_dims, voxel_size, occupied_voxels, corners, poses, "
         "inverted_cells (per pose), heads and capture_s."))
     capture.add_argument("--json", type=output_file, metavar="PATH",
                          help="write the summary as JSON")
 
-    data = _scene_command(commands, "dataset", cmd_dataset, RECIPE.poses, (
+    data = _scene_command(commands, "dataset", cmd_dataset, (
         "Several processes may each write the shard of their --pose-range into one folder; "
         "training reads them all."))
-    data.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose, metavar="K",
-                      help=f"training rays per pose (default {RECIPE.rays_per_pose})")
-    data.add_argument("--surface-fraction", type=float, default=RECIPE.surface_fraction,
-                      metavar="F", help="share of rays aimed from outside at a surface point "
-                      f"(default {RECIPE.surface_fraction})")
-    data.add_argument("--grazing-fraction", type=float, default=RECIPE.grazing_fraction,
-                      metavar="F", help="share of rays tangent to the surface at a surface "
-                      "point (silhouette rays); the rest aim at random points in the bounds "
-                      f"(default {RECIPE.grazing_fraction})")
-    data.add_argument("--secondary-fraction", type=float, default=RECIPE.secondary_fraction,
-                      metavar="F", help="share of rays that start on the surface and leave it, "
-                      f"as shadow and occlusion rays do (default {RECIPE.secondary_fraction})")
-    data.add_argument("--pose-range", metavar="A:B", help="only poses A..B-1 of the N")
+    for setting in (declared.RAYS_PER_POSE, declared.SURFACE_FRACTION,
+                    declared.GRAZING_FRACTION, declared.SECONDARY_FRACTION):
+        add_setting(data, setting, "dataset")
+    data.add_argument("--pose-range", metavar="A:B",
+                      help="only poses A..B-1 of the N (default: all poses)")
     data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
 
-    refs = _scene_command(commands, "references", cmd_references, 4, (
+    refs = _scene_command(commands, "references", cmd_references, (
         "Writes --json with embedded_vs_true (distance_mae in object units, "
         "normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
     refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
-    refs.add_argument("--width", type=int, default=COMMAND_IMAGE[0], metavar="W")
-    refs.add_argument("--height", type=int, default=COMMAND_IMAGE[1], metavar="H")
+    add_image_options(refs, "references")
     refs.add_argument("--json", type=output_file, metavar="PATH", help="write the report")
-    add_secondary_options(refs)
+    add_secondary_options(refs, "references")
 
     training = commands.add_parser("train", help=cmd_train.__doc__, description=(
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
@@ -287,23 +275,18 @@ def add_commands(commands):
         "(<model>-training.png beside it)."))
     training.add_argument("--data", type=pathlib.Path, metavar="DIR", help=(
         "dataset folder written by 'dataset'; with scene options the dataset is generated "
-        "into it first (default then: a temporary folder)"))
+        "into it first (default with scene options: a temporary folder)"))
     add_scene_options(training)
-    add_capture_options(training, RECIPE.poses)
+    add_capture_options(training, "train")
     add_stress_options(training)
-    training.add_argument("--rays-per-pose", type=int, default=RECIPE.rays_per_pose,
-                          metavar="K", help="with scene options: training rays per pose "
-                          f"(default {RECIPE.rays_per_pose})")
-    training.add_argument("--variant", choices=TRAINABLE_VARIANTS, help=(
-        "default: lsnif for a scene that no armature or lattice deforms (static), else "
-        "proposed"))
+    add_setting(training, declared.RAYS_PER_POSE, "train",
+                help=f"with scene options: {declared.RAYS_PER_POSE.help}")
+    add_setting(training, declared.VARIANT, "train")
     training.add_argument("--out", type=output_file, metavar="MODEL", help=(
         "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
     add_training_options(training)
     training.add_argument("--json", type=output_file, metavar="PATH", help=(
         "write the summary with the training history (step, task losses, validation)"))
-    group = training.add_argument_group("encoding and network (default: the variant's)")
-    for option, (_, kind, text) in NETWORK_OPTIONS.items():
-        group.add_argument(option, type=kind, help=text)
+    add_network_options(training)
     training.set_defaults(run=cmd_train)
     model_commands.add_commands(commands)

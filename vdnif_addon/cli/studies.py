@@ -4,17 +4,17 @@ maps its options onto a study of ``vdnif_addon/studies`` and prints its summary
 
 import pathlib
 
+from .. import declarations as declared
 from ..errors import VDNIFError
 from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..safe_io import write_text_atomic
 from ..settings import DEFAULT_PRECISION, DEMO_SCENE, DEMO_SCENES, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
-    add_device_option,
-    add_precision_option,
+    add_image_options,
     add_secondary_options,
+    add_setting,
     add_stress_options,
-    check_resolution,
     output_file,
     print_evaluation,
     report_training,
@@ -246,7 +246,6 @@ def _scene_capture(obj, model_path, args, device):
     loaded = None if model_path is None else load_model(model_path)
     metadata = None if loaded is None else loaded[1]
     resolution = args.resolution or (None if metadata else recipe_resolution(obj))
-    check_resolution(resolution)
     captured = model_capture(obj, metadata, PoseSpec(count=args.poses, seed=args.seed),
                              evaluation=True, resolution=resolution)
     model = (None if loaded is None
@@ -286,9 +285,8 @@ def add_commands(commands):
                       help=f"an embedded demo scene (default {DEMO_SCENE})")
     demo.add_argument("--quick", action="store_true", help="a small size, for tests")
     add_stress_options(demo)
-    demo.add_argument("--steps", type=int, metavar="N", help="training steps (default: "
-                      "the demo's own)")
-    add_device_option(demo)
+    add_setting(demo, declared.STEPS, "demo", help="training steps (default: the demo's own)")
+    add_setting(demo, declared.DEVICE, "demo")
     demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
                       metavar="DIR", help="output folder")
     demo.add_argument("--json", type=output_file, metavar="PATH",
@@ -297,13 +295,14 @@ def add_commands(commands):
 
     experiment = commands.add_parser("experiment", help=cmd_experiment.__doc__,
                                      description=cmd_experiment.__doc__)
-    experiment.add_argument("name", choices=("static", "deformation", "ablation", "per-pose"))
+    experiment.add_argument("name", choices=("static", "deformation", "ablation", "per-pose"),
+                            help="the experiment")
     experiment.add_argument("--quick", action="store_true", help="a tiny size, for tests")
     experiment.add_argument("--scenes", metavar="A,B", help="only these of the experiment's "
-                            "scenes (default all; the section names them)")
+                            "scenes, which its section names (default: all)")
     experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
                             "size's seeds (default: all)")
-    add_device_option(experiment)
+    add_setting(experiment, declared.DEVICE, "experiment")
     experiment.add_argument("--results", type=output_file,
                             default=pathlib.Path("docs/results.md"), metavar="PATH",
                             help="markdown file whose section is rewritten; figures and "
@@ -327,7 +326,7 @@ def add_commands(commands):
     sweep.add_argument("--work", type=pathlib.Path, metavar="DIR",
                        help="each point's model and training record (default "
                             "out/bench-work, out/bench-quick-work with --quick)")
-    add_device_option(sweep)
+    add_setting(sweep, declared.DEVICE, "bench")
     sweep.set_defaults(run=cmd_bench)
 
     _add_side_by_side(commands)
@@ -337,11 +336,13 @@ def add_commands(commands):
                                 "infer_segments_per_s, serial_segments_per_s, "
                                 "encode_segments_per_s, mlp_segments_per_s, encode_fraction, "
                                 "mlp_fraction, train_samples_per_s, threads.")
-    add_device_option(bench)
+    add_setting(bench, declared.DEVICE, "bench-network")
     bench.add_argument("--threads", type=int, metavar="N",
                        help="torch threads (default: the product's, vdnif_addon/threads.py)")
-    bench.add_argument("--repeats", type=int, default=5)
-    bench.add_argument("--json", type=output_file, metavar="PATH")
+    bench.add_argument("--repeats", type=int, default=5, metavar="N",
+                       help="runs; medians are reported")
+    bench.add_argument("--json", type=output_file, metavar="PATH",
+                       help="write the figures as JSON")
     bench.set_defaults(run=cmd_bench_network)
 
 
@@ -360,21 +361,19 @@ def _add_side_by_side(commands):
                         help="a model file trained on the scene, or SCENE=MODEL per scene")
     parser.add_argument("--repeats", type=int, default=3, metavar="N",
                         help="timed repeats; medians are reported")
-    parser.add_argument("--resolution", type=int, metavar="R", help=(
+    add_setting(parser, declared.RESOLUTION, "side-by-side", help=(
         f"voxel resolution (default: the model's, else {RECIPE.resolution}, "
         f"{RECIPE.textured_resolution} for a textured mesh)"))
-    parser.add_argument("--poses", type=int, default=4, metavar="N",
-                        help="unseen poses per repeat")
-    parser.add_argument("--seed", type=int, default=0,
-                        help="training pose seed; the evaluation poses of it are used")
-    parser.add_argument("--width", type=int, default=256, metavar="W")
-    parser.add_argument("--height", type=int, default=256, metavar="H")
+    add_setting(parser, declared.POSES, "side-by-side", help="unseen poses per repeat")
+    add_setting(parser, declared.SEED, "side-by-side",
+                help="training pose seed; the evaluation poses of it are used")
+    add_image_options(parser, "side-by-side")
     parser.add_argument("--preview", type=int, metavar="N",
                         help="also time an NxN preview (default 64 with --crossover)")
     parser.add_argument("--threads", nargs="+", dest="thread_settings", default=["1", "all"],
                         metavar="N|all", help="thread settings to time (default: 1 all)")
-    add_device_option(parser, default="cpu")
-    add_precision_option(parser)
+    add_setting(parser, declared.DEVICE, "side-by-side")
+    add_setting(parser, declared.PRECISION, "side-by-side")
     parser.add_argument("--train", type=pathlib.Path, metavar="DIR", help=(
         "train each scene without --model by the recipe into DIR (kept for the next run)"))
     parser.add_argument("--quick", action="store_true",
@@ -392,7 +391,7 @@ def _add_side_by_side(commands):
         "write crossover.json, .md and .png into DIR: where neural meets each baseline"))
     parser.add_argument("--save-blend", type=pathlib.Path, metavar="DIR", help=(
         "only save each scene as DIR/<scene>.blend (for 'train --blend') and stop"))
-    add_secondary_options(parser, secondary_help=(
+    add_secondary_options(parser, "side-by-side", secondary_help=(
         "also time each path's ambient-occlusion and shadow rays, at 1 and --ao-samples per "
         "pixel"))
     parser.set_defaults(run=cmd_side_by_side)

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import declarations as declared
 from ..errors import VDNIFError
 from ..geometry.attributes import normalize
 
@@ -166,8 +167,9 @@ def training_rays(bounds_lo: Float[np.ndarray, "3"], bounds_hi: Float[np.ndarray
     shares = (("surface_fraction", surface_fraction), ("grazing_fraction", grazing_fraction),
               ("secondary_fraction", secondary_fraction))
     for name, value in shares:
-        if not 0 <= value <= 1:
-            raise VDNIFError(f"{name} must be in [0, 1], got {value}")
+        low, high = declared.BY_NAME[name].range
+        if not low <= value <= high:
+            raise VDNIFError(f"{name} must be in [{low:g}, {high:g}], got {value}")
     if sum(value for _, value in shares) > 1:
         raise VDNIFError("surface_fraction + grazing_fraction + secondary_fraction must be at "
                          f"most 1, got {' + '.join(str(value) for _, value in shares)}")
