@@ -187,7 +187,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
     if secondary is not None:
         size = capture.mesh.size
         result["secondary"] = secondary_summary(
-            result, secondary, None if model is None else model.secondary_offset(size) / size)
+            result, secondary, None if model is None else model.secondary_offset(size), size)
     return result
 
 
@@ -495,9 +495,10 @@ def withhold(record):
         del record[name]
 
 
-def secondary_summary(result, settings, network_offset=None):
+def secondary_summary(result, settings, network_offset=None, object_size=1.0):
     """The secondary table of a ``compare_paths`` ``result`` timed with ``settings`` (the
-    network's hits started ``network_offset`` object units off, when it ran): per
+    network's hits started ``network_offset`` local units off, when it ran, an object unit
+    ``object_size`` local ones): per
     path and AO sample count, the rays per pose, their milliseconds and rays per second,
     the pose total, the mean AO and lit share (medians over repeats; None where not run
     or withheld), and per classical path where the cheaper side changes."""
@@ -505,7 +506,7 @@ def secondary_summary(result, settings, network_offset=None):
     paths = {}
     for name in SECONDARY_PATHS:
         paths[name] = {str(samples): _figures(result, name, samples) for samples in counts}
-    return {"settings": dict(settings.describe(network_offset), samples=counts),
+    return {"settings": dict(settings.describe(network_offset, object_size), samples=counts),
             "paths": paths, "skipped": SKIPPED,
             "trade": {b: trade_point(paths["neural"], paths[b], counts)
                       for b in SECONDARY_BASELINES}}
