@@ -67,6 +67,13 @@ class NeverHits(OracleNetwork):
                     candidate=torch.zeros_like(prediction["hit"]))
 
 
+def lattice_capture(poses):
+    """The lattice demo's Suzanne and its capture at R 8 on ``poses`` unseen poses."""
+    obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
+    spec = core("blender.poses").evaluation_spec(core("blender.poses").PoseSpec(count=poses))
+    return obj, core("blender.capture_scene").capture(obj, 8, spec, deform_corners=False)
+
+
 def stand_in_model(network, capture, path):
     """What compare_paths reads of a neural.SceneModel, around ``network``."""
     path.write_bytes(b"\0" * 1000)
@@ -83,10 +90,7 @@ def tiny(extension, tmp_path_factory):
     """compare_paths on the lattice demo's Suzanne (3,936 triangles) at R 8, 2 unseen poses,
     16x16 rays, one repeat: without a model, with the oracle, with one that never hits."""
     side = core("studies.side_by_side")
-    poses = core("blender.poses")
-    obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
-    captured = core("blender.capture_scene").capture(
-        obj, 8, poses.evaluation_spec(poses.PoseSpec(count=2)), deform_corners=False)
+    obj, captured = lattice_capture(2)
     folder = tmp_path_factory.mktemp("models")
     results = {"none": side.compare_paths(obj, captured, None, RAYS, RAYS, repeats=1),
                "none, 2 threads": side.compare_paths(obj, captured, None, RAYS, RAYS,
@@ -515,10 +519,7 @@ def timed(extension, tmp_path_factory):
     """compare_paths with secondary rays on the lattice demo's Suzanne at R 8, 2 unseen
     poses, 16x16 rays, one repeat, with the oracle network as the model."""
     side = core("studies.side_by_side")
-    poses = core("blender.poses")
-    obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
-    captured = core("blender.capture_scene").capture(
-        obj, 8, poses.evaluation_spec(poses.PoseSpec(count=2)), deform_corners=False)
+    obj, captured = lattice_capture(2)
     model = stand_in_model(OracleNetwork(captured.mesh, captured.grid), captured,
                            tmp_path_factory.mktemp("model") / "oracle.vdnif")
     settings = core("inference.secondary").SecondarySettings(samples=SAMPLES)
@@ -645,9 +646,7 @@ def test_warp_embree_and_bvhtree_answer_the_same_secondary_rays_alike(extension)
     rays = core("tracing.rays")
     inference = core("inference.secondary")
     made = core("studies.baselines")
-    obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
-    captured = core("blender.capture_scene").capture(
-        obj, 8, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
+    obj, captured = lattice_capture(1)
     mesh = captured.mesh
     settings = inference.SecondarySettings(samples=8)
     baselines, embree = made.make_baselines(mesh, threads=2)
