@@ -82,7 +82,7 @@ def time_paths(path, model_path, device_name, repeats, samples):
         counted,
         exact_occluded,
         mesh_primary,
-        network_offset,
+        model_offset,
         neural_occluded,
         secondary_passes,
     )
@@ -114,8 +114,7 @@ def time_paths(path, model_path, device_name, repeats, samples):
 
     cells = DeviceCells(grid, str(device), corners=pose["corners"])
     caster = MeshCaster(pose["vertices"], pose["triangles"], str(device))
-    offset = network_offset(size, grid.voxel_size,
-                            (metadata.training.validation or {}).get("distance_mae_voxels"))
+    offset = model_offset(metadata, size, grid.voxel_size)
 
     def neural():
         primary, _ = neural_passes(network, grid, table, cells, origins, directions, device)

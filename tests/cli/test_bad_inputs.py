@@ -182,7 +182,7 @@ CASES = [
     ("render-no-out", "render --model {model}", r"the following arguments are required: --out",
      "proc"),
     ("evaluate-model-without-grid", "evaluate --model {bad_model:no_grid} {arm}",
-     r"has no complete grid in its metadata", "proc"),
+     r"its metadata has no complete grid", "proc"),
     ("evaluate-model-float-resolution", "evaluate --model {bad_model:float_resolution} {arm}",
      r"grid resolution 8.5 is not an integer", "proc"),
     ("evaluate-model-nan-weights", "evaluate --model {bad_model:nan_weights} {arm}",

@@ -1,4 +1,4 @@
-"""Model metadata for tests, made as ``training.fit`` makes it: plain data read back by
+"""Model metadata for tests, made as a model file's is read: plain data read back by
 ``ModelMetadata.from_dict``, so that every test's metadata passes the file's checks. It
 imports no copy of the core: the caller's ``metadata`` module (``vdnif_addon.model.metadata``
 or the extension's) gives the format version, so a test file keeps to one identity."""

@@ -109,11 +109,11 @@ def cmd_side_by_side(args):
 
     from ..progress import Progress
     from ..studies.side_by_side import compare_paths, machine, thread_settings
-    from ..studies.side_by_side_plots import write_plots
     from ..studies.side_by_side_report import (
         machine_text,
         side_by_side_markdown,
         write_performance,
+        write_plots,
     )
     from ..studies.side_by_side_scenes import load_side_by_side_scene, save_blends
     from ..training.distributed import resolve_device
@@ -129,7 +129,7 @@ def cmd_side_by_side(args):
     models = _model_paths(args.model, scenes)
     device = resolve_device(args.device)
     if args.train is not None:
-        from ..studies.side_by_side_models import recipe_model
+        from ..studies.side_by_side import recipe_model
 
         for name in (name for name in scenes if name not in models):
             models[name] = recipe_model(name, args.train, args.seed, args.device, args.quick,
@@ -181,8 +181,7 @@ def _image_sizes(args):
 def _write_crossover(folder, results, command, host):
     """crossover.json, crossover.md and crossover.png into ``folder``."""
     from ..studies.side_by_side_crossover import crossover, crossover_markdown
-    from ..studies.side_by_side_plots import write_crossover_plot
-    from ..studies.side_by_side_report import machine_text
+    from ..studies.side_by_side_report import machine_text, write_crossover_plot
 
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -273,7 +272,7 @@ def _print_result(result):
           + f"; deformed walk {ratio('walk_deformed_over_static')} the static DDA walk, "
           f"{ratio('walk_and_network_deformed_over_static')} with the network")
     if "secondary" in result:
-        from ..studies.side_by_side_secondary import secondary_line
+        from ..studies.side_by_side_report import secondary_line
 
         print(secondary_line(result))
 

@@ -7,18 +7,21 @@ sparsely with a face-neighbour table for the traversal and the unique corner lat
 that the deformation moves.
 
 Cell ``(i, j, k)`` spans ``origin + [i, i+1] x [j, j+1] x [k, k+1] * h``; its linear index is
-``i + dims[0] * (j + dims[1] * k)``. Pure numpy: never imports bpy.
+``i + dims[0] * (j + dims[1] * k)``. ``GridRecord`` is the grid as dataset headers and model
+files record it, checked by one set of rules. Pure numpy: never imports bpy.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import math
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
 from ..errors import VDNIFError
+from ..safe_io import finite_number, shown
 from ..settings import MAX_RESOLUTION, MIN_RESOLUTION
 
 if TYPE_CHECKING:
@@ -57,6 +60,98 @@ _BOX_AXIS_CROSS = np.cross(np.eye(3)[:, None, :], np.eye(3)[None, :, :])
 
 GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
 """What places a voxel grid in rest space, as dataset headers and model files store it."""
+_GRID_EXTRAS = ("occupied_voxels", "mesh_fingerprint")
+_MAX_DIMS = 2**31 - 1            # cells per axis that an int32 cell index can count
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and finite_number(value)
+
+
+@dataclass(frozen=True)
+class GridRecord:
+    """A voxel grid as dataset headers and model files record it: origin and voxel size in
+    rest units, dims, the resolution asked for, the extent (voxel size times the longest
+    dims); the occupied voxel count and the rest mesh's fingerprint
+    (``model_file.mesh_fingerprint``) where the writer knew them. ``VoxelGrid.record``
+    makes one, ``from_dict`` reads one; both check it with the same rules, so a record in
+    hand is valid."""
+
+    origin: tuple[float, float, float]
+    voxel_size: float
+    dims: tuple[int, int, int]
+    resolution: int
+    extent: float
+    occupied_voxels: int | None = None
+    mesh_fingerprint: str | None = None
+
+    def __post_init__(self) -> None:
+        if (problem := grid_problem(self.to_dict())) is not None:
+            raise VDNIFError(problem)
+        # Sequences in, tuples kept: equal records compare equal whatever made them.
+        object.__setattr__(self, "origin", tuple(map(float, self.origin)))
+        object.__setattr__(self, "dims", tuple(map(int, self.dims)))
+
+    def placement(self) -> tuple[Any, ...]:
+        """The ``GRID_KEYS`` values: equal for every shard of one dataset folder."""
+        return tuple(getattr(self, key) for key in GRID_KEYS)
+
+    def to_dict(self, *, with_none: bool = False) -> dict[str, Any]:
+        """Plain data: the ``GRID_KEYS`` entries, then the occupied voxels and the mesh
+        fingerprint where known (``with_none``: always, null where unknown, as model files
+        store them)."""
+        data = {"origin": list(self.origin), "voxel_size": self.voxel_size,
+                "dims": list(self.dims), "resolution": self.resolution, "extent": self.extent}
+        for key in _GRID_EXTRAS:
+            if with_none or getattr(self, key) is not None:
+                data[key] = getattr(self, key)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: object, fail: Callable[[str], NoReturn]) -> GridRecord:
+        """The grid entry ``data`` (plain data) of a file, checked; ``fail`` turns a problem
+        into the file's one-line error and raises it."""
+        if (problem := grid_problem(data)) is not None:
+            fail(problem)
+        return cls(origin=data["origin"], voxel_size=float(data["voxel_size"]), dims=data["dims"],
+                   resolution=int(data["resolution"]), extent=float(data["extent"]),
+                   occupied_voxels=data.get("occupied_voxels"),
+                   mesh_fingerprint=data.get("mesh_fingerprint"))
+
+
+def grid_problem(data: object) -> str | None:
+    """Why ``data`` is not a grid entry (``GridRecord.to_dict``'s shape), or None: the
+    grid's one set of rules, for dataset headers, manifests and model files alike."""
+    if not isinstance(data, Mapping) or any(key not in data for key in GRID_KEYS):
+        return f"has no complete grid ({', '.join(GRID_KEYS)})"
+    if unknown := sorted(set(data) - set(GRID_KEYS) - set(_GRID_EXTRAS)):
+        return f"grid has unknown entries {', '.join(map(shown, unknown))}"
+    origin, dims = data["origin"], data["dims"]
+    if not (isinstance(origin, (list, tuple)) and len(origin) == 3
+            and all(map(_is_number, origin))):
+        return f"grid origin {shown(origin)} is not 3 numbers"
+    if not (isinstance(dims, (list, tuple)) and len(dims) == 3
+            and all(_is_int(n) and 1 <= n <= _MAX_DIMS for n in dims)):
+        return f"grid dims {shown(dims)} are not 3 counts"
+    h, extent = data["voxel_size"], data["extent"]
+    if not (_is_number(h) and h > 0 and _is_number(extent) and extent > 0):
+        return "grid voxel size or extent is not a positive number"
+    if abs(extent - h * max(dims)) > 1e-6 * extent:
+        return (f"grid extent {shown(extent)} is not its voxel size {shown(h)} times its "
+                f"longest dims {max(dims)}")
+    if (problem := resolution_problem(data["resolution"])) is not None:
+        return f"grid {problem}"
+    occupied = data.get("occupied_voxels")
+    if occupied is not None and not (_is_int(occupied) and 0 <= occupied <= math.prod(dims)):
+        return f"grid occupied_voxels {shown(occupied)} is not an integer 0..{math.prod(dims)}"
+    fingerprint = data.get("mesh_fingerprint")
+    if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
+        return f"grid mesh_fingerprint {shown(fingerprint)} is not a string"
+    return None
 
 
 @dataclass(frozen=True, eq=False)
@@ -92,6 +187,14 @@ class VoxelGrid:
         into [0, 1] too.
         """
         return (np.asarray(points, dtype=np.float64) - self.origin) / self.extent
+
+    def record(self, mesh_fingerprint: str | None = None) -> GridRecord:
+        """The grid as files record it, with its occupied voxel count and, where given, the
+        fingerprint of the rest mesh voxelized."""
+        return GridRecord(origin=tuple(self.origin.tolist()), voxel_size=float(self.voxel_size),
+                          dims=tuple(self.dims.tolist()), resolution=int(self.resolution),
+                          extent=float(self.extent), occupied_voxels=int(len(self.cells)),
+                          mesh_fingerprint=mesh_fingerprint)
 
     def cell_bounds(self, index: Int[np.ndarray, " N"]
                     ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"]]:
@@ -195,13 +298,22 @@ def _validated_mesh(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarra
     return vertices, triangles.astype(np.int64)
 
 
-def _validated_resolution(resolution: object) -> int:
-    """``resolution`` as an int, or VDNIFError naming it and the allowed range."""
+def resolution_problem(resolution: object) -> str | None:
+    """Why ``resolution`` is not a voxel resolution (an integer in ``MIN_RESOLUTION`` ..
+    ``MAX_RESOLUTION``, declared in ``settings``), or None: the one check of the range, for
+    a grid built and a grid read alike."""
     allowed = f"{MIN_RESOLUTION}..{MAX_RESOLUTION}"
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
-        raise VDNIFError(f"voxel resolution {resolution!r} must be an integer in {allowed}")
+        return f"resolution {shown(resolution)} is not an integer in {allowed}"
     if not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION:
-        raise VDNIFError(f"voxel resolution {resolution} is outside the allowed range {allowed}")
+        return f"resolution {resolution} is outside the allowed range {allowed}"
+    return None
+
+
+def _validated_resolution(resolution: object) -> int:
+    """``resolution`` as an int, or VDNIFError naming it and the allowed range."""
+    if (problem := resolution_problem(resolution)) is not None:
+        raise VDNIFError(f"voxel {problem}")
     return int(resolution)
 
 

@@ -52,6 +52,7 @@ if TYPE_CHECKING:
     from ..geometry.voxels import VoxelGrid
     from ..kernels.cells import DeviceCells
     from ..kernels.surface import SurfaceCaster
+    from ..model.metadata import ModelMetadata
     from ..model.network import IntersectionNetwork
 
     Occluded = Callable[[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"],
@@ -110,13 +111,16 @@ class SecondarySettings:
             raise VDNIFError(f"AO distance {self.distance} must be in {low:g}..{high:g} "
                              "object units")
 
-    def describe(self, network_offset: float | None = None) -> dict[str, Any]:
+    def describe(self, network_offset: float | None = None,
+                 object_size: float = 1.0) -> dict[str, Any]:
         """The settings as the JSON reports state them, with the offsets in object units:
-        the exact hits' and (``network_offset``, when given) the network's."""
+        the exact hits' and (``network_offset`` local units, when given; an object unit
+        ``object_size`` local ones) the network's."""
         light = self.light
         return {"ao_samples": self.samples, "ao_distance": self.distance,
                 "offset": SECONDARY_OFFSET,
-                **({} if network_offset is None else {"network_offset": network_offset}),
+                **({} if network_offset is None
+                   else {"network_offset": network_offset / object_size}),
                 "light": light.source,
                 "light_direction": None if light.direction is None else list(light.direction),
                 "light_position": None if light.position is None else list(light.position)}
@@ -214,14 +218,28 @@ def counted(occluded: Occluded, calls: list[int]) -> Occluded:
     return counting
 
 
+def exact_offset(object_size: float) -> float:
+    """How far (local units) the secondary rays of an exact hit start off it, an object unit
+    ``object_size`` local ones: SECONDARY_OFFSET object units (the hit is off the surface by
+    rounding only)."""
+    return SECONDARY_OFFSET * object_size
+
+
 def network_offset(object_size: float, voxel_size: float,
                    distance_mae_voxels: float | None = None) -> float:
     """How far (local units) the secondary rays of a network's hits start off them, for a
     model with voxels of ``voxel_size`` local units and its held-out distance MAE in voxels
-    (None where training held out no poses): the most of SECONDARY_OFFSET object units,
+    (None where training held out no poses): the most of an exact hit's offset,
     SECONDARY_OFFSET_VOXELS voxels and SECONDARY_OFFSET_ERRORS x that MAE."""
     voxels = max(SECONDARY_OFFSET_VOXELS, SECONDARY_OFFSET_ERRORS * (distance_mae_voxels or 0.0))
-    return max(SECONDARY_OFFSET * object_size, voxels * voxel_size)
+    return max(exact_offset(object_size), voxels * voxel_size)
+
+
+def model_offset(metadata: ModelMetadata, object_size: float, voxel_size: float) -> float:
+    """``network_offset`` of the model of ``metadata`` (its held-out distance MAE) over the
+    capture's grid of ``voxel_size`` local units (equal to the model's)."""
+    validation = metadata.training.validation or {}
+    return network_offset(object_size, voxel_size, validation.get("distance_mae_voxels"))
 
 
 def secondary_starts(primary: Passes, origins: Float[np.ndarray, "R 3"],
@@ -266,7 +284,7 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     renders of one view differ by their answers, not by their noise."""
     rays = len(primary.hit)
     if offset is None:
-        offset = SECONDARY_OFFSET * object_size
+        offset = exact_offset(object_size)
     point, normal = secondary_starts(primary, origins, directions)
     leaving = normalize(primary.normal[primary.hit], normal)      # as the hits have them
     rng = np.random.default_rng([settings.seed, rays])

@@ -21,8 +21,7 @@ from ..geometry.attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
 from . import runtime
 from .cells import CellArrays, cross, dot
 from .segments import SegmentBuffer
-from .walk import RayState
-from .walk_steps import DONE, TRUNCATED
+from .walk import DONE, TRUNCATED, RayState
 
 WARP_MODULE = runtime.warp_module(__name__)
 

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import numpy as np
 
 from ..errors import VDNIFError
-from ..geometry.voxels import GRID_KEYS
+from ..geometry.voxels import GridRecord
 from ..safe_io import check_depth, finite_number, first_non_plain, shown
 from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
 
@@ -44,6 +44,13 @@ def poses_problem(poses: Any, subject: str) -> str | None:
         if pose.get("rest") is not True and not finite_number(pose.get("frame")):
             return f"pose {index} has no finite frame number"
     return None
+
+
+def albedo_rows(table: Any) -> tuple[tuple[float, float, float], ...]:
+    """An albedo table (rows of RGB) as a model keeps it: in float32, the render kernels'
+    type, so that a model made in training holds what its file gives back."""
+    rows = np.asarray(table, np.float64).reshape(-1, 3).astype(np.float32)
+    return tuple(tuple(row) for row in rows.tolist())
 
 
 _PROBLEM_CHARS = 300
@@ -162,49 +169,6 @@ class Thresholds:
 
 
 @dataclass(frozen=True)
-class ModelGrid:
-    """The voxel grid the model was trained on (``voxels.VoxelGrid``'s placement) and the
-    fingerprint of the rest mesh voxelized (``model_file.mesh_fingerprint``; None where the
-    dataset named none, as the golden arm dataset of ``tests/golden`` does)."""
-
-    origin: tuple[float, float, float]
-    voxel_size: float
-    dims: tuple[int, int, int]
-    resolution: int
-    extent: float
-    occupied_voxels: int
-    mesh_fingerprint: str | None
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain data, the dataset header's grid entry (``dataset.grid_header``)."""
-        return {"origin": list(self.origin), "voxel_size": self.voxel_size,
-                "dims": list(self.dims), "resolution": self.resolution, "extent": self.extent,
-                "occupied_voxels": self.occupied_voxels,
-                "mesh_fingerprint": self.mesh_fingerprint}
-
-    @classmethod
-    def read(cls, reader: _Reader) -> ModelGrid:
-        """From the model file's (or a dataset header's) grid entry (``reader``)."""
-        if any(key not in reader.data for key in GRID_KEYS):
-            raise VDNIFError(f"model file {reader.path} has no complete grid in its metadata "
-                             f"({', '.join(GRID_KEYS)})")
-        resolution = reader.data["resolution"]
-        if isinstance(resolution, bool) or not isinstance(resolution, numbers.Integral):
-            raise VDNIFError(f"model file {reader.path}: grid resolution {shown(resolution)} "
-                             "is not an integer")
-        dims = reader.array("dims", np.int64, (3,))
-        if (dims < 1).any():
-            reader.fail(f"its metadata grid dims {dims.tolist()} are not positive")
-        return cls(origin=tuple(reader.array("origin", np.float64, (3,)).tolist()),
-                   voxel_size=reader.number("voxel_size", positive=True),
-                   dims=tuple(dims.tolist()), resolution=reader.integer("resolution", 1),
-                   extent=reader.number("extent", positive=True),
-                   occupied_voxels=reader.integer("occupied_voxels"),
-                   mesh_fingerprint=None if reader.get("mesh_fingerprint") is None
-                   else reader.text("mesh_fingerprint"))
-
-
-@dataclass(frozen=True)
 class TrainingSummary:
     """How training went (``train.TrainResult.summary``): status ("completed" or
     "cancelled"), optimizer steps, wall seconds and samples per second, the metrics on the
@@ -280,7 +244,7 @@ class ModelMetadata:
     object_size: float
     variant: str
     network_config: NetworkConfig
-    grid: ModelGrid
+    grid: GridRecord
     material_slots: tuple[int, ...]
     albedo_table: tuple[tuple[float, float, float], ...]
     thresholds: Thresholds
@@ -298,6 +262,9 @@ class ModelMetadata:
         if len(self.material_slots) != materials or min(self.material_slots) < 0:
             raise VDNIFError(f"its material slots {list(self.material_slots)} are not "
                              f"{materials} slot indices")
+        if (bad := first_non_plain(self.to_dict())) is not None:   # e.g. a NaN metric
+            raise VDNIFError(f"its metadata entry '{bad}' is not a finite number or plain "
+                             "data")
 
     def albedo_colors(self) -> Float[np.ndarray, "rows 3"]:
         """The albedo table as the render kernels read it, (rows, 3) float32."""
@@ -307,7 +274,8 @@ class ModelMetadata:
         """Plain data for the model file (numbers, strings, lists, dicts)."""
         return {"version": self.version, "object": self.object,
                 "object_size": self.object_size, "variant": self.variant,
-                "network_config": self.network_config.to_dict(), "grid": self.grid.to_dict(),
+                "network_config": self.network_config.to_dict(),
+                "grid": self.grid.to_dict(with_none=True),
                 "material_slots": list(self.material_slots),
                 "albedo_table": [list(row) for row in self.albedo_table],
                 "thresholds": self.thresholds.to_dict(),
@@ -320,7 +288,8 @@ class ModelMetadata:
         """Inverse of ``to_dict`` for the model file ``path``: every entry checked (types,
         finite numbers, a complete grid, the albedo table and the material slots against
         the network's materials, thresholds in (0, 1]); a failure is a one-line VDNIFError
-        naming the file. ``training.fit`` makes the metadata it writes with it too."""
+        naming the file. Training (``training.fit``) makes its metadata with the constructor,
+        from values it holds, never through plain data."""
         check_depth(data, f"model file {path} is damaged: its metadata")
         reader = _Reader(path, data)
         version = reader.integer("version")
@@ -344,10 +313,12 @@ class ModelMetadata:
             metadata = cls(object=reader.text("object"),
                        object_size=reader.number("object_size", positive=True),
                        variant=reader.text("variant"), network_config=config,
-                       grid=ModelGrid.read(reader.child("grid", {})),
+                       grid=GridRecord.from_dict(
+                           reader.data.get("grid"),
+                           lambda problem: reader.fail(f"its metadata {problem}")),
                        material_slots=tuple(
                            reader.array("material_slots", np.int64, (None,)).tolist()),
-                       albedo_table=tuple(tuple(row) for row in albedo.tolist()),
+                       albedo_table=albedo_rows(albedo),
                        thresholds=Thresholds.read(reader.child("thresholds")),
                        train_poses=tuple(dict(pose) for pose in poses),
                        training=TrainingSummary.read(reader.child("training")),

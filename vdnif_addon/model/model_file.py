@@ -60,10 +60,11 @@ def save_model(
 ) -> None:
     """Write ``network`` with its ``metadata`` to ``path``, atomically.
 
-    The network must be the one the metadata describes: built with its network config and
-    holding its thresholds. The file is written to a temporary file in the same folder,
-    fsynced and renamed over ``path``: a failed write leaves any existing file at ``path``
-    untouched and no temporary file behind.
+    The network must be the one the metadata describes: built with its network config. The
+    thresholds are the metadata's (their one record): the file keeps those, and
+    ``load_model`` hands them to the network it reads. The file is written to a temporary
+    file in the same folder, fsynced and renamed over ``path``: a failed write leaves any
+    existing file at ``path`` untouched and no temporary file behind.
     """
     path = os.fspath(path)
     if network.config != metadata.network_config:
@@ -71,9 +72,6 @@ def save_model(
             f"cannot save {path}: the network was built with a different config than the "
             "metadata's"
         )
-    if network.thresholds != metadata.thresholds:
-        raise VDNIFError(f"cannot save {path}: the network holds other thresholds than the "
-                         "metadata's")
     inner = {
         "metadata": metadata.to_dict(),
         "state_dict": {
@@ -99,8 +97,8 @@ def save_model(
 
 
 def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetadata]:
-    """Read a model file: (network in eval mode on CPU holding the file's thresholds, its
-    metadata, checked). A missing, corrupt, truncated, foreign, damaged or other-format file
+    """Read a model file: (network in eval mode on CPU applying its metadata's thresholds,
+    its metadata, checked). A missing, corrupt, truncated, foreign, damaged or other-format file
     raises a one-line VDNIFError naming the file."""
     path = os.fspath(path)
     with open_regular(path, f"model file {path}") as file:

@@ -75,8 +75,8 @@ def render_frames(source, captured, model, frames, width, height, view=None,
                             "timings": timings})
             if settings is not None:
                 size = captured.mesh.size
-                figures[-1]["secondary"] = settings.describe(model.secondary_offset(size)
-                                                             / size)
+                figures[-1]["secondary"] = settings.describe(model.secondary_offset(size),
+                                                             size)
             if each is not None:
                 each(frame, result)
             if progress is not None:

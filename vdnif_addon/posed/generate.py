@@ -10,11 +10,16 @@ import numpy as np
 from ..geometry.attributes import sample_surface
 from ..inference.evaluation import metric_heads
 from ..inference.metrics import compare, compare_secondary
-from ..inference.secondary import embedded_occluded, exact_occluded, secondary_views
+from ..inference.secondary import (
+    embedded_occluded,
+    exact_occluded,
+    exact_offset,
+    secondary_views,
+)
 from ..kernels.cast import MeshCaster
-from ..limits import MAX_RAYS_PER_POSE, check_image, check_range
+from ..limits import check_image, check_range
 from ..passes import Passes, SecondaryPasses
-from ..settings import RECIPE, SECONDARY_OFFSET
+from ..settings import BOUNDS, RECIPE
 from ..tracing.groundtruth import segment_targets
 from ..tracing.rays import orbit_rays, orbit_viewpoints, training_rays
 from ..tracing.references import embedded_reference, true_reference
@@ -32,7 +37,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     ``pose_range`` = (start, stop)) and writes one shard; returns its DatasetHeader (its
     timings with the writing's). The ray mix
     (``rays.training_rays``) defaults to the recipe's (``settings.RECIPE``)."""
-    check_range("rays per pose", rays_per_pose, 1, MAX_RAYS_PER_POSE)
+    check_range("rays per pose", rays_per_pose, *BOUNDS["rays_per_pose"])
     if surface_fraction is None:
         surface_fraction = RECIPE.surface_fraction
     if grazing_fraction is None:
@@ -40,8 +45,8 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     if secondary_fraction is None:
         secondary_fraction = RECIPE.secondary_fraction
     # The training rays leave exact surface points, off by rounding only: the exact hits'
-    # offset (object units to local ones), not a network's
-    offset = SECONDARY_OFFSET * capture.mesh.size
+    # offset, not a network's
+    offset = exact_offset(capture.mesh.size)
     start, stop = pose_range or (0, len(capture.poses))
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)

@@ -21,7 +21,7 @@ from ..inference.neural_render import neural_passes
 from ..inference.secondary import (
     embedded_occluded,
     exact_occluded,
-    network_offset,
+    model_offset,
     neural_occluded,
     secondary_views,
 )
@@ -57,9 +57,7 @@ class SceneModel:
     def secondary_offset(self, object_size):
         """Local units the secondary rays of its hits start off them (``network_offset``:
         its voxel and held-out distance error), an object unit ``object_size`` local ones."""
-        validation = self.metadata.training.validation or {}
-        return network_offset(object_size, self.grid.voxel_size,
-                              validation.get("distance_mae_voxels"))
+        return model_offset(self.metadata, object_size, self.grid.voxel_size)
 
 
 def load_scene_model(path, capture, device="auto", loaded=None, precision=DEFAULT_PRECISION):
@@ -248,14 +246,14 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
     }
     if secondary is not None:
         size = capture.mesh.size
-        _secondary_report(report, results, secondary, model.secondary_offset(size) / size)
+        _secondary_report(report, results, secondary, model.secondary_offset(size), size)
     return report, views
 
 
-def _secondary_report(report, results, settings, network_offset):
+def _secondary_report(report, results, settings, network_offset, object_size):
     """Adds the AO and shadow metrics (joined and per pose), their settings (the network's
-    offset ``network_offset`` object units) and the network's secondary rays per second to
-    an evaluation ``report``."""
+    offset ``network_offset`` local units, an object unit ``object_size`` local ones) and
+    the network's secondary rays per second to an evaluation ``report``."""
     joined = {name: SecondaryPasses.concatenate([r.secondary[name] for r in results])
               for name in results[0].secondary}
     for reference, metrics in compare_secondary_both(joined).items():
@@ -263,7 +261,7 @@ def _secondary_report(report, results, settings, network_offset):
     for row, result in zip(report["per_pose"], results):
         for reference, metrics in compare_secondary_both(result.secondary).items():
             row[reference].update(metrics)
-    report["secondary"] = settings.describe(network_offset)
+    report["secondary"] = settings.describe(network_offset, object_size)
     rays = sum(r.timings["secondary_rays"] for r in results)
     seconds = sum(r.timings["secondary_s"] for r in results)
     report["timings"]["secondary_rays_per_s"] = (

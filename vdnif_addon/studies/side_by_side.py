@@ -16,13 +16,37 @@ the static DDA walk of the same rays: both are Warp kernels with the same segmen
 and launches. Every figure is timed alternately in one process after one untimed pass and
 reported as the median over repeats, so background load affects all sides alike. On CUDA the
 clock is read only after the device's queued work is done. With secondary rays
-(``side_by_side_secondary``) each path also casts the ambient-occlusion and shadow rays of
-its own primary hits per pose.
+each path also casts the ambient-occlusion and shadow rays of its own primary hits per pose
+(below).
 
 Speeds of the neural render come only from a model file that predicts hits: its hit IoU
 against the true reference, on the same views in the same run, must reach
 ``metrics.SPEED_MIN_HIT_IOU`` (``metrics.speed_withheld``); otherwise, and without a model,
 they are n/a with the reason. The tables and plots are written by ``side_by_side_report``.
+
+Secondary rays (``side-by-side --secondary``) show whether a neural pose stays cheaper than
+a classical one once each primary hit casts ambient-occlusion and shadow rays.
+
+Per pose, after the primary pass of each path, every path casts the secondary rays of its own
+primary hits (``inference.secondary.secondary_passes``: ``samples`` cosine-weighted AO rays
+per hit up to the AO distance, and a shadow ray towards the light from each hit that faces
+it; a hit facing away is in its own shadow without a cast), once at 1 AO sample per pixel
+and once at the run's N, so that one run shows how the trade moves with rays per pose. The
+neural path answers them through the deformed walk and the network from the network's hits
+and normals; Warp's refit BVH and Embree (refit and rebuilt) through the BVH their pose
+prepared, from their own first hits and the hit triangle's geometric normal (computed from
+the pose's vertices inside the timed step). Every path asks the same question, the first hit
+within reach. Blender's BVHTree is left out: its Python loop of ``ray_cast`` casts some
+10^5 rays per second, so the AO rays of one pose take longer than every other path's
+whole run.
+
+A path's secondary time counts everything after its primary pass: normals, start points,
+directions and the casts. Its pose total at S samples is its preparation, its primary pass
+and that time. Its tables are written by ``side_by_side_report``.
+
+A scene without a model on the command line gets one trained by the recipe
+(``settings.RECIPE``: its resolution for the mesh, poses, rays per pose and steps), kept in a
+folder and used again by the next run (``recipe_model``).
 """
 
 import dataclasses
@@ -31,6 +55,8 @@ import io
 import os
 import pathlib
 import statistics
+import sys
+import tempfile
 import time
 
 import bpy
@@ -38,15 +64,27 @@ import numpy as np
 import torch
 
 from .. import threads as thread_use
+from ..blender.capture_scene import capture as capture_scene
 from ..blender.poses import posed
+from ..blender.resolution import recipe_resolution
+from ..blender.steps import train_variant
 from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
 from ..inference.neural_render import neural_passes, predict_segments
+from ..inference.secondary import (
+    counted,
+    exact_occluded,
+    mesh_primary,
+    neural_occluded,
+    secondary_passes,
+)
 from ..kernels import runtime
 from ..model.network import IntersectionNetwork
+from ..model.variants import choose_variant
 from ..passes import Passes
+from ..pose_sets import PoseSpec
 from ..posed.geometry import PosedObject
-from ..settings import Heads, NetworkConfig
+from ..settings import RECIPE, Heads, NetworkConfig
 from ..threads import ENCODER_CORES
 from ..tracing.rays import orbit_rays, orbit_viewpoints
 from ..tracing.references import true_reference
@@ -58,18 +96,23 @@ from .baselines import (
     evaluation_s,
     make_baselines,
 )
-from .side_by_side_secondary import secondary_record, secondary_summary, withhold
+from .side_by_side_report import SECONDARY_BASELINES, SECONDARY_PATHS, pose_total
+from .side_by_side_scenes import load_side_by_side_scene
 
 NO_MODEL = "no model file for this scene (--model): only a trained model has speeds"
 # Keys of a pose record that time the neural render, withheld with its speed.
 RENDER_KEYS = ("neural_render_s", "neural_walk_s", "neural_network_s", "neural_segments")
+
+NEURAL_PREFIX = "neural_secondary"
+SKIPPED = {"bvhtree": "its Python loop of `ray_cast` (about 10^5 rays/s) would take longer "
+                      "than every other path together"}
 
 
 def compare_paths(obj, capture, model, width, height, repeats, progress=None, device="cpu",
                   threads=1, secondary=None):
     """Times the classical baselines and the neural path on every pose of ``capture`` of
     ``obj`` at the thread setting ``threads`` (see the module), with ``secondary``
-    (``SecondarySettings``) each path's secondary rays too (``side_by_side_secondary``).
+    (``SecondarySettings``) each path's secondary rays too (``secondary_record``).
 
     ``model`` is a ``neural.SceneModel`` (or an object with its ``network``,
     ``albedo_table``, ``device``, ``path`` and ``variant``), or None: then the neural render
@@ -144,7 +187,7 @@ def compare_paths(obj, capture, model, width, height, repeats, progress=None, de
     if secondary is not None:
         size = capture.mesh.size
         result["secondary"] = secondary_summary(
-            result, secondary, None if model is None else model.secondary_offset(size) / size)
+            result, secondary, None if model is None else model.secondary_offset(size), size)
     return result
 
 
@@ -386,3 +429,176 @@ def machine(load_before, device):
             "warp": warp.__version__, "warp_device": runtime.device(device),
             "embreex": importlib.metadata.version("embreex"),
             "blender": bpy.app.version_string}
+
+
+def sample_counts(settings):
+    """The AO samples per pixel a run times: 1 and the settings' N (once where N is 1)."""
+    return sorted({1, settings.samples})
+
+
+def key(name, samples, what):
+    """The record key of path ``name``'s secondary ``what`` ("s", "ao_rays", "shadow_rays",
+    "ao_mean", "lit_share") at ``samples`` AO samples per pixel."""
+    return f"{name}_secondary{samples}_{what}"
+
+
+def secondary_record(baselines, casts, model, predicted, cells, grid, triangles, rays,
+                     object_size, settings, sync):
+    """Record entries of one pose: per path of ``SECONDARY_PATHS`` that ran and per AO
+    sample count, the seconds of its secondary rays, the AO and shadow rays it cast, its
+    mean AO and its lit share over its hits. ``casts`` {baseline: (index, t)} are the
+    classical primary casts of ``rays`` (origins, directions), ``predicted`` the network's
+    primary passes (None without ``model``) over ``grid``; ``sync`` waits for queued device
+    work."""
+    paths = {}
+    for baseline in baselines:
+        if baseline.name in SECONDARY_BASELINES:
+            paths[baseline.name] = (lambda b=baseline: (
+                mesh_primary(b.vertices, triangles, *casts[b.name]), exact_occluded(b)), None)
+    if model is not None:
+        # The network's hits start their rays off by its own error, as its passes do.
+        offset = model.secondary_offset(object_size)
+        network = neural_occluded(model.network, grid, model.albedo_table, cells, offset,
+                                  model.device)
+        paths["neural"] = (lambda: (predicted, network), offset)
+    record = {}
+    for samples in sample_counts(settings):
+        at = dataclasses.replace(settings, samples=samples)
+        for name, (prepare, offset) in paths.items():
+            calls = []
+            sync()
+            start = time.perf_counter()
+            # A name of its own: the neural path's lambda reads ``network`` when called, so
+            # rebinding that name here would hand it a baseline's occluder.
+            primary, answers = prepare()
+            passes = secondary_passes(primary, *rays, counted(answers, calls),
+                                      object_size, at, offset)
+            sync()
+            seconds = time.perf_counter() - start
+            # secondary_passes asks for the AO rays first, then the shadow rays
+            ao_rays, shadow_rays = calls
+            hits = int(passes.hit.sum())
+            record.update({
+                key(name, samples, "s"): seconds, key(name, samples, "ao_rays"): ao_rays,
+                key(name, samples, "shadow_rays"): shadow_rays,
+                key(name, samples, "ao_mean"): float(passes.ao[passes.hit].mean())
+                if hits else None,
+                key(name, samples, "lit_share"): float(passes.lit[passes.hit].mean())
+                if hits else None})
+    return record
+
+
+def withhold(record):
+    """Drops the neural path's secondary entries from a pose ``record`` (its speeds are
+    withheld)."""
+    for name in [k for k in record if k.startswith(NEURAL_PREFIX)]:
+        del record[name]
+
+
+def secondary_summary(result, settings, network_offset=None, object_size=1.0):
+    """The secondary table of a ``compare_paths`` ``result`` timed with ``settings`` (the
+    network's hits started ``network_offset`` local units off, when it ran, an object unit
+    ``object_size`` local ones): per
+    path and AO sample count, the rays per pose, their milliseconds and rays per second,
+    the pose total, the mean AO and lit share (medians over repeats; None where not run
+    or withheld), and per classical path where the cheaper side changes."""
+    counts = sample_counts(settings)
+    paths = {}
+    for name in SECONDARY_PATHS:
+        paths[name] = {str(samples): _figures(result, name, samples) for samples in counts}
+    return {"settings": dict(settings.describe(network_offset, object_size), samples=counts),
+            "paths": paths, "skipped": SKIPPED,
+            "trade": {b: trade_point(paths["neural"], paths[b], counts)
+                      for b in SECONDARY_BASELINES}}
+
+
+def _figures(result, name, samples):
+    runs = [[r for r in run["poses"] if key(name, samples, "s") in r]
+            for run in result["runs"]]
+    if not all(runs):
+        return {"rays": None, "ao_rays": None, "shadow_rays": None, "ms": None,
+                "rays_per_s": None, "pose_total_ms": None, "ao_mean": None, "lit_share": None}
+
+    def median(what):
+        values = [statistics.fmean(r[key(name, samples, what)] for r in poses)
+                  for poses in runs if all(r[key(name, samples, what)] is not None
+                                           for r in poses)]
+        return statistics.median(values) if values else None
+
+    rays = [[r[key(name, samples, "ao_rays")] + r[key(name, samples, "shadow_rays")]
+             for r in poses] for poses in runs]
+    rates = [statistics.fmean(count) / statistics.fmean(r[key(name, samples, "s")]
+                                                        for r in poses)
+             for count, poses in zip(rays, runs)]
+    ms = 1e3 * median("s")
+    primary = pose_total(result, name)
+    return {"rays": statistics.median(statistics.fmean(count) for count in rays),
+            "ao_rays": median("ao_rays"), "shadow_rays": median("shadow_rays"), "ms": ms,
+            "rays_per_s": statistics.median(rates),
+            "pose_total_ms": None if primary is None else primary + ms,
+            "ao_mean": median("ao_mean"), "lit_share": median("lit_share")}
+
+
+def trade_point(neural, classical, counts):
+    """Where the neural pose total meets a classical one, both taken as linear in the AO
+    samples through the two measured counts: "samples" where they meet between them (None
+    otherwise), "beyond" where the lines meet past N (an extrapolation, None otherwise)."""
+    totals = [(neural[str(s)]["pose_total_ms"], classical[str(s)]["pose_total_ms"])
+              for s in counts]
+    if any(n is None for n, _ in totals):
+        return {"samples": None, "beyond": None, "text": "n/a (no neural speed)"}
+    ratios = ", ".join(f"{n / c:.3g} at {s}" for (n, c), s in zip(totals, counts))
+    differences = [n - c for n, c in totals]
+    meet = None
+    if len(counts) == 2 and differences[0] != differences[1]:
+        low, high = counts
+        meet = low + (high - low) * differences[0] / (differences[0] - differences[1])
+    if meet is not None and counts[0] < meet < counts[-1]:
+        way = "from" if differences[0] > 0 else "up to"
+        return {"samples": meet, "beyond": None,
+                "text": f"neural cheaper {way} {meet:.3g} AO samples (neural / "
+                        f"classical {ratios})"}
+    side = "neural" if differences[-1] < 0 else "classical"
+    beyond = meet if meet is not None and meet >= counts[-1] else None
+    text = (f"{side} cheaper at {' and '.join(map(str, counts))} AO samples (neural / "
+            f"classical {ratios})")
+    if beyond is not None:
+        text += f"; the lines meet at {beyond:.3g} AO samples (extrapolated)"
+    return {"samples": None, "beyond": beyond, "text": text}
+
+
+SIZES = {   # full: the recipe; quick: a tiny training, for tests (its models predict no hits)
+    "full": dict(resolution=None, poses=RECIPE.poses, rays_per_pose=RECIPE.rays_per_pose,
+                 overrides={}),
+    "quick": dict(resolution=8, poses=2, rays_per_pose=64,
+                  overrides=dict(steps=20, batch_size=256, log2_table_size=10)),
+}
+
+
+def model_file(folder, scene):
+    """Where the model trained for ``scene`` lives in ``folder``."""
+    return pathlib.Path(folder) / f"{scene}.vdnif"
+
+
+def recipe_model(scene, folder, seed=0, device="auto", quick=False, progress=None):
+    """The model of side-by-side scene ``scene`` in ``folder``, trained first (by the recipe,
+    training poses of ``seed``) where the file is missing; returns its path."""
+    path = model_file(folder, scene)
+    if path.exists():
+        print(f"side-by-side: '{scene}' uses the model {path} (trained before)",
+              file=sys.stderr)
+        return path
+    size = SIZES["quick" if quick else "full"]
+    obj = load_side_by_side_scene(scene)
+    resolution = size["resolution"] or recipe_resolution(obj)
+    captured = capture_scene(obj, resolution, PoseSpec(count=size["poses"], seed=seed),
+                             deform_corners=False)
+    variant, _ = choose_variant(None, captured.mode == "static")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    print(f"side-by-side: training {variant} on '{obj.name}' ({scene}) by the "
+          f"{'quick size' if quick else 'recipe'} into {path}", file=sys.stderr)
+    overrides = dict(size["overrides"], device=device, seed=seed)
+    with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
+        train_variant(obj, captured, variant, scratch, size["rays_per_pose"], path, overrides,
+                      seed, progress=progress)
+    return path

@@ -16,7 +16,7 @@ import math
 
 from ..text import percent
 from .baselines import BASELINES
-from .side_by_side_plots import SHORT, pose_total, setting
+from .side_by_side_report import SHORT, pose_total, setting
 
 PREVIEW = 64                # the preview's image size, square
 

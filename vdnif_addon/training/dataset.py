@@ -24,12 +24,12 @@ import numpy as np
 from .. import limits
 from ..errors import VDNIFError
 from ..safe_io import open_regular, unpacked_size
-from .header import VERSION, DatasetHeader, DatasetIdentity, GridHeader
+from .header import VERSION, DatasetHeader, DatasetIdentity
 from .packing import PackedShard, pack, stored_names
 
 if TYPE_CHECKING:
     from ..geometry.restmesh import RestMesh
-    from ..geometry.voxels import VoxelGrid
+    from ..geometry.voxels import GridRecord, VoxelGrid
     from ..geometry.walk_rules import Segments
     from ..tracing.groundtruth import SurfaceHits
 
@@ -70,7 +70,7 @@ def segment_records(grid: VoxelGrid, segments: Segments, targets: SurfaceHits,
     return {name: np.asarray(value).astype(ARRAYS[name][0]) for name, value in records.items()}
 
 
-def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> GridHeader:
+def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> GridRecord:
     """The grid's header entry; with the RestMesh ``mesh`` it carries the mesh's fingerprint
     (``model_file.mesh_fingerprint``), which the model keeps with the grid, so that a mesh
     edited within the same bounds is refused by the model trained before the edit."""
@@ -79,10 +79,7 @@ def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> GridHeader:
         from ..model.model_file import mesh_fingerprint
 
         fingerprint = mesh_fingerprint(mesh)
-    return GridHeader(origin=tuple(grid.origin.tolist()), voxel_size=float(grid.voxel_size),
-                      dims=tuple(grid.dims.tolist()), resolution=int(grid.resolution),
-                      extent=float(grid.extent), occupied_voxels=int(len(grid.cells)),
-                      mesh_fingerprint=fingerprint)
+    return grid.record(fingerprint)
 
 
 def shard_name(start: int, stop: int) -> str:

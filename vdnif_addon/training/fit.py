@@ -15,7 +15,7 @@ from typing import Any
 
 from .. import __version__
 from ..memory import TRAINING_ADVICE, out_of_memory
-from ..model.metadata import FORMAT_VERSION, ModelMetadata
+from ..model.metadata import DatasetSource, ModelMetadata, albedo_rows
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
 from .dataset import read_dataset
@@ -50,19 +50,15 @@ def fit_model(
     # dataset's, which the recorded loss curve trains on) has a material per slot and
     # leaves the mesh unchecked.
     slots = header.heads.material_slots
-    metadata = ModelMetadata.from_dict({
-        "version": FORMAT_VERSION, "object": header.object,
-        "object_size": header.object_size, "variant": variant,
-        "network_config": result.network_config.to_dict(),
-        "grid": {"mesh_fingerprint": None, **header.grid.to_dict()},
-        "material_slots": list(range(header.heads.material_count)) if slots is None
-        else list(slots),
-        "albedo_table": [list(row) for row in header.albedo_table],
-        "thresholds": result.thresholds.to_dict(),
-        "train_poses": list(data.poses), "training": result.info(),
-        "dataset": {"folder": str(data_dir), "shards": list(data.shards),
-                    "poses": len(data.poses), "segments": data.segments},
-        "vdnif_version": __version__}, str(out))
+    metadata = ModelMetadata(
+        object=header.object, object_size=header.object_size, variant=variant,
+        network_config=result.network_config, grid=header.grid,
+        material_slots=tuple(range(header.heads.material_count)) if slots is None else slots,
+        albedo_table=albedo_rows(header.albedo_table), thresholds=result.thresholds,
+        train_poses=tuple(dict(pose) for pose in data.poses), training=result.summary(),
+        dataset=DatasetSource(folder=str(data_dir), shards=tuple(data.shards),
+                              poses=len(data.poses), segments=int(data.segments)),
+        vdnif_version=__version__)
     save_model(out, result.network, metadata)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,

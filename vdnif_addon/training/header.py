@@ -19,18 +19,16 @@ from typing import Any, NoReturn
 import numpy as np
 
 from ..errors import VDNIFError
-from ..geometry.voxels import GRID_KEYS
+from ..geometry.voxels import GRID_KEYS, GridRecord
 from ..limits import (
     MAX_OBJECT_SIZE,
     MAX_POSES,
-    MAX_RAYS_PER_POSE,
-    MAX_SEED,
     MAX_SHARD_SEGMENTS,
     MIN_OBJECT_SIZE,
 )
 from ..model.metadata import poses_problem
 from ..safe_io import check_depth, finite_number, shown
-from ..settings import MAX_MATERIALS, MAX_RESOLUTION, MIN_RESOLUTION, Heads
+from ..settings import BOUNDS, MAX_MATERIALS, Heads
 
 FORMAT = "vdnif-dataset"
 VERSION = 2
@@ -79,65 +77,6 @@ def _keys(where: str, name: str, data: Mapping[str, Any], required: tuple[str, .
         _fail(where, f"{name} lacks {', '.join(missing)}")
     if unknown:
         _fail(where, f"{name} has unknown entries {', '.join(map(shown, unknown))}")
-
-
-@dataclass(frozen=True)
-class GridHeader:
-    """The voxel grid (``VoxelGrid``): origin and voxel size in rest units, dims, the
-    resolution asked for, the extent (voxel size times the longest dims); the occupied
-    voxel count and the rest mesh's fingerprint where the writer knew them."""
-
-    origin: tuple[float, float, float]
-    voxel_size: float
-    dims: tuple[int, int, int]
-    resolution: int
-    extent: float
-    occupied_voxels: int | None = None
-    mesh_fingerprint: str | None = None
-
-    def placement(self) -> tuple[Any, ...]:
-        """The ``GRID_KEYS`` values: equal for every shard of one folder."""
-        return tuple(getattr(self, key) for key in GRID_KEYS)
-
-    def to_dict(self) -> dict[str, Any]:
-        data = {"origin": list(self.origin), "voxel_size": self.voxel_size,
-                "dims": list(self.dims), "resolution": self.resolution, "extent": self.extent}
-        for key in ("occupied_voxels", "mesh_fingerprint"):
-            if getattr(self, key) is not None:
-                data[key] = getattr(self, key)
-        return data
-
-    @classmethod
-    def from_dict(cls, data: object, where: str) -> GridHeader:
-        """The grid entry ``data`` of the header or manifest that ``where`` names."""
-        if not isinstance(data, dict) or any(key not in data for key in GRID_KEYS):
-            _fail(where, f"has no complete grid ({', '.join(GRID_KEYS)})")
-        _keys(where, "grid", data, GRID_KEYS, ("occupied_voxels", "mesh_fingerprint"))
-        origin, dims = data["origin"], data["dims"]
-        if not (isinstance(origin, list) and len(origin) == 3 and all(map(_is_number, origin))):
-            _fail(where, f"grid origin {shown(origin)} is not 3 numbers")
-        if not (isinstance(dims, list) and len(dims) == 3
-                and all(_is_int(n) and 1 <= n <= 2**31 - 1 for n in dims)):
-            _fail(where, f"grid dims {shown(dims)} are not 3 counts")
-        h, extent = data["voxel_size"], data["extent"]
-        if not (_is_number(h) and h > 0 and _is_number(extent) and extent > 0):
-            _fail(where, "grid voxel size or extent is not a positive number")
-        if abs(extent - h * max(dims)) > 1e-6 * extent:
-            _fail(where, f"grid extent {shown(extent)} is not its voxel size {shown(h)} times its "
-                         f"longest dims {max(dims)}")
-        resolution = data["resolution"]
-        if not _is_int(resolution) or not MIN_RESOLUTION <= resolution <= MAX_RESOLUTION:
-            _fail(where, f"grid resolution {shown(resolution)} is not an integer in "
-                         f"{MIN_RESOLUTION}..{MAX_RESOLUTION}")
-        occupied = data.get("occupied_voxels")
-        if occupied is not None:
-            _int(where, "grid occupied_voxels", occupied, 0, math.prod(dims))
-        fingerprint = data.get("mesh_fingerprint")
-        if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
-            _fail(where, f"grid mesh_fingerprint {shown(fingerprint)} is not a string")
-        return cls(origin=tuple(map(float, origin)), voxel_size=float(h), dims=tuple(dims),
-                   resolution=resolution, extent=float(extent), occupied_voxels=occupied,
-                   mesh_fingerprint=fingerprint)
 
 
 HEAD_KEYS = ("occlusion", "distance", "normal", "albedo", "material", "material_count")
@@ -216,7 +155,7 @@ class DatasetIdentity:
 
     object: str
     seed: int
-    grid: GridHeader
+    grid: GridRecord
 
     def to_dict(self) -> dict[str, Any]:
         return {"object": self.object, "seed": self.seed,
@@ -241,8 +180,18 @@ class DatasetIdentity:
             _fail(where, "is not a JSON object")
         _keys(where, "manifest", data, ("object", "seed", "grid"))
         return cls(object=_name(where, data["object"]),
-                   seed=_int(where, "seed", data["seed"], 0, MAX_SEED),
-                   grid=GridHeader.from_dict(data["grid"], where))
+                   seed=_seed(where, data["seed"]),
+                   grid=_grid(where, data["grid"]))
+
+
+def _grid(where: str, data: object) -> GridRecord:
+    """The grid entry ``data`` of the header or manifest that ``where`` names."""
+    return GridRecord.from_dict(data, lambda problem: _fail(where, problem))
+
+
+def _seed(where: str, value: object) -> int:
+    """The seed of a header or manifest, in its settings' range."""
+    return _int(where, "seed", value, *BOUNDS["seed"])
 
 
 def _name(where: str, value: object) -> str:
@@ -269,7 +218,7 @@ class DatasetHeader:
     object: str
     mode: str
     object_size: float
-    grid: GridHeader
+    grid: GridRecord
     heads: DatasetHeads
     albedo_table: tuple[tuple[float, float, float], ...]
     poses: tuple[dict[str, Any], ...]
@@ -321,7 +270,7 @@ class DatasetHeader:
             raise VDNIFError(f"{where} has format version {shown(data.get('version'))}, this "
                              f"VDNIF reads versions 1 to {VERSION}: generate the dataset "
                              "again")
-        grid = GridHeader.from_dict(data.get("grid"), where)
+        grid = _grid(where, data.get("grid"))
         _keys(where, "header", data, HEADER_KEYS, ("grazing_fraction", "secondary_fraction"))
         name = _name(where, data["object"])
         if data["voxel_size"] != grid.voxel_size:
@@ -358,9 +307,9 @@ class DatasetHeader:
             grid=grid, heads=heads,
             albedo_table=_albedo_table(where, data["albedo_table"], heads.material_count),
             poses=tuple(dict(pose) for pose in poses), pose_range=(span[0], span[1]),
-            seed=_int(where, "seed", data["seed"], 0, MAX_SEED),
-            rays_per_pose=_int(where, "rays per pose", data["rays_per_pose"], 1,
-                               MAX_RAYS_PER_POSE),
+            seed=_seed(where, data["seed"]),
+            rays_per_pose=_int(where, "rays per pose", data["rays_per_pose"],
+                               *BOUNDS["rays_per_pose"]),
             surface_fraction=_number(where, "surface fraction", data["surface_fraction"], 0, 1),
             grazing_fraction=(None if grazing is None
                               else _number(where, "grazing fraction", grazing, 0, 1)),

@@ -26,7 +26,7 @@ from torch import nn
 
 from ..errors import VDNIFError
 from ..model.encoding import HashGrid
-from ..model.metadata import Thresholds
+from ..model.metadata import Thresholds, TrainingSummary
 from ..model.network import IntersectionNetwork
 from ..settings import NetworkConfig, TrainConfig
 from .data import Batches, Segments, split_data
@@ -74,6 +74,21 @@ class TrainResult:
     def thresholds(self) -> Thresholds:
         """The thresholds calibrated on the held-out poses (the network's)."""
         return self.network.thresholds
+
+    def summary(self) -> TrainingSummary:
+        """How training went, as the model's metadata keeps it (``info`` in numbers of the
+        metadata's types)."""
+        def numbers(values: Mapping[str, Any]) -> dict[str, float | None]:
+            return {name: None if value is None else float(value)
+                    for name, value in values.items()}
+
+        return TrainingSummary(
+            status=self.status, steps=int(self.steps), seconds=float(self.seconds),
+            samples_per_s=float(self.samples_per_s),
+            validation=None if self.validation is None else numbers(self.validation),
+            log_variances=numbers(self.log_variances),
+            val_poses=tuple(int(index) for index in self.val_poses),
+            world_size=int(self.world_size), config=self.config.to_dict())
 
     def info(self) -> dict[str, Any]:
         """Plain-data summary, the model metadata's ``training`` entry

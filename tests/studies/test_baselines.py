@@ -12,6 +12,7 @@ import sys
 import numpy as np
 import pytest
 from conftest import ENABLE_IN_FRESH_PROCESS, EXTENSION_MODULE, REPO
+from test_side_by_side import lattice_capture
 
 # Rays through an edge or a vertex that float32 triangle tests of different libraries may
 # give to neither neighbour: at most this many per view may differ between two casters.
@@ -29,9 +30,7 @@ def posed_casts(extension):
     Suzanne, three 32x32 orbit views: {name: (hit, distance)} and the object size."""
     poses = core("blender.poses")
     rays = core("tracing.rays")
-    obj = core("studies.side_by_side_scenes").load_side_by_side_scene("lattice")
-    captured = core("blender.capture_scene").capture(
-        obj, 8, poses.evaluation_spec(poses.PoseSpec(count=1)), deform_corners=False)
+    obj, captured = lattice_capture(1)
     mesh = captured.mesh
     made = core("studies.baselines")
     baselines, embree = made.make_baselines(mesh, threads=2)
