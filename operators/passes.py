@@ -126,7 +126,7 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
                     f"), image '{image.name}'{where}; passes written to "
                     f"{storage.portable(exr)}")
 
-        return [Stage(make, finish)]
+        return [Stage(make, finish, undo=False)]      # images and files, no settings
 
 
 class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
