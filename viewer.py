@@ -261,7 +261,10 @@ def show_training(context, obj, history):
     rgb = plot(history)
     rgba = np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)
     image = write_image(training_image_name(obj), rgba, "sRGB")
-    keep(image, rgba, storage.images_folder(obj) / "training.exr")
+    try:
+        keep(image, rgba, storage.images_folder(obj) / "training.exr")
+    except OSError as exc:      # the plot only: the model is kept all the same
+        print(f"vdnif: '{obj.name}': the loss plot is not saved with the .blend: {exc}")
     editor = image_editor(context.screen)
     if editor is not None:
         editor.spaces.active.image = image

@@ -115,5 +115,7 @@ def undo_step(label):
     """Pushes an undo step named ``label`` (the operator's) once a job has written an
     object's settings or its model. Blender's UI pushes one only when an operator with the
     UNDO flag returns, never for what a modal operator writes later from its timer: without
-    this step, undoing any later edit would take the job's result away with it."""
-    bpy.ops.ed.undo_push(message=label)
+    this step, undoing any later edit would take the job's result away with it. Where
+    Blender keeps no undo history (no screen to push from) there is nothing to push to."""
+    if bpy.ops.ed.undo_push.poll():
+        bpy.ops.ed.undo_push(message=label)
