@@ -110,7 +110,6 @@ def redraw(context):
             area.tag_redraw()
 
 
-
 def undo_step(label):
     """Pushes an undo step named ``label`` (the operator's) once a job has written an
     object's settings or its model. Blender's UI pushes one only when an operator with the
