@@ -3,7 +3,6 @@ and both installed on request into the extension's user folder (never into the e
 own folder). Compiled kernels are cached in the extension's user folder as well."""
 
 import importlib
-import importlib.metadata
 import importlib.util
 import os
 import subprocess
@@ -90,8 +89,8 @@ def device(context: bpy.types.Context) -> str:
 
 def install_command(folder: str) -> list[str]:
     """pip installing Warp and torch into ``folder`` with Blender's own Python: PyTorch's
-    CUDA build where Windows has an NVIDIA driver (``dependencies.torch_plan``, kept in
-    ``install`` for the messages that say which build it is)."""
+    CUDA build where there is an NVIDIA driver, else its CPU build (``dependencies.torch_plan``,
+    kept in ``install`` for the messages that say which build it is)."""
     install["plan"] = dependencies.torch_plan()
     return dependencies.install_command(sys.executable, folder, install["plan"])
 
@@ -109,7 +108,8 @@ def start_install(background: bool) -> str:
     install["process"] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                           env=environment, text=True)
     install["process"].log = log
-    install["message"] = "Installing PyTorch and Warp (several minutes, about 1 GB)..."
+    size = "several GB" if install["plan"] is not None and install["plan"].cuda else "about 1 GB"
+    install["message"] = f"Installing PyTorch and Warp (several minutes, {size})..."
     if install["plan"] is not None:
         install["message"] += f" {install['plan'].note}"
     bpy.app.timers.register(_watch_install, first_interval=1.0)
@@ -128,14 +128,15 @@ def _watch_install() -> float | None:
 
 
 def _installed(returncode: int, output: str) -> str:
+    """The outcome of pip (``returncode``, ``output``): what it installed and its size, or
+    why it failed."""
     global _torch_details, _warp_details
     _torch_details = _warp_details = None
     importlib.invalidate_caches()
     if returncode == 0 and torch_available() and warp_available():
         use_kernel_folder()
-        install["message"] = (f"Installed PyTorch {importlib.metadata.version('torch')} and "
-                              f"Warp {importlib.metadata.version('warp-lang')}")
         plan = install["plan"]
+        install["message"] = dependencies.installed_line(dependencies_folder(), plan)
         if plan is not None and not plan.cuda:
             install["message"] += f"; {plan.note}"
     else:

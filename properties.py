@@ -193,13 +193,13 @@ class VDNIFViewer(bpy.types.PropertyGroup):
     pass_name: EnumProperty(name="Pass", items=[
         (name, viewer.PASS_TITLES[name], _PASS_TEXT[name]) for name in viewer.SHOWN],
         description="The pass the Image Editor shows",
-        update=lambda choice, context: viewer.show(context, choice))
+        update=viewer.choice_changed)
     source: EnumProperty(name="Show", items=[(name, name.title(), text) for name, text in (
         ("reference", "Blender's deformed mesh"), ("predicted", "The network"),
         ("error", "Error of the prediction against the reference"))],
         default="predicted", description="The reference, the network's prediction or its "
                                          "error, each kept in its own image",
-        update=lambda choice, context: viewer.show(context, choice))
+        update=viewer.choice_changed)
 
 
 classes = (VDNIFSettings, VDNIFViewer)

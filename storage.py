@@ -64,6 +64,13 @@ def passes_folder(obj):
     return _chosen_folder(obj, "", "-passes", "passes")
 
 
+def images_folder(obj):
+    """Where the pass viewer's and the loss plot's images of the object are saved, to be read
+    back when the .blend is opened: beside the .blend, else (unsaved .blend) in the user
+    folder."""
+    return _chosen_folder(obj, "", "-images", "images")
+
+
 def has_dataset(obj):
     folder = dataset_folder(obj)
     return folder.is_dir() and any(folder.glob("shard-*.json"))

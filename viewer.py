@@ -1,10 +1,12 @@
 """The UI's helpers that are not operators: the voxel preview object, rays of the 3D
 Viewport's view, and the pass viewer: the kept view (module state, dropped by this module's
-own load_post handler when another file is opened) and its float images. The operators,
+own load_post handler when another file is opened) and its float images, saved as EXR files
+beside the .blend and read back by another load_post handler when it is opened. The operators,
 panels and properties use it; the Blender adapters it needs stay in
 ``vdnif_addon/blender/``."""
 
 import math
+import pathlib
 
 import bpy
 import numpy as np
@@ -31,6 +33,10 @@ SHOWN = (*PASSES, *SECONDARY_PASSES)
 CELL_EDGES = np.array([(c, c | bit) for bit in (1, 2, 4) for c in range(8) if not c & bit])
 
 _view = {}      # the last rendered view: {"reference" | "predicted" | "error": {pass: image}}
+KEPT_FILE = "vdnif_file"
+"""The ID property of a VDNIF image naming the EXR its pixels are saved in (``keep``): a .blend
+keeps a generated image's name and settings, never its pixels, so ``restore_images`` reads
+them back from that file when the .blend is opened."""
 
 
 def cell_edges(cell_corners):
@@ -93,11 +99,13 @@ def image_name(pass_name, source):
     return f"VDNIF {PASS_TITLES[pass_name]} ({source})"
 
 
-def set_view(reference, predicted, width, height, object_size, secondary=None):
+def set_view(reference, predicted, width, height, object_size, secondary=None, folder=None):
     """Keeps the images of a rendered view (reference and predicted Passes; with
     ``secondary``, {"true", "predicted": SecondaryPasses}, the AO and shadow passes too) for
     the viewer and writes each into its own float image: both passes on one distance scale,
-    the error as heat maps; alpha is the hit mask (the error images are opaque)."""
+    the error as heat maps; alpha is the hit mask (the error images are opaque). With a
+    ``folder``, each image is saved there too (``keep``), so it comes back when the .blend
+    is opened again."""
     shown = view_images(reference, predicted, height, width, object_size)
     if secondary is not None:
         more = secondary_view_images(secondary["true"], secondary["predicted"], height, width)
@@ -112,7 +120,15 @@ def set_view(reference, predicted, width, height, object_size, secondary=None):
                          for name, image in images.items()}
         for name in images:
             colorspace = "Non-Color" if source == "error" else COLORSPACES.get(name, "Non-Color")
-            write_image(image_name(name, source), _view[source][name], colorspace)
+            image = write_image(image_name(name, source), _view[source][name], colorspace)
+            if folder is not None:
+                keep(image, _view[source][name], pathlib.Path(folder) / f"{name}-{source}.exr")
+    for name in SHOWN:           # images of an older view (AO, shadow) are not reopened
+        for source in _view:
+            image = bpy.data.images.get(image_name(name, source))
+            if name not in _view[source] and image is not None and KEPT_FILE in image:
+                del image[KEPT_FILE]
+                image.use_fake_user = False
 
 
 def write_files(obj, result, slots, width, height, frame):
@@ -149,11 +165,44 @@ def forget_view(*_):
     _view.clear()
 
 
+def keep(image, rgba, path):
+    """Saves ``rgba`` (H, W, 4), what ``image`` holds, as the EXR ``path`` (exact floats, no
+    colour conversion) and names it in the image, which the .blend then keeps even while no
+    Image Editor shows it."""
+    from . import storage
+    from .vdnif_addon.blender.image_io import save_image
+
+    save_image(path, rgba)
+    image[KEPT_FILE] = storage.portable(path)
+    image.use_fake_user = True
+
+
+@bpy.app.handlers.persistent
+def restore_images(*_):
+    """load_post: fills every image saved with ``keep`` from its EXR again. One whose file
+    is gone is removed: the panel would name an empty image."""
+    from .vdnif_addon.blender.image_io import load_image
+
+    for image in list(bpy.data.images):
+        path = image.get(KEPT_FILE)
+        if path is None:
+            continue
+        try:
+            rgba = load_image(bpy.path.abspath(path))
+        except OSError as exc:
+            print(f"vdnif: image '{image.name}' is not restored: {exc}")
+            bpy.data.images.remove(image)
+            continue
+        write_image(image.name, rgba, image.colorspace_settings.name)
+
+
 def register():
     bpy.app.handlers.load_post.append(forget_view)
+    bpy.app.handlers.load_post.append(restore_images)
 
 
 def unregister():
+    bpy.app.handlers.load_post.remove(restore_images)
     bpy.app.handlers.load_post.remove(forget_view)
 
 
@@ -163,11 +212,20 @@ def image_editor(screen):
                 None)
 
 
+def available(pass_name, source):
+    """Whether a pass and source has an image to show: rendered since the .blend was opened,
+    or, before any render, restored with it (``restore_images``)."""
+    if viewed(pass_name):
+        return True
+    image = bpy.data.images.get(image_name(pass_name, source))
+    return not _view and image is not None and KEPT_FILE in image
+
+
 def show(context, viewer):
     """Shows the image of the viewer's pass and source in the screen's first Image Editor, if
     there is one. Returns that image, or None when that pass was not rendered in this file
-    yet."""
-    if not viewed(viewer.pass_name):
+    yet (``available``)."""
+    if not available(viewer.pass_name, viewer.source):
         return None
     name = image_name(viewer.pass_name, viewer.source)
     image = bpy.data.images.get(name)
@@ -182,6 +240,12 @@ def show(context, viewer):
     return image
 
 
+def choice_changed(viewer, context):
+    """The update of the pass viewer's pass and source: shows that image. Blender takes an
+    update callback's return value as an error unless it is None."""
+    show(context, viewer)
+
+
 def training_image_name(obj):
     """The image of an object's loss plot."""
     return f"VDNIF Training ({obj.name})"
@@ -189,14 +253,18 @@ def training_image_name(obj):
 
 def show_training(context, obj, history):
     """Draws the loss plot of training's progress records ``history`` (``history.plot``) into
-    the object's training image and shows it in the screen's first Image Editor, if there is
-    one. Returns the image."""
+    the object's training image (saved beside the .blend too: ``keep``) and shows it in the
+    screen's first Image Editor, if there is one. Returns the image."""
+    from . import storage
     from .vdnif_addon.training.history import plot
 
     rgb = plot(history)
-    opaque = np.ones((*rgb.shape[:2], 1), np.float32)
-    image = write_image(training_image_name(obj), np.concatenate([rgb, opaque], axis=2),
-                        "sRGB")
+    rgba = np.concatenate([rgb, np.ones((*rgb.shape[:2], 1), np.float32)], axis=2)
+    image = write_image(training_image_name(obj), rgba, "sRGB")
+    try:
+        keep(image, rgba, storage.images_folder(obj) / "training.exr")
+    except OSError as exc:      # the plot only: the model is kept all the same
+        print(f"vdnif: '{obj.name}': the loss plot is not saved with the .blend: {exc}")
     editor = image_editor(context.screen)
     if editor is not None:
         editor.spaces.active.image = image
@@ -209,9 +277,15 @@ def write_image(name, rgba, colorspace):
     image = bpy.data.images.get(name)
     if image is None:
         image = bpy.data.images.new(name, width, height, alpha=True, float_buffer=True)
-    elif tuple(image.size) != (width, height):
-        image.scale(width, height)
-    image.colorspace_settings.name = colorspace
+    # Setting a generated image's colour space (even to the one it has) or its generated
+    # size makes its pixels again, blank, at the generated size: both before the pixels.
+    if image.colorspace_settings.name != colorspace:
+        image.colorspace_settings.name = colorspace
+    if tuple(image.size) != (width, height):
+        if image.source == "GENERATED":
+            image.generated_width, image.generated_height = width, height
+        else:
+            image.scale(width, height)
     image.pixels.foreach_set(np.ascontiguousarray(rgba[::-1], np.float32).ravel())
     image.update()
     return image

@@ -55,7 +55,7 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
             return (f"'{obj.name}': {state.message}; {len(written)} of frames {frames[0]}.."
                     f"{frames[-1]} written to {storage.portable(folder)}")
 
-        return [Stage(make, finish)]
+        return [Stage(make, finish, undo=False)]      # files, no settings
 
 
 classes = (VDNIF_OT_render_animation,)

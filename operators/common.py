@@ -1,5 +1,7 @@
-"""What every VDNIF operator shares: poll checks whose reason the user sees, and errors
-reported with ``self.report`` and kept for the panel."""
+"""What every VDNIF operator shares: poll checks whose reason the user sees, errors
+reported with ``self.report`` and kept for the panel, and undo steps for what jobs keep."""
+
+import bpy
 
 from .. import preferences, storage
 from ..vdnif_addon.errors import VDNIFError
@@ -107,3 +109,12 @@ def redraw(context):
         if area.type in ("VIEW_3D", "IMAGE_EDITOR"):
             area.tag_redraw()
 
+
+def undo_step(label):
+    """Pushes an undo step named ``label`` (the operator's) once a job has written an
+    object's settings or its model. Blender's UI pushes one only when an operator with the
+    UNDO flag returns, never for what a modal operator writes later from its timer: without
+    this step, undoing any later edit would take the job's result away with it. Where
+    Blender keeps no undo history (no screen to push from) there is nothing to push to."""
+    if bpy.ops.ed.undo_push.poll():
+        bpy.ops.ed.undo_push(message=label)

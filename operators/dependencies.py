@@ -8,7 +8,7 @@ from .. import preferences
 
 class VDNIF_OT_install_dependencies(bpy.types.Operator):
     """Install PyTorch and Warp with pip into the extension's user folder (internet, minutes,
-    ~1 GB)"""
+    about 1 GB; PyTorch's CUDA build where there is an NVIDIA driver, several GB on Linux)"""
 
     bl_idname = "vdnif.install_dependencies"
     bl_label = "Install PyTorch and Warp"

@@ -29,6 +29,7 @@ class VDNIF_OT_load_model(VDNIFOperator, bpy.types.Operator, ImportHelper):
 
     bl_idname = "vdnif.load_model"
     bl_label = "Load Model"
+    bl_options = {"REGISTER", "UNDO"}       # it changes the object's model and settings
     needs = ("mesh", "torch", "idle")
     filename_ext = ".vdnif"
     filter_glob: FILE_FILTER

@@ -115,7 +115,8 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
                 return f"'{obj.name}': {state.message}"
             result, slots = kept["result"], kept["slots"]   # the material pass: the slots
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
-                            width, height, result.object_size, result.secondary)
+                            width, height, result.object_size, result.secondary,
+                            folder=storage.images_folder(obj))
             exr = viewer.write_files(obj, result, slots, width, height, frame)
             image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None
@@ -125,7 +126,7 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
                     f"), image '{image.name}'{where}; passes written to "
                     f"{storage.portable(exr)}")
 
-        return [Stage(make, finish)]
+        return [Stage(make, finish, undo=False)]      # images and files, no settings
 
 
 class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):

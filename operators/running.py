@@ -7,7 +7,8 @@ In background mode (batch runs, scripts) the same stages run synchronously.
 A window-manager timer ticks the job: on Blender's main thread it reads the poses the
 worker needs and writes the images it delivers (Blender's data is touched nowhere else),
 then shows the progress. When a stage completes, its ``finish`` keeps the result with the
-object (main thread again) and the next stage starts.
+object (main thread again), an undo step is pushed for what it kept (``common.undo_step``),
+and the next stage starts.
 """
 
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from typing import Callable
 import bpy
 
 from ..vdnif_addon.errors import VDNIFError
-from .common import JOBS, VDNIFOperator, redraw
+from .common import JOBS, VDNIFOperator, redraw, undo_step
 
 TICK_S = 0.05          # timer interval: reads keep ahead of the worker, Blender stays fluid
 _timers = []           # the window-manager timers of running operators
@@ -26,10 +27,13 @@ _timers = []           # the window-manager timers of running operators
 class Stage:
     """One job of an operator: ``make()`` builds it on the main thread (capturing what it
     needs from Blender); ``finish(obj, state)`` keeps its result with ``obj`` and returns the
-    message of the outcome, or raises a VDNIFError for a failure."""
+    message of the outcome, or raises a VDNIFError for a failure. ``undo``: whether
+    ``finish`` writes the object's settings or model (then an undo step follows it); a stage
+    that writes only images and files does not."""
 
     make: Callable
     finish: Callable
+    undo: bool = True
 
 
 def handed_over(result):
@@ -60,6 +64,7 @@ class JobOperator(VDNIFOperator):
             job.run()
             state = job.poll()
             message = stage.finish(obj, state)
+            self._kept(obj, stage)
             if state.status != "completed":
                 break
         return message
@@ -122,6 +127,7 @@ class JobOperator(VDNIFOperator):
             return {"CANCELLED"}
         try:
             message = self._stage.finish(obj, state)
+            self._kept(obj, self._stage)
             if state.status == "completed" and self._stages:
                 self._next(obj)
                 return {"PASS_THROUGH"}
@@ -133,6 +139,13 @@ class JobOperator(VDNIFOperator):
         if state.status == "completed":
             self.finished(context, obj)
         return result
+
+    def _kept(self, obj, stage):
+        """After a stage's ``finish`` kept its result: the undo step of what it wrote, with
+        the error of an earlier run cleared first (it is no longer the object's state)."""
+        if stage.undo:
+            obj.vdnif.last_error = ""
+            undo_step(self.bl_label)
 
     def finished(self, context, obj):
         """After a completed run, on the main thread (the operator's job is gone)."""

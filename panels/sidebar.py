@@ -243,7 +243,7 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
         layout.row().prop(choice, "pass_name", expand=True)
         layout.row().prop(choice, "source", expand=True)
         draw_secondary(layout, context, settings)
-        if viewer.viewed(choice.pass_name):
+        if viewer.available(choice.pass_name, choice.source):
             layout.label(text=f"Image: {viewer.image_name(choice.pass_name, choice.source)}"
                          " (Image Editor)", icon="IMAGE_DATA")
         else:

@@ -43,6 +43,44 @@ def duration(seconds: float | None) -> str:
     return f"{seconds // 60}:{seconds % 60:02d}" if seconds >= 60 else f"{seconds} s"
 
 
+COMPILE_SHOWN_AFTER_S = 0.5
+"""A kernel load that takes longer than this is a compile (loading a cached one takes a few
+milliseconds): the jobs' progress line says so from then on."""
+_compile = {"start": None, "running": 0, "ended": None}
+_compile_lock = threading.Lock()
+
+
+class KernelCompile:
+    """Marks a kernel load (``kernels.runtime.load``) in any thread, for ``compile_line``.
+    Loads that follow each other within a second make one compile phase."""
+
+    def __enter__(self) -> KernelCompile:
+        with _compile_lock:
+            now = time.monotonic()
+            ended = _compile["ended"]
+            if not _compile["running"] and (ended is None or now - ended > 1.0):
+                _compile["start"] = now
+            _compile["running"] += 1
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        with _compile_lock:
+            _compile["running"] -= 1
+            _compile["ended"] = time.monotonic()
+
+
+def compile_line() -> str | None:
+    """'compiling kernels (first run on this machine) 12 s' while kernels have been loading
+    for longer than ``COMPILE_SHOWN_AFTER_S``, else None."""
+    with _compile_lock:
+        if not _compile["running"]:
+            return None
+        seconds = time.monotonic() - _compile["start"]
+    if seconds < COMPILE_SHOWN_AFTER_S:
+        return None
+    return f"compiling kernels (first run on this machine) {duration(seconds)}"
+
+
 class Progress:
     """What every job's state shares (a dataclass with ``status``, ``cancelling`` and
     ``message`` fields, and ``done_of()``: (done, total) in its own unit)."""
@@ -57,9 +95,14 @@ class Progress:
         return count / total if total else 0.0
 
     def _line(self, text: str) -> str:
-        """The panel's line: ``text`` (what runs) while running, else the message."""
+        """The panel's line: ``text`` (what runs) while running, with a kernel compile in
+        place of "starting" (the first run on a machine waits tens of seconds for it), else
+        the message."""
         if self.done:
             return self.message
+        compiling = compile_line()
+        if compiling is not None:
+            text = f"{text.removesuffix(', starting')}, {compiling}"
         return text + (", cancelling" if self.cancelling else "")
 
 

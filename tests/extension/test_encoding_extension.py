@@ -15,7 +15,7 @@ def test_the_installer_installs_the_pinned_warp_beside_torch(extension):
               if line.startswith("warp-lang")]
     assert pinned == [module.WARP_REQUIREMENT]
     command = module.install_command("/some/folder")
-    assert command[-2:] == [module.WARP_REQUIREMENT, "torch"]
+    assert command[-2:] == [module.WARP_REQUIREMENT, module.install["plan"].requirement]
     assert module.warp_available()
 
 

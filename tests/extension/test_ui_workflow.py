@@ -404,7 +404,8 @@ class OperatorStandIn:
         self.__dict__.update(attributes)
 
     def __getattr__(self, name):
-        return getattr(self.cls, name).__get__(self)
+        value = getattr(self.cls, name)
+        return value.__get__(self) if hasattr(value, "__get__") else value    # bl_label
 
     def report(self, kind, message):
         self.reports.append((set(kind), message))

@@ -1,4 +1,4 @@
-"""Writes images with Blender's own image API (PNG for looking, OpenEXR for data)."""
+"""Writes and reads images with Blender's own image API (PNG for looking, OpenEXR for data)."""
 
 import pathlib
 
@@ -36,3 +36,22 @@ def save_image(path, image):
     finally:
         bpy.data.images.remove(block)
     return path
+
+
+def load_image(path):
+    """(H, W, 4) float32 of the image file ``path``, row 0 at the top, its values as they are
+    stored (read as Non-Color); an OSError naming the file when it cannot be read."""
+    try:
+        block = bpy.data.images.load(str(path), check_existing=False)
+    except RuntimeError as exc:
+        raise OSError(f"{path} cannot be read: {exc}") from None
+    try:
+        block.colorspace_settings.name = "Non-Color"
+        width, height = block.size
+        if not width or not height:
+            raise OSError(f"{path} cannot be read as an image")
+        rgba = np.empty(width * height * 4, np.float32)
+        block.pixels.foreach_get(rgba)
+    finally:
+        bpy.data.images.remove(block)
+    return rgba.reshape(height, width, 4)[::-1]

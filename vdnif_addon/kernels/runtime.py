@@ -4,7 +4,8 @@ CPU kernels are compiled for the host CPU (``-march=native``), so a cache copied
 machine can crash with an illegal instruction: the cache folder is keyed by the host's CPU
 model and feature flags as well as Warp's version. The extension points the cache root at its
 user folder (``set_cache_root``); batch runs use ``$VDNIF_KERNEL_CACHE`` or the user's cache
-folder. The first compile of a kernel module takes seconds; ``load`` says so on stderr.
+folder. The first compile of a kernel module takes seconds; ``load`` says so on stderr, and
+the UI jobs' progress line while it runs (``worker.compile_line``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from typing import TYPE_CHECKING
 import warp as wp
 
 from ..errors import VDNIFError
+from ..worker import KernelCompile
 
 if TYPE_CHECKING:
     import torch
@@ -228,7 +230,8 @@ def load(module: ModuleType | str, device_name: str) -> None:
         if key in _loaded:
             return
         start = time.perf_counter()
-        wp.load_module(name, device=device_name)
+        with KernelCompile():               # the UI's progress line shows a long one
+            wp.load_module(name, device=device_name)
         seconds = time.perf_counter() - start
         if seconds > 0.5:
             print(f"vdnif: compiled the '{name.rsplit('.', 1)[-1]}' kernels for {device_name} "
