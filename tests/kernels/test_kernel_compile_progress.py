@@ -3,6 +3,7 @@
 nothing of it when the kernels load from the cache."""
 
 import os
+import pathlib
 import re
 import subprocess
 import sys
@@ -15,6 +16,8 @@ from vdnif_addon import worker
 from vdnif_addon.kernels import runtime
 from vdnif_addon.training.job import JobState
 from vdnif_addon.worker import KernelCompile, WorkerJob
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
 
 COMPILING = r"compiling kernels \(first run on this machine\) (\d+) s"
 
@@ -99,7 +102,7 @@ def test_a_real_first_compile_is_shown(tmp_path):
     and the job's line says so while they do."""
     script = f"""
 import re, sys, time
-sys.path.insert(0, {str(os.path.dirname(os.path.dirname(__file__)))!r})
+sys.path.insert(0, {str(REPO)!r})
 sys.path.insert(0, {os.path.dirname(__file__)!r})
 from test_kernel_compile_progress import COMPILING, lines_until, loading_job
 from vdnif_addon.kernels import cast
