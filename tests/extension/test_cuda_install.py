@@ -12,7 +12,7 @@ import pytest
 
 from vdnif_addon import dependencies
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 
 
 def test_windows_with_an_nvidia_driver_installs_the_cuda_build():
