@@ -40,8 +40,9 @@ SUBDIVIDING = ("SUBSURF", "MULTIRES")
 
 def check_deformers(obj, follow=None):
     """How the corners of ``obj`` follow it (``ARMATURE_COPY`` or ``EVALUATED_SURFACE``:
-    ``follow`` when given, else the copy wherever it captures every deformation); raises a VDNIFError for a deform modifier that cannot deform anything, and for a
-    deformation of ``obj`` that the corners cannot follow (``uncaptured``)."""
+    ``follow`` when given, else the copy wherever it captures every deformation); raises
+    a VDNIFError for a deform modifier that cannot deform anything, and for a deformation
+    of ``obj`` that the corners cannot follow (``uncaptured``)."""
     for modifier in deform_modifiers(obj):
         if modifier.object is None:
             kind = modifier.type.lower()
