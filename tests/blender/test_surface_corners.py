@@ -126,3 +126,22 @@ def test_a_topology_changing_stack_is_refused_in_one_line(empty_scene, core):
     assert "\n" not in message and "'Box' changes its topology between poses" in message
     assert "(modifier 'Cut', nodes)" in message
     assert all(m.show_viewport for m in box.modifiers), "the modifiers are left as they were"
+
+
+def test_the_dataset_and_the_voxel_preview_say_how_the_corners_follow(empty_scene, core,
+                                                                      tmp_path):
+    """A surface rig's dataset header records it (training copies it into the model file);
+    the Voxelize preview shows it in its info line's figures."""
+    import importlib
+
+    obj, keywords = artist_rigs.build("driven_key")
+    spec = core("blender.poses").PoseSpec(count=2, **keywords)
+    captured = core("blender.capture_scene").capture(obj, 8, spec, deform_corners=False)
+    header = core("posed.generate").generate_dataset(obj, captured, tmp_path, 128)
+    assert header.corners_follow == "evaluated surface"
+    assert core("training.dataset").read_dataset(tmp_path)[0].header.corners_follow == \
+        "evaluated surface"
+    viewer = importlib.import_module(core("errors").__name__.rsplit(".", 2)[0] + ".viewer")
+    preview, figures = viewer.voxel_preview(obj, 8)
+    assert figures["corners_follow"] == "evaluated surface"
+    assert np.ptp(np.array([v.co for v in preview.data.vertices]), axis=0).max() > 0

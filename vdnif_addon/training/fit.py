@@ -62,7 +62,7 @@ def fit_model(
         "train_poses": list(data.poses), "training": result.info(),
         "dataset": {"folder": str(data_dir), "shards": list(data.shards),
                     "poses": len(data.poses), "segments": data.segments},
-        "vdnif_version": __version__}, str(out))
+        "vdnif_version": __version__, "corners_follow": header.corners_follow}, str(out))
     save_model(out, result.network, metadata)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,
