@@ -147,22 +147,23 @@ class CornerDeformer:
             depsgraph = stack.enter_context(deformers_disabled(obj))
             if self.surface is not obj:
                 depsgraph = stack.enter_context(deformers_disabled(self.surface))
-            self._counts = [(part, _counts(part.evaluated_get(depsgraph)))
-                            for part in dict.fromkeys((obj, self.surface))]
-            vertices, normals = _read_surface(self.surface.evaluated_get(depsgraph))
+            evaluated = self.surface.evaluated_get(depsgraph)
+            self._rest_counts = _counts(evaluated)
+            vertices, normals = _read_surface(evaluated)
         self.rest_vertices = vertices
         size = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
         self.binding = bind(points, vertices, normals, scale=max(size, 1e-9) / _SCALE_PARTS)
 
     def _posed_surface(self):
         """(vertices, vertex normals) of the surface in the scene's current pose; refuses a
-        vertex or face count other than the rest's, the object's own and its cage's."""
-        depsgraph = bpy.context.evaluated_depsgraph_get()
-        for part, counted in self._counts:
-            found = _counts(part.evaluated_get(depsgraph))
-            if found != counted:
-                raise VDNIFError(_topology_message(self.obj, counted, found))
-        return _read_surface(self.surface.evaluated_get(depsgraph))
+        vertex or face count other than the rest's. Only the surface read is counted: a
+        cage's counts fix those of the subdivision left out of it, whose evaluation Blender
+        defers until the subdivided mesh is read (so a pose's corners never pay it)."""
+        evaluated = self.surface.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        found = _counts(evaluated)
+        if found != self._rest_counts:
+            raise VDNIFError(_topology_message(self.obj, self._rest_counts, found))
+        return _read_surface(evaluated)
 
     def _transfer_weights(self, obj):
         """Adds the Data Transfer of vertex weights from a static rest copy of ``obj``."""
