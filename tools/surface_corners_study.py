@@ -3,7 +3,9 @@ per-pose cost of moving the voxel corners on the arm demo scene (also with a Sub
 Surface after its armature, bound to the cage and to the subdivided surface), and the voxel
 embedding's own error (embedded vs true reference: distance MAE and hit IoU) on the small
 rigs of ``tests/support/artist_rigs.py`` and their armature-only (lattice-only) twins, with
-both ways of following where both apply. Writes JSON; no network is trained.
+both ways of following where both apply; and beside them Blender's own Surface Deform
+modifier on a helper object of the corners (bound to the mesh at rest, its default falloff),
+the alternative the binding was measured against. Writes JSON; no network is trained.
 
     python tools/surface_corners_study.py --json out/surface-corners.json \\
         [--poses 8] [--resolution 32] [--size 96]
@@ -23,10 +25,13 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "support")]
 
 import bpy  # noqa: E402  isort: skip  (Blender's modules come with it)
 import artist_rigs  # noqa: E402
+import numpy as np  # noqa: E402
 
 from vdnif_addon.blender import deform  # noqa: E402
 from vdnif_addon.blender.capture_scene import capture  # noqa: E402
+from vdnif_addon.blender.pose_reader import PoseReader  # noqa: E402
 from vdnif_addon.blender.poses import evaluation_spec, posed  # noqa: E402
+from vdnif_addon.blender.read_mesh import deformers_disabled  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
@@ -34,6 +39,54 @@ from vdnif_addon.posed.generate import reference_run  # noqa: E402
 
 FIGURES = ("distance_mae", "distance_mae_voxels", "hit_iou", "false_negative_rate",
            "false_positive_rate", "normal_error_deg")
+
+
+SURFACE_DEFORM = "surface deform modifier"
+
+
+class SurfaceDeformCorners:
+    """The corners as the vertices of a helper object with a Surface Deform modifier whose
+    target is ``obj`` (bound with ``obj``'s armature and lattice off: at rest), evaluated
+    by Blender in each pose; quacks like ``deform.CornerDeformer``."""
+
+    binding = None
+
+    def __init__(self, obj, points):
+        data = bpy.data.meshes.new(f"{obj.name} surface deform corners")
+        data.vertices.add(len(points))
+        data.vertices.foreach_set("co", points.astype("float32").ravel())
+        self.helper = bpy.data.objects.new(data.name, data)
+        bpy.context.scene.collection.objects.link(self.helper)
+        self.helper.parent = obj
+        modifier = self.helper.modifiers.new("Surface Deform", "SURFACE_DEFORM")
+        modifier.target = obj
+        with deformers_disabled(obj):
+            with bpy.context.temp_override(object=self.helper, active_object=self.helper):
+                bpy.ops.object.surfacedeform_bind(modifier=modifier.name)
+            self.deformed()                   # the evaluation that binds
+        if not modifier.is_bound:
+            raise RuntimeError(f"Surface Deform did not bind the corners of '{obj.name}'")
+
+    def deformed(self):
+        evaluated = self.helper.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        mesh = evaluated.to_mesh()
+        try:
+            co = [0.0] * (3 * len(mesh.vertices))
+            mesh.vertices.foreach_get("co", co)
+        finally:
+            evaluated.to_mesh_clear()
+        return np.array(co, np.float64).reshape(-1, 3)
+
+    def close(self):
+        data = self.helper.data
+        bpy.data.objects.remove(self.helper)
+        bpy.data.meshes.remove(data)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
 def _ms(seconds):
@@ -67,10 +120,11 @@ def pose_costs(obj, resolution, count, cage_too=False):
         scene.append(_timed_pose(pose, lambda: None))
     figures["posing_ms"] = _ms(scene)
     ways = [(ARMATURE_COPY, True), (EVALUATED_SURFACE, True)] + (
-        [(EVALUATED_SURFACE, False)] if cage_too else [])
+        [(EVALUATED_SURFACE, False)] if cage_too else []) + [(SURFACE_DEFORM, False)]
     for follow, cage in ways:
         start = time.perf_counter()
-        with deform.CornerDeformer(obj, points, follow, cage=cage) as deformer:
+        with (SurfaceDeformCorners(obj, points) if follow == SURFACE_DEFORM
+              else deform.CornerDeformer(obj, points, follow, cage=cage)) as deformer:
             bind_s = time.perf_counter() - start
             whole, arithmetic = [], []
             for pose in captured.poses:
@@ -81,7 +135,7 @@ def pose_costs(obj, resolution, count, cage_too=False):
                         start = time.perf_counter()
                         deformer.binding.moved(*surface)
                         arithmetic.append(time.perf_counter() - start)
-            name = follow if follow == ARMATURE_COPY else (
+            name = follow if follow != EVALUATED_SURFACE else (
                 f"{follow} ({'cage' if cage else 'subdivided surface'})")
             figures[name] = {"setup_s": round(bind_s, 4),
                              "posing_and_corners_ms": _ms(whole),
@@ -94,8 +148,20 @@ def pose_costs(obj, resolution, count, cage_too=False):
 
 
 def embedding(obj, spec, resolution, size, follow):
-    captured = capture(obj, resolution, spec, deform_corners=False, follow=follow)
-    report = reference_run(obj, captured, size, size)
+    """The embedded vs true figures with the corners following as ``follow`` says (the
+    Surface Deform modifier's corners put in a live reader's place)."""
+    captured = capture(obj, resolution, spec, deform_corners=False,
+                       follow=EVALUATED_SURFACE if follow == SURFACE_DEFORM else follow)
+    source = obj
+    if follow == SURFACE_DEFORM:
+        source = PoseReader(obj, captured)
+        source.deformer.close()
+        source.deformer = SurfaceDeformCorners(obj, captured.grid.corner_positions())
+    try:
+        report = reference_run(source, captured, size, size)
+    finally:
+        if source is not obj:
+            source.close()
     error = report["embedded_vs_true"]
     return {key: error.get(key) for key in FIGURES}
 
@@ -110,7 +176,7 @@ def rig_errors(rig, resolution, size, count):
         spec = evaluation_spec(PoseSpec(count=count, **keywords))
         chosen = deform.check_deformers(obj)
         part = {"chosen": chosen}
-        for follow in (EVALUATED_SURFACE, ARMATURE_COPY):
+        for follow in (EVALUATED_SURFACE, ARMATURE_COPY, SURFACE_DEFORM):
             part[follow] = embedding(obj, spec, resolution, size, follow)
         if full and rig == "subdivision":
             kept = deform.SUBDIVIDING

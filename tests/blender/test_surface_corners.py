@@ -85,7 +85,7 @@ def test_a_subdivision_ending_the_stack_is_left_out_of_the_bound_surface(empty_s
     """The corners bind to the cage (the stack before the subdivision: a helper object that
     shares the mesh, removed on close) and give the capture's corners. Bound to the
     subdivided surface instead (no subdivision left out) the embedding is closer (about
-    0.012 against 0.023 voxel here: the cage's corners miss the subdivision's rounding),
+    0.012 against 0.025 voxel here: the cage's corners miss the subdivision's rounding),
     both within the bounds; the cage is the default for its cost per pose, which does not
     grow with the subdivided triangle count (``tools/surface_corners_study.py``)."""
     import bpy
