@@ -53,7 +53,7 @@ def voxel_preview(obj, resolution, preview=None):
     grid = captured.grid
     corners = grid.corner_positions()
     if captured.mode != "static":
-        with CornerDeformer(obj, corners) as deformer:
+        with CornerDeformer(obj, corners, captured.corners_follow) as deformer:
             corners = deformer.deformed()
     edges = cell_edges(grid.cell_corners)
     preview = preview if preview is not None else _new_preview(obj)
@@ -65,7 +65,8 @@ def voxel_preview(obj, resolution, preview=None):
     mesh.edges.foreach_set("vertices", edges.astype(np.int32).ravel())
     mesh.update()
     figures = {"dims": grid.dims.tolist(), "cells": int(len(grid.cells)),
-               "inverted": int(inverted_cells(corners, grid.cell_corners).sum())}
+               "inverted": int(inverted_cells(corners, grid.cell_corners).sum()),
+               "corners_follow": captured.corners_follow}
     return preview, figures
 
 

@@ -26,7 +26,8 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
         settings.voxel_info = (f"grid {'x'.join(map(str, figures['dims']))}, "
                                f"{figures['cells']} occupied cells, "
                                f"{figures['inverted']} inverted at frame "
-                               f"{context.scene.frame_current}")
+                               f"{context.scene.frame_current}; corners follow: "
+                               f"{figures['corners_follow']}")
         return f"'{obj.name}': {settings.voxel_info}"
 
 

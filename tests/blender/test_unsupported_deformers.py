@@ -1,6 +1,8 @@
-"""Deformations the rig does not capture are refused by name; what stays the same in every
-pose (static shape keys, modifiers that only build or shade the mesh) is accepted, and the
-corners then follow Blender's own evaluation."""
+"""Deformations that copies of the rig do not capture are named, and the corners then follow
+the evaluated surface instead (tests/blender/test_surface_corners.py measures how well);
+simulations stay refused. What stays the same in every pose (static shape keys, modifiers
+that only build or shade the mesh) is captured by the copies, and the corners then follow
+Blender's own evaluation exactly."""
 
 import math
 
@@ -18,9 +20,21 @@ def rigged_box(name="Box"):
 
 
 def refusal(core, obj):
+    """The one line that says why copies of the rig do not capture ``obj``; its corners
+    then follow the evaluated surface."""
+    with pytest.raises(core("errors").VDNIFError) as caught:
+        core("blender.uncaptured").check_captured(obj)
+    message = str(caught.value)
+    assert "\n" not in message and f"'{obj.name}'" in message
+    assert core("blender.deform").check_deformers(obj) == "evaluated surface"
+    return message
+
+
+def capture_refusal(core, obj, spec=None):
     """The one-line message of the capture's refusal of ``obj``."""
     with pytest.raises(core("errors").VDNIFError) as caught:
-        core("blender.capture_scene").capture(obj, 8, core("blender.poses").PoseSpec(count=2))
+        core("blender.capture_scene").capture(
+            obj, 8, spec or core("blender.poses").PoseSpec(count=2))
     message = str(caught.value)
     assert "\n" not in message and f"'{obj.name}'" in message
     return message
@@ -78,17 +92,29 @@ def _chain(tree, node):
 
 DEFORMING = ["CORRECTIVE_SMOOTH", "SMOOTH", "LAPLACIANSMOOTH", "MESH_DEFORM", "SURFACE_DEFORM",
              "DISPLACE", "WAVE", "HOOK", "CAST", "SIMPLE_DEFORM", "SHRINKWRAP", "WARP",
-             "CLOTH", "SOFT_BODY", "MESH_CACHE", "OCEAN", "NODES"]
+             "MESH_CACHE", "OCEAN", "NODES"]
+SIMULATIONS = ["CLOTH", "SOFT_BODY"]
 
 
 @pytest.mark.parametrize("kind", DEFORMING)
-def test_a_deforming_modifier_is_refused_by_name(empty_scene, core, kind):
+def test_a_deforming_modifier_is_named_and_followed_on_the_surface(empty_scene, core, kind):
     box = rigged_box()
     modifier = box.modifiers.new(f"My {kind.title()}", kind)
     if kind == "NODES":
         modifier.node_group = push_nodes()
     message = refusal(core, box)
     assert f"modifier 'My {kind.title()}' ({kind.lower().replace('_', ' ')})" in message
+
+
+@pytest.mark.parametrize("kind", SIMULATIONS)
+def test_a_simulation_is_refused_by_name(empty_scene, core, kind):
+    """A simulation's shape depends on the frames simulated before a pose: nothing that
+    evaluates one pose follows it."""
+    box = rigged_box()
+    box.modifiers.new(f"My {kind.title()}", kind)
+    message = capture_refusal(core, box)
+    assert f"modifier 'My {kind.title()}' ({kind.lower().replace('_', ' ')})" in message
+    assert "simulation" in message
 
 
 def test_every_uncaptured_deformation_is_named_in_one_line(empty_scene, core):
@@ -106,14 +132,21 @@ def test_every_uncaptured_deformation_is_named_in_one_line(empty_scene, core):
     assert "Ripple" not in message
 
 
-def test_a_static_object_with_a_time_deformer_is_refused(empty_scene, core):
-    """No rig: one pose is captured, but a Wave moves the mesh at every other frame."""
+def test_an_object_moved_only_by_time_is_captured_over_frames(empty_scene, core):
+    """No rig, but a Wave moves the mesh at every frame: not static; random poses have
+    nothing to pose (refused in one line), the frames follow it."""
     box = sb.lattice_box((4, 2, 2), 0.25)
     box.modifiers.new("Ripple", "WAVE")
     assert "modifier 'Ripple' (wave)" in refusal(core, box)
+    assert "use the frames pose source" in capture_refusal(core, box)
+    spec = core("blender.poses").PoseSpec(source="frames", count=3)
+    capture = core("blender.capture_scene").capture(box, 8, spec)
+    assert capture.mode == "animated" and capture.corners_follow == "evaluated surface"
+    moved = np.abs(capture.corners - capture.grid.corner_positions()).max(axis=(1, 2))
+    assert (moved > 1e-3).all(), "the wave should move the corners in every frame"
 
 
-def test_animated_and_driven_shape_keys_are_refused(empty_scene, core):
+def test_animated_and_driven_shape_keys_are_named(empty_scene, core):
     box = rigged_box()
     smile = add_shape_key(box, "Smile")
     smile.keyframe_insert("value", frame=1)
@@ -127,7 +160,7 @@ def test_animated_and_driven_shape_keys_are_refused(empty_scene, core):
     assert "shape key 'Frown \"deep\"' (driven)" in message
 
 
-def test_animated_modifier_settings_are_refused(empty_scene, core):
+def test_animated_modifier_settings_are_named(empty_scene, core):
     """A solidify whose thickness is keyframed moves vertices between frames, and the
     corners' copy of a modifier keeps the settings it was made with."""
     box = rigged_box()
@@ -198,8 +231,9 @@ def test_geometry_building_modifiers_before_the_armature_are_followed(empty_scen
 
 
 @pytest.mark.parametrize("kind", ["SUBSURF", "MIRROR", "SOLIDIFY", "BEVEL", "EDGE_SPLIT"])
-def test_geometry_building_modifiers_after_the_armature_are_refused(empty_scene, core, kind):
-    """After the armature they work on the posed mesh, which the corners do not follow."""
+def test_geometry_building_modifiers_after_the_armature_are_named(empty_scene, core, kind):
+    """After the armature they work on the posed mesh, which copies of the armature do not
+    follow: the corners follow the evaluated surface."""
     box = rigged_box()
     box.modifiers.new("Built", kind)
     message = refusal(core, box)
@@ -209,9 +243,9 @@ def test_geometry_building_modifiers_after_the_armature_are_refused(empty_scene,
 
 def test_geometry_building_modifiers_after_the_armature_move_the_mesh(empty_scene, core,
                                                                      monkeypatch):
-    """Why they are refused: with the check out of the way, the corners miss a subdivision
-    after the armature by more than a hundredth of the object's size (before it, exactly
-    0 in the test above)."""
+    """Why the copies do not follow them: with the check out of the way, the copies miss a
+    subdivision after the armature by more than a thousandth of the object's size (before
+    it, exactly 0 in the test above)."""
     box = rigged_box()
     box.modifiers.new("Built", "SUBSURF")
     spec = core("blender.poses").PoseSpec(count=3, seed=6, max_angle_deg=50)

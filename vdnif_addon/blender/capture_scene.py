@@ -7,24 +7,29 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..geometry import voxels
-from ..geometry.capture import Capture
+from ..geometry.capture import EVALUATED_SURFACE, Capture
 from ..pose_sets import PoseSpec
 from .deform import CornerDeformer, check_deformers
 from .poses import make_poses, posed
 from .read_mesh import check_mesh_object, deform_modifiers, read_rest_mesh
 
 
-def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=True):
+def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=True,
+            follow=None):
     """Captures mesh object ``obj`` for the poses chosen by ``spec``.
 
-    A mesh without deform modifiers is static mode: one pose, corners at rest.
+    A mesh without deform modifiers is static mode: one pose, corners at rest; unless
+    something else moves it over the frames (an animated shape key, a modifier with a time
+    input), which the frames pose source follows (mode "animated"). ``corners_follow``
+    records how the corners follow the mesh: ``follow``, else as ``deform.check_deformers``
+    chooses.
     ``progress(done, total)`` is called after each pose. With ``deform_corners`` False the
     poses are chosen but their corners are left to the caller (``corners`` is None), for
     work that deforms one pose at a time anyway.
     """
     start = time.perf_counter()
     check_mesh_object(obj)
-    check_deformers(obj)
+    follow = check_deformers(obj, follow)
     _check_rigs_invertible(obj)
     mesh = read_rest_mesh(obj)
     read_s = time.perf_counter()
@@ -35,10 +40,14 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
     voxel_s = time.perf_counter()
     modifiers = deform_modifiers(obj)
     rest = grid.corner_positions()
-    if modifiers:
+    if modifiers or follow == EVALUATED_SURFACE:
+        if not modifiers and spec.source != "frames":
+            raise VDNIFError(f"'{obj.name}' has no armature or lattice to pose, and moves "
+                             "only over the frames: use the frames pose source")
         poses = make_poses(obj, modifiers, spec)
-        mode = "+".join(sorted({m.type.lower() for m in modifiers}))
-        corners = _deformed_corners(obj, rest, poses, progress) if deform_corners else None
+        mode = "+".join(sorted({m.type.lower() for m in modifiers})) or "animated"
+        corners = (_deformed_corners(obj, rest, poses, progress, follow) if deform_corners
+                   else None)
     else:
         poses = [{"frame": float(bpy.context.scene.frame_current)}]
         corners = rest[None]
@@ -47,7 +56,7 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
     timings = {"read_mesh_s": read_s - start, "voxelize_s": voxel_s - read_s,
                "deform_s": end - voxel_s, "total_s": end - start}
     return Capture(mesh=mesh, grid=grid, mode=mode, poses=poses, corners=corners,
-                   timings=timings)
+                   timings=timings, corners_follow=follow)
 
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -72,10 +81,10 @@ def _check_rigs_invertible(obj):
                              "matrix has no inverse): give it a non-zero scale")
 
 
-def _deformed_corners(obj, rest, poses, progress):
+def _deformed_corners(obj, rest, poses, progress, follow):
     """(P, C, 3) the ``rest`` corners deformed by Blender for every pose."""
     corners = np.empty((len(poses), len(rest), 3))
-    with CornerDeformer(obj, rest) as deformer:
+    with CornerDeformer(obj, rest, follow) as deformer:
         for index, pose in enumerate(poses):
             with posed(pose):
                 corners[index] = deformer.deformed()

@@ -25,7 +25,8 @@ class PoseReader(PoseSource):
         self.name = obj.name
         self.deformer = None
         if capture.mode != "static":
-            self.deformer = CornerDeformer(obj, capture.grid.corner_positions())
+            self.deformer = CornerDeformer(obj, capture.grid.corner_positions(),
+                                           capture.corners_follow)
 
     def read(self, pose):
         start = time.perf_counter()

@@ -1,4 +1,12 @@
-"""Deformations of a mesh that its rig does not capture, refused by name.
+"""Deformations of a mesh that its rig does not capture, and those that nothing follows.
+
+``check_captured`` tells whether copies of the armature and lattice modifiers capture every
+deformation of the mesh (``blender.deform``): where they do not, the corners follow the
+surface Blender evaluates instead (``posed.binding``). ``check_followable`` refuses by name
+what even that cannot follow: a simulation (cloth, soft body, fluid, dynamic paint,
+particles), whose shape in a pose depends on the frames simulated before it, not on the
+pose. A topology that changes between poses is refused where the poses are evaluated
+(``blender.deform``).
 
 The voxel corners follow only the armature and lattice modifiers (``deform``); the true mesh
 follows everything Blender evaluates. Any other modifier that moves vertices, and any shape
@@ -48,6 +56,24 @@ STATIC_NODES = frozenset({
 _NAMED = r'\["((?:[^"\\]|\\.)*)"\]'
 _KEY_BLOCK = re.compile(r"^key_blocks" + _NAMED)
 _MODIFIER = re.compile(r"^modifiers" + _NAMED)
+
+
+# Modifier types whose result depends on the simulation's history (frames before the pose),
+# not on the pose: a random pose or a frame jumped to reads a stale or reset state.
+SIMULATED = frozenset({
+    "CLOTH", "SOFT_BODY", "FLUID", "DYNAMIC_PAINT", "EXPLODE", "PARTICLE_INSTANCE",
+})
+
+
+def check_followable(obj):
+    """Raises a VDNIFError naming every enabled modifier of mesh object ``obj`` whose shape
+    depends on a simulation rather than on the pose."""
+    found = [f"modifier '{m.name}' ({m.type.lower().replace('_', ' ')})"
+             for m in obj.modifiers if m.show_viewport and m.type in SIMULATED]
+    if found:
+        raise VDNIFError(f"'{obj.name}' is deformed by a simulation, which depends on the "
+                         f"frames simulated before a pose, not on the pose: "
+                         f"{', '.join(found)}; bake and apply it, or disable it")
 
 
 def check_captured(obj):

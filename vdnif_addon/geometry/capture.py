@@ -13,6 +13,14 @@ from .voxels import VoxelGrid, inverted_cells
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
+ARMATURE_COPY = "armature copy"
+"""How the corners follow the mesh: copies of its armature and lattice modifiers
+(``blender.deform``), exact where nothing else deforms it."""
+EVALUATED_SURFACE = "evaluated surface"
+"""How the corners follow the mesh: bound to the surface Blender evaluates at rest and moved
+with it (``posed.binding``), for any other deformation that keeps the topology."""
+CORNERS_FOLLOW = (ARMATURE_COPY, EVALUATED_SURFACE)
+
 
 @dataclass
 class Capture:
@@ -24,10 +32,12 @@ class Capture:
 
     mesh: RestMesh
     grid: VoxelGrid
-    mode: str                          # "armature", "lattice", "armature+lattice" or "static"
+    mode: str                          # "armature", "lattice", "armature+lattice", "static" or
+                                       # "animated" (frames move it, no rig)
     poses: list[dict[str, Any]]        # JSON-ready pose descriptions
     corners: Float[np.ndarray, "P C 3"]    # float64
     timings: dict[str, float] = field(default_factory=dict)
+    corners_follow: str = ARMATURE_COPY    # one of CORNERS_FOLLOW
 
     @property
     def inverted_cells(self) -> Int[np.ndarray, " P"]:
@@ -41,6 +51,7 @@ class Capture:
         return {
             "object": self.mesh.name,
             "mode": self.mode,
+            "corners_follow": self.corners_follow,
             "triangles": int(len(self.mesh.triangles)),
             "object_size": self.mesh.size,
             "resolution": self.grid.resolution,

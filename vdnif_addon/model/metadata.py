@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 import numpy as np
 
 from ..errors import VDNIFError
+from ..geometry.capture import ARMATURE_COPY, CORNERS_FOLLOW
 from ..geometry.voxels import GridRecord
 from ..safe_io import check_depth, finite_number, first_non_plain, shown
 from ..settings import OCCLUSION_THRESHOLD, NetworkConfig
@@ -237,7 +238,9 @@ class ModelMetadata:
     ``material_slots``: the object's used material slots, the network's materials in order;
     ``albedo_table``: (rows, 3) constant albedo per material, read by the render kernels by
     material (at least ``network_config.heads.material_count`` rows); ``train_poses``: the
-    pose descriptions trained on (``poses.make_poses``), which evaluation avoids.
+    pose descriptions trained on (``poses.make_poses``), which evaluation avoids;
+    ``corners_follow``: how its voxel corners followed the mesh (``geometry.capture``; a
+    file written before it was recorded followed the armature copy).
     """
 
     object: str
@@ -253,6 +256,7 @@ class ModelMetadata:
     dataset: DatasetSource
     vdnif_version: str
     version: int = FORMAT_VERSION
+    corners_follow: str = ARMATURE_COPY
 
     def __post_init__(self) -> None:
         materials = self.network_config.heads.material_count
@@ -262,6 +266,9 @@ class ModelMetadata:
         if len(self.material_slots) != materials or min(self.material_slots) < 0:
             raise VDNIFError(f"its material slots {list(self.material_slots)} are not "
                              f"{materials} slot indices")
+        if self.corners_follow not in CORNERS_FOLLOW:
+            raise VDNIFError(f"its corners follow {shown(self.corners_follow)}, not one of "
+                             f"{', '.join(CORNERS_FOLLOW)}")
         if (bad := first_non_plain(self.to_dict())) is not None:   # e.g. a NaN metric
             raise VDNIFError(f"its metadata entry '{bad}' is not a finite number or plain "
                              "data")
@@ -281,7 +288,7 @@ class ModelMetadata:
                 "thresholds": self.thresholds.to_dict(),
                 "train_poses": [dict(pose) for pose in self.train_poses],
                 "training": self.training.to_dict(), "dataset": self.dataset.to_dict(),
-                "vdnif_version": self.vdnif_version}
+                "vdnif_version": self.vdnif_version, "corners_follow": self.corners_follow}
 
     @classmethod
     def from_dict(cls, data: Any, path: str) -> ModelMetadata:
@@ -323,7 +330,8 @@ class ModelMetadata:
                        train_poses=tuple(dict(pose) for pose in poses),
                        training=TrainingSummary.read(reader.child("training")),
                        dataset=DatasetSource.read(reader.child("dataset")),
-                       vdnif_version=reader.text("vdnif_version"), version=version)
+                       vdnif_version=reader.text("vdnif_version"), version=version,
+                       corners_follow=data.get("corners_follow", ARMATURE_COPY))
         except VDNIFError as exc:
             if str(exc).startswith(f"model file {path}"):
                 raise

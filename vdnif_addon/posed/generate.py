@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from ..geometry.attributes import sample_surface
+from ..geometry.capture import ARMATURE_COPY
 from ..inference.evaluation import metric_heads
 from ..inference.metrics import compare, compare_secondary
 from ..inference.secondary import (
@@ -107,6 +108,8 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         "grazing_fraction": grazing_fraction, "secondary_fraction": secondary_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
         "versions": _versions(host), "segments": len(merged["pose"]),
+        **({} if capture.corners_follow == ARMATURE_COPY
+           else {"corners_follow": capture.corners_follow}),
     }, f"dataset header of shard '{name}'")
     clock = time.perf_counter()
     dataset.write_shard(out_dir, name, merged, header)
@@ -180,7 +183,8 @@ def reference_run(obj, capture, width, height, rest_pose=False, progress=None,
             {name: SecondaryPasses.concatenate([views[name] for views in secondaries])
              for name in secondaries[0]}))
     return {
-        "object": mesh.name, "mode": capture.mode, "resolution": capture.grid.resolution,
+        "object": mesh.name, "mode": capture.mode, "corners_follow": capture.corners_follow,
+        "resolution": capture.grid.resolution,
         "poses": len(capture.poses), "rest_pose": rest_pose, "width": width, "height": height,
         "embedded_vs_true": embedding_error,
         **({} if secondary is None else {"secondary": secondary.describe()}),

@@ -58,7 +58,7 @@ def fit_model(
         train_poses=tuple(dict(pose) for pose in data.poses), training=result.summary(),
         dataset=DatasetSource(folder=str(data_dir), shards=tuple(data.shards),
                               poses=len(data.poses), segments=int(data.segments)),
-        vdnif_version=__version__)
+        vdnif_version=__version__, corners_follow=header.corners_follow)
     save_model(out, result.network, metadata)
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,

@@ -19,6 +19,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from ..errors import VDNIFError
+from ..geometry.capture import ARMATURE_COPY, CORNERS_FOLLOW
 from ..geometry.voxels import GRID_KEYS, GridRecord
 from ..limits import (
     MAX_OBJECT_SIZE,
@@ -233,6 +234,7 @@ class DatasetHeader:
     timings: dict[str, float]
     versions: dict[str, str]
     segments: int
+    corners_follow: str = ARMATURE_COPY     # absent from the shards of the armature copy
 
     @property
     def voxel_size(self) -> float:
@@ -257,6 +259,8 @@ class DatasetHeader:
         data.update(inverted_cells=list(self.inverted_cells), counts=self.counts.to_dict(),
                     timings=dict(self.timings), versions=dict(self.versions),
                     segments=self.segments)
+        if self.corners_follow != ARMATURE_COPY:
+            data["corners_follow"] = self.corners_follow
         return data
 
     @classmethod
@@ -271,7 +275,8 @@ class DatasetHeader:
                              f"VDNIF reads versions 1 to {VERSION}: generate the dataset "
                              "again")
         grid = _grid(where, data.get("grid"))
-        _keys(where, "header", data, HEADER_KEYS, ("grazing_fraction", "secondary_fraction"))
+        _keys(where, "header", data, HEADER_KEYS,
+              ("grazing_fraction", "secondary_fraction", "corners_follow"))
         name = _name(where, data["object"])
         if data["voxel_size"] != grid.voxel_size:
             _fail(where, f"voxel size {shown(data['voxel_size'])} differs from the grid's "
@@ -300,6 +305,10 @@ class DatasetHeader:
         if not all(isinstance(value, str) for value in versions.values()):
             _fail(where, "versions are not all strings")
         grazing, secondary = data.get("grazing_fraction"), data.get("secondary_fraction")
+        follow = data.get("corners_follow", ARMATURE_COPY)
+        if follow not in CORNERS_FOLLOW:
+            _fail(where, f"corners follow {shown(follow)}, not one of "
+                         f"{', '.join(CORNERS_FOLLOW)}")
         return cls(
             version=data["version"], object=name, mode=mode,
             object_size=_number(where, "object size", data["object_size"], MIN_OBJECT_SIZE,
@@ -318,7 +327,8 @@ class DatasetHeader:
             inverted_cells=tuple(inverted), counts=Counts.from_dict(data["counts"], where),
             timings={key: float(value) for key, value in timings.items()},
             versions=dict(versions),
-            segments=_int(where, "segments", data["segments"], 0, MAX_SHARD_SEGMENTS))
+            segments=_int(where, "segments", data["segments"], 0, MAX_SHARD_SEGMENTS),
+            corners_follow=follow)
 
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
