@@ -95,7 +95,7 @@ def installed(folder: str) -> list[tuple[str, str, int]]:
             path = os.path.join(folder, file)
             if os.path.isfile(path):
                 size += os.path.getsize(path)
-        name = re.sub(r"[-_.]+", "-", dist.metadata["Name"]).lower()    # as pip compares
+        name = re.sub(r"[-_.]+", "-", dist.name).lower()    # as pip compares
         found.append((name, dist.version, size))
     return sorted(found, key=lambda row: -row[2])
 
