@@ -126,6 +126,19 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                        description="Height of the rendered pass images in pixels")
     eval_poses: _int("Evaluation Poses", "poses", defaults.EVALUATION_POSES,
                      description="Unseen poses the model is evaluated on")
+    use_scene_size: BoolProperty(
+        name="Scene Output Size", default=True,
+        description="Render Passes, Render Animation, Evaluate and the live preview use the "
+                    "scene's output resolution and percentage; off: the width and height below")
+    pass_ao: BoolProperty(
+        name="AO", default=False,
+        description="Ambient occlusion: Render Passes, Render Animation and Evaluate cast AO "
+                    "rays too (slower) and write the AO pass into each frame's EXR")
+    pass_shadow: BoolProperty(
+        name="Shadow", default=False,
+        description="Shadow towards the scene's first sun or point light: Render Passes, Render "
+                    "Animation and Evaluate cast shadow rays too and write the Shadow pass into "
+                    "each frame's EXR")
     ao_samples: _int("AO Samples", "ao_samples", defaults.AO_SAMPLES, soft_max=256,
                      description="Ambient-occlusion rays per pixel: more give a smoother "
                                  "image and take longer")
@@ -172,8 +185,8 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                             description="Render every this many frames")
     frames_dir: StringProperty(
         name="Output Folder", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
-        description="Where Render Animation writes its image sequences (empty: beside the "
-                    ".blend)")
+        description="Where Render Animation writes its image sequences (empty: the scene's "
+                    "output path)")
     live_preview: BoolProperty(
         name="Live Preview", default=False,
         update=lambda settings, context: live_preview.toggled(settings, context),
@@ -243,10 +256,9 @@ _PASS_TEXT = {"normal": "Which way the surface faces (normal)",
               "distance": "How far the surface is along the ray (depth)",
               "material": "The material slot of the surface (material index)",
               "ao": "Ambient occlusion: the share of rays from the surface that meet nothing "
-                    "within the AO distance. Chosen, Render Passes and Evaluate cast them "
-                    "too (slower)",
-              "shadow": "Whether the scene's first sun or point light reaches the surface. "
-                        "Chosen, Render Passes and Evaluate cast shadow rays too"}
+                    "within the AO distance (rendered while its pass toggle is on)",
+              "shadow": "Whether the scene's first sun or point light reaches the surface "
+                        "(rendered while its pass toggle is on)"}
 
 
 class VDNIFViewer(bpy.types.PropertyGroup):

@@ -7,7 +7,6 @@ import json
 import bpy
 
 from .. import storage, viewer
-from ..vdnif_addon.passes import SECONDARY_PASSES
 from ..vdnif_addon.text import metrics_line, secondary_line
 from .running import JobOperator, Stage, outcome
 
@@ -26,14 +25,14 @@ def model_capture(obj, evaluation_count=None):
 
 
 def secondary_settings(context, obj):
-    """The AO and shadow passes' ``SecondarySettings`` while the pass viewer shows one of
-    them (the object's AO samples and distance, the scene's light in the object's local
-    space as it stands now), else None: they cost rays, so they are cast only when asked
-    for."""
+    """The AO and shadow passes' ``SecondarySettings`` while the object's AO or Shadow pass
+    toggle is on (the object's AO samples and distance, the scene's light in the object's
+    local space as it stands now), else None: they cost rays, so they are cast only when
+    asked for. Both are cast together; only the toggled ones are written."""
     from ..vdnif_addon.blender.lights import scene_light
     from ..vdnif_addon.inference.secondary import SecondarySettings
 
-    if context.scene.vdnif_viewer.pass_name not in SECONDARY_PASSES:
+    if not viewer.secondary_names(obj.vdnif):
         return None
     # The property holds float32, whose value at the range's ends lies just outside the
     # range the core checks: the decimal the panel shows (7 digits) is the one set.
@@ -97,7 +96,7 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
 
     def stages(self, context, obj):
         settings, scene = obj.vdnif, context.scene
-        width, height = settings.image_width, settings.image_height
+        width, height = viewer.render_size(scene, settings)
         frame = scene.frame_current + scene.frame_subframe
         camera, view = render_view(context, obj)
         kept = {}
@@ -116,7 +115,8 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             result, slots = kept["result"], kept["slots"]   # the material pass: the slots
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size, result.secondary)
-            exr = viewer.write_files(obj, result, slots, width, height, frame)
+            exr = viewer.write_files(obj, result, slots, width, height, frame,
+                                     viewer.secondary_names(obj.vdnif))
             image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None
                      else " (open an Image Editor to see it)")
@@ -140,6 +140,7 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
         name, settings = obj.name, obj.vdnif
         device = settings.device_name(context)
         secondary = secondary_settings(context, obj)
+        width, height = viewer.render_size(context.scene, settings)
 
         def make():
             from ..vdnif_addon.blender.ui_jobs import evaluation_job
@@ -147,9 +148,8 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
             obj = bpy.data.objects[name]
             settings = obj.vdnif
             loaded, captured = model_capture(obj, settings.eval_poses)
-            return evaluation_job(obj, captured, storage.model_path(obj),
-                                  settings.image_width, settings.image_height, device, loaded,
-                                  secondary, settings.precision)
+            return evaluation_job(obj, captured, storage.model_path(obj), width, height,
+                                  device, loaded, secondary, settings.precision)
 
         def finish(obj, state):
             outcome(state)
