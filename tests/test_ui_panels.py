@@ -138,7 +138,8 @@ def test_no_model_yet(arm, extension):
             "variant", "levels", "base_resolution", "log2_table_size", "feature_dim",
             "pe_bands", "width", "depth", "steps", "batch_size", "device", "view",
             "pass_name", "source", "model_storage", "keep_partial_model", "use_scene_frames",
-            "frames_dir", "live_preview", "preview_percent"} <= shown
+            "frames_dir", "live_preview", "preview_percent", "use_scene_size", "pass_ao",
+            "pass_shadow"} <= shown
 
 
 def test_training_shows_progress_and_cancel(arm, extension, core, tmp_path):

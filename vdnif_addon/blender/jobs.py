@@ -122,10 +122,11 @@ class DistanceScale:
         if self.near_far is not None:
             return self.near_far
         near, far = distance_range(*passes)
-        if any(p.hit.any() for p in passes):
-            pad = 0.1 * (far - near)
-            self.near_far = (float(near - pad), float(far + pad))
-        return (near, far)
+        if not any(p.hit.any() for p in passes):
+            return (near, far)
+        pad = 0.1 * (far - near)
+        self.near_far = (float(near - pad), float(far + pad))
+        return self.near_far
 
 
 def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None,
