@@ -172,7 +172,8 @@ def add_commands(commands):
     render = _model_command(commands, "render", cmd_render, 1, (
         "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
-        "Normal, DiffCol, IndexMA, alpha in Combined) and render.json into --out."))
+        "Normal, DiffCol, IndexMA, alpha in Combined; AO and Shadow with --secondary) and "
+        "render.json into --out."))
     when = render.add_mutually_exclusive_group()
     when.add_argument("--frame", type=float, metavar="F",
                       help="the timeline frame to pose the scene at (default: current)")
