@@ -56,11 +56,14 @@ def frames_output(obj, scene):
     """(folder, name prefix) where Render Animation writes the object's image sequences: its
     Output Folder setting; else the scene's output path as Blender reads it (a path ending
     in a separator is a folder, otherwise its last part starts every file name, as in
-    ``//render/shot_``); else (no output path) beside the .blend, else (unsaved .blend) in
-    the user folder."""
+    ``//render/shot_``; relative to the user folder while the .blend is unsaved); else (no
+    output path) beside the .blend, else (unsaved .blend) in the user folder."""
     if obj.vdnif.frames_dir or not scene.render.filepath:
         return _chosen_folder(obj, obj.vdnif.frames_dir, "-frames", "frames"), ""
-    path = bpy.path.abspath(scene.render.filepath)
+    path = scene.render.filepath
+    if path.startswith("//") and not bpy.data.filepath:     # relative to an unsaved .blend
+        path = str(user_folder("frames", slug(obj))) + "/" + path[2:]
+    path = bpy.path.abspath(path)
     if path.endswith(("/", "\\")) or pathlib.Path(path).is_dir():
         return pathlib.Path(path), ""
     path = pathlib.Path(path)

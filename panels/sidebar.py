@@ -247,6 +247,10 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
         if viewer.viewed(choice.pass_name):
             layout.label(text=f"Image: {viewer.image_name(choice.pass_name, choice.source)}"
                          " (Image Editor)", icon="IMAGE_DATA")
+        elif choice.pass_name in viewer.SECONDARY_PASSES and choice.pass_name not in (
+                viewer.secondary_names(settings)):
+            layout.label(text=f"Turn {viewer.PASS_TITLES[choice.pass_name]} on above and "
+                              "render", icon="INFO")
         else:
             layout.label(text="Render the passes to fill the images", icon="INFO")
 

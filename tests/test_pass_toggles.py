@@ -121,6 +121,9 @@ def test_render_animation_writes_to_the_scenes_output_path(empty_scene, tmp_path
     assert storage.frames_output(obj, empty_scene) == (tmp_path / "dir", "")
     obj.vdnif.frames_dir = str(tmp_path / "chosen")      # the panel's folder overrides it
     assert storage.frames_output(obj, empty_scene) == (tmp_path / "chosen", "")
+    obj.vdnif.frames_dir, render.filepath = "", "//shots/a_"   # relative to unsaved .blend
+    assert storage.frames_output(obj, empty_scene) == (
+        storage.user_folder("frames", storage.slug(obj)) / "shots", "a_")
     obj.vdnif.frames_dir, render.filepath = "", ""       # no output path: the old fallback
     assert storage.frames_output(obj, empty_scene) == (
         storage.user_folder("frames", storage.slug(obj)), "")       # unsaved .blend
