@@ -117,13 +117,15 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
                             width, height, result.object_size, result.secondary)
             exr = viewer.write_files(obj, result, slots, width, height, frame,
                                      viewer.secondary_names(obj.vdnif))
-            image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
+            choice = bpy.context.scene.vdnif_viewer
+            image = viewer.show(bpy.context, choice)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None
                      else " (open an Image Editor to see it)")
+            shown = (f"image '{image.name}'{where}" if image is not None else
+                     f"no {viewer.PASS_TITLES[choice.pass_name]} image (its toggle is off)")
             return (f"'{obj.name}' at frame {frame:g}: {int(result.predicted.hit.sum())} "
                     f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}"
-                    f"), image '{image.name}'{where}; passes written to "
-                    f"{storage.portable(exr)}")
+                    f"), {shown}; passes written to {storage.portable(exr)}")
 
         return [Stage(make, finish)]
 
