@@ -8,7 +8,7 @@ import numpy as np
 
 from ..inference import images
 from ..inference.evaluation import (
-    distance_range,
+    DistanceScale,
     figure,
     secondary_view_images,
     world_distances,
@@ -104,29 +104,6 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     report["log_variances"] = dict(training.log_variances)
     report["model_bytes"] = pathlib.Path(model_path).stat().st_size
     return report, views
-
-
-class DistanceScale:
-    """One brightness scale for the distance previews of a view's prediction and references
-    and of every frame of a sequence, so that they compare and a sequence does not flicker:
-    the hit distances of the first images given one, widened by a tenth of their span each
-    side (an object moving a little nearer or farther stays on it; beyond, the preview
-    clips). Images without a hit leave it unset."""
-
-    def __init__(self):
-        self.near_far = None
-
-    def __call__(self, *passes):
-        """(near, far): the kept scale, set from ``passes`` (Passes in the images' units)
-        when unset."""
-        if self.near_far is not None:
-            return self.near_far
-        near, far = distance_range(*passes)
-        if not any(p.hit.any() for p in passes):
-            return (near, far)
-        pad = 0.1 * (far - near)
-        self.near_far = (float(near - pad), float(far + pad))
-        return self.near_far
 
 
 def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None,

@@ -7,7 +7,7 @@ import re
 from ..inference.metrics import CLEAN_RATE, verdict
 from ..passes import COMPOSITOR_PASSES, SECONDARY_COMPOSITOR
 from ..safe_io import write_text_atomic
-from ..text import EMBREE_NOTE, exact_speed_line, percent, speed_line, value
+from ..text import EMBREE_NOTE, EXACT_PATH, percent, speed_line, value
 
 # The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes
 # and of Table 1: at most these, against both references.
@@ -231,6 +231,12 @@ def verdict_line(report):
             f"{percent(m.get('false_positive_rate'))}).")
 
 
+def exact_speed(report):
+    """The exact path's rays/s of an evaluation report, "n/a" without it."""
+    exact = report["timings"].get("exact_rays_per_s")
+    return "n/a" if exact is None else f"{exact:,.0f} rays/s"
+
+
 def exr_passes(report):
     """The pass names of the demo's multilayer EXR: the compositor's, AO and Shadow where
     the report has them."""
@@ -266,7 +272,7 @@ def demo_markdown(report, command):
         f"| training | {value(t['train_s'], 3)} s, {t['train_steps']} steps, "
         f"{t['train_samples_per_s']:,.0f} samples/s |",
         f"| neural render (walk + network) | {speed_line(report)} |",
-        f"| exact path, same rays | {exact_speed_line(report)} |",
+        f"| {EXACT_PATH}, same rays | {exact_speed(report)} |",
         f"| per-pose preparation (deform corners + entry BVH) | "
         f"{t['prepare_pose_s'] * 1e3:.1f} ms |",
         f"| model file | {report['model_bytes']:,} bytes |",
