@@ -75,6 +75,19 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         ("CAMERA", "Camera", "Render through the scene's active camera"),
         ("VIEWPORT", "Viewport", "Render the 3D Viewport's view")],
         description="What the passes are rendered through")
+    use_scene_size: BoolProperty(
+        name="Scene Output Size", default=True,
+        description="Render Passes, Render Animation, Evaluate and the live preview use the "
+                    "scene's output resolution and percentage; off: the width and height below")
+    pass_ao: BoolProperty(
+        name="AO", default=False,
+        description="Ambient occlusion: Render Passes, Render Animation and Evaluate cast AO "
+                    "rays too (slower) and write the AO pass into each frame's EXR")
+    pass_shadow: BoolProperty(
+        name="Shadow", default=False,
+        description="Shadow towards the scene's first sun or point light: Render Passes, Render "
+                    "Animation and Evaluate cast shadow rays too and write the Shadow pass into "
+                    "each frame's EXR")
     dataset_dir: StringProperty(name="Dataset Folder", subtype="DIR_PATH",
                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                                 description="Where the training examples are written. Empty: "
@@ -112,8 +125,8 @@ class VDNIFSettings(bpy.types.PropertyGroup):
                             description="Render every this many frames")
     frames_dir: StringProperty(
         name="Output Folder", subtype="DIR_PATH", options={"PATH_SUPPORTS_BLEND_RELATIVE"},
-        description="Where Render Animation writes its image sequences (empty: beside the "
-                    ".blend)")
+        description="Where Render Animation writes its image sequences (empty: the scene's "
+                    "output path)")
     live_preview: BoolProperty(
         name="Live Preview", default=False,
         update=lambda settings, context: live_preview.toggled(settings, context),
@@ -183,10 +196,9 @@ _PASS_TEXT = {"normal": "Which way the surface faces (normal)",
               "distance": "How far the surface is along the ray (depth)",
               "material": "The material slot of the surface (material index)",
               "ao": "Ambient occlusion: the share of rays from the surface that meet nothing "
-                    "within the AO distance. Chosen, Render Passes and Evaluate cast them "
-                    "too (slower)",
-              "shadow": "Whether the scene's first sun or point light reaches the surface. "
-                        "Chosen, Render Passes and Evaluate cast shadow rays too"}
+                    "within the AO distance (rendered while its pass toggle is on)",
+              "shadow": "Whether the scene's first sun or point light reaches the surface "
+                        "(rendered while its pass toggle is on)"}
 
 
 class VDNIFViewer(bpy.types.PropertyGroup):

@@ -52,10 +52,22 @@ def dataset_folder(obj):
     return _chosen_folder(obj, obj.vdnif.dataset_dir, "-dataset", "datasets")
 
 
-def frames_folder(obj):
-    """Where Render Animation writes the object's image sequences: its setting, else beside
-    the .blend, else (unsaved .blend) in the user folder."""
-    return _chosen_folder(obj, obj.vdnif.frames_dir, "-frames", "frames")
+def frames_output(obj, scene):
+    """(folder, name prefix) where Render Animation writes the object's image sequences: its
+    Output Folder setting; else the scene's output path as Blender reads it (a path ending
+    in a separator is a folder, otherwise its last part starts every file name, as in
+    ``//render/shot_``; relative to the user folder while the .blend is unsaved); else (no
+    output path) beside the .blend, else (unsaved .blend) in the user folder."""
+    if obj.vdnif.frames_dir or not scene.render.filepath:
+        return _chosen_folder(obj, obj.vdnif.frames_dir, "-frames", "frames"), ""
+    path = scene.render.filepath
+    if path.startswith("//") and not bpy.data.filepath:     # relative to an unsaved .blend
+        path = str(user_folder("frames", slug(obj))) + "/" + path[2:]
+    path = bpy.path.abspath(path)
+    if path.endswith(("/", "\\")) or pathlib.Path(path).is_dir():
+        return pathlib.Path(path), ""
+    path = pathlib.Path(path)
+    return path.parent, path.name
 
 
 def passes_folder(obj):

@@ -17,18 +17,17 @@ from .vdnif_addon.errors import VDNIFError
 from .vdnif_addon.geometry.voxels import inverted_cells
 from .vdnif_addon.inference.evaluation import secondary_view_images, view_images
 from .vdnif_addon.inference.images import PASSES
-from .vdnif_addon.passes import COMPOSITOR_SOURCES, SECONDARY_PASSES
+from .vdnif_addon.passes import COMPOSITOR_SOURCES, SECONDARY_COMPOSITOR, SECONDARY_PASSES
 from .vdnif_addon.pose_sets import PoseSpec
 
 # Albedo is shown sRGB-encoded (images.display), the other passes are data.
 COLORSPACES = {"albedo": "sRGB"}
 PASS_TITLES = {**{field: name for name, field in COMPOSITOR_SOURCES.items()},
-               "ao": "AO", "shadow": "Shadow"}
-"""The title of each pass in the images' names: its name in the multilayer EXR, or of the
-secondary passes (their own files)."""
+               **{field: name for name, field in SECONDARY_COMPOSITOR.items()}}
+"""The title of each pass in the images' names: its name in the multilayer EXR."""
 SHOWN = (*PASSES, *SECONDARY_PASSES)
-"""The passes the viewer offers: AO and shadow are rendered only while one of them is chosen
-(``operators.passes.secondary_settings``)."""
+"""The passes the viewer offers: AO and shadow once a render cast them (their toggles,
+``operators.passes.secondary_settings``)."""
 # (12, 2) the corners of a cell's edges, corner c = dx + 2 dy + 4 dz: pairs one bit apart.
 CELL_EDGES = np.array([(c, c | bit) for bit in (1, 2, 4) for c in range(8) if not c & bit])
 
@@ -94,6 +93,23 @@ def viewport_view(region_3d):
     return np.array(region_3d.view_matrix.inverted(), np.float64), fov
 
 
+def render_size(scene, settings):
+    """(width, height) of the object's renders (``settings``: its ``vdnif``): the scene's
+    output resolution scaled by its percentage as Blender computes it, or the panel's width
+    and height where Scene Output Size is off."""
+    if not settings.use_scene_size:
+        return settings.image_width, settings.image_height
+    render = scene.render
+    percent = render.resolution_percentage
+    return (max(1, render.resolution_x * percent // 100),
+            max(1, render.resolution_y * percent // 100))
+
+
+def secondary_names(settings):
+    """The secondary passes whose toggles are on in the object's ``settings``."""
+    return tuple(name for name in SECONDARY_PASSES if getattr(settings, f"pass_{name}"))
+
+
 def image_name(pass_name, source):
     """The image of one pass and source, e.g. "VDNIF Depth (predicted)": each its own, so
     the reference, the prediction and the error of every pass stay side by side."""
@@ -132,29 +148,34 @@ def set_view(reference, predicted, width, height, object_size, secondary=None, f
                 image.use_fake_user = False
 
 
-def write_files(obj, result, slots, width, height, frame):
+def write_files(obj, result, slots, width, height, frame, secondary_names=SECONDARY_PASSES):
     """Writes the predicted and the reference passes of a render (``neural.RenderResult`` of
-    world rays, its material pass in used-slot indices mapped by ``slots``), and its AO and
-    shadow passes when it has them, into the object's passes folder as the render command
-    does: PNG previews and one multilayer EXR each for ``frame``, AO and shadow as PNG and
-    EXR. Returns the predicted EXR's path."""
+    world rays, its material pass in used-slot indices mapped by ``slots``), with its AO and
+    shadow passes ``secondary_names`` when it has them, into the object's passes folder as
+    the render command does: PNG previews (one distance scale for both) and one multilayer
+    EXR each for ``frame``, AO and Shadow in it. Returns the predicted EXR's path."""
     from . import storage
-    from .vdnif_addon.blender.steps import write_passes, write_secondary
+    from .vdnif_addon.blender.steps import DistanceScale, write_passes
+    from .vdnif_addon.inference.evaluation import world_distances
 
     folder = storage.passes_folder(obj)
-    written = write_passes(folder, result.predicted, height, width, result.world_scale,
-                           slots=slots, frame=frame, world_matrix=result.matrix_world)
-    write_passes(folder, result.true, height, width, result.world_scale, prefix="true-",
-                 slots=slots, frame=frame, world_matrix=result.matrix_world)
-    if result.secondary is not None:
-        for name, prefix in (("predicted", ""), ("true", "true-")):
-            write_secondary(folder, result.secondary[name], height, width, prefix, frame)
+    scale = DistanceScale()
+    scale(*(world_distances(p, result.world_scale) for p in (result.predicted, result.true)))
+    secondary = result.secondary or {}
+    written = None
+    for name, prefix in (("true", "true-"), ("predicted", "")):
+        written = write_passes(folder, getattr(result, name), height, width,
+                               result.world_scale, prefix=prefix, slots=slots, frame=frame,
+                               world_matrix=result.matrix_world,
+                               secondary=secondary.get(name),
+                               secondary_names=secondary_names, scale=scale)
     return written[-1]
 
 
 def viewed(pass_name=None):
     """The kept view: {source: {pass: (H, W, 4) image}}, empty before the first render, or
-    before one with ``pass_name`` (AO and shadow are rendered only when asked for)."""
+    before one with ``pass_name`` (AO and shadow are rendered only while their toggles are
+    on)."""
     if pass_name is not None and pass_name not in _view.get("predicted", {}):
         return {}
     return _view

@@ -1,12 +1,13 @@
 """Render Animation: the passes of a frame range (the scene's by default) as image sequences
-in the output folder, in a worker (``running``): each frame's pose and camera are read on the
-main thread, rendered in the worker, and its images written on the main thread again. While
-the pass viewer shows AO or Shadow, as for Render Passes, their sequences are rendered too
-(toward the light as it stands when the render starts)."""
+at the scene's output path and size (unless the panel overrides them), in a worker
+(``running``): each frame's pose and camera are read on the main thread, rendered in the
+worker, and its images written on the main thread again. With the AO or Shadow pass toggle
+on, as for Render Passes, those passes go into every frame's EXR too (toward the light as it
+stands when the render starts)."""
 
 import bpy
 
-from .. import storage
+from .. import storage, viewer
 from .passes import VDNIF_OT_render_passes, frames_stage, render_view, secondary_settings
 from .running import JobOperator, Stage, outcome
 
@@ -22,7 +23,8 @@ def animation_frames(scene, settings):
 
 class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
     """Render the passes of every frame of the range into image sequences (passes.0001.exr,
-    normal.0001.png, ...) in the output folder. Esc cancels"""
+    normal.0001.png, ...) at the scene's output path, or the output folder set here. Esc
+    cancels"""
 
     bl_idname = "vdnif.render_animation"
     bl_label = "Render Animation"
@@ -33,17 +35,18 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
         return VDNIF_OT_render_passes.unavailable(context)
 
     def stages(self, context, obj):
-        from ..vdnif_addon.blender.steps import write_view
+        from ..vdnif_addon.blender.steps import DistanceScale, write_view
 
         settings = obj.vdnif
         frames = animation_frames(context.scene, settings)
-        width, height = settings.image_width, settings.image_height
-        folder = storage.frames_folder(obj)
+        width, height = viewer.render_size(context.scene, settings)
+        folder, prefix = storage.frames_output(obj, context.scene)
+        names, scale = viewer.secondary_names(settings), DistanceScale()
         written = []           # the frames whose images were written
 
         def write(frame, result, captured):
             write_view(folder, result, height, width, captured.mesh.material_slots,
-                       frame=frame)
+                       frame=frame, secondary_names=names, scale=scale, prefix=prefix)
             written.append(frame)
 
         camera, view = render_view(context, obj)
@@ -53,7 +56,7 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
         def finish(obj, state):
             outcome(state)
             return (f"'{obj.name}': {state.message}; {len(written)} of frames {frames[0]}.."
-                    f"{frames[-1]} written to {storage.portable(folder)}")
+                    f"{frames[-1]} written to {storage.portable(folder / prefix)}")
 
         return [Stage(make, finish, undo=False)]      # files, no settings
 

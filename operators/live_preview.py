@@ -31,11 +31,12 @@ class Session:
     shown: list = field(default_factory=list)    # frames whose images were shown
 
 
-def preview_size(settings):
-    """The preview's (width, height): the render size scaled by the preview percentage."""
+def preview_size(settings, scene=None):
+    """The preview's (width, height): the render size (``viewer.render_size`` in ``scene``,
+    default the context's) scaled by the preview percentage."""
+    width, height = viewer.render_size(scene or bpy.context.scene, settings)
     scale = settings.preview_percent / 100
-    return (max(1, round(settings.image_width * scale)),
-            max(1, round(settings.image_height * scale)))
+    return max(1, round(width * scale)), max(1, round(height * scale))
 
 
 def previewed(scene):
@@ -89,7 +90,7 @@ def _renderer(obj, scene, session):
     from ..vdnif_addon.posed.preview import PreviewRenderer
 
     settings = obj.vdnif
-    width, height = preview_size(settings)
+    width, height = preview_size(settings, scene)
     device = settings.device_name(bpy.context)
     key = (settings.model_info, settings.model_path, width, height, device, settings.precision)
     if session.renderer is None or session.key != key:

@@ -7,7 +7,6 @@ import json
 import bpy
 
 from .. import storage, viewer
-from ..vdnif_addon.passes import SECONDARY_PASSES
 from ..vdnif_addon.text import metrics_line, secondary_line
 from .running import JobOperator, Stage, outcome
 
@@ -26,14 +25,14 @@ def model_capture(obj, evaluation_count=None):
 
 
 def secondary_settings(context, obj):
-    """The AO and shadow passes' ``SecondarySettings`` while the pass viewer shows one of
-    them (the object's AO samples and distance, the scene's light in the object's local
-    space as it stands now), else None: they cost rays, so they are cast only when asked
-    for."""
+    """The AO and shadow passes' ``SecondarySettings`` while the object's AO or Shadow pass
+    toggle is on (the object's AO samples and distance, the scene's light in the object's
+    local space as it stands now), else None: they cost rays, so they are cast only when
+    asked for. Both are cast together; only the toggled ones are written."""
     from ..vdnif_addon.blender.lights import scene_light
     from ..vdnif_addon.inference.secondary import SecondarySettings
 
-    if context.scene.vdnif_viewer.pass_name not in SECONDARY_PASSES:
+    if not viewer.secondary_names(obj.vdnif):
         return None
     # The property holds float32, whose value at the range's ends lies just outside the
     # range the core checks: the decimal the panel shows (7 digits) is the one set.
@@ -97,7 +96,7 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
 
     def stages(self, context, obj):
         settings, scene = obj.vdnif, context.scene
-        width, height = settings.image_width, settings.image_height
+        width, height = viewer.render_size(scene, settings)
         frame = scene.frame_current + scene.frame_subframe
         camera, view = render_view(context, obj)
         kept = {}
@@ -117,14 +116,17 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size, result.secondary,
                             folder=storage.images_folder(obj))
-            exr = viewer.write_files(obj, result, slots, width, height, frame)
-            image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
+            exr = viewer.write_files(obj, result, slots, width, height, frame,
+                                     viewer.secondary_names(obj.vdnif))
+            choice = bpy.context.scene.vdnif_viewer
+            image = viewer.show(bpy.context, choice)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None
                      else " (open an Image Editor to see it)")
+            shown = (f"image '{image.name}'{where}" if image is not None else
+                     f"no {viewer.PASS_TITLES[choice.pass_name]} image (its toggle is off)")
             return (f"'{obj.name}' at frame {frame:g}: {int(result.predicted.hit.sum())} "
                     f"of {width * height} pixels hit (reference {int(result.true.hit.sum())}"
-                    f"), image '{image.name}'{where}; passes written to "
-                    f"{storage.portable(exr)}")
+                    f"), {shown}; passes written to {storage.portable(exr)}")
 
         return [Stage(make, finish, undo=False)]      # images and files, no settings
 
@@ -141,6 +143,7 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
         name, settings = obj.name, obj.vdnif
         device = settings.device_name(context)
         secondary = secondary_settings(context, obj)
+        width, height = viewer.render_size(context.scene, settings)
 
         def make():
             from ..vdnif_addon.blender.ui_jobs import evaluation_job
@@ -148,9 +151,8 @@ class VDNIF_OT_evaluate(JobOperator, bpy.types.Operator):
             obj = bpy.data.objects[name]
             settings = obj.vdnif
             loaded, captured = model_capture(obj, settings.eval_poses)
-            return evaluation_job(obj, captured, storage.model_path(obj),
-                                  settings.image_width, settings.image_height, device, loaded,
-                                  secondary, settings.precision)
+            return evaluation_job(obj, captured, storage.model_path(obj), width, height,
+                                  device, loaded, secondary, settings.precision)
 
         def finish(obj, state):
             outcome(state)

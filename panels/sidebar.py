@@ -22,9 +22,8 @@ from ..operators.scene import (
 from ..operators.training import VDNIF_OT_estimate, VDNIF_OT_train, fresh_estimate, needs_dataset
 from ..vdnif_addon import declarations as declared
 from ..vdnif_addon.inference.metrics import verdict
-from ..vdnif_addon.passes import SECONDARY_PASSES
 from ..vdnif_addon.presets import PRESET_NAMES
-from ..vdnif_addon.text import metrics_line, secondary_line
+from ..vdnif_addon.text import EMBREE_NOTE, metrics_line, secondary_line
 
 WRAP = 42   # characters per line of wrapped messages
 
@@ -235,32 +234,45 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
 
     def draw_step(self, layout, context, settings):
         layout.prop(settings, "view")
-        properties(layout, settings, ("image_width", "image_height", "precision"))
+        layout.prop(settings, "use_scene_size")
+        if settings.use_scene_size:
+            width, height = viewer.render_size(context.scene, settings)
+            layout.label(text=f"{width}x{height} (the scene's output, "
+                              f"{context.scene.render.resolution_percentage}%)",
+                         icon="IMAGE_DATA")
+        else:
+            properties(layout, settings, ("image_width", "image_height"))
+        layout.prop(settings, "precision")
+        draw_secondary(layout, context, settings)
         button(layout, context, VDNIF_OT_render_passes, "RENDER_STILL")
         draw_animation(layout, context, settings)
         choice = context.scene.vdnif_viewer
         layout.use_property_split = False
         layout.row().prop(choice, "pass_name", expand=True)
         layout.row().prop(choice, "source", expand=True)
-        draw_secondary(layout, context, settings)
         if viewer.available(choice.pass_name, choice.source):
             layout.label(text=f"Image: {viewer.image_name(choice.pass_name, choice.source)}"
                          " (Image Editor)", icon="IMAGE_DATA")
+        elif choice.pass_name in viewer.SECONDARY_PASSES and choice.pass_name not in (
+                viewer.secondary_names(settings)):
+            layout.label(text=f"Turn {viewer.PASS_TITLES[choice.pass_name]} on above and "
+                              "render", icon="INFO")
         else:
             layout.label(text="Render the passes to fill the images", icon="INFO")
 
 
 def draw_secondary(layout, context, settings):
-    """While AO or shadow is the chosen pass (Render Passes and Evaluate then cast their
-    rays): the AO settings, or the light the shadow rays go to."""
+    """The AO and Shadow pass toggles (on, renders and Evaluate cast their rays and write
+    them into each frame's EXR), with the AO settings and the light the shadow rays go to
+    while they are on."""
     from ..vdnif_addon.blender.lights import scene_light
 
-    chosen = context.scene.vdnif_viewer.pass_name
-    if chosen == "ao":
-        layout.use_property_split = True
+    row = layout.row(heading="Passes")
+    row.prop(settings, "pass_ao", toggle=True)
+    row.prop(settings, "pass_shadow", toggle=True)
+    if settings.pass_ao:
         properties(layout, settings, ("ao_samples", "ao_distance"))
-        layout.use_property_split = False
-    elif chosen == "shadow":
+    if settings.pass_shadow:
         layout.label(text=f"Light: {scene_light(context.scene, context.active_object).source}",
                      icon="LIGHT_SUN")
 
@@ -275,6 +287,9 @@ def draw_animation(layout, context, settings):
     else:
         properties(layout, settings, ("frame_start", "frame_end", "frame_step"))
     layout.prop(settings, "frames_dir")
+    if not settings.frames_dir:
+        folder, prefix = storage.frames_output(context.active_object, context.scene)
+        lines(layout, f"To {storage.portable(folder / prefix)}", "FILE_FOLDER")
     button(layout, context, VDNIF_OT_render_animation, "RENDER_ANIMATION")
     row = layout.row(align=True)
     row.prop(settings, "live_preview")
@@ -290,8 +305,8 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
     def draw_step(self, layout, context, settings):
         layout.prop(settings, "eval_poses")
         button(layout, context, VDNIF_OT_evaluate, "GRAPH")
-        if context.scene.vdnif_viewer.pass_name in SECONDARY_PASSES:
-            lines(layout, "With AO and shadow: the pass chosen under Passes", "INFO")
+        if viewer.secondary_names(settings):
+            lines(layout, "With AO and shadow: their pass toggles are on under Passes", "INFO")
         report = settings.parsed("metrics")
         if not report:
             return
@@ -306,11 +321,18 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
             lines(box, metrics_line(report[name]))
             if "ao_mae" in report[name]:
                 lines(box, secondary_line(report[name]))
-        speed = report.get("timings", {}).get("render_rays_per_s")
+        timings = report.get("timings", {})
+        box = layout.box()
+        box.label(text="Speed on the same rays")
+        speed = timings.get("render_rays_per_s")
         if speed is not None:
-            layout.label(text=f"{speed:,.0f} rays/s")
+            box.label(text=f"Network: {speed:,.0f} rays/s")
         elif report.get("speed_withheld"):
-            lines(layout, f"Speed n/a: {report['speed_withheld']}", "INFO")
+            lines(box, f"Network: n/a, {report['speed_withheld']}", "INFO")
+        exact = timings.get("exact_rays_per_s")
+        if exact is not None:
+            box.label(text=f"Exact (Warp's refit BVH): {exact:,.0f} rays/s")
+            lines(box, EMBREE_NOTE)
 
 
 classes = (VDNIF_PT_main, VDNIF_PT_voxels, VDNIF_PT_network, VDNIF_PT_network_advanced,

@@ -66,6 +66,9 @@ SECONDARY_PASSES = ("ao", "shadow")
 """The passes of the rays that start at each primary hit (``inference/secondary.py``):
 ambient occlusion, the fraction of cosine-weighted rays with no occluder within the AO
 distance (1 open, 0 enclosed), and shadow, whether the light is reached (1 lit, 0 shadowed)."""
+SECONDARY_COMPOSITOR = {"AO": "ao", "Shadow": "shadow"}
+"""The secondary passes in the multilayer EXR, by the names Blender's render passes give them
+(Cycles' AO, EEVEE's Shadow), each RGB grey: 0 where nothing is hit."""
 
 
 @dataclass

@@ -44,6 +44,21 @@ def speed_line(report: dict) -> str:
     return f"n/a ({report['speed_withheld']})" if report.get("speed_withheld") else "n/a"
 
 
+EXACT_PATH = "exact path (Warp's BVH of the deformed mesh, refit per pose)"
+"""What the exact path is, in the words every speed line uses: the ray casts the extension
+ships as the true reference, timed on the same rays as the network."""
+EMBREE_NOTE = ("Embree, which the extension does not ship, is faster than Warp's BVH: "
+               "docs/performance.md, 'Side by side with the classical baselines'")
+"""Where the stronger classical path is measured (said wherever the exact path's speed is)."""
+
+
+def exact_speed_line(report: dict) -> str:
+    """The exact path's rays/s on the rays the network's speed was measured on
+    (``timings.exact_rays_per_s``; "n/a" in a report without it)."""
+    exact = report["timings"].get("exact_rays_per_s")
+    return f"{EXACT_PATH} {'n/a' if exact is None else f'{exact:,.0f} rays/s'}"
+
+
 def secondary_line(m: dict) -> str:
     """The AO and shadow errors of an evaluation's metrics, from the network's own hits and
     (in brackets) from the true ones (``metrics.compare_secondary``)."""

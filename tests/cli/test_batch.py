@@ -259,8 +259,17 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
     assert "![reference, predicted, error per pass](figure-vs-true.png)" in (
         out / "report.md").read_text()
     assert sorted(path.name for path in (out / "passes").iterdir()) == sorted(
-        [f"{name}.png" for name in ("hit", "distance", "normal", "albedo", "material")]
-        + ["passes.exr"])
+        [f"{name}.png" for name in ("hit", "distance", "normal", "albedo", "material", "ao",
+                                    "shadow")] + ["passes.exr"])
+    from blender_exr import pass_names
+
+    assert pass_names(out / "passes" / "passes.exr") == {
+        "Combined", "Depth", "Normal", "DiffCol", "IndexMA", "AO", "Shadow"}
+    assert timings["exact_rays_per_s"] > 0 and timings["exact_prepare_s"] > 0
+    markdown = (out / "report.md").read_text()
+    assert "Verdict against the mesh on the 2 unseen poses" in markdown
+    assert "Goal" not in markdown and "![speed and accuracy](speed-accuracy.png)" in markdown
+    assert report["figures"]["speed_accuracy"] == str(out / "speed-accuracy.png")
     assert report["training_plot"] == str(out / "training.png")
     assert "![training loss per task](training.png)" in (out / "report.md").read_text()
     # the AO and shadow rows, from the network's own hits and from the true ones, and figure
@@ -277,8 +286,10 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
         markdown)
     assert report["figures"]["figure_secondary_vs_true"] == str(
         out / "figure-secondary-vs-true.png")
-    header = (out / "figure-secondary-vs-true.png").read_bytes()[16:24]     # PNG's IHDR
-    assert struct.unpack(">II", header) == (3 * 32 + 2 * 4, 2 * 24 + 4)  # AO, shadow rows
+    for name in ("figure-secondary-vs-true.png", "figure-vs-true.png", "speed-accuracy.png"):
+        header = (out / name).read_bytes()[16:24]                       # PNG's IHDR
+        width, height = struct.unpack(">II", header)
+        assert width > 500 and height > 300, name       # a titled figure, not the images
     assert report["secondary"]["network_offset"] > report["secondary"]["offset"]
 
 

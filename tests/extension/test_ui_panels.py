@@ -140,7 +140,8 @@ def test_no_model_yet(arm, extension):
             "variant", "levels", "base_resolution", "log2_table_size", "feature_dim",
             "pe_bands", "width", "depth", "steps", "batch_size", "device", "view",
             "pass_name", "source", "model_storage", "keep_partial_model", "use_scene_frames",
-            "frames_dir", "live_preview", "preview_percent"} <= shown
+            "frames_dir", "live_preview", "preview_percent", "use_scene_size", "pass_ao",
+            "pass_shadow"} <= shown
 
 
 def test_training_shows_progress_and_cancel(arm, extension, core, tmp_path):
@@ -176,7 +177,8 @@ def test_trained_and_evaluated(arm, extension):
     settings.metrics = json.dumps({"poses": 2, "unseen_poses": True, "width": 32,
                                    "height": 24, "variant": "proposed", "vs_true": metrics,
                                    "vs_embedded": dict(metrics, distance_mae=None),
-                                   "timings": {"render_rays_per_s": 12345.0}})
+                                   "timings": {"render_rays_per_s": 12345.0,
+                                               "exact_rays_per_s": 67890.0}})
     bpy.data.images.new("VDNIF Training (Arm)", 4, 4)
     everything = texts(draw_all(extension))
     assert "Loss plot: image 'VDNIF Training (Arm)' (Image Editor)" in everything
@@ -187,7 +189,9 @@ def test_trained_and_evaluated(arm, extension):
     assert ("distance MAE 0.02 object units (0.64 voxels), normal error 12 deg, hit IoU 0.9, "
             "false negatives 0.46 %, false positives 8.8 %, albedo PSNR 31.25 dB, "
             "material accuracy n/a") in everything, "the panel prints the batch line"
-    assert "distance MAE n/a" in everything and "12,345 rays/s" in everything
+    assert "distance MAE n/a" in everything and "Network: 12,345 rays/s" in everything
+    assert "Exact (Warp's refit BVH): 67,890 rays/s" in everything    # beside it
+    assert "Embree" in everything and "docs/performance.md" in everything
     assert "Verdict: speckled: 0.46 % holes, 8.8 % extras" in everything
     assert "has no trained model" not in everything
     report = json.loads(settings.metrics)
@@ -196,7 +200,8 @@ def test_trained_and_evaluated(arm, extension):
                                  "model does not predict hits")
     settings.metrics = json.dumps(report)
     everything = texts(draw_all(extension))
-    assert f"Speed n/a: {report['speed_withheld']}" in everything and "rays/s" not in everything
+    assert f"Network: n/a, {report['speed_withheld']}" in everything
+    assert "rays/s" not in everything, "no exact path's speed in this report either"
 
 
 def test_error_is_shown_until_the_next_success(arm, extension):

@@ -14,8 +14,8 @@ from conftest import EXTENSION_MODULE
 from mathutils import Vector
 
 SMALL = dict(resolution=12, pose_count=4, rays_per_pose=128, steps=30, batch_size=256,
-             log2_table_size=12, base_resolution=16, width=32, depth=2, image_width=32,
-             image_height=24, eval_poses=2)
+             log2_table_size=12, base_resolution=16, width=32, depth=2, use_scene_size=False,
+             image_width=32, image_height=24, eval_poses=2)
 PASS_IMAGES = tuple(f"VDNIF {title} ({source})" for title in ("Normal", "DiffCol", "Depth",
                                                               "IndexMA")
                     for source in ("predicted", "reference", "error"))
@@ -211,6 +211,7 @@ def test_reopened_blend_restores_settings_model_and_metrics(session, extension):
     shown = texts(draw_all(extension))                     # the panels show what was kept
     assert "Arm: trained: proposed, 30 steps" in shown and "2 unseen poses" in shown
     assert "Model: packed in the .blend" in shown and "object units" in shown
+    assert "Exact (Warp's refit BVH):" in shown and "rays/s" in shown
     bpy.ops.image.new(name="Blank")          # the pass images are not saved; render again
     bpy.context.view_layer.objects.active = obj
     bpy.ops.vdnif.render_passes()
@@ -243,11 +244,14 @@ def test_pass_viewer_switches_pass_and_source(session):
     assert np.allclose(pixels("VDNIF Depth (reference)"), viewed["reference"]["distance"])
 
 
-def test_choosing_ao_renders_and_evaluates_the_secondary_passes(session):
-    """With AO chosen in the pass viewer, Render Passes casts the AO and shadow rays of the
-    object's AO samples and distance: their images (reference, predicted, error) and files.
-    An AO distance below the exact hits' offset meets nothing: the reference's AO is 1 on
-    every hit, exactly. Evaluate then reports the AO and shadow errors."""
+def test_ao_toggle_renders_and_evaluates_the_secondary_passes(session):
+    """With the AO pass toggle on, Render Passes casts the AO and shadow rays of the object's
+    AO samples and distance: their images (reference, predicted, error), their PNGs and their
+    passes in the frame's EXR (Shadow too only with its own toggle). An AO distance below the
+    exact hits' offset meets nothing: the reference's AO is 1 on every hit, exactly. Evaluate
+    then reports the AO and shadow errors. Which pass the viewer shows decides nothing."""
+    from blender_exr import pass_names
+
     bpy.ops.wm.open_mainfile(filepath=str(session["blend"]))
     obj = bpy.data.objects["Arm"]
     bpy.context.view_layer.objects.active = obj
@@ -255,10 +259,16 @@ def test_choosing_ao_renders_and_evaluates_the_secondary_passes(session):
     settings = module("vdnif_addon.settings")
     assert (obj.vdnif.ao_samples, obj.vdnif.ao_distance) == (
         settings.AO_SAMPLES, pytest.approx(settings.AO_DISTANCE))
-    bpy.ops.vdnif.render_passes()                    # Normal chosen: no AO is cast
+    assert not obj.vdnif.pass_ao and not obj.vdnif.pass_shadow, "off by default"
+    viewer.pass_name = "ao"                          # viewing AO casts nothing
+    bpy.ops.vdnif.render_passes()
     assert not module("viewer").viewed("ao") and "VDNIF AO (predicted)" not in bpy.data.images
-    viewer.pass_name = "ao"
-    obj.vdnif.ao_samples = 4
+    folder = module("storage").passes_folder(obj)
+    frame = f"{bpy.context.scene.frame_current:04d}"
+    exr = folder / f"passes.{frame}.exr"
+    assert not {"AO", "Shadow"} & pass_names(exr)
+    viewer.pass_name = "normal"
+    obj.vdnif.pass_ao, obj.vdnif.ao_samples = True, 4
     bpy.ops.vdnif.render_passes()
     viewed = module("viewer").viewed("ao")
     hit = {source: viewed[source]["normal"][..., 3] > 0.5 for source in ("reference",
@@ -274,13 +284,17 @@ def test_choosing_ao_renders_and_evaluates_the_secondary_passes(session):
         ao = image[..., 0][hit[source]]
         assert ao.min() >= 0 and ao.max() <= 1
         np.testing.assert_allclose(ao * 4, np.round(ao * 4), atol=1e-6)     # 4 rays each
-    frame = f"{bpy.context.scene.frame_current:04d}"
-    files = {path.name for path in module("storage").passes_folder(obj).iterdir()}
-    assert {f"{prefix}{name}.{frame}.{suffix}" for prefix in ("", "true-")
-            for name in ("ao", "shadow") for suffix in ("png", "exr")} <= files
+    files = {path.name for path in folder.iterdir()}
+    assert {f"{prefix}ao.{frame}.png" for prefix in ("", "true-")} <= files
+    assert not any(name.startswith(("ao", "shadow", "true-ao")) and name.endswith(".exr")
+                   for name in files), "no EXR of their own"
+    assert {"AO"} <= pass_names(exr) and "Shadow" not in pass_names(exr)
+    obj.vdnif.pass_shadow = True
     obj.vdnif.ao_distance = settings.BOUNDS["ao_distance"][0]
     bpy.ops.vdnif.render_passes()
     np.testing.assert_array_equal(pixels("VDNIF AO (reference)")[..., 0][hit["reference"]], 1)
+    for path in (exr, folder / f"true-passes.{frame}.exr"):
+        assert {"AO", "Shadow"} <= pass_names(path), path
     viewer.pass_name = "shadow"                      # rendered with AO: shown at once
     assert module("viewer").viewed("shadow")
     bpy.ops.vdnif.evaluate()
@@ -291,6 +305,7 @@ def test_choosing_ao_renders_and_evaluates_the_secondary_passes(session):
             assert math.isfinite(report[reference][key]), (reference, key)
     assert report["secondary"]["ao_samples"] == 4
     assert report["secondary"]["network_offset"] > report["secondary"]["offset"]
+    assert report["timings"]["exact_rays_per_s"] > 0
 
 
 def test_the_chosen_precision_reaches_the_evaluation_or_is_refused(session, monkeypatch):

@@ -74,9 +74,15 @@ def test_render_frames_writes_sequences_from_one_loaded_model(trained, tmp_path,
 
     single = tmp_path / "single"
     assert cli.main(["render", *scene, "--frame", "3", *SIZE, "--out", str(single)]) == 0
-    for name in ("distance", "normal"):
-        assert np.array_equal(image_pixels(single / f"{name}.png"),
-                              image_pixels(out / f"{name}.0003.png")), name
+    assert np.array_equal(image_pixels(single / "normal.png"),
+                          image_pixels(out / "normal.0003.png"))
+    # the sequence's distance previews share the first frame's scale; a single frame's own
+    first = tmp_path / "first"
+    assert cli.main(["render", *scene, "--frame", "1", *SIZE, "--out", str(first)]) == 0
+    assert json.loads((first / "render.json").read_text())["distance_preview_range"] == \
+        summary["distance_preview_range"]
+    assert np.array_equal(image_pixels(first / "distance.png"),
+                          image_pixels(out / "distance.0001.png"))
     assert (single / "passes.exr").read_bytes() == (out / "passes.0003.exr").read_bytes()
     assert not np.array_equal(image_pixels(out / "normal.0001.png"),
                               image_pixels(out / "normal.0005.png")), "it moves"
@@ -88,25 +94,42 @@ def test_render_frames_writes_sequences_from_one_loaded_model(trained, tmp_path,
 @pytest.mark.slow
 def test_render_animation_over_the_scene_range_or_the_objects(trained,  # noqa: F811
                                                               monkeypatch):
+    """At the scene's output path, resolution and percentage; with the AO toggle on, every
+    frame's EXR holds the AO pass (and no file of its own); then the object's own range and
+    folder, size and the viewer's pass deciding nothing."""
+    from blender_exr import pass_names
+
     blend, _ = trained
     obj = reopen(blend)
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = 2, 4
+    render = scene.render
+    render.filepath = "//renders/shot_"
+    render.resolution_x, render.resolution_y, render.resolution_percentage = 40, 30, 50
+    obj.vdnif.use_scene_size, obj.vdnif.pass_ao = True, True
     bpy.ops.vdnif.render_animation()
-    folder = module("storage").frames_folder(obj)
-    assert folder == blend.parent / "vdnif" / "Arm-frames"
-    assert sequence(folder) == [2, 3, 4] and sequence(folder, "passes", ".exr") == [2, 3, 4]
-    # AO and shadow are cast only while the viewer shows one of them
-    assert sequence(folder, "ao") == [] and sequence(folder, "shadow", ".exr") == []
+    folder = blend.parent / "renders"
+    assert sequence(folder, "shot_normal") == [2, 3, 4]
+    assert sequence(folder, "shot_passes", ".exr") == [2, 3, 4]
+    assert sequence(folder, "shot_ao") == [2, 3, 4] and sequence(folder, "shot_shadow") == []
+    assert image_pixels(folder / "shot_normal.0003.png").shape == (15, 20, 4)
+    assert {"AO", "Depth"} <= pass_names(folder / "shot_passes.0003.exr")
+    assert "Shadow" not in pass_names(folder / "shot_passes.0003.exr")
+    assert not list(folder.glob("*ao*.exr")), "AO goes into the frame's EXR"
+    ao = image_pixels(folder / "shot_ao.0003.png")
+    assert 0 < ao[..., :3].mean() < 1
+
+    obj.vdnif.use_scene_size, obj.vdnif.pass_ao = False, False
+    obj.vdnif.frames_dir = "//frames/"
     obj.vdnif.use_scene_frames = False
     obj.vdnif.frame_start, obj.vdnif.frame_end, obj.vdnif.frame_step = 10, 18, 4
-    scene.vdnif_viewer.pass_name = "ao"
+    scene.vdnif_viewer.pass_name = "ao"              # viewing AO casts nothing
     bpy.ops.vdnif.render_animation()
-    assert sequence(folder) == [2, 3, 4, 10, 14, 18]
-    for stem in ("ao", "shadow"):
-        assert sequence(folder, stem) == sequence(folder, stem, ".exr") == [10, 14, 18]
-    ao = image_pixels(folder / "ao.0014.png")
-    assert ao.shape[-1] == 4 and 0 < ao[..., :3].mean() < 1
+    folder, prefix = module("storage").frames_output(obj, scene)
+    assert (folder, prefix) == (blend.parent / "frames", "")
+    assert sequence(folder) == [10, 14, 18] and sequence(folder, "ao") == []
+    assert image_pixels(folder / "normal.0014.png").shape == (24, 32, 4)   # the panel's
+    assert not {"AO", "Shadow"} & pass_names(folder / "passes.0014.exr")
     scene.vdnif_viewer.pass_name = "normal"
 
     obj.vdnif.frame_start, obj.vdnif.frame_end, obj.vdnif.frame_step = 20, 40, 1
@@ -189,10 +212,10 @@ def test_live_preview_drops_frames_while_one_renders(trained):  # noqa: F811
 
 
 @pytest.mark.slow
-def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  # noqa: F811
-    """With the pass viewer on AO, the preview renders the AO and shadow passes as well, the
+def test_live_preview_casts_ao_and_shadow_while_a_toggle_is_on(trained):  # noqa: F811
+    """With the AO pass toggle on, the preview renders the AO and shadow passes as well, the
     same as Render Animation's render of that frame with the object's AO settings and the
-    scene's light; on Normal it casts none."""
+    scene's light; with both toggles off it casts none."""
     blend, _ = trained
     obj = reopen(blend)
     scene = bpy.context.scene
@@ -201,8 +224,7 @@ def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  
         if name in bpy.data.images:
             bpy.data.images.remove(bpy.data.images[name])
     preview = module("operators.live_preview")
-    scene.vdnif_viewer.pass_name = "ao"
-    obj.vdnif.ao_samples = 4
+    obj.vdnif.pass_ao, obj.vdnif.ao_samples = True, 4
     try:
         obj.vdnif.live_preview = True
         while preview.tick() is not None:
@@ -231,7 +253,7 @@ def test_live_preview_casts_ao_and_shadow_while_the_viewer_shows_one(trained):  
     assert np.allclose(shown["Shadow"], expected["shadow"], atol=1e-6)
     assert np.allclose(shown["Normal"], expected["normal"], atol=1e-6)
 
-    scene.vdnif_viewer.pass_name = "normal"       # back on a primary pass: no rays cast
+    obj.vdnif.pass_ao = False                      # both toggles off: no rays cast
     assert module("operators.passes").secondary_settings(bpy.context, obj) is None
 
 

@@ -48,3 +48,21 @@ def read_multilayer(path, width, height):
             bpy.data.images.remove(result)
     bpy.data.images.remove(image)
     return layer, read
+
+
+def pass_names(path):
+    """The passes Blender's compositor offers for the multilayer EXR ``path``: the outputs of
+    an Image node that opens it (Combined's alpha apart), without rendering anything. Runs in
+    the current scene (its compositor is replaced)."""
+    image = bpy.data.images.load(str(path), check_existing=False)
+    scene = bpy.context.scene
+    scene.use_nodes = True
+    tree = scene.node_tree
+    tree.nodes.clear()
+    node = tree.nodes.new("CompositorNodeImage")
+    node.image = image
+    assert image.type == "MULTILAYER", image.type
+    names = {socket.name for socket in node.outputs if socket.name != "Alpha"}
+    tree.nodes.clear()
+    bpy.data.images.remove(image)
+    return names

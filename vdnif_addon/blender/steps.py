@@ -8,7 +8,7 @@ import numpy as np
 
 from ..inference import images
 from ..inference.evaluation import (
-    distance_range,
+    DistanceScale,
     figure,
     secondary_view_images,
     world_distances,
@@ -107,26 +107,37 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
 
 
 def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None,
-                 frame=None, world_matrix=None):
+                 frame=None, world_matrix=None, secondary=None, secondary_names=SECONDARY_PASSES,
+                 scale=None):
     """Writes a PNG preview per pass (transparent where rays miss) and one multilayer EXR of
     the compositor's passes (``images.compositor_passes``): distance in world units when
     ``world_scale`` is given, normals in world space with the object's ``world_matrix``
     (4, 4), material as the object's slot with the used-slot table ``slots``, see
-    ``Passes.with_slots``. A ``frame`` number goes into the names as Blender numbers image
-    sequences (``normal.0030.png``, ``passes.0030.exr``). Returns the written paths. Writes
-    with Blender's image API: call it on Blender's main thread."""
+    ``Passes.with_slots``. With ``secondary`` (SecondaryPasses of the same rays) the passes
+    ``secondary_names`` of it go into the same EXR as AO and Shadow, and beside it as PNGs.
+    A ``frame`` number goes into the names as Blender numbers image sequences
+    (``normal.0030.png``, ``passes.0030.exr``). ``scale``: the ``DistanceScale`` shared with
+    the images this one is compared with (default: its own). Returns the written paths.
+    Writes with Blender's image API: call it on Blender's main thread."""
     folder = pathlib.Path(folder)
     data = passes if world_scale is None else world_distances(passes, world_scale)
     data = data if slots is None else data.with_slots(slots)
     number = frame_number(frame)
+    near_far = (scale or DistanceScale())(data)
     written = [save_image(folder / f"{prefix}{name}{number}.png", image) for name, image
-               in images.previews(data, height, width, distance_range(data)).items()]
+               in images.previews(data, height, width, near_far).items()]
     normal_matrix = None if world_matrix is None else np.linalg.inv(
         np.asarray(world_matrix, np.float64)[:3, :3]).T
-    written.append(write_multilayer(
-        folder / f"{prefix}passes{number}.exr",
-        images.compositor_passes(data, height, width, normal_matrix), COMPOSITOR_PASSES,
-        VIEW_LAYER))
+    layers = images.compositor_passes(data, height, width, normal_matrix)
+    channels = dict(COMPOSITOR_PASSES)
+    if secondary is not None:
+        extra = images.secondary_compositor(secondary, height, width, secondary_names)
+        layers.update(extra)
+        channels.update(dict.fromkeys(extra, "RGB"))
+        written += write_secondary(folder, secondary, height, width, prefix, frame,
+                                   secondary_names)
+    written.append(write_multilayer(folder / f"{prefix}passes{number}.exr", layers, channels,
+                                    VIEW_LAYER))
     return written
 
 
@@ -135,24 +146,28 @@ def write_training_plot(path, history):
     return save_image(path, plot(history))
 
 
-def write_view(folder, result, height, width, slots=None, references=False, frame=None):
+def write_view(folder, result, height, width, slots=None, references=False, frame=None,
+               secondary_names=SECONDARY_PASSES, scale=None, prefix=""):
     """Writes a RenderResult's passes (``write_passes``, normals in world space with the
     pose's world matrix), with ``references`` those of its true and embedded references,
-    prefixed ``true-`` and ``embedded-``, and its AO and shadow passes when it has them
-    (``write_secondary``); returns the written paths."""
-    world_matrix = result.matrix_world
-    written = write_passes(folder, result.predicted, height, width, result.world_scale,
-                           slots=slots, frame=frame, world_matrix=world_matrix)
+    prefixed ``true-`` and ``embedded-``, each with its AO and shadow passes ``secondary_names``
+    when it has them (into its EXR, PNGs beside it), every distance preview on one
+    ``DistanceScale`` (``scale``: a sequence's, default this view's own); ``prefix`` goes
+    before every name. Returns the written paths."""
+    sources = {"": result.predicted}
     if references:
-        for name in ("true", "embedded"):
-            written += write_passes(folder, getattr(result, name), height, width,
-                                    result.world_scale, prefix=f"{name}-", slots=slots,
-                                    frame=frame, world_matrix=world_matrix)
-    for name, passes in (result.secondary or {}).items():
-        if name in ("predicted", "true", "embedded"):
-            written += write_secondary(folder, passes, height, width,
-                                       prefix="" if name == "predicted" else f"{name}-",
-                                       frame=frame)
+        sources.update({f"{name}-": getattr(result, name) for name in ("true", "embedded")})
+    scale = scale or DistanceScale()
+    scale(*(world_distances(passes, result.world_scale) for passes in sources.values()))
+    secondary = result.secondary or {}
+    written = []
+    for source, passes in sources.items():
+        name = source.rstrip("-") or "predicted"
+        written += write_passes(folder, passes, height, width, result.world_scale,
+                                prefix=prefix + source, slots=slots, frame=frame,
+                                world_matrix=result.matrix_world,
+                                secondary=secondary.get(name),
+                                secondary_names=secondary_names, scale=scale)
     return written
 
 
@@ -184,15 +199,16 @@ def write_figures(folder, view, height, width, object_size):
     return paths
 
 
-def write_secondary(folder, passes, height, width, prefix="", frame=None):
-    """Writes the AO and shadow passes (``SecondaryPasses``) as PNG and EXR, a ``frame``
-    numbered as in ``write_passes``; returns the written paths."""
+def write_secondary(folder, passes, height, width, prefix="", frame=None,
+                    names=SECONDARY_PASSES):
+    """Writes the PNG previews of the AO and shadow passes ``names`` (``SecondaryPasses``),
+    a ``frame`` numbered as in ``write_passes`` (their values go into its EXR); returns the
+    written paths."""
     folder = pathlib.Path(folder)
-    shown = images.secondary_images(passes, height, width)
+    shown = images.secondary_images(passes, height, width)["display"]
     number = frame_number(frame)
-    return [save_image(folder / f"{prefix}{name}{number}{suffix}", shown[kind][name])
-            for name in SECONDARY_PASSES
-            for kind, suffix in (("display", ".png"), ("raw", ".exr"))]
+    return [save_image(folder / f"{prefix}{name}{number}.png", shown[name])
+            for name in SECONDARY_PASSES if name in names]
 
 
 def train_variant(obj, captured, variant, folder, rays_per_pose, out, overrides, seed=0,

@@ -48,7 +48,7 @@ def cmd_render(args):
     from ..blender.pose_reader import PoseReader
     from ..blender.poses import posed
     from ..blender.scenes import find_camera
-    from ..blender.steps import write_view
+    from ..blender.steps import DistanceScale, write_view
     from ..kernels import runtime
     from ..posed.animation import frame_pose, render_frames
     from ..posed.render import camera_view, load_scene_model
@@ -74,10 +74,11 @@ def cmd_render(args):
         view = "an orbit viewpoint (the scene has no camera)"
     written, slots = [], captured.mesh.material_slots
     progress = Progress(f"render '{obj.name}'", len(frames), "frames")
+    scale = DistanceScale()                 # one distance scale for every frame
 
     def write(frame, result):
         written.extend(write_view(args.out, result, args.height, args.width, slots,
-                                  args.references, frame if sequence else None))
+                                  args.references, frame if sequence else None, scale=scale))
 
     reader = PoseReader(obj, captured, None if camera is None else (
         lambda: camera_view(camera, args.width, args.height)))
@@ -90,6 +91,7 @@ def cmd_render(args):
         reader.close()
     summary = {"model": str(args.model), "object": obj.name, "view": view,
                "width": args.width, "height": args.height, "kernels_s": kernels_s,
+               "distance_preview_range": scale.near_far,
                "files": [str(path) for path in written]}
     if sequence:
         summary["frames"] = figures
@@ -125,15 +127,19 @@ def evaluated(args):
 
 def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
-    from ..blender.steps import write_figures, write_passes
+    from ..blender.steps import DistanceScale, write_figures, write_passes
 
     report, views, captured = evaluated(args)
     if args.out is not None:
+        view = views[0]
         report["figures"] = {name: str(path) for name, path in write_figures(
-            args.out, views[0], args.height, args.width, captured.mesh.size).items()}
+            args.out, view, args.height, args.width, captured.mesh.size).items()}
+        scale, secondary = DistanceScale(), view.get("secondary", {})
+        scale(view["predicted"], view["true"])   # prediction and reference on one scale
         report["passes"] = [str(path) for name in ("predicted", "true") for path in
-                            write_passes(args.out, views[0][name], args.height, args.width,
-                                         prefix="" if name == "predicted" else "true-")]
+                            write_passes(args.out, view[name], args.height, args.width,
+                                         prefix="" if name == "predicted" else "true-",
+                                         secondary=secondary.get(name), scale=scale)]
     write_json(args.json, report)
     print_evaluation(report)
     print(f"  verdict against the mesh: {verdict(report['vs_true'])}")
@@ -163,7 +169,8 @@ def add_commands(commands):
     render = _model_command(commands, "render", cmd_render, (
         "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
-        "Normal, DiffCol, IndexMA, alpha in Combined) and render.json into --out."))
+        "Normal, DiffCol, IndexMA, alpha in Combined; AO and Shadow with --secondary) and "
+        "render.json into --out."))
     when = render.add_mutually_exclusive_group()
     when.add_argument("--frame", type=float, metavar="F", help="the timeline frame to pose the "
                       "scene at (default: the scene's current frame)")

@@ -26,7 +26,7 @@ from ..settings import (
     NetworkConfig,
     TrainConfig,
 )
-from ..text import metrics_line, secondary_line, speed_line
+from ..text import EMBREE_NOTE, exact_speed_line, metrics_line, secondary_line, speed_line
 
 PIPELINE_SCENE = "arm"
 """The embedded scene of a pipeline command that names no scene."""
@@ -268,7 +268,10 @@ def print_evaluation(report):
                           for name in ("vs_true", "vs_embedded")))
     t = report["timings"]
     print(f"  pose preparation {t['prepare_pose_s'] * 1e3:.1f} ms, model "
-          f"{report['model_bytes']:,} bytes, render {speed_line(report)}")
+          f"{report['model_bytes']:,} bytes")
+    print(f"  speed on the same rays: network {speed_line(report)}; "
+          f"{exact_speed_line(report)}")
+    print(f"  {EMBREE_NOTE}")
 
 
 def names_scene(args):

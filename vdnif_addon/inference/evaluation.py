@@ -160,6 +160,29 @@ def distance_range(*passes: Passes) -> tuple[float, float]:
     return (hits.min(), hits.max()) if len(hits) else (0.0, 1.0)
 
 
+class DistanceScale:
+    """One brightness scale for the distance previews of a view's prediction and references
+    and of every frame of a sequence, so that they compare and a sequence does not flicker:
+    the hit distances of the first images given one, widened by a tenth of their span each
+    side (an object moving a little nearer or farther stays on it; beyond, the preview
+    clips). Images without a hit leave it unset."""
+
+    def __init__(self):
+        self.near_far = None
+
+    def __call__(self, *passes):
+        """(near, far): the kept scale, set from ``passes`` (Passes in the images' units)
+        when unset."""
+        if self.near_far is not None:
+            return self.near_far
+        near, far = distance_range(*passes)
+        if not any(p.hit.any() for p in passes):
+            return (near, far)
+        pad = 0.1 * (far - near)
+        self.near_far = (float(near - pad), float(far + pad))
+        return self.near_far
+
+
 def view_images(reference: Passes, predicted: Passes, height: int, width: int,
                 object_size: float) -> dict[str, dict[str, Float[np.ndarray, "H W 3"]]]:
     """{"reference" | "predicted" | "error": {pass: (H, W, 3) image}} of one view: both

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..passes import COMPOSITOR_PASSES, MISS_DEPTH
+from ..passes import COMPOSITOR_PASSES, MISS_DEPTH, SECONDARY_COMPOSITOR
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -95,6 +95,17 @@ def compositor_passes(passes: Passes, height: int, width: int,
             "DiffCol": albedo,
             "IndexMA": np.where(passes.hit, passes.material, 0)[:, None]}
     return {name: _image(data[name], height, width) for name in COMPOSITOR_PASSES}
+
+
+def secondary_compositor(passes: SecondaryPasses, height: int, width: int,
+                         names: Sequence[str]) -> dict[str, Float[np.ndarray, "H W 3"]]:
+    """{Blender pass name: (H, W, 3) float32} of the secondary passes ``names`` ("ao",
+    "shadow") for the multilayer EXR (``passes.SECONDARY_COMPOSITOR``): AO the unoccluded
+    share, Shadow 1 lit and 0 shadowed, grey, 0 where nothing is hit."""
+    values = {"ao": passes.ao, "shadow": passes.lit}
+    return {title: _image(np.repeat(np.where(passes.hit, values[name], 0.0)[:, None], 3,
+                                    axis=1), height, width)
+            for title, name in SECONDARY_COMPOSITOR.items() if name in names}
 
 
 def error_images(predicted: Passes, reference: Passes, height: int, width: int,

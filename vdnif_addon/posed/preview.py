@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 
-from ..inference.evaluation import distance_range
+from ..inference.evaluation import DistanceScale
 from ..inference.images import display, secondary_images
 from ..settings import DEFAULT_PRECISION
 from ..tracing.rays import orbit_viewpoints
@@ -55,6 +55,7 @@ class PreviewRenderer:
         self.width, self.height, self.view = width, height, view
         self._model = self._posed = self._orbit = None
         self._thread, self._outcome = None, None
+        self._scale = DistanceScale()     # one distance scale for every frame it renders
 
     @property
     def busy(self):
@@ -101,16 +102,18 @@ class PreviewRenderer:
                                            secondary=secondary)
             predicted = None if result.secondary is None else result.secondary["predicted"]
             self._outcome = (snapshot.pose["frame"], images(result.predicted, self.height,
-                                                            self.width, predicted))
+                                                            self.width, predicted,
+                                                            self._scale))
         except Exception as exc:   # shown in the panel; the preview must not stop Blender
             self._outcome = (snapshot.pose["frame"], exc)
 
 
-def images(passes, height, width, secondary=None):
+def images(passes, height, width, secondary=None, scale=None):
     """{pass: (H, W, 4) display image} of predicted Passes, alpha the hit mask; "ao" and
-    "shadow" too with ``secondary``, the predicted SecondaryPasses of the same rays."""
+    "shadow" too with ``secondary``, the predicted SecondaryPasses of the same rays;
+    distance on ``scale`` (a ``DistanceScale`` kept over the frames, default its own)."""
     alpha = passes.hit.reshape(height, width, 1).astype(np.float32)
-    shown = display(passes, height, width, distance_range(passes))
+    shown = display(passes, height, width, (scale or DistanceScale())(passes))
     if secondary is not None:
         shown.update(secondary_images(secondary, height, width)["display"])
     return {name: np.concatenate([image, alpha], axis=2) for name, image in shown.items()}

@@ -233,6 +233,11 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
         "prepare_pose_s": statistics.median(r.timings["prepare_s"] for r in results),
         "network_fraction": sum(r.timings["network_s"] for r in results) / render_s,
     }, metrics["vs_true"])
+    exact_s = sum(r.timings["exact_cast_s"] for r in results)
+    timings.update(   # the exact path (Warp's refit BVH), timed as the network on the same rays
+        exact_rays_per_s=sum(r.timings["rays"] for r in results) / exact_s if exact_s > 0
+        else None,
+        exact_prepare_s=statistics.median(r.timings["exact_prepare_s"] for r in results))
     report = {
         "object": capture.mesh.name, "mode": capture.mode, "variant": model.variant,
         "model": model.path, "resolution": capture.grid.resolution, "poses": len(poses),
@@ -278,13 +283,21 @@ def render_local(model, posed_object, geometry, origins, directions, references=
                                      geometry.cells, origins, directions, model.device)
     render_s = time.perf_counter() - start
     true = embedded = None
+    exact = {}
     if references:
-        true = true_reference(mesh, geometry.mesh_caster(mesh.triangles), origins, directions)
+        # The exact path the extension ships: Warp's BVH of the deformed mesh, refit to the
+        # pose (its preparation, apart as the network's is), then the casts (its rays/s).
+        start = time.perf_counter()
+        caster = geometry.mesh_caster(mesh.triangles)
+        refit_s = time.perf_counter() - start
+        true = true_reference(mesh, caster, origins, directions)
+        exact = dict(exact_prepare_s=refit_s,
+                     exact_cast_s=time.perf_counter() - start - refit_s)
         embedded, _, _ = embedded_passes(geometry.cells, mesh, posed_object.rest_caster,
                                          origins, directions)
     timings = dict(prepare_s=geometry.prepare_s, walk_s=stats["walk_s"],
                    network_s=stats["network_s"], render_s=render_s, rays=len(origins),
-                   segments=stats["segments"], truncated_rays=stats["truncated"])
+                   segments=stats["segments"], truncated_rays=stats["truncated"], **exact)
     result = RenderResult(predicted=predicted, true=true, embedded=embedded, timings=timings,
                           object_size=mesh.size, world_scale=np.ones(len(origins)),
                           inverted_cells=geometry.inverted_cells(),

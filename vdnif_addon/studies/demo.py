@@ -14,10 +14,10 @@ from ..blender.lights import scene_light
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..blender.steps import (
+    DistanceScale,
     evaluate_file,
     evaluation_poses,
     train_variant,
-    write_figures,
     write_passes,
     write_training_plot,
 )
@@ -26,6 +26,7 @@ from ..model.variants import choose_variant
 from ..pose_sets import TEST_POSES, PoseSpec
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import RECIPE
+from .demo_figures import demo_figures
 from .report import demo_markdown
 
 SIZES = {   # full: the main job, the default recipe at the resolution of the scene's mesh
@@ -43,9 +44,10 @@ SIZES = {   # full: the main job, the default recipe at the resolution of the sc
 def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
              stress=lambda obj, spec: spec):
     """Runs the demo into folder ``out`` and returns the report (also written as
-    ``out/report.json`` and ``out/report.md`` with ``out/figure-vs-true.png`` and the AO
-    and shadow figure ``out/figure-secondary-vs-true.png``; the light: the scene's first sun
-    or point light, else the default direction).
+    ``out/report.json`` and ``out/report.md`` with the figures of
+    ``demo_figures.demo_figures`` and the first view's passes in ``out/passes``, AO and
+    Shadow in its EXR; the light: the scene's first sun or point light, else the default
+    direction).
     ``stress(obj, spec)`` may scale the scene and return the pose spec with an extreme pose
     (``extremes.apply_stress``)."""
     size = SIZES["quick" if quick else "full"]
@@ -70,8 +72,11 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     secondary = SecondarySettings(light=scene_light(bpy.context.scene, obj))
     report, views = evaluate_file(obj, evaluated, model, width, height, device,
                                   secondary=secondary)
-    figures = write_figures(out, views[0], height, width, captured.mesh.size)
-    passes = write_passes(out / "passes", views[0]["predicted"], height, width)
+    view = views[0]
+    figures = demo_figures(out, report, view, height, width, captured.mesh.size)
+    passes = write_passes(out / "passes", view["predicted"], height, width,
+                          secondary=view.get("secondary", {}).get("predicted"),
+                          scale=DistanceScale())
     plot = write_training_plot(out / "training.png", summary["history"])
     report.update(train_poses=len(captured.poses), variant_note=note,
                   dataset_rays=summary["dataset"]["rays"],
