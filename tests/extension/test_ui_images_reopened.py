@@ -38,6 +38,7 @@ def test_pass_images_and_the_loss_plot_come_back_on_reopen(session, extension): 
     obj = open_blend(session["blend"])
     assert bpy.data.images[PLOT].size[0] > 0, "Train drew the loss plot"
     bpy.context.scene.vdnif_viewer.pass_name = "ao"
+    obj.vdnif.pass_ao = obj.vdnif.pass_shadow = True
     obj.vdnif.ao_samples = 4
     bpy.ops.vdnif.render_passes()
     names = (*PASS_IMAGES, PLOT, *(f"VDNIF {title} ({source})" for title in ("AO", "Shadow")
@@ -67,11 +68,13 @@ def test_an_older_view_and_a_lost_file_are_not_reopened(session):  # noqa: F811
     """A render without AO leaves the AO images of an earlier one behind: they are not
     reopened as if they were this view's. An image whose file is gone is removed on reopen,
     so the panel never names an empty image."""
-    open_blend(session["blend"])
+    obj = open_blend(session["blend"])
     viewer = bpy.context.scene.vdnif_viewer
     viewer.pass_name = "shadow"
+    obj.vdnif.pass_shadow = True
     bpy.ops.vdnif.render_passes()
     viewer.pass_name = "normal"
+    obj.vdnif.pass_ao = obj.vdnif.pass_shadow = False
     bpy.ops.vdnif.render_passes()                         # no AO, no shadow this time
     bpy.ops.wm.save_mainfile()
     plot = bpy.data.images[PLOT]

@@ -100,7 +100,8 @@ def test_a_model_for_another_object_or_resolution_is_refused(empty_scene, core):
         (dataclasses.replace(metadata, object="Suzanne"), "trained on 'Suzanne' at resolution 16"),
         (dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid, resolution=32)),
          "not on 'Arm' at resolution 16"),
-        (dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid, voxel_size=0.2)),
+        (dataclasses.replace(metadata, grid=dataclasses.replace(
+            metadata.grid, voxel_size=0.2, extent=0.2 * max(metadata.grid.dims))),
          "the mesh of 'Arm' has changed"),
         (dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid,
                                                                 mesh_fingerprint="0" * 64)),
