@@ -65,6 +65,11 @@ MAX_FRAME = 1_048_574
 """Blender's last timeline frame (and -MAX_FRAME its first): ``frame_set`` clamps a frame
 beyond it, so a pose there would not be the frame it names."""
 
+MAX_FRAMES = MAX_POSES
+"""Frames of one range (``render --frames``): a frame is a pose, and every frame writes its
+passes' files, so a range shares the poses' bound (a million frames would write millions of
+files over hours)."""
+
 
 def check_range(name: str, value: float, low: float, high: float | None = None) -> None:
     """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""

@@ -6,6 +6,7 @@ device cells built once, written as image sequences named like Blender's own
 ``PoseReader`` in batch runs, a ``PoseFeed`` filled on Blender's main thread in the UI). The
 frame-range helpers import nothing heavy, for the command-line parser."""
 
+from .. import limits
 from ..errors import VDNIFError
 
 
@@ -24,11 +25,21 @@ def parse_frames(text):
 
 
 def frame_range(start, end, step=1):
-    """Frames ``start`` to ``end`` included, every ``step``."""
+    """Frames ``start`` to ``end`` included, every ``step``: at most ``limits.MAX_FRAMES``
+    of them, within Blender's timeline (counted before the list is built)."""
     if step < 1:
         raise VDNIFError(f"the frame step {step} must be at least 1")
     if end < start:
         raise VDNIFError(f"the frame range {start}:{end} ends before it starts")
+    for frame in (start, end):
+        if abs(frame) > limits.MAX_FRAME:
+            raise VDNIFError(f"the frame {frame} is outside Blender's frames "
+                             f"{-limits.MAX_FRAME}..{limits.MAX_FRAME}")
+    count = (end - start) // step + 1
+    if count > limits.MAX_FRAMES:
+        raise VDNIFError(f"the frame range {start}:{end}:{step} has {count:,} frames, more "
+                         f"than the limit {limits.MAX_FRAMES:,} (vdnif_addon/limits.py): "
+                         "render a shorter range or a larger step")
     return list(range(start, end + 1, step))
 
 

@@ -23,6 +23,8 @@ from ..settings import (
     DEMO_SCENES,
     DEVICES,
     EMBEDDING_ERROR_SHARE,
+    GROUP_TIMEOUT_S,
+    MAX_GROUP_TIMEOUT_S,
     MAX_RESOLUTION,
     MIN_RESOLUTION,
     NORMAL_MODES,
@@ -195,6 +197,9 @@ def add_training_options(parser):
                         f"held-out poses stop improving (default {RECIPE.steps})")
     parser.add_argument("--batch", type=int, default=RECIPE.batch_size, metavar="B",
                         help=f"segments per step and process (default {RECIPE.batch_size})")
+    parser.add_argument("--group-timeout", type=float, default=GROUP_TIMEOUT_S, metavar="S",
+                        help="under torchrun, seconds a process waits for the others before "
+                        f"it stops with an error (default {GROUP_TIMEOUT_S:g})")
     add_device_option(parser)
 
 
@@ -240,7 +245,7 @@ def network_overrides(args):
                  for option, (field, _, _) in NETWORK_OPTIONS.items()
                  if getattr(args, option[2:].replace("-", "_")) is not None}
     overrides.update(steps=args.steps, batch_size=args.batch, device=args.device,
-                     seed=args.seed)
+                     seed=args.seed, group_timeout_s=args.group_timeout)
     return overrides
 
 
@@ -324,6 +329,11 @@ def validate_arguments(args):
     at_least("threads", 1, limits.MAX_THREADS)
     at_least("batch", *BOUNDS["batch_size"])
     at_least("steps", *BOUNDS["steps"])
+    group_timeout = getattr(args, "group_timeout", None)
+    if group_timeout is not None and not (math.isfinite(group_timeout)
+                                          and 1 <= group_timeout <= MAX_GROUP_TIMEOUT_S):
+        raise VDNIFError(f"--group-timeout {group_timeout} must be a number of seconds in "
+                         f"1..{MAX_GROUP_TIMEOUT_S:g}")
     at_least("ao_samples", *BOUNDS["ao_samples"])
     at_least("preview", *BOUNDS["image_side"])
     if isinstance(getattr(args, "resolution", None), int):

@@ -65,8 +65,15 @@ def cmd_dataset(args):
     from ..blender.estimate import dataset_estimate, describe, measure, size_text
     from ..blender.generate import generate_dataset
     from ..blender.ui_jobs import SHARD_SUFFIXES
+    from ..memory import check_disk
     from ..progress import Progress
-    from ..training.dataset import DatasetIdentity, check_folder, grid_header, shard_name
+    from ..training.dataset import (
+        DatasetIdentity,
+        check_folder,
+        check_shard_size,
+        grid_header,
+        shard_name,
+    )
 
     check_resolution(args.resolution)
     if args.rays_per_pose < 1:
@@ -84,6 +91,9 @@ def cmd_dataset(args):
     expected = dataset_estimate(rates, pose_range[1] - pose_range[0], args.rays_per_pose)
     print(f"dataset '{obj.name}': {describe(expected)} (estimated from a sample)",
           file=sys.stderr, flush=True)
+    check_shard_size(shard_name(*pose_range), expected["segments"])
+    check_disk(f"dataset shard '{shard_name(*pose_range)}'", expected["bytes"], args.out,
+               "lower --rays-per-pose or --poses, or free space")
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
     header = generate_dataset(obj, result, args.out, args.rays_per_pose, seed=args.seed,
                               pose_range=pose_range,

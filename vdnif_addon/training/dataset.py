@@ -53,6 +53,30 @@ ARRAYS = {                     # name: (dtype, trailing shape)
 }
 
 
+ROW_BYTES = sum(np.dtype(kind).itemsize * math.prod(shape) for kind, shape in ARRAYS.values())
+"""Bytes of one row (segment) in memory."""
+SHARD_MEMORY_COPIES = 3
+"""Copies of a shard's rows in memory at its peak: the poses' rows, their concatenation, and
+the packed arrays being written (``write_shard``)."""
+
+
+def check_shard_size(name: str, segments: float, memory: bool = True) -> None:
+    """Refuses, before the rows are walked or held, a shard of about ``segments`` rows that
+    is over ``limits.MAX_SHARD_SEGMENTS`` or (with ``memory``) that this machine's free
+    memory cannot hold (``SHARD_MEMORY_COPIES`` x ``ROW_BYTES`` a row)."""
+    from ..memory import check_memory
+
+    advice = ("lower --rays-per-pose or --poses, or write the dataset in parts with "
+              "--pose-range")
+    if segments > limits.MAX_SHARD_SEGMENTS:
+        raise VDNIFError(f"dataset shard '{name}' would hold about {round(segments):,} "
+                         f"segments, more than the limit {limits.MAX_SHARD_SEGMENTS:,} "
+                         f"(vdnif_addon/limits.py): {advice}")
+    if memory:
+        check_memory(f"dataset shard '{name}' ({round(segments):,} segments)",
+                     segments * ROW_BYTES * SHARD_MEMORY_COPIES, advice)
+
+
 def segment_records(grid: VoxelGrid, segments: Segments, targets: SurfaceHits,
                     pose_index: int) -> dict[str, np.ndarray]:
     """The shard rows for one pose's Segments and their SurfaceHits targets: per ``ARRAYS``

@@ -274,9 +274,14 @@ def train(
     heads = header.heads.network_heads()
     network_config = dataclasses.replace(network_config, heads=heads)
     device = resolve_device(config.device)
-    group = ProcessGroup.from_environment(device)
+    group = ProcessGroup.from_environment(device, config.group_timeout_s)
     try:
         return _train(segments, h, config, network_config, device, group, progress, cancel)
+    except RuntimeError as exc:
+        stalled = group.stalled(exc)
+        if stalled is None:
+            raise
+        raise stalled from None
     finally:
         group.close()
 
