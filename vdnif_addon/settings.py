@@ -98,10 +98,6 @@ SECONDARY_SELF_REACH, SECONDARY_SELF_COSINE, SECONDARY_SELF_SKIPS = 4.0, 0.3, 3
 DEVICES = ("auto", "cpu", "cuda")
 """Where the network runs: auto is CUDA where torch has it, else the CPU."""
 DEFAULT_DEVICE = "auto"
-GROUP_TIMEOUT_S, MAX_GROUP_TIMEOUT_S = 300.0, 86400.0
-"""Seconds a process of a ``torchrun`` launch waits for the others, to join and at every
-collective, before it stops with a line that says what it waited for (``--group-timeout``):
-minutes, where torch's own default (30 minutes) looked like a hang."""
 PRECISIONS = ("float32", "bfloat16")
 """The arithmetic of a render's MLPs: float32, or bfloat16 where the device has bfloat16
 instructions (CUDA, a CPU with AVX-512 BF16 or AMX), faster and a little less exact; the
@@ -357,7 +353,6 @@ class TrainConfig:
     log_interval: int = 100
     stop_patience: int = 5
     stop_min_gain: float = 0.02
-    group_timeout_s: float = GROUP_TIMEOUT_S
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "seed"):
@@ -373,7 +368,6 @@ class TrainConfig:
                 raise VDNIFError(f"setting {name} must be a number in (0, 1], got {value!r}")
         check_number("val_fraction", self.val_fraction, 0.0, 0.9)
         check_number("field_jitter", self.field_jitter, 0.0, 1.0)
-        check_number("group_timeout_s", self.group_timeout_s, 1.0, MAX_GROUP_TIMEOUT_S)
         check_choice("weighting", self.weighting, WEIGHTINGS)
         check_choice("weighting_start", self.weighting_start, WEIGHTING_STARTS)
         check_choice("device", self.device, DEVICES)

@@ -11,6 +11,7 @@ import sys
 
 from ..errors import VDNIFError
 from ..extreme_deform import ExtremeDeform, parse_scale
+from ..limits import GROUP_TIMEOUT_S, MAX_GROUP_TIMEOUT_S
 from ..pose_sets import PoseSpec
 from ..settings import (
     ALBEDO_MODES,
@@ -23,8 +24,6 @@ from ..settings import (
     DEMO_SCENES,
     DEVICES,
     EMBEDDING_ERROR_SHARE,
-    GROUP_TIMEOUT_S,
-    MAX_GROUP_TIMEOUT_S,
     MAX_RESOLUTION,
     MIN_RESOLUTION,
     NORMAL_MODES,

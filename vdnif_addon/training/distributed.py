@@ -13,7 +13,8 @@ import torch
 import torch.distributed as dist
 
 from ..errors import VDNIFError
-from ..settings import DEVICES, GROUP_TIMEOUT_S
+from ..limits import GROUP_TIMEOUT_S, MAX_GROUP_TIMEOUT_S
+from ..settings import DEVICES
 
 if TYPE_CHECKING:
     from jaxtyping import Shaped
@@ -47,6 +48,9 @@ class ProcessGroup:
             ) from exc
         if world <= 1:
             return cls()
+        if not (isinstance(timeout_s, (int, float)) and 1 <= timeout_s <= MAX_GROUP_TIMEOUT_S):
+            raise VDNIFError(f"the process group timeout {timeout_s!r} must be a number of "
+                             f"seconds in 1..{MAX_GROUP_TIMEOUT_S:g}")
         if device.type == "cuda":
             # NCCL's collectives (all_gather_object among them) put their tensors on the
             # current device: without this every rank would use cuda:0.

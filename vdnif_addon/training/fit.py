@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .. import __version__
+from ..limits import GROUP_TIMEOUT_S
 from ..memory import TRAINING_ADVICE, out_of_memory
 from ..model.metadata import FORMAT_VERSION, ModelMetadata
 from ..model.model_file import model_bytes, save_model
@@ -33,17 +34,20 @@ def fit_model(
 ) -> tuple[TrainResult, dict[str, Any]]:
     """Trains ``variant`` on the dataset in ``data_dir`` and writes the model to ``out``.
 
-    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...).
+    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...), and
+    ``group_timeout_s`` (``train``'s).
     Running out of memory is one line that says what to lower. Returns (the TrainResult, a
     JSON-ready summary); only the main process of a ``torchrun``
     launch writes the file (the summary is then empty on the others).
     """
-    chosen = variant_config(variant, **(overrides or {}))
+    overrides = dict(overrides or {})
+    group_timeout_s = overrides.pop("group_timeout_s", GROUP_TIMEOUT_S)  # not the variant's
+    chosen = variant_config(variant, **overrides)
     with out_of_memory("training", TRAINING_ADVICE):
         data, shards = read_dataset(data_dir)
         header = data.header
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
-                       cancel=cancel)
+                       cancel=cancel, group_timeout_s=group_timeout_s)
     if not result.is_main:
         return result, {}
     # A dataset header that names no used-slot table or mesh fingerprint (the golden arm
