@@ -68,7 +68,53 @@ CASES = [
      r"--group-timeout 0.0 must be a number of seconds in 1..86400"),
     ("train-group-timeout-nan", f"{TRAIN} --group-timeout nan",
      r"--group-timeout nan must be a number of seconds"),
+    # --- silently wrong before: refused by name
+    ("capture-array-of-an-animated-object",
+     "capture --blend {blend:array_animated} --object Cube --resolution 8 --poses 2",
+     r"modifier 'Array' \(array before the rig, of object 'Offset', which is animated\)"),
+    ("capture-array-of-an-object-on-a-bone",
+     "capture --blend {blend:array_on_bone} --object Cube --resolution 8 --poses 2",
+     r"modifier 'Array' \(array before the rig, of object 'Offset', which follows the "
+     r"armature 'Rig'\)"),
 ]
+
+BLEND_SCRIPT = r"""
+import bpy, sys
+out = sys.argv[-1]
+
+def arrayed(offset_moves):
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.active_object
+    offset = bpy.data.objects.new("Offset", None)
+    bpy.context.scene.collection.objects.link(offset)
+    offset.location = (2.5, 0.0, 0.0)
+    array = cube.modifiers.new("Array", "ARRAY")
+    array.use_relative_offset, array.use_object_offset = False, True
+    array.offset_object = offset
+    lattice = bpy.data.objects.new("Lattice", bpy.data.lattices.new("Lattice"))
+    bpy.context.scene.collection.objects.link(lattice)
+    lattice.scale = (8.0, 3.0, 3.0)
+    cube.modifiers.new("Lattice", "LATTICE").object = lattice
+    offset_moves(offset)
+    bpy.ops.wm.save_as_mainfile(filepath=f"{out}/array_{offset_moves.__name__}.blend")
+
+def animated(offset):
+    offset.keyframe_insert("location", frame=1)
+    offset.location.x = 4.0
+    offset.keyframe_insert("location", frame=20)
+
+def on_bone(offset):
+    rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+    bpy.context.scene.collection.objects.link(rig)
+    offset.parent = rig
+
+def still(offset):
+    pass
+
+for moves in (animated, on_bone, still):
+    arrayed(moves)
+"""
 
 
 def _free_port():
@@ -78,9 +124,13 @@ def _free_port():
 
 
 @pytest.fixture(scope="module")
-def files(trained):  # noqa: F811 - the imported fixture
+def files(trained, tmp_path_factory):  # noqa: F811 - the imported fixture
     data, model = trained
-    return {"data": data, "model": model}
+    blends = tmp_path_factory.mktemp("blends")
+    subprocess.run([sys.executable, "-c", BLEND_SCRIPT, str(blends)], check=True,
+                   capture_output=True, timeout=120)
+    return {"data": data, "model": model,
+            **{f"blend:{path.stem}": path for path in blends.glob("*.blend")}}
 
 
 def _command(text, tmp, files):
@@ -191,3 +241,27 @@ def test_a_frame_range_is_counted_before_it_is_built(core):
         animation.parse_frames(f"0:{10**30}:{10**27}")
     assert (datetime.datetime.now() - started).total_seconds() < 1
     assert limits.MAX_FRAMES == limits.MAX_POSES
+
+
+def test_an_array_of_an_object_that_stays_put_still_captures(files, tmp_path):
+    """The control of the refused arrays: the same array before the lattice, its offset
+    object still, captures; so does one whose offset object is animated but unread."""
+    result = subprocess.run([sys.executable, str(BATCH), "--", "capture", "--blend",
+                             str(files["blend:array_still"]), "--object", "Cube",
+                             "--resolution", "8", "--poses", "2"], capture_output=True,
+                            text=True, timeout=TIME_LIMIT_S, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    assert "captured 'Cube' (lattice)" in result.stdout
+
+
+def test_an_offset_object_the_array_does_not_read_is_not_refused(files, core, extension):
+    import bpy
+
+    bpy.ops.wm.open_mainfile(filepath=str(files["blend:array_animated"]))
+    cube = bpy.data.objects["Cube"]
+    cube.modifiers["Array"].use_object_offset = False
+    cube.modifiers["Array"].use_relative_offset = True
+    core("blender.uncaptured").check_captured(cube)
+    cube.modifiers["Array"].use_object_offset = True
+    with pytest.raises(core("errors").VDNIFError, match="of object 'Offset', which is animated"):
+        core("blender.uncaptured").check_captured(cube)
