@@ -18,8 +18,11 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 from conftest import REPO
+from model_metadata import capture_metadata
+from oracle_network import OracleNetwork
 from test_bad_inputs import (
     BATCH,
     TIME_LIMIT_S,
@@ -265,3 +268,81 @@ def test_an_offset_object_the_array_does_not_read_is_not_refused(files, core, ex
     cube.modifiers["Array"].use_object_offset = True
     with pytest.raises(core("errors").VDNIFError, match="of object 'Offset', which is animated"):
         core("blender.uncaptured").check_captured(cube)
+
+
+@pytest.mark.parametrize("fit, width, height", [("AUTO", 40, 30), ("AUTO", 30, 40),
+                                                ("HORIZONTAL", 30, 40), ("VERTICAL", 40, 30)])
+def test_a_shifted_camera_renders_the_pixels_blender_projects_to(empty_scene, core, fit, width,
+                                                                 height):
+    """Lens shift moves the image as Blender's own projection of a point does, for every
+    sensor fit (it was ignored: the passes did not line up with Blender's render)."""
+    import bpy
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    empty_scene.collection.objects.link(camera)
+    camera.location, camera.rotation_euler = (3.0, -4.0, 2.0), (1.1, 0.1, 0.6)
+    camera.data.lens, camera.data.sensor_fit = 35.0, fit
+    camera.data.shift_x, camera.data.shift_y = 0.31, -0.17
+    empty_scene.render.resolution_x, empty_scene.render.resolution_y = width, height
+    bpy.context.view_layer.update()
+    neural = core("blender.neural")
+    origins, directions = neural.view_rays(neural.camera_view(camera, width, height), width,
+                                           height)
+    projected = np.array([world_to_camera_view(empty_scene, camera, Vector(o + 5 * d))[:2]
+                          for o, d in zip(origins, directions)])
+    column, row = np.meshgrid(np.arange(width), np.arange(height))
+    expected = np.stack([(column.ravel() + 0.5) / width, 1 - (row.ravel() + 0.5) / height], 1)
+    np.testing.assert_allclose(projected, expected, atol=1e-6)
+
+
+def test_a_camera_clip_range_hides_what_blender_clips(empty_scene, core):
+    """An oracle network (the mesh itself) seen through a camera whose clip start cuts into
+    the sphere's near side and whose clip end cuts off its far side: each pixel shows the
+    first of Blender's own ray-cast hits whose depth (Blender's projection) lies within the
+    clip range, at its distance from the camera."""
+    import bpy
+    from bpy_extras.object_utils import world_to_camera_view
+    from mathutils import Vector
+
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=24, ring_count=12, radius=2.0)
+    obj = bpy.context.active_object
+    capture = core("blender.capture_scene").capture(obj, 12)
+    neural = core("blender.neural")
+    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid),
+                              metadata=capture_metadata(core, capture), grid=capture.grid,
+                              path="oracle", device="cpu")
+    camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    empty_scene.collection.objects.link(camera)
+    camera.location, camera.rotation_euler = (0.0, -12.0, 0.0), (np.pi / 2, 0.0, 0.0)
+    camera.data.lens = 60.0
+    camera.data.clip_start, camera.data.clip_end = 10.6, 13.2
+    empty_scene.render.resolution_x, empty_scene.render.resolution_y = 24, 24
+    bpy.context.view_layer.update()
+    view = neural.camera_view(camera, 24, 24)
+    origins, directions = neural.view_rays(view, 24, 24)
+    with core("blender.pose_geometry").PosedObject(obj, capture, "cpu") as posed_object:
+        result = neural.render_view(model, posed_object, posed_object.geometry({"frame": 1.0}),
+                                    view, 24, 24, references=True)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    hit, distance = np.zeros(len(origins), bool), np.zeros(len(origins))
+    for index, (origin, direction) in enumerate(zip(origins, directions)):
+        start = Vector(origin)
+        for _ in range(4):                      # each surface crossing, near to far
+            found, location, *_ = empty_scene.ray_cast(depsgraph, start, Vector(direction))
+            if not found:
+                break
+            depth = world_to_camera_view(empty_scene, camera, location)[2]
+            if depth > camera.data.clip_end:
+                break
+            if depth >= camera.data.clip_start:
+                hit[index], distance[index] = True, (location - Vector(origin)).length
+                break
+            start = location + Vector(direction) * 1e-4
+    assert 20 < hit.sum() < len(hit) - 20        # some pixels clipped away, some seen inside
+    for passes in (result.predicted, result.true):
+        assert (passes.hit != hit).sum() <= 2, (passes.hit != hit).sum()  # rays on the rim
+        both = passes.hit & hit
+        np.testing.assert_allclose(passes.distance[both] / result.world_scale[both],
+                                   distance[both], atol=2e-3)

@@ -61,7 +61,7 @@ def render_frames(source, captured, model, frames, width, height, view=None,
     frame's bounds, kept for the whole range so that the images line up."""
     from ..kernels import runtime
     from ..tracing.rays import orbit_viewpoints
-    from .neural import orbit_view, render_orbit_rays, render_world, view_rays
+    from .neural import orbit_view, render_orbit_rays, render_view
     from .pose_geometry import PosedObject
 
     runtime.load_all(runtime.device(model.device))      # a first compile is in no rays/s
@@ -72,9 +72,8 @@ def render_frames(source, captured, model, frames, width, height, view=None,
             chosen = geometry.view if geometry.view is not None else view
             settings = None if secondary is None else secondary(frame)
             if chosen is not None:
-                origins, directions = view_rays(chosen, width, height)
-                result = render_world(model, posed_object, geometry, origins, directions,
-                                      references, settings)
+                result = render_view(model, posed_object, geometry, chosen, width, height,
+                                     references, settings)
             else:
                 if orbit is None:
                     orbit = orbit_view(geometry, orbit_viewpoints(1)[0], width, height)

@@ -13,7 +13,7 @@ from ..inference.evaluation import distance_range
 from ..inference.images import display, secondary_images
 from ..settings import DEFAULT_PRECISION
 from ..tracing.rays import orbit_viewpoints
-from .neural import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
+from .neural import load_scene_model, orbit_view, render_orbit_rays, render_view
 from .pose_geometry import PosedObject
 from .pose_source import PoseSource
 
@@ -90,9 +90,8 @@ class PreviewRenderer:
             geometry = self._posed.place(snapshot)
             chosen = snapshot.view if snapshot.view is not None else self.view
             if chosen is not None:
-                result = render_world(self._model, self._posed, geometry,
-                                      *view_rays(chosen, self.width, self.height),
-                                      secondary=secondary)
+                result = render_view(self._model, self._posed, geometry, chosen,
+                                     self.width, self.height, secondary=secondary)
             else:
                 if self._orbit is None:
                     self._orbit = orbit_view(geometry, orbit_viewpoints(1)[0], self.width,
