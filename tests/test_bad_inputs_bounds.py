@@ -11,6 +11,7 @@ refusal the same on a machine with more memory free than this one).
 """
 
 import datetime
+import json
 import os
 import re
 import socket
@@ -20,6 +21,7 @@ import time
 
 import numpy as np
 import pytest
+import torch
 from conftest import REPO
 from model_metadata import capture_metadata
 from oracle_network import OracleNetwork
@@ -79,6 +81,10 @@ CASES = [
      "capture --blend {blend:array_on_bone} --object Cube --resolution 8 --poses 2",
      r"modifier 'Array' \(array before the rig, of object 'Offset', which follows the "
      r"armature 'Rig'\)"),
+    ("evaluate-network-hits-nothing", "evaluate --model {bad_model:blind} --scene arm "
+     "--poses 1 --width 16 --height 16 --json {tmp}/e.json --out {tmp}/e",
+     r"the evaluation of 'Arm' compared 0 rays: the network hits none of the pixels the true "
+     r"reference hits"),
 ]
 
 BLEND_SCRIPT = r"""
@@ -117,6 +123,14 @@ def still(offset):
 
 for moves in (animated, on_bone, still):
     arrayed(moves)
+
+bpy.ops.wm.read_homefile(use_empty=True)   # a ball and one loose vertex 1,000 units away
+bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0)
+ball = bpy.context.active_object
+ball.name = "Ball"
+ball.data.vertices.add(1)
+ball.data.vertices[-1].co = (1000.0, 0.0, 0.0)
+bpy.ops.wm.save_as_mainfile(filepath=f"{out}/loose_vertex.blend")
 """
 
 
@@ -132,7 +146,13 @@ def files(trained, tmp_path_factory):  # noqa: F811 - the imported fixture
     blends = tmp_path_factory.mktemp("blends")
     subprocess.run([sys.executable, "-c", BLEND_SCRIPT, str(blends)], check=True,
                    capture_output=True, timeout=120)
-    return {"data": data, "model": model,
+    from test_bad_inputs_files import _payload, _pickled, _repack
+
+    archive = torch.load(model, weights_only=True)
+    inner = _payload(archive)
+    inner["metadata"]["thresholds"]["occlusion"] = 1.0      # valid, and never exceeded
+    blind = _repack(archive, _pickled(inner), blends / "blind.vdnif")
+    return {"data": data, "model": model, "bad_model:blind": blind,
             **{f"blend:{path.stem}": path for path in blends.glob("*.blend")}}
 
 
@@ -346,3 +366,47 @@ def test_a_camera_clip_range_hides_what_blender_clips(empty_scene, core):
         both = passes.hit & hit
         np.testing.assert_allclose(passes.distance[both] / result.world_scale[both],
                                    distance[both], atol=2e-3)
+
+
+def test_a_far_loose_vertex_neither_sizes_nor_frames_the_object(files, tmp_path):
+    """One loose vertex 1,000 units from a ball of diameter 2: the ball alone sizes and
+    frames it (with a warning naming what was left out), and the references compare its
+    rays (they compared none and said "n/a" with success)."""
+    blend = str(files["blend:loose_vertex"])
+    result = subprocess.run([sys.executable, str(BATCH), "--", "references", "--blend", blend,
+                             "--object", "Ball", "--resolution", "8", "--poses", "1",
+                             "--width", "16", "--height", "16", "--json",
+                             str(tmp_path / "r.json")], capture_output=True, text=True,
+                            timeout=TIME_LIMIT_S, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    assert re.search(r"vdnif: warning: 'Ball': left out 1 loose vertex more than 1 x the main "
+                     r"body's size \(2\) away", result.stderr), result.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    error = report["embedded_vs_true"]
+    assert error["compared_rays"] > 16 * 16 / 8 and error["hit_iou"] > 0.9
+
+
+def test_the_framing_rule_keeps_near_pieces_and_leaves_far_ones(core):
+    framing = core("geometry.framing")
+    box = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tetra = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
+    near, far = box + [1.9, 0, 0], box + [2.1 + 1, 0, 0]       # 0.9 and 1.1 sizes apart
+    vertices = np.vstack([box, near, far, [[0.5, 0.5, 0.5], [0, -30, 0]]])
+    triangles = np.vstack([tetra, tetra[:2] + 4, tetra + 8])
+    kept = framing.framing(vertices, triangles, "Thing")
+    assert kept.vertices.tolist() == [True] * 8 + [False] * 4 + [True, False]
+    assert kept.triangles.tolist() == [True] * 6 + [False] * 4
+    assert "1 loose vertex and 1 piece of 4 triangles" in kept.warning
+    lo, hi = framing.framing_bounds(vertices, triangles)
+    np.testing.assert_allclose([lo, hi], [[0, 0, 0], [2.9, 1, 1]])
+    whole = framing.framing(box, tetra)
+    assert whole.complete and whole.vertices.all()
+
+
+def test_nothing_compared_is_an_error_that_says_why(core):
+    metrics = core("inference.metrics")
+    errors = core("errors")
+    metrics.check_compared({"compared_rays": 3}, "the network", "Arm")
+    with pytest.raises(errors.VDNIFError, match="the true reference hits nothing in any view"):
+        metrics.check_compared({"compared_rays": 0, "false_negative_rate": None}, "the network",
+                               "Arm")

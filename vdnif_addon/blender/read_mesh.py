@@ -1,12 +1,14 @@
 """Reads an object's rest mesh and material albedo sources from Blender."""
 
 import contextlib
+import sys
 
 import bpy
 import numpy as np
 
 from ..errors import VDNIFError
 from ..geometry.attributes import has_area
+from ..geometry.framing import framing
 from ..geometry.restmesh import Albedo, RestMesh
 from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
 from ..text import article
@@ -56,13 +58,16 @@ def evaluated_surface(obj, rest):
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     mesh = evaluated.to_mesh()
     try:
-        if (len(mesh.vertices) != len(rest.vertices)
+        source = rest.source_vertices
+        if (len(mesh.vertices) != len(rest.vertices if source is None else source)
                 or len(mesh.loops) <= rest.triangle_loops.max()):
             raise VDNIFError(f"'{obj.name}': a modifier changes the mesh topology between rest "
                              f"and pose; only deform modifiers are supported")
         normals = np.empty(len(mesh.loops) * 3, np.float32)
         mesh.corner_normals.foreach_get("vector", normals)
-        return _vertices(mesh), normals.reshape(-1, 3)[rest.triangle_loops]
+        vertices = _vertices(mesh)
+        return (vertices if source is None else vertices[source],
+                normals.reshape(-1, 3)[rest.triangle_loops])
     finally:
         evaluated.to_mesh_clear()
 
@@ -87,12 +92,19 @@ def _rest_mesh_from(obj, mesh):
     vertices = _vertices(mesh)
     if not np.isfinite(vertices).all():
         raise VDNIFError(f"mesh object '{obj.name}' has vertices at infinite or NaN positions")
+    triangles = _loop_triangle_array(mesh, "vertices", 3, np.int32)
+    frame = framing(vertices, triangles, obj.name)
+    kept = frame.triangles
+    if not frame.complete:          # far pieces left out: the rest mesh is the body's
+        print(f"vdnif: warning: {frame.warning}", file=sys.stderr, flush=True)
+        renumbered = np.cumsum(frame.vertices) - 1
+        vertices, loops = vertices[frame.vertices], loops[kept]
+        triangles = renumbered[triangles[kept]].astype(np.int32)
     size = float(np.ptp(vertices, axis=0).max())
     if not MIN_OBJECT_SIZE <= size <= MAX_OBJECT_SIZE:
         raise VDNIFError(f"mesh object '{obj.name}' is {size:.3g} units across, outside the "
                          f"supported {MIN_OBJECT_SIZE:g}..{MAX_OBJECT_SIZE:g} (scale it, or "
                          "change the scene's units)")
-    triangles = _loop_triangle_array(mesh, "vertices", 3, np.int32)
     if not has_area(vertices[triangles]).any():
         raise VDNIFError(f"mesh object '{obj.name}' has no area: all its {len(triangles)} "
                          f"triangles are degenerate (collinear or repeated corners)")
@@ -101,10 +113,13 @@ def _rest_mesh_from(obj, mesh):
         vertices=vertices,
         triangles=triangles,
         corner_normals=_loop_triangle_array(mesh, "split_normals", 9, np.float32)
-        .reshape(-1, 3, 3),
-        material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel(),
+        .reshape(-1, 3, 3)[kept],
+        material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel()[kept],
         triangle_loops=loops,
+        source_vertices=None if frame.complete else frame.vertices,
     )
+    if not frame.complete:
+        rest.warnings.append(frame.warning)
     if mesh.uv_layers.active is not None:
         uv = np.empty(len(mesh.loops) * 2, np.float32)
         mesh.uv_layers.active.uv.foreach_get("vector", uv)

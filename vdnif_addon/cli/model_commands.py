@@ -128,8 +128,10 @@ def evaluated(args):
 def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
     from ..blender.jobs import write_figures, write_passes
+    from ..inference.metrics import check_compared
 
     report, views, captured = evaluated(args)
+    check_compared(report["vs_true"], "the network", report["object"])
     if args.out is not None:
         report["figures"] = {name: str(path) for name, path in write_figures(
             args.out, views[0], args.height, args.width, captured.mesh.size).items()}

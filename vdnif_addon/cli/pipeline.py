@@ -136,6 +136,7 @@ def cmd_references(args):
     from ..blender.capture_scene import capture
     from ..blender.generate import reference_run
     from ..blender.poses import evaluation_spec
+    from ..inference.metrics import check_compared
     from ..progress import Progress
 
     check_resolution(args.resolution)
@@ -145,6 +146,7 @@ def cmd_references(args):
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
                            progress=lambda done, _: progress.update(done),
                            secondary=secondary_settings(args, obj))
+    check_compared(report["embedded_vs_true"], "the embedded reference", obj.name)
     write_json(args.json, report)
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..errors import VDNIFError
 from ..passes import Passes, SecondaryPasses
 from ..text import percent
 
@@ -149,3 +150,15 @@ def verdict(metrics: dict[str, Any]) -> str:
     if holes <= CLEAN_RATE and extras <= CLEAN_RATE:
         return "clean"
     return f"speckled: {percent(holes, 2)} holes, {percent(extras, 2)} extras"
+
+
+def check_compared(metrics: dict[str, Any], what: str, name: str) -> None:
+    """Raises VDNIFError when ``metrics`` (``compare`` over every view of an evaluation of
+    ``name``) compared no ray: figures over nothing are no result, and "n/a" with success
+    hid a view that missed the object."""
+    if metrics.get("compared_rays"):
+        return
+    reason = ("the true reference hits nothing in any view (is the object in view, and "
+              "not a speck of its own bounds?)" if metrics.get("false_negative_rate") is None
+              else f"{what} hits none of the pixels the true reference hits")
+    raise VDNIFError(f"the evaluation of '{name}' compared 0 rays: {reason}")
