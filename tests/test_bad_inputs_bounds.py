@@ -10,6 +10,7 @@ braces as the first part does, plus {port} (a free TCP port) and {blend:NAME}; l
 refusal the same on a machine with more memory free than this one).
 """
 
+import dataclasses
 import datetime
 import json
 import os
@@ -81,10 +82,16 @@ CASES = [
      "capture --blend {blend:array_on_bone} --object Cube --resolution 8 --poses 2",
      r"modifier 'Array' \(array before the rig, of object 'Offset', which follows the "
      r"armature 'Rig'\)"),
-    ("evaluate-network-hits-nothing", "evaluate --model {bad_model:blind} --scene arm "
-     "--poses 1 --width 16 --height 16 --json {tmp}/e.json --out {tmp}/e",
-     r"the evaluation of 'Arm' compared 0 rays: the network hits none of the pixels the true "
-     r"reference hits"),
+    ("evaluate-model-of-other-textures", "evaluate --model {bad_model:other_textures} --scene "
+     "arm --poses 1 --width 16 --height 16 --json {tmp}/e.json",
+     r"was trained on other textures of 'Arm' \(now no image texture in its materials\): "
+     r"train it again"),
+    ("capture-udim-tile-missing", "capture --blend {blend:udim} --object Plane --resolution 8",
+     r"image 'tex.<UDIM>.png' of material 'Tiled' lacks its UDIM tile 1002 \(file "
+     r"'.*tex.1002.png'\), which faces of 'Plane' use: it would read as black"),
+    ("capture-udim-two-tiles", "capture --blend {blend:udim_both} --object Plane --resolution 8",
+     r"image 'tex.<UDIM>.png' of material 'Tiled' is a UDIM image and faces of 'Plane' use its "
+     r"tiles 1001, 1002: VDNIF reads one tile \(1001\)"),
 ]
 
 BLEND_SCRIPT = r"""
@@ -131,6 +138,39 @@ ball.name = "Ball"
 ball.data.vertices.add(1)
 ball.data.vertices[-1].co = (1000.0, 0.0, 0.0)
 bpy.ops.wm.save_as_mainfile(filepath=f"{out}/loose_vertex.blend")
+
+import os                                   # a plane textured by a UDIM image of two tiles
+import numpy as np
+
+def udim_plane(name, moved):
+    os.makedirs(f"{out}/{name}")
+    for number, colour in ((1001, (1, 0, 0, 1)), (1002, (0, 0, 1, 1))):
+        tile = bpy.data.images.new(f"t{number}", 4, 4)
+        tile.pixels.foreach_set(np.tile(colour, 16).astype(np.float32))
+        tile.filepath_raw, tile.file_format = f"{out}/{name}/tex.{number}.png", "PNG"
+        tile.save()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.mesh.primitive_plane_add()
+    plane = bpy.context.active_object
+    uv = plane.data.uv_layers.active.data
+    for loop in plane.data.polygons[0].loop_indices[:moved]:
+        uv[loop].uv.x += 1.0
+    image = bpy.data.images.load(f"{out}/{name}/tex.1001.png")
+    image.source, image.filepath = "TILED", f"{out}/{name}/tex.<UDIM>.png"
+    image.name = "tex.<UDIM>.png"
+    material = bpy.data.materials.new("Tiled")
+    material.use_nodes = True
+    texture = material.node_tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    material.node_tree.links.new(
+        texture.outputs["Color"],
+        material.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    plane.data.materials.append(material)
+    bpy.ops.wm.save_as_mainfile(filepath=f"{out}/{name}.blend")
+
+udim_plane("udim_both", 2)        # two corners moved right: the triangles straddle 1001, 1002
+udim_plane("udim", 4)             # every corner in tile 1002, whose file is then missing
+os.remove(f"{out}/udim/tex.1002.png")
 """
 
 
@@ -150,9 +190,13 @@ def files(trained, tmp_path_factory):  # noqa: F811 - the imported fixture
 
     archive = torch.load(model, weights_only=True)
     inner = _payload(archive)
-    inner["metadata"]["thresholds"]["occlusion"] = 1.0      # valid, and never exceeded
-    blind = _repack(archive, _pickled(inner), blends / "blind.vdnif")
-    return {"data": data, "model": model, "bad_model:blind": blind,
+    inner["metadata"]["grid"]["texture_fingerprint"] = "0" * 64
+    other = _repack(archive, _pickled(inner), blends / "other_textures.vdnif")
+    inner = _payload(archive)
+    assert inner["metadata"]["grid"].pop("texture_fingerprint")
+    older = _repack(archive, _pickled(inner), blends / "older.vdnif")
+    return {"data": data, "model": model,
+            "bad_model:other_textures": other, "model:older": older,
             **{f"blend:{path.stem}": path for path in blends.glob("*.blend")}}
 
 
@@ -406,7 +450,55 @@ def test_the_framing_rule_keeps_near_pieces_and_leaves_far_ones(core):
 def test_nothing_compared_is_an_error_that_says_why(core):
     metrics = core("inference.metrics")
     errors = core("errors")
-    metrics.check_compared({"compared_rays": 3}, "the network", "Arm")
-    with pytest.raises(errors.VDNIFError, match="the true reference hits nothing in any view"):
-        metrics.check_compared({"compared_rays": 0, "false_negative_rate": None}, "the network",
-                               "Arm")
+    metrics.check_compared({"compared_rays": 3, "false_negative_rate": 0.1}, "Arm")
+    metrics.check_compared({"compared_rays": 0, "false_negative_rate": 1.0}, "Arm")  # IoU 0
+    with pytest.raises(errors.VDNIFError, match="'Arm' compared 0 rays: the true reference "
+                       "hits nothing in any view"):
+        metrics.check_compared({"compared_rays": 0, "false_negative_rate": None}, "Arm")
+
+
+def test_a_model_older_than_the_texture_fingerprint_still_evaluates(files, tmp_path):
+    """A model file without the texture fingerprint (written before it existed) loads and
+    evaluates as before: it is not refused as trained on an edited mesh."""
+    result = subprocess.run([sys.executable, str(BATCH), "--", "evaluate", "--model",
+                             str(files["model:older"]), "--scene", "arm", "--poses", "1",
+                             "--width", "16", "--height", "16"], capture_output=True, text=True,
+                            timeout=TIME_LIMIT_S, cwd=REPO)
+    assert result.returncode == 0, result.stderr
+    assert "evaluated proposed on 'Arm'" in result.stdout
+
+
+def test_a_model_trained_on_one_texture_refuses_another_or_none(empty_scene, core):
+    """A red-textured cube's model on the same cube textured blue, or untextured: refused
+    by the texture fingerprint (the mesh's own fingerprint holds no image pixels)."""
+    import bpy
+
+    bpy.ops.mesh.primitive_cube_add()
+    cube = bpy.context.active_object
+    image = bpy.data.images.new("Paint", 4, 4)
+    image.pixels.foreach_set(np.tile([1.0, 0.0, 0.0, 1.0], 16).astype(np.float32))
+    material = bpy.data.materials.new("Painted")
+    material.use_nodes = True
+    texture = material.node_tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    base = material.node_tree.nodes["Principled BSDF"].inputs["Base Color"]
+    material.node_tree.links.new(texture.outputs["Color"], base)
+    cube.data.materials.append(material)
+    capture = core("blender.capture_scene").capture(cube, 8)
+    metadata = capture_metadata(core, capture)
+    fits, errors = core("inference.evaluation").check_model_fits, core("errors")
+    fits("red.vdnif", metadata, capture.mesh, capture.grid)
+    image.pixels.foreach_set(np.tile([0.0, 0.0, 1.0, 1.0], 16).astype(np.float32))
+    blue = core("blender.read_mesh").read_rest_mesh(cube)
+    assert (core("model.model_file").mesh_fingerprint(blue)
+            == metadata.grid.mesh_fingerprint)              # what let it through before
+    with pytest.raises(errors.VDNIFError, match=r"trained on other textures of 'Cube' \(now "
+                       r"the images 'Paint' in its materials\)"):
+        fits("red.vdnif", metadata, blue, capture.grid)
+    material.node_tree.links.remove(base.links[0])
+    with pytest.raises(errors.VDNIFError, match="now no image texture"):
+        fits("red.vdnif", metadata, core("blender.read_mesh").read_rest_mesh(cube),
+             capture.grid)
+    older = dataclasses.replace(metadata, grid=dataclasses.replace(metadata.grid,
+                                                                  texture_fingerprint=None))
+    fits("old.vdnif", older, blue, capture.grid)

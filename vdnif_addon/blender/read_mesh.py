@@ -1,6 +1,7 @@
 """Reads an object's rest mesh and material albedo sources from Blender."""
 
 import contextlib
+import os
 import sys
 
 import bpy
@@ -130,7 +131,8 @@ def _rest_mesh_from(obj, mesh):
     used, rest.material_index = np.unique(slot_index, return_inverse=True)
     rest.material_index = rest.material_index.astype(np.int32).ravel()
     rest.used_slots = used.astype(np.int32)
-    rest.albedo = [_albedo(obj.material_slots[int(slot)].material, obj, rest) for slot in used
+    rest.albedo = [_albedo(obj.material_slots[int(slot)].material, obj, rest,
+                           rest.material_index == index) for index, slot in enumerate(used)
                    ] if len(obj.material_slots) else [
         Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="no material")]
     for albedo in rest.albedo:
@@ -156,8 +158,9 @@ def _loop_triangle_array(mesh, attribute, width, dtype):
     return values.reshape(-1, width)
 
 
-def _albedo(material, obj, rest):
-    """The albedo source of one material slot (Principled BSDF Base Color)."""
+def _albedo(material, obj, rest, faces=None):
+    """The albedo source of one material slot (Principled BSDF Base Color) on the triangles
+    ``faces`` (bool) of ``rest``."""
     if material is None:
         return Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="empty slot")
     principled = _principled_node(material)
@@ -170,6 +173,8 @@ def _albedo(material, obj, rest):
         return Albedo("constant", constant, source=material.name)
     node = base.links[0].from_node
     if node.type == "TEX_IMAGE" and node.image is not None:
+        _check_tiles(node.image, material, obj, None if rest.uvs is None or faces is None
+                     else rest.uvs[faces])
         return Albedo("texture", constant, texture=_image_pixels(node.image, material),
                       extension=node.extension, source=node.image.name)
     if node.type == "VERTEX_COLOR" or (node.type == "ATTRIBUTE"
@@ -181,6 +186,32 @@ def _albedo(material, obj, rest):
     rest.warnings.append(f"material '{material.name}': Base Color is driven by a "
                          f"'{node.bl_label}' node, which is not supported; its constant is used")
     return Albedo("constant", constant, source=material.name)
+
+
+def _check_tiles(image, material, obj, uvs):
+    """Refuses a UDIM image whose tiles that faces use (``uvs`` (T, 3, 2) of the material's
+    triangles, each at its centre) are missing, which would read as black, or are more than
+    the one tile an image's pixels give (the first), which would read as that tile."""
+    if image.source != "TILED" or uvs is None or len(uvs) == 0:
+        return
+    centre = np.floor(uvs.mean(axis=1)).astype(np.int64)
+    used = sorted(set((1001 + centre[:, 0] + 10 * centre[:, 1]).tolist()))
+    tiles = {tile.number: tile for tile in image.tiles}
+    pattern = bpy.path.abspath(image.filepath)
+    for number in used:
+        path = pattern.replace("<UDIM>", str(number)) if "<UDIM>" in pattern else None
+        tile = tiles.get(number)
+        if (tile is None or tile.size[0] == 0 or (path is not None and image.packed_file is None
+                                                  and not os.path.isfile(path))):
+            raise VDNIFError(f"image '{image.name}' of material '{material.name}' lacks its "
+                             f"UDIM tile {number}" + (f" (file '{path}')" if path else "")
+                             + f", which faces of '{obj.name}' use: it would read as black")
+    first = image.tiles[0].number if len(image.tiles) else 1001
+    if used != [first]:
+        raise VDNIFError(f"image '{image.name}' of material '{material.name}' is a UDIM image "
+                         f"and faces of '{obj.name}' use its tiles {', '.join(map(str, used))}: "
+                         f"VDNIF reads one tile ({first}); move the UVs into it or bake one "
+                         "texture")
 
 
 def _principled_node(material):

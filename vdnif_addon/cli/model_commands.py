@@ -131,7 +131,7 @@ def cmd_evaluate(args):
     from ..inference.metrics import check_compared
 
     report, views, captured = evaluated(args)
-    check_compared(report["vs_true"], "the network", report["object"])
+    check_compared(report["vs_true"], report["object"])
     if args.out is not None:
         report["figures"] = {name: str(path) for name, path in write_figures(
             args.out, views[0], args.height, args.width, captured.mesh.size).items()}

@@ -146,7 +146,7 @@ def cmd_references(args):
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
                            progress=lambda done, _: progress.update(done),
                            secondary=secondary_settings(args, obj))
-    check_compared(report["embedded_vs_true"], "the embedded reference", obj.name)
+    check_compared(report["embedded_vs_true"], obj.name)
     write_json(args.json, report)
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "

@@ -152,13 +152,13 @@ def verdict(metrics: dict[str, Any]) -> str:
     return f"speckled: {percent(holes, 2)} holes, {percent(extras, 2)} extras"
 
 
-def check_compared(metrics: dict[str, Any], what: str, name: str) -> None:
+def check_compared(metrics: dict[str, Any], name: str) -> None:
     """Raises VDNIFError when ``metrics`` (``compare`` over every view of an evaluation of
-    ``name``) compared no ray: figures over nothing are no result, and "n/a" with success
-    hid a view that missed the object."""
-    if metrics.get("compared_rays"):
+    ``name``) had nothing to compare: the true reference hits nothing in any view, so every
+    figure is "n/a" and the views missed the object. (A prediction that hits none of the
+    reference's pixels is a result: hit IoU 0, every hit a false negative.)"""
+    if metrics.get("compared_rays") or metrics.get("false_negative_rate") is not None:
         return
-    reason = ("the true reference hits nothing in any view (is the object in view, and "
-              "not a speck of its own bounds?)" if metrics.get("false_negative_rate") is None
-              else f"{what} hits none of the pixels the true reference hits")
-    raise VDNIFError(f"the evaluation of '{name}' compared 0 rays: {reason}")
+    raise VDNIFError(f"the evaluation of '{name}' compared 0 rays: the true reference hits "
+                     "nothing in any view (is the object in view, and not a speck of its own "
+                     "bounds?)")

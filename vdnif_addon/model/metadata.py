@@ -174,13 +174,17 @@ class ModelGrid:
     extent: float
     occupied_voxels: int
     mesh_fingerprint: str | None
+    # Of the textures (``model_file.texture_fingerprint``); None in models written before it
+    texture_fingerprint: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data, the dataset header's grid entry (``dataset.grid_header``)."""
         return {"origin": list(self.origin), "voxel_size": self.voxel_size,
                 "dims": list(self.dims), "resolution": self.resolution, "extent": self.extent,
                 "occupied_voxels": self.occupied_voxels,
-                "mesh_fingerprint": self.mesh_fingerprint}
+                "mesh_fingerprint": self.mesh_fingerprint,
+                **({} if self.texture_fingerprint is None
+                   else {"texture_fingerprint": self.texture_fingerprint})}
 
     @classmethod
     def read(cls, reader: _Reader) -> ModelGrid:
@@ -201,7 +205,9 @@ class ModelGrid:
                    extent=reader.number("extent", positive=True),
                    occupied_voxels=reader.integer("occupied_voxels"),
                    mesh_fingerprint=None if reader.get("mesh_fingerprint") is None
-                   else reader.text("mesh_fingerprint"))
+                   else reader.text("mesh_fingerprint"),
+                   texture_fingerprint=None if reader.data.get("texture_fingerprint") is None
+                   else reader.text("texture_fingerprint"))
 
 
 @dataclass(frozen=True)

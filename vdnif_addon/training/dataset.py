@@ -97,16 +97,17 @@ def segment_records(grid: VoxelGrid, segments: Segments, targets: SurfaceHits,
 def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> GridHeader:
     """The grid's header entry; with the RestMesh ``mesh`` it carries the mesh's fingerprint
     (``model_file.mesh_fingerprint``), which the model keeps with the grid, so that a mesh
-    edited within the same bounds is refused by the model trained before the edit."""
-    fingerprint = None
+    edited within the same bounds is refused by the model trained before the edit, and the
+    fingerprint of its textures (``model_file.texture_fingerprint``) likewise."""
+    fingerprint = textures = None
     if mesh is not None:
-        from ..model.model_file import mesh_fingerprint
+        from ..model.model_file import mesh_fingerprint, texture_fingerprint
 
-        fingerprint = mesh_fingerprint(mesh)
+        fingerprint, textures = mesh_fingerprint(mesh), texture_fingerprint(mesh)
     return GridHeader(origin=tuple(grid.origin.tolist()), voxel_size=float(grid.voxel_size),
                       dims=tuple(grid.dims.tolist()), resolution=int(grid.resolution),
                       extent=float(grid.extent), occupied_voxels=int(len(grid.cells)),
-                      mesh_fingerprint=fingerprint)
+                      mesh_fingerprint=fingerprint, texture_fingerprint=textures)
 
 
 def shard_name(start: int, stop: int) -> str:

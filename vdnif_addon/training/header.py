@@ -81,6 +81,10 @@ def _keys(where: str, name: str, data: Mapping[str, Any], required: tuple[str, .
         _fail(where, f"{name} has unknown entries {', '.join(map(shown, unknown))}")
 
 
+_GRID_OPTIONAL = ("occupied_voxels", "mesh_fingerprint", "texture_fingerprint")
+"""The grid's entries a writer may leave out (older datasets lack the fingerprints)."""
+
+
 @dataclass(frozen=True)
 class GridHeader:
     """The voxel grid (``VoxelGrid``): origin and voxel size in rest units, dims, the
@@ -94,6 +98,7 @@ class GridHeader:
     extent: float
     occupied_voxels: int | None = None
     mesh_fingerprint: str | None = None
+    texture_fingerprint: str | None = None
 
     def placement(self) -> tuple[Any, ...]:
         """The ``GRID_KEYS`` values: equal for every shard of one folder."""
@@ -102,7 +107,7 @@ class GridHeader:
     def to_dict(self) -> dict[str, Any]:
         data = {"origin": list(self.origin), "voxel_size": self.voxel_size,
                 "dims": list(self.dims), "resolution": self.resolution, "extent": self.extent}
-        for key in ("occupied_voxels", "mesh_fingerprint"):
+        for key in _GRID_OPTIONAL:
             if getattr(self, key) is not None:
                 data[key] = getattr(self, key)
         return data
@@ -112,7 +117,7 @@ class GridHeader:
         """The grid entry ``data`` of the header or manifest that ``where`` names."""
         if not isinstance(data, dict) or any(key not in data for key in GRID_KEYS):
             _fail(where, f"has no complete grid ({', '.join(GRID_KEYS)})")
-        _keys(where, "grid", data, GRID_KEYS, ("occupied_voxels", "mesh_fingerprint"))
+        _keys(where, "grid", data, GRID_KEYS, _GRID_OPTIONAL)
         origin, dims = data["origin"], data["dims"]
         if not (isinstance(origin, list) and len(origin) == 3 and all(map(_is_number, origin))):
             _fail(where, f"grid origin {shown(origin)} is not 3 numbers")
@@ -132,12 +137,14 @@ class GridHeader:
         occupied = data.get("occupied_voxels")
         if occupied is not None:
             _int(where, "grid occupied_voxels", occupied, 0, math.prod(dims))
-        fingerprint = data.get("mesh_fingerprint")
-        if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
-            _fail(where, f"grid mesh_fingerprint {shown(fingerprint)} is not a string")
+        for key in ("mesh_fingerprint", "texture_fingerprint"):
+            fingerprint = data.get(key)
+            if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
+                _fail(where, f"grid {key} {shown(fingerprint)} is not a string")
         return cls(origin=tuple(map(float, origin)), voxel_size=float(h), dims=tuple(dims),
                    resolution=resolution, extent=float(extent), occupied_voxels=occupied,
-                   mesh_fingerprint=fingerprint)
+                   mesh_fingerprint=data.get("mesh_fingerprint"),
+                   texture_fingerprint=data.get("texture_fingerprint"))
 
 
 HEAD_KEYS = ("occlusion", "distance", "normal", "albedo", "material", "material_count")
