@@ -63,6 +63,9 @@ CASES = [
      "--rays-per-pose 262144 --data {tmp}/d --out {tmp}/m.vdnif --steps 2",
      r"dataset shard 'shard-000000-000002' \([\d,]+ segments\) needs about [\d.]+ MiB of "
      r"memory, more than the 64 MiB available here"),
+    ("train-dataset-beyond-memory", f"VDNIF_MEMORY_LIMIT=10K {TRAIN} --out {{tmp}}/m.vdnif",
+     r"training on the [\d,]+ segments of '.*' needs about [\d.]+ KiB of memory, more than "
+     r"the 10 KiB available here: train on a smaller dataset"),
     ("dataset-memory-limit-text", "VDNIF_MEMORY_LIMIT=lots dataset --resolution 8 --poses 2 "
      "--rays-per-pose 64 --out {tmp}/d",
      r"environment variable VDNIF_MEMORY_LIMIT 'lots' is not a number of bytes"),

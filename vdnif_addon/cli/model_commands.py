@@ -54,6 +54,7 @@ def cmd_render(args):
     from ..blender.poses import posed
     from ..blender.scenes import find_camera
     from ..kernels import runtime
+    from ..memory import check_disk
     from ..progress import Progress
 
     loaded, obj, captured = _model_scene(args)
@@ -80,6 +81,11 @@ def cmd_render(args):
     def write(frame, result):
         written.extend(write_view(args.out, result, args.height, args.width, slots,
                                   args.references, frame if sequence else None))
+        if sequence and len(frames) > 1 and frame == frames[0]:   # the rest's disk, foretold
+            size = sum(pathlib.Path(path).stat().st_size for path in written)
+            check_disk(f"rendering {len(frames):,} frames of {args.width}x{args.height}",
+                       size * (len(frames) - 1), args.out,
+                       "render a shorter --frames range, a larger step or smaller images")
 
     reader = PoseReader(obj, captured, None if camera is None else (
         lambda: camera_view(camera, args.width, args.height)))

@@ -15,13 +15,17 @@ from typing import Any
 
 from .. import __version__
 from ..limits import GROUP_TIMEOUT_S
-from ..memory import TRAINING_ADVICE, out_of_memory
+from ..memory import TRAINING_ADVICE, check_memory, out_of_memory
 from ..model.metadata import FORMAT_VERSION, ModelMetadata
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
-from .dataset import read_dataset
+from .dataset import ROW_BYTES, read_dataset
 from .history import records
 from .train import TrainResult, train
+
+TRAINING_MEMORY_COPIES = 2
+"""Copies of a dataset's rows in host memory while training starts: the arrays unpacked from
+the shards and the tensors made of them."""
 
 
 def fit_model(
@@ -46,6 +50,10 @@ def fit_model(
     with out_of_memory("training", TRAINING_ADVICE):
         data, shards = read_dataset(data_dir)
         header = data.header
+        # rows unpacked from the shards and their tensors, before any is read
+        check_memory(f"training on the {data.segments:,} segments of '{data_dir}'",
+                     TRAINING_MEMORY_COPIES * data.segments * ROW_BYTES,
+                     "train on a smaller dataset (fewer poses or rays per pose)")
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
                        cancel=cancel, group_timeout_s=group_timeout_s)
     if not result.is_main:
