@@ -48,7 +48,8 @@ CASES = [
     ("capture-corners-beyond-memory",
      "VDNIF_MEMORY_LIMIT=8G capture --scene spot --resolution 256 --poses 4096",
      r"capturing 4,096 poses of 'Spot' at resolution 256 \([\d,]+ voxel corners a pose\) "
-     r"needs about [\d.]+ GiB of memory, more than the 8 GiB available here: lower --poses "
+     r"needs about [\d.]+ GiB of memory, more than the [\d.]+ [GM]iB available here: "
+     r"lower --poses "
      r"or --resolution"),
     ("dataset-shard-beyond-limit",
      "dataset --poses 32 --rays-per-pose 4194304 --resolution 8 --out {tmp}/d",
