@@ -107,17 +107,18 @@ def _memory_limit() -> int | None:
 
 def available_bytes() -> int | None:
     """Bytes of memory a job may still allocate here: the kernel's MemAvailable (free plus
-    reclaimable caches), or less where a cgroup limits this process or
-    ``VDNIF_MEMORY_LIMIT`` says less; None where none can be read (then nothing is refused
-    beforehand, and ``out_of_memory`` still words a failure)."""
+    reclaimable caches) and free swap (slow, but a run that fits there finishes), or less
+    where a cgroup limits this process or ``VDNIF_MEMORY_LIMIT`` says less; None where none
+    can be read (then nothing is refused beforehand, and ``out_of_memory`` still words a
+    failure)."""
     found = _memory_limit()
     system = None
     try:
         with open("/proc/meminfo") as info:
-            for line in info:
-                if line.startswith("MemAvailable:"):
-                    system = int(line.split()[1]) * 1024
-                    break
+            fields = dict(line.split(":", 1) for line in info if ":" in line)
+        if "MemAvailable" in fields:
+            system = sum(int(fields[name].split()[0]) * 1024
+                         for name in ("MemAvailable", "SwapFree") if name in fields)
     except (OSError, ValueError, IndexError):
         pass
     if system is None and hasattr(os, "sysconf"):
