@@ -16,6 +16,8 @@ from ..text import article
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+_SAID = set()
+"""The warnings printed already by this process."""
 
 
 def check_mesh_object(obj):
@@ -97,7 +99,9 @@ def _rest_mesh_from(obj, mesh):
     frame = framing(vertices, triangles, obj.name)
     kept = frame.triangles
     if not frame.complete:          # far pieces left out: the rest mesh is the body's
-        print(f"vdnif: warning: {frame.warning}", file=sys.stderr, flush=True)
+        if frame.warning not in _SAID:        # once a run, not at every read of the mesh
+            _SAID.add(frame.warning)
+            print(f"vdnif: warning: {frame.warning}", file=sys.stderr, flush=True)
         renumbered = np.cumsum(frame.vertices) - 1
         vertices, loops = vertices[frame.vertices], loops[kept]
         triangles = renumbered[triangles[kept]].astype(np.int32)
