@@ -306,6 +306,10 @@ BATCH_SIZE = Setting(
     option=Option("--batch", ("train",), "B"),
     panel=(Panel("batch_size", "Batch Size", "Ray pieces the network learns from per step: "
                  "larger batches learn steadier and need more memory"),))
+GROUP_TIMEOUT = Setting(
+    "group_timeout_s", float, limits.GROUP_TIMEOUT_S, "under torchrun, seconds a process "
+    "waits for the others before it stops with an error", 1.0, limits.MAX_GROUP_TIMEOUT_S,
+    option=Option("--group-timeout", ("train",), "S"))
 TRAINABLE_VARIANTS = ("lsnif", "deformed", "proposed")
 """The methods a user trains (``train --variant``, the panel); the ablations are studies'."""
 VARIANT = Setting(

@@ -65,6 +65,16 @@ MAX_FRAME = 1_048_574
 """Blender's last timeline frame (and -MAX_FRAME its first): ``frame_set`` clamps a frame
 beyond it, so a pose there would not be the frame it names."""
 
+GROUP_TIMEOUT_S, MAX_GROUP_TIMEOUT_S = 300.0, 86400.0
+"""Seconds a process of a ``torchrun`` launch waits for the others, to join and at every
+collective, before it stops with a line that says what it waited for (``--group-timeout``):
+minutes, where torch's own default (30 minutes) looked like a hang."""
+
+MAX_FRAMES = MAX_POSES
+"""Frames of one range (``render --frames``): a frame is a pose, and every frame writes its
+passes' files, so a range shares the poses' bound (a million frames would write millions of
+files over hours)."""
+
 
 def check_range(name: str, value: float, low: float, high: float | None = None) -> None:
     """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""

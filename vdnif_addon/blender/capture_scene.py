@@ -8,6 +8,7 @@ import numpy as np
 from ..errors import VDNIFError
 from ..geometry import voxels
 from ..geometry.capture import EVALUATED_SURFACE, Capture
+from ..memory import check_memory
 from ..pose_sets import PoseSpec
 from .deform import CornerDeformer, check_deformers
 from .poses import make_poses, posed
@@ -46,6 +47,11 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
                              "only over the frames: use the frames pose source")
         poses = make_poses(obj, modifiers, spec)
         mode = "+".join(sorted({m.type.lower() for m in modifiers})) or "animated"
+        if deform_corners:
+            check_memory(f"capturing {len(poses):,} poses of '{obj.name}' at resolution "
+                         f"{resolution} ({len(rest):,} voxel corners a pose)",
+                         corners_bytes(len(poses), len(rest)),
+                         "lower --poses or --resolution")
         corners = (_deformed_corners(obj, rest, poses, progress, follow) if deform_corners
                    else None)
     else:
@@ -79,6 +85,12 @@ def _check_rigs_invertible(obj):
         if not (np.isfinite(determinant) and abs(determinant) > 0):
             raise VDNIFError(f"the {name} is scaled to zero or to a non-finite size (its "
                              "matrix has no inverse): give it a non-zero scale")
+
+
+def corners_bytes(poses, corners):
+    """Bytes of the deformed corners a capture keeps: ``corners`` float64 points a pose,
+    for each of ``poses``, and one pose's more while Blender deforms it."""
+    return (poses + 1) * corners * 3 * 8
 
 
 def _deformed_corners(obj, rest, poses, progress, follow):

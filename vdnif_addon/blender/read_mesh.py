@@ -1,18 +1,23 @@
 """Reads an object's rest mesh and material albedo sources from Blender."""
 
 import contextlib
+import os
+import sys
 
 import bpy
 import numpy as np
 
 from ..errors import VDNIFError
 from ..geometry.attributes import has_area
+from ..geometry.framing import framing
 from ..geometry.restmesh import Albedo, RestMesh
 from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
 from ..text import article
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
+_SAID = set()
+"""The warnings printed already by this process."""
 
 
 def check_mesh_object(obj):
@@ -56,13 +61,16 @@ def evaluated_surface(obj, rest):
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     mesh = evaluated.to_mesh()
     try:
-        if (len(mesh.vertices) != len(rest.vertices)
+        source = rest.source_vertices
+        if (len(mesh.vertices) != len(rest.vertices if source is None else source)
                 or len(mesh.loops) <= rest.triangle_loops.max()):
             raise VDNIFError(f"'{obj.name}': a modifier changes the mesh topology between rest "
                              f"and pose; only deform modifiers are supported")
         normals = np.empty(len(mesh.loops) * 3, np.float32)
         mesh.corner_normals.foreach_get("vector", normals)
-        return _vertices(mesh), normals.reshape(-1, 3)[rest.triangle_loops]
+        vertices = _vertices(mesh)
+        return (vertices if source is None else vertices[source],
+                normals.reshape(-1, 3)[rest.triangle_loops])
     finally:
         evaluated.to_mesh_clear()
 
@@ -87,12 +95,21 @@ def _rest_mesh_from(obj, mesh):
     vertices = _vertices(mesh)
     if not np.isfinite(vertices).all():
         raise VDNIFError(f"mesh object '{obj.name}' has vertices at infinite or NaN positions")
+    triangles = _loop_triangle_array(mesh, "vertices", 3, np.int32)
+    frame = framing(vertices, triangles, obj.name)
+    kept = frame.triangles
+    if not frame.complete:          # far pieces left out: the rest mesh is the body's
+        if frame.warning not in _SAID:        # once a run, not at every read of the mesh
+            _SAID.add(frame.warning)
+            print(f"vdnif: warning: {frame.warning}", file=sys.stderr, flush=True)
+        renumbered = np.cumsum(frame.vertices) - 1
+        vertices, loops = vertices[frame.vertices], loops[kept]
+        triangles = renumbered[triangles[kept]].astype(np.int32)
     size = float(np.ptp(vertices, axis=0).max())
     if not MIN_OBJECT_SIZE <= size <= MAX_OBJECT_SIZE:
         raise VDNIFError(f"mesh object '{obj.name}' is {size:.3g} units across, outside the "
                          f"supported {MIN_OBJECT_SIZE:g}..{MAX_OBJECT_SIZE:g} (scale it, or "
                          "change the scene's units)")
-    triangles = _loop_triangle_array(mesh, "vertices", 3, np.int32)
     if not has_area(vertices[triangles]).any():
         raise VDNIFError(f"mesh object '{obj.name}' has no area: all its {len(triangles)} "
                          f"triangles are degenerate (collinear or repeated corners)")
@@ -101,10 +118,13 @@ def _rest_mesh_from(obj, mesh):
         vertices=vertices,
         triangles=triangles,
         corner_normals=_loop_triangle_array(mesh, "split_normals", 9, np.float32)
-        .reshape(-1, 3, 3),
-        material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel(),
+        .reshape(-1, 3, 3)[kept],
+        material_index=_loop_triangle_array(mesh, "material_index", 1, np.int32).ravel()[kept],
         triangle_loops=loops,
+        source_vertices=None if frame.complete else frame.vertices,
     )
+    if not frame.complete:
+        rest.warnings.append(frame.warning)
     if mesh.uv_layers.active is not None:
         uv = np.empty(len(mesh.loops) * 2, np.float32)
         mesh.uv_layers.active.uv.foreach_get("vector", uv)
@@ -115,7 +135,8 @@ def _rest_mesh_from(obj, mesh):
     used, rest.material_index = np.unique(slot_index, return_inverse=True)
     rest.material_index = rest.material_index.astype(np.int32).ravel()
     rest.used_slots = used.astype(np.int32)
-    rest.albedo = [_albedo(obj.material_slots[int(slot)].material, obj, rest) for slot in used
+    rest.albedo = [_albedo(obj.material_slots[int(slot)].material, obj, rest,
+                           rest.material_index == index) for index, slot in enumerate(used)
                    ] if len(obj.material_slots) else [
         Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="no material")]
     for albedo in rest.albedo:
@@ -141,8 +162,9 @@ def _loop_triangle_array(mesh, attribute, width, dtype):
     return values.reshape(-1, width)
 
 
-def _albedo(material, obj, rest):
-    """The albedo source of one material slot (Principled BSDF Base Color)."""
+def _albedo(material, obj, rest, faces=None):
+    """The albedo source of one material slot (Principled BSDF Base Color) on the triangles
+    ``faces`` (bool) of ``rest``."""
     if material is None:
         return Albedo("constant", np.array(DEFAULT_ALBEDO, np.float32), source="empty slot")
     principled = _principled_node(material)
@@ -155,6 +177,8 @@ def _albedo(material, obj, rest):
         return Albedo("constant", constant, source=material.name)
     node = base.links[0].from_node
     if node.type == "TEX_IMAGE" and node.image is not None:
+        _check_tiles(node.image, material, obj, None if rest.uvs is None or faces is None
+                     else rest.uvs[faces])
         return Albedo("texture", constant, texture=_image_pixels(node.image, material),
                       extension=node.extension, source=node.image.name)
     if node.type == "VERTEX_COLOR" or (node.type == "ATTRIBUTE"
@@ -166,6 +190,32 @@ def _albedo(material, obj, rest):
     rest.warnings.append(f"material '{material.name}': Base Color is driven by a "
                          f"'{node.bl_label}' node, which is not supported; its constant is used")
     return Albedo("constant", constant, source=material.name)
+
+
+def _check_tiles(image, material, obj, uvs):
+    """Refuses a UDIM image whose tiles that faces use (``uvs`` (T, 3, 2) of the material's
+    triangles, each at its centre) are missing, which would read as black, or are more than
+    the one tile an image's pixels give (the first), which would read as that tile."""
+    if image.source != "TILED" or uvs is None or len(uvs) == 0:
+        return
+    centre = np.floor(uvs.mean(axis=1)).astype(np.int64)
+    used = sorted(set((1001 + centre[:, 0] + 10 * centre[:, 1]).tolist()))
+    tiles = {tile.number: tile for tile in image.tiles}
+    pattern = bpy.path.abspath(image.filepath)
+    for number in used:
+        path = pattern.replace("<UDIM>", str(number)) if "<UDIM>" in pattern else None
+        tile = tiles.get(number)
+        if (tile is None or tile.size[0] == 0 or (path is not None and image.packed_file is None
+                                                  and not os.path.isfile(path))):
+            raise VDNIFError(f"image '{image.name}' of material '{material.name}' lacks its "
+                             f"UDIM tile {number}" + (f" (file '{path}')" if path else "")
+                             + f", which faces of '{obj.name}' use: it would read as black")
+    first = image.tiles[0].number if len(image.tiles) else 1001
+    if used != [first]:
+        raise VDNIFError(f"image '{image.name}' of material '{material.name}' is a UDIM image "
+                         f"and faces of '{obj.name}' use its tiles {', '.join(map(str, used))}: "
+                         f"VDNIF reads one tile ({first}); move the UVs into it or bake one "
+                         "texture")
 
 
 def _principled_node(material):

@@ -197,10 +197,16 @@ def _materials_split_in_slabs(obj, materials=BUNNY_MATERIALS):
 
 
 def _local_bounds(obj):
+    """The bounds of the part of the mesh that frames it (``geometry.framing``: a far loose
+    vertex does not stretch the rig)."""
+    from ..geometry.framing import framing_bounds
+
     co = np.empty(len(obj.data.vertices) * 3)
     obj.data.vertices.foreach_get("co", co)
-    co = co.reshape(-1, 3)
-    return co.min(axis=0), co.max(axis=0)
+    obj.data.calc_loop_triangles()
+    triangles = np.empty(len(obj.data.loop_triangles) * 3, np.int64)
+    obj.data.loop_triangles.foreach_get("vertices", triangles)
+    return framing_bounds(co.reshape(-1, 3), triangles.reshape(-1, 3))
 
 
 def _armature_chain(obj, bones=3, total_bend_degrees=120.0):

@@ -17,7 +17,10 @@ value), and modifiers that build the mesh from its own input alone (subdivision,
 solidify...) placed before the rig. After the rig such a modifier works on the posed mesh,
 which the corners do not follow (a subdivision after an armature moves the surface by about
 1 % of the object's size in a bent pose): there only modifiers that keep every vertex where
-it is (triangulation, normals, UVs, weights) are fine.
+it is (triangulation, normals, UVs, weights) are fine. A modifier before the rig that reads
+another object (an array's offset object, a mirror's or a boolean's object) builds the rest
+mesh only while that object stays put: where it is animated, driven, constrained or parented
+to something that moves (a bone of a posed armature), the modifier is refused by name.
 
 It is judged from the object's data, not by evaluating poses: a deform modifier is refused
 even when it happens to be static (apply it to keep its shape), and an animation curve that
@@ -95,6 +98,10 @@ def check_captured(obj):
         elif rig is not None:
             found.append(f"modifier '{modifier.name}' ({kind} after the {rig.type.lower()} "
                          f"'{rig.name}')")
+        else:
+            found += [f"modifier '{modifier.name}' ({kind} before the rig, of object "
+                      f"'{other.name}', which {why})"
+                      for other, why in _moving_objects(modifier)]
     found += _moving_shape_keys(obj.data)
     if found:
         raise VDNIFError(f"'{obj.name}' is deformed by what only armature and lattice "
@@ -112,6 +119,44 @@ def _animated_modifiers(obj):
         if match:
             names.setdefault(_unescape(match.group(1)), how)
     return names
+
+
+def _moving_objects(modifier):
+    """[(object, why it moves)] of the objects a rest-building ``modifier`` reads that move
+    from pose to pose (``_moves``)."""
+    found = []
+    for prop in modifier.bl_rna.properties:
+        if prop.type != "POINTER" or getattr(prop.fixed_type, "identifier", "") != "Object":
+            continue
+        if modifier.type == "ARRAY" and prop.identifier == "offset_object" and not (
+                modifier.use_object_offset):
+            continue                    # set, but the array does not read it
+        other = getattr(modifier, prop.identifier)
+        why = None if other is None else _moves(other)
+        if why is not None and all(other != seen for seen, _ in found):
+            found.append((other, why))
+    return found
+
+
+def _moves(obj, seen=None):
+    """Why object ``obj`` moves over time or with the pose (its transform animated or driven,
+    an enabled constraint, a parent that is an armature or moves itself), else None."""
+    seen = set() if seen is None else seen
+    if obj.name in seen:
+        return None
+    seen.add(obj.name)
+    for path, how in _animated_paths(obj).items():
+        if path.startswith(("location", "rotation", "scale", "delta_", "matrix")):
+            return f"is {how}"
+    if any(constraint.enabled and not constraint.mute for constraint in obj.constraints):
+        return "has constraints"
+    parent = obj.parent
+    if parent is not None:
+        if parent.type == "ARMATURE":
+            return f"follows the armature '{parent.name}'"
+        if _moves(parent, seen) is not None:
+            return f"has a parent '{parent.name}' that moves"
+    return None
 
 
 def _unescape(name):

@@ -50,6 +50,7 @@ def cmd_render(args):
     from ..blender.scenes import find_camera
     from ..blender.steps import DistanceScale, write_view
     from ..kernels import runtime
+    from ..memory import check_disk
     from ..posed.animation import frame_pose, render_frames
     from ..posed.render import camera_view, load_scene_model
     from ..progress import Progress
@@ -79,6 +80,11 @@ def cmd_render(args):
     def write(frame, result):
         written.extend(write_view(args.out, result, args.height, args.width, slots,
                                   args.references, frame if sequence else None, scale=scale))
+        if sequence and len(frames) > 1 and frame == frames[0]:   # the rest's disk, foretold
+            size = sum(pathlib.Path(path).stat().st_size for path in written)
+            check_disk(f"rendering {len(frames):,} frames of {args.width}x{args.height}",
+                       size * (len(frames) - 1), args.out,
+                       "render a shorter --frames range, a larger step or smaller images")
 
     reader = PoseReader(obj, captured, None if camera is None else (
         lambda: camera_view(camera, args.width, args.height)))
@@ -128,8 +134,10 @@ def evaluated(args):
 def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
     from ..blender.steps import DistanceScale, write_figures, write_passes
+    from ..inference.metrics import check_compared
 
     report, views, captured = evaluated(args)
+    check_compared(report["vs_true"], report["object"])
     if args.out is not None:
         view = views[0]
         report["figures"] = {name: str(path) for name, path in write_figures(

@@ -209,7 +209,8 @@ def add_image_options(parser, command):
 
 
 def add_training_options(parser):
-    for setting in (declared.STEPS, declared.BATCH_SIZE, declared.DEVICE):
+    for setting in (declared.STEPS, declared.BATCH_SIZE, declared.GROUP_TIMEOUT,
+                    declared.DEVICE):
         add_setting(parser, setting, "train")
 
 
@@ -241,6 +242,7 @@ def network_overrides(args):
     one given (the network's are None, the variant's own, unless given)."""
     fields = {field.name for config in (NetworkConfig, TrainConfig)
               for field in dataclasses.fields(config)}
+    fields.add(declared.GROUP_TIMEOUT.name)        # fit_model's own, not a config's
     return {setting.name: getattr(args, setting.option.dest)
             for setting in declared.command_options("train")
             if setting.name in fields and getattr(args, setting.option.dest) is not None}

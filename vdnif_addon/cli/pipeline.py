@@ -63,10 +63,17 @@ def cmd_dataset(args):
 
     from ..blender.capture_scene import capture
     from ..blender.ui_jobs import SHARD_SUFFIXES
+    from ..memory import check_disk
     from ..posed.estimate import dataset_estimate, describe, measure, size_text
     from ..posed.generate import generate_dataset
     from ..progress import Progress
-    from ..training.dataset import DatasetIdentity, check_folder, grid_header, shard_name
+    from ..training.dataset import (
+        DatasetIdentity,
+        check_folder,
+        check_shard_size,
+        grid_header,
+        shard_name,
+    )
 
     if args.rays_per_pose < 1:
         raise VDNIFError(f"rays per pose {args.rays_per_pose} must be at least 1")
@@ -83,6 +90,9 @@ def cmd_dataset(args):
     expected = dataset_estimate(rates, pose_range[1] - pose_range[0], args.rays_per_pose)
     print(f"dataset '{obj.name}': {describe(expected)} (estimated from a sample)",
           file=sys.stderr, flush=True)
+    check_shard_size(shard_name(*pose_range), expected["segments"])
+    check_disk(f"dataset shard '{shard_name(*pose_range)}'", expected["bytes"], args.out,
+               "lower --rays-per-pose or --poses, or free space")
     progress = Progress(f"dataset '{obj.name}'", pose_range[1] - pose_range[0], "poses")
     header = generate_dataset(obj, result, args.out, args.rays_per_pose, seed=args.seed,
                               pose_range=pose_range,
@@ -124,6 +134,7 @@ def cmd_references(args):
     """Render the true and embedded references on unseen poses; report the embedding error."""
     from ..blender.capture_scene import capture
     from ..blender.poses import evaluation_spec
+    from ..inference.metrics import check_compared
     from ..posed.generate import reference_run
     from ..progress import Progress
 
@@ -133,6 +144,7 @@ def cmd_references(args):
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
                            progress=lambda done, _: progress.update(done),
                            secondary=secondary_settings(args, obj))
+    check_compared(report["embedded_vs_true"], obj.name)
     write_json(args.json, report)
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "

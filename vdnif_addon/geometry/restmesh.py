@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from jaxtyping import Float, Int
+    from jaxtyping import Bool, Float, Int
 
 ALBEDO_KINDS = ("constant", "texture", "attribute")
 TEXTURE_EXTENSIONS = ("REPEAT", "EXTEND", "CLIP", "MIRROR")
@@ -44,6 +44,8 @@ class RestMesh:
     triangle_loops: Int[np.ndarray, "T 3"] | None = None     # int64 face-corner of each corner
     warnings: list[str] = field(default_factory=list)
     used_slots: Int[np.ndarray, " K"] | None = None  # int32, see ``material_slots``
+    # Blender's vertices that are these, where far pieces were left out (geometry.framing)
+    source_vertices: Bool[np.ndarray, " S"] | None = None
 
     @property
     def material_slots(self) -> Int[np.ndarray, " K"]:

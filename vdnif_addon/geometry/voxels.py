@@ -61,6 +61,7 @@ _BOX_AXIS_CROSS = np.cross(np.eye(3)[:, None, :], np.eye(3)[None, :, :])
 GRID_KEYS = ("origin", "voxel_size", "dims", "resolution", "extent")
 """What places a voxel grid in rest space, as dataset headers and model files store it."""
 _GRID_EXTRAS = ("occupied_voxels", "mesh_fingerprint")
+_TEXTURES = "texture_fingerprint"       # written only where known: older files lack it
 _MAX_DIMS = 2**31 - 1            # cells per axis that an int32 cell index can count
 
 
@@ -77,7 +78,8 @@ class GridRecord:
     """A voxel grid as dataset headers and model files record it: origin and voxel size in
     rest units, dims, the resolution asked for, the extent (voxel size times the longest
     dims); the occupied voxel count and the rest mesh's fingerprint
-    (``model_file.mesh_fingerprint``) where the writer knew them. ``VoxelGrid.record``
+    (``model_file.mesh_fingerprint``) where the writer knew them, and its textures'
+    (``model_file.texture_fingerprint``; files written before it lack it). ``VoxelGrid.record``
     makes one, ``from_dict`` reads one; both check it with the same rules, so a record in
     hand is valid."""
 
@@ -88,6 +90,7 @@ class GridRecord:
     extent: float
     occupied_voxels: int | None = None
     mesh_fingerprint: str | None = None
+    texture_fingerprint: str | None = None
 
     def __post_init__(self) -> None:
         if (problem := grid_problem(self.to_dict())) is not None:
@@ -109,6 +112,8 @@ class GridRecord:
         for key in _GRID_EXTRAS:
             if with_none or getattr(self, key) is not None:
                 data[key] = getattr(self, key)
+        if self.texture_fingerprint is not None:
+            data[_TEXTURES] = self.texture_fingerprint
         return data
 
     @classmethod
@@ -120,7 +125,8 @@ class GridRecord:
         return cls(origin=data["origin"], voxel_size=float(data["voxel_size"]), dims=data["dims"],
                    resolution=int(data["resolution"]), extent=float(data["extent"]),
                    occupied_voxels=data.get("occupied_voxels"),
-                   mesh_fingerprint=data.get("mesh_fingerprint"))
+                   mesh_fingerprint=data.get("mesh_fingerprint"),
+                   texture_fingerprint=data.get(_TEXTURES))
 
 
 def grid_problem(data: object) -> str | None:
@@ -128,7 +134,7 @@ def grid_problem(data: object) -> str | None:
     grid's one set of rules, for dataset headers, manifests and model files alike."""
     if not isinstance(data, Mapping) or any(key not in data for key in GRID_KEYS):
         return f"has no complete grid ({', '.join(GRID_KEYS)})"
-    if unknown := sorted(set(data) - set(GRID_KEYS) - set(_GRID_EXTRAS)):
+    if unknown := sorted(set(data) - {*GRID_KEYS, *_GRID_EXTRAS, _TEXTURES}):
         return f"grid has unknown entries {', '.join(map(shown, unknown))}"
     origin, dims = data["origin"], data["dims"]
     if not (isinstance(origin, (list, tuple)) and len(origin) == 3
@@ -148,9 +154,10 @@ def grid_problem(data: object) -> str | None:
     occupied = data.get("occupied_voxels")
     if occupied is not None and not (_is_int(occupied) and 0 <= occupied <= math.prod(dims)):
         return f"grid occupied_voxels {shown(occupied)} is not an integer 0..{math.prod(dims)}"
-    fingerprint = data.get("mesh_fingerprint")
-    if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
-        return f"grid mesh_fingerprint {shown(fingerprint)} is not a string"
+    for key in ("mesh_fingerprint", _TEXTURES):
+        fingerprint = data.get(key)
+        if fingerprint is not None and (not isinstance(fingerprint, str) or not fingerprint):
+            return f"grid {key} {shown(fingerprint)} is not a string"
     return None
 
 
@@ -188,13 +195,15 @@ class VoxelGrid:
         """
         return (np.asarray(points, dtype=np.float64) - self.origin) / self.extent
 
-    def record(self, mesh_fingerprint: str | None = None) -> GridRecord:
+    def record(self, mesh_fingerprint: str | None = None,
+               texture_fingerprint: str | None = None) -> GridRecord:
         """The grid as files record it, with its occupied voxel count and, where given, the
-        fingerprint of the rest mesh voxelized."""
+        fingerprints of the rest mesh voxelized and of its textures."""
         return GridRecord(origin=tuple(self.origin.tolist()), voxel_size=float(self.voxel_size),
                           dims=tuple(self.dims.tolist()), resolution=int(self.resolution),
                           extent=float(self.extent), occupied_voxels=int(len(self.cells)),
-                          mesh_fingerprint=mesh_fingerprint)
+                          mesh_fingerprint=mesh_fingerprint,
+                          texture_fingerprint=texture_fingerprint)
 
     def cell_bounds(self, index: Int[np.ndarray, " N"]
                     ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"]]:

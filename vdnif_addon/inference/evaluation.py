@@ -57,13 +57,19 @@ def check_model_fits(path: str | os.PathLike, metadata: ModelMetadata, mesh: Res
     if not same_grid:
         raise VDNIFError(f"model '{path}' was trained on {trained_on}, but the mesh of "
                          f"'{mesh.name}' has changed since (now {here}): train it again")
-    from ..model.model_file import mesh_fingerprint
+    from ..model.model_file import mesh_fingerprint, texture_fingerprint
 
     known = model_grid.mesh_fingerprint
     if known is not None and known != mesh_fingerprint(mesh):
         raise VDNIFError(f"model '{path}' was trained on another version of the mesh of "
                          f"'{mesh.name}' (its vertices, faces or materials were edited "
                          "since): train it again")
+    textures = model_grid.texture_fingerprint             # None: a model older than it
+    if textures is not None and textures != texture_fingerprint(mesh):
+        images = ", ".join(f"'{a.source}'" for a in mesh.albedo if a.kind == "texture")
+        raise VDNIFError(f"model '{path}' was trained on other textures of '{mesh.name}' "
+                         f"(now {'the images ' + images if images else 'no image texture'} "
+                         "in its materials): train it again")
     materials = metadata.network_config.heads.material_count
     if materials != mesh.material_count:
         raise VDNIFError(f"model '{path}' knows {materials} materials, '{mesh.name}' has "

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..errors import VDNIFError
 from ..passes import Passes, SecondaryPasses
 from ..text import percent
 
@@ -149,3 +150,15 @@ def verdict(metrics: dict[str, Any]) -> str:
     if holes <= CLEAN_RATE and extras <= CLEAN_RATE:
         return "clean"
     return f"speckled: {percent(holes, 2)} holes, {percent(extras, 2)} extras"
+
+
+def check_compared(metrics: dict[str, Any], name: str) -> None:
+    """Raises VDNIFError when ``metrics`` (``compare`` over every view of an evaluation of
+    ``name``) had nothing to compare: the true reference hits nothing in any view, so every
+    figure is "n/a" and the views missed the object. (A prediction that hits none of the
+    reference's pixels is a result: hit IoU 0, every hit a false negative.)"""
+    if metrics.get("compared_rays") or metrics.get("false_negative_rate") is not None:
+        return
+    raise VDNIFError(f"the evaluation of '{name}' compared 0 rays: the true reference hits "
+                     "nothing in any view (is the object in view, and not a speck of its own "
+                     "bounds?)")

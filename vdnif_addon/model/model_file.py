@@ -49,6 +49,21 @@ def mesh_fingerprint(mesh: RestMesh) -> str:
     return digest.hexdigest()
 
 
+def texture_fingerprint(mesh: RestMesh) -> str:
+    """SHA-256 (hex) of the images a RestMesh's materials read their albedo from (each
+    material's kind, texture pixels and extension mode; a material without a texture counts
+    as such): a model trained on one texture is refused on another or on none. Kept apart
+    from ``mesh_fingerprint``, which models written before it already store."""
+    digest = hashlib.sha256()
+    for albedo in mesh.albedo:
+        digest.update(f"{albedo.kind}/{albedo.extension}".encode())
+        texture = (np.zeros((0, 0, 3), np.float32) if albedo.texture is None
+                   else np.asarray(albedo.texture, np.float32))
+        digest.update(str(texture.shape).encode())
+        digest.update(np.ascontiguousarray(texture).tobytes())
+    return digest.hexdigest()
+
+
 def _reason(exc: Exception) -> str:
     """The first line of an exception's message, for a one-line error."""
     lines = str(exc).strip().splitlines()

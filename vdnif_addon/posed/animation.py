@@ -6,6 +6,7 @@ device cells built once, written as image sequences named like Blender's own
 ``PoseReader`` in batch runs, a ``PoseFeed`` filled on Blender's main thread in the UI). The
 frame-range helpers import nothing heavy, for the command-line parser."""
 
+from .. import limits
 from ..errors import VDNIFError
 
 
@@ -24,11 +25,21 @@ def parse_frames(text):
 
 
 def frame_range(start, end, step=1):
-    """Frames ``start`` to ``end`` included, every ``step``."""
+    """Frames ``start`` to ``end`` included, every ``step``: at most ``limits.MAX_FRAMES``
+    of them, within Blender's timeline (counted before the list is built)."""
     if step < 1:
         raise VDNIFError(f"the frame step {step} must be at least 1")
     if end < start:
         raise VDNIFError(f"the frame range {start}:{end} ends before it starts")
+    for frame in (start, end):
+        if abs(frame) > limits.MAX_FRAME:
+            raise VDNIFError(f"the frame {frame} is outside Blender's frames "
+                             f"{-limits.MAX_FRAME}..{limits.MAX_FRAME}")
+    count = (end - start) // step + 1
+    if count > limits.MAX_FRAMES:
+        raise VDNIFError(f"the frame range {start}:{end}:{step} has {count:,} frames, more "
+                         f"than the limit {limits.MAX_FRAMES:,} (vdnif_addon/limits.py): "
+                         "render a shorter range or a larger step")
     return list(range(start, end + 1, step))
 
 
@@ -51,7 +62,7 @@ def render_frames(source, captured, model, frames, width, height, view=None,
     from ..kernels import runtime
     from ..tracing.rays import orbit_viewpoints
     from .geometry import PosedObject
-    from .render import orbit_view, render_orbit_rays, render_world, view_rays
+    from .render import orbit_view, render_orbit_rays, render_view
 
     runtime.load_all(runtime.device(model.device))      # a first compile is in no rays/s
     figures, orbit = [], None
@@ -61,9 +72,8 @@ def render_frames(source, captured, model, frames, width, height, view=None,
             chosen = geometry.view if geometry.view is not None else view
             settings = None if secondary is None else secondary(frame)
             if chosen is not None:
-                origins, directions = view_rays(chosen, width, height)
-                result = render_world(model, posed_object, geometry, origins, directions,
-                                      references, settings)
+                result = render_view(model, posed_object, geometry, chosen, width, height,
+                                     references, settings)
             else:
                 if orbit is None:
                     orbit = orbit_view(geometry, orbit_viewpoints(1)[0], width, height)

@@ -49,6 +49,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     # offset, not a network's
     offset = exact_offset(capture.mesh.size)
     start, stop = pose_range or (0, len(capture.poses))
+    name = dataset.shard_name(start, stop)
     timings = dict(prepare_s=0.0, evaluate_s=0.0, rays_s=0.0, walk_s=0.0, ground_truth_s=0.0,
                    records_s=0.0)
     records, counts = [], dict(rays=0, segments=0, hits=0, truncated_rays=0)
@@ -88,13 +89,16 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
             counts["rays"] += rays_per_pose
             counts["segments"] += len(segments)
             counts["hits"] += int(targets.hit.sum())
+            # the first pose's rows foretell the shard's (its size and memory): refused
+            # then, not after the walk; later poses only past the limit itself
+            dataset.check_shard_size(name, counts["segments"] * (stop - start) if done == 1
+                                     else counts["segments"], memory=done == 1)
             if progress is not None:
                 progress(done, stop - start)
     clock = time.perf_counter()
     merged = {name: np.concatenate([r[name] for r in records]) for name in dataset.ARRAYS}
     timings["records_s"] += time.perf_counter() - clock
     timings["total_s"] = sum(timings.values())
-    name = dataset.shard_name(start, stop)
     header = DatasetHeader.from_dict({                   # the reader's checks, before writing
         "format": FORMAT, "version": VERSION,
         "object": capture.mesh.name, "mode": capture.mode, "object_size": capture.mesh.size,

@@ -15,7 +15,12 @@ from ..settings import DEFAULT_PRECISION
 from ..tracing.rays import orbit_viewpoints
 from .geometry import PosedObject
 from .pose_source import PoseSource
-from .render import load_scene_model, orbit_view, render_orbit_rays, render_world, view_rays
+from .render import (
+    load_scene_model,
+    orbit_view,
+    render_orbit_rays,
+    render_view,
+)
 
 
 class LatestFrame:
@@ -91,9 +96,8 @@ class PreviewRenderer:
             geometry = self._posed.place(snapshot)
             chosen = snapshot.view if snapshot.view is not None else self.view
             if chosen is not None:
-                result = render_world(self._model, self._posed, geometry,
-                                      *view_rays(chosen, self.width, self.height),
-                                      secondary=secondary)
+                result = render_view(self._model, self._posed, geometry, chosen,
+                                     self.width, self.height, secondary=secondary)
             else:
                 if self._orbit is None:
                     self._orbit = orbit_view(geometry, orbit_viewpoints(1)[0], self.width,

@@ -152,9 +152,10 @@ def orbit_view(geometry, direction, width, height):
 
 
 def camera_view(camera, width, height):
-    """(world matrix (4, 4), horizontal field of view in degrees) of a perspective Blender
-    camera object rendering a ``width`` x ``height`` image (its sensor fit respected): what
-    ``view_rays`` needs, read from Blender."""
+    """(world matrix (4, 4), horizontal field of view in degrees, lens shift (right, up) in
+    image widths, clip range (start, end) in world units along the view axis) of a
+    perspective Blender camera object rendering a ``width`` x ``height`` image (its sensor
+    fit respected): what ``view_rays`` and ``render_view`` need, read from Blender."""
     if camera is None:
         raise VDNIFError("no camera: the scene has no active camera and none was named")
     if camera.type != "CAMERA":
@@ -170,14 +171,54 @@ def camera_view(camera, width, height):
         vertical = data.sensor_fit == "VERTICAL"
         angle = data.angle_y if vertical else data.angle_x
     half = math.tan(angle / 2) * (width / height if vertical else 1.0)
-    return np.array(camera.matrix_world, np.float64), math.degrees(2 * math.atan(half))
+    # Blender's shift is in units of the fitted side: the height's, where that is the width's
+    # height / width
+    fitted = height / width if vertical else 1.0
+    shift = (data.shift_x * fitted, data.shift_y * fitted)
+    return (np.array(camera.matrix_world, np.float64), math.degrees(2 * math.atan(half)),
+            shift, (data.clip_start, data.clip_end))
 
 
 def view_rays(view, width, height):
     """World-space rays (origins, directions), (H*W, 3) each, of a pinhole ``view``
-    (world matrix, horizontal field of view in degrees)."""
-    matrix, fov = view
-    return pinhole_rays(matrix, fov, width, height)
+    (world matrix, horizontal field of view in degrees, and a camera's lens shift where it
+    gives one: ``camera_view``; the 3D Viewport's gives the first two)."""
+    matrix, fov, *camera = view
+    return pinhole_rays(matrix, fov, width, height, *camera[:1])
+
+
+def render_view(model, posed_object, geometry, view, width, height, references=False,
+                secondary=None):
+    """``render_world`` of a pinhole ``view``'s rays with its camera's clip range, as
+    Blender clips: a surface nearer than the clip start along the view axis is not seen
+    (the ray starts there and sees what lies behind it), one beyond the clip end is a
+    miss."""
+    origins, directions = view_rays(view, width, height)
+    if len(view) < 4:
+        return render_world(model, posed_object, geometry, origins, directions, references,
+                            secondary)
+    matrix, (near, far) = np.asarray(view[0], np.float64), view[3]
+    forward = -matrix[:3, 2] / np.linalg.norm(matrix[:3, 2])
+    cosine = directions @ forward                          # > 0 inside the frustum
+    start = near / cosine
+    result = render_world(model, posed_object, geometry, origins + directions * start[:, None],
+                          directions, references, secondary)
+    skipped, reach = start * result.world_scale, (far - near) / cosine * result.world_scale
+    for name in ("predicted", "true", "embedded"):
+        passes = getattr(result, name)
+        if passes is not None:
+            kept = passes.hit & (passes.distance <= reach)
+            setattr(result, name, Passes(
+                hit=kept, distance=np.where(kept, passes.distance + skipped, 0.0),
+                normal=np.where(kept[:, None], passes.normal, 0.0),
+                albedo=np.where(kept[:, None], passes.albedo, 0).astype(passes.albedo.dtype),
+                material=np.where(kept, passes.material, 0).astype(passes.material.dtype)))
+    for name, passes in (result.secondary or {}).items():     # from the hits still seen
+        kept = passes.hit & getattr(result, "true" if name.endswith("_true_hit") else name).hit
+        result.secondary[name] = SecondaryPasses(
+            hit=kept, ao=np.where(kept, passes.ao, 0).astype(passes.ao.dtype),
+            lit=passes.lit & kept, facing=passes.facing & kept)
+    return result
 
 
 def camera_rays(camera, width, height):

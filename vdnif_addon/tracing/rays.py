@@ -61,28 +61,33 @@ def look_at_rays(eye: Float[np.ndarray, "3"], target: Float[np.ndarray, "3"],
 
 
 def camera_rays(camera_to_world: Float[np.ndarray, "4 4"], fov_deg: float, width: int,
-                height: int) -> Rays:
+                height: int, shift: tuple[float, float] = (0.0, 0.0)) -> Rays:
     """Rays (origins, unit directions), (H*W, 3) each, of a camera looking down its local -Z
     with +Y up (Blender's convention); layout as ``look_at_rays``. The matrix's axes are
-    normalized first, so a scaled camera object renders as Blender does (it ignores scale)."""
+    normalized first, so a scaled camera object renders as Blender does (it ignores scale).
+    ``shift``: the image moved right and up by these fractions of its width (a lens
+    shift)."""
     matrix = np.asarray(camera_to_world, dtype=np.float64)
     axes = matrix[:3, :3]
     lengths = np.linalg.norm(axes, axis=0)
     if not np.all(lengths > 0):
         raise VDNIFError("camera matrix has a zero-length axis")
     axes = axes / lengths
-    return _pinhole(matrix[:3, 3], axes[:, 0], axes[:, 1], -axes[:, 2], fov_deg, width, height)
+    return _pinhole(matrix[:3, 3], axes[:, 0], axes[:, 1], -axes[:, 2], fov_deg, width, height,
+                    shift)
 
 
 def _pinhole(eye: Float[np.ndarray, "3"], right: Float[np.ndarray, "3"],
              up: Float[np.ndarray, "3"], forward: Float[np.ndarray, "3"], fov_deg: float,
-             width: int, height: int) -> Rays:
-    """Rays through the pixel centres of an image plane at distance 1 along ``forward``."""
+             width: int, height: int, shift: tuple[float, float] = (0.0, 0.0)) -> Rays:
+    """Rays through the pixel centres of an image plane at distance 1 along ``forward``,
+    moved by ``shift`` (right, up) image widths."""
     if width < 1 or height < 1:
         raise VDNIFError(f"image size must be at least 1x1, got {width}x{height}")
     half = _half_tan(fov_deg)
-    x = ((np.arange(width) + 0.5) / width * 2 - 1) * half
-    y = (1 - (np.arange(height) + 0.5) / height * 2) * half * height / width
+    x = ((np.arange(width) + 0.5) / width * 2 - 1) * half + 2 * shift[0] * half
+    y = (1 - (np.arange(height) + 0.5) / height * 2) * half * height / width + (
+        2 * shift[1] * half)
     directions = (forward + x[None, :, None] * right + y[:, None, None] * up).reshape(-1, 3)
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     return np.broadcast_to(eye, directions.shape).copy(), directions

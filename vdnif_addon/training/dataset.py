@@ -53,6 +53,30 @@ ARRAYS = {                     # name: (dtype, trailing shape)
 }
 
 
+ROW_BYTES = sum(np.dtype(kind).itemsize * math.prod(shape) for kind, shape in ARRAYS.values())
+"""Bytes of one row (segment) in memory."""
+SHARD_MEMORY_COPIES = 3
+"""Copies of a shard's rows in memory at its peak: the poses' rows, their concatenation, and
+the packed arrays being written (``write_shard``)."""
+
+
+def check_shard_size(name: str, segments: float, memory: bool = True) -> None:
+    """Refuses, before the rows are walked or held, a shard of about ``segments`` rows that
+    is over ``limits.MAX_SHARD_SEGMENTS`` or (with ``memory``) that this machine's free
+    memory cannot hold (``SHARD_MEMORY_COPIES`` x ``ROW_BYTES`` a row)."""
+    from ..memory import check_memory
+
+    advice = ("lower --rays-per-pose or --poses, or write the dataset in parts with "
+              "--pose-range")
+    if segments > limits.MAX_SHARD_SEGMENTS:
+        raise VDNIFError(f"dataset shard '{name}' would hold about {round(segments):,} "
+                         f"segments, more than the limit {limits.MAX_SHARD_SEGMENTS:,} "
+                         f"(vdnif_addon/limits.py): {advice}")
+    if memory:
+        check_memory(f"dataset shard '{name}' ({round(segments):,} segments)",
+                     segments * ROW_BYTES * SHARD_MEMORY_COPIES, advice)
+
+
 def segment_records(grid: VoxelGrid, segments: Segments, targets: SurfaceHits,
                     pose_index: int) -> dict[str, np.ndarray]:
     """The shard rows for one pose's Segments and their SurfaceHits targets: per ``ARRAYS``
@@ -73,13 +97,14 @@ def segment_records(grid: VoxelGrid, segments: Segments, targets: SurfaceHits,
 def grid_header(grid: VoxelGrid, mesh: RestMesh | None = None) -> GridRecord:
     """The grid's header entry; with the RestMesh ``mesh`` it carries the mesh's fingerprint
     (``model_file.mesh_fingerprint``), which the model keeps with the grid, so that a mesh
-    edited within the same bounds is refused by the model trained before the edit."""
-    fingerprint = None
+    edited within the same bounds is refused by the model trained before the edit, and the
+    fingerprint of its textures (``model_file.texture_fingerprint``) likewise."""
+    fingerprint = textures = None
     if mesh is not None:
-        from ..model.model_file import mesh_fingerprint
+        from ..model.model_file import mesh_fingerprint, texture_fingerprint
 
-        fingerprint = mesh_fingerprint(mesh)
-    return grid.record(fingerprint)
+        fingerprint, textures = mesh_fingerprint(mesh), texture_fingerprint(mesh)
+    return grid.record(fingerprint, textures)
 
 
 def shard_name(start: int, stop: int) -> str:

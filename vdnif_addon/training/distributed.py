@@ -3,6 +3,7 @@ training needs (maximum, sum, union), each the identity when the process is alon
 
 from __future__ import annotations
 
+import datetime
 import os
 import sys
 from dataclasses import dataclass
@@ -12,6 +13,7 @@ import torch
 import torch.distributed as dist
 
 from ..errors import VDNIFError
+from ..limits import GROUP_TIMEOUT_S, MAX_GROUP_TIMEOUT_S
 from ..settings import DEVICES
 
 if TYPE_CHECKING:
@@ -26,14 +28,18 @@ class ProcessGroup:
     rank: int = 0
     world: int = 1
     owns_group: bool = False
+    timeout_s: float = GROUP_TIMEOUT_S
 
     @property
     def active(self) -> bool:
         return self.world > 1
 
     @classmethod
-    def from_environment(cls, device: torch.device) -> ProcessGroup:
-        """Joins the group that ``torchrun``'s WORLD_SIZE names (NCCL on CUDA, else gloo)."""
+    def from_environment(cls, device: torch.device,
+                         timeout_s: float = GROUP_TIMEOUT_S) -> ProcessGroup:
+        """Joins the group that ``torchrun``'s WORLD_SIZE names (NCCL on CUDA, else gloo),
+        waiting at most ``timeout_s`` seconds for the other processes, there and at every
+        collective after (torch's own default, 30 minutes, left a rank silent that long)."""
         try:
             world = int(os.environ.get("WORLD_SIZE", "1"))
         except ValueError as exc:
@@ -42,19 +48,45 @@ class ProcessGroup:
             ) from exc
         if world <= 1:
             return cls()
+        if not (isinstance(timeout_s, (int, float)) and 1 <= timeout_s <= MAX_GROUP_TIMEOUT_S):
+            raise VDNIFError(f"the process group timeout {timeout_s!r} must be a number of "
+                             f"seconds in 1..{MAX_GROUP_TIMEOUT_S:g}")
         if device.type == "cuda":
             # NCCL's collectives (all_gather_object among them) put their tensors on the
             # current device: without this every rank would use cuda:0.
             torch.cuda.set_device(device)
         owns = not dist.is_initialized()
         if owns:
+            where = (f"{os.environ.get('MASTER_ADDR', '?')}:"
+                     f"{os.environ.get('MASTER_PORT', '?')}")
+            rank = os.environ.get("RANK", "?")
+            print(f"train: process {rank} of {world} joins the process group at {where}, "
+                  f"waiting at most {timeout_s:g} s for the others", file=sys.stderr,
+                  flush=True)
             try:
-                dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+                dist.init_process_group("nccl" if device.type == "cuda" else "gloo",
+                                        timeout=datetime.timedelta(seconds=timeout_s))
             except (ValueError, RuntimeError) as exc:
+                if timed_out(exc):
+                    raise VDNIFError(
+                        f"process {rank} waited {timeout_s:g} s for the other {world - 1} "
+                        f"process(es) of WORLD_SIZE={world} to join at {where} and they did "
+                        "not: start every rank, or raise --group-timeout") from None
                 raise VDNIFError(
                     f"could not join the torchrun process group (WORLD_SIZE={world}): {exc}"
                 ) from exc
-        return cls(dist.get_rank(), dist.get_world_size(), owns)
+        return cls(dist.get_rank(), dist.get_world_size(), owns, timeout_s)
+
+    def stalled(self, exc: BaseException) -> VDNIFError | None:
+        """The one-line error for ``exc`` when it is a collective's timeout (another process
+        stopped, died or fell behind by more than the timeout), else None."""
+        if not self.active or not timed_out(exc):
+            return None
+        return VDNIFError(
+            f"process {self.rank} waited {self.timeout_s:g} s for the other "
+            f"{self.world - 1} process(es) of the group to reach the same step (gradients, "
+            "validation sums or the stop flags) and they did not: one stopped, died or is "
+            "slower by more than --group-timeout")
 
     def close(self) -> None:
         """Leaves the group if this process joined it."""
@@ -80,6 +112,20 @@ class ProcessGroup:
         gathered: list[list[int] | None] = [None] * self.world
         dist.all_gather_object(gathered, items)
         return sorted({item for part in gathered for item in (part or [])})
+
+
+_TIMEOUT_WORDING = ("timed out", "timeout", "connection closed by peer",
+                    "connection reset by peer")
+"""How torch's store, gloo and NCCL word a wait that ran out (a peer stopped or gone)."""
+
+
+def timed_out(exc: BaseException) -> bool:
+    """Whether ``exc`` is torch's error for a process-group wait that ran past its timeout
+    or lost its peer."""
+    if isinstance(exc, dist.DistStoreError):
+        return True
+    text = str(exc).lower()
+    return isinstance(exc, RuntimeError) and any(words in text for words in _TIMEOUT_WORDING)
 
 
 def resolve_device(kind: str | torch.device) -> torch.device:

@@ -14,13 +14,18 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .. import __version__
-from ..memory import TRAINING_ADVICE, out_of_memory
+from ..limits import GROUP_TIMEOUT_S
+from ..memory import TRAINING_ADVICE, check_memory, out_of_memory
 from ..model.metadata import DatasetSource, ModelMetadata, albedo_rows
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
-from .dataset import read_dataset
+from .dataset import ROW_BYTES, read_dataset
 from .history import records
 from .train import TrainResult, train
+
+TRAINING_MEMORY_COPIES = 2
+"""Copies of a dataset's rows in host memory while training starts: the arrays unpacked from
+the shards and the tensors made of them."""
 
 
 def fit_model(
@@ -33,17 +38,24 @@ def fit_model(
 ) -> tuple[TrainResult, dict[str, Any]]:
     """Trains ``variant`` on the dataset in ``data_dir`` and writes the model to ``out``.
 
-    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...).
+    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...), and
+    ``group_timeout_s`` (``train``'s).
     Running out of memory is one line that says what to lower. Returns (the TrainResult, a
     JSON-ready summary); only the main process of a ``torchrun``
     launch writes the file (the summary is then empty on the others).
     """
-    chosen = variant_config(variant, **(overrides or {}))
+    overrides = dict(overrides or {})
+    group_timeout_s = overrides.pop("group_timeout_s", GROUP_TIMEOUT_S)  # not the variant's
+    chosen = variant_config(variant, **overrides)
     with out_of_memory("training", TRAINING_ADVICE):
         data, shards = read_dataset(data_dir)
         header = data.header
+        # rows unpacked from the shards and their tensors, before any is read
+        check_memory(f"training on the {data.segments:,} segments of '{data_dir}'",
+                     TRAINING_MEMORY_COPIES * data.segments * ROW_BYTES,
+                     "train on a smaller dataset (fewer poses or rays per pose)")
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
-                       cancel=cancel)
+                       cancel=cancel, group_timeout_s=group_timeout_s)
     if not result.is_main:
         return result, {}
     # A dataset header that names no used-slot table or mesh fingerprint (the golden arm

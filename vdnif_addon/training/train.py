@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from ..errors import VDNIFError
+from ..limits import GROUP_TIMEOUT_S
 from ..model.encoding import HashGrid
 from ..model.metadata import Thresholds, TrainingSummary
 from ..model.network import IntersectionNetwork
@@ -267,6 +268,7 @@ def train(
     network_config: NetworkConfig,
     progress: Callable[[dict[str, Any]], None] | None = None,
     cancel: threading.Event | None = None,
+    group_timeout_s: float = GROUP_TIMEOUT_S,
 ) -> TrainResult:
     """Train an ``IntersectionNetwork`` on ``segments`` (``training.data`` states the
     contract of ``segments`` and ``header``).
@@ -280,7 +282,8 @@ def train(
     step due to report next, where the processes agree on it) and returns the model as it
     is, status "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
     ``segments[rank::world]`` with gradients averaged by DistributedDataParallel; every rank
-    returns the same weights.
+    returns the same weights; a process waits ``group_timeout_s`` seconds at most for the
+    others (``distributed.ProcessGroup``).
     """
     if not isinstance(header, DatasetHeader):
         raise VDNIFError("the dataset header must be a training.header.DatasetHeader, got "
@@ -289,9 +292,14 @@ def train(
     heads = header.heads.network_heads()
     network_config = dataclasses.replace(network_config, heads=heads)
     device = resolve_device(config.device)
-    group = ProcessGroup.from_environment(device)
+    group = ProcessGroup.from_environment(device, group_timeout_s)
     try:
         return _train(segments, h, config, network_config, device, group, progress, cancel)
+    except RuntimeError as exc:
+        stalled = group.stalled(exc)
+        if stalled is None:
+            raise
+        raise stalled from None
     finally:
         group.close()
 
