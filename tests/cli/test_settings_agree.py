@@ -14,6 +14,7 @@ configurations, the validation that refuses a value), never copied from the decl
 import argparse
 import dataclasses
 import importlib.util
+import inspect
 import json
 import subprocess
 import sys
@@ -31,6 +32,7 @@ from vdnif_addon.errors import VDNIFError
 from vdnif_addon.limits import check_image
 from vdnif_addon.pose_sets import PoseSpec
 from vdnif_addon.settings import RECIPE, NetworkConfig, TrainConfig
+from vdnif_addon.training.fit import fit_model
 
 _spec = importlib.util.spec_from_file_location("cli_docs", REPO / "tools" / "cli_docs.py")
 cli_docs = importlib.util.module_from_spec(_spec)
@@ -285,7 +287,9 @@ def test_the_core_defaults_are_the_declared_ones():
             "max_angle": spec.max_angle_deg, "evaluation_poses": spec.count,
             "ao_samples": settings.AO_SAMPLES, "ao_distance": settings.AO_DISTANCE,
             "precision": settings.DEFAULT_PRECISION, "variant": settings.AUTO_VARIANT,
-            "image_width": settings.COMMAND_IMAGE[0], "image_height": settings.COMMAND_IMAGE[1]}
+            "image_width": settings.COMMAND_IMAGE[0], "image_height": settings.COMMAND_IMAGE[1],
+            "group_timeout_s": inspect.signature(fit_model).parameters[
+                "group_timeout_s"].default}
     for setting in declared.SETTINGS:
         assert core[setting.name] == setting.default, setting.name
     assert (train.steps, train.batch_size) == (declared.STEPS.default,
@@ -333,6 +337,8 @@ CORE = {
     "ao_distance": lambda value: _secondary(distance=value),
     "image_width": lambda value: check_image(value, 1),
     "image_height": lambda value: check_image(1, value),
+    "group_timeout_s": lambda value: __import__(
+        "vdnif_addon.training.distributed", fromlist=["x"]).check_group_timeout(value),
 }
 ALONE = {"base_resolution": {"levels": 1, "normal_levels": 1}, "levels": {"growth": 1.0},
          "normal_levels": {"growth": 1.0}}

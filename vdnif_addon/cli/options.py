@@ -242,7 +242,6 @@ def network_overrides(args):
     one given (the network's are None, the variant's own, unless given)."""
     fields = {field.name for config in (NetworkConfig, TrainConfig)
               for field in dataclasses.fields(config)}
-    fields.add(declared.GROUP_TIMEOUT.name)        # fit_model's own, not a config's
     return {setting.name: getattr(args, setting.option.dest)
             for setting in declared.command_options("train")
             if setting.name in fields and getattr(args, setting.option.dest) is not None}

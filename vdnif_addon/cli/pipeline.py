@@ -189,7 +189,8 @@ def cmd_train(args):
         from ..training.fit import fit_model
 
         result, summary = fit_model(args.data, variant, out, network_overrides(args),
-                                    progress=report_training)
+                                    progress=report_training,
+                                    group_timeout_s=args.group_timeout)
     if not result.is_main:
         return 0
     from ..blender.steps import write_training_plot

@@ -13,8 +13,8 @@ import torch
 import torch.distributed as dist
 
 from ..errors import VDNIFError
-from ..limits import GROUP_TIMEOUT_S, MAX_GROUP_TIMEOUT_S
-from ..settings import DEVICES
+from ..limits import GROUP_TIMEOUT_S
+from ..settings import BOUNDS, DEVICES
 
 if TYPE_CHECKING:
     from jaxtyping import Shaped
@@ -48,9 +48,7 @@ class ProcessGroup:
             ) from exc
         if world <= 1:
             return cls()
-        if not (isinstance(timeout_s, (int, float)) and 1 <= timeout_s <= MAX_GROUP_TIMEOUT_S):
-            raise VDNIFError(f"the process group timeout {timeout_s!r} must be a number of "
-                             f"seconds in 1..{MAX_GROUP_TIMEOUT_S:g}")
+        check_group_timeout(timeout_s)
         if device.type == "cuda":
             # NCCL's collectives (all_gather_object among them) put their tensors on the
             # current device: without this every rank would use cuda:0.
@@ -194,3 +192,12 @@ def _local_gpu() -> int:
         return 0
     raise VDNIFError(f"LOCAL_RANK {rank} names no visible GPU ({count} visible): give each "
                      "process one GPU, or as many as the ranks on this machine")
+
+
+def check_group_timeout(timeout_s: float) -> None:
+    """Refuses a process group timeout outside its declared range (``--group-timeout``)."""
+    low, high = BOUNDS["group_timeout_s"]
+    if (isinstance(timeout_s, bool) or not isinstance(timeout_s, (int, float))
+            or not low <= timeout_s <= high):
+        raise VDNIFError(f"the process group timeout {timeout_s!r} must be a number of "
+                         f"seconds in {low:g}..{high:g}")

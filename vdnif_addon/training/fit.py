@@ -35,17 +35,17 @@ def fit_model(
     overrides: Mapping[str, Any] | None = None,
     progress: Callable[[dict[str, Any]], None] | None = None,
     cancel: threading.Event | None = None,
+    group_timeout_s: float = GROUP_TIMEOUT_S,
 ) -> tuple[TrainResult, dict[str, Any]]:
     """Trains ``variant`` on the dataset in ``data_dir`` and writes the model to ``out``.
 
-    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...), and
-    ``group_timeout_s`` (``train``'s).
+    ``overrides``: NetworkConfig / TrainConfig fields (steps, batch_size, width, ...);
+    ``group_timeout_s``: how long a ``torchrun`` process waits for the others.
     Running out of memory is one line that says what to lower. Returns (the TrainResult, a
     JSON-ready summary); only the main process of a ``torchrun``
     launch writes the file (the summary is then empty on the others).
     """
     overrides = dict(overrides or {})
-    group_timeout_s = overrides.pop("group_timeout_s", GROUP_TIMEOUT_S)  # not the variant's
     chosen = variant_config(variant, **overrides)
     with out_of_memory("training", TRAINING_ADVICE):
         data, shards = read_dataset(data_dir)
