@@ -42,8 +42,12 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
         written = []           # the frames whose images were written
 
         def write(frame, result, captured):
-            write_view(folder, result, height, width, captured.mesh.material_slots,
-                       frame=frame)
+            from ..vdnif_addon.safe_io import all_or_nothing, claim_folder
+
+            claim_folder(folder, "frames folder")
+            with all_or_nothing():          # every file of the frame, or none of them
+                write_view(folder, result, height, width, captured.mesh.material_slots,
+                           frame=frame)
             written.append(frame)
 
         camera, view = render_view(context, obj)

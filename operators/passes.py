@@ -116,7 +116,11 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             result, slots = kept["result"], kept["slots"]   # the material pass: the slots
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size, result.secondary)
-            exr = viewer.write_files(obj, result, slots, width, height, frame)
+            from ..vdnif_addon.safe_io import all_or_nothing, claim_folder
+
+            claim_folder(storage.passes_folder(obj), "passes folder")
+            with all_or_nothing():          # every file of the render, or none of them
+                exr = viewer.write_files(obj, result, slots, width, height, frame)
             image = viewer.show(bpy.context, bpy.context.scene.vdnif_viewer)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None
                      else " (open an Image Editor to see it)")

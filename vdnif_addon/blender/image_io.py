@@ -5,7 +5,7 @@ import pathlib
 import bpy
 import numpy as np
 
-from ..safe_io import atomic_path
+from ..safe_io import atomic_path, mark_png
 
 FORMATS = {".png": "PNG", ".exr": "OPEN_EXR"}
 
@@ -33,6 +33,7 @@ def save_image(path, image):
                 block.save()
             except RuntimeError as exc:
                 raise OSError(str(exc)) from exc
+            mark_png(temporary)             # the image's own mark: VDNIF may replace it
     finally:
         bpy.data.images.remove(block)
     return path

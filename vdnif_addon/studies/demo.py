@@ -82,6 +82,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     command = shlex.join(["python", "vdnif_addon/batch.py", "--",
                           *sys.argv[sys.argv.index("--") + 1:]] if "--" in sys.argv
                          else ["python", "vdnif_addon/batch.py", "--", "demo"])
-    write_text_atomic(out / "report.md", demo_markdown(report, command), "markdown file")
+    write_text_atomic(out / "report.md", demo_markdown(report, command), "markdown file",
+                      "markdown")
     write_json_atomic(out / "report.json", report)
     return report

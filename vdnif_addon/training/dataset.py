@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import limits
 from ..errors import VDNIFError
-from ..safe_io import open_regular, unpacked_size
+from ..safe_io import DATASET_MANIFEST, open_regular, unpacked_size
 from .header import VERSION, DatasetHeader, DatasetIdentity, GridHeader
 from .packing import PackedShard, pack, stored_names
 
@@ -91,7 +91,7 @@ def shard_name(start: int, stop: int) -> str:
     return f"shard-{start:06d}-{stop:06d}"
 
 
-MANIFEST = "vdnif-dataset.manifest"
+MANIFEST = DATASET_MANIFEST
 """The folder's manifest (JSON, ``DatasetIdentity``): the object, grid and seed its shards
 were made of, so that a shard of another object, grid or seed is refused instead of replacing
 one of the same pose range (shard names depend only on the pose range)."""
