@@ -42,7 +42,8 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
         written = []           # the frames whose images were written
 
         def write(frame, result, captured):
-            from ..vdnif_addon.safe_io import all_or_nothing, claim_folder
+            from ..vdnif_addon.output_rule import all_or_nothing
+            from ..vdnif_addon.safe_io import claim_folder
 
             claim_folder(folder, "frames folder")
             with all_or_nothing():          # every file of the frame, or none of them

@@ -116,7 +116,8 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             result, slots = kept["result"], kept["slots"]   # the material pass: the slots
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size, result.secondary)
-            from ..vdnif_addon.safe_io import all_or_nothing, claim_folder
+            from ..vdnif_addon.output_rule import all_or_nothing
+            from ..vdnif_addon.safe_io import claim_folder
 
             claim_folder(storage.passes_folder(obj), "passes folder")
             with all_or_nothing():          # every file of the render, or none of them

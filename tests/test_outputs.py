@@ -22,15 +22,17 @@ from conftest import REPO
 
 from vdnif_addon import cli
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.safe_io import (
+from vdnif_addon.output_rule import (
     MARKDOWN_MARK,
     OUTPUT_MARK,
     REPORT_FORMAT,
     all_or_nothing,
-    check_output_file,
     check_replace,
-    claim_folder,
     mark_png,
+)
+from vdnif_addon.safe_io import (
+    check_output_file,
+    claim_folder,
     write_bytes_atomic,
     write_json_atomic,
     write_text_atomic,
@@ -381,7 +383,8 @@ FSIZE_SCRIPT = """
 import resource, signal, sys
 sys.path.insert(0, sys.argv[1])
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.safe_io import all_or_nothing, write_bytes_atomic
+from vdnif_addon.output_rule import all_or_nothing
+from vdnif_addon.safe_io import write_bytes_atomic
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)     # a write past the limit fails (EFBIG)
 resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
 folder = sys.argv[2]

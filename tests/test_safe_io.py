@@ -12,9 +12,9 @@ from conftest import REPO
 from dataset_headers import header_dict
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.output_rule import OUTPUT_MARK
 from vdnif_addon.safe_io import (
     FILE_STEM_LIMIT,
-    OUTPUT_MARK,
     atomic_path,
     check_output_file,
     check_output_folder,
@@ -62,7 +62,7 @@ def test_a_failing_writer_leaves_the_target_and_no_temporary_file(tmp_path):
                 file.write(b"half")
             raise RuntimeError("writer failed")
     assert target.read_bytes() == b"old"
-    assert _listing(tmp_path) == [OUTPUT_MARK, "image.png"]
+    assert _listing(tmp_path) == sorted([OUTPUT_MARK, "image.png"])
 
 
 def test_non_finite_json_is_refused_naming_the_figure(tmp_path):

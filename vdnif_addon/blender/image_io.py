@@ -5,7 +5,8 @@ import pathlib
 import bpy
 import numpy as np
 
-from ..safe_io import atomic_path, mark_png
+from ..output_rule import mark_png
+from ..safe_io import atomic_path
 
 FORMATS = {".png": "PNG", ".exr": "OPEN_EXR"}
 

@@ -20,7 +20,8 @@ from importlib.util import find_spec
 
 from ..errors import VDNIFError
 from . import pipeline
-from .options import run_inputs, validate_arguments
+from .options import validate_arguments
+from .outputs import run_inputs
 
 # The studies' commands and the studies themselves; an import error inside them still raises.
 if all(find_spec(f"{package}.studies") is not None
@@ -155,7 +156,7 @@ def _main(argv):
             parser.print_help()
             return 2
         validate_arguments(args)
-        from ..safe_io import run_inputs as reading
+        from ..output_rule import run_inputs as reading
         from ..threads import use_threads
 
         use_threads(getattr(args, "threads", None))

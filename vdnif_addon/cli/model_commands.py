@@ -17,12 +17,11 @@ from .options import (
     check_resolution,
     frames_option,
     load_posed_scene,
-    output_file,
-    output_folder,
     print_evaluation,
     secondary_settings,
     write_json,
 )
+from .outputs import output_file, output_folder
 
 
 def _model_scene(args, evaluation=False):
@@ -55,8 +54,8 @@ def cmd_render(args):
     from ..blender.poses import posed
     from ..blender.scenes import find_camera
     from ..kernels import runtime
+    from ..output_rule import all_or_nothing
     from ..progress import Progress
-    from ..safe_io import all_or_nothing
 
     loaded, obj, captured = _model_scene(args)
     model = load_scene_model(args.model, captured, args.device, loaded, args.precision)
@@ -133,7 +132,7 @@ def evaluated(args):
 def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
     from ..blender.jobs import write_figures, write_passes
-    from ..safe_io import all_or_nothing
+    from ..output_rule import all_or_nothing
 
     report, views, captured = evaluated(args)
     with all_or_nothing():          # the figures, passes and report together, or none

@@ -5,7 +5,6 @@ several commands print."""
 
 import argparse
 import math
-import os
 import pathlib
 import sys
 
@@ -33,6 +32,7 @@ from ..settings import (
     RIGS,
 )
 from ..text import metrics_line, secondary_line, speed_line
+from .outputs import check_outputs, names_scene  # noqa: F401 - names_scene for the commands
 
 PIPELINE_SCENE = "arm"
 """The embedded scene of a pipeline command that names no scene."""
@@ -201,7 +201,8 @@ def add_training_options(parser):
 def write_json(path, data):
     """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
     file, no write through a symlink, no NaN)."""
-    from ..safe_io import REPORT_FORMAT, write_json_atomic
+    from ..output_rule import REPORT_FORMAT
+    from ..safe_io import write_json_atomic
 
     if path is not None:
         write_json_atomic(path, {"format": REPORT_FORMAT, **data} if isinstance(data, dict)
@@ -270,11 +271,6 @@ def print_evaluation(report):
           f"{report['model_bytes']:,} bytes, render {speed_line(report)}")
 
 
-def names_scene(args):
-    """Whether the options name a scene (--scene, --mesh or --blend)."""
-    return any(getattr(args, name) is not None for name in ("scene", "mesh", "blend"))
-
-
 IMAGE_COMMANDS = ("references", "render", "evaluate", "side-by-side")
 """Commands whose --width/--height are an image's (train's --width is the MLP's)."""
 
@@ -287,43 +283,6 @@ def frames_option(text: str) -> list[int]:
         return parse_frames(text)
     except VDNIFError as exc:
         raise argparse.ArgumentTypeError(str(exc).removeprefix(f"--frames '{text}' ")) from None
-
-
-class OutputPath(type(pathlib.Path())):
-    """A path that an option names for its command to write; ``kind`` is the kind of file
-    (``safe_io.KINDS``), or "folder". ``validate_arguments`` finds every output among the
-    parsed options by this type and applies the output rule to it."""
-
-    kind = "folder"
-
-
-def _output_type(kind: str):
-    """The argparse type of an option naming an output of ``kind``; the type carries the
-    kind (``output_kind``), so that the parser itself lists every output option."""
-
-    def parse(text: str) -> OutputPath:
-        # A file's name that names a folder (a trailing separator, ``.``, ``..``) is
-        # refused: the path object alone would drop it, writing a file of the folder's name.
-        if kind != "folder" and text.replace(os.sep, "/").rpartition("/")[2] in (
-                "", ".", ".."):
-            raise argparse.ArgumentTypeError(f"'{text}' names a folder, not a file")
-        path = OutputPath(text)
-        path.kind = kind
-        return path
-
-    parse.output_kind = kind
-    parse.__name__ = f"{kind} output"
-    return parse
-
-
-output_file = _output_type("json")
-"""--json PATH: a JSON report."""
-output_markdown = _output_type("markdown")
-"""--markdown, --performance, --results: a markdown file (or a section of one)."""
-output_model = _output_type("model")
-"""train's --out: a model file."""
-output_folder = _output_type("folder")
-"""An output folder (--out DIR, --plots, ...)."""
 
 
 def validate_arguments(args):
@@ -379,43 +338,6 @@ def validate_arguments(args):
     if args.command == "train" and not given("data") and not names_scene(args):
         raise VDNIFError("give --data DIR (a dataset folder) or scene options "
                          "(--scene, --mesh or --blend)")
-
-
-def run_inputs(args):
-    """(path, label) of every file the command of ``args`` reads, for the output rule: the
-    model files, the mesh or .blend, and a dataset that train reads."""
-    paths = [(getattr(args, name), f"the {name} file") for name in ("mesh", "blend")
-             if getattr(args, name, None) is not None]
-    models = getattr(args, "model", None)
-    for model in models if isinstance(models, list) else [models] if models else []:
-        paths.append((pathlib.Path(str(model).rpartition("=")[2]), "the model file"))
-    data = getattr(args, "data", None)
-    if args.command == "train" and data is not None and not names_scene(args) and \
-            pathlib.Path(data).is_dir():
-        paths += [(path, "a dataset file") for path in pathlib.Path(data).iterdir()
-                  if path.name.startswith("shard-") or path.suffix == ".manifest"]
-    return paths
-
-
-def check_outputs(args):
-    """Applies the output rule (``safe_io.check_replace``) to every output option of
-    ``args`` (those of type ``OutputPath``) before any work, and takes the output folders
-    (``claim_folder``). train's --data is an output only with scene options."""
-    from ..safe_io import check_output_file, claim_folder
-    from ..safe_io import run_inputs as reading
-
-    with reading(run_inputs(args), getattr(args, "force", False)):
-        for name, path in sorted(vars(args).items()):
-            if not isinstance(path, OutputPath):
-                continue
-            option = f"--{name.replace('_', '-')}"
-            if name == "data" and not names_scene(args):
-                continue                                # train reads it
-            if path.kind == "folder":
-                claim_folder(path, f"{option} folder")
-            else:
-                check_output_file(path, f"{option} model file" if path.kind == "model"
-                                  else option, path.kind)
 
 
 def _validate_network_options(args, limits):

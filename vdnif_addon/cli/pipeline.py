@@ -6,7 +6,8 @@ import pathlib
 import sys
 
 from ..errors import VDNIFError
-from ..safe_io import check_output_file, file_stem, note_input
+from ..output_rule import note_input
+from ..safe_io import check_output_file, file_stem
 from ..settings import COMMAND_IMAGE, RECIPE, TRAINABLE_VARIANTS
 from ..text import metrics_line, percent, value
 from . import model_commands
@@ -21,13 +22,11 @@ from .options import (
     load_posed_scene,
     names_scene,
     network_overrides,
-    output_file,
-    output_folder,
-    output_model,
     report_training,
     secondary_settings,
     write_json,
 )
+from .outputs import output_file, output_folder, output_model
 
 
 def cmd_capture(args):

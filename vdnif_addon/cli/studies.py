@@ -6,7 +6,7 @@ import pathlib
 
 from ..errors import VDNIFError
 from ..inference.metrics import SPEED_MIN_HIT_IOU
-from ..safe_io import MARKDOWN_MARK, check_output_file, claim_folder, write_text_atomic
+from ..safe_io import MARKDOWN_MARK, write_text_atomic
 from ..settings import DEFAULT_PRECISION, DEMO_SCENE, DEMO_SCENES, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
@@ -15,14 +15,12 @@ from .options import (
     add_secondary_options,
     add_stress_options,
     check_resolution,
-    output_file,
-    output_folder,
-    output_markdown,
     print_evaluation,
     report_training,
     secondary_settings,
     write_json,
 )
+from .outputs import check_places, output_file, output_folder, output_markdown
 
 # torch, Warp, the baselines and the timing code are imported where they are used, so that
 # building the batch parser (every command's, a failing one's too) does not import them.
@@ -49,7 +47,6 @@ def cmd_experiment(args):
     from ..text import value
 
     scenes = args.scenes.split(",") if args.scenes else None
-    claim_folder(pathlib.Path(args.results).parent / "results", "results folder")
     records = run_experiment(args.name, args.results, quick=args.quick, device=args.device,
                              progress=report_training, scenes=scenes, seeds=args.seeds)
     for label, report in records.items():
@@ -76,11 +73,8 @@ def cmd_bench(args):
     performance = args.performance or (None if args.quick else pathlib.Path(
         "docs/performance.md"))
     work = args.work or pathlib.Path("out/bench-quick-work" if args.quick else "out/bench-work")
-    claim_folder(out, "--out folder")               # the defaults by the options' rule
-    claim_folder(work, "--work folder")
-    check_output_file(presets, "--presets", "json")
-    if performance is not None:
-        check_output_file(performance, "--performance", "markdown")
+    check_places([(out, "--out", "folder"), (work, "--work", "folder"),     # the defaults too
+                  (presets, "--presets", "json"), (performance, "--performance", "markdown")])
     rows, derived = run_bench(out, presets, work, performance, quick=args.quick,
                               device=args.device, progress=report_training)
     if rows is None:        # another run on the same work folder evaluates every point
@@ -130,8 +124,6 @@ def cmd_side_by_side(args):
     if args.save_blend is not None:
         return save_blends(scenes, args.save_blend)
     settings = thread_settings(args.thread_settings)
-    if args.performance is not None:                # its plots go into side-by-side/ beside it
-        claim_folder(pathlib.Path(args.performance).parent / "side-by-side", "plots folder")
     sizes = _image_sizes(args)
     if args.crossover is not None and sum(s.startswith("suzanne-") for s in scenes) < 2:
         raise VDNIFError("--crossover needs at least two suzanne-N scenes in --scene: the "
@@ -200,8 +192,7 @@ def _write_crossover(folder, results, command, host):
     write_json(folder / "crossover.json", {"command": command, "machine": host, **data})
     write_crossover_plot(data, results, folder / "crossover.png")
     write_text_atomic(folder / "crossover.md", "\n".join(crossover_markdown(
-        data, results, command, machine_text(host), "crossover.png")) + "\n", "markdown file",
-        "markdown")
+        data, results, command, machine_text(host), "crossover.png")) + "\n", "markdown file")
     for row in data["rows"]:
         print(f"crossover {row['width']}x{row['height']}, {row['threads']} thread setting, "
               f"{row['baseline']}: {row['text']}")

@@ -69,6 +69,9 @@ SCENES = {"static": ("spot", "bunny"), "deformation": ("arm", "lattice", "spot",
 ORIGINAL = "original (rest pose)"
 FIGURE_PASSES = "rows: normal, albedo, distance, material"
 
+FIGURES_FOLDER = "results"
+"""The folder beside the results file that holds each section's figures and JSON."""
+
 
 def static(run):
     """Table 1: every variant on the rest pose of spot and the bunny."""
@@ -320,7 +323,7 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
         size["seeds"] = size["seeds"][:max(1, seeds)]
     section, stem, figure_suffix = run_name(name, chosen, size["seeds"], all_seeds)
     results = pathlib.Path(results)
-    figures = results.parent / "results"
+    figures = results.parent / FIGURES_FOLDER
     figures.mkdir(parents=True, exist_ok=True)
     started, clock = datetime.datetime.now(datetime.timezone.utc), time.monotonic()
     with tempfile.TemporaryDirectory(prefix="vdnif-experiment-") as scratch:

@@ -23,7 +23,8 @@ import numpy as np
 
 from .. import limits
 from ..errors import VDNIFError
-from ..safe_io import DATASET_MANIFEST, open_regular, unpacked_size
+from ..output_rule import DATASET_MANIFEST
+from ..safe_io import open_regular, unpacked_size
 from .header import VERSION, DatasetHeader, DatasetIdentity, GridHeader
 from .packing import PackedShard, pack, stored_names
 
