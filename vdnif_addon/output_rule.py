@@ -280,13 +280,20 @@ def mark_claimed(folder: pathlib.Path) -> None:
     """Marks the claimed folders that ``folder`` is (or lies in) and lack a mark."""
     folder = pathlib.Path(os.path.abspath(folder))
     for place in (folder, *folder.parents):
-        if str(place) in _claimed and not any(
-                os.path.lexists(place / name) for name in FOLDER_MARKS):
-            with contextlib.suppress(FileExistsError):
-                descriptor = os.open(place / OUTPUT_MARK, os.O_WRONLY | os.O_CREAT | os.O_EXCL,
-                                     0o666)
-                with os.fdopen(descriptor, "w") as file:
-                    file.write(OUTPUT_MARK_TEXT)
+        if str(place) in _claimed:
+            mark_folder(place)
+
+
+def mark_folder(folder: str | os.PathLike) -> None:
+    """Marks ``folder`` as VDNIF's (``OUTPUT_MARK``) unless it holds a mark already: a
+    claimed folder, or the work folder whose lock files VDNIF's runs share."""
+    folder = pathlib.Path(folder)
+    if not any(os.path.lexists(folder / name) for name in FOLDER_MARKS):
+        with contextlib.suppress(FileExistsError):
+            descriptor = os.open(folder / OUTPUT_MARK, os.O_WRONLY | os.O_CREAT | os.O_EXCL,
+                                 0o666)
+            with os.fdopen(descriptor, "w") as file:
+                file.write(OUTPUT_MARK_TEXT)
 
 
 def mark_png(path: str | os.PathLike) -> None:

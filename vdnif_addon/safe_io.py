@@ -44,6 +44,7 @@ from .output_rule import (  # noqa: F401 - MARKDOWN_MARK for the writers of mark
     claim,
     file_kind,
     mark_claimed,
+    mark_folder,
     pending_writes,
 )
 
@@ -261,6 +262,7 @@ def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
     The operating system drops the lock when its process ends, however it ends, so a
     stopped run leaves no stale lock; the file itself stays (removing a locked file would
     let a third process lock a new file of the same name)."""
+    mark_folder(os.path.dirname(os.path.abspath(path)))     # a work folder VDNIF's runs share
     file = open(path, "a+b")
     try:
         if os.name == "nt":

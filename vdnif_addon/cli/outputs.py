@@ -19,6 +19,9 @@ class OutputPath(type(pathlib.Path())):
 
     kind = "folder"
 
+    def __repr__(self):             # shown as the plain path it is
+        return f"{type(pathlib.Path()).__name__}({str(self)!r})"
+
 
 def _output_type(kind: str):
     """The argparse type of an option naming an output of ``kind``; the type carries the
