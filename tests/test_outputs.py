@@ -19,6 +19,7 @@ import sys
 
 import pytest
 from conftest import REPO
+from test_bad_inputs import trained  # noqa: F401 - the arm's dataset and model, trained once
 
 from vdnif_addon import cli
 from vdnif_addon.errors import VDNIFError
@@ -491,3 +492,81 @@ def test_the_signal_handlers_come_back_after_a_run(batch, capsys):
                 if hasattr(signal, name)}
     batch(["capture", "--scene", "arm", "--json", "/dev/null"], capsys)
     assert {name: signal.getsignal(getattr(signal, name)) for name in handlers} == handlers
+
+
+def _limited(size):
+    """A child's preexec: files larger than ``size`` bytes cannot be written (EFBIG, the
+    signal that would kill the writer ignored)."""
+
+    def limit():
+        import resource
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+    return limit
+
+
+@pytest.mark.slow
+def test_a_render_whose_exr_hits_a_file_size_limit_keeps_its_old_pngs(trained, tmp_path):  # noqa: F811
+    """The render writes its PNGs (about 230 bytes at 16x16) before its EXR (about 820):
+    under a 512-byte limit the EXR fails, and no new PNG may stand beside the old EXR."""
+    _, model = trained
+    render = ["render", "--model", model, "--scene", "arm", "--width", 16, "--height", 16]
+    first = tmp_path / "first"
+    result = _batch_process([*render, "--out", first])
+    assert result.returncode == 0, result.stderr
+    sizes = {path.name: path.stat().st_size for path in first.iterdir()}
+    pngs = [size for name, size in sizes.items() if name.endswith(".png")]
+    assert len(pngs) >= 4 and max(pngs) < 512 < sizes["passes.exr"], sizes
+    old = tmp_path / "old"                  # a render folder of VDNIF's with older files
+    old.mkdir()
+    for name in sizes:
+        (old / name).write_bytes(b"old " + name.encode())
+    before = _snapshot(old)
+    result = _batch_process([*render, "--out", old], preexec_fn=_limited(512))
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"vdnif: error: cannot write EXR file '{old / 'passes.exr'}': file too large")
+    assert _snapshot(old) == before
+
+
+def _batch_process(args, **kwargs):
+    return subprocess.run([sys.executable, str(BATCH), "--", *map(str, args)],
+                          capture_output=True, text=True, timeout=300, cwd=REPO,
+                          env=dict(os.environ, OMP_NUM_THREADS="1"), **kwargs)
+
+
+# --------------------------------------------------------------- a model the user loaded
+
+KEEPING_BLEND = """
+import sys, bpy
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=2)
+bpy.context.active_object.name = "Ball"
+bpy.context.active_object["vdnif"] = {"model_path": "//ball.vdnif", "model_storage": "FILE"}
+bpy.ops.wm.save_as_mainfile(filepath=sys.argv[1])
+"""
+
+
+@pytest.mark.slow
+def test_train_replaces_the_model_a_blend_keeps_only_with_force(tmp_path):
+    """A model loaded into the .blend in the panel (file storage: ``//ball.vdnif``) is the
+    run's own input model: ``train --out`` over it asks for --force."""
+    shot, model = tmp_path / "shot.blend", tmp_path / "ball.vdnif"
+    subprocess.run([sys.executable, "-c", KEEPING_BLEND, str(shot)], check=True,
+                   capture_output=True, timeout=120)
+    _real_model(model)
+    kept = model.read_bytes()
+    train = ["train", "--blend", shot, "--object", "Ball", "--resolution", 8, "--poses", 2,
+             "--rays-per-pose", 64, "--steps", 2, "--batch", 256, "--log2-table-size", 10,
+             "--out", model]
+    result = _batch_process(train)
+    assert result.returncode == 1
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"vdnif: error: --out '{model}' is the model that 'Ball' keeps in its .blend, which "
+        "this run reads: refusing to replace it (give --force to replace it)")
+    assert model.read_bytes() == kept
+    result = _batch_process([*train, "--force"])
+    assert result.returncode == 0, result.stderr
+    assert model.read_bytes() != kept
