@@ -163,7 +163,7 @@ def _text_mark(path: pathlib.Path, kind: str) -> bool:
     text = data.decode("utf-8", "replace")
     if kind == "markdown":
         return text.startswith(MARKDOWN_MARK) or any(
-            f"<!-- end {key} -->" in text for key in re.findall(r"^<!-- ([\w.-]+) -->$", text,
+            f"<!-- end {key} -->" in text for key in re.findall(r"^<!-- ([^<>]+?) -->$", text,
                                                                    re.M))
     try:
         value = json.loads(text)
@@ -296,13 +296,20 @@ def mark_folder(folder: str | os.PathLike) -> None:
                 file.write(OUTPUT_MARK_TEXT)
 
 
+def mark_own(path: str | os.PathLike, kind: str | None) -> None:
+    """Gives a file of ``kind`` just written the own mark its writer cannot add (a PNG from
+    Blender's or matplotlib's writer: ``mark_png``)."""
+    if kind == "png":
+        mark_png(path)
+
+
 def mark_png(path: str | os.PathLike) -> None:
     """Adds the text ``Software: VDNIF`` right after the header of the PNG file ``path``
     (the image's own mark, ``own_mark``); a file that is not a PNG is left as it is."""
     data = pathlib.Path(path).read_bytes()
     signature, ihdr_end = b"\x89PNG\r\n\x1a\n", 8 + 8 + 13 + 4
-    if not data.startswith(signature) or data[12:16] != b"IHDR" or b"tEXtSoftware" in \
-            data[:256]:
+    if not data.startswith(signature) or data[12:16] != b"IHDR" or \
+            b"tEXtSoftware\0" + PNG_SOFTWARE in data[:256]:
         return
     body = b"tEXt" + b"Software\0" + PNG_SOFTWARE
     chunk = (len(body) - 4).to_bytes(4, "big") + body + zlib.crc32(body).to_bytes(4, "big")

@@ -36,17 +36,9 @@ import tempfile
 import zipfile
 from typing import Any, BinaryIO, Iterator
 
+from . import output_rule as rule
 from .errors import VDNIFError
-from .output_rule import (  # noqa: F401 - MARKDOWN_MARK for the writers of markdown
-    MARKDOWN_MARK,
-    check_folder_ours,
-    check_replace,
-    claim,
-    file_kind,
-    mark_claimed,
-    mark_folder,
-    pending_writes,
-)
+from .output_rule import MARKDOWN_MARK, file_kind  # noqa: F401 - MARKDOWN_MARK for writers
 
 
 def _reason(exc: BaseException) -> str:
@@ -127,7 +119,7 @@ def check_output_folder(path: str | os.PathLike, what: str = "output folder") ->
         raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if os.path.lexists(path) and not path.is_dir():
         raise VDNIFError(f"{what} '{path}' exists and is not a folder")
-    check_folder_ours(path, what)
+    rule.check_folder_ours(path, what)
     _check_creatable(path, f"{what} '{path}'")
 
 
@@ -135,7 +127,7 @@ def claim_folder(path: str | os.PathLike, what: str = "output folder") -> None:
     """Checks the output folder ``path`` and takes it for this process's outputs: the first
     file written into it marks it as VDNIF's (``output_rule``)."""
     check_output_folder(path, what)
-    claim(path)
+    rule.claim(path)
 
 
 def check_output_file(path: str | os.PathLike, what: str = "output file",
@@ -152,7 +144,7 @@ def check_output_file(path: str | os.PathLike, what: str = "output file",
         raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if path.is_dir():
         raise VDNIFError(f"{what} '{path}' is a folder, not a file")
-    check_replace(path, what, kind)
+    rule.check_replace(path, what, kind)
     _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),
                      f"{what} '{path}'")
 
@@ -176,13 +168,13 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
         raise VDNIFError(f"cannot write {what} '{path}': {problem}")
     if path.is_dir():
         raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
-    check_replace(path, what, kind)
+    rule.check_replace(path, what, kind)
     prefix, suffix = _temporary_affixes(path)
-    pending = pending_writes()
+    pending = rule.pending_writes()
     try:
         if make_folder:
             folder.mkdir(parents=True, exist_ok=True)
-        mark_claimed(folder)
+        rule.mark_claimed(folder)
         handle, temporary = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
     except OSError as exc:
         raise VDNIFError(f"cannot write {what} '{path}': {_reason(exc)}") from exc
@@ -190,6 +182,7 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
         os.fchmod(handle, 0o666 & ~_umask())     # mkstemp makes it private; outputs are not
         os.close(handle)
         yield temporary
+        rule.mark_own(temporary, kind or rule.kind_of(path))
         with open(temporary, "rb+") as file:     # durable before it takes the target's name
             os.fsync(file.fileno())
         if pending is None:
@@ -262,7 +255,7 @@ def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
     The operating system drops the lock when its process ends, however it ends, so a
     stopped run leaves no stale lock; the file itself stays (removing a locked file would
     let a third process lock a new file of the same name)."""
-    mark_folder(os.path.dirname(os.path.abspath(path)))     # a work folder VDNIF's runs share
+    rule.mark_folder(os.path.dirname(os.path.abspath(path)))   # a work folder runs share
     file = open(path, "a+b")
     try:
         if os.name == "nt":

@@ -5,7 +5,6 @@ import pathlib
 import bpy
 import numpy as np
 
-from ..output_rule import mark_png
 from ..safe_io import atomic_path
 
 FORMATS = {".png": "PNG", ".exr": "OPEN_EXR"}
@@ -34,7 +33,6 @@ def save_image(path, image):
                 block.save()
             except RuntimeError as exc:
                 raise OSError(str(exc)) from exc
-            mark_png(temporary)             # the image's own mark: VDNIF may replace it
     finally:
         bpy.data.images.remove(block)
     return path
