@@ -50,14 +50,14 @@ PNG_SOFTWARE = b"VDNIF"
 """The PNG text ``Software`` of the images VDNIF writes (``mark_png``)."""
 
 KINDS = {   # kind: (file suffixes, in words)
-    "model": ((".vdnif",), "model file"),
-    "json": ((".json",), "JSON file"),
-    "markdown": ((".md",), "markdown file"),
-    "png": ((".png",), "PNG image"),
-    "exr": ((".exr",), "EXR image"),
-    "csv": ((".csv",), "CSV file"),
-    "blend": ((".blend",), ".blend file"),
-    "dataset": ((".npz", ".json", ".manifest"), "dataset file"),
+    "model": ((".vdnif",), "a model file"),
+    "json": ((".json",), "a JSON file"),
+    "markdown": ((".md",), "a markdown file"),
+    "png": ((".png",), "a PNG image"),
+    "exr": ((".exr",), "an EXR image"),
+    "csv": ((".csv",), "a CSV file"),
+    "blend": ((".blend",), "a .blend file"),
+    "dataset": ((".npz", ".json", ".manifest"), "a dataset file"),
 }
 DEVICE_FOLDERS = ("/dev", "/proc", "/sys")
 """Folders of devices and kernel state: /dev/stdout is a link there, and replacing it (root
@@ -235,11 +235,11 @@ def check_replace(path: str | os.PathLike, what: str, kind: str | None = None) -
     link = os.path.islink(path)
     if size == 0 and not link:
         return
-    suffixes, words = KINDS.get(kind, ((), "file"))
+    suffixes, words = KINDS.get(kind, ((), "a file"))
     if path.suffix.lower() in suffixes and (own_mark(path, kind) or (
             not link and folder_marked(path.parent))):
         return
-    raise VDNIFError(f"{what} '{path}' exists and is not a {words} VDNIF wrote: refusing to "
+    raise VDNIFError(f"{what} '{path}' exists and is not {words} VDNIF wrote: refusing to "
                      "replace it (remove it or choose another path)")
 
 
