@@ -14,7 +14,7 @@ def names_scene(args):
 
 class OutputPath(type(pathlib.Path())):
     """A path that an option names for its command to write; ``kind`` is the kind of file
-    (``safe_io.KINDS``), or "folder". ``validate_arguments`` finds every output among the
+    (``output_rule.KINDS``), or "folder". ``validate_arguments`` finds every output among the
     parsed options by this type and applies the output rule to it."""
 
     kind = "folder"
