@@ -460,6 +460,7 @@ sys.exit(cli.main(["bench-network"]))
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["SIGTERM", "SIGHUP", "SIGINT"])
 def test_a_stop_signal_during_a_shard_write_leaves_no_partial_shard(name, tmp_path):
     if not hasattr(signal, name):
