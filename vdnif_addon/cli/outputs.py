@@ -87,22 +87,6 @@ def check_outputs(args):
             else:
                 check_output_file(path, f"{option} model file" if path.kind == "model"
                                   else option, path.kind)
-            beside = _folder_beside(args.command, name)
-            if beside is not None:
-                claim_folder(path.parent / beside, f"{option}'s {beside} folder")
-
-
-def _folder_beside(command, name):
-    """The folder that a markdown output keeps its figures in beside it, or None."""
-    if (command, name) == ("experiment", "results"):
-        from ..studies.experiments import FIGURES_FOLDER
-
-        return FIGURES_FOLDER
-    if (command, name) == ("side-by-side", "performance"):
-        from ..studies.side_by_side_report import SECTION
-
-        return SECTION                  # write_performance's plots folder
-    return None
 
 
 def check_places(places):

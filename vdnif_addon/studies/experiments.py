@@ -33,6 +33,7 @@ from ..blender.generate import generate_dataset
 from ..blender.jobs import variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_both, compare_common, concatenated
+from ..output_rule import REPORT_FORMAT
 from ..passes import Passes
 from ..safe_io import write_json_atomic
 from ..settings import RECIPE
@@ -68,9 +69,6 @@ SCENES = {"static": ("spot", "bunny"), "deformation": ("arm", "lattice", "spot",
           "ablation": ("arm", "lattice", "spot"), "per-pose": ("arm",)}
 ORIGINAL = "original (rest pose)"
 FIGURE_PASSES = "rows: normal, albedo, distance, material"
-
-FIGURES_FOLDER = "results"
-"""The folder beside the results file that holds each section's figures and JSON."""
 
 
 def static(run):
@@ -323,7 +321,7 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
         size["seeds"] = size["seeds"][:max(1, seeds)]
     section, stem, figure_suffix = run_name(name, chosen, size["seeds"], all_seeds)
     results = pathlib.Path(results)
-    figures = results.parent / FIGURES_FOLDER
+    figures = results.parent / "results"
     figures.mkdir(parents=True, exist_ok=True)
     started, clock = datetime.datetime.now(datetime.timezone.utc), time.monotonic()
     with tempfile.TemporaryDirectory(prefix="vdnif-experiment-") as scratch:
@@ -339,8 +337,9 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
                     grazing_fraction=RECIPE.grazing_fraction,
                     secondary_fraction=RECIPE.secondary_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
-    write_json_atomic(figures / f"{stem}.json", {"experiment": name, "settings": settings,
-                                                 "scenes": list(chosen), "runs": records})
+    write_json_atomic(figures / f"{stem}.json", {"format": REPORT_FORMAT, "experiment": name,
+                                                 "settings": settings, "scenes": list(chosen),
+                                                 "runs": records})
     command = command or shlex.join(
         ["python", "vdnif_addon/batch.py", "--", "experiment", name]
         + (["--quick"] if quick else []) + (["--scenes", ",".join(chosen)] if scenes else [])

@@ -389,7 +389,7 @@ def write_performance(performance, results, command, machine):
     """Rewrites the side-by-side section of the markdown file ``performance`` with
     ``results``, their plots in ``side-by-side/`` beside it; returns the plot paths."""
     performance = pathlib.Path(performance)
-    paths = write_plots(results, performance.parent / SECTION)   # the folder named as it
+    paths = write_plots(results, performance.parent / "side-by-side")
     relative = {name: path.relative_to(performance.parent).as_posix()
                 for name, path in paths.items()}
     from .bench import PERFORMANCE_PREAMBLE
