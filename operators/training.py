@@ -113,7 +113,8 @@ class VDNIF_OT_estimate(JobOperator, bpy.types.Operator):
 
     def finished(self, context, obj):
         if self.then_train and fresh_estimate(context, obj) is not None:
-            bpy.ops.vdnif.train("INVOKE_DEFAULT")
+            # Train asked about replacing a loaded model before it handed over to the estimate
+            bpy.ops.vdnif.train("INVOKE_DEFAULT", replace_loaded=True)
 
 
 class VDNIF_OT_train(JobOperator, bpy.types.Operator):
