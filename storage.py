@@ -148,6 +148,19 @@ def has_model(obj):
         bool(settings.model_path) and os.path.isfile(bpy.path.abspath(settings.model_path)))
 
 
+LOADED_FROM = "loaded_from"
+"""The model summary's key naming the file a loaded model came from (Load Model): training
+then replaces a model the user chose, and asks first."""
+
+
+def loaded_model(obj):
+    """The file the object's model was loaded from (Load Model), or None when it has no
+    model or trained its own."""
+    if not has_model(obj):
+        return None
+    return obj.vdnif.parsed("model_info").get(LOADED_FROM)
+
+
 def model_location(obj):
     """Where the object's model is, in words, for the panel."""
     settings = obj.vdnif
@@ -176,9 +189,10 @@ def _cache_path(data):
 
 
 def _copy_atomically(source, target):
-    with atomic_path(target, "model file") as temporary:    # safe_io: fresh, exclusive
+    # safe_io: fresh, exclusive, and only over a model VDNIF wrote
+    with atomic_path(target, "model file", kind="model") as temporary:
         shutil.copyfile(source, temporary)
 
 
 def _write_atomically(path, data):
-    write_bytes_atomic(path, data, "model file")
+    write_bytes_atomic(path, data, "model file", "model")

@@ -45,8 +45,13 @@ class VDNIF_OT_render_animation(JobOperator, bpy.types.Operator):
         written = []           # the frames whose images were written
 
         def write(frame, result, captured):
-            write_view(folder, result, height, width, captured.mesh.material_slots,
-                       frame=frame, secondary_names=names, scale=scale, prefix=prefix)
+            from ..vdnif_addon.output_rule import all_or_nothing
+            from ..vdnif_addon.safe_io import claim_folder
+
+            claim_folder(folder, "frames folder")
+            with all_or_nothing():          # every file of the frame, or none of them
+                write_view(folder, result, height, width, captured.mesh.material_slots,
+                           frame=frame, secondary_names=names, scale=scale, prefix=prefix)
             written.append(frame)
 
         camera, view = render_view(context, obj)

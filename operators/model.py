@@ -43,7 +43,9 @@ class VDNIF_OT_load_model(VDNIFOperator, bpy.types.Operator, ImportHelper):
         settings = obj.vdnif
         captured = model_capture(obj, metadata, settings.pose_spec())
         check_model_fits(self.filepath, metadata, captured.mesh, captured.grid)
-        storage.keep_model(obj, self.filepath, storage.model_summary(metadata, self.filepath))
+        summary = storage.model_summary(metadata, self.filepath)
+        summary[storage.LOADED_FROM] = self.filepath    # Train asks before replacing it
+        storage.keep_model(obj, self.filepath, summary)
         settings.adopt(metadata)
         settings.metrics = ""
         return f"'{obj.name}': model {self.filepath} loaded ({storage.model_location(obj)})"

@@ -116,8 +116,13 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size, result.secondary,
                             folder=storage.images_folder(obj))
-            exr = viewer.write_files(obj, result, slots, width, height, frame,
-                                     viewer.secondary_names(obj.vdnif))
+            from ..vdnif_addon.output_rule import all_or_nothing
+            from ..vdnif_addon.safe_io import claim_folder
+
+            claim_folder(storage.passes_folder(obj), "passes folder")
+            with all_or_nothing():          # every file of the render, or none of them
+                exr = viewer.write_files(obj, result, slots, width, height, frame,
+                                         viewer.secondary_names(obj.vdnif))
             choice = bpy.context.scene.vdnif_viewer
             image = viewer.show(bpy.context, choice)
             where = ("" if viewer.image_editor(bpy.context.screen) is not None

@@ -90,6 +90,9 @@ def dataset_stage(context, obj):
         obj = bpy.data.objects[name]
         settings = obj.vdnif
         made.update(settings=dataset_settings(obj), folder=storage.dataset_folder(obj))
+        from ..vdnif_addon.safe_io import claim_folder
+
+        claim_folder(made["folder"], "dataset folder")   # new, empty or VDNIF's: the rule
         captured = capture(obj, settings.resolution, settings.pose_spec(),
                            deform_corners=False)
         return dataset_job(obj, captured, made["settings"]["variant"], made["folder"],

@@ -113,7 +113,8 @@ class VDNIF_OT_estimate(JobOperator, bpy.types.Operator):
 
     def finished(self, context, obj):
         if self.then_train and fresh_estimate(context, obj) is not None:
-            bpy.ops.vdnif.train("INVOKE_DEFAULT")
+            # Train asked about replacing a loaded model before it handed over to the estimate
+            bpy.ops.vdnif.train("INVOKE_DEFAULT", replace_loaded=True)
 
 
 class VDNIF_OT_train(JobOperator, bpy.types.Operator):
@@ -126,6 +127,7 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
     needs = ("mesh", "torch", "idle")
 
     confirmed: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
+    replace_loaded: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
 
     def stages(self, context, obj):
         first = [dataset_stage(context, obj)] if needs_dataset(obj) else []
@@ -135,6 +137,12 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
         if bpy.app.background or self.confirmed:
             return super().invoke(context, event)
         obj = context.active_object
+        loaded = storage.loaded_model(obj)
+        if loaded and not self.replace_loaded:      # the output rule: a model the user chose
+            return context.window_manager.invoke_confirm(
+                self, event, title="Replace the loaded model?", icon="WARNING",
+                message=f"Training replaces the model loaded from {loaded}",
+                confirm_text="Train")
         if not needs_dataset(obj):
             return self.start(context)
         if fresh_estimate(context, obj) is None:     # measure it first, then ask again
@@ -154,7 +162,9 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
             layout.label(text=describe(figures).capitalize(), icon="TIME")
 
     def execute(self, context):
-        if not bpy.app.background and not self.confirmed:     # the dialog's Train button
+        if not bpy.app.background and not self.confirmed:     # a dialog's Train button
+            if not self.replace_loaded and storage.loaded_model(context.active_object):
+                return handed_over(bpy.ops.vdnif.train("INVOKE_DEFAULT", replace_loaded=True))
             return handed_over(bpy.ops.vdnif.train("INVOKE_DEFAULT", confirmed=True))
         return super().execute(context)
 

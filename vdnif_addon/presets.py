@@ -11,6 +11,8 @@ from typing import Any
 from .errors import VDNIFError
 
 PRESETS_FILE = pathlib.Path(__file__).with_name("presets.json")
+PRESETS_FORMAT = "vdnif-presets"
+"""The presets file's own mark (its ``format`` key): ``bench`` may replace it."""
 PRESET_NAMES = ("fast", "balanced", "accurate")
 SETTINGS = ("resolution", "levels", "log2_table_size", "pe_bands", "width", "steps")
 PRESET_VARIANT = "proposed"

@@ -4,6 +4,9 @@ symlink or an existing file is never opened), renamed over the target with ``os.
 only once it is complete. A run that fails leaves the target as it was and no temporary file
 behind; a symlink at the target is replaced, never written through.
 
+Every write obeys the output rule (``output_rule.check_replace``): it replaces only a file of
+its own kind that VDNIF wrote.
+
 ``check_output_file`` / ``check_output_folder`` say before any long work whether an output
 place can be written at all, so that a bad ``--json`` or ``--out`` is refused in a second,
 not after the training.
@@ -33,7 +36,9 @@ import tempfile
 import zipfile
 from typing import Any, BinaryIO, Iterator
 
+from . import output_rule as rule
 from .errors import VDNIFError
+from .output_rule import MARKDOWN_MARK, file_kind  # noqa: F401 - MARKDOWN_MARK for writers
 
 
 def _reason(exc: BaseException) -> str:
@@ -114,12 +119,22 @@ def check_output_folder(path: str | os.PathLike, what: str = "output folder") ->
         raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if os.path.lexists(path) and not path.is_dir():
         raise VDNIFError(f"{what} '{path}' exists and is not a folder")
+    rule.check_folder_ours(path, what)
     _check_creatable(path, f"{what} '{path}'")
 
 
-def check_output_file(path: str | os.PathLike, what: str = "output file") -> None:
-    """Raises VDNIFError unless a file can be written at ``path``: not a folder, in a folder
-    that exists or can be created and is writable."""
+def claim_folder(path: str | os.PathLike, what: str = "output folder") -> None:
+    """Checks the output folder ``path`` and takes it for this process's outputs: the first
+    file written into it marks it as VDNIF's (``output_rule``)."""
+    check_output_folder(path, what)
+    rule.claim(path)
+
+
+def check_output_file(path: str | os.PathLike, what: str = "output file",
+                      kind: str | None = None) -> None:
+    """Raises VDNIFError unless a file of ``kind`` (default: by its suffix) can be written
+    at ``path``: not a folder, in a folder that exists or can be created and is writable,
+    and nothing there that the output rule (``check_replace``) keeps."""
     text = os.fspath(path)
     path = pathlib.Path(path)
     if path.name in ("", ".", "..") or text.replace(os.sep, "/").rpartition("/")[2] in (
@@ -129,16 +144,19 @@ def check_output_file(path: str | os.PathLike, what: str = "output file") -> Non
         raise VDNIFError(f"{what} '{path}' cannot be written: {problem}")
     if path.is_dir():
         raise VDNIFError(f"{what} '{path}' is a folder, not a file")
+    rule.check_replace(path, what, kind)
     _check_creatable(path.parent if str(path.parent) else pathlib.Path("."),
                      f"{what} '{path}'")
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, what: str = "file",
-                make_folder: bool = True) -> Iterator[str]:
+                make_folder: bool = True, kind: str | None = None) -> Iterator[str]:
     """Yields the name of a fresh empty temporary file beside ``path`` (same suffix, so that
     writers that pick a format by suffix keep it) for a writer that needs a file name; when
-    the block ends without an exception it becomes ``path``, else it is removed.
+    the block ends without an exception it becomes ``path`` (inside ``all_or_nothing``: when
+    that block ends), else it is removed. A file of ``kind`` (default: by the suffix) that
+    the output rule keeps (``check_replace``) is refused before anything is written.
 
     The folder is created when missing unless ``make_folder`` is false. Any failure (a full
     disk, a read-only folder, a failing writer) raises VDNIFError naming ``what`` and
@@ -150,10 +168,13 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
         raise VDNIFError(f"cannot write {what} '{path}': {problem}")
     if path.is_dir():
         raise VDNIFError(f"cannot write {what} '{path}': it is a folder")
+    rule.check_replace(path, what, kind)
     prefix, suffix = _temporary_affixes(path)
+    pending = rule.pending_writes()
     try:
         if make_folder:
             folder.mkdir(parents=True, exist_ok=True)
+        rule.mark_claimed(folder)
         handle, temporary = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
     except OSError as exc:
         raise VDNIFError(f"cannot write {what} '{path}': {_reason(exc)}") from exc
@@ -161,9 +182,13 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
         os.fchmod(handle, 0o666 & ~_umask())     # mkstemp makes it private; outputs are not
         os.close(handle)
         yield temporary
+        rule.mark_own(temporary, kind or rule.kind_of(path))
         with open(temporary, "rb+") as file:     # durable before it takes the target's name
             os.fsync(file.fileno())
-        os.replace(temporary, path)
+        if pending is None:
+            os.replace(temporary, path)
+        else:
+            pending.append((temporary, path))
     except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(temporary)
@@ -172,16 +197,19 @@ def atomic_path(path: str | os.PathLike, what: str = "file",
         raise
 
 
-def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "file") -> pathlib.Path:
-    """Writes ``data`` to ``path`` through a temporary file (see ``atomic_path``)."""
-    with atomic_path(path, what) as temporary:
+def write_bytes_atomic(path: str | os.PathLike, data: bytes, what: str = "file",
+                       kind: str | None = None) -> pathlib.Path:
+    """Writes ``data``, a file of ``kind`` (default: by the suffix), to ``path`` through a
+    temporary file (see ``atomic_path``)."""
+    with atomic_path(path, what, kind=kind) as temporary:
         with open(temporary, "wb") as file:
             file.write(data)
     return pathlib.Path(path)
 
 
-def write_text_atomic(path: str | os.PathLike, text: str, what: str = "file") -> pathlib.Path:
-    return write_bytes_atomic(path, text.encode("utf-8"), what)
+def write_text_atomic(path: str | os.PathLike, text: str, what: str = "file",
+                      kind: str | None = None) -> pathlib.Path:
+    return write_bytes_atomic(path, text.encode("utf-8"), what, kind)
 
 
 def first_non_finite(value: Any, where: str = "") -> str | None:
@@ -215,9 +243,10 @@ def json_text(data: Any, what: str, indent: int = 2) -> str:
 
 
 def write_json_atomic(path: str | os.PathLike, data: Any, what: str = "JSON file",
-                      indent: int = 2) -> pathlib.Path:
-    """Writes ``data`` as strict JSON to ``path`` atomically."""
-    return write_text_atomic(path, json_text(data, f"{what} '{path}'", indent), what)
+                      indent: int = 2, kind: str = "json") -> pathlib.Path:
+    """Writes ``data`` as strict JSON to ``path`` atomically (a JSON file whatever the
+    suffix, for the output rule)."""
+    return write_text_atomic(path, json_text(data, f"{what} '{path}'", indent), what, kind)
 
 
 def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
@@ -226,6 +255,7 @@ def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
     The operating system drops the lock when its process ends, however it ends, so a
     stopped run leaves no stale lock; the file itself stays (removing a locked file would
     let a third process lock a new file of the same name)."""
+    rule.mark_folder(os.path.dirname(os.path.abspath(path)))   # a work folder runs share
     file = open(path, "a+b")
     try:
         if os.name == "nt":
@@ -242,17 +272,6 @@ def exclusive_lock(path: str | os.PathLike) -> io.BufferedRandom | None:
 
 
 # --------------------------------------------------------------------------- reading
-
-
-def file_kind(mode: int) -> str:
-    """What a file of ``st_mode`` ``mode`` is, in words ("a folder", "a FIFO", ...)."""
-    for test, kind in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a folder"),
-                       (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                       (stat.S_ISSOCK, "a socket")):
-        if test(mode):
-            return kind
-    return "not a regular file"
 
 
 def check_input_file(path: str | os.PathLike, label: str) -> None:

@@ -392,7 +392,7 @@ def files(trained, tmp_path_factory, extension):
 
 
 def _case_folder(tmp_path):
-    (tmp_path / "existing.json").write_text('{"keep": true}\n')
+    (tmp_path / "existing.json").write_text('{"format": "vdnif-report", "keep": true}\n')
     (tmp_path / "file.txt").write_text("keep\n")
     (tmp_path / "existing_dir").mkdir()
     (tmp_path / "existing_dir" / "keep.txt").write_text("keep\n")
@@ -475,15 +475,15 @@ def test_a_blend_with_a_blocked_python_driver_does_not_hang_at_exit(files):
 
 def test_capture_json_through_planted_symlinks_overwrites_nothing(tmp_path, empty_scene, core,
                                                                   capfd):
-    victim = tmp_path / "victim.txt"
-    victim.write_text("precious\n")
+    victim = tmp_path / "victim.json"           # a report VDNIF wrote: the link is replaced
+    victim.write_text('{"format": "vdnif-report"}\n')
     target = tmp_path / "c.json"
     for name in ("c.json.tmp", ".c.json.partial"):
         (tmp_path / name).symlink_to(victim)
     target.symlink_to(victim)
     code = core("cli").main(["capture", *ARM, "--json", str(target)])
     assert code == 0, capfd.readouterr().err
-    assert victim.read_text() == "precious\n" and not target.is_symlink()
+    assert victim.read_text() == '{"format": "vdnif-report"}\n' and not target.is_symlink()
     assert json.loads(target.read_text())["object"] == "Arm"
 
 

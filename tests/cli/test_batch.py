@@ -13,6 +13,7 @@ from batch_runner import error_lines, run_batch
 from conftest import REPO
 
 from vdnif_addon.inference.metrics import SPEED_MIN_HIT_IOU, speed_withheld
+from vdnif_addon.output_rule import OUTPUT_MARK
 
 
 def test_capture_writes_the_summary_json(tmp_path):
@@ -404,6 +405,7 @@ def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_dem
     target = tmp_path / "r"
     target.mkdir()
     (target / "normal.png").write_bytes(b"keep")
+    (target / OUTPUT_MARK).write_text("")      # a render folder of VDNIF's, from an older run
     future = tmp_path / "future.vdnif"
     import torch
     archive = torch.load(model, weights_only=True)
@@ -420,7 +422,7 @@ def test_bad_models_and_cameras_fail_on_one_line_and_overwrite_nothing(quick_dem
         code, _, err = run_batch("render", *args, "--out", target)
         lines = error_lines(err)
         assert code == 1 and len(lines) == 1 and message in lines[0], err
-    assert sorted(p.name for p in target.iterdir()) == ["normal.png"]
+    assert sorted(p.name for p in target.iterdir()) == ["normal.png", OUTPUT_MARK]
     assert (target / "normal.png").read_bytes() == b"keep"
 
 

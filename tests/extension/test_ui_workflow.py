@@ -172,10 +172,10 @@ def test_render_passes_fills_the_pass_images(session):
         "VDNIF DiffCol (predicted)", "VDNIF DiffCol (reference)"}
     # the files the render command writes, for the current frame, beside the .blend
     frame = f"{session['frame']:04d}"
-    assert session["passes_files"] == sorted(
+    assert session["passes_files"] == sorted([module("vdnif_addon.output_rule").OUTPUT_MARK, *(
         f"{prefix}{name}.{frame}.{suffix}" for prefix in ("", "true-") for name, suffix in (
             ("passes", "exr"), ("hit", "png"), ("normal", "png"), ("albedo", "png"),
-            ("distance", "png"), ("material", "png")))
+            ("distance", "png"), ("material", "png")))])
 
 
 def test_evaluate_keeps_finite_metrics(session):
@@ -373,6 +373,7 @@ def test_save_and_load_model_files(session, tmp_path):
     assert storage.model_path(obj).read_bytes() == session["trained_path"].read_bytes()
     assert settings.width == 32, "the loaded model's settings were not adopted"
     assert settings.metrics == "" and settings.parsed("model_info")["steps"] == 30
+    assert storage.loaded_model(obj) == str(session["trained_path"])   # Train asks first
     bpy.ops.vdnif.render_passes()                     # the loaded model renders
 
     corrupt = tmp_path / "corrupt.vdnif"

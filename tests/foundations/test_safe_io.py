@@ -12,6 +12,7 @@ from conftest import REPO
 from dataset_headers import header_dict
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.output_rule import OUTPUT_MARK
 from vdnif_addon.safe_io import (
     FILE_STEM_LIMIT,
     atomic_path,
@@ -31,11 +32,11 @@ def _listing(folder):
 
 
 def test_a_symlink_at_the_target_is_replaced_not_written_through(tmp_path):
-    victim = tmp_path / "victim.txt"
-    victim.write_text("precious\n")
+    victim = tmp_path / "victim.json"           # a file VDNIF wrote: replaceable, by its mark
+    victim.write_text('{"format": "vdnif-report"}\n')
     (tmp_path / "c.json").symlink_to(victim)
     write_json_atomic(tmp_path / "c.json", {"a": 1})
-    assert victim.read_text() == "precious\n"
+    assert victim.read_text() == '{"format": "vdnif-report"}\n'
     assert not (tmp_path / "c.json").is_symlink()
     assert json.loads((tmp_path / "c.json").read_text()) == {"a": 1}
 
@@ -53,6 +54,7 @@ def test_planted_symlinks_at_the_old_temporary_names_are_left_alone(tmp_path):
 def test_a_failing_writer_leaves_the_target_and_no_temporary_file(tmp_path):
     target = tmp_path / "image.png"
     target.write_bytes(b"old")
+    (tmp_path / OUTPUT_MARK).write_text("")       # a folder of VDNIF's outputs
     with pytest.raises(RuntimeError, match="writer failed"):
         with atomic_path(target, "image") as temporary:
             assert temporary.endswith(".png") and os.path.dirname(temporary) == str(tmp_path)
@@ -60,7 +62,7 @@ def test_a_failing_writer_leaves_the_target_and_no_temporary_file(tmp_path):
                 file.write(b"half")
             raise RuntimeError("writer failed")
     assert target.read_bytes() == b"old"
-    assert _listing(tmp_path) == ["image.png"]
+    assert _listing(tmp_path) == sorted([OUTPUT_MARK, "image.png"])
 
 
 def test_non_finite_json_is_refused_naming_the_figure(tmp_path):

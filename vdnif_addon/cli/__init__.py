@@ -10,14 +10,18 @@ listed as such and refuse to run with one line.
 """
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+import threading
 import traceback
 from importlib.util import find_spec
 
 from ..errors import VDNIFError
 from . import pipeline
 from .options import add_declared_options, validate_arguments
+from .outputs import run_inputs
 
 # The studies' commands and the studies themselves; an import error inside them still raises.
 if all(find_spec(f"{package}.studies") is not None
@@ -107,9 +111,43 @@ def _debugging(argv):
     return [arg for arg in argv if arg != "--debug"], wanted
 
 
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+"""Signals that end a batch run as Ctrl+C (SIGINT) does: every file being written is removed
+(``safe_io.atomic_path``), the old ones stay. Windows has no SIGHUP."""
+
+
+class Stopped(KeyboardInterrupt):
+    """A stop signal, raised where the run is, so that its clean-ups run as for Ctrl+C."""
+
+
+def _stop(number, frame):
+    raise Stopped(signal.Signals(number).name)
+
+
+@contextlib.contextmanager
+def _stopping_cleanly():
+    """Within the block, ``STOP_SIGNALS`` raise ``Stopped`` (only on the main thread, where
+    Python runs signal handlers); the previous handlers come back after it."""
+    saved = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in STOP_SIGNALS:
+            if hasattr(signal, name):
+                saved[name] = signal.signal(getattr(signal, name), _stop)
+    try:
+        yield
+    finally:
+        for name, handler in saved.items():
+            signal.signal(getattr(signal, name), handler)
+
+
 def main(argv):
     """Runs one batch command; returns the process exit code: 0, or 1 after one line
     ``vdnif: error: ...`` on stderr for any failure (the traceback only with --debug)."""
+    with _stopping_cleanly():
+        return _main(argv)
+
+
+def _main(argv):
     argv, debug = _debugging(list(argv))
     try:
         missing = _missing_study(argv)
@@ -121,14 +159,19 @@ def main(argv):
             parser.print_help()
             return 2
         validate_arguments(args)
+        from ..output_rule import run_inputs as reading
         from ..threads import use_threads
 
         use_threads(getattr(args, "threads", None))
-        return args.run(args)
+        with reading(run_inputs(args), getattr(args, "force", False)):
+            return args.run(args)
     except VDNIFError as exc:           # usage mistakes (_UsageError) too
         if debug:
             traceback.print_exc()
         print(f"vdnif: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except Stopped as exc:
+        print(f"vdnif: error: stopped by {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("vdnif: error: interrupted", file=sys.stderr)

@@ -16,11 +16,11 @@ from .options import (
     add_stress_options,
     frames_option,
     load_posed_scene,
-    output_file,
     print_evaluation,
     secondary_settings,
     write_json,
 )
+from .outputs import output_file, output_folder
 
 
 def _model_scene(args, evaluation=False):
@@ -51,6 +51,7 @@ def cmd_render(args):
     from ..blender.steps import DistanceScale, write_view
     from ..kernels import runtime
     from ..memory import check_disk
+    from ..output_rule import all_or_nothing
     from ..posed.animation import frame_pose, render_frames
     from ..posed.render import camera_view, load_scene_model
     from ..progress import Progress
@@ -88,22 +89,25 @@ def cmd_render(args):
 
     reader = PoseReader(obj, captured, None if camera is None else (
         lambda: camera_view(camera, args.width, args.height)))
-    try:
-        figures = render_frames(reader, captured, model, frames, args.width, args.height,
-                                references=args.references, each=write,
-                                progress=(lambda done, _: progress.update(done)) if sequence
-                                else None, secondary=secondary)
-    finally:
-        reader.close()
-    summary = {"model": str(args.model), "object": obj.name, "view": view,
-               "width": args.width, "height": args.height, "kernels_s": kernels_s,
-               "distance_preview_range": scale.near_far,
-               "files": [str(path) for path in written]}
-    if sequence:
-        summary["frames"] = figures
-    else:
-        summary.update(figures[0])
-    write_json(pathlib.Path(args.out) / "render.json", summary)
+    # Every file of the run (each frame's PNGs and EXR, render.json) is written to a
+    # temporary and takes its name only once all are written: a failure leaves the old set.
+    with all_or_nothing():
+        try:
+            figures = render_frames(reader, captured, model, frames, args.width, args.height,
+                                    references=args.references, each=write,
+                                    progress=(lambda done, _: progress.update(done))
+                                    if sequence else None, secondary=secondary)
+        finally:
+            reader.close()
+        summary = {"model": str(args.model), "object": obj.name, "view": view,
+                   "width": args.width, "height": args.height, "kernels_s": kernels_s,
+                   "distance_preview_range": scale.near_far,
+                   "files": [str(path) for path in written]}
+        if sequence:
+            summary["frames"] = figures
+        else:
+            summary.update(figures[0])
+        write_json(pathlib.Path(args.out) / "render.json", summary)
     shown = (f"frames {frames[0]}..{frames[-1]} ({len(frames)})" if sequence
              else f"frame {frames[0]:g}")
     speed = sum(f["rays_per_s"] for f in figures) / len(figures)
@@ -135,20 +139,22 @@ def cmd_evaluate(args):
     """Evaluate a trained model on unseen poses against the true and embedded references."""
     from ..blender.steps import DistanceScale, write_figures, write_passes
     from ..inference.metrics import check_compared
+    from ..output_rule import all_or_nothing
 
     report, views, captured = evaluated(args)
     check_compared(report["vs_true"], report["object"])
-    if args.out is not None:
-        view = views[0]
-        report["figures"] = {name: str(path) for name, path in write_figures(
-            args.out, view, args.height, args.width, captured.mesh.size).items()}
-        scale, secondary = DistanceScale(), view.get("secondary", {})
-        scale(view["predicted"], view["true"])   # prediction and reference on one scale
-        report["passes"] = [str(path) for name in ("predicted", "true") for path in
-                            write_passes(args.out, view[name], args.height, args.width,
-                                         prefix="" if name == "predicted" else "true-",
-                                         secondary=secondary.get(name), scale=scale)]
-    write_json(args.json, report)
+    with all_or_nothing():          # the figures, passes and report together, or none
+        if args.out is not None:
+            view = views[0]
+            report["figures"] = {name: str(path) for name, path in write_figures(
+                args.out, view, args.height, args.width, captured.mesh.size).items()}
+            scale, secondary = DistanceScale(), view.get("secondary", {})
+            scale(view["predicted"], view["true"])   # prediction and reference on one scale
+            report["passes"] = [str(path) for name in ("predicted", "true") for path in
+                                write_passes(args.out, view[name], args.height, args.width,
+                                             prefix="" if name == "predicted" else "true-",
+                                             secondary=secondary.get(name), scale=scale)]
+        write_json(args.json, report)
     print_evaluation(report)
     print(f"  verdict against the mesh: {verdict(report['vs_true'])}")
     return 0
@@ -188,7 +194,7 @@ def add_commands(commands):
         "camera object (default: the scene's camera, else an orbit viewpoint)"))
     render.add_argument("--references", action="store_true",
                         help="also render the true and embedded references")
-    render.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+    render.add_argument("--out", type=output_folder, required=True, metavar="DIR",
                         help="output folder")
 
     evaluate = _model_command(commands, "evaluate", cmd_evaluate, (
@@ -201,7 +207,7 @@ def add_commands(commands):
     evaluate.add_argument("--pose-set", choices=tuple(POSE_SETS), default=TEST_POSES,
                           help="the unseen poses: the test set, reported; or the "
                                "development set, for choices (default test)")
-    evaluate.add_argument("--out", type=pathlib.Path, metavar="DIR",
+    evaluate.add_argument("--out", type=output_folder, metavar="DIR",
                           help="write the figures, error images and first pose's passes here")
     evaluate.add_argument("--json", type=output_file, metavar="PATH", help="write the report "
                           "(vs_true, vs_embedded, per_pose, timings)")

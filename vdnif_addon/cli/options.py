@@ -7,7 +7,6 @@ several commands print. A setting's option is generated from its declaration
 import argparse
 import dataclasses
 import math
-import os
 import pathlib
 import sys
 
@@ -27,6 +26,7 @@ from ..settings import (
     TrainConfig,
 )
 from ..text import EMBREE_NOTE, exact_speed_line, metrics_line, secondary_line, speed_line
+from .outputs import check_outputs, names_scene  # noqa: F401 - names_scene for the commands
 
 PIPELINE_SCENE = "arm"
 """The embedded scene of a pipeline command that names no scene."""
@@ -224,10 +224,12 @@ def add_network_options(parser):
 def write_json(path, data):
     """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
     file, no write through a symlink, no NaN)."""
+    from ..output_rule import REPORT_FORMAT
     from ..safe_io import write_json_atomic
 
     if path is not None:
-        write_json_atomic(path, data)
+        write_json_atomic(path, {"format": REPORT_FORMAT, **data} if isinstance(data, dict)
+                          and "format" not in data else data)
 
 
 def check_resolution(value):
@@ -275,13 +277,6 @@ def print_evaluation(report):
     print(f"  {EMBREE_NOTE}")
 
 
-def names_scene(args):
-    """Whether the options name a scene (--scene, --mesh or --blend)."""
-    return any(getattr(args, name) is not None for name in ("scene", "mesh", "blend"))
-
-
-OUTPUT_FILES = ("json", "markdown", "results", "presets", "performance")
-"""Options naming a file a command writes; ``--out`` is a file for train, else a folder."""
 IMAGE_COMMANDS = declared.IMAGE_COMMANDS
 
 
@@ -295,20 +290,11 @@ def frames_option(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(str(exc).removeprefix(f"--frames '{text}' ")) from None
 
 
-def output_file(text: str) -> pathlib.Path:
-    """The type of an option that names an output file (--json, --markdown, train's --out):
-    refused when it names a folder (a trailing separator, ``.``, ``..``), which the path
-    object alone would drop, silently writing a file of the folder's name."""
-    if text.replace(os.sep, "/").rpartition("/")[2] in ("", ".", ".."):
-        raise argparse.ArgumentTypeError(f"'{text}' names a folder, not a file")
-    return pathlib.Path(text)
-
-
 def validate_arguments(args):
     """Checks every option that can be wrong on its own, and every input and output place,
     before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
     from .. import limits
-    from ..safe_io import check_input_file, check_output_file, check_output_folder, open_regular
+    from ..safe_io import check_input_file, open_regular
 
     def given(name):
         return getattr(args, name, None) is not None
@@ -336,18 +322,7 @@ def validate_arguments(args):
         # the loader's own first check, before torch and bpy are imported
         with open_regular(args.model, f"model file {args.model}"):
             pass
-    for name in OUTPUT_FILES:
-        if given(name):
-            check_output_file(getattr(args, name), f"--{name}")
-    if args.command == "train" and given("data") and names_scene(args):
-        check_output_folder(args.data, "--data folder")
-    if given("out"):
-        if args.command == "train":
-            check_output_file(args.out, "--out model file")
-        else:
-            check_output_folder(args.out, "--out folder")
-    if given("work"):
-        check_output_folder(args.work, "--work folder")
+    check_outputs(args)
     if args.command == "train" and not given("data") and not names_scene(args):
         raise VDNIFError("give --data DIR (a dataset folder) or scene options "
                          "(--scene, --mesh or --blend)")

@@ -7,6 +7,7 @@ import sys
 
 from .. import declarations as declared
 from ..errors import VDNIFError
+from ..output_rule import note_input
 from ..safe_io import check_output_file, file_stem
 from ..text import metrics_line, percent, value
 from . import model_commands
@@ -22,11 +23,11 @@ from .options import (
     load_posed_scene,
     names_scene,
     network_overrides,
-    output_file,
     report_training,
     secondary_settings,
     write_json,
 )
+from .outputs import output_file, output_folder, output_model
 
 
 def cmd_capture(args):
@@ -184,7 +185,7 @@ def cmd_train(args):
         header = read_dataset(args.data)[0].header
         variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
-        check_output_file(out, "model file")            # before training, not after it
+        check_output_file(out, "model file", "model")   # before training, not after it
         pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
         from ..training.fit import fit_model
 
@@ -233,9 +234,15 @@ def _train_on_scene(args):
         raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
                          "folder with scene options, or train on it with --data alone")
     obj, spec = load_posed_scene(args)
+    kept = _kept_model(obj)
+    if kept is not None:            # replacing it asks for --force (safe_io's output rule)
+        note_input(kept, f"the model that '{obj.name}' keeps in its .blend, which")
+        if args.out is not None:
+            check_output_file(args.out, "--out", "model")
     captured = capture(obj, args.resolution, spec, deform_corners=False)
     variant = _variant(args, obj.name, captured.mode == "static")
     out = args.out or pathlib.Path("out") / f"{file_stem(obj.name.lower())}-{variant}.vdnif"
+    check_output_file(out, "--out", "model")
     pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="vdnif-data-") as scratch:
         folder = args.data or pathlib.Path(scratch)
@@ -243,6 +250,19 @@ def _train_on_scene(args):
               f"rays per pose -> {args.data or 'a temporary folder'}", file=sys.stderr)
         return train_variant(obj, captured, variant, folder, args.rays_per_pose, out,
                              network_overrides(args), args.seed, progress=report_training)
+
+
+def _kept_model(obj):
+    """The model file that the VDNIF settings of ``obj`` keep beside its .blend (loaded or
+    trained in the panel, file storage), or None."""
+    import bpy
+
+    settings = obj.get("vdnif")
+    text = settings.get("model_path") if hasattr(settings, "get") else None
+    if not isinstance(text, str) or not text:
+        return None
+    path = pathlib.Path(bpy.path.abspath(text, library=obj.library))
+    return path if path.is_file() else None
 
 
 def _scene_command(commands, name, run, notes):
@@ -271,7 +291,7 @@ def add_commands(commands):
         add_setting(data, setting, "dataset")
     data.add_argument("--pose-range", metavar="A:B",
                       help="only poses A..B-1 of the N (default: all poses)")
-    data.add_argument("--out", type=pathlib.Path, required=True, metavar="DIR",
+    data.add_argument("--out", type=output_folder, required=True, metavar="DIR",
                       help="dataset folder (shards are added to it)")
 
     refs = _scene_command(commands, "references", cmd_references, (
@@ -286,7 +306,7 @@ def add_commands(commands):
         cmd_train.__doc__ + " Under torchrun, each process trains on its share of the shards "
         "(DistributedDataParallel) and the first one writes the model and its loss plot "
         "(<model>-training.png beside it)."))
-    training.add_argument("--data", type=pathlib.Path, metavar="DIR", help=(
+    training.add_argument("--data", type=output_folder, metavar="DIR", help=(
         "dataset folder written by 'dataset'; with scene options the dataset is generated "
         "into it first (default with scene options: a temporary folder)"))
     add_scene_options(training)
@@ -295,8 +315,10 @@ def add_commands(commands):
     add_setting(training, declared.RAYS_PER_POSE, "train",
                 help=f"with scene options: {declared.RAYS_PER_POSE.help}")
     add_setting(training, declared.VARIANT, "train")
-    training.add_argument("--out", type=output_file, metavar="MODEL", help=(
+    training.add_argument("--out", type=output_model, metavar="MODEL", help=(
         "model file (default DIR/<variant>.vdnif, or out/<object>-<variant>.vdnif)"))
+    training.add_argument("--force", action="store_true", help=(
+        "replace --out even when it is the model the --blend object keeps"))
     add_training_options(training)
     training.add_argument("--json", type=output_file, metavar="PATH", help=(
         "write the summary with the training history (step, task losses, validation)"))

@@ -7,7 +7,7 @@ import pathlib
 from .. import declarations as declared
 from ..errors import VDNIFError
 from ..inference.metrics import SPEED_MIN_HIT_IOU
-from ..safe_io import write_text_atomic
+from ..safe_io import MARKDOWN_MARK, write_text_atomic
 from ..settings import DEFAULT_PRECISION, DEMO_SCENE, DEMO_SCENES, RECIPE
 from ..studies.side_by_side_scenes import MILLION_LEVEL, SCENES, scene_name
 from .options import (
@@ -15,12 +15,12 @@ from .options import (
     add_secondary_options,
     add_setting,
     add_stress_options,
-    output_file,
     print_evaluation,
     report_training,
     secondary_settings,
     write_json,
 )
+from .outputs import check_places, output_file, output_folder, output_markdown
 
 # torch, Warp, the baselines and the timing code are imported where they are used, so that
 # building the batch parser (every command's, a failing one's too) does not import them.
@@ -73,6 +73,8 @@ def cmd_bench(args):
     performance = args.performance or (None if args.quick else pathlib.Path(
         "docs/performance.md"))
     work = args.work or pathlib.Path("out/bench-quick-work" if args.quick else "out/bench-work")
+    check_places([(out, "--out", "folder"), (work, "--work", "folder"),     # the defaults too
+                  (presets, "--presets", "json"), (performance, "--performance", "markdown")])
     rows, derived = run_bench(out, presets, work, performance, quick=args.quick,
                               device=args.device, progress=report_training)
     if rows is None:        # another run on the same work folder evaluates every point
@@ -155,8 +157,8 @@ def cmd_side_by_side(args):
     host = machine(load_before, device)
     write_json(args.json, {"command": command, "machine": host, "results": results})
     if args.markdown is not None:
-        write_text_atomic(args.markdown, "\n".join(side_by_side_markdown(
-            results, command, machine_text(host))) + "\n", "markdown file")
+        write_text_atomic(args.markdown, "\n".join([MARKDOWN_MARK, *side_by_side_markdown(
+            results, command, machine_text(host))]) + "\n", "markdown file", "markdown")
     if args.plots is not None:
         write_plots(results, args.plots)
     if args.performance is not None:
@@ -286,7 +288,7 @@ def add_commands(commands):
     add_stress_options(demo)
     add_setting(demo, declared.STEPS, "demo", help="training steps (default: the demo's own)")
     add_setting(demo, declared.DEVICE, "demo")
-    demo.add_argument("--out", type=pathlib.Path, default=pathlib.Path("out/demo"),
+    demo.add_argument("--out", type=output_folder, default="out/demo",
                       metavar="DIR", help="output folder")
     demo.add_argument("--json", type=output_file, metavar="PATH",
                       help="also write the report JSON here (it is always in DIR)")
@@ -302,8 +304,8 @@ def add_commands(commands):
     experiment.add_argument("--seeds", type=int, metavar="N", help="only the first N of the "
                             "size's seeds (default: all)")
     add_setting(experiment, declared.DEVICE, "experiment")
-    experiment.add_argument("--results", type=output_file,
-                            default=pathlib.Path("docs/results.md"), metavar="PATH",
+    experiment.add_argument("--results", type=output_markdown,
+                            default="docs/results.md", metavar="PATH",
                             help="markdown file whose section is rewritten; figures and "
                                  "JSON go to results/ beside it")
     experiment.set_defaults(run=cmd_experiment)
@@ -315,14 +317,14 @@ def add_commands(commands):
         "points, and runs side by side on one folder share them."))
     sweep.add_argument("--quick", action="store_true",
                        help="a small sweep (minutes) into out/bench-quick, presets not shipped")
-    sweep.add_argument("--out", type=pathlib.Path, metavar="DIR",
+    sweep.add_argument("--out", type=output_folder, metavar="DIR",
                        help="bench.csv, bench.json, pareto.png (default docs/bench)")
     sweep.add_argument("--presets", type=output_file, metavar="PATH",
                        help="presets JSON (default: the one the panel reads)")
-    sweep.add_argument("--performance", type=output_file, metavar="PATH",
+    sweep.add_argument("--performance", type=output_markdown, metavar="PATH",
                        help="markdown whose sweep section is rewritten "
                             "(default docs/performance.md; none with --quick)")
-    sweep.add_argument("--work", type=pathlib.Path, metavar="DIR",
+    sweep.add_argument("--work", type=output_folder, metavar="DIR",
                        help="each point's model and training record (default "
                             "out/bench-work, out/bench-quick-work with --quick)")
     add_setting(sweep, declared.DEVICE, "bench")
@@ -373,22 +375,22 @@ def _add_side_by_side(commands):
                         metavar="N|all", help="thread settings to time (default: 1 all)")
     add_setting(parser, declared.DEVICE, "side-by-side")
     add_setting(parser, declared.PRECISION, "side-by-side")
-    parser.add_argument("--train", type=pathlib.Path, metavar="DIR", help=(
+    parser.add_argument("--train", type=output_folder, metavar="DIR", help=(
         "train each scene without --model by the recipe into DIR (kept for the next run)"))
     parser.add_argument("--quick", action="store_true",
                         help="with --train: a tiny training, for tests")
     parser.add_argument("--json", type=output_file, metavar="PATH",
                         help="write every repeat's timings, the medians and ratios as JSON")
-    parser.add_argument("--markdown", type=output_file, metavar="PATH",
+    parser.add_argument("--markdown", type=output_markdown, metavar="PATH",
                         help="write the tables as markdown")
-    parser.add_argument("--plots", type=pathlib.Path, metavar="DIR",
+    parser.add_argument("--plots", type=output_folder, metavar="DIR",
                         help="write the rays/s and bytes plots into DIR")
-    parser.add_argument("--performance", type=output_file, metavar="PATH", help=(
+    parser.add_argument("--performance", type=output_markdown, metavar="PATH", help=(
         "rewrite the side-by-side section of PATH (docs/performance.md), plots in "
         "side-by-side/ beside it"))
-    parser.add_argument("--crossover", type=pathlib.Path, metavar="DIR", help=(
+    parser.add_argument("--crossover", type=output_folder, metavar="DIR", help=(
         "write crossover.json, .md and .png into DIR: where neural meets each baseline"))
-    parser.add_argument("--save-blend", type=pathlib.Path, metavar="DIR", help=(
+    parser.add_argument("--save-blend", type=output_folder, metavar="DIR", help=(
         "only save each scene as DIR/<scene>.blend (for 'train --blend') and stop"))
     add_secondary_options(parser, "side-by-side", secondary_help=(
         "also time each path's ambient-occlusion and shadow rays, at 1 and --ao-samples per "

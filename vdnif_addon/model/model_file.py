@@ -106,7 +106,7 @@ def save_model(
     torch.save(archive, buffer)
     # Written here, not by torch.save to the file: torch turns a failed write (a full disk)
     # into a RuntimeError of its own, where this write raises the OSError that names it.
-    with atomic_path(path, "model file", make_folder=False) as temporary:     # safe_io
+    with atomic_path(path, "model file", make_folder=False, kind="model") as temporary:
         with open(temporary, "wb") as file:
             file.write(buffer.getbuffer())
 

@@ -23,7 +23,7 @@ from ..blender.steps import evaluate_file, evaluation_poses, variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_common, concatenated
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
-from ..presets import PRESET_ERROR, PRESET_VARIANT
+from ..presets import PRESET_ERROR, PRESET_VARIANT, PRESETS_FORMAT
 from ..safe_io import exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig, TrainConfig
 from ..training.fit import fit_model
@@ -136,7 +136,8 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     out.mkdir(parents=True, exist_ok=True)
     write_outputs(out, rows)
     if presets is not None:
-        write_json_atomic(presets_path, {"source": "bench" + (" --quick" if quick else ""),
+        write_json_atomic(presets_path, {"format": PRESETS_FORMAT,
+                                         "source": "bench" + (" --quick" if quick else ""),
                                          "error": PRESET_ERROR, "presets": presets},
                           "presets file")
     if performance is not None:

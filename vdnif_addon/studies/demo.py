@@ -23,6 +23,7 @@ from ..blender.steps import (
 )
 from ..inference.secondary import SecondarySettings
 from ..model.variants import choose_variant
+from ..output_rule import REPORT_FORMAT
 from ..pose_sets import TEST_POSES, PoseSpec
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import RECIPE
@@ -87,6 +88,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     command = shlex.join(["python", "vdnif_addon/batch.py", "--",
                           *sys.argv[sys.argv.index("--") + 1:]] if "--" in sys.argv
                          else ["python", "vdnif_addon/batch.py", "--", "demo"])
-    write_text_atomic(out / "report.md", demo_markdown(report, command), "markdown file")
-    write_json_atomic(out / "report.json", report)
+    write_text_atomic(out / "report.md", demo_markdown(report, command), "markdown file",
+                      "markdown")
+    write_json_atomic(out / "report.json", {"format": REPORT_FORMAT, **report})
     return report

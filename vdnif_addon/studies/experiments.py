@@ -32,6 +32,7 @@ import torch
 from ..blender.steps import variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_both, compare_common, concatenated
+from ..output_rule import REPORT_FORMAT
 from ..passes import Passes
 from ..posed.generate import generate_dataset
 from ..safe_io import write_json_atomic
@@ -336,8 +337,9 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
                     grazing_fraction=RECIPE.grazing_fraction,
                     secondary_fraction=RECIPE.secondary_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
-    write_json_atomic(figures / f"{stem}.json", {"experiment": name, "settings": settings,
-                                                 "scenes": list(chosen), "runs": records})
+    write_json_atomic(figures / f"{stem}.json", {"format": REPORT_FORMAT, "experiment": name,
+                                                 "settings": settings, "scenes": list(chosen),
+                                                 "runs": records})
     command = command or shlex.join(
         ["python", "vdnif_addon/batch.py", "--", "experiment", name]
         + (["--quick"] if quick else []) + (["--scenes", ",".join(chosen)] if scenes else [])

@@ -310,4 +310,5 @@ def write_section(path, key, title, body, preamble):
     pattern = re.compile(re.escape(start) + r".*?" + re.escape(end), re.S)
     text = pattern.sub(lambda _: section, text) if pattern.search(text) else (
         text.rstrip("\n") + "\n\n" + section)
-    write_text_atomic(path, text + ("" if text.endswith("\n") else "\n"), "markdown file")
+    write_text_atomic(path, text + ("" if text.endswith("\n") else "\n"), "markdown file",
+                      "markdown")

@@ -23,6 +23,7 @@ import numpy as np
 
 from .. import limits
 from ..errors import VDNIFError
+from ..output_rule import DATASET_MANIFEST
 from ..safe_io import open_regular, unpacked_size
 from .header import VERSION, DatasetHeader, DatasetIdentity
 from .packing import PackedShard, pack, stored_names
@@ -113,7 +114,7 @@ def shard_name(start: int, stop: int) -> str:
     return f"shard-{start:06d}-{stop:06d}"
 
 
-MANIFEST = "vdnif-dataset.manifest"
+MANIFEST = DATASET_MANIFEST
 """The folder's manifest (JSON, ``DatasetIdentity``): the object, grid and seed its shards
 were made of, so that a shard of another object, grid or seed is refused instead of replacing
 one of the same pose range (shard names depend only on the pose range)."""
