@@ -193,7 +193,9 @@ def keep(image, rgba, path):
     Image Editor shows it."""
     from . import storage
     from .vdnif_addon.blender.image_io import save_image
+    from .vdnif_addon.safe_io import claim_folder
 
+    claim_folder(pathlib.Path(path).parent, "images folder")   # VDNIF's own: rewritable
     save_image(path, rgba)
     image[KEPT_FILE] = storage.portable(path)
     image.use_fake_user = True

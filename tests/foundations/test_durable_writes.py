@@ -23,7 +23,7 @@ def test_the_temporary_is_synced_before_it_is_renamed(tmp_path, monkeypatch):
     monkeypatch.setattr(safe_io.os, "fsync", fsync)
     monkeypatch.setattr(safe_io.os, "replace", replace)
     target = tmp_path / "out.json"
-    target.write_text("old")
+    target.write_text("")                    # an empty file may be replaced
     safe_io.write_bytes_atomic(target, b"new", "JSON file")
     assert target.read_bytes() == b"new"
     renames = [event for event in events if event[0] == "replace"]
