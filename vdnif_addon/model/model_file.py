@@ -157,7 +157,7 @@ def _read_archive(file: io.IOBase, path: str) -> object:
 def _check_unpacked(file: io.IOBase, size: int, path: str) -> None:
     """Raises VDNIFError when the zip archive ``file`` of ``size`` bytes would unpack to more
     than it holds (module docstring)."""
-    unpacked = unpacked_size(file)
+    unpacked = unpacked_size(file, f"model file {path}")
     if unpacked is not None and unpacked > size:
         raise VDNIFError(f"model file {path} is not a VDNIF model: it would unpack to "
                          f"{unpacked:,} bytes from {size:,} (VDNIF stores its members "

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import limits
 from ..errors import VDNIFError
-from ..safe_io import open_regular, unpacked_size
+from ..safe_io import ZIP_ERRORS, open_regular, unpacked_size
 from .header import VERSION, DatasetHeader, DatasetIdentity, GridHeader
 from .packing import PackedShard, pack, stored_names
 
@@ -254,7 +254,12 @@ def _open_shard(path: pathlib.Path, header: DatasetHeader) -> Shard:
     version stores for its heads, their sizes within ``limits.MAX_SHARD_SEGMENTS`` rows, each
     array's header claiming the bytes its member holds."""
     file = open_regular(path, f"dataset shard '{path}'")
-    size, unpacked = os.fstat(file.fileno()).st_size, unpacked_size(file)
+    size = os.fstat(file.fileno()).st_size
+    try:
+        unpacked = unpacked_size(file, f"dataset shard '{path}'")
+    except VDNIFError:
+        file.close()
+        raise
     if unpacked is not None and unpacked > size:
         file.close()
         raise VDNIFError(f"dataset shard '{path}' is not a VDNIF shard: it would unpack to "
@@ -262,7 +267,7 @@ def _open_shard(path: pathlib.Path, header: DatasetHeader) -> Shard:
                          "uncompressed)")
     try:
         shard = np.load(file)
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except ZIP_ERRORS as exc:
         file.close()
         raise VDNIFError(f"dataset shard '{path}' cannot be read: {exc}") from None
     if not isinstance(shard, np.lib.npyio.NpzFile):
@@ -304,7 +309,7 @@ def _check_member(path: pathlib.Path, shard: Shard, name: str) -> None:
                 raise ValueError(f"npy format version {version} is not 1.0 or 2.0")
             shape, _, dtype = read(member)
             start = member.tell()
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except ZIP_ERRORS as exc:
         raise VDNIFError(f"dataset shard '{path}' array '{name}' cannot be read: "
                          f"{_first_line(exc)}") from None
     if dtype.hasobject:
@@ -331,10 +336,11 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
     within the grid, 0/1 hits, fractions in [0, 1], poses of the header. A bad CRC or a
     truncated member is reported here, not in the middle of training."""
     length = None
+    kept = {}
     for name, (dtype, trailing) in ARRAYS.items():
         try:
             array = shard[name]
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        except ZIP_ERRORS as exc:
             raise VDNIFError(f"dataset shard '{path}' array '{name}' cannot be read: "
                              f"{_first_line(exc)}") from None
         if array.dtype.kind != np.dtype(dtype).kind:
@@ -343,6 +349,8 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
         if array.ndim < 1 or array.shape[1:] != trailing:
             raise VDNIFError(f"dataset shard '{path}' array '{name}' has shape {array.shape}, "
                              f"expected (N, {', '.join(map(str, trailing))})".replace(", )", ")"))
+        if name in ("p0", "p1", "rest_len", "seg_len", "t0", "hit", "normal"):
+            kept[name] = array
         if length is None:
             length = len(array)
         if len(array) != length:
@@ -367,3 +375,43 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
     if header.segments != length:
         raise VDNIFError(f"dataset shard '{path}' has {length} rows, its header says "
                          f"{header.segments}")
+    _check_lengths(path, kept, header.grid.extent)
+
+
+_LENGTH_TOLERANCE = 1e-3
+"""Relative, with 1e-5 of the grid's extent besides: float32 rounding of normalized points
+and lengths is ~1e-7 of the grid; a row off by more than this was not written by VDNIF."""
+
+
+_NORMAL_TOLERANCE = 1e-2
+"""Of a hit's unit normal's length: normals are stored in float16 (``packing``), whose
+rounding moves a unit vector's length by at most ~1e-3."""
+
+
+def _check_lengths(path: pathlib.Path, arrays: dict[str, np.ndarray], extent: float) -> None:
+    """Rows that disagree with their own points: a rest length other than the distance of
+    p0 and p1 (in rest units, the grid's ``extent`` per normalized unit), a negative
+    deformed length or ray distance, a hit whose normal is not of unit length. Training
+    would learn from them without a word (a rest length of 0 reports a distance error of
+    0, one of 3e38 overflows only when the model is saved)."""
+    def refuse(name, reason):
+        raise VDNIFError(f"dataset shard '{path}' array '{name}' {reason}: the shard is "
+                         "damaged or was not written by VDNIF")
+
+    if not len(arrays["p0"]):
+        return
+    expected = np.linalg.norm(arrays["p1"].astype(np.float64) - arrays["p0"], axis=1) * extent
+    rest = arrays["rest_len"].astype(np.float64)
+    off = np.abs(rest - expected) > _LENGTH_TOLERANCE * expected + 1e-5 * extent
+    if off.any():
+        row = int(np.argmax(off))
+        refuse("rest_len", f"row {row} holds {rest[row]:.6g}, its points lie "
+                           f"{expected[row]:.6g} apart")
+    for name in ("seg_len", "t0"):
+        if arrays[name].min() < 0:
+            refuse(name, f"has negative values ({arrays[name].min():.6g})")
+    hit = arrays["hit"] != 0
+    lengths = np.linalg.norm(arrays["normal"][hit].astype(np.float64), axis=1)
+    if len(lengths) and np.abs(lengths - 1).max() > _NORMAL_TOLERANCE:
+        worst = lengths[int(np.argmax(np.abs(lengths - 1)))]
+        refuse("normal", f"has a hit's normal of length {worst:.6g}, not 1")
