@@ -15,13 +15,21 @@ from collections.abc import Iterator
 
 from .errors import VDNIFError
 
-TRAINING_ADVICE = ("lower the batch size or the hash table size (log2 table size), "
-                   "or train on the CPU")
-"""What a training that ran out of memory can lower."""
+CPU_TRAINING_ADVICE = "lower the batch size or the hash table size (log2 table size)"
+TRAINING_ADVICE = f"{CPU_TRAINING_ADVICE}, or train on the CPU"
+"""What a training that ran out of memory can lower (on a GPU; on the CPU, which has no
+CPU to move to, ``CPU_TRAINING_ADVICE``: ``advice``)."""
 
-RENDER_ADVICE = "lower the image size, or render on the CPU"
+CPU_RENDER_ADVICE = "lower the image size"
+RENDER_ADVICE = f"{CPU_RENDER_ADVICE}, or render on the CPU"
 """What a render that ran out of memory can lower (the rays' state is per pixel; a wave's
 buffers are capped by ``limits.MAX_WAVE_SEGMENTS``)."""
+
+
+def advice(on_gpu: str, on_cpu: str, device: object) -> str:
+    """The advice of a run on ``device`` (a torch device or its name): ``on_cpu`` on the
+    CPU, where "or train on the CPU" is no way out."""
+    return on_cpu if str(device).split(":")[0] == "cpu" else on_gpu
 
 _WORDING = ("out of memory", "Failed to allocate", "can't allocate memory")
 """torch's CUDA ("CUDA out of memory"), Warp's ("Failed to allocate N bytes on device") and
