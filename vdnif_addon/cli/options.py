@@ -303,7 +303,8 @@ def validate_arguments(args):
     """Checks every option that can be wrong on its own, and every input and output place,
     before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
     from .. import limits
-    from ..safe_io import check_input_file, check_output_file, check_output_folder, open_regular
+    from ..mesh_input import check_input, check_mesh_file
+    from ..safe_io import check_output_file, check_output_folder, open_regular
 
     def given(name):
         return getattr(args, name, None) is not None
@@ -313,9 +314,10 @@ def validate_arguments(args):
             limits.check_range(label or f"--{name.replace('_', '-')}", getattr(args, name),
                                low, high)
 
-    for name in ("mesh", "blend"):
-        if given(name):
-            check_input_file(getattr(args, name), f"{name} file")
+    if given("mesh"):                   # it and the files it names, its header's counts
+        check_mesh_file(args.mesh)
+    if given("blend"):
+        check_input(args.blend, "blend file")
     at_least("seed", *BOUNDS["seed"])
     at_least("poses", *BOUNDS["poses"])
     at_least("rays_per_pose", *BOUNDS["rays_per_pose"], "rays per pose")
