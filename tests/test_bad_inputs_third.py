@@ -52,6 +52,8 @@ CASES = [
      r"mesh file '.*fifo_buffer.gltf': buffer '.*pipe.bin' is a FIFO", "proc"),
     ("capture-gltf-image-fifo", MESH % "fifo_image",
      r"mesh file '.*fifo_image.gltf': image '.*pipe.png' is a FIFO", "proc"),
+    ("capture-fbx-texture-fifo", MESH % "fifo_fbx",
+     r"mesh file '.*fifo_texture.fbx': texture '.*pipe_tex.png' is a FIFO", "proc"),
     # --- counts in a mesh header beyond the file's bytes
     ("capture-ply-2e31-vertices", MESH % "huge_ply",
      r"huge_ply.ply' is damaged: its header claims 2,147,483,647 'vertex' elements, more "
@@ -301,6 +303,21 @@ os.remove(out + "/lib.blend")                  # the library goes missing
 bpy.ops.wm.read_homefile(use_empty=True)
 bpy.context.scene.collection.objects.link(bpy.data.objects.new("\x1b[2JEvil", None))
 bpy.ops.wm.save_as_mainfile(filepath=out + "/escape.blend")
+bpy.ops.wm.read_homefile(use_empty=True)     # an FBX whose texture becomes a FIFO
+bpy.ops.mesh.primitive_cube_add()
+image = bpy.data.images.new("tex", 4, 4)
+image.filepath_raw, image.file_format = out + "/pipe_tex.png", "PNG"
+image.save()
+material = bpy.data.materials.new("M")
+material.use_nodes = True
+node = material.node_tree.nodes.new("ShaderNodeTexImage")
+node.image = image
+material.node_tree.links.new(node.outputs[0],
+                             material.node_tree.nodes["Principled BSDF"].inputs[0])
+bpy.context.active_object.data.materials.append(material)
+bpy.ops.export_scene.fbx(filepath=out + "/fifo_texture.fbx", path_mode="RELATIVE")
+os.remove(out + "/pipe_tex.png")
+os.mkfifo(out + "/pipe_tex.png")
 """
 
 
@@ -322,6 +339,7 @@ def files(tmp_path_factory):
                    capture_output=True, timeout=120)
     for name in ("linked", "escape"):
         places[f"blend:{name}"] = blends / f"{name}.blend"
+    places["mesh:fifo_fbx"] = blends / "fifo_texture.fbx"
     return places
 
 
@@ -439,8 +457,11 @@ def test_running_out_of_memory_on_the_cpu_does_not_advise_the_cpu(monkeypatch, t
                        "DefaultCPUAllocator: can't allocate memory: you tried to allocate "
                        f"108000000000 bytes): {memory.CPU_TRAINING_ADVICE}")
     assert "on the CPU" not in message and not (tmp_path / "m.vdnif").exists()
-    assert memory.advice(memory.TRAINING_ADVICE, memory.CPU_TRAINING_ADVICE, "cuda:0") == (
-        memory.TRAINING_ADVICE)
+    with pytest.raises(VDNIFError) as raised:      # a GPU's: moving to the CPU helps
+        with memory.out_of_memory("training", memory.TRAINING_ADVICE,
+                                  memory.CPU_TRAINING_ADVICE):
+            raise torch.cuda.OutOfMemoryError("CUDA out of memory. Tried to allocate 2 GiB")
+    assert str(raised.value).endswith(memory.TRAINING_ADVICE)
 
 
 # ---- the child process that imports a file first

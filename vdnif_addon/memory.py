@@ -18,18 +18,12 @@ from .errors import VDNIFError
 CPU_TRAINING_ADVICE = "lower the batch size or the hash table size (log2 table size)"
 TRAINING_ADVICE = f"{CPU_TRAINING_ADVICE}, or train on the CPU"
 """What a training that ran out of memory can lower (on a GPU; on the CPU, which has no
-CPU to move to, ``CPU_TRAINING_ADVICE``: ``advice``)."""
+CPU to move to, ``CPU_TRAINING_ADVICE``)."""
 
 CPU_RENDER_ADVICE = "lower the image size"
 RENDER_ADVICE = f"{CPU_RENDER_ADVICE}, or render on the CPU"
 """What a render that ran out of memory can lower (the rays' state is per pixel; a wave's
 buffers are capped by ``limits.MAX_WAVE_SEGMENTS``)."""
-
-
-def advice(on_gpu: str, on_cpu: str, device: object) -> str:
-    """The advice of a run on ``device`` (a torch device or its name): ``on_cpu`` on the
-    CPU, where "or train on the CPU" is no way out."""
-    return on_cpu if str(device).split(":")[0] == "cpu" else on_gpu
 
 _WORDING = ("out of memory", "Failed to allocate", "can't allocate memory")
 """torch's CUDA ("CUDA out of memory"), Warp's ("Failed to allocate N bytes on device") and
@@ -53,10 +47,21 @@ def _detail(exc: BaseException) -> str:
     return ". ".join(first.split(". ")[:2]).rstrip(". ")
 
 
+def on_gpu(exc: BaseException) -> bool:
+    """Whether the allocation failure ``exc`` was a GPU's (torch's CUDA error, or Warp's
+    naming a CUDA device), not the host's."""
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(exc, torch.cuda.OutOfMemoryError):
+        return True
+    return "cuda" in str(exc).lower()
+
+
 @contextlib.contextmanager
-def out_of_memory(task: str, advice: str) -> Iterator[None]:
+def out_of_memory(task: str, advice: str, cpu_advice: str | None = None) -> Iterator[None]:
     """Turns an allocation failure inside into ``VDNIFError("<task> ran out of memory
-    (<what failed>): <advice>")``; any other exception passes unchanged."""
+    (<what failed>): <advice>")``, with ``cpu_advice`` instead when given and the host's
+    memory ran out (moving to the CPU is then no way out); any other exception passes
+    unchanged."""
     try:
         yield
     except VDNIFError:
@@ -64,7 +69,8 @@ def out_of_memory(task: str, advice: str) -> Iterator[None]:
     except Exception as exc:
         if not is_out_of_memory(exc):
             raise
-        raise VDNIFError(f"{task} ran out of memory ({_detail(exc)}): {advice}") from None
+        said = advice if cpu_advice is None or on_gpu(exc) else cpu_advice
+        raise VDNIFError(f"{task} ran out of memory ({_detail(exc)}): {said}") from None
 
 
 def release_cached_memory() -> None:

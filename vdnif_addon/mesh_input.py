@@ -14,9 +14,9 @@ importer allocates for them: a PLY's element counts by the file's size, a glTF's
 by their buffer views, the views by their buffers and the buffers by their files. (A PLY
 claiming 2^31-1 vertices in 198 bytes crashed Blender's importer.)
 
-An FBX file's textures are not listed here (a binary node tree); its import runs in a child
-process with a time and memory budget like every import (``blender.trial_load``), which
-bounds what it names too.
+An FBX file's textures are found by their node names (``RelativeFilename``, ``FileName``) in
+its binary or ASCII node tree; its import, like every import, also runs in a child process
+with a time and memory budget (``blender.trial_load``), which bounds whatever else it reads.
 """
 
 from __future__ import annotations
@@ -62,6 +62,8 @@ def check_mesh_file(path: str | os.PathLike) -> None:
         _check_ply(path, size)
     elif suffix in (".gltf", ".glb"):
         _check_gltf(path, size)
+    elif suffix == ".fbx":
+        _check_fbx(path)
 
 
 def _side_file(candidates: list[pathlib.Path], label: str) -> int | None:
@@ -110,6 +112,29 @@ def _matches(path: pathlib.Path, pattern: re.Pattern) -> list[bytes]:
             return []
         with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
             return [match.group(1) for match in pattern.finditer(data)]
+
+
+# A texture's file name in an FBX file: binary (a node named so, then its one string
+# property: type "S", a 32-bit length, the bytes) or ASCII (``FileName: "..."``).
+FBX_NAMES = re.compile(rb"(?:RelativeFilename|FileName)(?:S(.{4})|:[ \t]*\"([^\"\r\n]*)\")",
+                       re.S)
+
+
+def _check_fbx(path: pathlib.Path) -> None:
+    with open(path, "rb") as file:
+        if os.fstat(file.fileno()).st_size == 0:
+            return
+        with mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            names = []
+            for match in FBX_NAMES.finditer(data):
+                if match.group(1) is None:
+                    names.append(match.group(2))
+                else:
+                    length = int.from_bytes(match.group(1), "little")
+                    names.append(data[match.end():match.end() + min(length, 4096)])
+    for name in dict.fromkeys(names):
+        if name.strip():
+            _side_file(_readings(_decoded(name), path.parent), f"mesh file '{path}': texture")
 
 
 # --------------------------------------------------------------------------- PLY

@@ -56,18 +56,26 @@ def check_model_fits(path: str | os.PathLike, metadata: ModelMetadata, mesh: Res
                  and np.isclose(model_grid.voxel_size, grid.voxel_size, rtol=1e-6))
     if not same_grid:
         ratio = grid.voxel_size / model_grid.voxel_size
-        if not np.isclose(ratio, 1.0, rtol=1e-6):       # scaled (--scale, the object's)
+        if (list(model_grid.dims) == grid.dims.tolist() and not np.isclose(ratio, 1.0)
+                and np.allclose(grid.origin, np.asarray(model_grid.origin) * ratio,
+                                rtol=1e-5, atol=1e-9 * mesh.size)):
+            # the same grid scaled about the object's origin: --scale or the object's scale
             raise VDNIFError(
                 f"model '{path}' was trained on '{metadata.object}' at "
                 f"{model_grid.voxel_size:.6g} units a voxel, '{mesh.name}' is now {ratio:.4g} "
                 f"times that size ({grid.voxel_size:.6g} units a voxel: another --scale or a "
                 "scaled object): train a model at this size")
-        where = ", ".join(f"{value:.6g}" for value in model_grid.origin)
-        now = ", ".join(f"{value:.6g}" for value in grid.origin.tolist())
-        raise VDNIFError(f"model '{path}' was trained on {trained_on} with its grid at "
-                         f"({where}), but the mesh of '{mesh.name}' has moved or changed "
-                         f"since (its grid {'x'.join(map(str, grid.dims.tolist()))} now at "
-                         f"({now})): train it again")
+
+        def described(dims, voxel_size, origin):
+            corner = ", ".join(f"{value:.6g}" for value in origin)
+            return f"grid {'x'.join(map(str, dims))} of {voxel_size:.6g} at ({corner})"
+
+        raise VDNIFError(
+            f"model '{path}' was trained on '{metadata.object}' with the "
+            f"{described(model_grid.dims, model_grid.voxel_size, model_grid.origin)}, but "
+            f"the mesh of '{mesh.name}' has changed since (now the "
+            f"{described(grid.dims.tolist(), grid.voxel_size, grid.origin.tolist())}): "
+            "train it again")
     from ..model.model_file import mesh_fingerprint
 
     known = model_grid.mesh_fingerprint

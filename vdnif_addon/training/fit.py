@@ -14,12 +14,11 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from .. import __version__
-from ..memory import CPU_TRAINING_ADVICE, TRAINING_ADVICE, advice, out_of_memory
+from ..memory import CPU_TRAINING_ADVICE, TRAINING_ADVICE, out_of_memory
 from ..model.metadata import FORMAT_VERSION, ModelMetadata
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
 from .dataset import read_dataset
-from .distributed import resolve_device
 from .history import records
 from .train import TrainResult, train
 
@@ -40,8 +39,7 @@ def fit_model(
     launch writes the file (the summary is then empty on the others).
     """
     chosen = variant_config(variant, **(overrides or {}))
-    device = resolve_device(chosen.train.device)
-    with out_of_memory("training", advice(TRAINING_ADVICE, CPU_TRAINING_ADVICE, device)):
+    with out_of_memory("training", TRAINING_ADVICE, CPU_TRAINING_ADVICE):
         data, shards = read_dataset(data_dir)
         header = data.header
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
