@@ -28,9 +28,19 @@ from ..mesh_input import check_input
 MARK = "VDNIF-TRIAL:"
 
 CHILD = r"""
-import sys
+import os, sys
 sys.path.insert(0, sys.argv[-4])
 memory, kind, path = int(sys.argv[-3]), sys.argv[-2], sys.argv[-1]
+
+
+def answer(text):
+    # os._exit: bpy's exit handlers can deadlock after a file with a blocked Python
+    # driver (batch.py leaves the same way)
+    print("VDNIF-TRIAL:", text, flush=True)
+    sys.stderr.flush()
+    os._exit(0)
+
+
 try:
     import bpy
     from vdnif_addon.errors import VDNIFError
@@ -50,16 +60,13 @@ try:
     else:
         bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
 except VDNIFError as exc:
-    print("VDNIF-TRIAL: vdnif:", str(exc).replace("\n", " "), flush=True)
-    sys.exit(0)
+    answer("vdnif: " + str(exc).replace("\n", " "))
 except MemoryError:
-    print("VDNIF-TRIAL: memory", flush=True)
-    sys.exit(0)
+    answer("memory")
 except RuntimeError as exc:
     lines = str(exc).strip().splitlines()
-    print("VDNIF-TRIAL: error:", lines[-1] if lines else "RuntimeError", flush=True)
-    sys.exit(0)
-print("VDNIF-TRIAL: ok", flush=True)
+    answer("error: " + (lines[-1] if lines else "RuntimeError"))
+answer("ok")
 """
 
 
