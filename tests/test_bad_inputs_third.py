@@ -54,6 +54,9 @@ CASES = [
      r"mesh file '.*fifo_image.gltf': image '.*pipe.png' is a FIFO", "proc"),
     ("capture-fbx-texture-fifo", MESH % "fifo_fbx",
      r"mesh file '.*fifo_texture.fbx': texture '.*pipe_tex.png' is a FIFO", "proc"),
+    ("capture-blend-image-fifo",
+     "capture --blend {blend:fifo_image} --object Cube --resolution 8 --poses 2",
+     r"blend file '.*fifo_image.blend': image 'tex' '.*pipe_tex.png' is a FIFO", "proc"),
     # --- counts in a mesh header beyond the file's bytes
     ("capture-ply-2e31-vertices", MESH % "huge_ply",
      r"huge_ply.ply' is damaged: its header claims 2,147,483,647 'vertex' elements, more "
@@ -316,6 +319,7 @@ material.node_tree.links.new(node.outputs[0],
                              material.node_tree.nodes["Principled BSDF"].inputs[0])
 bpy.context.active_object.data.materials.append(material)
 bpy.ops.export_scene.fbx(filepath=out + "/fifo_texture.fbx", path_mode="RELATIVE")
+bpy.ops.wm.save_as_mainfile(filepath=out + "/fifo_image.blend")   # the same image
 os.remove(out + "/pipe_tex.png")
 os.mkfifo(out + "/pipe_tex.png")
 """
@@ -337,7 +341,7 @@ def files(tmp_path_factory):
     blends.mkdir()
     subprocess.run([sys.executable, "-c", BLEND_SCRIPT, str(blends)], check=True,
                    capture_output=True, timeout=120)
-    for name in ("linked", "escape"):
+    for name in ("linked", "escape", "fifo_image"):
         places[f"blend:{name}"] = blends / f"{name}.blend"
     places["mesh:fifo_fbx"] = blends / "fifo_texture.fbx"
     return places

@@ -7,8 +7,8 @@ allocate gigabytes (a 1 MB gzip .blend reached 4.1 GB), or never finish. In a ch
 limited by a timeout and ``resource.setrlimit(RLIMIT_AS)`` (set once bpy is loaded, to what
 it holds then plus the budget), each ends in the child, and this process refuses the file on
 one line naming it and what happened. The budget grows with the
-file (``limits.IMPORT_*``). The child costs the import once more plus starting bpy (2 to
-4 s measured on a loaded 2-core machine; docs/cli.md says so).
+file (``limits.IMPORT_*``). The child costs the import once more plus starting bpy (1.5 to
+2.5 s measured on a loaded 2-core machine; docs/cli.md says so).
 
 Windows has no rlimits: there the child has the time budget only.
 """
