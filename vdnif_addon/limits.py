@@ -75,6 +75,24 @@ MAX_FRAMES = MAX_POSES
 passes' files, so a range shares the poses' bound (a million frames would write millions of
 files over hours)."""
 
+MAX_INPUT_FILE_BYTES = 1 << 32
+"""Bytes of a mesh file, a .blend, and every file one of them names (an OBJ's material
+library and textures, a glTF's buffers and images): the largest scanned meshes are a few
+hundred MB; a larger file (or a device that never ends) is refused before an importer reads
+it whole."""
+
+IMPORT_MIN_MEMORY = 2 << 30
+IMPORT_MEMORY_PER_BYTE = 64
+"""The memory budget of importing a mesh file or opening a .blend (in a child process,
+``blender.trial_load``): this many bytes per byte of the file, at least IMPORT_MIN_MEMORY,
+at most the machine's memory. Blender holds a loaded file in a few times its size; a small
+file that unpacks to gigabytes (a gzip .blend of zeros) is stopped at the budget."""
+
+IMPORT_MIN_SECONDS = 120
+IMPORT_SECONDS_PER_MB = 1.0
+"""The time budget of the same: IMPORT_MIN_SECONDS, and this many seconds more per MB of the
+file (Blender imports a few tens of MB a second)."""
+
 
 def check_range(name: str, value: float, low: float, high: float | None = None) -> None:
     """Raises VDNIFError unless ``low <= value`` and, given ``high``, ``value <= high``."""

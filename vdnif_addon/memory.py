@@ -18,11 +18,13 @@ from collections.abc import Iterator
 
 from .errors import VDNIFError
 
-TRAINING_ADVICE = ("lower the batch size or the hash table size (log2 table size), "
-                   "or train on the CPU")
-"""What a training that ran out of memory can lower."""
+CPU_TRAINING_ADVICE = "lower the batch size or the hash table size (log2 table size)"
+TRAINING_ADVICE = f"{CPU_TRAINING_ADVICE}, or train on the CPU"
+"""What a training that ran out of memory can lower (on a GPU; on the CPU, which has no
+CPU to move to, ``CPU_TRAINING_ADVICE``)."""
 
-RENDER_ADVICE = "lower the image size, or render on the CPU"
+CPU_RENDER_ADVICE = "lower the image size"
+RENDER_ADVICE = f"{CPU_RENDER_ADVICE}, or render on the CPU"
 """What a render that ran out of memory can lower (the rays' state is per pixel; a wave's
 buffers are capped by ``limits.MAX_WAVE_SEGMENTS``)."""
 
@@ -48,10 +50,21 @@ def _detail(exc: BaseException) -> str:
     return ". ".join(first.split(". ")[:2]).rstrip(". ")
 
 
+def on_gpu(exc: BaseException) -> bool:
+    """Whether the allocation failure ``exc`` was a GPU's (torch's CUDA error, or Warp's
+    naming a CUDA device), not the host's."""
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(exc, torch.cuda.OutOfMemoryError):
+        return True
+    return "cuda" in str(exc).lower()
+
+
 @contextlib.contextmanager
-def out_of_memory(task: str, advice: str) -> Iterator[None]:
+def out_of_memory(task: str, advice: str, cpu_advice: str | None = None) -> Iterator[None]:
     """Turns an allocation failure inside into ``VDNIFError("<task> ran out of memory
-    (<what failed>): <advice>")``; any other exception passes unchanged."""
+    (<what failed>): <advice>")``, with ``cpu_advice`` instead when given and the host's
+    memory ran out (moving to the CPU is then no way out); any other exception passes
+    unchanged."""
     try:
         yield
     except VDNIFError:
@@ -59,7 +72,8 @@ def out_of_memory(task: str, advice: str) -> Iterator[None]:
     except Exception as exc:
         if not is_out_of_memory(exc):
             raise
-        raise VDNIFError(f"{task} ran out of memory ({_detail(exc)}): {advice}") from None
+        said = advice if cpu_advice is None or on_gpu(exc) else cpu_advice
+        raise VDNIFError(f"{task} ran out of memory ({_detail(exc)}): {said}") from None
 
 
 def release_cached_memory() -> None:

@@ -311,13 +311,25 @@ def open_regular(path: str | os.PathLike, label: str) -> BinaryIO:
         raise
 
 
-def unpacked_size(file: BinaryIO) -> int | None:
+ZIP_ERRORS = (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError,
+              RuntimeError)
+"""What reading a damaged zip archive raises: ``zipfile`` raises NotImplementedError for a
+"version needed" or compression method it does not know (one flipped byte) and RuntimeError
+for an encrypted member, besides BadZipFile and the I/O errors."""
+
+
+def unpacked_size(file: BinaryIO, label: str) -> int | None:
     """The bytes the zip archive ``file`` unpacks to by its directory (what a reader
-    allocates), or None when it is not a zip archive; ``file`` is left at its start."""
+    allocates), or None when it is not a zip archive; ``file`` is left at its start. A zip
+    whose directory names a version or method no reader here knows is refused on one line
+    starting with ``label`` (what and which file)."""
     try:
         with zipfile.ZipFile(file) as archive:
             return sum(info.file_size for info in archive.infolist())
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+    except (NotImplementedError, RuntimeError) as exc:
+        raise VDNIFError(f"{label} is damaged: its zip archive needs {_reason(exc)}, which "
+                         "VDNIF never writes") from None
+    except ZIP_ERRORS:
         return None
     finally:
         file.seek(0)

@@ -3,6 +3,8 @@ the panel's metrics line and the studies' tables."""
 
 from __future__ import annotations
 
+import re
+
 
 def value(number: float | None, digits: int = 4) -> str:
     """A number with ``digits`` significant digits, "n/a" for None."""
@@ -12,6 +14,17 @@ def value(number: float | None, digits: int = 4) -> str:
 def percent(share: float | None, digits: int = 3) -> str:
     """A share in [0, 1] as a percentage, "n/a" for None."""
     return "n/a" if share is None else f"{100 * share:.{digits}g} %"
+
+
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f\u200b-\u200f\u202a-\u202e\u2066-\u2069]")
+
+
+def printable(text: str) -> str:
+    """``text`` with its control characters written as escapes (``\\x1b``): a name from a
+    user's file (an object's, a path) printed to a terminal cannot move the cursor, recolour
+    or hide the line, nor reorder it (bidirectional overrides)."""
+    return _CONTROL.sub(lambda match: f"\\x{ord(match.group()):02x}" if ord(match.group())
+                        < 0x100 else f"\\u{ord(match.group()):04x}", text)
 
 
 def article(word: str) -> str:

@@ -25,13 +25,18 @@ def rows(n=200, seed=3, materials=3):
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     records = {
         "p0": rng.random((n, 3)), "p1": rng.random((n, 3)), "seg_len": rng.random(n),
-        "rest_len": rng.random(n), "t0": rng.random(n) * 5, "hit": hit,
+        "rest_len": np.zeros(n), "t0": rng.random(n) * 5, "hit": hit,
         "hit_frac": np.where(hit, rng.random(n), 0), "normal": normal * hit[:, None],
         "albedo": rng.random((n, 3)) * hit[:, None],
         "material": np.where(hit, rng.integers(0, materials, n), 0),
         "pose": np.sort(rng.integers(0, 2, n)), "ray": rng.integers(0, 16, n)}
-    return {name: np.asarray(records[name]).astype(dtype)
-            for name, (dtype, _) in dataset.ARRAYS.items()}
+    records = {name: np.asarray(records[name]).astype(dtype)
+               for name, (dtype, _) in dataset.ARRAYS.items()}
+    # the rest length of the stored points, in rest units (the header's grid extent)
+    extent = header_dict()["grid"]["extent"]
+    records["rest_len"] = (np.linalg.norm(records["p1"].astype(np.float64) - records["p0"],
+                                          axis=1) * extent).astype(np.float32)
+    return records
 
 
 def write(folder, records, **heads):

@@ -14,7 +14,7 @@ import pathlib
 import bpy
 
 from ..errors import VDNIFError
-from ..safe_io import check_input_file
+from ..mesh_input import check_mesh_file
 
 
 def _import_gltf(path):
@@ -45,7 +45,7 @@ def import_mesh(path, name=None):
     if importer is None:
         raise VDNIFError(f"cannot read mesh file '{path}': use one of "
                          f"{', '.join(sorted(MESH_IMPORTERS))}")
-    check_input_file(path, "mesh file")
+    check_mesh_file(path)     # it and the files it names, before the importer opens them
     before = set(bpy.data.objects)
     try:
         importer(str(path))

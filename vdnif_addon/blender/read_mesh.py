@@ -24,6 +24,15 @@ def check_mesh_object(obj):
     """Raises a VDNIFError unless ``obj`` is a mesh object with faces."""
     if obj is None:
         raise VDNIFError("no object given")
+    for block in (obj, obj.data):
+        # A linked block whose library file is missing loads as a placeholder (an object
+        # becomes an empty): say which library, not what the placeholder is.
+        if block is not None and getattr(block, "is_missing", False):
+            library = block.library
+            where = (f"the library '{bpy.path.abspath(library.filepath)}'" if library
+                     else "a library")
+            raise VDNIFError(f"object '{obj.name}' is linked from {where}, which is missing: "
+                             "restore the library file or make the object local")
     if obj.type != "MESH":
         raise VDNIFError(f"object '{obj.name}' is {article(obj.type.lower())}, not a mesh")
     if len(obj.data.polygons) == 0:

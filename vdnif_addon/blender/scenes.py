@@ -14,10 +14,11 @@ import bpy
 import numpy as np
 
 from ..errors import VDNIFError
-from ..safe_io import check_input_file
+from ..mesh_input import check_input, check_mesh_file
 from ..settings import DEMO_SCENES, RIGS
 from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
 from .rig import bend_twist
+from .trial_load import check_images, trial_load
 
 FRAME_START, FRAME_END = 1, 48
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
@@ -49,8 +50,11 @@ def mesh_scene(path, rig=None):
     """Imports a mesh file into an emptied file: a skinned mesh keeps the file's own
     armature and animation (frames over its actions), any other gets the procedural ``rig``
     (default armature)."""
+    check_mesh_file(path)
+    trial_load("mesh", path, "mesh file")
     _reset_file()
     obj = import_mesh(path)
+    check_images("mesh file", path)
     armature = own_armature(obj)
     if armature is None:
         return add_rig(obj, rig or "armature")
@@ -66,11 +70,13 @@ def mesh_scene(path, rig=None):
 def blend_scene(path, object_name):
     """Opens a .blend file and returns the named object (checked later by capture)."""
     path = pathlib.Path(path)
-    check_input_file(path, "blend file")
+    check_input(path, "blend file")
+    trial_load("blend", path, "blend file")
     try:
         bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     except RuntimeError as exc:
         raise VDNIFError(f"cannot open blend file '{path}': {first_line(exc)}") from None
+    check_images("blend file", path)
     return find_object(object_name)
 
 

@@ -188,5 +188,8 @@ def _main(argv):
 
 
 def _one_line(exc):
+    from ..text import printable
+
     lines = str(exc).strip().splitlines()
-    return " ".join(line.strip() for line in lines)[:500] if lines else type(exc).__name__
+    return printable(" ".join(line.strip() for line in lines)[:500] if lines
+                     else type(exc).__name__)

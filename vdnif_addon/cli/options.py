@@ -294,7 +294,8 @@ def validate_arguments(args):
     """Checks every option that can be wrong on its own, and every input and output place,
     before any work: the first problem raises VDNIFError (``limits`` holds the caps)."""
     from .. import limits
-    from ..safe_io import check_input_file, open_regular
+    from ..mesh_input import check_input, check_mesh_file
+    from ..safe_io import open_regular
 
     def given(name):
         return getattr(args, name, None) is not None
@@ -303,9 +304,10 @@ def validate_arguments(args):
         if given(name):
             limits.check_range(f"--{name.replace('_', '-')}", getattr(args, name), low, high)
 
-    for name in ("mesh", "blend"):
-        if given(name):
-            check_input_file(getattr(args, name), f"{name} file")
+    if given("mesh"):                   # it and the files it names, its header's counts
+        check_mesh_file(args.mesh)
+    if given("blend"):
+        check_input(args.blend, "blend file")
     check_settings(args)
     at_least("repeats", 1, limits.MAX_REPEATS)
     at_least("seeds", 1, limits.MAX_REPEATS)

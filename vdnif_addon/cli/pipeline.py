@@ -85,9 +85,20 @@ def cmd_dataset(args):
                                            grid_header(result.grid)))
     mix = dict(surface_fraction=args.surface_fraction, grazing_fraction=args.grazing_fraction,
                secondary_fraction=args.secondary_fraction)
-    with tempfile.TemporaryDirectory(prefix="vdnif-sample-") as scratch:
-        rates = measure(obj, result, None, None, pathlib.Path(scratch) / "sample", args.seed,
-                        args.rays_per_pose, **mix)
+    try:
+        with tempfile.TemporaryDirectory(prefix="vdnif-sample-") as scratch:
+            rates = measure(obj, result, None, None, pathlib.Path(scratch) / "sample",
+                            args.seed, args.rays_per_pose, **mix)
+    except (OSError, VDNIFError) as exc:
+        # The sample's own files are not the user's: a failed write names the temporary
+        # folder (a full /tmp), not a shard that looks like one of --out's.
+        cause = exc if isinstance(exc, OSError) else exc.__cause__
+        if not isinstance(cause, OSError):
+            raise
+        reason = (cause.strerror or str(cause)).lower()
+        raise VDNIFError(f"the temporary folder '{tempfile.gettempdir()}' cannot hold the "
+                         f"sample that estimates the dataset ({reason}): free space there "
+                         "or name another with TMPDIR; nothing was written to --out") from None
     expected = dataset_estimate(rates, pose_range[1] - pose_range[0], args.rays_per_pose)
     print(f"dataset '{obj.name}': {describe(expected)} (estimated from a sample)",
           file=sys.stderr, flush=True)

@@ -55,8 +55,27 @@ def check_model_fits(path: str | os.PathLike, metadata: ModelMetadata, mesh: Res
                                  atol=1e-9 * mesh.size)
                  and np.isclose(model_grid.voxel_size, grid.voxel_size, rtol=1e-6))
     if not same_grid:
-        raise VDNIFError(f"model '{path}' was trained on {trained_on}, but the mesh of "
-                         f"'{mesh.name}' has changed since (now {here}): train it again")
+        ratio = grid.voxel_size / model_grid.voxel_size
+        if (list(model_grid.dims) == grid.dims.tolist() and not np.isclose(ratio, 1.0)
+                and np.allclose(grid.origin, np.asarray(model_grid.origin) * ratio,
+                                rtol=1e-5, atol=1e-9 * mesh.size)):
+            # the same grid scaled about the object's origin: --scale or the object's scale
+            raise VDNIFError(
+                f"model '{path}' was trained on '{metadata.object}' at "
+                f"{model_grid.voxel_size:.6g} units a voxel, '{mesh.name}' is now {ratio:.4g} "
+                f"times that size ({grid.voxel_size:.6g} units a voxel: another --scale or a "
+                "scaled object): train a model at this size")
+
+        def described(dims, voxel_size, origin):
+            corner = ", ".join(f"{value:.6g}" for value in origin)
+            return f"grid {'x'.join(map(str, dims))} of {voxel_size:.6g} at ({corner})"
+
+        raise VDNIFError(
+            f"model '{path}' was trained on '{metadata.object}' with the "
+            f"{described(model_grid.dims, model_grid.voxel_size, model_grid.origin)}, but "
+            f"the mesh of '{mesh.name}' has changed since (now the "
+            f"{described(grid.dims.tolist(), grid.voxel_size, grid.origin.tolist())}): "
+            "train it again")
     from ..model.model_file import mesh_fingerprint, texture_fingerprint
 
     known = model_grid.mesh_fingerprint

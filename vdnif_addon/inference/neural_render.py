@@ -39,7 +39,7 @@ from ..kernels import launches, runtime
 from ..kernels import render as kernel
 from ..kernels.segments import segment_buffer
 from ..kernels.walk import RayWalk
-from ..memory import RENDER_ADVICE, out_of_memory
+from ..memory import CPU_RENDER_ADVICE, RENDER_ADVICE, out_of_memory
 from ..passes import Passes
 
 if TYPE_CHECKING:
@@ -107,7 +107,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     if lanes < 1:
         raise VDNIFError(f"a render walks at least one lane, not {lanes}")
     torch_threads = max(1, min(threads.RENDER_TORCH_THREADS, threads.cores() // lanes))
-    with (out_of_memory("rendering", RENDER_ADVICE), _device_stream(device),
+    with (out_of_memory("rendering", RENDER_ADVICE, CPU_RENDER_ADVICE), _device_stream(device),
           threads.torch_threads_at_most(torch_threads)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
         waves = _Waves(network, grid, walk, schedule, albedo_table,

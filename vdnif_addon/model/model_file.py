@@ -140,6 +140,7 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetad
     except Exception as exc:
         raise VDNIFError(f"model file {path} is damaged: {_reason(exc)}") from exc
     metadata = ModelMetadata.from_dict(stored, path)
+    _check_weights_fit(path, metadata, state_dict)
     try:
         network = IntersectionNetwork(metadata.network_config)
         network.load_state_dict(state_dict)
@@ -153,6 +154,39 @@ def load_model(path: str | os.PathLike) -> tuple[IntersectionNetwork, ModelMetad
                              f"numbers of magnitude at most {MAX_WEIGHT:g}")
     network.thresholds = metadata.thresholds
     return network, metadata
+
+
+def _check_weights_fit(path: str, metadata: ModelMetadata, state_dict: object) -> None:
+    """The weights' names and shapes against those of the network the metadata describes,
+    found by building it on torch's "meta" device (shapes only, no memory): a small file
+    whose metadata claims large tables is refused here, before the network is built (a
+    10 KB file claiming 2^24-row tables built a 4.9 GB network first), and a mismatch is
+    named in full, where ``load_state_dict`` lists every one on lines of their own."""
+    if not isinstance(state_dict, dict) or not all(
+            isinstance(key, str) and isinstance(value, torch.Tensor)
+            for key, value in state_dict.items()):
+        raise VDNIFError(f"model file {path} is damaged: its weights are not a mapping of "
+                         "names to tensors")
+    try:
+        with torch.device("meta"):
+            expected = IntersectionNetwork(metadata.network_config).state_dict()
+    except Exception as exc:
+        raise VDNIFError(f"model file {path} is damaged: {_reason(exc)}") from exc
+    missing = [key for key in expected if key not in state_dict]
+    unknown = [key for key in state_dict if key not in expected]
+    if missing or unknown:
+        names = [*(f"lacks '{key}'" for key in missing[:2]),
+                 *(f"has an unknown '{key}'" for key in unknown[:2])]
+        raise VDNIFError(f"model file {path} is damaged: its weights do not fit the network "
+                         f"its metadata describes: it {' and '.join(names)}"
+                         + (" (and more)" if len(missing) + len(unknown) > 2 else ""))
+    for key, value in expected.items():
+        stored = state_dict[key]
+        if tuple(stored.shape) != tuple(value.shape):
+            raise VDNIFError(
+                f"model file {path} is damaged: weights '{key}' have shape "
+                f"{tuple(stored.shape)}, the network its metadata describes needs "
+                f"{tuple(value.shape)}")
 
 
 def _read_archive(file: io.IOBase, path: str) -> object:
@@ -170,7 +204,7 @@ def _read_archive(file: io.IOBase, path: str) -> object:
 def _check_unpacked(file: io.IOBase, size: int, path: str) -> None:
     """Raises VDNIFError when the zip archive ``file`` of ``size`` bytes would unpack to more
     than it holds (module docstring)."""
-    unpacked = unpacked_size(file)
+    unpacked = unpacked_size(file, f"model file {path}")
     if unpacked is not None and unpacked > size:
         raise VDNIFError(f"model file {path} is not a VDNIF model: it would unpack to "
                          f"{unpacked:,} bytes from {size:,} (VDNIF stores its members "

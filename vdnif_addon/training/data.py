@@ -185,9 +185,17 @@ def split_data(
                               config.seed).numpy() for shard in arrays]
     kept = [~mask for mask in held_out]
     if not any(mask.any() for mask in kept):
-        raise VDNIFError(
-            f"process {group.rank} has no training segments after holding out poses {val_poses}"
-        )
+        rows = sum(len(mask) for mask in kept)
+        whose = ("the dataset" if group.world == 1 else f"process {group.rank}'s shards")
+        if rows == 0:
+            raise VDNIFError(f"{whose} hold no segments: make a dataset whose rays meet "
+                             "the object")
+        whose = f"the {rows:,} segments of {whose}"
+        held = (f"the poses {val_poses}" if val_poses else
+                f"{config.val_fraction:g} of the rays of its one pose")
+        raise VDNIFError(f"{whose} leave none to train on once {held} are held out for "
+                         "validation: make a dataset with more rays (--rays-per-pose) or "
+                         "poses")
     train_rows, val_data = TrainingRows(device), {}
     for key in list(arrays[0]):
         val_data[key] = _column(arrays, key, held_out).to(device)

@@ -24,9 +24,10 @@ import numpy as np
 from .. import limits
 from ..errors import VDNIFError
 from ..output_rule import DATASET_MANIFEST
-from ..safe_io import open_regular, unpacked_size
+from ..safe_io import ZIP_ERRORS, open_regular, unpacked_size
 from .header import VERSION, DatasetHeader, DatasetIdentity
 from .packing import PackedShard, pack, stored_names
+from .shard_rows import ClosedNpz, check_lengths
 
 if TYPE_CHECKING:
     from ..geometry.restmesh import RestMesh
@@ -134,6 +135,11 @@ def check_folder(folder: str | os.PathLike, identity: DatasetIdentity) -> None:
             return
         theirs = _read_header(existing[0]).identity()
     key = theirs.differs(identity)
+    if key is not None and not any(folder.glob("shard-*.json")):
+        raise VDNIFError(f"dataset folder '{folder}' holds no shards, but its manifest "
+                         f"'{MANIFEST}' is of object {theirs.describe()}, not of "
+                         f"{identity.describe()}: its {key} differs; remove the manifest or "
+                         "use another folder")
     if key is not None:
         raise VDNIFError(f"dataset folder '{folder}' holds shards of object "
                          f"{theirs.describe()}, not of {identity.describe()}: its {key} "
@@ -277,7 +283,12 @@ def _open_shard(path: pathlib.Path, header: DatasetHeader) -> Shard:
     version stores for its heads, their sizes within ``limits.MAX_SHARD_SEGMENTS`` rows, each
     array's header claiming the bytes its member holds."""
     file = open_regular(path, f"dataset shard '{path}'")
-    size, unpacked = os.fstat(file.fileno()).st_size, unpacked_size(file)
+    size = os.fstat(file.fileno()).st_size
+    try:
+        unpacked = unpacked_size(file, f"dataset shard '{path}'")
+    except VDNIFError:
+        file.close()
+        raise
     if unpacked is not None and unpacked > size:
         file.close()
         raise VDNIFError(f"dataset shard '{path}' is not a VDNIF shard: it would unpack to "
@@ -285,7 +296,7 @@ def _open_shard(path: pathlib.Path, header: DatasetHeader) -> Shard:
                          "uncompressed)")
     try:
         shard = np.load(file)
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except ZIP_ERRORS as exc:
         file.close()
         raise VDNIFError(f"dataset shard '{path}' cannot be read: {exc}") from None
     if not isinstance(shard, np.lib.npyio.NpzFile):
@@ -303,8 +314,11 @@ def _open_shard(path: pathlib.Path, header: DatasetHeader) -> Shard:
                          "vdnif_addon/limits.py)")
     for name in names:
         _check_member(path, shard, name)
-    return shard if header.version == 1 else PackedShard(shard, path, ARRAYS, header.heads,
-                                                         header.albedo_table)
+    shard.close()
+    file.close()
+    archive = ClosedNpz(path, tuple(shard.files))
+    return archive if header.version == 1 else PackedShard(archive, path, ARRAYS, header.heads,
+                                                           header.albedo_table)
 
 
 _ROW_BYTES = sum(np.dtype(dtype).itemsize * math.prod(trailing)
@@ -327,7 +341,7 @@ def _check_member(path: pathlib.Path, shard: Shard, name: str) -> None:
                 raise ValueError(f"npy format version {version} is not 1.0 or 2.0")
             shape, _, dtype = read(member)
             start = member.tell()
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+    except ZIP_ERRORS as exc:
         raise VDNIFError(f"dataset shard '{path}' array '{name}' cannot be read: "
                          f"{_first_line(exc)}") from None
     if dtype.hasobject:
@@ -354,10 +368,11 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
     within the grid, 0/1 hits, fractions in [0, 1], poses of the header. A bad CRC or a
     truncated member is reported here, not in the middle of training."""
     length = None
+    kept = {}
     for name, (dtype, trailing) in ARRAYS.items():
         try:
             array = shard[name]
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        except ZIP_ERRORS as exc:
             raise VDNIFError(f"dataset shard '{path}' array '{name}' cannot be read: "
                              f"{_first_line(exc)}") from None
         if array.dtype.kind != np.dtype(dtype).kind:
@@ -366,6 +381,8 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
         if array.ndim < 1 or array.shape[1:] != trailing:
             raise VDNIFError(f"dataset shard '{path}' array '{name}' has shape {array.shape}, "
                              f"expected (N, {', '.join(map(str, trailing))})".replace(", )", ")"))
+        if name in ("p0", "p1", "rest_len", "seg_len", "t0", "hit", "normal"):
+            kept[name] = array
         if length is None:
             length = len(array)
         if len(array) != length:
@@ -390,3 +407,4 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
     if header.segments != length:
         raise VDNIFError(f"dataset shard '{path}' has {length} rows, its header says "
                          f"{header.segments}")
+    check_lengths(path, kept, header.grid.extent)

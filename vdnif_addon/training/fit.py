@@ -15,7 +15,7 @@ from typing import Any
 
 from .. import __version__
 from ..limits import GROUP_TIMEOUT_S
-from ..memory import TRAINING_ADVICE, check_memory, out_of_memory
+from ..memory import CPU_TRAINING_ADVICE, TRAINING_ADVICE, check_memory, out_of_memory
 from ..model.metadata import DatasetSource, ModelMetadata, albedo_rows
 from ..model.model_file import model_bytes, save_model
 from ..model.variants import variant_config
@@ -45,9 +45,8 @@ def fit_model(
     JSON-ready summary); only the main process of a ``torchrun``
     launch writes the file (the summary is then empty on the others).
     """
-    overrides = dict(overrides or {})
-    chosen = variant_config(variant, **overrides)
-    with out_of_memory("training", TRAINING_ADVICE):
+    chosen = variant_config(variant, **(overrides or {}))
+    with out_of_memory("training", TRAINING_ADVICE, CPU_TRAINING_ADVICE):
         data, shards = read_dataset(data_dir)
         header = data.header
         # rows unpacked from the shards and their tensors, before any is read
