@@ -18,8 +18,6 @@ import shutil
 import pytest
 from conftest import REPO
 
-from vdnif_addon.output_rule import OUTPUT_MARK
-
 DOCS = ("README.md", "docs/cli.md")
 README_WORDS = 1500
 # The ways the docs start a batch command; the arguments follow ``--``.
@@ -282,10 +280,10 @@ def test_results_summary_repeats_its_json(core):
     assert len(rows) >= 30
 
 
-def test_every_result_file_is_referenced_and_every_reference_exists():
+def test_every_result_file_is_referenced_and_every_reference_exists(core):
     """docs/results/ holds the files that docs/results.md names, no more (superseded runs
     stay in git's history), and every file it names is there."""
     named = set(re.findall(r"results/([\w.,-]+\.(?:json|png))", RESULTS.read_text()))
     present = {path.name for path in (REPO / "docs" / "results").iterdir()
-               if path.name != OUTPUT_MARK}       # the mark of a folder VDNIF writes
+               if path.name != core("output_rule").OUTPUT_MARK}   # a VDNIF folder's mark
     assert named == present, (sorted(named - present), sorted(present - named))

@@ -192,7 +192,7 @@ class DistanceScale:
     side (an object moving a little nearer or farther stays on it; beyond, the preview
     clips). Images without a hit leave it unset."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.near_far = None
 
     def __call__(self, *passes):
