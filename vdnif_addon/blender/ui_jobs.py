@@ -154,13 +154,14 @@ def estimate_job(obj, captured, variant, rays_per_pose, overrides, scratch, seed
 
 
 def suggestion_job(obj, spec, target, floor, candidates):
-    """Suggests the voxel resolution (``resolution.suggest_resolution``): each candidate's
-    capture and poses are read on the main thread when the worker asks for them. Result:
-    (resolution, table)."""
+    """Suggests the voxel resolution (``resolution.suggest_resolution``; ``floor``: the
+    object's ``resolution.Floor``, read on the main thread): each candidate's capture and
+    poses are read on the main thread when the worker asks for them. Result: the
+    Suggestion."""
     from .resolution import considered, suggest_resolution
 
     cancel = threading.Event()
-    tried = considered(candidates, floor)
+    tried = considered(candidates, floor.textured)
 
     def work(calls, progress, _deliver):
         done = []
@@ -168,7 +169,7 @@ def suggestion_job(obj, spec, target, floor, candidates):
             obj, spec, target, candidates, floor=floor, calls=calls,
             progress=lambda resolution, _: done.append(resolution) or progress(
                 len(done), len(tried)))
-        return f"suggested {suggested[0]}", suggested
+        return f"suggested {suggested.resolution}", suggested
 
     return WorkerJob("suggestion", len(tried), "resolutions", work, live=DirectCalls,
                      feed=MainCalls(cancel), cancel=cancel)
