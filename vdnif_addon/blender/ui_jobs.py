@@ -14,6 +14,7 @@ import pathlib
 import shutil
 import threading
 
+from ..model.variants import variant_config
 from ..settings import DEFAULT_PRECISION
 from ..training.dataset import MANIFEST
 from ..worker import DirectCalls, MainCalls, WorkerJob
@@ -146,7 +147,7 @@ def estimate_job(obj, captured, variant, rays_per_pose, overrides, scratch, seed
         rates = estimates.measure(source, captured, variant, overrides, scratch, seed)
         progress(1, 1)
         figures = estimates.estimate(rates, len(captured.poses), rays_per_pose,
-                                     overrides["steps"], overrides["batch_size"])
+                                     variant_config(variant, **overrides).train)
         return estimates.describe(figures), figures
 
     return pose_job("estimate", "samples", obj, captured, estimates.probe_poses(captured),

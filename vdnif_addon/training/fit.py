@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import pathlib
 import threading
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -40,10 +41,13 @@ def fit_model(
     """
     chosen = variant_config(variant, **(overrides or {}))
     with out_of_memory("training", TRAINING_ADVICE):
+        started = time.perf_counter()
         data, shards = read_dataset(data_dir)
+        read_s = time.perf_counter() - started
         header = data.header
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
                        cancel=cancel)
+    result.timings["read_s"] = read_s
     if not result.is_main:
         return result, {}
     # A dataset header that names no used-slot table or mesh fingerprint (the golden arm
@@ -63,7 +67,9 @@ def fit_model(
         "dataset": {"folder": str(data_dir), "shards": list(data.shards),
                     "poses": len(data.poses), "segments": data.segments},
         "vdnif_version": __version__}, str(out))
+    started = time.perf_counter()
     save_model(out, result.network, metadata)
+    result.timings["save_s"] = time.perf_counter() - started
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,
                "train": result.info(), "network_config": result.network_config.to_dict(),
