@@ -82,7 +82,7 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
 def _probe_training(data, variant, overrides, segments):
     """The training rates of the sample dataset ``data`` of ``segments`` segments: samples
     per second after the warm-up, seconds per segment read and split, per validated row,
-    per held-out row of the last pass, and the fixed rest (building, warming up, saving)."""
+    per held-out row of the last pass, and the fixed rest (building, saving)."""
     records = []
     use_threads()                         # the training job's threads
     started = time.perf_counter()
@@ -100,7 +100,10 @@ def _probe_training(data, variant, overrides, segments):
         "validation_s_per_row": timings["validation_s"] / max(
             timings["validations"] * timings["probe_rows"], 1),
         "final_s_per_row": timings["final_s"] / max(timings["held_out_rows"], 1),
-        "fixed_s": max(wall - around - PROBE_STEPS * result.config.batch_size / rate, 0.0),
+        # Building the network, saving the model: what is left of the wall time once the
+        # steps are out (the first window's warm-up too: a run warms up once, in its own
+        # steps, and after the sample has loaded the kernels).
+        "fixed_s": max(wall - around - result.seconds, 0.0),
     }
 
 
