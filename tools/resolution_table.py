@@ -8,6 +8,8 @@ reference, and whether both are within the clean rate.
     python tools/resolution_table.py run --case arm --case cup --out docs/results/resolution-auto
     python tools/resolution_table.py table docs/results/resolution-auto
 
+``run --suggest-only`` writes the suggestion alone (the row then says it was not trained).
+
 ``run`` writes ``CASE.json`` per case into --out (cases may run in several processes at
 once); ``table`` prints the Markdown table of every ``*.json`` in the folder and writes them
 together as ``resolution-auto.json`` beside it. Cases: the demo scenes (arm, lattice, spot,
@@ -80,8 +82,9 @@ def suggestion_of(options):
             "describe": suggestion.describe(), "seconds": time.perf_counter() - start}
 
 
-def run_case(case, out):
-    """Suggests, trains and evaluates ``case``; writes ``out/CASE.json``."""
+def run_case(case, out, train=True):
+    """Suggests, trains and evaluates ``case`` (with ``train`` False, only suggests); writes
+    ``out/CASE.json``."""
     from vdnif_addon.inference.metrics import CLEAN_RATE
 
     with tempfile.TemporaryDirectory(prefix=f"vdnif-{case}-") as folder:
@@ -89,6 +92,11 @@ def run_case(case, out):
         options = [item.format(file=mesh) for item in CASES[case][1]]
         suggested = suggestion_of(options)
         print(f"{case}: {suggested['describe']}", flush=True)
+        if not train:
+            _write(out, {"case": case, "options": _named(options, case, mesh),
+                         "suggestion": suggested, "training": None, "cpu": _cpu(),
+                         "load_average": os.getloadavg()})
+            return
         model, summary, report = (pathlib.Path(folder) / name for name in (
             "model.vdnif", "train.json", "evaluate.json"))
         start = time.perf_counter()
@@ -101,18 +109,25 @@ def run_case(case, out):
         trained = json.loads(summary.read_text())
         figures = json.loads(report.read_text())["vs_true"]
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
-    row = {"case": case, "options": [item.replace(str(mesh), CASES[case][0])
-                                     for item in options] if mesh else options,
-           "suggestion": suggested,
+    row = {"case": case, "options": _named(options, case, mesh), "suggestion": suggested,
            "training": {"wall_s": train_s, "status": trained["train"]["status"],
                         "steps": trained["train"]["steps"], "segments": trained["segments"]},
            "test": figures, "clean": holes <= CLEAN_RATE and extras <= CLEAN_RATE,
            "cpu": _cpu(), "load_average": os.getloadavg()}
-    out = pathlib.Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{case}.json").write_text(json.dumps(row, indent=1))
+    _write(out, row)
     print(f"{case}: R {suggested['resolution']}, holes {100 * holes:.3g} %, extras "
           f"{100 * extras:.3g} %, clean {row['clean']}", flush=True)
+
+
+def _named(options, case, mesh):
+    """``options`` with the temporary mesh file named by its file name alone."""
+    return [item.replace(str(mesh), CASES[case][0]) for item in options] if mesh else options
+
+
+def _write(out, row):
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{row['case']}.json").write_text(json.dumps(row, indent=1))
 
 
 def _cpu():
@@ -139,10 +154,11 @@ def table(folder):
         lines.append(
             f"| {row['case']} | {s['resolution']} ({s['knee']}; {s['thin_floor'] or '-'}) | "
             f"{chosen['embedding_error']:.2g} | {finest['embedding_error']:.2g} | "
-            f"{'yes' if s['met'] else 'no'} | "
-            f"{100 * row['test']['false_negative_rate']:.3g} % | "
-            f"{100 * row['test']['false_positive_rate']:.3g} % | "
-            f"{'yes' if row['clean'] else 'no'} |")
+            f"{'yes' if s['met'] else 'no'} | " + (
+                f"{100 * row['test']['false_negative_rate']:.3g} % | "
+                f"{100 * row['test']['false_positive_rate']:.3g} % | "
+                f"{'yes' if row['clean'] else 'no'} |" if row.get("training")
+                else "not trained | not trained | - |"))
     return "\n".join(lines)
 
 
@@ -152,6 +168,8 @@ def main(argv):
     run = commands.add_parser("run", help="suggest, train and evaluate cases")
     run.add_argument("--case", action="append", choices=tuple(CASES), required=True)
     run.add_argument("--out", type=pathlib.Path, required=True, help="folder of CASE.json")
+    run.add_argument("--suggest-only", action="store_true",
+                     help="only the suggestion (no training, no evaluation)")
     show = commands.add_parser("table", help="the Markdown table of a run folder")
     show.add_argument("folder", type=pathlib.Path)
     args = parser.parse_args(argv)
@@ -162,7 +180,7 @@ def main(argv):
 
     use_threads(None)                   # as the batch commands do
     for case in args.case:
-        run_case(case, args.out)
+        run_case(case, args.out, train=not args.suggest_only)
 
 
 if __name__ == "__main__":

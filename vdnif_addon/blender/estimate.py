@@ -10,14 +10,13 @@ up) and the work around the steps: reading and splitting the data, validating, t
 held-out pass and calibration. The estimate scales those rates to the run: bytes per
 segment x the expected segments (rays x segments per ray), seconds per pose and per ray,
 samples per second, seconds per segment read and split and per held-out row validated,
-plus the sample's fixed cost. Touches no Blender data (its poses come through a
+plus the seconds of saving the model. Touches no Blender data (its poses come through a
 PoseSource, like ``generate_dataset``'s).
 """
 
 import dataclasses
 import pathlib
 import shutil
-import time
 
 from ..threads import use_threads
 from ..training.data import held_out_count
@@ -33,8 +32,9 @@ rows of many distinct rays (a sample smaller than a batch trains on rows and tab
 that stay in the cache, faster than a full dataset does)."""
 WARM_RAYS = 64
 """Rays of the walk that loads the kernels first (their first load is no rate of the run)."""
-PROBE_STEPS = 8
-"""Training steps timed: two windows of half as many; the rate is the second's."""
+PROBE_STEPS = 12
+"""Training steps timed: two windows of half as many; the rate is the second's (the first
+warms up: four steps were not enough, the rate still rose after them)."""
 
 
 def probe_poses(captured):
@@ -82,28 +82,25 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
 def _probe_training(data, variant, overrides, segments):
     """The training rates of the sample dataset ``data`` of ``segments`` segments: samples
     per second after the warm-up, seconds per segment read and split, per validated row,
-    per held-out row of the last pass, and the fixed rest (building, saving)."""
+    per held-out row of the last pass, and the seconds of saving the model."""
     records = []
     use_threads()                         # the training job's threads
-    started = time.perf_counter()
     result, _ = fit_model(data, variant, data.parent / "sample.vdnif",
                           dict(overrides, steps=PROBE_STEPS, log_interval=PROBE_STEPS // 2,
                                stop_patience=0), progress=records.append)
-    wall = time.perf_counter() - started
     timings = result.timings
     rate = records[-1]["samples_per_s"]
-    around = (timings["read_s"] + timings["split_s"] + timings["validation_s"]
-              + timings["final_s"])
     return {
         "samples_per_s": rate,
         "prepare_s_per_segment": (timings["read_s"] + timings["split_s"]) / segments,
         "validation_s_per_row": timings["validation_s"] / max(
             timings["validations"] * timings["probe_rows"], 1),
         "final_s_per_row": timings["final_s"] / max(timings["held_out_rows"], 1),
-        # Building the network, saving the model: what is left of the wall time once the
-        # steps are out (the first window's warm-up too: a run warms up once, in its own
-        # steps, and after the sample has loaded the kernels).
-        "fixed_s": max(wall - around - result.seconds, 0.0),
+        # Saving the model. Not the rest of the sample's wall time: that is what the first
+        # training of a process pays once (loading kernels and torch's parts, which the
+        # sample has done for the run after it), and the first window's warm-up, which a
+        # run pays in its own steps.
+        "fixed_s": timings["save_s"],
     }
 
 
