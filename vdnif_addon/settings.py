@@ -67,22 +67,12 @@ DEMO_SCENES, RIGS = ("arm", "lattice", "spot", "bunny"), ("armature", "lattice")
 DEMO_SCENE = "spot"
 """The main job's scene (``make demo``): textured and armature-rigged."""
 
-# The suggested resolution (``blender/resolution.py``), from each candidate's embedding
-# error (true vs embedded reference on SUGGEST_POSES poses at SUGGEST_VIEW_SIZE^2 pixels:
-# distance MAE in object units, and the hit masks' mismatch, 1 - IoU): the coarsest
-# candidate whose errors are both within KNEE_MARGIN (relative) plus KNEE_TOLERANCE
-# (absolute: distance as a share of the object's size, mismatch as a share of the rays) of
-# the best candidate's. Finer voxels stop paying once the curve flattens (its knee), and the
-# error does not fall steadily past it: the finest candidate is no safe default.
-# EMBEDDING_TARGET (a share of the object's size) is what the choice is held to and said
-# against; the network's own distance error on the demo scenes is a few times larger.
-# THIN_PART_VOXELS: the resolution is raised until the surface's thin parts (THIN_PART_SHARE
-# of its area is thinner) span at least that many voxels.
+# The suggested resolution (``blender/resolution.py`` says what each value means): the knee
+# of the embedding errors within KNEE_MARGIN and KNEE_TOLERANCE of the best candidate's,
+# raised for thin parts (THIN_PART_*), held to EMBEDDING_TARGET x the object's size.
 RESOLUTION_CANDIDATES = (8, 12, 16, 24, 32, 48, 64, 96, 128)
-KNEE_MARGIN = 0.5
-KNEE_TOLERANCE = {"distance": 5e-5, "hit_mismatch": 2e-3}
-EMBEDDING_TARGET = 2e-4
-THIN_PART_VOXELS, THIN_PART_SHARE = 2.0, 0.01
+KNEE_MARGIN, KNEE_TOLERANCE = 0.5, {"distance": 5e-5, "hit_mismatch": 2e-3}
+EMBEDDING_TARGET, THIN_PART_VOXELS, THIN_PART_SHARE = 2e-4, 2.0, 0.01
 SUGGEST_POSES, SUGGEST_VIEW_SIZE = 4, 96
 
 # --------------------------------------------------------------------------- secondary rays

@@ -11,6 +11,12 @@ candidate meets it. A part thinner than about two voxels is raised past (``thin_
 the thickness measured on the rest mesh), and a textured mesh is never suggested coarser
 than the recipe trains it (``recipe_resolution``): its albedo needs the finer embedding
 however small the distance error is.
+
+The settings (``settings.py``): KNEE_MARGIN, relative (1.5x the best); KNEE_TOLERANCE,
+absolute, below which differences are noise (distance: a share of the object's size, hit
+mismatch: a share of the rays); EMBEDDING_TARGET, a share of the object's size (a few
+times below the network's own distance error on the demo scenes); THIN_PART_SHARE of the
+surface must span THIN_PART_VOXELS voxels; SUGGEST_POSES poses at SUGGEST_VIEW_SIZE^2.
 """
 
 import dataclasses
