@@ -4,9 +4,9 @@ generating it and of training, from rates measured on a small sample of the same
 The sample walks ``PROBE_RAYS`` rays through each of the first ``PROBE_POSES`` poses with
 the real walk and ground truth and writes them as a real shard, then trains the real
 network on it at the real batch size for ``PROBE_STEPS`` steps, as the training job does
-(its torch threads, a validation every ``PROBE_STEPS // 2`` steps rather than after each,
-where the next batch would be gathered unseen), timing the second half (the first warms
-up) and the work around the steps: reading and splitting the data, validating, the
+(its torch threads, a validation every ``PROBE_WINDOW`` steps rather than after each,
+where the next batch would be gathered unseen), timing the windows after the first (which
+warms up) and the work around the steps: reading and splitting the data, validating, the
 held-out pass and calibration. The estimate scales those rates to the run: bytes per
 segment x the expected segments (rays x segments per ray), seconds per pose and per ray,
 samples per second, seconds per segment read and split and per held-out row validated,
@@ -32,9 +32,9 @@ rows of many distinct rays (a sample smaller than a batch trains on rows and tab
 that stay in the cache, faster than a full dataset does)."""
 WARM_RAYS = 64
 """Rays of the walk that loads the kernels first (their first load is no rate of the run)."""
-PROBE_STEPS = 12
-"""Training steps timed: two windows of half as many; the rate is the second's (the first
-warms up: four steps were not enough, the rate still rose after them)."""
+PROBE_STEPS, PROBE_WINDOW = 18, 6
+"""Training steps timed, in windows of PROBE_WINDOW steps (a validation after each); the
+rate is over the windows after the first, which warms up (four steps were not enough)."""
 
 
 def probe_poses(captured):
@@ -86,10 +86,11 @@ def _probe_training(data, variant, overrides, segments):
     records = []
     use_threads()                         # the training job's threads
     result, _ = fit_model(data, variant, data.parent / "sample.vdnif",
-                          dict(overrides, steps=PROBE_STEPS, log_interval=PROBE_STEPS // 2,
+                          dict(overrides, steps=PROBE_STEPS, log_interval=PROBE_WINDOW,
                                stop_patience=0), progress=records.append)
     timings = result.timings
-    rate = records[-1]["samples_per_s"]
+    warm = records[1:]                    # equal windows: the rate over them all
+    rate = len(warm) / sum(1 / record["samples_per_s"] for record in warm)
     return {
         "samples_per_s": rate,
         "prepare_s_per_segment": (timings["read_s"] + timings["split_s"]) / segments,
