@@ -129,11 +129,8 @@ def test_the_suggestion_is_the_knee_of_the_measured_curve(arm, core):
     direct = core("blender.generate").reference_run(arm, capture, 24, 24)["embedded_vs_true"]
     assert table[1]["embedding_error"] == pytest.approx(direct["distance_mae"])
     assert table[1]["hit_mismatch"] == pytest.approx(1 - direct["hit_iou"])
-    size = capture.mesh.size
-    assert suggestion.target == pytest.approx(settings.EMBEDDING_TARGET * size)
-    assert suggestion.knee == resolution.knee(table, tolerance={
-        name: share * (size if name == "distance" else 1)
-        for name, share in settings.KNEE_TOLERANCE.items()})
+    assert suggestion.target == settings.EMBEDDING_TARGET             # object units
+    assert suggestion.knee == resolution.knee(table, tolerance=settings.KNEE_TOLERANCE)
     assert suggestion.resolution == max(suggestion.knee["resolution"],
                                         suggestion.floor.thin)
     # A target nothing meets is said, and changes nothing of the choice.

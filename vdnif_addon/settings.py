@@ -69,7 +69,7 @@ DEMO_SCENE = "spot"
 
 # The suggested resolution (``blender/resolution.py`` says what each value means): the knee
 # of the embedding errors within KNEE_MARGIN and KNEE_TOLERANCE of the best candidate's,
-# raised for thin parts (THIN_PART_*), held to EMBEDDING_TARGET x the object's size.
+# raised for thin parts (THIN_PART_*), held to EMBEDDING_TARGET (object units).
 RESOLUTION_CANDIDATES = (8, 12, 16, 24, 32, 48, 64, 96, 128)
 KNEE_MARGIN, KNEE_TOLERANCE = 0.5, {"distance": 5e-5, "hit_mismatch": 2e-3}
 EMBEDDING_TARGET, THIN_PART_VOXELS, THIN_PART_SHARE = 2e-4, 2.0, 0.01

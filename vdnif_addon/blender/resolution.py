@@ -3,19 +3,20 @@ the knee of its measured embedding-error curve, raised for thin parts.
 
 The embedding error is measured, not guessed: per candidate R, the true and the embedded
 reference (``generate.reference_run``) of a few poses, compared as distance MAE in object
-units and as the hit masks' mismatch (1 - IoU). The error falls steeply at coarse R and
-then flattens, noisily, rather than falling on: the suggestion is the coarsest candidate
-within a margin of the best one (``knee``), never the finest by default. It is held to a
-target that is a share of the object's size (``EMBEDDING_TARGET``) and says when no
-candidate meets it. A part thinner than about two voxels is raised past (``thin_floor``,
-the thickness measured on the rest mesh), and a textured mesh is never suggested coarser
-than the recipe trains it (``recipe_resolution``): its albedo needs the finer embedding
+units (shares of the rest mesh's longest side) and as the hit masks' mismatch (1 - IoU).
+The error falls steeply at coarse R and then flattens, noisily, rather than falling on:
+the suggestion is the coarsest candidate within a margin of the best one (``knee``),
+never the finest by default. It is held to a target in object units
+(``EMBEDDING_TARGET``) and says when no candidate meets it. A part thinner than about two
+voxels is raised past (``thin_floor``, the thickness measured on the rest mesh), and a
+textured mesh is never suggested coarser than the recipe trains it
+(``recipe_resolution``): its albedo needs the finer embedding
 however small the distance error is.
 
 The settings (``settings.py``): KNEE_MARGIN, relative (1.5x the best); KNEE_TOLERANCE,
-absolute, below which differences are noise (distance: a share of the object's size, hit
-mismatch: a share of the rays); EMBEDDING_TARGET, a share of the object's size (a few
-times below the network's own distance error on the demo scenes); THIN_PART_SHARE of the
+absolute, below which differences are noise (distance in object units, hit mismatch as a
+share of the rays); EMBEDDING_TARGET, object units (a few times below the network's own
+distance error on the demo scenes, 0.0008-0.003); THIN_PART_SHARE of the
 surface must span THIN_PART_VOXELS voxels; SUGGEST_POSES poses at SUGGEST_VIEW_SIZE^2.
 """
 
@@ -163,7 +164,7 @@ def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
     floor's textured resolution on is measured (embedding error and hit mismatch of the
     embedded against the true reference on ``poses`` poses of ``spec`` at ``size`` x
     ``size``); the choice is their ``knee``, raised to the floor's thin-part resolution.
-    ``target``: object units (default EMBEDDING_TARGET of the object's size). ``floor``: a
+    ``target``: object units (default EMBEDDING_TARGET). ``floor``: a
     Floor, or a resolution below which nothing is tried (default ``resolution_floor``).
 
     ``calls``: how Blender is read (captures, poses): in this thread, or from a worker on
@@ -188,11 +189,9 @@ def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
                       "hit_mismatch": None if iou is None else 1.0 - iou})
         if progress is not None:
             progress(resolution, figures["distance_mae"])
-    object_size = floor.size or captured.mesh.size
-    if target is None:
-        target = EMBEDDING_TARGET * object_size
-    chosen = knee(table, tolerance={"distance": KNEE_TOLERANCE["distance"] * object_size,
-                                    "hit_mismatch": KNEE_TOLERANCE["hit_mismatch"]})
+    # The errors are in object units already (shares of the rest mesh's longest side).
+    chosen = knee(table, tolerance=KNEE_TOLERANCE)
     resolution = max(chosen["resolution"], floor.thin)
     resolution = next((r for r in candidates if r >= resolution), candidates[-1])
-    return Suggestion(resolution, table, chosen, floor, target)
+    return Suggestion(resolution, table, chosen, floor,
+                      EMBEDDING_TARGET if target is None else target)
