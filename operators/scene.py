@@ -32,35 +32,32 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
 
 
 class VDNIF_OT_suggest_resolution(JobOperator, bpy.types.Operator):
-    """Set the coarsest voxel resolution whose embedding error is small beside the network's
-    (measured on a few poses at each candidate). Esc cancels"""
+    """Set the coarsest voxel resolution whose embedding error is close to the best candidate's,
+    finer where parts are thin (measured on a few poses at each candidate). Esc cancels"""
 
     bl_idname = "vdnif.suggest_resolution"
     bl_label = "Suggest Resolution"
     needs = ("mesh", "idle")
 
     def stages(self, context, obj):
-        from ..vdnif_addon.blender.resolution import network_error, resolution_floor
-        from ..vdnif_addon.settings import EMBEDDING_ERROR_SHARE, RESOLUTION_CANDIDATES
+        from ..vdnif_addon.blender.resolution import resolution_floor
+        from ..vdnif_addon.settings import RESOLUTION_CANDIDATES
 
-        target = EMBEDDING_ERROR_SHARE * network_error()
+        floor = resolution_floor(obj)          # reads the rest mesh: on the main thread
 
         def make():
             from ..vdnif_addon.blender.ui_jobs import suggestion_job
 
-            return suggestion_job(obj, obj.vdnif.pose_spec(), target, resolution_floor(obj),
+            return suggestion_job(obj, obj.vdnif.pose_spec(), None, floor,
                                   RESOLUTION_CANDIDATES)
 
         def finish(obj, state):
             outcome(state)
             if state.status != "completed":
                 return f"'{obj.name}': {state.message}"
-            settings = obj.vdnif
-            settings.resolution, table = state.result
-            tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}"
-                              for row in table)
-            settings.resolution_info = (f"suggested {settings.resolution}: embedding error "
-                                        f"{tried} (target {target:.2g} object units)")
+            settings, suggestion = obj.vdnif, state.result
+            settings.resolution = suggestion.resolution
+            settings.resolution_info = f"suggested {suggestion.describe()}"
             return f"'{obj.name}': {settings.resolution_info}"
 
         return [Stage(make, finish)]

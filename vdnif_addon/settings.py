@@ -65,13 +65,13 @@ DEMO_SCENES, RIGS = ("arm", "lattice", "spot", "bunny"), ("armature", "lattice")
 DEMO_SCENE = "spot"
 """The main job's scene (``make demo``): textured and armature-rigged."""
 
-# The suggested resolution (``blender/resolution.py``): the coarsest candidate whose
-# embedding error (true vs embedded reference, distance MAE in object units) is at most
-# EMBEDDING_ERROR_SHARE of the network error that preset SUGGEST_PRESET measured, on
-# SUGGEST_POSES poses at SUGGEST_VIEW_SIZE^2 pixels.
+# The suggested resolution (``blender/resolution.py`` says what each value means): the knee
+# of the embedding errors within KNEE_MARGIN and KNEE_TOLERANCE of the best candidate's,
+# raised for thin parts (THIN_PART_*), held to EMBEDDING_TARGET (object units).
 RESOLUTION_CANDIDATES = (8, 12, 16, 24, 32, 48, 64, 96, 128)
-EMBEDDING_ERROR_SHARE = 0.1
-SUGGEST_PRESET, SUGGEST_POSES, SUGGEST_VIEW_SIZE = "balanced", 4, 96
+KNEE_MARGIN, KNEE_TOLERANCE = 0.5, {"distance": 5e-5, "hit_mismatch": 2e-3}
+EMBEDDING_TARGET, THIN_PART_VOXELS, THIN_PART_SHARE = 2e-4, 2.0, 0.01
+SUGGEST_POSES, SUGGEST_VIEW_SIZE = 4, 96
 
 # --------------------------------------------------------------------------- secondary rays
 # Ambient occlusion: AO_SAMPLES rays per pixel (standard error at most 0.125, directions from

@@ -1,7 +1,113 @@
-"""The suggested resolution (``--resolution auto``): the coarsest candidate whose measured
-embedding error meets the target, against the references measured directly."""
+"""The suggested resolution (``--resolution auto``): the knee of the measured embedding-error
+curve (the coarsest candidate within a margin of the best), raised for thin parts, held to
+a target it says it misses; the table's figures are the references measured directly."""
 
+import math
+
+import numpy as np
 import pytest
+
+from vdnif_addon.kernels.thickness import thin_thickness, triangle_thickness
+
+CANDIDATES = (8, 12, 16, 24, 32, 48, 64, 96, 128)
+
+
+def curve(errors, mismatch=None):
+    """A table of rows as ``suggest_resolution`` measures them."""
+    mismatch = mismatch or [0.0] * len(errors)
+    return [{"resolution": r, "embedding_error": e, "hit_mismatch": m}
+            for r, e, m in zip(CANDIDATES, errors, mismatch)]
+
+
+@pytest.fixture
+def resolution(extension, core):
+    return core("blender.resolution")
+
+
+def test_a_curve_with_a_knee_picks_the_knee_never_the_finest(resolution):
+    # Steep down to 32 (each coarser one at least 3x the plateau), then a plateau that
+    # wobbles by +-20 % and ends higher at the finest: any margin from 0.4 to 1 finds 32.
+    plateau = 4e-4
+    wobble = [1.0, 0.8, 1.2, 0.9, 1.2]
+    errors = [2e-2, 8e-3, 3e-3, 1.3e-3] + [plateau * w for w in wobble]
+    for margin in (0.4, 0.5, 1.0):
+        assert resolution.knee(curve(errors), margin)["resolution"] == 32
+    # A dip below the plateau at a coarse candidate (the arm's 24) is the best: chosen.
+    dipped = errors[:3] + [1.5e-4] + errors[4:]
+    assert resolution.knee(curve(dipped), 0.5)["resolution"] == 24
+
+
+def test_a_flat_curve_picks_the_coarsest(resolution):
+    rng = np.random.default_rng(0)
+    flat = list(3e-4 * (1 + 0.05 * rng.standard_normal(len(CANDIDATES))))
+    assert resolution.knee(curve(flat), 0.5)["resolution"] == 8
+    # Differences under the absolute tolerance are noise, even where relatively large.
+    tiny = [4e-7, 3e-7, 2e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7, 1e-7]
+    assert resolution.knee(curve(tiny), 0.5, {"distance": 1e-6})["resolution"] == 8
+    assert resolution.knee(curve(tiny), 0.5)["resolution"] == 24
+
+
+def test_the_hit_mismatch_must_reach_its_knee_too(resolution):
+    flat = [3e-4] * len(CANDIDATES)
+    mismatch = [0.05, 0.03, 0.01, 0.004, 0.002, 0.002, 0.002, 0.002, 0.002]
+    assert resolution.knee(curve(flat, mismatch), 0.5)["resolution"] == 32
+    # A candidate with no measured distance (no hit in either reference) never qualifies.
+    missing = [None, None] + flat[2:]
+    assert resolution.knee(curve(missing), 0.5)["resolution"] == 16
+
+
+def box(sizes):
+    """(vertices, triangles) of an axis-aligned box with outward winding."""
+    a, b, c = sizes
+    vertices = np.array([[x, y, z] for z in (0, c) for y in (0, b) for x in (0, a)], float)
+    quads = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2),
+             (1, 3, 7, 5)]
+    triangles = np.array([t for q in quads for t in ((q[0], q[1], q[2]), (q[0], q[2], q[3]))])
+    return vertices, triangles
+
+
+def signed_volume(vertices, triangles):
+    p = vertices[triangles]
+    return np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
+
+
+def test_thickness_is_the_solid_along_each_inward_normal():
+    sizes = np.array([1.0, 0.6, 0.05])
+    vertices, triangles = box(sizes)
+    assert signed_volume(vertices, triangles) == pytest.approx(np.prod(sizes))  # outward
+    thickness, area = triangle_thickness(vertices, triangles)
+    corners = vertices[triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    axis = np.abs(normals).argmax(axis=1)                  # each face's normal axis
+    assert thickness == pytest.approx(sizes[axis], rel=1e-4)
+    assert area.sum() == pytest.approx(2 * (1.0 * 0.6 + 1.0 * 0.05 + 0.6 * 0.05))
+    # The two large faces are 1.2 / 1.36 of the area: thinner than 0.05 nowhere, and at
+    # 0.05 for any share up to theirs; the thickest share is the box's length.
+    large = 2 * 1.0 * 0.6 / area.sum()
+    assert thin_thickness(thickness, area, 0.01) == pytest.approx(0.05, rel=1e-4)
+    assert thin_thickness(thickness, area, large - 0.01) == pytest.approx(0.05, rel=1e-4)
+    assert thin_thickness(thickness, area, 0.999) == pytest.approx(1.0, rel=1e-4)
+
+
+def test_an_open_sheet_or_inward_normals_measure_no_thickness():
+    vertices, triangles = box([1.0, 1.0, 1.0])
+    flipped = triangles[:, ::-1]                             # normals pointing in
+    thickness, area = triangle_thickness(vertices, flipped)
+    assert np.isinf(thickness).all()
+    assert math.isinf(thin_thickness(thickness, area, 0.01))
+    sheet = triangles[:2]                                    # one face alone
+    assert np.isinf(triangle_thickness(vertices, sheet)[0]).all()
+
+
+def test_the_thin_floor_is_the_coarsest_candidate_spanning_two_voxels(resolution):
+    size = 3.0
+    for thickness in (0.5, 0.2, 0.1, 0.07, 0.05):
+        chosen = resolution.thin_floor(thickness, size, CANDIDATES, voxels=2)
+        assert thickness / (size / chosen) >= 2                     # it spans two voxels
+        coarser = [r for r in CANDIDATES if r < chosen]
+        assert not coarser or thickness / (size / coarser[-1]) < 2  # the next coarser not
+    assert resolution.thin_floor(0.01, size, CANDIDATES) == 128      # none: the finest
+    assert resolution.thin_floor(math.inf, size, CANDIDATES) == 0    # nothing thin
 
 
 @pytest.fixture
@@ -9,34 +115,58 @@ def arm(empty_scene, core):
     return core("blender.scenes").demo_scene("arm")
 
 
-def test_the_coarsest_resolution_that_meets_the_target_is_suggested(arm, core):
+def test_the_suggestion_is_the_knee_of_the_measured_curve(arm, core):
     resolution = core("blender.resolution")
+    settings = core("settings")
     spec = core("blender.poses").PoseSpec(count=2)
     candidates = (8, 16)
-    _, table = resolution.suggest_resolution(arm, spec, 0.0, candidates, poses=1, size=24)
+    suggestion = resolution.suggest_resolution(arm, spec, None, candidates, poses=1, size=24)
+    table = suggestion.table
     assert [row["resolution"] for row in table] == [8, 16]
     # The table's figures are reference_run's embedding errors at each resolution.
     capture = core("blender.capture_scene").capture(
         arm, 16, core("blender.poses").PoseSpec(count=1), deform_corners=False)
-    direct = core("posed.generate").reference_run(arm, capture, 24, 24)
-    assert table[1]["embedding_error"] == pytest.approx(
-        direct["embedded_vs_true"]["distance_mae"])
-    coarse, fine = (row["embedding_error"] for row in table)
-    assert fine < coarse                              # finer voxels embed the mesh better
-    # A target between the two errors picks 16, one above both picks 8 (and stops there),
-    # one below both gives the finest candidate.
-    between = (coarse + fine) / 2
-    assert resolution.suggest_resolution(arm, spec, between, candidates, 1, 24)[0] == 16
-    chosen, tried = resolution.suggest_resolution(arm, spec, coarse * 2, candidates, 1, 24)
-    assert chosen == 8 and len(tried) == 1
-    assert resolution.suggest_resolution(arm, spec, fine / 2, candidates, 1, 24)[0] == 16
+    direct = core("posed.generate").reference_run(arm, capture, 24, 24)["embedded_vs_true"]
+    assert table[1]["embedding_error"] == pytest.approx(direct["distance_mae"])
+    assert table[1]["hit_mismatch"] == pytest.approx(1 - direct["hit_iou"])
+    assert suggestion.target == settings.EMBEDDING_TARGET             # object units
+    assert suggestion.knee == resolution.knee(table, tolerance=settings.KNEE_TOLERANCE)
+    assert suggestion.resolution == max(suggestion.knee["resolution"],
+                                        suggestion.floor.thin)
+    # A target nothing meets is said, and changes nothing of the choice.
+    strict = resolution.suggest_resolution(arm, spec, 1e-12, candidates, poses=1, size=24)
+    assert strict.resolution == suggestion.resolution and strict.none_met
+    assert "no candidate meets" in strict.describe()
+    loose = resolution.suggest_resolution(arm, spec, 1.0, candidates, poses=1, size=24)
+    assert loose.met and "meets it" in loose.describe()
 
 
-def test_the_target_is_a_share_of_a_presets_measured_error(core):
-    presets = core("presets").load_presets()
+def slab(core, thickness):
+    """A 1 x 1 x ``thickness`` box mesh bent by the procedural lattice."""
+    import bpy
+
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    obj = bpy.context.active_object
+    obj.scale = (1.0, 1.0, thickness)
+    bpy.ops.object.transform_apply(scale=True)
+    return core("blender.scenes").add_rig(obj, "lattice")
+
+
+def test_a_thin_part_raises_the_resolution(empty_scene, core):
     resolution = core("blender.resolution")
-    assert resolution.network_error("fast") == (
-        presets["fast"]["measured"][core("presets").PRESET_ERROR])
+    spec = core("blender.poses").PoseSpec(count=1)
+    candidates = (8, 12, 16)
+    thick = resolution.suggest_resolution(slab(core, 0.5), spec, None, candidates, poses=1,
+                                          size=24)
+    assert thick.floor.thin == 8 and thick.floor.thickness == pytest.approx(0.5, rel=1e-3)
+    # 0.15 thick needs 2 / 0.15 = 13.3 voxels along the side: 16; the measured knee is
+    # raised to it whatever the curve says.
+    thin = resolution.suggest_resolution(slab(core, 0.15), spec, None, candidates, poses=1,
+                                         size=24)
+    assert thin.floor.thickness == pytest.approx(0.15, rel=1e-3)
+    assert thin.floor.thin == 16 and thin.resolution == 16
+    if thin.knee["resolution"] < 16:
+        assert "raised from the knee" in thin.describe()
 
 
 @pytest.fixture
@@ -63,9 +193,9 @@ def test_a_textured_mesh_trains_at_the_recipes_textured_resolution(spot, core):
     assert args.resolution == 24
     # The suggestion never goes below it: candidates under it are not even tried.
     spec = core("blender.poses").PoseSpec(count=1)
-    chosen, tried = core("blender.resolution").suggest_resolution(spot, spec, 1.0, (8, 16),
-                                                                  poses=1, size=24)
-    assert chosen == 16 and [row["resolution"] for row in tried] == [16]
+    suggestion = core("blender.resolution").suggest_resolution(spot, spec, 1.0, (8, 16),
+                                                               poses=1, size=24)
+    assert suggestion.resolution == 16 and [row["resolution"] for row in suggestion.table] == [16]
 
 
 def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
@@ -76,8 +206,9 @@ def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
     args = build_parser().parse_args(["capture", "--scene", "arm"])
     arm = load_posed_scene(args)[0]                      # the scene built again
     assert args.resolution == RECIPE.resolution
-    # No floor: a target every candidate meets stops at the coarsest; a given floor holds.
+    # A given floor holds: nothing under it is tried.
     spec = core("blender.poses").PoseSpec(count=1)
     suggest = core("blender.resolution").suggest_resolution
-    assert suggest(arm, spec, 1.0, (8, 12, 16), poses=1, size=24)[0] == 8
-    assert suggest(arm, spec, 1.0, (8, 12, 16), poses=1, size=24, floor=12)[0] == 12
+    suggestion = suggest(arm, spec, 1.0, (8, 12, 16), poses=1, size=24, floor=12)
+    assert [row["resolution"] for row in suggestion.table] == [12, 16]
+    assert suggestion.resolution >= 12

@@ -215,12 +215,10 @@ def test_suggest_resolution_in_a_worker_equals_the_direct_search(empty_scene, mo
     obj = arm_scene()
     monkeypatch.setattr(module("vdnif_addon.settings"), "RESOLUTION_CANDIDATES", (8, 16))
     resolution = module("vdnif_addon.blender.resolution")
-    target = module("vdnif_addon.settings").EMBEDDING_ERROR_SHARE * resolution.network_error()
-    chosen, table = resolution.suggest_resolution(obj, obj.vdnif.pose_spec(), target, (8, 16))
+    direct = resolution.suggest_resolution(obj, obj.vdnif.pose_spec(), None, (8, 16))
     suggest = module("operators.scene").VDNIF_OT_suggest_resolution
     result, status, reports = modal_run(suggest, "Arm")
-    tried = ", ".join(f"{row['resolution']}: {row['embedding_error']:.2g}" for row in table)
-    assert result == {"FINISHED"} and obj.vdnif.resolution == chosen
-    assert obj.vdnif.resolution_info.startswith(f"suggested {chosen}: embedding error {tried}")
+    assert result == {"FINISHED"} and obj.vdnif.resolution == direct.resolution
+    assert obj.vdnif.resolution_info == f"suggested {direct.describe()}"
     assert any(re.search(r"suggestion: [01]/2 resolutions", text) for text in status)
     assert not [o for o in bpy.data.objects if CORNERS in o.name]

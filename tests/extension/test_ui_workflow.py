@@ -113,10 +113,10 @@ def test_suggest_resolution_sets_the_suggested_one_and_says_why(empty_scene, mon
 
     monkeypatch.setattr(resolution, "suggest_resolution", small)
     bpy.ops.vdnif.suggest_resolution()
-    settings = module("vdnif_addon.settings")
-    assert calls == [(obj, 4, settings.EMBEDDING_ERROR_SHARE * resolution.network_error())]
-    assert obj.vdnif.resolution == 16               # the arm's embedding at 8 misses the target
-    assert obj.vdnif.resolution_info.startswith("suggested 16: embedding error 8: ")
+    assert calls == [(obj, 4, None)]               # the target: a share of the object's size
+    assert obj.vdnif.resolution == 16               # the arm at 8 is thinner than two voxels
+    assert obj.vdnif.resolution_info.startswith("suggested 16 (")
+    assert "embedding error 8: " in obj.vdnif.resolution_info
 
 
 def test_voxelize_shows_the_occupied_cells_deformed_at_the_current_frame(empty_scene):

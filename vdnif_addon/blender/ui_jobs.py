@@ -14,6 +14,7 @@ import pathlib
 import shutil
 import threading
 
+from ..model.variants import variant_config
 from ..posed import estimate as estimates
 from ..posed.animation import frame_pose, render_frames
 from ..posed.generate import generate_dataset
@@ -146,7 +147,7 @@ def estimate_job(obj, captured, variant, rays_per_pose, overrides, scratch, seed
         rates = estimates.measure(source, captured, variant, overrides, scratch, seed)
         progress(1, 1)
         figures = estimates.estimate(rates, len(captured.poses), rays_per_pose,
-                                     overrides["steps"], overrides["batch_size"])
+                                     variant_config(variant, **overrides).train)
         return estimates.describe(figures), figures
 
     return pose_job("estimate", "samples", obj, captured, estimates.probe_poses(captured),
@@ -154,13 +155,14 @@ def estimate_job(obj, captured, variant, rays_per_pose, overrides, scratch, seed
 
 
 def suggestion_job(obj, spec, target, floor, candidates):
-    """Suggests the voxel resolution (``resolution.suggest_resolution``): each candidate's
-    capture and poses are read on the main thread when the worker asks for them. Result:
-    (resolution, table)."""
+    """Suggests the voxel resolution (``resolution.suggest_resolution``; ``floor``: the
+    object's ``resolution.Floor``, read on the main thread): each candidate's capture and
+    poses are read on the main thread when the worker asks for them. Result: the
+    Suggestion."""
     from .resolution import considered, suggest_resolution
 
     cancel = threading.Event()
-    tried = considered(candidates, floor)
+    tried = considered(candidates, floor.textured)
 
     def work(calls, progress, _deliver):
         done = []
@@ -168,7 +170,7 @@ def suggestion_job(obj, spec, target, floor, candidates):
             obj, spec, target, candidates, floor=floor, calls=calls,
             progress=lambda resolution, _: done.append(resolution) or progress(
                 len(done), len(tried)))
-        return f"suggested {suggested[0]}", suggested
+        return f"suggested {suggested.resolution}", suggested
 
     return WorkerJob("suggestion", len(tried), "resolutions", work, live=DirectCalls,
                      feed=MainCalls(cancel), cancel=cancel)

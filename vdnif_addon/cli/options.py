@@ -17,7 +17,6 @@ from ..pose_sets import PoseSpec
 from ..settings import (
     AUTO_RESOLUTION,
     DEMO_SCENES,
-    EMBEDDING_ERROR_SHARE,
     MAX_RESOLUTION,
     MIN_RESOLUTION,
     RECIPE,
@@ -93,16 +92,11 @@ def load_posed_scene(args):
 def suggested_resolution(obj, spec):
     """``--resolution auto``: the suggested resolution of the scene (``blender/resolution``),
     with the embedding errors that decided it on stderr."""
-    from ..blender.resolution import network_error, suggest_resolution
-    from ..settings import SUGGEST_PRESET
+    from ..blender.resolution import suggest_resolution
 
-    target = EMBEDDING_ERROR_SHARE * network_error()
-    resolution, table = suggest_resolution(obj, spec, target)
-    tried = ", ".join(f"R {row['resolution']}: {row['embedding_error']:.4g}" for row in table)
-    print(f"resolution auto for '{obj.name}': {resolution} (embedding error {tried}; target "
-          f"{target:.4g} object units = {EMBEDDING_ERROR_SHARE:g} x preset "
-          f"{SUGGEST_PRESET}'s network error)", file=sys.stderr)
-    return resolution
+    suggestion = suggest_resolution(obj, spec)
+    print(f"resolution auto for '{obj.name}': {suggestion.describe()}", file=sys.stderr)
+    return suggestion.resolution
 
 
 def resolution_option(text):

@@ -2,30 +2,39 @@
 generating it and of training, from rates measured on a small sample of the same work.
 
 The sample walks ``PROBE_RAYS`` rays through each of the first ``PROBE_POSES`` poses with
-the real walk and ground truth and writes them as a real shard, then times
-``PROBE_STEPS`` training steps of the real network at the real batch size on it. The
-estimate scales those rates: bytes per segment x the expected segments (rays x segments
-per ray), seconds per pose and per ray, samples per second. Touches no Blender data (its
-poses come through a PoseSource, like ``generate_dataset``'s).
+the real walk and ground truth and writes them as a real shard, then trains the real
+network on it at the real batch size for ``PROBE_STEPS`` steps, as the training job does
+(its torch threads, a validation every ``PROBE_WINDOW`` steps rather than after each,
+where the next batch would be gathered unseen), timing the windows after the first (which
+warms up) and the work around the steps: reading and splitting the data, validating, the
+held-out pass and calibration. The estimate scales those rates to the run: bytes per
+segment x the expected segments (rays x segments per ray), seconds per pose and per ray,
+samples per second, seconds per segment read and split and per held-out row validated,
+plus the seconds of saving the model. Touches no Blender data (its poses come through a
+PoseSource, like ``generate_dataset``'s).
 """
 
 import dataclasses
 import pathlib
 import shutil
-import statistics
 
+from ..threads import use_threads
+from ..training.data import held_out_count
 from ..training.fit import fit_model
 from ..worker import duration
 from .generate import generate_dataset
 
 PROBE_POSES = 2
 """Poses of the sample: two, so that training holds one out as it does on a full dataset."""
-PROBE_RAYS = 2048
-"""Rays walked per sample pose: enough for a stable count of segments per ray."""
+PROBE_RAYS = 8192
+"""Rays walked per sample pose: enough for a stable count of segments per ray, and training
+rows of many distinct rays (a sample smaller than a batch trains on rows and table entries
+that stay in the cache, faster than a full dataset does)."""
 WARM_RAYS = 64
 """Rays of the walk that loads the kernels first (their first load is no rate of the run)."""
-PROBE_STEPS = 6
-"""Training steps timed; the rate is the median over the second half (the first warm up)."""
+PROBE_STEPS, PROBE_WINDOW = 18, 6
+"""Training steps timed, in windows of PROBE_WINDOW steps (a validation after each); the
+rate is over the windows after the first, which warms up (four steps were not enough)."""
 
 
 def probe_poses(captured):
@@ -40,13 +49,12 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
     """Rates of the sample of ``captured`` (the variant's capture, ``steps.variant_capture``)
     written under the folder ``scratch`` (emptied first, removed after): segments per ray,
     bytes per segment, seconds per pose and per ray, the rest surface's seconds, the write
-    speed and training samples per second (``overrides``: the NetworkConfig / TrainConfig
-    fields of the run, ``batch_size`` among them; ``variant`` None: the dataset alone, no
-    training timed). The sample walks at most ``rays_per_pose`` rays per pose, with the ray
-    ``mix`` of ``generate_dataset`` (the recipe's unless given)."""
+    speed and the training's rates (``_probe_training``; ``overrides``: the NetworkConfig /
+    TrainConfig fields of the run; ``variant`` None: the dataset alone, no training timed).
+    The sample walks at most ``rays_per_pose`` rays per pose, with the ray ``mix`` of
+    ``generate_dataset`` (the recipe's unless given)."""
     scratch = pathlib.Path(scratch)
     shutil.rmtree(scratch, ignore_errors=True)
-    records = []
     try:
         generate_dataset(source, dataclasses.replace(captured, poses=captured.poses[:1]),
                          scratch / "warm", WARM_RAYS, seed=seed, **mix)
@@ -54,10 +62,8 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
         header = generate_dataset(source, sample, scratch / "data",
                                   min(PROBE_RAYS, rays_per_pose), seed=seed, **mix)
         written = sum(path.stat().st_size for path in (scratch / "data").iterdir())
-        if variant is not None:
-            fit_model(scratch / "data", variant, scratch / "sample.vdnif",
-                      dict(overrides, steps=PROBE_STEPS, log_interval=1),
-                      progress=records.append)
+        training = (_probe_training(scratch / "data", variant, overrides, header.counts.segments)
+                    if variant is not None else {})
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     timings, counts = header.timings, header.counts
@@ -69,9 +75,33 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
                                                  "records_s")) / counts.rays,
         "rest_surface_s": timings["rest_surface_s"],
         "write_bytes_per_s": written / max(timings["write_s"], 1e-6),
-        "samples_per_s": statistics.median(record["samples_per_s"]
-                                           for record in records[PROBE_STEPS // 2:])
-        if records else None,
+        "samples_per_s": None, **training,
+    }
+
+
+def _probe_training(data, variant, overrides, segments):
+    """The training rates of the sample dataset ``data`` of ``segments`` segments: samples
+    per second after the warm-up, seconds per segment read and split, per validated row,
+    per held-out row of the last pass, and the seconds of saving the model."""
+    records = []
+    use_threads()                         # the training job's threads
+    result, _ = fit_model(data, variant, data.parent / "sample.vdnif",
+                          dict(overrides, steps=PROBE_STEPS, log_interval=PROBE_WINDOW,
+                               stop_patience=0), progress=records.append)
+    timings = result.timings
+    warm = records[1:]                    # equal windows: the rate over them all
+    rate = len(warm) / sum(1 / record["samples_per_s"] for record in warm)
+    return {
+        "samples_per_s": rate,
+        "prepare_s_per_segment": (timings["read_s"] + timings["split_s"]) / segments,
+        "validation_s_per_row": timings["validation_s"] / max(
+            timings["validations"] * timings["probe_rows"], 1),
+        "final_s_per_row": timings["final_s"] / max(timings["held_out_rows"], 1),
+        # Saving the model. Not the rest of the sample's wall time: that is what the first
+        # training of a process pays once (loading kernels and torch's parts, which the
+        # sample has done for the run after it), and the first window's warm-up, which a
+        # run pays in its own steps.
+        "fixed_s": timings["save_s"],
     }
 
 
@@ -86,11 +116,22 @@ def dataset_estimate(rates, poses, rays_per_pose):
     return {"segments": round(segments), "bytes": round(size), "dataset_s": dataset_s}
 
 
-def estimate(rates, poses, rays_per_pose, steps, batch_size):
+def estimate(rates, poses, rays_per_pose, config):
     """The run's figures from ``measure``'s rates: the dataset's (``dataset_estimate``) and
-    ``steps`` of ``batch_size`` samples of training."""
-    return {**dataset_estimate(rates, poses, rays_per_pose),
-            "train_s": steps * batch_size / rates["samples_per_s"], "rates": rates}
+    the training's by ``config`` (the run's TrainConfig): its steps of batch_size samples,
+    reading and splitting every segment, a validation every log_interval steps, the pass
+    over the held-out poses' rows, and the sample's fixed cost; at most, where the stopping
+    rule ends training sooner."""
+    figures = dataset_estimate(rates, poses, rays_per_pose)
+    segments = figures["segments"]
+    held_out = (segments * held_out_count(poses, config.val_fraction) / poses if poses > 1
+                else segments * config.val_fraction)
+    validations = -(-config.steps // config.log_interval)
+    train_s = (rates["fixed_s"] + config.steps * config.batch_size / rates["samples_per_s"]
+               + segments * rates["prepare_s_per_segment"]
+               + validations * min(config.val_segments, held_out) * rates["validation_s_per_row"]
+               + held_out * rates["final_s_per_row"])
+    return {**figures, "train_s": train_s, "rates": rates}
 
 
 def size_text(size):

@@ -135,14 +135,22 @@ def select(data: Mapping[str, torch.Tensor], index: Int64[torch.Tensor, " chosen
     return {key: value[index] for key, value in data.items()}
 
 
+def held_out_count(poses: int, fraction: float) -> int:
+    """How many of ``poses`` poses ``split_poses`` holds out: round(fraction * poses), at
+    least one and one fewer than all; none of fewer than two or at fraction 0."""
+    if fraction == 0 or poses < 2:
+        return 0
+    return min(max(round(fraction * poses), 1), poses - 1)
+
+
 def split_poses(
     poses: Int64[torch.Tensor, " segments"], fraction: float, seed: int, group: ProcessGroup
 ) -> list[int]:
     """Held-out poses over all ranks: a seeded choice of round(fraction * poses), at least one."""
     everything = group.union(torch.unique(poses).tolist())
-    if fraction == 0 or len(everything) < 2:
+    count = held_out_count(len(everything), fraction)
+    if count == 0:
         return []
-    count = min(max(round(fraction * len(everything)), 1), len(everything) - 1)
     order = torch.randperm(len(everything), generator=torch.Generator().manual_seed(seed))
     return sorted(everything[i] for i in order[:count].tolist())
 

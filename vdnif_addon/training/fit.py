@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import pathlib
 import threading
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -47,7 +48,9 @@ def fit_model(
     """
     chosen = variant_config(variant, **(overrides or {}))
     with out_of_memory("training", TRAINING_ADVICE, CPU_TRAINING_ADVICE):
+        started = time.perf_counter()
         data, shards = read_dataset(data_dir)
+        read_s = time.perf_counter() - started
         header = data.header
         # rows unpacked from the shards and their tensors, before any is read
         check_memory(f"training on the {data.segments:,} segments of '{data_dir}'",
@@ -55,6 +58,7 @@ def fit_model(
                      "train on a smaller dataset (fewer poses or rays per pose)")
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
                        cancel=cancel, group_timeout_s=group_timeout_s)
+    result.timings["read_s"] = read_s
     if not result.is_main:
         return result, {}
     # A dataset header that names no used-slot table or mesh fingerprint (the golden arm
@@ -70,7 +74,9 @@ def fit_model(
         dataset=DatasetSource(folder=str(data_dir), shards=tuple(data.shards),
                               poses=len(data.poses), segments=int(data.segments)),
         vdnif_version=__version__, corners_follow=header.corners_follow)
+    started = time.perf_counter()
     save_model(out, result.network, metadata)
+    result.timings["save_s"] = time.perf_counter() - started
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
                "object": header.object, "segments": data.segments,
                "train": result.info(), "network_config": result.network_config.to_dict(),

@@ -17,7 +17,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -65,6 +65,11 @@ class TrainResult:
     val_poses: list[int]
     rank: int = 0
     world_size: int = 1
+    # Wall seconds of the work around the steps and the rows it covered (what an estimate
+    # scales): split_s (the shards into training and held-out rows), validation_s over
+    # ``validations`` validations of probe_rows rows each, final_s (the held-out outputs,
+    # the thresholds' calibration and the last validation over held_out_rows rows).
+    timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def is_main(self) -> bool:
@@ -315,11 +320,15 @@ def _train(
     cancel: threading.Event | None,
 ) -> TrainResult:
     """``train`` once the voxel size h, the device and the process group are known."""
+    started = time.perf_counter()
     train_data, val_data, val_poses = split_data(
         segments, config, network_config.heads, device, group
     )
+    timings = {"split_s": time.perf_counter() - started, "validation_s": 0.0,
+               "validations": 0, "held_out_rows": _rows(val_data)}
     batches = Batches(train_data, config.batch_size, config.seed + group.rank)
     probe = batches.subset(val_data, config.val_segments)
+    timings["probe_rows"] = _rows(probe)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
         network = IntersectionNetwork(network_config)
@@ -346,7 +355,10 @@ def _train(
             break
         log.add(total, losses, time.perf_counter() - started)
         if log.due:
+            checked = time.perf_counter()
             validation = validate(network, probe, h, group)
+            timings["validation_s"] += time.perf_counter() - checked
+            timings["validations"] += 1
             record = log.record(weighting.log_variances(), validation)
             if progress is not None and group.rank == 0:
                 progress(record)
@@ -354,18 +366,21 @@ def _train(
                 status = "converged"
                 break
 
+    started = time.perf_counter()
     network.eval()
     outputs = head_outputs(network, val_data)
     occlusion = calibrate_threshold(outputs, val_data, group)
     network.thresholds = Thresholds(occlusion, calibrate_candidate_threshold(
         outputs, val_data, h, occlusion, network_config.distance_mode, group))
+    validation = validate(network, val_data, h, group, outputs)
+    timings["final_s"] = time.perf_counter() - started
     return TrainResult(
         network=network,
         network_config=network_config,
         config=config,
         status=status,
         steps=log.steps_done,
-        validation=validate(network, val_data, h, group, outputs),
+        validation=validation,
         log_variances=weighting.log_variances(),
         history=log.history,
         seconds=log.seconds,
@@ -373,4 +388,10 @@ def _train(
         val_poses=val_poses,
         rank=group.rank,
         world_size=group.world,
+        timings=timings,
     )
+
+
+def _rows(data: Segments) -> int:
+    """Rows of ``data`` (0 for none)."""
+    return int(data["p0"].shape[0]) if data and "p0" in data else 0
