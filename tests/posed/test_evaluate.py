@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from camera_pixels import assert_rays_hit_their_pixels
 from model_metadata import capture_metadata
 from oracle_network import OracleNetwork
 
@@ -14,8 +15,6 @@ from oracle_network import OracleNetwork
 def test_camera_rays_go_through_the_pixels_blender_projects_to(empty_scene, core, fit, width,
                                                                 height):
     import bpy
-    from bpy_extras.object_utils import world_to_camera_view
-    from mathutils import Vector
 
     camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
     empty_scene.collection.objects.link(camera)
@@ -27,11 +26,7 @@ def test_camera_rays_go_through_the_pixels_blender_projects_to(empty_scene, core
     origins, directions = core("posed.render").camera_rays(camera, width, height)
     assert origins.shape == (width * height, 3)
     np.testing.assert_allclose(origins, np.broadcast_to(camera.location, origins.shape))
-    projected = np.array([world_to_camera_view(empty_scene, camera, Vector(o + 5 * d))[:2]
-                          for o, d in zip(origins, directions)])
-    column, row = np.meshgrid(np.arange(width), np.arange(height))
-    expected = np.stack([(column.ravel() + 0.5) / width, 1 - (row.ravel() + 0.5) / height], 1)
-    np.testing.assert_allclose(projected, expected, atol=1e-6)
+    assert_rays_hit_their_pixels(empty_scene, camera, origins, directions, width, height)
 
 
 def test_camera_errors_name_the_object(empty_scene, core):
