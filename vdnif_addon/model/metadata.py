@@ -288,7 +288,11 @@ class ModelMetadata:
                 "thresholds": self.thresholds.to_dict(),
                 "train_poses": [dict(pose) for pose in self.train_poses],
                 "training": self.training.to_dict(), "dataset": self.dataset.to_dict(),
-                "vdnif_version": self.vdnif_version, "corners_follow": self.corners_follow}
+                "vdnif_version": self.vdnif_version,
+                # written where it is not the copies', so a file of an armature or lattice
+                # rig is as it was before the surface binding
+                **({} if self.corners_follow == ARMATURE_COPY
+                   else {"corners_follow": self.corners_follow})}
 
     @classmethod
     def from_dict(cls, data: Any, path: str) -> ModelMetadata:
