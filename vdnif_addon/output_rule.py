@@ -276,6 +276,14 @@ def pending_writes() -> list | None:
     return _pending.get()
 
 
+def staged_size(paths: list) -> int:
+    """Bytes of files just written through ``atomic_path``: at their names, or still under
+    their temporary names inside an ``all_or_nothing`` block."""
+    staged = {os.path.abspath(target): temporary for temporary, target in
+              (pending_writes() or ())}
+    return sum(os.stat(staged.get(os.path.abspath(path), path)).st_size for path in paths)
+
+
 def mark_claimed(folder: pathlib.Path) -> None:
     """Marks the claimed folders that ``folder`` is (or lies in) and lack a mark."""
     folder = pathlib.Path(os.path.abspath(folder))

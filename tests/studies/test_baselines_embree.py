@@ -224,7 +224,7 @@ def test_packets_hit_what_embreexs_own_loop_hits():
 _ONE_THREAD_BUILD = """
 import sys, time
 import numpy as np
-sys.path[:0] = [{repo!r}, {tests!r}]
+sys.path[:0] = [{repo!r}, {tests!r}, {here!r}]
 from test_baselines_embree import soup
 from vdnif_addon.studies import baselines_embree as embree
 device = embree.EmbreeDevice(1)
@@ -248,7 +248,8 @@ def test_a_one_thread_device_builds_on_the_calling_thread_alone():
     import sys
 
     here = pathlib.Path(__file__).resolve().parent
-    code = _ONE_THREAD_BUILD.format(repo=str(here.parents[1]), tests=str(here))
+    code = _ONE_THREAD_BUILD.format(repo=str(here.parents[1]), tests=str(here.parent),
+                                    here=str(here))
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120, check=True)
     process, caller = map(float, done.stdout.split()[-2:])

@@ -51,7 +51,7 @@ def cmd_render(args):
     from ..blender.steps import DistanceScale, write_view
     from ..kernels import runtime
     from ..memory import check_disk
-    from ..output_rule import all_or_nothing
+    from ..output_rule import all_or_nothing, staged_size
     from ..posed.animation import frame_pose, render_frames
     from ..posed.render import camera_view, load_scene_model
     from ..progress import Progress
@@ -82,7 +82,7 @@ def cmd_render(args):
         written.extend(write_view(args.out, result, args.height, args.width, slots,
                                   args.references, frame if sequence else None, scale=scale))
         if sequence and len(frames) > 1 and frame == frames[0]:   # the rest's disk, foretold
-            size = sum(pathlib.Path(path).stat().st_size for path in written)
+            size = staged_size(written)      # still temporaries: all_or_nothing below
             check_disk(f"rendering {len(frames):,} frames of {args.width}x{args.height}",
                        size * (len(frames) - 1), args.out,
                        "render a shorter --frames range, a larger step or smaller images")

@@ -49,11 +49,15 @@ def mesh_fingerprint(mesh: RestMesh) -> str:
     return digest.hexdigest()
 
 
-def texture_fingerprint(mesh: RestMesh) -> str:
+def texture_fingerprint(mesh: RestMesh) -> str | None:
     """SHA-256 (hex) of the images a RestMesh's materials read their albedo from (each
     material's kind, texture pixels and extension mode; a material without a texture counts
-    as such): a model trained on one texture is refused on another or on none. Kept apart
-    from ``mesh_fingerprint``, which models written before it already store."""
+    as such), or None for a mesh without an image texture (its colours are in
+    ``mesh_fingerprint``; its files stay as they were): a model trained on one texture is
+    refused on another or on none. Kept apart from ``mesh_fingerprint``, which models
+    written before it already store."""
+    if not any(albedo.kind == "texture" for albedo in mesh.albedo):
+        return None
     digest = hashlib.sha256()
     for albedo in mesh.albedo:
         digest.update(f"{albedo.kind}/{albedo.extension}".encode())
