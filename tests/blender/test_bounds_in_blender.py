@@ -12,7 +12,7 @@ import pytest
 from bounds_blends import build
 from camera_pixels import assert_rays_hit_their_pixels
 from model_metadata import capture_metadata
-from oracle_network import OracleNetwork
+from oracle_network import oracle_scene_model
 
 
 @pytest.fixture(scope="module")
@@ -99,9 +99,7 @@ def test_a_camera_clip_range_hides_what_blender_clips(empty_scene, core):
     obj = bpy.context.active_object
     capture = core("blender.capture_scene").capture(obj, 12)
     neural = core("posed.render")
-    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid),
-                              metadata=capture_metadata(core, capture), grid=capture.grid,
-                              path="oracle", device="cpu")
+    model = oracle_scene_model(core, capture)
     camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
     empty_scene.collection.objects.link(camera)
     camera.location, camera.rotation_euler = (0.0, -12.0, 0.0), (np.pi / 2, 0.0, 0.0)

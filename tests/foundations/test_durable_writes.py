@@ -13,11 +13,13 @@ def test_the_temporary_is_synced_before_it_is_renamed(tmp_path, monkeypatch):
     real_fsync, real_replace = os.fsync, os.replace
 
     def fsync(fd):
-        events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        status = os.fstat(fd)
+        events.append(("fsync", (status.st_dev, status.st_ino)))
         return real_fsync(fd)
 
     def replace(source, target):
-        events.append(("replace", os.fspath(source), os.fspath(target)))
+        status = os.stat(source)
+        events.append(("replace", (status.st_dev, status.st_ino), os.fspath(target)))
         return real_replace(source, target)
 
     monkeypatch.setattr(safe_io.os, "fsync", fsync)
@@ -28,7 +30,7 @@ def test_the_temporary_is_synced_before_it_is_renamed(tmp_path, monkeypatch):
     assert target.read_bytes() == b"new"
     renames = [event for event in events if event[0] == "replace"]
     assert len(renames) == 1 and renames[0][2] == str(target)
-    temporary = renames[0][1]
+    temporary = renames[0][1]                 # the renamed file, by its device and inode
     synced = [index for index, event in enumerate(events)
               if event[0] == "fsync" and event[1] == temporary]
     assert synced and synced[0] < events.index(renames[0])

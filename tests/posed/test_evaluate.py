@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from camera_pixels import assert_rays_hit_their_pixels
 from model_metadata import capture_metadata
-from oracle_network import OracleNetwork
+from oracle_network import oracle_scene_model
 
 
 @pytest.mark.parametrize("fit, width, height", [("AUTO", 40, 30), ("AUTO", 30, 40),
@@ -58,9 +58,7 @@ def test_world_rays_of_a_moved_scaled_object_match_blenders_ray_cast(empty_scene
     bpy.context.view_layer.update()
     capture = core("blender.capture_scene").capture(obj, 12)
     neural = core("posed.render")
-    model = neural.SceneModel(network=OracleNetwork(capture.mesh, capture.grid),
-                              metadata=capture_metadata(core, capture), grid=capture.grid,
-                              path="oracle", device="cpu")
+    model = oracle_scene_model(core, capture)
     camera = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
     empty_scene.collection.objects.link(camera)
     camera.location, camera.rotation_euler = (1.0, -12.0, 0.5), (np.pi / 2, 0.0, 0.0)

@@ -43,3 +43,14 @@ class OracleNetwork:
                 "fraction": torch.as_tensor(hits.distance / np.maximum(length, 1e-30)),
                 "normal": torch.as_tensor(hits.normal),
                 "material": torch.as_tensor(hits.material.astype(np.int64))}
+
+
+def oracle_scene_model(core, capture):
+    """A ``posed.render.SceneModel`` of ``capture`` whose network is the OracleNetwork, on
+    the CPU (``core``: the test's ``core`` fixture)."""
+    from model_metadata import capture_metadata
+
+    return core("posed.render").SceneModel(
+        network=OracleNetwork(capture.mesh, capture.grid),
+        metadata=capture_metadata(core, capture), grid=capture.grid, path="oracle",
+        device="cpu")
