@@ -167,3 +167,36 @@ def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
     suggestion = suggest(arm, spec, 1.0, (8, 12, 16), poses=1, size=24, floor=12)
     assert [row["resolution"] for row in suggestion.table] == [12, 16]
     assert suggestion.resolution >= 12
+
+
+def test_the_procedural_lattice_holds_every_corner_of_a_flat_mesh(empty_scene, core):
+    """Blender holds a lattice's deformation constant outside its box: a lattice as thin as a
+    flat mesh leaves the voxel corners above and below it unbent, and the embedding of a
+    bent plate then never converges. Along the thin axis every corner of the coarsest and
+    a fine grid lies inside the procedural lattice (along the others, 5 % past the mesh,
+    from 32 voxels on), and the embedding error falls as the grid refines."""
+    import bpy
+
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    obj = bpy.context.active_object
+    obj.scale = (1.0, 1.0, 0.02)
+    bpy.ops.object.transform_apply(scale=True)
+    # Faces small enough to bend with the lattice (it moves vertices only).
+    subdivide = obj.modifiers.new("Subdivide", "SUBSURF")
+    subdivide.subdivision_type, subdivide.levels = "SIMPLE", 4
+    bpy.ops.object.modifier_apply(modifier=subdivide.name)
+    core("blender.scenes").add_rig(obj, "lattice")
+    lattice = next(o for o in bpy.data.objects if o.type == "LATTICE")
+    half = np.abs(np.array([p.co for p in lattice.data.points])).max(0) * np.array(
+        lattice.scale)
+    mesh = core("blender.read_mesh").read_rest_mesh(obj)
+    for resolution in (8, 64):
+        grid = core("geometry.voxels").build_grid(mesh.vertices, mesh.triangles, resolution)
+        reach = np.abs(grid.corner_positions() - np.array(lattice.location)).max(0)
+        inside = reach <= half
+        assert inside[2] and (resolution < 32 or inside.all()), (resolution, reach, half)
+    spec = core("blender.poses").PoseSpec(count=2)
+    table = core("blender.resolution").suggest_resolution(
+        obj, spec, None, (16, 64), poses=2, size=48, floor=0).table
+    coarse, fine = (row["embedding_error"] for row in table)
+    assert fine < 0.5 * coarse, table

@@ -76,3 +76,25 @@ def test_the_estimate_is_within_half_again_of_the_run(empty_scene, core, tmp_pat
                                            ("dataset_s", figures["dataset_s"], dataset_s, 2.0),
                                            ("train_s", figures["train_s"], train_s, 1.5)):
         assert 1 / bound <= actual / estimated <= bound, (name, estimated, actual)
+
+
+def test_the_sample_splits_its_cost_between_poses_and_rays(core):
+    """A walk costing F a pose and r a ray, sampled at two sizes, gives back F and r; a noisy
+    pair (more time for fewer rays) falls back to the large sample's cost per ray."""
+    import types
+
+    estimate = core("posed.estimate")
+
+    def header(poses, rays_each, seconds):
+        share = seconds / len(estimate.RAY_TIMINGS)
+        return types.SimpleNamespace(
+            poses=[{}] * poses, counts=types.SimpleNamespace(rays=poses * rays_each),
+            timings={name: share for name in estimate.RAY_TIMINGS})
+
+    pose_s, ray_s = 0.1, 2e-5
+    small = header(2, 2048, 2 * pose_s + 2 * 2048 * ray_s)
+    large = header(2, 8192, 2 * pose_s + 2 * 8192 * ray_s)
+    assert estimate._split_ray_cost(small, large) == pytest.approx((ray_s, pose_s))
+    noisy = header(2, 2048, 1.0)
+    assert estimate._split_ray_cost(noisy, large) == pytest.approx(
+        ((2 * pose_s + 2 * 8192 * ray_s) / (2 * 8192), 0.0))

@@ -21,6 +21,10 @@ from .rig import bend_twist
 from .trial_load import check_images, trial_load
 
 FRAME_START, FRAME_END = 1, 48
+LATTICE_MIN_SPAN = 0.6
+"""The procedural lattice's thinnest axis, as a share of its longest: the coarsest
+candidate grid (8 voxels) reaches up to 1.5 voxels, 0.19 of the longest side, past each
+side of a flat mesh, so its corners need at least 0.38 plus the mesh's own thickness."""
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
 
 
@@ -265,7 +269,11 @@ def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
     lattice.parent = obj
     rest = np.array([p.co for p in data.points])
     lattice.location = 0.5 * (lo + hi)
-    lattice.scale = 1.1 * np.maximum(hi - lo, 1e-3 * (hi - lo).max()) / np.ptp(rest, axis=0)
+    # Blender holds a lattice's deformation constant outside its box, where the voxel
+    # corners around a flat mesh lie: no axis thinner than LATTICE_MIN_SPAN of the longest
+    # keeps every candidate resolution's corners inside.
+    span = np.maximum(1.1 * (hi - lo), LATTICE_MIN_SPAN * 1.1 * (hi - lo).max())
+    lattice.scale = span / np.ptp(rest, axis=0)
     modifier = obj.modifiers.new("Lattice", "LATTICE")
     modifier.object = lattice
     lattice.shape_key_add(name="Basis")

@@ -37,11 +37,19 @@ PROBE_STEPS, PROBE_WINDOW = 18, 6
 rate is over the windows after the first, which warms up (four steps were not enough)."""
 
 
+SMALL_SHARE = 4
+"""The sample walks its poses twice, with all its rays and with 1/SMALL_SHARE of them: the
+difference is the cost per ray, the rest the cost per pose (the walk's waves cost about a
+tenth of a second a pose whatever the rays, so one size alone overstates the rays' cost
+of a run with more rays a pose than the sample)."""
+RAY_TIMINGS = ("rays_s", "walk_s", "ground_truth_s", "records_s")
+
+
 def probe_poses(captured):
     """The poses the sample reads, in order: the first one for the warm-up, then the
-    sample's (a PoseSource must deliver exactly these)."""
-    return [pose for pose in captured.poses[:1] + captured.poses[:PROBE_POSES]
-            if not pose.get("rest")]
+    sample's, twice (a PoseSource must deliver exactly these)."""
+    sample = captured.poses[:PROBE_POSES]
+    return [pose for pose in captured.poses[:1] + sample + sample if not pose.get("rest")]
 
 
 def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose=PROBE_RAYS,
@@ -59,24 +67,44 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
         generate_dataset(source, dataclasses.replace(captured, poses=captured.poses[:1]),
                          scratch / "warm", WARM_RAYS, seed=seed, **mix)
         sample = dataclasses.replace(captured, poses=captured.poses[:PROBE_POSES])
-        header = generate_dataset(source, sample, scratch / "data",
-                                  min(PROBE_RAYS, rays_per_pose), seed=seed, **mix)
+        rays = min(PROBE_RAYS, rays_per_pose)
+        small = generate_dataset(source, sample, scratch / "small",
+                                 max(rays // SMALL_SHARE, 1), seed=seed, **mix)
+        header = generate_dataset(source, sample, scratch / "data", rays, seed=seed, **mix)
         written = sum(path.stat().st_size for path in (scratch / "data").iterdir())
         training = (_probe_training(scratch / "data", variant, overrides, header.counts.segments)
                     if variant is not None else {})
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     timings, counts = header.timings, header.counts
+    ray_s, pose_walk_s = _split_ray_cost(small, header)
     return {
         "segments_per_ray": counts.segments / counts.rays,
         "bytes_per_segment": written / counts.segments,
-        "pose_s": (timings["prepare_s"] + timings["evaluate_s"]) / len(sample.poses),
-        "ray_s": sum(timings[name] for name in ("rays_s", "walk_s", "ground_truth_s",
-                                                 "records_s")) / counts.rays,
+        "pose_s": (timings["prepare_s"] + timings["evaluate_s"]) / len(sample.poses)
+        + pose_walk_s,
+        "ray_s": ray_s,
         "rest_surface_s": timings["rest_surface_s"],
         "write_bytes_per_s": written / max(timings["write_s"], 1e-6),
         "samples_per_s": None, **training,
     }
+
+
+def _split_ray_cost(small, large):
+    """(seconds per ray, seconds per pose) of the walk and what follows it, from the sample
+    walked with few rays (``small``) and with all of them (``large``, DatasetHeaders of the
+    same poses): the line through the two. A noisy machine can make the difference
+    negative; the cost is then the large sample's per ray alone."""
+    def walked(header):
+        return sum(header.timings[name] for name in RAY_TIMINGS)
+
+    poses = len(large.poses)
+    extra_rays = large.counts.rays - small.counts.rays
+    ray_s = (walked(large) - walked(small)) / extra_rays if extra_rays > 0 else 0.0
+    if ray_s <= 0.0:
+        return walked(large) / large.counts.rays, 0.0
+    pose_s = max(walked(large) - ray_s * large.counts.rays, 0.0) / poses
+    return ray_s, pose_s
 
 
 def _probe_training(data, variant, overrides, segments):
