@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
-NUMBER = r"(-?\d[\d,]*(?:\.\d+)?)"
+NUMBER = r"(\d[\d,]*(?:\.\d+)?(?:e-?\d+)?)"     # a range's dash is no minus sign
 
 
 class Claim(NamedTuple):
@@ -35,14 +35,16 @@ def pattern(text):
     return re.compile(NUMBER.join(map(re.escape, " ".join(text.split()).split("{}"))))
 
 
-def decimals(printed):
-    return len(printed.partition(".")[2])
+def unit(printed):
+    """The value of the last digit of ``printed`` (``7.1e-06``: 1e-07)."""
+    mantissa, _, exponent = printed.partition("e")
+    return 10.0 ** (int(exponent or 0) - len(mantissa.partition(".")[2]))
 
 
 def agrees(printed, value):
     """``value`` rounds to ``printed`` at its precision (a half unit of its last digit)."""
     number = float(printed.replace(",", ""))
-    return abs(value - number) <= 0.5 * 10 ** -decimals(printed) * (1 + 1e-9) + 1e-12
+    return abs(value - number) <= 0.5 * unit(printed) * (1 + 1e-9) + 1e-15
 
 
 def check(claim, text, data):
@@ -361,3 +363,186 @@ def test_a_number_off_by_its_last_digit_fails_and_one_within_rounding_passes():
     claim = Claim("x.md", "({} s, {}-{} %)", "x.json", lambda d: [1633.2, 78.5, 84.9])
     assert check(claim, "took (1,633 s, 78-85 %) in all", {}) == []
     assert check(claim, "took (1,633 s, 82-91 %) in all", {}) != []
+
+
+# ----------------------------------------------------------------------------- tables
+
+
+class Table(NamedTuple):
+    """A hand-written table: its header line, how many cells name its row, its JSON and
+    the values its other cells print, in order, from the file and the row's naming cells
+    (None for a number no JSON holds)."""
+    doc: str
+    header: str
+    keys: int
+    source: str
+    values: object      # (the file's JSON, the row's naming cells) -> the printed numbers
+
+
+def table_rows(text, header):
+    """[cells] of the rows of the table under ``header`` (a line of the text)."""
+    lines = text.splitlines()
+    start = lines.index(header) + 2          # past the header and its rule
+    rows = []
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
+    return rows
+
+
+def check_table(table, text, data):
+    """What is wrong with ``table`` in the document ``text`` against ``data``."""
+    if text.splitlines().count(table.header) != 1:
+        return [f"{table.doc}: the table '{table.header[:60]}...' is not there once"]
+    found = []
+    rows = table_rows(text, table.header)
+    for cells in rows:
+        keys, rest = cells[:table.keys], cells[table.keys:]
+        printed = re.findall(NUMBER, " | ".join(rest))
+        values = list(table.values(data, *keys))
+        if len(values) != len(printed):
+            found.append(f"{table.doc}: row {keys} prints {len(printed)} numbers, the table's "
+                         f"claim computes {len(values)}")
+            continue
+        found += [f"{table.doc}: row {keys}: printed {p}, {table.source} gives {v:.6g}"
+                  for p, v in zip(printed, values) if v is not None and not agrees(p, v)]
+    return found or ([] if rows else [f"{table.doc}: '{table.header[:60]}' has no rows"])
+
+
+def rates(run, *keys):
+    return [pct(run[k]) for k in keys]
+
+
+def shadow_row(run, *, normal=True, true_hits=False):
+    """normal (deg), AO MAE, false lit and its facing part, false shadow and its facing part."""
+    values = ([run["normal_error_deg"]] if normal else []) + [run["ao_mae"]]
+    values += [*facing(run, "lit")[:2], *facing(run, "shadow")[:2]]
+    if true_hits:
+        values += [run["ao_mae_true_hit"], *rates(run, "shadow_false_lit_rate_true_hit",
+                                                 "shadow_false_shadow_rate_true_hit")]
+    return values
+
+
+def ttc_first(d, scene):
+    """The time-to-clean table: steps, occlusion at 100 / 200, then each figure now (on the
+    encoder's grid) on the development poses."""
+    run, old = d["runs"][scene], d["encoder_grid_normal"]["runs"][scene]
+    history = dict(map(tuple, run["occlusion_history"]))
+    values = [run["steps"], history[100], history[200]]
+    for key, scale in (("false_negative_rate", 100), ("false_positive_rate", 100),
+                       ("distance_mae", 1), ("normal_error_deg", 1), ("albedo_psnr", 1)):
+        if key in run["dev"]:
+            values += [run["dev"][key] * scale, old["dev"][key] * scale]
+    return values
+
+
+def ttc_time(d, scene):
+    run, old = d["runs"][scene], d["encoder_grid_normal"]["runs"][scene]
+    return [run["wall_s"], *span(run["wall_s_runs"]), old["wall_s"], run["train_s"],
+            old["train_s"], *rates(run["test"], "false_negative_rate", "false_positive_rate"),
+            run["test"]["distance_mae"], run["test"]["normal_error_deg"],
+            old["test"]["normal_error_deg"]]
+
+
+def self_hit(d, scene, offset, walks):
+    share = {"today's": 1, "half": 0.5, "quarter": 0.25}[offset]
+    reach, cosine, skips = ((0, None, 0) if walks == "no" else
+                            (float(walks.split()[0]), *map(float, walks.split(", ")[1:])))
+    row = next(r for r in d["rows"] if r["scene"] == scene and r["offset"] == share
+               and r["reach"] == reach and r["cosine"] == cosine and r["skips"] == skips)
+    return [row[k] for k in ("ao_mae", "false_lit_pct", "false_lit_facing_pct",
+                             "false_shadow_pct", "false_shadow_facing_pct")]
+
+
+def resolution_row(d, mesh):
+    row = case(d, mesh)
+    s = row["suggestion"]
+    finest = next(r["embedding_error"] for r in s["table"] if r["resolution"] == 128)
+    chosen = next(r["embedding_error"] for r in s["table"] if r["resolution"] == s["resolution"])
+    trained = (rates(row["test"], "false_negative_rate", "false_positive_rate")
+               if row.get("training") else [])
+    return [s["resolution"], s["knee"], s["thin_floor"], chosen, finest, *trained]
+
+
+def estimate_row(d, scene):
+    row = next(r for r in d["rows"] if r["scene"] == scene)
+    e, a, ratio = row["estimate"], row["actual"], row["ratio"]
+    return [e["bytes"] / 1e6, a["bytes"] / 1e6, e["dataset_s"], a["dataset_s"],
+            ratio["dataset_s"], e["train_s"], a["train_s"], ratio["train_s"]]
+
+
+FACING_HEADER = ("| scene | normal from | primary normal (deg) | AO MAE | false lit | of it, "
+                 "facing | false shadow | of it, facing |")
+TABLES = [
+    Table(R, "| scene | steps | held-out occlusion at 100 / 200 | holes | extras | distance MAE "
+          "(object units) | normal error (deg) | albedo PSNR (dB) |", 1, TTC, ttc_first),
+    Table(R, "| scene | training wall time (s): now (range); on the encoder's grid | of it, steps "
+          "(s): now; on the encoder's grid | test poses: holes / extras | distance MAE (object "
+          "units) | normal error (deg) (on the encoder's grid) |", 1, TTC, ttc_time),
+    Table(R, "| scene | share | primary distance MAE | primary normal (deg) | AO MAE, own / true "
+          "hits | false lit, own / true hits | false shadow, own / true hits |", 2, SECONDARY,
+          lambda d, scene, share: (lambda m: [
+              m["distance_mae"], m["normal_error_deg"], m["ao_mae"], m["ao_mae_true_hit"],
+              *rates(m, "shadow_false_lit_rate", "shadow_false_lit_rate_true_hit",
+                     "shadow_false_shadow_rate", "shadow_false_shadow_rate_true_hit")])(
+              d["runs"][f"{scene}/{float(share):.1f}"]["evaluate"]["vs_true"])),
+    Table(R, "| scene | primary normal (deg) | false lit | of it, facing | false shadow | of it, "
+          "facing |", 1, FACING, lambda d, scene: (lambda m: [
+              m["normal_error_deg"], *facing(m, "lit")[:2], *facing(m, "shadow")[:2]])(
+              shadow(d, HEAD, scene))),
+    Table(R, "| scene | normal from | holes | extras | distance MAE | normal (deg) | AO MAE | "
+          "false lit | false shadow |", 2, FIELD, lambda d, scene, label: (lambda m: [
+              *rates(m, "false_negative_rate", "false_positive_rate"), m["distance_mae"],
+              m["normal_error_deg"], m["ao_mae"],
+              *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate")])(
+              d["runs"][scene][label])),
+    Table(R, FACING_HEADER, 2, FACING, lambda d, scene, label: shadow_row(
+        shadow(d, label, scene))),
+    Table(R, "| scene | start | normal (deg) | AO MAE | false lit | of it, facing | false shadow "
+          "| of it, facing |", 2, START, lambda d, scene, start: shadow_row(
+              d["runs"][scene][start]["vs_true"])),
+    Table(R, "| scene | normal field's grid | normal (deg) | AO MAE | false lit | of it, facing | "
+          "false shadow | of it, facing | model file |", 2, "results/normal-grid-choices.json",
+          lambda d, scene, grid: [*shadow_row(d["runs"][scene][grid]["vs_true"]),
+                                  d["runs"][scene][grid]["model_bytes"] / 1e6]),
+    Table(R, "| scene | normal field | start | normal (deg) | AO MAE | false lit | of it, facing "
+          "| false shadow | of it, facing |", 3, FACING, lambda d, scene, field, start: shadow_row(
+              shadow(d, {("encoder's grid", "normal push"): "normal field",
+                         ("encoder's grid", "along"): "normal field, start along the ray",
+                         ("own grid (L3 T17)", "along"): OWN}[field, start], scene))),
+    Table(R, "| scene | offset | walks past within, cosine, times | AO MAE | false lit (facing) | "
+          "false shadow (facing) |", 3, SELF, self_hit),
+    Table(R, "| scene | secondary rays | AO MAE | false lit (facing) | false shadow (facing) | "
+          "from true hits: AO MAE, false lit, false shadow |", 2, FACING,
+          lambda d, scene, rays: shadow_row(shadow(
+              d, {"before": OWN, "walk past, half offset": WALK}[rays], scene), normal=False,
+              true_hits=True)),
+    Table(R, "| against | holes | extras | distance MAE (object units) | normal error (deg) | hit "
+          "IoU |", 1, "results/skinned-character.json", lambda d, against: (lambda m: [
+              *rates(m, "false_negative_rate", "false_positive_rate"), m["distance_mae"],
+              m["normal_error_deg"], m["hit_iou"]])(
+              d["evaluate"]["vs_true" if against.startswith("true") else "vs_embedded"])),
+    Table(R, "| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
+          "embedding error | target met | holes | extras | clean |", 1, AUTO, resolution_row),
+    Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
+          "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
+          estimate_row),
+]
+
+
+def test_every_hand_written_table_agrees_with_its_json():
+    docs = {name: (DOCS / name).read_text() for name in (R, P)}
+    problems = [p for table in TABLES
+                for p in check_table(table, docs[table.doc], read(table.source))]
+    assert problems == []
+
+
+def test_a_table_cell_off_its_json_fails():
+    table = Table("x.md", "| scene | holes | extras |", 1, "x.json",
+                  lambda d, scene: rates(d[scene], "holes", "extras"))
+    data = {"arm": {"holes": 0.00104, "extras": 0.00317}}
+    text = "| scene | holes | extras |\n| --- | --- | --- |\n| arm | {} % | {} % |\n"
+    assert check_table(table, text.format("0.104", "0.317"), data) == []
+    assert check_table(table, text.format("0.104", "0.318"), data) != []
+    assert check_table(table, text.format("0.104", "0.317 % / 0.5"), data) != []  # one more
