@@ -36,9 +36,12 @@ def pattern(text):
 
 
 def unit(printed):
-    """The value of the last digit of ``printed`` (``7.1e-06``: 1e-07)."""
-    mantissa, _, exponent = printed.partition("e")
-    return 10.0 ** (int(exponent or 0) - len(mantissa.partition(".")[2]))
+    """The value of the last digit of ``printed`` (``7.1e-06``: 1e-07), an integer's trailing
+    zeros read as rounding (``24,000``: 1,000)."""
+    mantissa, _, exponent = printed.replace(",", "").partition("e")
+    whole, _, fraction = mantissa.partition(".")
+    zeros = 0 if fraction or exponent else len(whole) - len(whole.rstrip("0"))
+    return 10.0 ** (int(exponent or 0) - len(fraction) + min(zeros, len(whole) - 1))
 
 
 def agrees(printed, value):
@@ -131,6 +134,13 @@ def secondary_rates(d, path):
 
 def spot_seeds(d, poses, key, scale=100.0):
     return [d["runs"][f"seed {k}"][poses][key] * scale for k in range(3)]
+
+
+def sample_rates(row):
+    """Training samples/s: the estimate's sample's, the run's steps'."""
+    actual = row["actual"]
+    return (row["rates"]["samples_per_s"],
+            actual["steps"] * row["batch_size"] / actual["train_steps_s"])
 
 
 def preset_row(d, name):
@@ -303,6 +313,13 @@ CLAIMS = [
         max(abs(pct(r["ratio"]["bytes"] - 1)) for r in d["rows"])]),
     Claim(R, "except the arm's dataset time ({}x over", ESTIMATE, lambda d: [
         1 / d["rows"][0]["ratio"]["dataset_s"]]),
+    Claim(R, "differed by up to {}x in both directions (arm {} against {} samples/s, lattice {} "
+          "against {})", ESTIMATE, lambda d: [
+              max(max(a / b, b / a) for a, b in map(sample_rates, d["rows"])),
+              *sample_rates(d["rows"][0]), *sample_rates(d["rows"][1])]),
+    Claim(R, "network is today's default, the normal field on its own grid (models of {} MB, {} "
+          "MB textured)", "results/normal-grid-choices.json", lambda d: [
+              d["runs"][s]["L3 T17"]["model_bytes"] / 1e6 for s in ("bunny", "spot")]),
     # ---- the ablation's summary
     Claim(R, "without the positional encoding the distance error is {}-{}x proposed's, with "
           "the paper's log-MSE of d/h {}-{}x", ABLATION, lambda d: [
@@ -324,6 +341,12 @@ CLAIMS = [
               *span(network_shares(d, 256, 1)), *span(network_shares(d, 256, 2))]),
     Claim(P, "(at 64x64: {}-{} % and {}-{} %;", SIDE, lambda d: [
         *span(network_shares(d, 64, 1)), *span(network_shares(d, 64, 2))]),
+    Claim(P, "the neural pose stays cheaper only on the 1 M-triangle mesh, up to {}-{} AO samples "
+          "at the 64x64 preview, and against Embree rebuilt up to {}-{} at 256x256", SIDE,
+          lambda d: [*span(result(d, "suzanne-5", 64, t)["secondary"]["trade"][b]["samples"]
+                           for t in (1, 2) for b in ("warp", "embree_refit")),
+                     *span(result(d, "suzanne-5", 256, t)["secondary"]["trade"][
+                         "embree_rebuild"]["samples"] for t in (1, 2))]),
     Claim(P, "Balanced and accurate differ by {} % in render speed", BENCH, lambda d: [
         pct(preset_row(d, "balanced")["render_rays_per_s"]
             / preset_row(d, "accurate")["render_rays_per_s"] - 1)]),
@@ -363,6 +386,11 @@ def test_a_number_off_by_its_last_digit_fails_and_one_within_rounding_passes():
     claim = Claim("x.md", "({} s, {}-{} %)", "x.json", lambda d: [1633.2, 78.5, 84.9])
     assert check(claim, "took (1,633 s, 78-85 %) in all", {}) == []
     assert check(claim, "took (1,633 s, 82-91 %) in all", {}) != []
+    # a round thousand is read as rounded, an exponent's digits as the mantissa's
+    claim = Claim("x.md", "{} samples/s, error {}", "x.json", lambda d: [24029.4, 7.12e-06])
+    assert check(claim, "24,000 samples/s, error 7.1e-06", {}) == []
+    assert check(claim, "25,000 samples/s, error 7.1e-06", {}) != []
+    assert check(claim, "24,000 samples/s, error 7.2e-06", {}) != []
 
 
 # ----------------------------------------------------------------------------- tables
@@ -465,6 +493,28 @@ def resolution_row(d, mesh):
     return [s["resolution"], s["knee"], s["thin_floor"], chosen, finest, *trained]
 
 
+def corners_row(d, rig):
+    """The surface-corners table: distance (voxels) and, where printed, hit IoU of each way."""
+    key = {"armature + Subdivision after it": "subdivision",
+           "armature + bone-driven corrective key": "driven_key",
+           "armature + Corrective Smooth": "corrective_smooth",
+           "lattice + animated shape key": "lattice_key",
+           "armature only (the same mesh)": "subdivision",
+           "lattice only (the same mesh)": "lattice_key"}[rig]
+    full, alone = d["embedding"][key]["full rig"], d["embedding"][key]["armature or lattice only"]
+
+    def figures(way, iou=True):
+        return [way["distance_mae_voxels"]] + ([way["hit_iou"]] if iou else [])
+
+    ways = ("evaluated surface", "armature copy", "surface deform modifier")
+    if rig.endswith("(the same mesh)"):
+        return [alone[w]["distance_mae_voxels"] for w in ways[:2 if key == "lattice_key" else 3]]
+    if key == "subdivision":
+        return [*figures(full[ways[0]]), full["evaluated surface (subdivided surface)"][
+            "distance_mae_voxels"], *figures(full[ways[1]], False), *figures(full[ways[2]], False)]
+    return [*figures(full[ways[0]]), *figures(full[ways[1]]), *figures(full[ways[2]], False)]
+
+
 def estimate_row(d, scene):
     row = next(r for r in d["rows"] if r["scene"] == scene)
     e, a, ratio = row["estimate"], row["actual"], row["ratio"]
@@ -525,6 +575,8 @@ TABLES = [
               d["evaluate"]["vs_true" if against.startswith("true") else "vs_embedded"])),
     Table(R, "| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
           "embedding error | target met | holes | extras | clean |", 1, AUTO, resolution_row),
+    Table(R, "| rig | surface binding (cage) | copied modifiers | Surface Deform modifier |", 1,
+          "results/surface-corners.json", corners_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
