@@ -29,6 +29,8 @@ UNKNOWN = "unknown"
 def commit(repo: str | os.PathLike = REPO) -> str:
     """``git rev-parse HEAD`` of the checkout ``repo``, with ``+modified`` where tracked files
     differ from it; "unknown" outside a checkout (an installed extension) or without git."""
+    if not (pathlib.Path(repo) / ".git").exists():    # not a git repository enclosing it
+        return UNKNOWN
     try:
         head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], check=True,
                               capture_output=True, text=True, timeout=10).stdout.strip()
