@@ -35,6 +35,7 @@ from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.geometry import PosedObject  # noqa: E402
+from vdnif_addon.studies.provenance import stamp  # noqa: E402
 from vdnif_addon.tracing import groundtruth, references  # noqa: E402
 from vdnif_addon.tracing.rays import orbit_rays, orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.tracing.traverse import traverse  # noqa: E402
@@ -138,6 +139,7 @@ def main(argv=None):
         "cell_subtrees_speedup": statistics.median(
             w / k for w, k in zip(runs["kernel_truth_whole_mesh"], runs["kernel_truth"])),
     }
+    report = stamp(report, with_machine=True)
     print(json.dumps(report, indent=1))
     if args.json:
         args.json.write_text(json.dumps(report, indent=1) + "\n")

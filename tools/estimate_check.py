@@ -23,6 +23,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
+from vdnif_addon.studies.provenance import stamp  # noqa: E402
 
 
 def check_scene(scene, train_options):
@@ -97,8 +98,8 @@ def main():
               f"{row['actual']['train_s']:.1f} s (x{ratio['train_s']:.2f})", flush=True)
         if args.json is not None:
             args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps({"command": " ".join(sys.argv), "rows": rows},
-                                            indent=1))
+            args.json.write_text(json.dumps(stamp({"command": " ".join(sys.argv), "rows": rows},
+                                                  with_machine=True), indent=1))
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
+from vdnif_addon.studies.provenance import stamp  # noqa: E402
 
 BATCH = [sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--"]
 EVALUATION = ["--poses", "8", "--width", "256", "--height", "256", "--device", "cpu"]
@@ -127,6 +128,8 @@ def _named(options, case, mesh):
 def _write(out, row):
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # each case trains in its own process, perhaps at another commit: its own record
+    row = stamp(row, with_machine=True)
     (out / f"{row['case']}.json").write_text(json.dumps(row, indent=1))
 
 

@@ -36,6 +36,7 @@ from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.generate import reference_run  # noqa: E402
+from vdnif_addon.studies.provenance import stamp  # noqa: E402
 
 FIGURES = ("distance_mae", "distance_mae_voxels", "hit_iou", "false_negative_rate",
            "false_positive_rate", "normal_error_deg")
@@ -217,6 +218,7 @@ def main():
         rig: rig_errors(rig, args.resolution, args.size, args.poses)
         for rig in artist_rigs.RIGS}
     args.json.parent.mkdir(parents=True, exist_ok=True)
+    results = stamp(results, with_machine=True)
     args.json.write_text(json.dumps(results, indent=1) + "\n")
     print(json.dumps(results, indent=1))
 

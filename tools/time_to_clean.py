@@ -27,6 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
+from vdnif_addon.studies.provenance import stamp  # noqa: E402
 from vdnif_addon.threads import use_threads  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402
 
@@ -88,6 +89,7 @@ def main():
             figures["clean"] = (figures["false_negative_rate"] <= CLEAN_RATE
                                 and figures["false_positive_rate"] <= CLEAN_RATE)
             report[name] = figures
+    report = stamp(report, with_machine=True)       # training times: the machine's load
     pathlib.Path(args.json).write_text(json.dumps(report, indent=1))
     print(json.dumps({k: report[k] for k in ("status", "steps", "train_s", "wall_s")}))
     for name in ("dev", "test"):

@@ -176,6 +176,9 @@ def test_bench_quick_writes_every_output(tmp_path):
     rows = list(csv.DictReader(open(out / "bench.csv")))
     records = json.loads((out / "bench.json").read_text())
     assert len(rows) == 5 == len(records)
+    # each point records the network, commit and machine its training ran on; the CSV is flat
+    assert all({"network_hash", "commit", "machine"} <= set(r["provenance"]) for r in records)
+    assert "provenance" not in rows[0]
     assert sorted(p.name for p in work.glob("point-*.vdnif")) == [
         f"point-{n}.vdnif" for n in range(5)]
     # run again on the same work folder: nothing trains, every point is evaluated again

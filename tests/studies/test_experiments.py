@@ -40,6 +40,11 @@ def test_per_pose_experiment_quick(tmp_path):
     assert runs["arm/lsnif per pose"]["model_bytes"] > runs["arm/proposed"]["model_bytes"]
     assert runs["arm/proposed"]["unseen_poses"] is True
     assert "arm/lsnif per pose: vs true" in printed
+    # the run records what produced it, and the machine its training times ran on
+    assert {"commit", "network_hash", "network", "recipe", "machine"} <= set(
+        record["provenance"])
+    assert len(record["provenance"]["machine"]["load_average"]) == 3
+    assert "compare them within this table, not with a model trained alone" in text
 
 
 def metrics(**values):

@@ -217,13 +217,17 @@ def add_network_options(parser):
 
 def write_json(path, data):
     """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
-    file, no write through a symlink, no NaN)."""
+    file, no write through a symlink, no NaN), a mapping with its provenance (the commit,
+    today's default network and recipe, the machine: its figures include times)."""
     from ..output_rule import REPORT_FORMAT
     from ..safe_io import write_json_atomic
+    from ..studies.provenance import stamp
 
     if path is not None:
-        write_json_atomic(path, {"format": REPORT_FORMAT, **data} if isinstance(data, dict)
-                          and "format" not in data else data)
+        if isinstance(data, dict):
+            data = stamp({"format": REPORT_FORMAT, **data} if "format" not in data else data,
+                         with_machine=True)
+        write_json_atomic(path, data)
 
 
 def check_resolution(value):

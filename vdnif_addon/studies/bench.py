@@ -29,6 +29,7 @@ from ..settings import RECIPE, NetworkConfig, TrainConfig
 from ..training.fit import fit_model
 from .bench_report import NO_PRESETS, point_label, sweep_markdown, write_outputs
 from .pareto import derive_presets
+from .provenance import provenance, stamp
 from .report import write_section
 
 # The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose
@@ -136,9 +137,9 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     out.mkdir(parents=True, exist_ok=True)
     write_outputs(out, rows)
     if presets is not None:
-        write_json_atomic(presets_path, {"format": PRESETS_FORMAT,
-                                         "source": "bench" + (" --quick" if quick else ""),
-                                         "error": PRESET_ERROR, "presets": presets},
+        write_json_atomic(presets_path, stamp({"format": PRESETS_FORMAT,
+                                               "source": "bench" + (" --quick" if quick else ""),
+                                               "error": PRESET_ERROR, "presets": presets}),
                           "presets file")
     if performance is not None:
         command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
@@ -212,7 +213,8 @@ def _evaluate_points(obj, spec, size, points, work, device):
                 first.append((report, (concatenated(views), evaluated.grid.voxel_size)))
     for (report, _), speed in zip(first, speeds):
         report["timings"]["render_rays_per_s"] = None if None in speed else np.median(speed)
-    rows = [_row(dict(point, steps=record["steps"], converged=record["converged"]), report)
+    rows = [_row(dict(point, steps=record["steps"], converged=record["converged"]), report,
+                 record.get("provenance"))
             for (report, _), point, record in zip(first, points, records)]
     _add_common(rows, [run for _, run in first], evaluated.mesh)
     return rows
@@ -226,8 +228,10 @@ def _train_point(data, model, size, point, device, progress):
                           dict(size["overrides"], device=device, **settings,
                                **rule_overrides(size["convergence"])),
                           progress=progress)
+    # the point's training time is measured here: its record names the machine and load
     return {"key": point_key(size, point), "steps": result.steps,
-            "converged": result.status == "converged"}
+            "converged": result.status == "converged",
+            "provenance": provenance(with_machine=True)}
 
 
 def point_key(size, point):
@@ -250,7 +254,9 @@ def finished_point(path, model, size, point):
     return record
 
 
-def _row(point, report):
+def _row(point, report, trained=None):
+    """One point's row; ``trained``: its training record's provenance (None where it trained
+    before records had one)."""
     row = dict(point)
     for reference in ("vs_true", "vs_embedded"):
         for key in METRICS:
@@ -258,6 +264,8 @@ def _row(point, report):
     timings = report["timings"]
     row.update(train_s=timings["train_s"], render_rays_per_s=timings["render_rays_per_s"],
                speed_withheld=report["speed_withheld"], model_bytes=report["model_bytes"])
+    if trained is not None:
+        row["provenance"] = trained
     return row
 
 

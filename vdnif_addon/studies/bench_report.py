@@ -20,7 +20,9 @@ def write_outputs(out, rows):
     """bench.csv, bench.json and pareto.png (error vs render speed and vs training time)."""
     with atomic_path(out / "bench.csv", "CSV file") as temporary, \
             open(temporary, "w", newline="") as file:
-        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        # the provenance (commit, network, machine) is the JSON's: one nested record per row
+        writer = csv.DictWriter(file, fieldnames=[k for k in rows[0] if k != "provenance"],
+                                extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
     write_json_atomic(out / "bench.json", rows)

@@ -28,6 +28,7 @@ from ..pose_sets import TEST_POSES, PoseSpec
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import RECIPE
 from .demo_figures import demo_figures
+from .provenance import stamp
 from .report import demo_markdown
 
 SIZES = {   # full: the main job, the default recipe at the resolution of the scene's mesh
@@ -90,5 +91,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
                          else ["python", "vdnif_addon/batch.py", "--", "demo"])
     write_text_atomic(out / "report.md", demo_markdown(report, command), "markdown file",
                       "markdown")
-    write_json_atomic(out / "report.json", {"format": REPORT_FORMAT, **report})
+    # the report holds the demo's training and render times: recorded with the machine
+    write_json_atomic(out / "report.json", stamp({"format": REPORT_FORMAT, **report},
+                                                 with_machine=True))
     return report

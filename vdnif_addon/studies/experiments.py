@@ -52,6 +52,7 @@ from .experiment_runs import (
     scene_record,
     table_rows,
 )
+from .provenance import stamp
 from .report import (
     common_pixels_line,
     metrics_table,
@@ -337,9 +338,10 @@ def run_experiment(name, results, quick=False, device="auto", progress=None, com
                     grazing_fraction=RECIPE.grazing_fraction,
                     secondary_fraction=RECIPE.secondary_fraction, seeds=list(size["seeds"]),
                     torch_threads=torch.get_num_threads())
-    write_json_atomic(figures / f"{stem}.json", {"format": REPORT_FORMAT, "experiment": name,
-                                                 "settings": settings, "scenes": list(chosen),
-                                                 "runs": records})
+    # the training times of its tables depend on the machine and its load: recorded with it
+    write_json_atomic(figures / f"{stem}.json", stamp(
+        {"format": REPORT_FORMAT, "experiment": name, "settings": settings,
+         "scenes": list(chosen), "runs": records}, with_machine=True))
     command = command or shlex.join(
         ["python", "vdnif_addon/batch.py", "--", "experiment", name]
         + (["--quick"] if quick else []) + (["--scenes", ",".join(chosen)] if scenes else [])
@@ -368,6 +370,9 @@ def _cost_table(records):
         if "timings" in report:
             lines.append(f"| {label} | {value(report['timings']['train_s'], 4)} | "
                          f"{report['model_bytes']:,} |")
+    lines += ["", "Training times: the run's trainings one after another in one process, on "
+              "the machine and load its JSON records (`provenance.machine`); compare them "
+              "within this table, not with a model trained alone."]
     return "\n".join(lines)
 
 

@@ -1,0 +1,602 @@
+"""The numbers in the prose of docs/results.md and docs/performance.md agree with the JSON
+they come from, to the precision they are printed at.
+
+Each claim is a sentence of a document with its numbers as ``{}``, the JSON file (relative
+to docs/) and the values those numbers print, computed from the file. A claim's sentence
+must be found once in its document (whitespace as Markdown wraps it does not count): a
+sentence reworded without its claim fails here, as does a number that no longer matches.
+The prose numbers that no JSON holds (scratch A/B timings, GPU runs, older runs kept for
+comparison) are not claims; the tables have their own test (``tests/cli/test_docs_commands``
+holds the summary tables, the experiments' sections are written by the command itself).
+Reads only the repository's JSON and Markdown.
+"""
+
+import json
+import pathlib
+import re
+import statistics
+from typing import NamedTuple
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+DOCS = REPO / "docs"
+NUMBER = r"(\d[\d,]*(?:\.\d+)?(?:e-?\d+)?)"     # a range's dash is no minus sign
+
+
+class Claim(NamedTuple):
+    doc: str
+    text: str
+    source: str
+    values: object      # the file's JSON -> the printed numbers' values, in order
+
+
+def pattern(text):
+    """A regex of ``text`` (its whitespace made single spaces, as ``check`` makes the
+    document's), each ``{}`` a number."""
+    return re.compile(NUMBER.join(map(re.escape, " ".join(text.split()).split("{}"))))
+
+
+def unit(printed):
+    """The value of the last digit of ``printed`` (``7.1e-06``: 1e-07), an integer's trailing
+    zeros read as rounding (``24,000``: 1,000)."""
+    mantissa, _, exponent = printed.replace(",", "").partition("e")
+    whole, _, fraction = mantissa.partition(".")
+    zeros = 0 if fraction or exponent else len(whole) - len(whole.rstrip("0"))
+    return 10.0 ** (int(exponent or 0) - len(fraction) + min(zeros, len(whole) - 1))
+
+
+def agrees(printed, value):
+    """``value`` rounds to ``printed`` at its precision (a half unit of its last digit)."""
+    number = float(printed.replace(",", ""))
+    return abs(value - number) <= 0.5 * unit(printed) * (1 + 1e-9) + 1e-15
+
+
+def check(claim, text, data):
+    """What is wrong with ``claim`` in the document ``text`` against ``data`` (a list of
+    messages, empty where it holds)."""
+    found = pattern(claim.text).findall(" ".join(text.split()))
+    if len(found) != 1:
+        return [f"{claim.doc}: '{claim.text}' found {len(found)} times, not once"]
+    printed = found[0] if isinstance(found[0], tuple) else (found[0],)
+    values = list(claim.values(data))
+    if len(values) != len(printed):
+        return [f"{claim.doc}: '{claim.text}' prints {len(printed)} numbers, the claim "
+                f"computes {len(values)}"]
+    return [f"{claim.doc}: '{claim.text}': printed {p}, {claim.source} gives {v:.6g}"
+            for p, v in zip(printed, values) if not agrees(p, v)]
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def pct(value):
+    return 100 * value
+
+
+def span(values):
+    values = list(values)
+    return [min(values), max(values)]
+
+
+def ttc(d, scene, poses, key, grid=None):
+    """A figure of time-to-clean-wall.json: today's run, or the ``grid`` one's."""
+    runs = d[grid]["runs"] if grid else d["runs"]
+    return runs[scene][poses][key]
+
+
+def facing(run, what):
+    """false lit / shadow, its facing part and the cast part (the rest), in %."""
+    total, part = run[f"shadow_false_{what}_rate"], run[f"shadow_false_{what}_facing_rate"]
+    return pct(total), pct(part), pct(total - part)
+
+
+def shadow(d, label, scene):
+    return d["runs"][label][scene]["vs_true"]
+
+
+def seeds(d, grid, key, scale=1.0):
+    values = [d["runs"][grid][seed][key] * scale for seed in ("0", "1", "2")]
+    return [statistics.median(values), min(values), max(values)]
+
+
+def common(d, label, key="distance_mae"):
+    return d["runs"][label]["common"]["vs_true"][key]
+
+
+def case(d, name):
+    return next(row for row in d if row["case"] == name)
+
+
+def embedding(d, name, resolution):
+    table = case(d, name)["suggestion"]["table"]
+    return next(row["embedding_error"] for row in table if row["resolution"] == resolution)
+
+
+def network_shares(d, width, threads):
+    """The network's segments/s inside the render over one batch's, in %, per mesh."""
+    shares = []
+    for r in d["results"]:
+        if r["width"] == width and r["threads"]["setting"] == threads:
+            m = r["median"]
+            shares.append(pct((m["neural_segments"] / m["neural_network_s"])
+                              / (m["walk_segments"] / m["all_segments_network_s"])))
+    return shares
+
+
+def result(d, scene, width, threads):
+    return next(r for r in d["results"] if r["scene"] == scene and r["width"] == width
+                and r["threads"]["setting"] == threads)
+
+
+def secondary_rates(d, path):
+    return [r["secondary"]["paths"][path][n]["rays_per_s"] / 1e6 for r in d["results"]
+            for n in r["secondary"]["paths"][path]]
+
+
+def spot_seeds(d, poses, key, scale=100.0):
+    return [d["runs"][f"seed {k}"][poses][key] * scale for k in range(3)]
+
+
+def sample_rates(row):
+    """Training samples/s: the estimate's sample's, the run's steps'."""
+    actual = row["actual"]
+    return (row["rates"]["samples_per_s"],
+            actual["steps"] * row["batch_size"] / actual["train_steps_s"])
+
+
+def preset_row(d, name):
+    settings = {"balanced": (32, 2, 16, 3, 32), "accurate": (64, 2, 16, 3, 64)}[name]
+    keys = ("resolution", "levels", "log2_table_size", "pe_bands", "width")
+    return next(row for row in d if tuple(row[k] for k in keys) == settings)
+
+
+TTC, SEEDS = "results/time-to-clean-wall.json", "results/lattice-normal-grid-seeds.json"
+SECONDARY, FACING = "results/secondary-rays.json", "results/shadow-facing.json"
+FIELD, START = "results/normal-field-choices.json", "results/shadow-start-choices.json"
+SELF, SPOT = "results/self-hit-choices.json", "results/spot-shadow-seeds.json"
+AUTO, ESTIMATE = "results/resolution-auto.json", "results/estimate-check.json"
+SIDE, BENCH = "side-by-side/side-by-side.json", "bench/bench.json"
+HEAD, OWN = "normal head", "own normal grid, start along the ray"
+WALK = "own normal grid, half offset, walks past its own surface"
+SCENES = ("arm", "lattice", "spot", "bunny")
+R, P = "results.md", "performance.md"
+ABLATION_SCENES = ("arm", "lattice", "spot")
+ABLATION = tuple(f"results/ablation-{s}-1-seed.json" for s in ABLATION_SCENES)
+
+CLAIMS = [
+    # ---- the recipe now
+    Claim(R, "The normal field's own grid costs {}-{} % of the wall time", TTC, lambda d: span(
+        pct(d["runs"][s]["wall_s"] / d["encoder_grid_normal"]["runs"][s]["wall_s"] - 1)
+        for s in SCENES)),
+    Claim(R, "(arm distance {} to {}, lattice {} to {}, bunny holes {} % to {} %;", TTC,
+          lambda d: [ttc(d, "arm", "test", "distance_mae", "encoder_grid_normal"),
+                     ttc(d, "arm", "test", "distance_mae"),
+                     ttc(d, "lattice", "test", "distance_mae", "encoder_grid_normal"),
+                     ttc(d, "lattice", "test", "distance_mae"),
+                     pct(ttc(d, "bunny", "test", "false_negative_rate", "encoder_grid_normal")),
+                     pct(ttc(d, "bunny", "test", "false_negative_rate"))]),
+    Claim(R, "the spread over Figure 3's three seeds is {}-{} on the lattice",
+          "results/deformation-lattice.json", lambda d: span(
+              s["vs_true"]["distance_mae"] for s in d["runs"]["lattice/proposed"]["seeds"])),
+    Claim(R, "and {}-{} % for the bunny's holes).", "results/deformation-bunny.json",
+          lambda d: span(pct(s["vs_true"]["false_negative_rate"])
+                         for s in d["runs"]["bunny/proposed"]["seeds"])),
+    Claim(R, "distance MAE {} ({}-{}) against {} ({}-{}), holes {} % ({}-{} %) against {} % "
+          "({}-{} %), extras {} % ({}-{} %) against {} % ({}-{} %), normal error {} ({}-{}) "
+          "against {} ({}-{}) degrees", SEEDS, lambda d: [
+              *seeds(d, "own grid", "distance_mae"), *seeds(d, "encoder's grid", "distance_mae"),
+              *seeds(d, "own grid", "false_negative_rate", 100),
+              *seeds(d, "encoder's grid", "false_negative_rate", 100),
+              *seeds(d, "own grid", "false_positive_rate", 100),
+              *seeds(d, "encoder's grid", "false_positive_rate", 100),
+              *seeds(d, "own grid", "normal_error_deg"),
+              *seeds(d, "encoder's grid", "normal_error_deg")]),
+    # ---- secondary rays
+    Claim(R, "(AO from true hits on the bunny {} at 0, {} at 0.2)", SECONDARY, lambda d: [
+        d["runs"][f"bunny/{s}"]["evaluate"]["vs_true"]["ao_mae_true_hit"]
+        for s in ("0.0", "0.2")]),
+    Claim(R, "Every share above 0 costs the primary distance {} % or more on both scenes",
+          SECONDARY, lambda d: [min(
+              pct(d["runs"][k]["evaluate"]["vs_true"]["distance_mae"]
+                  / d["runs"][k.split("/")[0] + "/0.0"]["evaluate"]["vs_true"]["distance_mae"]
+                  - 1) for k in d["runs"] if not k.endswith("/0.0"))]),
+    Claim(R, "the shadow rates from the network's own hits are {}-{} %", SECONDARY,
+          lambda d: span(pct(run["evaluate"]["vs_true"][f"shadow_false_{w}_rate"])
+                         for run in d["runs"].values() for w in ("lit", "shadow"))),
+    Claim(R, "From the true hits they are at most {} % on spot at every share and {} % / {} % "
+          "on the bunny at 0.2", SECONDARY, lambda d: [
+              max(pct(run["evaluate"]["vs_true"][f"shadow_false_{w}_rate_true_hit"])
+                  for k, run in d["runs"].items() if k.startswith("spot")
+                  for w in ("lit", "shadow")),
+              *(pct(d["runs"]["bunny/0.2"]["evaluate"]["vs_true"][
+                  f"shadow_false_{w}_rate_true_hit"]) for w in ("lit", "shadow"))]),
+    Claim(R, "also see false shadows ({} %)", SECONDARY, lambda d: [pct(
+        d["runs"]["bunny/0.0"]["evaluate"]["vs_true"]["shadow_false_shadow_rate_true_hit"])]),
+    # ---- where the shadow errors come from
+    Claim(R, "Spot's cast shadows are within the 1 % aimed at ({} % false lit, {} % false "
+          "shadow)", FACING, lambda d: [facing(shadow(d, HEAD, "spot"), w)[2]
+                                        for w in ("lit", "shadow")]),
+    Claim(R, "The bunny's cast shadows add {} % / {} %.", FACING, lambda d: [
+        facing(shadow(d, HEAD, "bunny"), w)[2] for w in ("lit", "shadow")]),
+    Claim(R, "than the normal head's {}-{} degrees", FACING, lambda d: span(
+        shadow(d, HEAD, s)["normal_error_deg"] for s in ("bunny", "spot"))),
+    # ---- normals from a field
+    Claim(R, "off by its distance error (bunny {} to {} degrees)", FIELD, lambda d: [
+        d["runs"]["bunny"][k]["normal_error_deg"]
+        for k in ("field, 2 hidden layers", "field, 2 hidden layers, jitter 0.05")]),
+    Claim(R, "is no better ({} against {} on the bunny, {} against {} on spot)", FIELD,
+          lambda d: [d["runs"][s][k]["normal_error_deg"] for s in ("bunny", "spot")
+                     for k in ("field, 2 hidden layers, jitter 0.05",
+                               "field, 1 hidden layer, jitter 0.05")]),
+    Claim(R, "The facing parts fall by {}-{} %.", FACING, lambda d: span(
+        pct(1 - facing(shadow(d, "normal field", s), w)[1] / facing(shadow(d, HEAD, s), w)[1])
+        for s in ("bunny", "spot") for w in ("lit", "shadow"))),
+    Claim(R, "Spot ends at {} % false lit and {} % false shadow, nearly all of it the facing "
+          "test at {} degrees", FACING, lambda d: [
+              *(facing(shadow(d, "normal field", "spot"), w)[0] for w in ("lit", "shadow")),
+              shadow(d, "normal field", "spot")["normal_error_deg"]]),
+    Claim(R, "The bunny ends at {} % / {} %: its cast shadows ({} % false lit) did not move, "
+          "the facing part did ({} to {} %)", FACING, lambda d: [
+              *(facing(shadow(d, "normal field", "bunny"), w)[0] for w in ("lit", "shadow")),
+              facing(shadow(d, "normal field", "bunny"), "lit")[2],
+              facing(shadow(d, HEAD, "bunny"), "lit")[1],
+              facing(shadow(d, "normal field", "bunny"), "lit")[1]]),
+    # ---- where a secondary ray starts; the field's grid
+    Claim(R, "the false lit rates fall by a fifth (the cast part by {}-{} %)", START,
+          lambda d: span(pct(1 - facing(d["runs"][s]["along, c 0.2"]["vs_true"], "lit")[2]
+                             / facing(d["runs"][s]["normal push"]["vs_true"], "lit")[2])
+                         for s in ("bunny", "spot"))),
+    Claim(R, "Spot ends at {} % false lit and {} % false shadow, the bunny at {} % and {} %; "
+          "AO is within 0.03 on both ({}, {})", FACING, lambda d: [
+              *(facing(shadow(d, OWN, s), w)[0] for s in ("spot", "bunny")
+                for w in ("lit", "shadow")),
+              shadow(d, OWN, "spot")["ao_mae"], shadow(d, OWN, "bunny")["ao_mae"]]),
+    Claim(R, "mostly the facing test ({} % and {} % on spot, {} % and {} % on the bunny)",
+          FACING, lambda d: [facing(shadow(d, OWN, s), w)[1] for s in ("spot", "bunny")
+                             for w in ("lit", "shadow")]),
+    Claim(R, "The bunny's cast shadows add {} % false lit.", FACING, lambda d: [
+        facing(shadow(d, OWN, "bunny"), "lit")[2]]),
+    Claim(R, "From the true hits the network's shadow rays make {} %", FACING, lambda d: [
+        pct(shadow(d, OWN, "bunny")["shadow_false_lit_rate_true_hit"])]),
+    # ---- walking past the surface a ray leaves
+    Claim(R, "poses rise from {} to {} % (the table below)", SELF, lambda d: [
+        next(r["false_shadow_pct"] for r in d["rows"] if r["scene"] == "bunny"
+             and r["offset"] == offset and r["reach"] == 0) for offset in (1, 0.5)]),
+    Claim(R, "spot's shadow pass is now within 1 % both ways ({} % false lit, {} % false "
+          "shadow)", FACING, lambda d: [facing(shadow(d, WALK, "spot"), w)[0]
+                                        for w in ("lit", "shadow")]),
+    Claim(R, "(false lit {}-{} %, false shadow {}-{} %, AO {}-{};", SPOT, lambda d: [
+        *span(spot_seeds(d, "test", "shadow_false_lit_rate")),
+        *span(spot_seeds(d, "test", "shadow_false_shadow_rate")),
+        *span(spot_seeds(d, "test", "ao_mae", 1.0))]),
+    Claim(R, "its false shadow is {}-{} % at every seed", SPOT, lambda d: span(
+        spot_seeds(d, "development", "shadow_false_shadow_rate"))),
+    Claim(R, "The bunny's is not ({} % and {} %), nearly all of it the facing test at {} "
+          "degrees", FACING, lambda d: [
+              *(facing(shadow(d, WALK, "bunny"), w)[0] for w in ("lit", "shadow")),
+              shadow(d, WALK, "bunny")["normal_error_deg"]]),
+    Claim(R, "(the bunny's false shadow {} to {} %)", FACING, lambda d: [
+        pct(shadow(d, k, "bunny")["shadow_false_shadow_rate_true_hit"]) for k in (OWN, WALK)]),
+    # ---- corners, the character
+    Claim(R, "The corners' cost per pose on the arm: {} ms for the copies, {} ms bound to the "
+          "surface, {} ms for Blender's Surface Deform modifier", "results/surface-corners.json",
+          lambda d: [d["cost_arm"][k]["corners_ms"] for k in (
+              "armature copy", "evaluated surface (cage)", "surface deform modifier")]),
+    Claim(R, "({} s of training on one loaded core)", "results/skinned-character.json",
+          lambda d: [d["train"]["train"]["seconds"]]),
+    Claim(R, "a model of {} MB, where today's weigh", "results/skinned-character.json",
+          lambda d: [d["train"]["model_bytes"] / 1e6]),
+    # ---- the suggested resolution
+    Claim(R, "(its errors fall to {} at 24", AUTO, lambda d: [embedding(d, "arm", 24)]),
+    Claim(R, "(the training-time table of the first section: {} % / {} %)", TTC, lambda d: [
+        pct(ttc(d, "spot", "test", k)) for k in ("false_negative_rate", "false_positive_rate")]),
+    Claim(R, "trains clean there ({} % / {} %), where the default 32", AUTO, lambda d: [
+        pct(case(d, "character")["test"][k])
+        for k in ("false_negative_rate", "false_positive_rate")]),
+    Claim(R, "trains clean there too ({} % / {} %, against", AUTO, lambda d: [
+        pct(case(d, "arm")["test"][k]) for k in ("false_negative_rate", "false_positive_rate")]),
+    Claim(R, "against {} % / {} % at 32 in the training-time table", TTC, lambda d: [
+            pct(ttc(d, "arm", "test", k)) for k in ("false_negative_rate",
+                                                    "false_positive_rate")]),
+    Claim(R, "(their ears, {} and {} units thick", AUTO, lambda d: [
+        case(d, s)["suggestion"]["thickness"] for s in ("lattice", "bunny")]),
+    Claim(R, "(the same table: {} % / {} % and {} % / {} %)", TTC, lambda d: [
+        pct(ttc(d, s, "test", k)) for s in ("lattice", "bunny")
+        for k in ("false_negative_rate", "false_positive_rate")]),
+    Claim(R, "did not train clean (extras {} %)", AUTO, lambda d: [
+        pct(case(d, "plate")["test"]["false_positive_rate"])]),
+    Claim(R, "the knee's at 32 ({} against {})", AUTO, lambda d: [
+        embedding(d, "plate", 64), embedding(d, "plate", 32)]),
+    Claim(R, "{} s (arm, character) to {} s (cup)", AUTO, lambda d: [
+        case(d, "arm")["suggestion"]["seconds"], case(d, "cup")["suggestion"]["seconds"]]),
+    # ---- the estimate
+    Claim(R, "Sizes are within {} %", ESTIMATE, lambda d: [
+        max(abs(pct(r["ratio"]["bytes"] - 1)) for r in d["rows"])]),
+    Claim(R, "except the arm's dataset time ({}x over", ESTIMATE, lambda d: [
+        1 / d["rows"][0]["ratio"]["dataset_s"]]),
+    Claim(R, "differed by up to {}x in both directions (arm {} against {} samples/s, lattice {} "
+          "against {})", ESTIMATE, lambda d: [
+              max(max(a / b, b / a) for a, b in map(sample_rates, d["rows"])),
+              *sample_rates(d["rows"][0]), *sample_rates(d["rows"][1])]),
+    Claim(R, "network is today's default, the normal field on its own grid (models of {} MB, {} "
+          "MB textured)", "results/normal-grid-choices.json", lambda d: [
+              d["runs"][s]["L3 T17"]["model_bytes"] / 1e6 for s in ("bunny", "spot")]),
+    # ---- the ablation's summary
+    Claim(R, "without the positional encoding the distance error is {}-{}x proposed's, with "
+          "the paper's log-MSE of d/h {}-{}x", ABLATION, lambda d: [
+              *span(common(d[f], f"{s}/no positional encoding") / common(d[f], f"{s}/proposed")
+                    for f, s in zip(ABLATION, ABLATION_SCENES)),
+              *span(common(d[f], f"{s}/proposed, log-MSE of d/h") / common(d[f], f"{s}/proposed")
+                    for f, s in zip(ABLATION, ABLATION_SCENES))]),
+    # ---- performance: the side-by-side run
+    Claim(P, "The 1 M-triangle pose at 256x256 costs {}x Warp's refit and {}x Embree's refit "
+          "at both cores, {}x and {}x at one thread", SIDE, lambda d: [
+              result(d, "suzanne-5", 256, t)["ratios"][f"pose_neural_over_{b}"]
+              for t in (2, 1) for b in ("warp", "embree_refit")]),
+    Claim(P, "cheaper than Warp's refit at both cores only, by about {} % in this one run", SIDE,
+          lambda d: [pct(1 - result(d, "suzanne-5", 256, 2)["ratios"]["pose_neural_over_warp"])]),
+    Claim(P, "they run at {}-{} M rays/s against Warp refit's {}-{} M and Embree refit's "
+          "{}-{} M", SIDE, lambda d: [*span(secondary_rates(d, "neural")),
+                                      *span(secondary_rates(d, "warp")),
+                                      *span(secondary_rates(d, "embree_refit"))]),
+    Claim(P, "The network inside the render runs at {}-{} % of its own speed over one batch at "
+          "256x256 on one core and at {}-{} % at both cores", SIDE, lambda d: [
+              *span(network_shares(d, 256, 1)), *span(network_shares(d, 256, 2))]),
+    Claim(P, "(at 64x64: {}-{} % and {}-{} %;", SIDE, lambda d: [
+        *span(network_shares(d, 64, 1)), *span(network_shares(d, 64, 2))]),
+    Claim(P, "the neural pose stays cheaper only on the 1 M-triangle mesh, up to {}-{} AO samples "
+          "at the 64x64 preview, and against Embree rebuilt up to {}-{} at 256x256", SIDE,
+          lambda d: [*span(result(d, "suzanne-5", 64, t)["secondary"]["trade"][b]["samples"]
+                           for t in (1, 2) for b in ("warp", "embree_refit")),
+                     *span(result(d, "suzanne-5", 256, t)["secondary"]["trade"][
+                         "embree_rebuild"]["samples"] for t in (1, 2))]),
+    Claim(P, "Balanced and accurate differ by {} % in render speed", BENCH, lambda d: [
+        pct(preset_row(d, "balanced")["render_rays_per_s"]
+            / preset_row(d, "accurate")["render_rays_per_s"] - 1)]),
+    Claim(P, "models of {} MB where today's weigh", BENCH, lambda d: [
+        d[0]["model_bytes"] / 1e6]),
+]
+
+
+
+def read(source):
+    """A claim's JSON; {file: its JSON} where the claim reads several."""
+    if isinstance(source, tuple):
+        return {name: read(name) for name in source}
+    return json.loads((DOCS / source).read_text())
+
+
+def test_every_prose_claim_agrees_with_its_json():
+    docs = {name: (DOCS / name).read_text() for name in (R, P)}
+    problems = [p for claim in CLAIMS
+                for p in check(claim, docs[claim.doc], read(claim.source))]
+    assert problems == []
+    assert len(CLAIMS) >= 40
+
+
+def test_a_number_off_by_its_last_digit_fails_and_one_within_rounding_passes():
+    data = {"share": 0.8246}
+    claim = Claim("x.md", "runs at {} % of its speed", "x.json", lambda d: [pct(d["share"])])
+    assert check(claim, "It runs at 82 % of\nits speed.", data) == []
+    assert check(claim, "It runs at 82.5 % of its speed.", data) == []
+    assert check(claim, "It runs at 82.46 % of its speed.", data) == []
+    assert check(claim, "It runs at 83 % of its speed.", data) != []
+    assert check(claim, "It runs at 82.4 % of its speed.", data) != []
+    # a sentence that lost its claim, or says it twice, fails too
+    assert check(claim, "It runs fast.", data) != []
+    assert check(claim, "runs at 82 % of its speed; runs at 82 % of its speed", data) != []
+    # thousands separators and ranges
+    claim = Claim("x.md", "({} s, {}-{} %)", "x.json", lambda d: [1633.2, 78.5, 84.9])
+    assert check(claim, "took (1,633 s, 78-85 %) in all", {}) == []
+    assert check(claim, "took (1,633 s, 82-91 %) in all", {}) != []
+    # a round thousand is read as rounded, an exponent's digits as the mantissa's
+    claim = Claim("x.md", "{} samples/s, error {}", "x.json", lambda d: [24029.4, 7.12e-06])
+    assert check(claim, "24,000 samples/s, error 7.1e-06", {}) == []
+    assert check(claim, "25,000 samples/s, error 7.1e-06", {}) != []
+    assert check(claim, "24,000 samples/s, error 7.2e-06", {}) != []
+
+
+# ----------------------------------------------------------------------------- tables
+
+
+class Table(NamedTuple):
+    """A hand-written table: its header line, how many cells name its row, its JSON and
+    the values its other cells print, in order, from the file and the row's naming cells
+    (None for a number no JSON holds)."""
+    doc: str
+    header: str
+    keys: int
+    source: str
+    values: object      # (the file's JSON, the row's naming cells) -> the printed numbers
+
+
+def table_rows(text, header):
+    """[cells] of the rows of the table under ``header`` (a line of the text)."""
+    lines = text.splitlines()
+    start = lines.index(header) + 2          # past the header and its rule
+    rows = []
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip().strip("|").split("|")])
+    return rows
+
+
+def check_table(table, text, data):
+    """What is wrong with ``table`` in the document ``text`` against ``data``."""
+    if text.splitlines().count(table.header) != 1:
+        return [f"{table.doc}: the table '{table.header[:60]}...' is not there once"]
+    found = []
+    rows = table_rows(text, table.header)
+    for cells in rows:
+        keys, rest = cells[:table.keys], cells[table.keys:]
+        printed = re.findall(NUMBER, " | ".join(rest))
+        values = list(table.values(data, *keys))
+        if len(values) != len(printed):
+            found.append(f"{table.doc}: row {keys} prints {len(printed)} numbers, the table's "
+                         f"claim computes {len(values)}")
+            continue
+        found += [f"{table.doc}: row {keys}: printed {p}, {table.source} gives {v:.6g}"
+                  for p, v in zip(printed, values) if v is not None and not agrees(p, v)]
+    return found or ([] if rows else [f"{table.doc}: '{table.header[:60]}' has no rows"])
+
+
+def rates(run, *keys):
+    return [pct(run[k]) for k in keys]
+
+
+def shadow_row(run, *, normal=True, true_hits=False):
+    """normal (deg), AO MAE, false lit and its facing part, false shadow and its facing part."""
+    values = ([run["normal_error_deg"]] if normal else []) + [run["ao_mae"]]
+    values += [*facing(run, "lit")[:2], *facing(run, "shadow")[:2]]
+    if true_hits:
+        values += [run["ao_mae_true_hit"], *rates(run, "shadow_false_lit_rate_true_hit",
+                                                 "shadow_false_shadow_rate_true_hit")]
+    return values
+
+
+def ttc_first(d, scene):
+    """The time-to-clean table: steps, occlusion at 100 / 200, then each figure now (on the
+    encoder's grid) on the development poses."""
+    run, old = d["runs"][scene], d["encoder_grid_normal"]["runs"][scene]
+    history = dict(map(tuple, run["occlusion_history"]))
+    values = [run["steps"], history[100], history[200]]
+    for key, scale in (("false_negative_rate", 100), ("false_positive_rate", 100),
+                       ("distance_mae", 1), ("normal_error_deg", 1), ("albedo_psnr", 1)):
+        if key in run["dev"]:
+            values += [run["dev"][key] * scale, old["dev"][key] * scale]
+    return values
+
+
+def ttc_time(d, scene):
+    run, old = d["runs"][scene], d["encoder_grid_normal"]["runs"][scene]
+    return [run["wall_s"], *span(run["wall_s_runs"]), old["wall_s"], run["train_s"],
+            old["train_s"], *rates(run["test"], "false_negative_rate", "false_positive_rate"),
+            run["test"]["distance_mae"], run["test"]["normal_error_deg"],
+            old["test"]["normal_error_deg"]]
+
+
+def self_hit(d, scene, offset, walks):
+    share = {"today's": 1, "half": 0.5, "quarter": 0.25}[offset]
+    reach, cosine, skips = ((0, None, 0) if walks == "no" else
+                            (float(walks.split()[0]), *map(float, walks.split(", ")[1:])))
+    row = next(r for r in d["rows"] if r["scene"] == scene and r["offset"] == share
+               and r["reach"] == reach and r["cosine"] == cosine and r["skips"] == skips)
+    return [row[k] for k in ("ao_mae", "false_lit_pct", "false_lit_facing_pct",
+                             "false_shadow_pct", "false_shadow_facing_pct")]
+
+
+def resolution_row(d, mesh):
+    row = case(d, mesh)
+    s = row["suggestion"]
+    finest = next(r["embedding_error"] for r in s["table"] if r["resolution"] == 128)
+    chosen = next(r["embedding_error"] for r in s["table"] if r["resolution"] == s["resolution"])
+    trained = (rates(row["test"], "false_negative_rate", "false_positive_rate")
+               if row.get("training") else [])
+    return [s["resolution"], s["knee"], s["thin_floor"], chosen, finest, *trained]
+
+
+def corners_row(d, rig):
+    """The surface-corners table: distance (voxels) and, where printed, hit IoU of each way."""
+    key = {"armature + Subdivision after it": "subdivision",
+           "armature + bone-driven corrective key": "driven_key",
+           "armature + Corrective Smooth": "corrective_smooth",
+           "lattice + animated shape key": "lattice_key",
+           "armature only (the same mesh)": "subdivision",
+           "lattice only (the same mesh)": "lattice_key"}[rig]
+    full, alone = d["embedding"][key]["full rig"], d["embedding"][key]["armature or lattice only"]
+
+    def figures(way, iou=True):
+        return [way["distance_mae_voxels"]] + ([way["hit_iou"]] if iou else [])
+
+    ways = ("evaluated surface", "armature copy", "surface deform modifier")
+    if rig.endswith("(the same mesh)"):
+        return [alone[w]["distance_mae_voxels"] for w in ways[:2 if key == "lattice_key" else 3]]
+    if key == "subdivision":
+        return [*figures(full[ways[0]]), full["evaluated surface (subdivided surface)"][
+            "distance_mae_voxels"], *figures(full[ways[1]], False), *figures(full[ways[2]], False)]
+    return [*figures(full[ways[0]]), *figures(full[ways[1]]), *figures(full[ways[2]], False)]
+
+
+def estimate_row(d, scene):
+    row = next(r for r in d["rows"] if r["scene"] == scene)
+    e, a, ratio = row["estimate"], row["actual"], row["ratio"]
+    return [e["bytes"] / 1e6, a["bytes"] / 1e6, e["dataset_s"], a["dataset_s"],
+            ratio["dataset_s"], e["train_s"], a["train_s"], ratio["train_s"]]
+
+
+FACING_HEADER = ("| scene | normal from | primary normal (deg) | AO MAE | false lit | of it, "
+                 "facing | false shadow | of it, facing |")
+TABLES = [
+    Table(R, "| scene | steps | held-out occlusion at 100 / 200 | holes | extras | distance MAE "
+          "(object units) | normal error (deg) | albedo PSNR (dB) |", 1, TTC, ttc_first),
+    Table(R, "| scene | training wall time (s): now (range); on the encoder's grid | of it, steps "
+          "(s): now; on the encoder's grid | test poses: holes / extras | distance MAE (object "
+          "units) | normal error (deg) (on the encoder's grid) |", 1, TTC, ttc_time),
+    Table(R, "| scene | share | primary distance MAE | primary normal (deg) | AO MAE, own / true "
+          "hits | false lit, own / true hits | false shadow, own / true hits |", 2, SECONDARY,
+          lambda d, scene, share: (lambda m: [
+              m["distance_mae"], m["normal_error_deg"], m["ao_mae"], m["ao_mae_true_hit"],
+              *rates(m, "shadow_false_lit_rate", "shadow_false_lit_rate_true_hit",
+                     "shadow_false_shadow_rate", "shadow_false_shadow_rate_true_hit")])(
+              d["runs"][f"{scene}/{float(share):.1f}"]["evaluate"]["vs_true"])),
+    Table(R, "| scene | primary normal (deg) | false lit | of it, facing | false shadow | of it, "
+          "facing |", 1, FACING, lambda d, scene: (lambda m: [
+              m["normal_error_deg"], *facing(m, "lit")[:2], *facing(m, "shadow")[:2]])(
+              shadow(d, HEAD, scene))),
+    Table(R, "| scene | normal from | holes | extras | distance MAE | normal (deg) | AO MAE | "
+          "false lit | false shadow |", 2, FIELD, lambda d, scene, label: (lambda m: [
+              *rates(m, "false_negative_rate", "false_positive_rate"), m["distance_mae"],
+              m["normal_error_deg"], m["ao_mae"],
+              *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate")])(
+              d["runs"][scene][label])),
+    Table(R, FACING_HEADER, 2, FACING, lambda d, scene, label: shadow_row(
+        shadow(d, label, scene))),
+    Table(R, "| scene | start | normal (deg) | AO MAE | false lit | of it, facing | false shadow "
+          "| of it, facing |", 2, START, lambda d, scene, start: shadow_row(
+              d["runs"][scene][start]["vs_true"])),
+    Table(R, "| scene | normal field's grid | normal (deg) | AO MAE | false lit | of it, facing | "
+          "false shadow | of it, facing | model file |", 2, "results/normal-grid-choices.json",
+          lambda d, scene, grid: [*shadow_row(d["runs"][scene][grid]["vs_true"]),
+                                  d["runs"][scene][grid]["model_bytes"] / 1e6]),
+    Table(R, "| scene | normal field | start | normal (deg) | AO MAE | false lit | of it, facing "
+          "| false shadow | of it, facing |", 3, FACING, lambda d, scene, field, start: shadow_row(
+              shadow(d, {("encoder's grid", "normal push"): "normal field",
+                         ("encoder's grid", "along"): "normal field, start along the ray",
+                         ("own grid (L3 T17)", "along"): OWN}[field, start], scene))),
+    Table(R, "| scene | offset | walks past within, cosine, times | AO MAE | false lit (facing) | "
+          "false shadow (facing) |", 3, SELF, self_hit),
+    Table(R, "| scene | secondary rays | AO MAE | false lit (facing) | false shadow (facing) | "
+          "from true hits: AO MAE, false lit, false shadow |", 2, FACING,
+          lambda d, scene, rays: shadow_row(shadow(
+              d, {"before": OWN, "walk past, half offset": WALK}[rays], scene), normal=False,
+              true_hits=True)),
+    Table(R, "| against | holes | extras | distance MAE (object units) | normal error (deg) | hit "
+          "IoU |", 1, "results/skinned-character.json", lambda d, against: (lambda m: [
+              *rates(m, "false_negative_rate", "false_positive_rate"), m["distance_mae"],
+              m["normal_error_deg"], m["hit_iou"]])(
+              d["evaluate"]["vs_true" if against.startswith("true") else "vs_embedded"])),
+    Table(R, "| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
+          "embedding error | target met | holes | extras | clean |", 1, AUTO, resolution_row),
+    Table(R, "| rig | surface binding (cage) | copied modifiers | Surface Deform modifier |", 1,
+          "results/surface-corners.json", corners_row),
+    Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
+          "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
+          estimate_row),
+]
+
+
+def test_every_hand_written_table_agrees_with_its_json():
+    docs = {name: (DOCS / name).read_text() for name in (R, P)}
+    problems = [p for table in TABLES
+                for p in check_table(table, docs[table.doc], read(table.source))]
+    assert problems == []
+
+
+def test_a_table_cell_off_its_json_fails():
+    table = Table("x.md", "| scene | holes | extras |", 1, "x.json",
+                  lambda d, scene: rates(d[scene], "holes", "extras"))
+    data = {"arm": {"holes": 0.00104, "extras": 0.00317}}
+    text = "| scene | holes | extras |\n| --- | --- | --- |\n| arm | {} % | {} % |\n"
+    assert check_table(table, text.format("0.104", "0.317"), data) == []
+    assert check_table(table, text.format("0.104", "0.318"), data) != []
+    assert check_table(table, text.format("0.104", "0.317 % / 0.5"), data) != []  # one more

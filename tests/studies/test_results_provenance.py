@@ -1,0 +1,179 @@
+"""Every results table describes today's default network or says which one it describes.
+
+A results JSON written since the provenance record (``studies.provenance``) carries the
+hash of the default network of its run; the files committed before it are classified in
+``docs/results/provenance.json`` (by their model bytes where they hold them). Each section of
+docs/results.md and docs/performance.md that names a file whose network is not today's must
+say so in its network's phrase ("network before the normal field", ...), and the table at the
+top of docs/results.md names every file's network. Reads only the repository's JSON and
+Markdown.
+"""
+
+import copy
+import json
+import pathlib
+import re
+
+from vdnif_addon.studies.provenance import network_hash
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+DOCS = REPO / "docs"
+INDEX = DOCS / "results" / "provenance.json"
+RESULT_FOLDERS = ("results", "bench", "side-by-side")
+MARKDOWN = ("results.md", "performance.md")
+TABLE_HEADING = "Where each table comes from"
+
+
+def sections(text):
+    """[(heading, its text up to the next heading of any level)] of a Markdown text."""
+    parts, heading, lines = [], None, []
+    for line in text.splitlines():
+        if line.startswith("#"):
+            if heading is not None:
+                parts.append((heading, "\n".join(lines)))
+            heading, lines = line.lstrip("#").strip(), []
+        else:
+            lines.append(line)
+    if heading is not None:
+        parts.append((heading, "\n".join(lines)))
+    return parts
+
+
+def at(data, path):
+    for key in path:
+        data = data[key]
+    return data
+
+
+def stamped_hashes(data):
+    """The network hashes a results JSON records (a list's rows each their own); None where
+    it records none (written before the provenance record)."""
+    records = data if isinstance(data, list) else [data]
+    hashes = {(row.get("provenance") or {}).get("network_hash") for row in records
+              if isinstance(row, dict)}
+    return None if hashes == {None} else hashes
+
+
+def problems(index, files, docs, today):
+    """What does not hold: ``files`` {name relative to docs/: its JSON}, ``docs`` {Markdown
+    name: text}, ``today`` today's network hash."""
+    found = []
+    networks = {name: dict(entry, hash=None if entry["config"] is None
+                           else network_hash(entry["config"]))
+                for name, entry in index["networks"].items()}
+    known = {entry["hash"]: name for name, entry in networks.items()}
+
+    def stale(network):
+        return networks[network]["hash"] not in (None, today)
+
+    def said(doc, heading, body, network, what):
+        phrase = networks[network]["phrase"]
+        if phrase is None:
+            found.append(f"{what} describes '{network}', not today's network ({today}): "
+                         "give that network a phrase in provenance.json and say it there")
+        elif phrase.lower() not in " ".join(body.lower().split()):
+            found.append(f"{doc}, section '{heading}': {what} describes "
+                         f"{networks[network]['label']}, and the section does not say "
+                         f"'{phrase}'")
+
+    for name, data in sorted(files.items()):
+        entry = index["files"].get(name)
+        hashes = stamped_hashes(data)
+        if hashes is not None:
+            unknown = [h for h in hashes if h != today and h not in known]
+            found += [f"{name} describes network {h}, neither today's ({today}) nor one "
+                      "provenance.json names" for h in unknown]
+            main = [known[h] for h in hashes if h in known and stale(known[h])]
+        elif entry is None:
+            found.append(f"{name} records no network and provenance.json does not classify it")
+            continue
+        else:
+            network = entry["network"]
+            main = [network] if stale(network) else []
+            if "model_bytes" in entry:
+                low, high = networks[network]["model_bytes"][
+                    "textured" if entry["textured"] else "untextured"]
+                size = at(data, entry["model_bytes"])
+                if not low <= size <= high:
+                    found.append(f"{name}: a model of {size:,} bytes is not one of "
+                                 f"'{network}' ({low:,}-{high:,})")
+        overrides = (entry or {}).get("sections", {})
+        for doc, text in docs.items():
+            for heading, body in sections(text):
+                # the table at the top names every file's network in a column of its own
+                if heading == TABLE_HEADING or not re.search(
+                        rf"(?<![\w-]){re.escape(name)}", body):
+                    continue
+                named = [overrides[key] for key in overrides if heading.startswith(key)]
+                for network in named or main:
+                    if stale(network):
+                        said(doc, heading, body, network, name)
+    for name in index["files"]:
+        if name not in files:
+            found.append(f"provenance.json classifies {name}, which is not there")
+    for doc, tables in index.get("tables_without_json", {}).items():
+        for key, network in tables.items():
+            matching = [(h, b) for h, b in sections(docs[doc]) if h.startswith(key)]
+            if not matching:
+                found.append(f"{doc} has no section '{key}'")
+            for heading, body in matching:
+                if stale(network):
+                    said(doc, heading, body, network, "its table")
+    return found
+
+
+def repository():
+    index = json.loads(INDEX.read_text())
+    files = {str(path.relative_to(DOCS)): json.loads(path.read_text())
+             for folder in RESULT_FOLDERS for path in sorted((DOCS / folder).glob("*.json"))
+             if path != INDEX}
+    docs = {name: (DOCS / name).read_text() for name in MARKDOWN}
+    return index, files, docs
+
+
+def test_every_table_describes_todays_network_or_says_which():
+    index, files, docs = repository()
+    assert problems(index, files, docs, network_hash()) == []
+    # the classification is not empty: today's network is one of the index's
+    assert network_hash() in {network_hash(n["config"]) for n in index["networks"].values()
+                              if n["config"] is not None}
+
+
+def test_a_table_of_another_network_fails_unless_it_says_so():
+    index, files, docs = repository()
+    today = network_hash()
+    # a new run's JSON stamped with a network nobody named
+    other = copy.deepcopy(files)
+    other["results/spot-shadow-seeds.json"]["provenance"] = {"network_hash": "0123456789ab"}
+    assert any("0123456789ab" in p for p in problems(index, other, docs, today))
+    # the same file stamped with today's network passes
+    other["results/spot-shadow-seeds.json"]["provenance"] = {"network_hash": today}
+    assert problems(index, other, docs, today) == []
+    # the sentence next to a stale table removed
+    cut = dict(docs, **{"results.md": re.sub("network before the normal field", "network",
+                                             docs["results.md"], flags=re.I)})
+    assert any("deformation-arm.json" in p for p in problems(index, files, cut, today))
+    # a stale file relabelled as today's: its model bytes give it away
+    relabelled = copy.deepcopy(index)
+    relabelled["files"]["results/deformation-arm.json"]["network"] = "own grid"
+    assert any("1,640,297 bytes" in p for p in problems(relabelled, files, docs, today))
+    # today's default network changes: every table of the old one is stale and unsaid
+    assert any("give that network a phrase" in p
+               for p in problems(index, files, docs, network_hash({"width": 128})))
+    # a file nobody classified
+    unlisted = dict(files, **{"results/new-study.json": {"rows": []}})
+    assert any("new-study.json" in p for p in problems(index, unlisted, docs, today))
+
+
+def test_results_md_names_every_files_network():
+    """The table at the top of docs/results.md: one row per results JSON, its network the
+    one provenance.json gives it (or its own record's)."""
+    index, files, docs = repository()
+    body = dict(sections(docs["results.md"]))[TABLE_HEADING]
+    rows = {cells[0].strip("` "): cells for cells in
+            ([c.strip() for c in line.strip().strip("|").split("|")]
+             for line in body.splitlines() if line.startswith("| `"))}
+    for name in (n for n in files if n.startswith("results/")):
+        assert name in rows, name
+        network = index["files"][name]["network"]
+        assert rows[name][4].startswith(index["networks"][network]["label"]), (name, rows[name])
