@@ -14,9 +14,10 @@ ray), the kernels skip the slots past the device's own counts, and the network a
 the empty slots and evaluates its point fields at every segment. A frame then reads its
 lanes' counts ceil(waves / N) times and its passes once, at the cost of the network run on
 that room rather than on the segments walked (``docs/performance.md``, CUDA). A wave holds
-at most ``limits.MAX_WAVE_SEGMENTS`` segments: beyond it a ray walks fewer segments, and past one per ray only part of the rays
-walk on (the walk pauses the others when the buffer is full); a ray's passes depend only on
-its own segments in walk order, so the split changes nothing but the number of waves.
+at most ``limits.MAX_WAVE_SEGMENTS`` segments: beyond it a ray walks fewer segments, and
+past one per ray only part of the rays walk on (the walk pauses the others when the buffer
+is full); a ray's passes depend only on its own segments in walk order, so the split
+changes nothing but the number of waves.
 
 On the CPU the rays are split into lanes, one per core (``threads.walk_lanes``): a Warp CPU
 launch runs on one thread, and so, at one torch thread, does a small batch's MLP. Each lane
