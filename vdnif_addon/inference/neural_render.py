@@ -5,11 +5,19 @@ Every ray keeps its walker state on the device (``kernels.walk.RayWalk``). A wav
 unresolved ray on by at most k segments (one kernel launch), the network evaluates the wave's
 segments in one batch, and a kernel places each ray's hit on its first candidate segment and
 makes it a hit at its first confident one (``kernels/render.py``), ending its walk; finished
-rays leave the list on the device. Only two counts per wave come back to the host, to size
-the next launch and the network batch. A wave holds at most ``limits.MAX_WAVE_SEGMENTS``
-segments: beyond it a ray walks fewer segments, and past one per ray only part of the rays
-walk on (the walk pauses the others when the buffer is full); a ray's passes depend only on
-its own segments in walk order, so the split changes nothing but the number of waves.
+rays leave the list on the device. Two counts per wave come back to the host, to size the
+network batch and the next launch, and the network reads which segments are candidates
+(``predict``): on CUDA each read waits for the queued work. With ``waves_per_read`` N > 1
+the host reads one count every N waves instead: in between, each launch and the network
+batch are sized by the count last read (a wave of k segments per ray gets room for k per
+ray), the kernels skip the slots past the device's own counts, and the network also answers
+the empty slots and evaluates its point fields at every segment. A frame then reads its
+lanes' counts ceil(waves / N) times and its passes once, at the cost of the network run on
+that room rather than on the segments walked (``docs/performance.md``, CUDA). A wave holds
+at most ``limits.MAX_WAVE_SEGMENTS`` segments: beyond it a ray walks fewer segments, and
+past one per ray only part of the rays walk on (the walk pauses the others when the buffer
+is full); a ray's passes depend only on its own segments in walk order, so the split
+changes nothing but the number of waves.
 
 On the CPU the rays are split into lanes, one per core (``threads.walk_lanes``): a Warp CPU
 launch runs on one thread, and so, at one torch thread, does a small batch's MLP. Each lane
@@ -74,8 +82,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   device: str | torch.device = "cpu", schedule: Sequence[int] = WAVE_SEGMENTS,
                   lanes: int | None = None,
                   max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
-                  max_distance: float | Float[np.ndarray, " N"] | None = None
-                  ) -> tuple[Passes, dict[str, Any]]:
+                  max_distance: float | Float[np.ndarray, " N"] | None = None,
+                  waves_per_read: int = 1) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
@@ -88,7 +96,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     ``lanes`` lanes at once (default ``threads.walk_lanes``). A wave walks at most
     ``max_wave_segments`` segments, its lanes' share each.
     ``max_distance`` ends the walk (``traverse``): a hit beyond it in the cell that crosses it
-    is still reported.
+    is still reported. ``waves_per_read`` is how many waves a lane renders between host
+    reads of its count (the module's docstring); the passes are the same at any value.
     Running out of memory is a VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
@@ -106,26 +115,28 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     lanes = threads.walk_lanes(device, rays) if lanes is None else lanes
     if lanes < 1:
         raise VDNIFError(f"a render walks at least one lane, not {lanes}")
+    if waves_per_read < 1:
+        raise VDNIFError(f"a render reads its counts every 1 or more waves, not {waves_per_read}")
     torch_threads = max(1, min(threads.RENDER_TORCH_THREADS, threads.cores() // lanes))
     with (out_of_memory("rendering", RENDER_ADVICE, CPU_RENDER_ADVICE), _device_stream(device),
           threads.torch_threads_at_most(torch_threads)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
         waves = _Waves(network, grid, walk, schedule, albedo_table,
-                       max(1, max_wave_segments // lanes))
+                       max(1, max_wave_segments // lanes), waves_per_read)
         share = max(1, threads.cores() // lanes)
         encoder = None if lanes == 1 else 1
         lane_stats = threads.at_once(lambda lane: _render_lane(waves, lane, share, encoder),
                                      lanes, "vdnif-lane")
-        stats = {"segments": sum(s["segments"] for s in lane_stats),
-                 "waves": max(s["waves"] for s in lane_stats),
+        stats = {"waves": max(s["waves"] for s in lane_stats),
                  **{name: sum(s[name] for s in lane_stats) / lanes
                     for name in ("walk_s", "network_s")}}
-        counter = wp.zeros(1, dtype=wp.int32, device=warp_device)
+        totals = waves.totals           # the truncated rays, then each lane's segments
         if rays:
             wp.launch(kernel.clear_misses, dim=rays, inputs=[waves.passes], device=warp_device)
             wp.launch(kernel.unresolved_truncated, dim=rays,
-                      inputs=[walk.state, waves.passes, counter], device=warp_device)
-        stats["truncated"] = int(counter.numpy()[0])
+                      inputs=[walk.state, waves.passes, totals], device=warp_device)
+        totals = totals.numpy()
+        stats["truncated"], stats["segments"] = int(totals[0]), int(totals[1:].sum())
         passes = waves.passes
         result = Passes(hit=passes.hit.numpy().astype(bool), distance=passes.distance.numpy(),
                         normal=passes.normal.numpy(), albedo=passes.albedo.numpy(),
@@ -137,19 +148,25 @@ def _render_lane(waves: _Waves, lane: int, cores: int, encoder: int | None
                  ) -> dict[str, float]:
     """Renders ``lane`` wave by wave (walk, network, resolve) until its rays are done, on
     this thread with ``cores`` cores of its own and its encoder split over ``encoder``
-    threads (``threads.lane_cores``); returns its segments, waves and the seconds it spent
-    walking and in the network (with the resolve)."""
-    stats = dict(segments=0, waves=0, walk_s=0.0, network_s=0.0)
+    threads (``threads.lane_cores``); returns its waves and the seconds it spent walking
+    and in the network (with the resolve). Its count is read every ``waves.per_read``
+    waves."""
+    stats = dict(waves=0, walk_s=0.0, network_s=0.0)
+    rays = waves.walk.lanes[lane]
     with threads.lane_cores(cores, encoder):
-        while waves.walk.lanes[lane].count:
-            clock = time.perf_counter()
-            count = waves.advance(lane)
-            walked = time.perf_counter()
-            waves.resolve(lane, count, waves.predict(lane, count))
-            stats["walk_s"] += walked - clock
-            stats["network_s"] += time.perf_counter() - walked
-            stats["segments"] += count
-            stats["waves"] += 1
+        while rays.count:
+            for _ in range(waves.per_read):
+                clock = time.perf_counter()
+                count = waves.advance(lane)
+                walked = time.perf_counter()
+                waves.resolve(lane, count, waves.predict(lane, count))
+                stats["walk_s"] += walked - clock
+                stats["network_s"] += time.perf_counter() - walked
+                stats["waves"] += 1
+                if not rays.count:
+                    break
+            if waves.per_read > 1:
+                waves.walk.read_count(lane)
     return stats
 
 
@@ -161,9 +178,10 @@ class _Waves:
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
-                 max_segments: int) -> None:
+                 max_segments: int, per_read: int = 1) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
-        self.device, self.max_segments = walk.device, max_segments
+        self.device, self.max_segments, self.per_read = walk.device, max_segments, per_read
+        self.totals = wp.zeros(1 + len(walk.lanes), dtype=wp.int32, device=self.device)
         self.passes = kernel.empty_passes(walk.rays, self.device)
         self.first = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32, device=self.device)
         self.candidate = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32,
@@ -177,7 +195,8 @@ class _Waves:
 
     def advance(self, lane: int) -> int:
         """Walks ``lane`` on by its next wave's k segments per ray, fewer where the wave would
-        pass ``max_segments``; returns how many segments it walked."""
+        pass ``max_segments``; returns how many segments it walked, read on the host, or
+        between reads (``per_read`` > 1) the room it gave them (the rest empty)."""
         rays = self.walk.lanes[lane].count
         per_wave = max(1, min(wave_segments(self.waves[lane], self.schedule),
                               self.max_segments // rays))
@@ -189,7 +208,11 @@ class _Waves:
                                  for dtype in (wp.vec3, wp.vec3, wp.float32)]
         buffer = self.buffers[lane]
         buffer.cursor.zero_()
-        count = self.walk.advance(buffer, per_wave, lane)
+        read = self.per_read == 1
+        count = self.walk.advance(buffer, per_wave, lane, read)
+        count = count if read else need
+        wp.launch(kernel.count_segments, dim=1, inputs=[buffer, self.totals, lane + 1],
+                  device=self.device)
         if count:
             wp.launch(kernel.network_inputs, dim=count,
                       inputs=[buffer, wp.vec3d(*self.grid.origin), wp.float64(self.grid.extent),
@@ -203,7 +226,10 @@ class _Waves:
         if not count:
             return None
         p0, p1, rest_length = (wp.to_torch(x)[:count] for x in self.inputs[lane])
-        prediction = self.network.predict(p0, p1, rest_length, self.grid.voxel_size)
+        # between reads, the candidates are not found on the host either
+        device_only = {} if self.per_read == 1 else {"select_candidates": False}
+        prediction = self.network.predict(p0, p1, rest_length, self.grid.voxel_size,
+                                          **device_only)
         has_albedo = "albedo" in prediction
         tensors = {"hit": prediction["hit"].to(torch.int32),
                    "candidate": prediction["candidate"].to(torch.int32),
@@ -231,11 +257,12 @@ class _Waves:
             wp.launch(kernel.first_hits, dim=count,
                       inputs=[buffer, view, self.first, self.candidate], device=self.device)
             wp.launch(kernel.resolve, dim=rays.count,
-                      inputs=[self.walk.cells.arrays, self.walk.state, rays.active, buffer,
-                              view, self.first, self.candidate, self.placed,
+                      inputs=[self.walk.cells.arrays, self.walk.state, rays.active,
+                              rays.active_count, buffer, view, self.first, self.candidate,
+                              self.placed,
                               int(has_albedo), self.passes],
                       device=self.device)
-        self.walk.drop_finished(lane)
+        self.walk.drop_finished(lane, read=self.per_read == 1)
 
 
 

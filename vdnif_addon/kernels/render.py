@@ -143,8 +143,14 @@ def network_inputs(out: SegmentBuffer, origin: wp.vec3d, extent: wp.float64,
                    p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
                    rest_length: wp.array(dtype=wp.float32)):
     """Segment end points normalized to the grid (``VoxelGrid.normalize``) and rest lengths,
-    in float32 for the network."""
+    in float32 for the network; zeros past the segments written (a launch sized on the host
+    before they were counted)."""
     s = wp.tid()
+    if s >= wp.min(out.cursor[0], out.capacity):
+        p0[s] = wp.vec3()
+        p1[s] = wp.vec3()
+        rest_length[s] = wp.float32(0.0)
+        return
     a = out.p0[s]
     b = out.p1[s]
     na = (a - origin) / extent
@@ -160,6 +166,8 @@ def first_hits(out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype
     """The earliest segment of each ray that the network says is hit, and the earliest
     candidate (a ray's segments take increasing slots in walk order)."""
     s = wp.tid()
+    if s >= wp.min(out.cursor[0], out.capacity):
+        return
     if prediction.candidate[s] != 0:
         wp.atomic_min(candidate, out.ray[s], s)
     if prediction.hit[s] != 0:
@@ -168,13 +176,17 @@ def first_hits(out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype
 
 @wp.kernel(module=WARP_MODULE)
 def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
-            out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype=wp.int32),
+            active_count: wp.array(dtype=wp.int32), out: SegmentBuffer,
+            prediction: Prediction, first: wp.array(dtype=wp.int32),
             candidate: wp.array(dtype=wp.int32), placed: wp.array(dtype=wp.int32),
             has_albedo: wp.int32, passes: Passes):
     """The hit is placed on a ray's first candidate segment, in this wave or an earlier one
     (``placed``), and made a hit, ending the walk, by its first segment above the occlusion
     threshold (a candidate too, so never before the placed one)."""
-    r = active[wp.tid()]
+    i = wp.tid()
+    if i >= active_count[0]:
+        return
+    r = active[i]
     c = candidate[r]
     s = first[r]
     if c == NO_HIT:
@@ -194,6 +206,13 @@ def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
     if s != NO_HIT:
         passes.hit[r] = 1
         rays.mode[r] = DONE
+
+
+@wp.kernel(module=WARP_MODULE)
+def count_segments(out: SegmentBuffer, totals: wp.array(dtype=wp.int32), index: wp.int32):
+    """Adds the segments written to ``out`` to ``totals[index]`` (one thread), on the
+    device."""
+    totals[index] = totals[index] + wp.min(out.cursor[0], out.capacity)
 
 
 @wp.kernel(module=WARP_MODULE)

@@ -225,8 +225,12 @@ class RayState:
 
 @wp.kernel(module=WARP_MODULE)
 def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
-              max_steps: wp.int32, per_wave: wp.int32, out: SegmentBuffer):
-    r = active[wp.tid()]
+              active_count: wp.array(dtype=wp.int32), max_steps: wp.int32,
+              per_wave: wp.int32, out: SegmentBuffer):
+    i = wp.tid()
+    if i >= active_count[0]:                # launched for more rays than are left
+        return
+    r = active[i]
     mode = rays.mode[r]
     if mode >= DONE:
         return
@@ -321,9 +325,13 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
 
 
 @wp.kernel(module=WARP_MODULE)
-def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32), keep: wp.array(
-        dtype=wp.int32), cursor: wp.array(dtype=wp.int32)):
-    r = active[wp.tid()]
+def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32),
+                   active_count: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32),
+                   cursor: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    if i >= active_count[0]:
+        return
+    r = active[i]
     if rays.mode[r] < DONE:
         keep[wp.atomic_add(cursor, 0, 1)] = r
 
@@ -335,11 +343,15 @@ def _count_truncated(rays: RayState, count: wp.array(dtype=wp.int32)):
 
 
 class Lane:
-    """A list of unfinished rays on the device (order kept on the CPU)."""
+    """A list of unfinished rays on the device (order kept on the CPU): the first
+    ``active_count[0]`` entries of ``active``. ``count`` is the host's copy of that count as
+    of its last read (``drop_finished(read=True)``): after a drop without a read it is an
+    upper bound, and launches over it skip the slots past the device's count."""
 
     def __init__(self, rays: Int[np.ndarray, " R"], device: str) -> None:
         self.active = wp.array(np.asarray(rays, np.int32), dtype=wp.int32, device=device)
         self._spare = wp.empty(len(rays), dtype=wp.int32, device=device)
+        self.active_count = wp.full(1, len(rays), dtype=wp.int32, device=device)
         self._cursor = wp.zeros(1, dtype=wp.int32, device=device)
         self.count = len(rays)
 
@@ -382,27 +394,42 @@ class RayWalk:
     def count(self) -> int:
         return sum(lane.count for lane in self.lanes)
 
-    def advance(self, out: SegmentBuffer, per_wave: int = UNLIMITED, lane: int = 0) -> int:
+    def advance(self, out: SegmentBuffer, per_wave: int = UNLIMITED, lane: int = 0,
+                read: bool = True) -> int | None:
         """Walks every unfinished ray of ``lane`` on until done, ``per_wave`` segments
         written, or ``out`` full; returns the number of segments now in ``out`` (written
-        from slot ``out.cursor``, which the caller zeroes)."""
+        from slot ``out.cursor``, which the caller zeroes), read on the host, or None with
+        ``read`` False (the count stays on the device: at most ``out.capacity``)."""
         rays = self.lanes[lane]
         if rays.count:
             wp.launch(walk_rays, dim=rays.count,
-                      inputs=[self.cells.arrays, self.state, rays.active, self.max_steps,
-                              per_wave, out], device=self.device)
+                      inputs=[self.cells.arrays, self.state, rays.active, rays.active_count,
+                              self.max_steps, per_wave, out], device=self.device)
+        if not read:
+            return None
         return min(int(out.cursor.numpy()[0]), out.capacity)
 
-    def drop_finished(self, lane: int = 0) -> int:
-        """Keeps only the unfinished rays in ``lane``; returns their count."""
+    def drop_finished(self, lane: int = 0, read: bool = True) -> int:
+        """Keeps only the unfinished rays in ``lane``; returns their count, read on the host,
+        or with ``read`` False the host's bound on it (``Lane.count``, unchanged)."""
         rays = self.lanes[lane]
         if rays.count:
             rays._cursor.zero_()
             wp.launch(_still_walking, dim=rays.count,
-                      inputs=[self.state, rays.active, rays._spare, rays._cursor],
+                      inputs=[self.state, rays.active, rays.active_count, rays._spare,
+                              rays._cursor],
                       device=self.device)
             rays.active, rays._spare = rays._spare, rays.active
-            rays.count = int(rays._cursor.numpy()[0])
+            rays.active_count, rays._cursor = rays._cursor, rays.active_count
+            if read:
+                rays.count = int(rays.active_count.numpy()[0])
+        return rays.count
+
+    def read_count(self, lane: int = 0) -> int:
+        """``lane``'s unfinished rays, read from the device into ``Lane.count``."""
+        rays = self.lanes[lane]
+        if rays.count:
+            rays.count = int(rays.active_count.numpy()[0])
         return rays.count
 
     def truncated(self) -> int:

@@ -153,6 +153,7 @@ class IntersectionNetwork(nn.Module):
         rest_len: Float[torch.Tensor, " batch"],
         voxel_size: float,
         batch: int = 2**14,
+        select_candidates: bool = True,
     ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
@@ -160,7 +161,9 @@ class IntersectionNetwork(nn.Module):
         autograd, ``batch`` segments at a time to bound memory. The point fields
         (``point_fields``) are read at each candidate segment's predicted hit,
         ``p0 + fraction (p1 - p0)`` (their heads are 0 on the other segments), once every
-        batch has its predictions; a field's normal is made unit as the head's is.
+        batch has its predictions; a field's normal is made unit as the head's is. Finding
+        the candidates reads the device on the host; with ``select_candidates`` False the
+        fields are evaluated at every segment instead and kept at the candidates, no read.
 
         On the CPU with more than one core (``threads.cores()``) the encoder of batch k+1
         runs in a worker thread (one core: a Warp CPU launch is serial and releases the GIL)
@@ -198,7 +201,21 @@ class IntersectionNetwork(nn.Module):
                     parts.append(predictions(index, features))
         result = {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
         fields = self.point_fields()
-        if fields:
+        if fields and not select_candidates:
+            candidate = result["candidate"].unsqueeze(1)
+            fraction = result["fraction"].to(p0.dtype).unsqueeze(1)
+            for name in fields:
+                parts = []
+                for start in range(0, len(p0), batch):
+                    rows = slice(start, start + batch)
+                    point = p0[rows] + fraction[rows] * (p1[rows] - p0[rows])
+                    with self._arithmetic(point.device):
+                        value = self.field_at(name, point)
+                    if name == "normal":
+                        value = F.normalize(value.float(), dim=1)
+                    parts.append(torch.where(candidate[rows], value.to(p0.dtype), 0))
+                result[name] = torch.cat(parts) if parts else p0.new_zeros(0, 3)
+        elif fields:
             # Only candidates can place a hit (hits are candidates too): most segments are
             # not, and skip the fields. They are found once, over every batch: finding them
             # reads the device on the host, and on CUDA that waits for all work queued.
