@@ -34,6 +34,7 @@ from ..pose_sets import (
 )
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
+from .scene_frame import at_frame, held
 
 REST_POSE = {"rest": True}
 # Frames closer than this are not distinct poses: Blender keeps the subframe as a float32
@@ -196,39 +197,28 @@ def _lattice_sampler(obj, modifier, spec):
     return sample
 
 
-_posing = []     # one entry per ``posed`` in progress
-
-
 def posing():
     """Whether the scene is being put in a pose (its frame changes are not the user's)."""
-    return bool(_posing)
+    return held()
 
 
 @contextlib.contextmanager
 def posed(pose):
     """Puts the scene in ``pose`` while inside; restores frame, bones and lattice after."""
-    scene = bpy.context.scene
-    frame = scene.frame_current, scene.frame_subframe
     restore = []
-    _posing.append(pose)
-    try:
-        whole = math.floor(pose["frame"])
-        scene.frame_set(int(whole), subframe=pose["frame"] - whole)
-        if "bones" in pose:
-            restore.append(_set_bones(pose["bones"]))
-        if "lattice" in pose:
-            restore.append(offset_lattice(pose["lattice"]))
-        if "deform" in pose:
-            restore.append(set_extreme(pose["deform"]))
-        bpy.context.view_layer.update()
-        yield
-    finally:
+    with at_frame(pose["frame"]):
         try:
+            if "bones" in pose:
+                restore.append(_set_bones(pose["bones"]))
+            if "lattice" in pose:
+                restore.append(offset_lattice(pose["lattice"]))
+            if "deform" in pose:
+                restore.append(set_extreme(pose["deform"]))
+            bpy.context.view_layer.update()
+            yield
+        finally:
             for undo in reversed(restore):
                 undo()
-            scene.frame_set(frame[0], subframe=frame[1])
-        finally:
-            _posing.pop()
 
 
 def _armature_of_bones(names):

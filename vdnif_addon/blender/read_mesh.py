@@ -13,6 +13,7 @@ from ..geometry.framing import framing
 from ..geometry.restmesh import Albedo, RestMesh
 from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
 from ..text import article
+from .scene_frame import at_frame
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
@@ -51,12 +52,10 @@ def deformers_disabled(obj, rest_frame=True):
     what moves over the frames (an animated shape key, a node tree's time) gives one rest
     for training, evaluation and the panel's renders alike (False: at the current frame, to
     compare a pose with its own stack undeformed)."""
-    from .poses import posed  # not at the top: poses imports this module
-
     scene = bpy.context.scene
     moved = rest_frame and (scene.frame_current, scene.frame_subframe) != (scene.frame_start, 0)
     modifiers = deform_modifiers(obj)
-    with posed({"frame": float(scene.frame_start)}) if moved else contextlib.nullcontext():
+    with at_frame(float(scene.frame_start)) if moved else contextlib.nullcontext():
         for modifier in modifiers:
             modifier.show_viewport = False
         bpy.context.view_layer.update()
