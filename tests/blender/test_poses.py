@@ -14,46 +14,54 @@ def frames_of(poses):
 
 
 def test_evaluation_frames_avoid_training_frames_whatever_the_counts(empty_scene, core):
+    """Training, development and test frames: all apart, whatever the three counts (the
+    evaluation sets need a finer step on this short range from about 47 frames on)."""
     poses = core("blender.poses")
     spacing = poses.MIN_FRAME_SPACING
     start, end = 1, 48
     for trained, evaluated in itertools.product(range(1, 25), repeat=2):
         training = frames_of(poses.frame_poses(start, end, trained))
-        frames = frames_of(poses.frame_poses(start, end, evaluated, training))
-        assert len(frames) == evaluated
-        assert np.all((frames >= start) & (frames <= end))
+        sets = [frames_of(poses.evaluation_frames(start, end, count, name, training))
+                for count, name in ((evaluated, "development"), (2 * evaluated, "test"))]
+        for count, frames in zip((evaluated, 2 * evaluated), sets):
+            assert len(frames) == count
+            assert np.all((frames >= start) & (frames <= end))
         # brute force: every pair of frames, training or evaluation, is apart
-        everything = np.concatenate([training, frames])
+        everything = np.concatenate([training, *sets])
         gaps = np.abs(everything[:, None] - everything[None, :])[
             ~np.eye(len(everything), dtype=bool)]
         assert gaps.min() >= spacing, (trained, evaluated)
-    # equal counts: half a step after each training frame (the last one stays in range)
+    # equal counts: a quarter frame after (development) and before (test) a whole frame
     training = frames_of(poses.frame_poses(1, 9, 4))
     assert training.tolist() == [2, 4, 6, 8]
-    assert frames_of(poses.frame_poses(1, 9, 4, training)).tolist() == [3, 5, 7, 8.5]
+    assert frames_of(poses.evaluation_frames(1, 9, 4, "development", training)).tolist() == [
+        2.25, 4.25, 6.25, 8.25]
+    assert frames_of(poses.evaluation_frames(1, 9, 4, "test", training)).tolist() == [
+        2.75, 4.75, 6.75, 8.75]
 
 
 def test_frames_that_cannot_be_apart_are_refused(empty_scene, core):
     poses, error = core("blender.poses"), core("errors").VDNIFError
     with pytest.raises(error, match=r"frame range 5..5 cannot hold 2 frames"):
         poses.frame_poses(5, 5, 2)
-    with pytest.raises(error, match=r"cannot hold 1 evaluation frames apart from the 1 "
+    with pytest.raises(error, match=r"cannot hold 1 test frames apart from the 1 "
                                     r"training frames"):
-        poses.frame_poses(5, 5, 1, [5.0])
+        poses.evaluation_frames(5, 5, 1, "test", [5.0])
     assert frames_of(poses.frame_poses(5, 5, 1)).tolist() == [5.0]   # one frame is fine
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
     scene = empty_scene
     scene.frame_start = scene.frame_end = 3
     spec = poses.PoseSpec(source="frames", count=1)
-    with pytest.raises(error, match=r"^'Box': the frame range 3..3 cannot hold 1 evaluation "
+    with pytest.raises(error, match=r"^'Box': the frame range 3..3 cannot hold 1 test "
                                     r"frames apart from the 1 training frames"):
         core("blender.steps").evaluation_poses(box, 8, spec)
 
 
 def test_evaluation_frames_avoid_the_frames_a_model_was_trained_on(empty_scene, core):
     """``evaluate`` knows the model's training frames, not their count: 3 trained frames,
-    evaluated on 9 (9 frames spread over the range include all 3)."""
+    evaluated on 9 (9 frames spread over the range include all 3; the range holds only 6
+    test frames at whole-frame steps, so they are at three quarters of half-frame steps)."""
     poses = core("blender.poses")
     box = sb.lattice_box((4, 2, 2), 0.5)
     sb.two_bone_rig(box)
@@ -65,8 +73,8 @@ def test_evaluation_frames_avoid_the_frames_a_model_was_trained_on(empty_scene, 
     spec = poses.PoseSpec(source="frames", count=9)
     evaluated = core("blender.steps").evaluation_poses(box, 8, spec, trained=trained)
     frames = frames_of(evaluated.poses)
-    assert len(frames) == 9 and np.abs(frames[:, None] - [2, 4, 6]).min() >= 0.3
-    assert np.diff(np.sort(frames)).min() > 0.1
+    assert len(frames) == 9 and np.abs(frames[:, None] - [2, 4, 6]).min() >= 0.125
+    assert np.diff(np.sort(frames)).min() == 0.5 and np.all((frames % 0.5) == 0.375)
 
 
 def test_random_evaluation_poses_are_drawn_again_where_they_repeat_training_poses(

@@ -78,9 +78,11 @@ def test_the_suggestion_is_the_knee_of_the_measured_curve(arm, core):
     suggestion = resolution.suggest_resolution(arm, spec, None, candidates, poses=1, size=24)
     table = suggestion.table
     assert [row["resolution"] for row in table] == [8, 16]
-    # The table's figures are reference_run's embedding errors at each resolution.
+    # The table's figures are reference_run's embedding errors at each resolution, on the
+    # development poses (a choice).
+    poses = core("blender.poses")
     capture = core("blender.capture_scene").capture(
-        arm, 16, core("blender.poses").PoseSpec(count=1), deform_corners=False)
+        arm, 16, poses.evaluation_spec(spec, 1, pose_set="development"), deform_corners=False)
     direct = core("posed.generate").reference_run(arm, capture, 24, 24)["embedded_vs_true"]
     assert table[1]["embedding_error"] == pytest.approx(direct["distance_mae"])
     assert table[1]["hit_mismatch"] == pytest.approx(1 - direct["hit_iou"])

@@ -237,8 +237,8 @@ def _topology_message(obj, rest, posed):
 
 def _changing_modifier(obj):
     """The first enabled modifier of ``obj`` after which the evaluated vertex or face count
-    in the current pose differs from the same stack's with the deform modifiers off (the
-    rest), or None: found by evaluating each part of the stack."""
+    in the current pose differs from the same stack's with the deform modifiers off in the
+    same frame, or None: found by evaluating each part of the stack."""
     enabled = [m for m in obj.modifiers if m.show_viewport]
     try:
         for end in range(1, len(enabled) + 1):
@@ -246,7 +246,7 @@ def _changing_modifier(obj):
                 modifier.show_viewport = index < end
             bpy.context.view_layer.update()
             posed = _counts(obj.evaluated_get(bpy.context.evaluated_depsgraph_get()))
-            with deformers_disabled(obj) as depsgraph:
+            with deformers_disabled(obj, rest_frame=False) as depsgraph:
                 rest = _counts(obj.evaluated_get(depsgraph))
             if posed != rest:
                 return enabled[end - 1]

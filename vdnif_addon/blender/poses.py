@@ -9,9 +9,10 @@ and with a ``PoseSpec.deform`` the extreme pose ``"deform": {"object", "kind", "
 restores the scene afterwards.
 
 Evaluation poses are disjoint from the training poses by construction (DESIGN section 4):
-``evaluation_spec`` names the training poses to avoid, frames are placed apart from the
-training frames and random poses that equal a training pose are drawn again; a request that
-cannot be met is refused.
+``evaluation_spec`` names the training poses to avoid and the pose set; development and test
+frames lie at different offsets in each step of the range (``evaluation_frames``), apart
+from the training frames, and random poses that equal a training pose are drawn again; a
+request that cannot be met is refused.
 """
 
 import contextlib
@@ -23,9 +24,17 @@ import numpy as np
 from mathutils import Euler
 
 from ..errors import VDNIFError
-from ..pose_sets import POSE_SETS, TEST_POSES, PoseSpec, pose_key
+from ..pose_sets import (
+    FRAME_HALVINGS,
+    FRAME_OFFSETS,
+    POSE_SETS,
+    TEST_POSES,
+    PoseSpec,
+    pose_key,
+)
 from .extremes import set_extreme
 from .rig import influencing_bones, lattice_cells, moving_lattice_points, offset_lattice
+from .scene_frame import at_frame, held
 
 REST_POSE = {"rest": True}
 # Frames closer than this are not distinct poses: Blender keeps the subframe as a float32
@@ -36,13 +45,14 @@ MIN_FRAME_SPACING = 1e-3
 def evaluation_spec(spec, count=None, trained=None, pose_set=TEST_POSES):
     """The pose spec for evaluating a model trained on the poses of ``spec``: ``count``
     poses (default ``spec.count``) of the named ``pose_set`` (``pose_sets.POSE_SETS``: its
-    own random seed; frames have none, so both sets of frames are the frames between the
-    training frames), disjoint from the training poses: ``trained`` (a model's stored
-    training poses) when given, else those ``spec`` chooses."""
+    own random seed; frames have none, so each set has its own frames, ``evaluation_frames``),
+    disjoint from the training poses: ``trained`` (a model's stored training poses) when
+    given, else those ``spec`` chooses."""
     if pose_set not in POSE_SETS:
         raise VDNIFError(f"unknown pose set '{pose_set}': choose one of "
                          f"{', '.join(POSE_SETS)}")
     return replace(spec, count=count or spec.count, seed=spec.seed + POSE_SETS[pose_set],
+                   pose_set=pose_set,
                    avoid=replace(spec, avoid=None) if trained is None else tuple(trained))
 
 
@@ -57,8 +67,11 @@ def make_poses(obj, modifiers, spec):
     extreme = {} if spec.deform is None else {"deform": spec.deform.pose_key(obj)}
     if spec.source == "frames":
         try:
-            frames = frame_poses(scene.frame_start, scene.frame_end, spec.count,
-                                 [p["frame"] for p in trained if _frame_only(p)])
+            frames = (frame_poses(scene.frame_start, scene.frame_end, spec.count)
+                      if spec.pose_set is None else
+                      evaluation_frames(scene.frame_start, scene.frame_end, spec.count,
+                                        spec.pose_set,
+                                        [p["frame"] for p in trained if _frame_only(p)]))
         except VDNIFError as exc:
             raise VDNIFError(f"'{obj.name}': {exc}") from None
         return [dict(pose, **extreme) for pose in frames]
@@ -89,36 +102,56 @@ def _frame_only(pose):
     return "frame" in pose and set(pose) <= {"frame", "deform"}
 
 
-def frame_poses(start, end, count, avoid=()):
-    """``count`` frames evenly spread over [start, end] (the centres of ``count`` equal
-    steps), at least MIN_FRAME_SPACING apart.
-
-    ``avoid``: frames of training poses. A frame that falls on one of them moves half-way
-    into the larger of the gaps beside that training frame (to the next training or
-    evaluation frame, or the end of the range), so the frames are disjoint from ``avoid``
-    by construction whatever the two counts; with equal counts that is half a step from each
-    training frame. Raises a VDNIFError when the range cannot hold them all apart.
-    """
+def frame_poses(start, end, count):
+    """The ``count`` training frames: the centres of ``count`` equal steps of [start, end],
+    at least MIN_FRAME_SPACING apart (else a VDNIFError)."""
     step = (end - start) / count
-    frames = [start + (i + 0.5) * step for i in range(count)]
-    avoid = sorted({float(frame) for frame in avoid})
-    for i, frame in enumerate(frames):
-        clash = [t for t in avoid if abs(t - frame) < MIN_FRAME_SPACING]
-        if not clash:
-            continue
-        t = clash[0]
-        others = avoid + frames[:i] + frames[i + 1:]
-        up = min([f for f in others if f > t + MIN_FRAME_SPACING] + [end])
-        down = max([f for f in others if f < t - MIN_FRAME_SPACING] + [start])
-        frames[i] = (t + up) / 2 if up - t >= t - down else (t + down) / 2
-    everything = np.sort(np.concatenate([frames, avoid]))
-    if len(everything) > 1 and np.diff(everything).min() < MIN_FRAME_SPACING:
-        held = (f"{count} frames" if not avoid else
-                f"{count} evaluation frames apart from the {len(avoid)} training frames")
-        raise VDNIFError(f"the frame range {start:g}..{end:g} cannot hold {held} at least "
-                         f"{MIN_FRAME_SPACING:g} frame apart: widen the range or ask for "
-                         "fewer poses")
-    return [{"frame": float(frame)} for frame in frames]
+    if count > 1 and step < MIN_FRAME_SPACING:
+        raise VDNIFError(f"the frame range {start:g}..{end:g} cannot hold {count} frames at "
+                         f"least {MIN_FRAME_SPACING:g} frame apart: widen the range or ask "
+                         "for fewer poses")
+    return [{"frame": float(start + (i + 0.5) * step)} for i in range(count)]
+
+
+def evaluation_frames(start, end, count, pose_set, avoid=()):
+    """``count`` frames of the evaluation set ``pose_set`` spread over [start, end].
+
+    Each set has its own frames (``pose_sets.FRAME_OFFSETS``): development frames a quarter
+    and test frames three quarters of a step after each step's beginning, counted from
+    ``start``, with steps of a frame, or of half a frame, a quarter and so on (at most
+    FRAME_HALVINGS halvings) where the range holds fewer than ``count`` of them (the coarsest
+    step that holds them). A frame's distance from ``start``, in units of the finest
+    quarter step, is then a power of two times an odd number, 4k + 1 for a development frame
+    and 4k + 3 for a test frame, whatever the step: the two sets never share a frame (nor,
+    being at least a quarter step apart, come closer than 1/512 frame). Those closer than
+    MIN_FRAME_SPACING to a training frame (``avoid``) are left out, and ``count`` of the rest
+    are taken evenly (the one in the middle of each of ``count`` equal runs of them), so
+    they cover the range. Raises a VDNIFError when even the finest step holds too few.
+    """
+    offset = FRAME_OFFSETS[pose_set]
+    avoid = np.sort(np.unique(np.asarray(avoid, np.float64)))
+    for halvings in range(FRAME_HALVINGS + 1):
+        step = 0.5 ** halvings
+        steps = max(math.floor((end - start) / step - offset) + 1, 0)
+        frames = start + (np.arange(steps) + offset) * step
+        if len(avoid):
+            frames = frames[_distance_to(avoid, frames) >= MIN_FRAME_SPACING]
+        if len(frames) >= count:
+            picked = frames[((np.arange(count) + 0.5) * len(frames) / count).astype(np.int64)]
+            return [{"frame": float(frame)} for frame in picked]
+    apart = f" apart from the {len(avoid)} training frames" if len(avoid) else ""
+    raise VDNIFError(f"the frame range {start:g}..{end:g} cannot hold {count} {pose_set} "
+                     f"frames{apart} (steps of 1/{2 ** FRAME_HALVINGS} frame at the finest): "
+                     "widen the range or ask for fewer poses")
+
+
+def _distance_to(sorted_frames, frames):
+    """Each of ``frames``' distance to the nearest of ``sorted_frames`` (non-empty)."""
+    if len(sorted_frames) == 1:
+        return np.abs(frames - sorted_frames[0])
+    after = np.clip(np.searchsorted(sorted_frames, frames), 1, len(sorted_frames) - 1)
+    return np.minimum(np.abs(frames - sorted_frames[after - 1]),
+                      np.abs(frames - sorted_frames[after]))
 
 
 def _bone_sampler(obj, modifier, spec):
@@ -164,39 +197,28 @@ def _lattice_sampler(obj, modifier, spec):
     return sample
 
 
-_posing = []     # one entry per ``posed`` in progress
-
-
 def posing():
     """Whether the scene is being put in a pose (its frame changes are not the user's)."""
-    return bool(_posing)
+    return held()
 
 
 @contextlib.contextmanager
 def posed(pose):
     """Puts the scene in ``pose`` while inside; restores frame, bones and lattice after."""
-    scene = bpy.context.scene
-    frame = scene.frame_current, scene.frame_subframe
     restore = []
-    _posing.append(pose)
-    try:
-        whole = math.floor(pose["frame"])
-        scene.frame_set(int(whole), subframe=pose["frame"] - whole)
-        if "bones" in pose:
-            restore.append(_set_bones(pose["bones"]))
-        if "lattice" in pose:
-            restore.append(offset_lattice(pose["lattice"]))
-        if "deform" in pose:
-            restore.append(set_extreme(pose["deform"]))
-        bpy.context.view_layer.update()
-        yield
-    finally:
+    with at_frame(pose["frame"]):
         try:
+            if "bones" in pose:
+                restore.append(_set_bones(pose["bones"]))
+            if "lattice" in pose:
+                restore.append(offset_lattice(pose["lattice"]))
+            if "deform" in pose:
+                restore.append(set_extreme(pose["deform"]))
+            bpy.context.view_layer.update()
+            yield
+        finally:
             for undo in reversed(restore):
                 undo()
-            scene.frame_set(frame[0], subframe=frame[1])
-        finally:
-            _posing.pop()
 
 
 def _armature_of_bones(names):

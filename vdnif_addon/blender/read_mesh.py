@@ -13,6 +13,7 @@ from ..geometry.framing import framing
 from ..geometry.restmesh import Albedo, RestMesh
 from ..limits import MAX_OBJECT_SIZE, MIN_OBJECT_SIZE
 from ..text import article
+from .scene_frame import at_frame
 
 DEFORM_MODIFIER_TYPES = ("ARMATURE", "LATTICE")
 DEFAULT_ALBEDO = (0.8, 0.8, 0.8)
@@ -45,18 +46,25 @@ def deform_modifiers(obj):
 
 
 @contextlib.contextmanager
-def deformers_disabled(obj):
-    """Evaluates ``obj`` in rest space while inside: deform modifiers switched off."""
+def deformers_disabled(obj, rest_frame=True):
+    """Evaluates ``obj`` at rest while inside (DESIGN section 4): deform modifiers switched
+    off, and with ``rest_frame`` at the scene's first frame, whatever frame it shows, so that
+    what moves over the frames (an animated shape key, a node tree's time) gives one rest
+    for training, evaluation and the panel's renders alike (False: at the current frame, to
+    compare a pose with its own stack undeformed)."""
+    scene = bpy.context.scene
+    moved = rest_frame and (scene.frame_current, scene.frame_subframe) != (scene.frame_start, 0)
     modifiers = deform_modifiers(obj)
-    for modifier in modifiers:
-        modifier.show_viewport = False
-    bpy.context.view_layer.update()
-    try:
-        yield bpy.context.evaluated_depsgraph_get()
-    finally:
+    with at_frame(float(scene.frame_start)) if moved else contextlib.nullcontext():
         for modifier in modifiers:
-            modifier.show_viewport = True
+            modifier.show_viewport = False
         bpy.context.view_layer.update()
+        try:
+            yield bpy.context.evaluated_depsgraph_get()
+        finally:
+            for modifier in modifiers:
+                modifier.show_viewport = True
+            bpy.context.view_layer.update()
 
 
 def evaluated_surface(obj, rest):
@@ -85,7 +93,8 @@ def evaluated_surface(obj, rest):
 
 
 def read_rest_mesh(obj):
-    """The rest mesh of ``obj``: evaluated with its deform modifiers disabled."""
+    """The rest mesh of ``obj``: evaluated at the scene's first frame with its deform
+    modifiers disabled (``deformers_disabled``)."""
     check_mesh_object(obj)
     with deformers_disabled(obj) as depsgraph:
         evaluated = obj.evaluated_get(depsgraph)

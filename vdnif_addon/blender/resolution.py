@@ -24,6 +24,7 @@ import dataclasses
 import math
 
 from ..kernels.thickness import thin_thickness, triangle_thickness
+from ..pose_sets import DEVELOPMENT_POSES
 from ..posed.generate import reference_run
 from ..posed.pose_source import CalledReader
 from ..settings import (
@@ -40,6 +41,7 @@ from ..settings import (
 from ..worker import DirectCalls
 from .capture_scene import capture
 from .pose_reader import PoseReader
+from .poses import evaluation_spec
 from .read_mesh import read_rest_mesh
 
 
@@ -162,8 +164,9 @@ def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
                        calls=DirectCalls()):
     """The Suggestion for mesh object ``obj``: each of ``candidates`` (ascending) from the
     floor's textured resolution on is measured (embedding error and hit mismatch of the
-    embedded against the true reference on ``poses`` poses of ``spec`` at ``size`` x
-    ``size``); the choice is their ``knee``, raised to the floor's thin-part resolution.
+    embedded against the true reference on ``poses`` development poses of the training
+    ``spec``, a choice like every other: ``pose_sets``, at ``size`` x ``size``); the choice
+    is their ``knee``, raised to the floor's thin-part resolution.
     ``target``: object units (default EMBEDDING_TARGET). ``floor``: a
     Floor, or a resolution below which nothing is tried (default ``resolution_floor``).
 
@@ -175,7 +178,7 @@ def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
         floor = Floor(textured=floor)
     candidates = considered(candidates, floor.textured)
     table = []
-    spec = dataclasses.replace(spec, count=min(spec.count, poses))
+    spec = evaluation_spec(spec, min(spec.count, poses), pose_set=DEVELOPMENT_POSES)
     for resolution in candidates:
         captured = calls.call(lambda: capture(obj, resolution, spec, deform_corners=False))
         reader = calls.call(lambda: PoseReader(obj, captured))
