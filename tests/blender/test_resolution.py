@@ -201,4 +201,5 @@ def test_the_procedural_lattice_holds_every_corner_of_a_flat_mesh(empty_scene, c
     table = core("blender.resolution").suggest_resolution(
         obj, spec, None, (16, 64), poses=2, size=48, floor=0).table
     coarse, fine = (row["embedding_error"] for row in table)
-    assert fine < 0.5 * coarse, table
+    # Held constant outside a lattice as thin as the slab, the corners gave 0.021 at both.
+    assert fine < 0.8 * coarse and fine < 0.01 * 0.02, table
