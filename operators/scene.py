@@ -89,6 +89,8 @@ def dataset_stages(context, obj):
 
     def chosen(obj, state):
         outcome(state)
+        if state.status != "completed":
+            return f"'{obj.name}': {state.message}; the previous dataset is kept"
         made["choice"] = state.result
         return f"'{obj.name}': {state.message}"
 
