@@ -181,7 +181,7 @@ def model_summary(metadata, path):
             "resolution": metadata.grid.resolution, "status": training.status,
             "steps": training.steps, "seconds": training.seconds,
             "validation": None if training.validation is None else dict(training.validation),
-            "bytes": os.path.getsize(path)}
+            "corners_follow": metadata.corners_follow, "bytes": os.path.getsize(path)}
 
 
 def _cache_path(data):

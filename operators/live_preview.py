@@ -94,8 +94,11 @@ def _renderer(obj, scene, session):
     device = settings.device_name(bpy.context)
     key = (settings.model_info, settings.model_path, width, height, device, settings.precision)
     if session.renderer is None or session.key != key:
-        resolution = settings.parsed("model_info")["resolution"]
-        captured = capture(obj, resolution, settings.pose_spec(1), deform_corners=False)
+        info = settings.parsed("model_info")
+        # the corners follow as the model's did (a summary kept before that was recorded
+        # lets the capture choose, as it chose then)
+        captured = capture(obj, info["resolution"], settings.pose_spec(1), deform_corners=False,
+                           follow=info.get("corners_follow"))
         session.renderer = PreviewRenderer(storage.model_path(obj), captured, device, width,
                                            height, precision=settings.precision)
         session.key = key

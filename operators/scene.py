@@ -74,11 +74,25 @@ def dataset_settings(obj):
             "rays_per_pose": settings.rays_per_pose}
 
 
-def dataset_stage(context, obj):
-    """Generates the object's dataset (``ui_jobs.dataset_job``): the poses are captured on
-    the main thread, walked in the worker; a cancel keeps the previous dataset. What it
+def dataset_stages(context, obj):
+    """Generates the object's dataset (``ui_jobs.dataset_job``) after choosing how its
+    corners follow it (``ui_jobs.follow_job``, measured in a worker): the poses are captured
+    on the main thread, walked in the worker; a cancel keeps the previous dataset. What it
     records is what it was made with, whatever the settings became meanwhile."""
     name, made = obj.name, {}
+
+    def choose():
+        from ..vdnif_addon.blender.ui_jobs import follow_job
+
+        settings = bpy.data.objects[name].vdnif
+        return follow_job(bpy.data.objects[name], settings.resolution, settings.pose_spec())
+
+    def chosen(obj, state):
+        outcome(state)
+        if state.status != "completed":
+            return f"'{obj.name}': {state.message}; the previous dataset is kept"
+        made["choice"] = state.result
+        return f"'{obj.name}': {state.message}"
 
     def make():
         from ..vdnif_addon.blender.capture_scene import capture
@@ -91,7 +105,7 @@ def dataset_stage(context, obj):
 
         claim_folder(made["folder"], "dataset folder")   # new, empty or VDNIF's: the rule
         captured = capture(obj, settings.resolution, settings.pose_spec(),
-                           deform_corners=False)
+                           deform_corners=False, follow=made["choice"].follow)
         return dataset_job(obj, captured, made["settings"]["variant"], made["folder"],
                            settings.rays_per_pose, settings.seed)
 
@@ -110,10 +124,13 @@ def dataset_stage(context, obj):
             "poses": len(state.result.poses), "rays": counts.rays,
             "segments": counts.segments, "hits": counts.hits, "bytes": size,
             "settings": recorded})
+        choice = made["choice"]
         return (f"'{obj.name}': {counts.segments:,} segments of {counts.rays:,} rays, "
-                f"{size / 1e6:.1f} MB -> {settings.dataset_dir}")
+                f"{size / 1e6:.1f} MB -> {settings.dataset_dir}; corners follow: "
+                f"{choice.follow}" + (f" (chosen in {choice.seconds:.1f} s)" if choice.errors
+                                      else ""))
 
-    return Stage(make, finish)
+    return [Stage(choose, chosen, undo=False), Stage(make, finish)]
 
 
 class VDNIF_OT_generate_dataset(JobOperator, bpy.types.Operator):
@@ -125,7 +142,7 @@ class VDNIF_OT_generate_dataset(JobOperator, bpy.types.Operator):
     needs = ("mesh", "torch", "idle")
 
     def stages(self, context, obj):
-        return [dataset_stage(context, obj)]
+        return dataset_stages(context, obj)
 
 
 classes = (VDNIF_OT_voxelize, VDNIF_OT_suggest_resolution, VDNIF_OT_generate_dataset)

@@ -9,7 +9,7 @@ from bpy.props import BoolProperty
 
 from .. import storage, viewer
 from .running import JobOperator, Stage, handed_over, outcome
-from .scene import dataset_settings, dataset_stage
+from .scene import dataset_settings, dataset_stages
 
 
 def needs_dataset(obj):
@@ -130,7 +130,7 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
     replace_loaded: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
 
     def stages(self, context, obj):
-        first = [dataset_stage(context, obj)] if needs_dataset(obj) else []
+        first = dataset_stages(context, obj) if needs_dataset(obj) else []
         return first + [training_stage(context, obj)]
 
     def invoke(self, context, event):

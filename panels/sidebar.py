@@ -214,6 +214,8 @@ class VDNIF_PT_training(StepPanel, bpy.types.Panel):
             lines(layout, f"Model: {storage.model_location(obj)}", "FILE")
             lines(layout, f"{info['variant']} at resolution {info['resolution']}, "
                           f"{info['status']} after {info['steps']} steps")
+            if "corners_follow" in info:        # kept before it was recorded: not known here
+                lines(layout, f"corners follow: {info['corners_follow']}")
             validation = info.get("validation")
             if validation:
                 lines(layout, "held-out poses: distance error "

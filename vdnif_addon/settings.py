@@ -72,6 +72,10 @@ RESOLUTION_CANDIDATES = (8, 12, 16, 24, 32, 48, 64, 96, 128)
 KNEE_MARGIN, KNEE_TOLERANCE = 0.5, {"distance": 5e-5, "hit_mismatch": 2e-3}
 EMBEDDING_TARGET, THIN_PART_VOXELS, THIN_PART_SHARE = 2e-4, 2.0, 0.01
 SUGGEST_POSES, SUGGEST_VIEW_SIZE = 4, 96
+# How the corners of an armature or lattice rig follow it (``blender/follow_choice.py``):
+# the surface binding replaces the copied modifiers only where its embedding error on the
+# suggestion's poses and view is below theirs by FOLLOW_MARGIN (relative) and KNEE_TOLERANCE.
+FOLLOW_MARGIN = 0.5
 
 # --------------------------------------------------------------------------- secondary rays
 # Ambient occlusion: AO_SAMPLES rays per pixel (standard error at most 0.125, directions from

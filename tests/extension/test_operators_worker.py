@@ -115,7 +115,8 @@ def test_generate_dataset_in_a_worker_and_cancel_keeps_the_previous(trained, mon
     generate = module("operators.scene").VDNIF_OT_generate_dataset
     with monkeypatch.context() as patched:
         held_after_first_pose(patched)
-        result, status, reports = modal_run(generate, "Arm", lambda state: state.count >= 1)
+        result, status, reports = modal_run(
+            generate, "Arm", lambda state: state.title == "dataset" and state.count >= 1)
     assert result == {"FINISHED"} and "previous dataset is kept" in reports[0][1]
     assert {path.name: path.read_bytes() for path in folder.iterdir()} == before
     assert obj.vdnif.dataset_info == info

@@ -24,6 +24,7 @@ from ..settings import DEFAULT_PRECISION
 from ..training.fit import fit_model
 from ..training.history import plot
 from .capture_scene import capture
+from .follow_choice import choose_follow
 from .image_io import save_image
 from .poses import REST_POSE, evaluation_spec
 
@@ -45,20 +46,31 @@ def variant_capture(captured, variant, rays_per_pose):
     return captured, rays_per_pose
 
 
+def training_capture(obj, resolution, spec, say=None):
+    """The capture a model of ``obj`` trains on (corners left to per-pose work), its
+    corners following as ``follow_choice.choose_follow`` measures best; ``say(line)``
+    hears the choice and its seconds where there was one to make."""
+    choice = choose_follow(obj, resolution, spec)
+    if say is not None and choice.errors:
+        say(choice.describe())
+    return capture(obj, resolution, spec, deform_corners=False, follow=choice.follow)
+
+
 def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None,
-                     pose_set=TEST_POSES):
+                     pose_set=TEST_POSES, follow=None):
     """A capture of ``obj`` (corners left to per-pose work) whose ``count`` poses (default
     ``spec.count``) are evaluation poses of ``pose_set`` (``pose_sets.POSE_SETS``) disjoint
     from the training poses (``trained``, a model's stored training poses, else those of the
-    training ``spec``), or ``count`` views of the rest pose with ``rest``. A request that
-    cannot be disjoint raises a VDNIFError naming the object (``poses.make_poses``)."""
+    training ``spec``), or ``count`` views of the rest pose with ``rest``; its corners
+    follow as ``follow`` says (the model's: ``capture``). A request that cannot be
+    disjoint raises a VDNIFError naming the object (``poses.make_poses``)."""
     count = count or spec.count
     if rest:
         captured = capture(obj, resolution, dataclasses.replace(spec, count=1),
-                           deform_corners=False)
+                           deform_corners=False, follow=follow)
         return dataclasses.replace(captured, poses=[REST_POSE] * count)
     return capture(obj, resolution, evaluation_spec(spec, count, trained, pose_set),
-                   deform_corners=False)
+                   deform_corners=False, follow=follow)
 
 
 def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
@@ -68,15 +80,18 @@ def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
     ``neural.load_scene_model`` refuses unless it is the model's), corners left to per-pose
     work. Its poses: one of ``spec``, for rendering, or with ``evaluation`` ``count``
     evaluation poses (default ``spec.count``) of ``pose_set`` disjoint from the model's
-    training poses, or views of the rest pose with ``rest`` (``evaluation_poses``). Without a model
-    (``metadata`` None) ``resolution`` is required and the poses avoid those of ``spec``."""
+    training poses, or views of the rest pose with ``rest`` (``evaluation_poses``). The corners
+    follow as the model's did (its ``corners_follow``). Without a model (``metadata`` None)
+    ``resolution`` is required, the poses avoid those of ``spec`` and the corners follow as
+    ``deform.check_deformers`` chooses."""
     resolution = resolution or metadata.grid.resolution
+    follow = None if metadata is None else metadata.corners_follow
     if not evaluation:
         return capture(obj, resolution, dataclasses.replace(spec, count=1),
-                       deform_corners=False)
+                       deform_corners=False, follow=follow)
     trained = None if metadata is None else list(metadata.train_poses)
     return evaluation_poses(obj, resolution, spec, rest=rest, count=count, trained=trained,
-                            pose_set=pose_set)
+                            pose_set=pose_set, follow=follow)
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,

@@ -174,3 +174,19 @@ def suggestion_job(obj, spec, target, floor, candidates):
 
     return WorkerJob("suggestion", len(tried), "resolutions", work, live=DirectCalls,
                      feed=MainCalls(cancel), cancel=cancel)
+
+
+def follow_job(obj, resolution, spec):
+    """Chooses how the corners of ``obj`` follow it in training at ``resolution`` on the
+    poses of ``spec`` (``follow_choice.choose_follow``): each capture and pose is read on
+    the main thread when the worker asks for it. Result: the FollowChoice."""
+    from .follow_choice import choose_follow
+
+    cancel = threading.Event()
+
+    def work(calls, progress, _deliver):
+        choice = choose_follow(obj, resolution, spec, calls=calls, progress=progress)
+        return choice.describe(), choice
+
+    return WorkerJob("corners", 2, "ways", work, live=DirectCalls, feed=MainCalls(cancel),
+                     cancel=cancel)

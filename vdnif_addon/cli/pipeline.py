@@ -62,7 +62,7 @@ def cmd_dataset(args):
     """Generate a training dataset shard: walked segments with their ground truth."""
     import tempfile
 
-    from ..blender.capture_scene import capture
+    from ..blender.steps import training_capture
     from ..blender.ui_jobs import SHARD_SUFFIXES
     from ..memory import check_disk
     from ..posed.estimate import dataset_estimate, describe, measure, size_text
@@ -79,7 +79,7 @@ def cmd_dataset(args):
     if args.rays_per_pose < 1:
         raise VDNIFError(f"rays per pose {args.rays_per_pose} must be at least 1")
     obj, spec = load_posed_scene(args)
-    result = capture(obj, args.resolution, spec, deform_corners=False)
+    result = training_capture(obj, args.resolution, spec, say=_say(f"dataset '{obj.name}'"))
     pose_range = parse_range(args.pose_range, len(result.poses))
     check_folder(args.out, DatasetIdentity(result.mesh.name, args.seed,        # before work
                                            grid_header(result.grid)))
@@ -238,8 +238,7 @@ def _train_on_scene(args):
     """Capture, dataset (into --data, or a temporary folder) and training in one go."""
     import tempfile
 
-    from ..blender.capture_scene import capture
-    from ..blender.steps import train_variant
+    from ..blender.steps import train_variant, training_capture
 
     if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):
         raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
@@ -250,7 +249,7 @@ def _train_on_scene(args):
         note_input(kept, f"the model that '{obj.name}' keeps in its .blend, which")
         if args.out is not None:
             check_output_file(args.out, "--out", "model")
-    captured = capture(obj, args.resolution, spec, deform_corners=False)
+    captured = training_capture(obj, args.resolution, spec, say=_say(f"train '{obj.name}'"))
     variant = _variant(args, obj.name, captured.mode == "static")
     out = args.out or pathlib.Path("out") / f"{file_stem(obj.name.lower())}-{variant}.vdnif"
     check_output_file(out, "--out", "model")
@@ -261,6 +260,11 @@ def _train_on_scene(args):
               f"rays per pose -> {args.data or 'a temporary folder'}", file=sys.stderr)
         return train_variant(obj, captured, variant, folder, args.rays_per_pose, out,
                              network_overrides(args), args.seed, progress=report_training)
+
+
+def _say(subject):
+    """A line's printer to stderr, beginning with ``subject``."""
+    return lambda line: print(f"{subject}: {line}", file=sys.stderr, flush=True)
 
 
 def _kept_model(obj):

@@ -9,7 +9,6 @@ import tempfile
 
 import bpy
 
-from ..blender.capture_scene import capture
 from ..blender.lights import scene_light
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
@@ -18,6 +17,7 @@ from ..blender.steps import (
     evaluate_file,
     evaluation_poses,
     train_variant,
+    training_capture,
     write_passes,
     write_training_plot,
 )
@@ -58,7 +58,9 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     obj = demo_scene(scene)
     spec = stress(obj, PoseSpec(count=size["poses"]))
     resolution = size["resolution"] or recipe_resolution(obj)
-    captured = capture(obj, resolution, spec, deform_corners=False)
+    captured = training_capture(obj, resolution, spec,
+                                say=lambda line: print(f"demo: '{obj.name}': {line}",
+                                                       file=sys.stderr))
     variant, note = choose_variant(None, captured.mode == "static")
     if note is not None:
         print(f"demo: '{obj.name}': {note}", file=sys.stderr)
@@ -69,7 +71,7 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
         _, summary = train_variant(obj, captured, variant, folder, size["rays_per_pose"],
                                    model, overrides, progress=progress)
     evaluated = evaluation_poses(obj, resolution, spec, count=size["eval_poses"],
-                                 pose_set=TEST_POSES)
+                                 pose_set=TEST_POSES, follow=captured.corners_follow)
     width, height = size["width"], size["height"]
     secondary = SecondarySettings(light=scene_light(bpy.context.scene, obj))
     report, views = evaluate_file(obj, evaluated, model, width, height, device,

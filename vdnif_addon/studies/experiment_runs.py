@@ -10,11 +10,15 @@ import sys
 
 import numpy as np
 
-from ..blender.capture_scene import capture
 from ..blender.image_io import save_image
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
-from ..blender.steps import evaluate_file, evaluation_poses, variant_dataset
+from ..blender.steps import (
+    evaluate_file,
+    evaluation_poses,
+    training_capture,
+    variant_dataset,
+)
 from ..inference import images
 from ..inference.evaluation import REFERENCES, compare_common, concatenated, distance_range
 from ..model.variants import variant_config
@@ -64,6 +68,7 @@ class Experiment:
         self.device, self.progress, self.scenes = device, progress, scenes
         self.suffix = suffix
         self.resolutions = {}   # scene object's name -> voxel resolution it ran at
+        self.follows = {}       # scene object's name -> how its corners followed in training
 
     def overrides(self, extra=None, seed=0):
         return dict(self.size["overrides"], steps=self.size["steps"], device=self.device,
@@ -77,7 +82,10 @@ class Experiment:
     def scene(self, name):
         """(object, training capture) of a demo scene."""
         obj = demo_scene(name)
-        return obj, capture(obj, self.resolution(obj), self.spec, deform_corners=False)
+        captured = training_capture(obj, self.resolution(obj), self.spec,
+                                    say=lambda line: self.say(f"'{obj.name}': {line}"))
+        self.follows[obj.name] = captured.corners_follow
+        return obj, captured
 
     def resolution(self, obj):
         """The size's voxel resolution, or the recipe's for ``obj``'s mesh."""
@@ -89,7 +97,8 @@ class Experiment:
         """Test poses (``pose_sets.POSE_SETS``: the reported tables choose nothing) disjoint
         from the training poses, or views of the rest pose."""
         return evaluation_poses(obj, self.resolution(obj), self.spec, rest=rest,
-                                count=self.size["eval_poses"], pose_set=TEST_POSES)
+                                count=self.size["eval_poses"], pose_set=TEST_POSES,
+                                follow=self.follows.get(obj.name))
 
     def evaluate(self, obj, evaluated, model, viewpoints=None, seen=False):
         return evaluate_file(obj, evaluated, model, self.size["width"], self.size["height"],

@@ -221,6 +221,10 @@ def read_dataset(folder: str | os.PathLike) -> tuple[Dataset, list[Shard]]:
                                                                headers[0].albedo_table):
             raise VDNIFError(f"shard '{path}' has other heads or albedo table than "
                              f"'{paths[0].name}'")
+        if headers and header.corners_follow != headers[0].corners_follow:
+            raise VDNIFError(f"shard '{path}' was made with corners that follow the mesh "
+                             f"as {header.corners_follow}, '{paths[0].name}' as "
+                             f"{headers[0].corners_follow}: make every shard one way")
         headers.append(header)
     _check_overlap(paths, headers)
     shards = []

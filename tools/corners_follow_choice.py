@@ -1,0 +1,82 @@
+"""How the voxel corners of armature and lattice rigs follow them in training: the embedding
+error (embedded against true reference: distance MAE in object units, hit mismatch) of the
+copied modifiers and of the surface binding on the development poses the choice is made on
+(``blender/follow_choice.py``), the choice, and its seconds, on the arm and lattice demo
+scenes and a flat slab in a lattice fitted tightly around it (``tests/support/
+thin_lattice.py``), each at the recipe's resolution. Writes JSON and prints the Markdown
+table; no network is trained.
+
+    python tools/corners_follow_choice.py --json docs/results/corners-follow-choice.json
+"""
+
+import argparse
+import json
+import os
+import pathlib
+import platform
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "support")]
+
+import bpy  # noqa: E402  isort: skip  (Blender's modules come with it)
+from thin_lattice import thin_lattice_slab  # noqa: E402
+
+from vdnif_addon.blender.follow_choice import choose_follow  # noqa: E402
+from vdnif_addon.blender.resolution import recipe_resolution  # noqa: E402
+from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
+from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
+from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
+from vdnif_addon.settings import SUGGEST_POSES, SUGGEST_VIEW_SIZE  # noqa: E402
+
+SCENES = {"arm (armature)": lambda: demo_scene("arm"),
+          "lattice (Suzanne)": lambda: demo_scene("lattice"),
+          "slab in a tightly fitted lattice": thin_lattice_slab}
+
+
+def measure(name, build):
+    """One row: the scene's choice at the recipe's resolution, as training makes it."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    obj = build()
+    resolution = recipe_resolution(obj)
+    load = os.getloadavg()[0]
+    choice = choose_follow(obj, resolution, PoseSpec())
+    return {"scene": name, "resolution": resolution, "errors": choice.errors,
+            "chosen": choice.follow, "seconds": choice.seconds, "load_before": load}
+
+
+def markdown(rows):
+    def cell(row, follow):
+        figures = row["errors"][follow]
+        return (f"{figures['embedding_error']:.2g} ({100 * figures['hit_mismatch']:.2g} %)")
+
+    lines = ["| rig | resolution | copied modifiers | surface binding | chosen | seconds |",
+             "| --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| {row['scene']} | {row['resolution']} | {cell(row, ARMATURE_COPY)} | "
+              f"{cell(row, EVALUATED_SURFACE)} | {row['chosen']} | {row['seconds']:.1f} |"
+              for row in rows]
+    return "\n".join(lines)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--json", required=True, type=pathlib.Path)
+    args = parser.parse_args()
+    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
+                if line.startswith("model name")), platform.processor())
+    rows = [measure(name, build) for name, build in SCENES.items()]
+    results = {"command": " ".join(["python", *sys.argv]), "cpu": cpu,
+               "cpus": os.cpu_count(), "blender": bpy.app.version_string,
+               "poses": SUGGEST_POSES, "view": SUGGEST_VIEW_SIZE,
+               "note": "seconds on a machine shared with other sessions' work (loaded; "
+                       "load_before: the 1-minute load average before each scene)",
+               "rows": rows}
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(results, indent=1) + "\n")
+    print(markdown(rows))
+
+
+if __name__ == "__main__":
+    main()
+    sys.stdout.flush()
+    os._exit(0)     # past bpy's audio teardown, which can hang at exit (tests/conftest.py)

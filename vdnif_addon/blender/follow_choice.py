@@ -1,0 +1,103 @@
+"""How the voxel corners of a mesh follow it in the poses it trains on: the copied armature
+and lattice modifiers, or the surface binding (``deform``), chosen by the embedding error
+each gives on development poses.
+
+Where the armature and lattice modifiers are all that deform the mesh, both ways apply. The
+copies deform the corners exactly as Blender deforms the mesh, except where Blender itself
+does not deform the corners as the mesh around them: a lattice as thin as the mesh holds
+every corner outside its box still while the mesh inside bends (a flat plate in a lattice
+fitted to it keeps an embedding error of 0.002 object units at every resolution). The
+binding moves the corners with the nearest surface instead. Both are measured as the
+suggested resolution is (``resolution``: the embedded against the true reference of a few
+development poses at a small view, distance MAE in object units and hit mismatch), and the
+copies are kept unless the binding is better by a margin (``FOLLOW_MARGIN``, relative, and
+``KNEE_TOLERANCE``, the measurement's noise): a tie keeps them. Anything else that deforms
+the mesh leaves the binding alone (``deform.check_deformers``), measured nothing.
+"""
+
+import dataclasses
+import time
+
+from ..geometry.capture import ARMATURE_COPY, CORNERS_FOLLOW, EVALUATED_SURFACE
+from ..pose_sets import DEVELOPMENT_POSES
+from ..posed.generate import reference_run
+from ..posed.pose_source import CalledReader
+from ..settings import FOLLOW_MARGIN, KNEE_TOLERANCE, SUGGEST_POSES, SUGGEST_VIEW_SIZE
+from ..worker import DirectCalls
+from .capture_scene import capture
+from .deform import check_deformers
+from .pose_reader import PoseReader
+from .poses import evaluation_spec
+from .read_mesh import check_mesh_object, deform_modifiers
+
+
+@dataclasses.dataclass(frozen=True)
+class FollowChoice:
+    """How the corners follow (``follow``, one of ``CORNERS_FOLLOW``), the measured
+    ``errors`` ({follow: {"embedding_error": object units, "hit_mismatch": share}}; empty
+    where only one way applies) and the ``seconds`` the choice took."""
+
+    follow: str
+    errors: dict
+    seconds: float
+
+    def describe(self):
+        """One line: the choice and the figures it was made on."""
+        if not self.errors:
+            return f"corners follow: {self.follow} (the only way that applies)"
+        figures = ", ".join(
+            f"{name} {_figure(row['embedding_error'])} ({_figure(row['hit_mismatch'], 100)} "
+            "% hit mismatch)" for name, row in self.errors.items())
+        return (f"corners follow: {self.follow} (embedding error on development poses: "
+                f"{figures}; {self.seconds:.1f} s)")
+
+
+def _figure(value, scale=1):
+    return "none" if value is None else f"{value * scale:.2g}"
+
+
+def better(surface, copy, margin=FOLLOW_MARGIN, tolerance=KNEE_TOLERANCE):
+    """Whether the binding's figures ``surface`` beat the copies' ``copy`` (rows
+    {embedding_error, hit_mismatch}): its distance error below the copies' by the relative
+    ``margin`` and the absolute ``tolerance["distance"]``, and its hit mismatch no worse
+    than theirs beyond ``tolerance["hit_mismatch"]``. A missing figure never beats."""
+    if None in (surface["embedding_error"], copy["embedding_error"]):
+        return False
+    closer = (surface["embedding_error"] * (1 + margin) + tolerance["distance"]
+              < copy["embedding_error"])
+    hits = (surface["hit_mismatch"] is not None and copy["hit_mismatch"] is not None
+            and surface["hit_mismatch"] <= copy["hit_mismatch"] + tolerance["hit_mismatch"])
+    return closer and hits
+
+
+def choose_follow(obj, resolution, spec, poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE,
+                  calls=DirectCalls(), progress=None):
+    """The FollowChoice for mesh object ``obj`` trained at ``resolution`` on the poses of
+    ``spec``: measured on ``poses`` development poses (``pose_sets.DEVELOPMENT_POSES``)
+    at ``size`` x ``size`` where both ways apply (module docstring). ``calls``: how Blender
+    is read (in this thread, or from a worker on the main thread: ``worker.MainCalls``);
+    ``progress(done, total)`` after each way measured."""
+    start = time.perf_counter()
+    only, rigged = calls.call(lambda: (check_mesh_object(obj), check_deformers(obj),
+                                       bool(deform_modifiers(obj)))[1:])
+    if only != ARMATURE_COPY or not rigged:
+        return FollowChoice(only, {}, time.perf_counter() - start)
+    development = evaluation_spec(spec, min(spec.count, poses), pose_set=DEVELOPMENT_POSES)
+    errors = {}
+    for follow in CORNERS_FOLLOW:
+        captured = calls.call(lambda: capture(obj, resolution, development,
+                                              deform_corners=False, follow=follow))
+        reader = calls.call(lambda: PoseReader(obj, captured))
+        try:
+            report = reference_run(CalledReader(calls, reader), captured, size, size)
+        finally:
+            calls.call(reader.close, always=True)
+        figures = report["embedded_vs_true"]
+        iou = figures["hit_iou"]
+        errors[follow] = {"embedding_error": figures["distance_mae"],
+                          "hit_mismatch": None if iou is None else 1.0 - iou}
+        if progress is not None:
+            progress(len(errors), len(CORNERS_FOLLOW))
+    chosen = (EVALUATED_SURFACE if better(errors[EVALUATED_SURFACE], errors[ARMATURE_COPY])
+              else ARMATURE_COPY)
+    return FollowChoice(chosen, errors, time.perf_counter() - start)
