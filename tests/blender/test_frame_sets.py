@@ -118,6 +118,7 @@ def test_evaluation_takes_test_frames_and_choices_development_frames(empty_scene
     class Metadata:                     # what model_capture reads of a model file
         train_poses = training
         grid = type("Grid", (), {"resolution": 8})
+        corners_follow = core("geometry.capture").ARMATURE_COPY
 
     for metadata in (Metadata, None):
         drawn = {}
