@@ -87,15 +87,21 @@ def test_the_standard_view_transform_at_known_codes():
 
 def test_image_errors_counted_by_hand():
     reference = np.full((10, 3), srgb_inverse(100))
-    assert compare_shaded(reference, reference) == {
-        "shaded_psnr": math.inf, "shaded_visible_rate": 0.0, "shaded_pixels": 10}
+    assert compare_shaded(reference, reference) == {           # equal: the 100 dB floor
+        "shaded_psnr": 100.0, "shaded_psnr_8bit": 100.0, "shaded_visible_rate": 0.0,
+        "shaded_pixels": 10}
     predicted = reference.copy()
     predicted[3, 1] = srgb_inverse(103)           # three steps: seen
     predicted[7, 0] = srgb_inverse(102)           # two steps: not seen
     result = compare_shaded(predicted, reference)
     mse = ((3 / 255) ** 2 + (2 / 255) ** 2) / 30
     assert result["shaded_visible_rate"] == pytest.approx(0.1)
-    assert result["shaded_psnr"] == pytest.approx(10 * math.log10(1 / mse))
+    assert result["shaded_psnr_8bit"] == pytest.approx(10 * math.log10(1 / mse))
+    linear = ((srgb_inverse(103) - srgb_inverse(100)) ** 2
+              + (srgb_inverse(102) - srgb_inverse(100)) ** 2) / 30
+    assert result["shaded_psnr"] == pytest.approx(10 * math.log10(1 / linear))
+    # above the display's white both clip to it: no error, as the user sees none
+    assert compare_shaded(np.full((2, 3), 5.0), np.full((2, 3), 1.5))["shaded_psnr"] == 100.0
     pixels = np.zeros(10, bool)
     pixels[[3, 4]] = True
     assert compare_shaded(predicted, reference, pixels)["shaded_visible_rate"] == 0.5

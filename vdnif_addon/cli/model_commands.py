@@ -115,7 +115,8 @@ def cmd_render(args):
     print(f"rendered '{obj.name}' at {shown} through {view}, {args.width}x{args.height}: "
           f"{hits} hit pixels, {speed:,.0f} rays/s -> {args.out}")
     if secondary is not None:
-        print(f"  ambient occlusion and shadow: light {figures[0]['secondary']['light']}")
+        print(f"  ambient occlusion, shadow and shaded: light "
+              f"{figures[0]['secondary']['light']}")
     return 0
 
 
@@ -149,11 +150,13 @@ def cmd_evaluate(args):
             report["figures"] = {name: str(path) for name, path in write_figures(
                 args.out, view, args.height, args.width, captured.mesh.size).items()}
             scale, secondary = DistanceScale(), view.get("secondary", {})
+            shaded = view.get("shaded", {})
             scale(view["predicted"], view["true"])   # prediction and reference on one scale
             report["passes"] = [str(path) for name in ("predicted", "true") for path in
                                 write_passes(args.out, view[name], args.height, args.width,
                                              prefix="" if name == "predicted" else "true-",
-                                             secondary=secondary.get(name), scale=scale)]
+                                             secondary=secondary.get(name), scale=scale,
+                                             shaded=shaded.get(name))]
         write_json(args.json, report)
     print_evaluation(report)
     print(f"  verdict against the mesh: {verdict(report['vs_true'])}")
@@ -183,7 +186,8 @@ def add_commands(commands):
     render = _model_command(commands, "render", cmd_render, (
         "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
-        "Normal, DiffCol, IndexMA, alpha in Combined; AO and Shadow with --secondary) and "
+        "Normal, DiffCol, IndexMA, alpha in Combined; AO, Shadow and Shaded with "
+        "--secondary) and "
         "render.json into --out."))
     when = render.add_mutually_exclusive_group()
     when.add_argument("--frame", type=float, metavar="F", help="the timeline frame to pose the "

@@ -95,12 +95,15 @@ class Light:
 
 @dataclass(frozen=True)
 class SecondarySettings:
-    """AO rays per pixel, their reach in object units, the light, the directions' seed."""
+    """AO rays per pixel, their reach in object units, the light, the directions' seed, and
+    the shaded pass's ``lighting`` (a ``shading.Lighting`` whose light is ``light``; None:
+    its default strength, colour and world with ``light``)."""
 
     samples: int = AO_SAMPLES
     distance: float = AO_DISTANCE
     light: Light = field(default_factory=Light)
     seed: int = SECONDARY_SEED
+    lighting: Any = None
 
     def __post_init__(self) -> None:
         low, high = BOUNDS["ao_samples"]
@@ -110,6 +113,16 @@ class SecondarySettings:
         if not (np.isfinite(self.distance) and low <= self.distance <= high):
             raise VDNIFError(f"AO distance {self.distance} must be in {low:g}..{high:g} "
                              "object units")
+        if self.lighting is not None and self.lighting.light != self.light:
+            raise VDNIFError(f"the shaded pass's light {self.lighting.light.source} is not "
+                             f"the shadow rays' {self.light.source}")
+
+    def shading(self) -> Any:
+        """The shaded pass's ``shading.Lighting``: ``lighting``, or the defaults with the
+        shadow rays' light."""
+        from .shading import Lighting
+
+        return Lighting(light=self.light) if self.lighting is None else self.lighting
 
     def describe(self, network_offset: float | None = None,
                  object_size: float = 1.0) -> dict[str, Any]:
@@ -123,7 +136,8 @@ class SecondarySettings:
                    else {"network_offset": network_offset / object_size}),
                 "light": light.source,
                 "light_direction": None if light.direction is None else list(light.direction),
-                "light_position": None if light.position is None else list(light.position)}
+                "light_position": None if light.position is None else list(light.position),
+                **self.shading().describe()}
 
 
 # The walked paths end each ray at its max distance (``traverse``): the cell that crosses it
