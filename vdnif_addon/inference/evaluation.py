@@ -22,7 +22,7 @@ from .images import (
     shaded_error,
 )
 from .metrics import common_pixels, compare, compare_secondary, speed_withheld
-from .shading import compare_shaded, shadow_split
+from .shading import compare_shaded, in_band, shadow_split
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -144,15 +144,17 @@ def compare_secondary_both(views: dict[str, SecondaryPasses],
 
 def compare_shaded_both(shaded: dict[str, Float[np.ndarray, "R 3"]],
                         secondary: dict[str, SecondaryPasses],
-                        bands: dict[str, Bool[np.ndarray, " R"]]) -> dict[str, Metrics]:
+                        cosines: dict[str, Float[np.ndarray, " R"]], band: float
+                        ) -> dict[str, Metrics]:
     """{"vs_true": ..., "vs_embedded": ...}: the shaded prediction against each reference
     shaded alike (``shading.compare_shaded`` over every pixel: a hole shows the world where
     the reference shows the surface), and the shadow rates from the network's own hits
-    split at the reference's terminator band (``shading.shadow_split``); ``shaded``,
-    ``secondary`` and ``bands``: {"predicted", "true", "embedded": ...} of the same rays."""
+    split at the reference's terminator band |N.L| < ``band`` (``shading.shadow_split``);
+    ``shaded``, ``secondary`` and ``cosines`` (``shading.light_cosines``): {"predicted",
+    "true", "embedded": ...} of the same rays."""
     return {f"vs_{name}": {**compare_shaded(shaded["predicted"], shaded[name]),
                            **shadow_split(secondary["predicted"], secondary[name],
-                                          bands[name])}
+                                          in_band(cosines[name], band))}
             for name in REFERENCES}
 
 

@@ -119,31 +119,38 @@ def hit_points(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, 
     return points, normal
 
 
-def light_band(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],
-               passes: Passes, lighting: Lighting, width: float) -> Bool[np.ndarray, " R"]:
-    """(R,) bool: the hits of ``passes`` in the terminator band |N.L| < ``width``
-    (``terminator_band``), towards ``lighting``'s light from each hit; False on a miss."""
-    band = np.zeros(len(passes.hit), bool)
+def light_cosines(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],
+                  passes: Passes, lighting: Lighting) -> Float[np.ndarray, " R"]:
+    """(R,) float32 N.L of each hit of ``passes``: its normal turned towards the primary
+    ray's origin, towards ``lighting``'s light from the hit; NaN on a miss. The terminator
+    band is |N.L| < a width (``terminator_band``)."""
+    cosine = np.full(len(passes.hit), np.nan, np.float32)
     if passes.hit.any():
         points, normal = hit_points(origins, directions, passes)
         towards, _ = lighting.light.towards(points)
-        band[passes.hit] = terminator_band(normal, directions[passes.hit], towards, width)
-    return band
+        cosine[passes.hit] = (normal * towards).sum(1)
+    return cosine
+
+
+def in_band(cosines: Float[np.ndarray, " R"], width: float) -> Bool[np.ndarray, " R"]:
+    """(R,) bool: the hits whose ``light_cosines`` lie in the terminator band |N.L| <
+    ``width``; False on a miss."""
+    return np.abs(np.nan_to_num(cosines, nan=np.inf)) < width
 
 
 def shaded_views(primaries: dict[str, Passes], secondary: dict[str, SecondaryPasses],
                  origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],
-                 lighting: Lighting, width: float
+                 lighting: Lighting
                  ) -> tuple[dict[str, Float[np.ndarray, "R 3"]],
-                            dict[str, Bool[np.ndarray, " R"]]]:
-    """({name: shaded image (R, 3)}, {name: terminator band (R,)}) of each primary pass
+                            dict[str, Float[np.ndarray, " R"]]]:
+    """({name: shaded image (R, 3)}, {name: ``light_cosines`` (R,)}) of each primary pass
     ``primaries`` (the prediction and the references, over the same rays) with its own
     secondary passes ``secondary[name]``: one shading for every one of them."""
     images = {name: shade(origins, directions, passes, secondary[name], lighting)
               for name, passes in primaries.items()}
-    bands = {name: light_band(origins, directions, passes, lighting, width)
-             for name, passes in primaries.items()}
-    return images, bands
+    cosines = {name: light_cosines(origins, directions, passes, lighting)
+               for name, passes in primaries.items()}
+    return images, cosines
 
 
 def display_8bit(linear: Float[np.ndarray, "... 3"]) -> np.ndarray:

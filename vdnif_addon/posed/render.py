@@ -101,10 +101,10 @@ class RenderResult:
     secondary: dict = None
     matrix_world: np.ndarray = None    # (4, 4) the object's world matrix in the pose
     # with ``secondary``: {"predicted", "true", "embedded": (R, 3) shaded image} of each
-    # primary pass with its own secondary passes, and {same: (R,) its hits in the
-    # terminator band} (``shading.shaded_views``)
+    # primary pass with its own secondary passes, and {same: (R,) N.L of its hits, NaN on a
+    # miss} (``shading.shaded_views``)
     shaded: dict = None
-    bands: dict = None
+    cosines: dict = None
 
 
 def render_rays(obj, capture, model, pose, origins, directions, references=False,
@@ -230,7 +230,8 @@ def render_view(model, posed_object, geometry, view, width, height, references=F
         for name, image in result.shaded.items():
             kept = getattr(result, name).hit
             result.shaded[name] = np.where(kept[:, None], image, world).astype(np.float32)
-            result.bands[name] = result.bands[name] & kept
+            result.cosines[name] = np.where(kept, result.cosines[name], np.nan).astype(
+                np.float32)
     return result
 
 
@@ -273,7 +274,8 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
             views.append({name: getattr(result, name).with_slots(capture.mesh.material_slots)
                           for name in ("predicted", "true", "embedded")})
             if secondary is not None:
-                views[-1].update(secondary=result.secondary, shaded=result.shaded)
+                views[-1].update(secondary=result.secondary, shaded=result.shaded,
+                                 cosines=result.cosines)
             if progress is not None:
                 progress(index + 1, len(poses))
     joined = concatenated(views)
@@ -316,17 +318,18 @@ def _secondary_report(report, results, settings, network_offset, object_size):
     ``report``."""
     joined = {name: SecondaryPasses.concatenate([r.secondary[name] for r in results])
               for name in results[0].secondary}
-    shaded, bands = ({name: np.concatenate([getattr(r, field)[name] for r in results])
-                      for name in results[0].shaded} for field in ("shaded", "bands"))
+    shaded, cosines = ({name: np.concatenate([getattr(r, field)[name] for r in results])
+                        for name in results[0].shaded} for field in ("shaded", "cosines"))
     for reference, metrics in compare_secondary_both(joined).items():
         report[reference].update(metrics)
-    for reference, metrics in compare_shaded_both(shaded, joined, bands).items():
+    for reference, metrics in compare_shaded_both(shaded, joined, cosines,
+                                                  TERMINATOR_BAND).items():
         report[reference].update(metrics)
     for row, result in zip(report["per_pose"], results):
         for reference, metrics in compare_secondary_both(result.secondary).items():
             row[reference].update(metrics)
         for reference, metrics in compare_shaded_both(result.shaded, result.secondary,
-                                                      result.bands).items():
+                                                      result.cosines, TERMINATOR_BAND).items():
             row[reference].update(metrics)
     report["secondary"] = dict(settings.describe(network_offset, object_size),
                                terminator_band=TERMINATOR_BAND)
@@ -386,8 +389,8 @@ def _render_secondary(result, model, posed_object, geometry, origins, directions
         primaries.update(true=result.true, embedded=result.embedded)
     result.secondary = secondary_views(primaries, origins, directions, occluders, mesh.size,
                                        settings, offset)
-    result.shaded, result.bands = shaded_views(primaries, result.secondary, origins,
-                                               directions, settings.shading(), TERMINATOR_BAND)
+    result.shaded, result.cosines = shaded_views(primaries, result.secondary, origins,
+                                                 directions, settings.shading())
     result.timings.update(secondary_rays=stats.get("rays", 0),
                           secondary_s=stats.get("seconds", 0.0))
 
