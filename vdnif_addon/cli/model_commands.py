@@ -8,6 +8,7 @@ from .. import declarations as declared
 from ..inference.metrics import verdict
 from ..pose_sets import POSE_SETS, TEST_POSES
 from .options import (
+    SHADED_HELP,
     add_image_options,
     add_pose_options,
     add_scene_options,
@@ -176,7 +177,7 @@ def _model_command(commands, name, run, notes):
     add_image_options(parser, name)
     add_setting(parser, declared.DEVICE, name)
     add_setting(parser, declared.PRECISION, name)
-    add_secondary_options(parser, name)
+    add_secondary_options(parser, name, SHADED_HELP)
     parser.set_defaults(run=run)
     return parser
 

@@ -176,8 +176,10 @@ def add_capture_options(parser, command):
     add_pose_options(parser, command)
 
 
-SECONDARY_HELP = ("also the ambient-occlusion, shadow and shaded passes (light: the scene's "
-                  "first sun or point light, else a default direction)")
+SECONDARY_HELP = ("also the ambient-occlusion and shadow passes (light: the scene's first sun "
+                  "or point light, else a default direction)")
+SHADED_HELP = ("also the ambient-occlusion, shadow and shaded passes (light: the scene's "
+               "first sun or point light, else a default direction; ambient: its world)")
 
 
 def add_secondary_options(parser, command, secondary_help=SECONDARY_HELP):
