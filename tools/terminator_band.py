@@ -6,7 +6,8 @@ shadow flips among them (lit in one, shadowed in the other, from each one's own 
 flips that a small normal error makes gather where |N.L| is near 0, the terminator; the
 cast shadows' flips spread over every angle. Prints the table and, per candidate band width
 w, the share of the flips inside |N.L| < w and the false lit and false shadow rates of the
-cast shadows outside it (``shading.shadow_split``); ``--json`` writes them.
+cast shadows outside it (``shading.shadow_split``); ``--json`` writes them with evaluate's
+own report and the load average.
 
     python vdnif_addon/batch.py -- train --scene spot --out out/spot.vdnif
     python tools/terminator_band.py --model out/spot.vdnif --scene spot --poses 8 \\
@@ -84,11 +85,14 @@ def main():
               f"{100 * row['pixels_inside']:12.1f} % {_percent(row['shadow_false_lit_rate_cast'])}"
               f" {_percent(row['shadow_false_shadow_rate_cast'])}")
     if known.json is not None:
+        import os
+
         known.json.write_text(json.dumps({"object": report["object"],
                                           "pose_set": args.pose_set, "poses": report["poses"],
                                           "width": report["width"],
                                           "height": report["height"], "model": str(args.model),
-                                          **table}, indent=1))
+                                          "load": os.getloadavg(), **table,
+                                          "report": report}, indent=1))
 
 
 def _percent(share):

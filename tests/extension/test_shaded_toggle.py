@@ -56,7 +56,7 @@ def add_light(kind, energy, colour, location=(0.0, 0.0, 5.0)):
     return light
 
 
-def test_shaded_alone_casts_the_rays_it_is_made_of_lit_by_the_scene(empty_scene):
+def test_shaded_alone_casts_the_rays_it_is_made_of_lit_by_the_scene(empty_scene, core):
     obj = mesh_object(scale=2.0)
     settings = obj.vdnif
     secondary_settings = module("operators.passes").secondary_settings
@@ -66,7 +66,7 @@ def test_shaded_alone_casts_the_rays_it_is_made_of_lit_by_the_scene(empty_scene)
     assert module("viewer").secondary_names(settings) == ("shaded",)
     cast = secondary_settings(bpy.context, obj)
     assert cast is not None, "Shaded needs the AO and shadow rays"
-    lighting = cast.shading()
+    lighting = core("inference.shading").settings_lighting(cast)
     assert lighting.world == (0.0, 0.0, 0.0), "an empty scene has no world: no ambient"
     assert cast.light.source == "the default direction"
     add_light("POINT", 250.0, (1.0, 0.5, 0.25))
@@ -76,7 +76,7 @@ def test_shaded_alone_casts_the_rays_it_is_made_of_lit_by_the_scene(empty_scene)
     background.inputs["Color"].default_value = (0.1, 0.2, 0.3, 1.0)
     background.inputs["Strength"].default_value = 2.0
     empty_scene.world = world
-    lighting = secondary_settings(bpy.context, obj).shading()
+    lighting = core("inference.shading").settings_lighting(secondary_settings(bpy.context, obj))
     assert lighting.light.source == "point light 'POINT'"
     np.testing.assert_allclose(lighting.light.position, (0.0, 0.0, 2.5))    # local: / 2
     assert lighting.strength == 250.0 and lighting.unit_scale == pytest.approx(2.0)
@@ -84,5 +84,6 @@ def test_shaded_alone_casts_the_rays_it_is_made_of_lit_by_the_scene(empty_scene)
     np.testing.assert_allclose(lighting.world, (0.2, 0.4, 0.6), rtol=1e-6)
     world.use_nodes = False
     world.color = (0.05, 0.06, 0.07)
-    np.testing.assert_allclose(secondary_settings(bpy.context, obj).shading().world,
-                               (0.05, 0.06, 0.07), rtol=1e-6)
+    np.testing.assert_allclose(
+        core("inference.shading").settings_lighting(secondary_settings(bpy.context, obj)).world,
+        (0.05, 0.06, 0.07), rtol=1e-6)

@@ -117,13 +117,6 @@ class SecondarySettings:
             raise VDNIFError(f"the shaded pass's light {self.lighting.light.source} is not "
                              f"the shadow rays' {self.light.source}")
 
-    def shading(self) -> Any:
-        """The shaded pass's ``shading.Lighting``: ``lighting``, or the defaults with the
-        shadow rays' light."""
-        from .shading import Lighting
-
-        return Lighting(light=self.light) if self.lighting is None else self.lighting
-
     def describe(self, network_offset: float | None = None,
                  object_size: float = 1.0) -> dict[str, Any]:
         """The settings as the JSON reports state them, with the offsets in object units:
@@ -136,8 +129,7 @@ class SecondarySettings:
                    else {"network_offset": network_offset / object_size}),
                 "light": light.source,
                 "light_direction": None if light.direction is None else list(light.direction),
-                "light_position": None if light.position is None else list(light.position),
-                **self.shading().describe()}
+                "light_position": None if light.position is None else list(light.position)}
 
 
 # The walked paths end each ray at its max distance (``traverse``): the cell that crosses it

@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import VDNIFError
 from ..passes import Passes, SecondaryPasses
 from .metrics import PSNR_FLOOR_MSE
-from .secondary import Light
+from .secondary import Light, SecondarySettings
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -73,6 +73,12 @@ class Lighting:
         ``SecondarySettings.describe``)."""
         return {"light_strength": self.strength, "light_colour": list(self.colour),
                 "world_colour": list(self.world), "unit_scale": self.unit_scale}
+
+
+def settings_lighting(settings: SecondarySettings) -> Lighting:
+    """The shaded pass's ``Lighting`` of the secondary rays' ``settings``: theirs, or the
+    default strength, colour and world with their light."""
+    return Lighting(light=settings.light) if settings.lighting is None else settings.lighting
 
 
 def irradiance(lighting: Lighting, points: Float[np.ndarray, "N 3"]

@@ -26,7 +26,7 @@ from ..inference.secondary import (
     neural_occluded,
     secondary_views,
 )
-from ..inference.shading import shaded_views
+from ..inference.shading import settings_lighting, shaded_views
 from ..kernels.cast import MeshCaster
 from ..passes import Passes, SecondaryPasses
 from ..pose_sets import pose_key
@@ -226,7 +226,7 @@ def render_view(model, posed_object, geometry, view, width, height, references=F
             hit=kept, ao=np.where(kept, passes.ao, 0).astype(passes.ao.dtype),
             lit=passes.lit & kept, facing=passes.facing & kept)
     if result.shaded is not None:             # a hit beyond the clip end shows the world
-        world = np.asarray(secondary.shading().world, np.float32)
+        world = np.asarray(settings_lighting(secondary).world, np.float32)
         for name, image in result.shaded.items():
             kept = getattr(result, name).hit
             result.shaded[name] = np.where(kept[:, None], image, world).astype(np.float32)
@@ -332,6 +332,7 @@ def _secondary_report(report, results, settings, network_offset, object_size):
                                                       result.cosines, TERMINATOR_BAND).items():
             row[reference].update(metrics)
     report["secondary"] = dict(settings.describe(network_offset, object_size),
+                               **settings_lighting(settings).describe(),
                                terminator_band=TERMINATOR_BAND)
     rays = sum(r.timings["secondary_rays"] for r in results)
     seconds = sum(r.timings["secondary_s"] for r in results)
@@ -390,7 +391,7 @@ def _render_secondary(result, model, posed_object, geometry, origins, directions
     result.secondary = secondary_views(primaries, origins, directions, occluders, mesh.size,
                                        settings, offset)
     result.shaded, result.cosines = shaded_views(primaries, result.secondary, origins,
-                                                 directions, settings.shading())
+                                                 directions, settings_lighting(settings))
     result.timings.update(secondary_rays=stats.get("rays", 0),
                           secondary_s=stats.get("seconds", 0.0))
 
