@@ -6,8 +6,9 @@ shadow flips among them (lit in one, shadowed in the other, from each one's own 
 flips that a small normal error makes gather where |N.L| is near 0, the terminator; the
 cast shadows' flips spread over every angle. Prints the table and, per candidate band width
 w, the share of the flips inside |N.L| < w and the false lit and false shadow rates of the
-cast shadows outside it (``shading.shadow_split``); ``--json`` writes them with evaluate's
-own report and the load average.
+cast shadows outside it (``shading.shadow_split``), and what the visibly different shaded
+pixels are (``visible_parts``); ``--json`` writes them with evaluate's own report and the load
+average.
 
     python vdnif_addon/batch.py -- train --scene spot --out out/spot.vdnif
     python tools/terminator_band.py --model out/spot.vdnif --scene spot --poses 8 \\
@@ -25,7 +26,12 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
-from vdnif_addon.inference.shading import in_band, shadow_split  # noqa: E402
+from vdnif_addon.inference.shading import (  # noqa: E402
+    VISIBLE_STEP,
+    display_8bit,
+    in_band,
+    shadow_split,
+)
 from vdnif_addon.passes import SecondaryPasses  # noqa: E402
 
 BIN = 0.025
@@ -56,6 +62,21 @@ def band_table(cosines, predicted: SecondaryPasses, reference: SecondaryPasses,
             "widths": rows}
 
 
+def visible_parts(shaded, hits, secondary) -> dict:
+    """Of the pixels whose shaded values differ visibly (``shading.compare_shaded``'s rule),
+    the shares over every pixel where the hit masks differ (a hole or an extra), where both
+    hit and the shadow flips, and where both hit with the same shadow (the normal's, the
+    albedo's and the AO's errors): {"mask", "shadow_flip", "same_shadow"}."""
+    steps = np.abs(display_8bit(shaded["predicted"]).astype(np.int16)
+                   - display_8bit(shaded["true"]).astype(np.int16)).max(-1)
+    visible = steps > VISIBLE_STEP
+    both = hits["predicted"] & hits["true"]
+    flip = both & (secondary["predicted"].lit != secondary["true"].lit)
+    return {"mask": float((visible & (hits["predicted"] != hits["true"])).mean()),
+            "shadow_flip": float((visible & flip).mean()),
+            "same_shadow": float((visible & both & ~flip).mean())}
+
+
 def main():
     own = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], add_help=False)
     own.add_argument("--json", type=pathlib.Path, help="write the tables here")
@@ -72,6 +93,15 @@ def main():
     table = band_table(np.concatenate([v["cosines"]["true"] for v in views]),
                        *(SecondaryPasses.concatenate([v["secondary"][name] for v in views])
                          for name in ("predicted", "true")))
+    names = ("predicted", "true")
+    table["visible"] = visible_parts(
+        {name: np.concatenate([v["shaded"][name] for v in views]) for name in names},
+        {name: np.concatenate([v[name].hit for v in views]) for name in names},
+        {name: SecondaryPasses.concatenate([v["secondary"][name] for v in views])
+         for name in names})
+    print(f"visible steps: {100 * report['vs_true']['shaded_visible_rate']:.2f} % of the "
+          "pixels: " + ", ".join(f"{name.replace('_', ' ')} {100 * share:.2f} %"
+                                 for name, share in table["visible"].items()))
     print(f"{report['object']}: {table['flips']:,} shadow flips of {table['pixels']:,} "
           f"pixels where both hit, {args.pose_set} poses")
     print("  |N.L| bin      pixels  flips  flip rate")
