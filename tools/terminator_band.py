@@ -35,7 +35,7 @@ from vdnif_addon.inference.shading import (  # noqa: E402
 from vdnif_addon.passes import SecondaryPasses  # noqa: E402
 
 BIN = 0.025
-WIDTHS = (0.0, 0.025, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3)
+WIDTHS = (0.0, 0.025, 0.05, 0.075, 0.1, 0.15, 0.175, 0.2, 0.3)
 
 
 def band_table(cosines, predicted: SecondaryPasses, reference: SecondaryPasses,
