@@ -87,3 +87,14 @@ def test_shaded_alone_casts_the_rays_it_is_made_of_lit_by_the_scene(empty_scene,
     np.testing.assert_allclose(
         core("inference.shading").settings_lighting(secondary_settings(bpy.context, obj)).world,
         (0.05, 0.06, 0.07), rtol=1e-6)
+
+
+def test_the_live_preview_shows_the_shaded_image_as_the_user_sees_it(core):
+    rng = np.random.default_rng(4)
+    passes = random_passes(core, rng)
+    shaded = rng.uniform(0.0, 1.5, (len(passes.hit), 3))
+    shown = core("posed.preview").images(passes, HEIGHT, WIDTH, shaded=shaded)["shaded"]
+    codes = core("inference.shading").display_8bit(shaded).reshape(HEIGHT, WIDTH, 3)
+    np.testing.assert_allclose(shown[..., :3], codes / 255.0, rtol=1e-6)
+    np.testing.assert_array_equal(shown[..., 3], passes.hit.reshape(HEIGHT, WIDTH))
+    assert "shaded" not in core("posed.preview").images(passes, HEIGHT, WIDTH)
