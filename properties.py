@@ -88,6 +88,11 @@ class VDNIFSettings(bpy.types.PropertyGroup):
         description="Shadow towards the scene's first sun or point light: Render Passes, Render "
                     "Animation and Evaluate cast shadow rays too and write the Shadow pass into "
                     "each frame's EXR")
+    pass_shaded: BoolProperty(
+        name="Shaded", default=False,
+        description="The albedo lit by the scene's first sun or point light and its world: "
+                    "Render Passes, Render Animation and Evaluate cast the AO and shadow rays "
+                    "it is made of and write the Shaded pass into each frame's EXR")
     dataset_dir: StringProperty(name="Dataset Folder", subtype="DIR_PATH",
                                 options={"PATH_SUPPORTS_BLEND_RELATIVE"},
                                 description="Where the training examples are written. Empty: "
@@ -198,7 +203,10 @@ _PASS_TEXT = {"normal": "Which way the surface faces (normal)",
               "ao": "Ambient occlusion: the share of rays from the surface that meet nothing "
                     "within the AO distance (rendered while its pass toggle is on)",
               "shadow": "Whether the scene's first sun or point light reaches the surface "
-                        "(rendered while its pass toggle is on)"}
+                        "(rendered while its pass toggle is on)",
+              "shaded": "The surface lit by the scene's first sun or point light and its "
+                        "world, with the shadow and AO passes (rendered while its pass "
+                        "toggle is on)"}
 
 
 class VDNIFViewer(bpy.types.PropertyGroup):

@@ -17,17 +17,25 @@ from .vdnif_addon.errors import VDNIFError
 from .vdnif_addon.geometry.voxels import inverted_cells
 from .vdnif_addon.inference.evaluation import secondary_view_images, view_images
 from .vdnif_addon.inference.images import PASSES
-from .vdnif_addon.passes import COMPOSITOR_SOURCES, SECONDARY_COMPOSITOR, SECONDARY_PASSES
+from .vdnif_addon.passes import (
+    COMPOSITOR_SOURCES,
+    SECONDARY_COMPOSITOR,
+    SHADED_COMPOSITOR,
+    SHADED_PASS,
+    TOGGLED_PASSES,
+)
 from .vdnif_addon.pose_sets import PoseSpec
 
-# Albedo is shown sRGB-encoded (images.display), the other passes are data.
-COLORSPACES = {"albedo": "sRGB"}
+# Albedo and the shaded image are shown sRGB-encoded (images.display, images.shaded_display),
+# the other passes are data.
+COLORSPACES = {"albedo": "sRGB", SHADED_PASS: "sRGB"}
 PASS_TITLES = {**{field: name for name, field in COMPOSITOR_SOURCES.items()},
-               **{field: name for name, field in SECONDARY_COMPOSITOR.items()}}
+               **{field: name for name, field in SECONDARY_COMPOSITOR.items()},
+               SHADED_PASS: next(iter(SHADED_COMPOSITOR))}
 """The title of each pass in the images' names: its name in the multilayer EXR."""
-SHOWN = (*PASSES, *SECONDARY_PASSES)
-"""The passes the viewer offers: AO and shadow once a render cast them (their toggles,
-``operators.passes.secondary_settings``)."""
+SHOWN = (*PASSES, *TOGGLED_PASSES)
+"""The passes the viewer offers: AO, shadow and shaded once a render cast their rays (their
+toggles, ``operators.passes.secondary_settings``)."""
 # (12, 2) the corners of a cell's edges, corner c = dx + 2 dy + 4 dz: pairs one bit apart.
 CELL_EDGES = np.array([(c, c | bit) for bit in (1, 2, 4) for c in range(8) if not c & bit])
 
@@ -106,8 +114,10 @@ def render_size(scene, settings):
 
 
 def secondary_names(settings):
-    """The secondary passes whose toggles are on in the object's ``settings``."""
-    return tuple(name for name in SECONDARY_PASSES if getattr(settings, f"pass_{name}"))
+    """The passes beyond the primary ones (``passes.TOGGLED_PASSES``) whose toggles are on
+    in the object's ``settings``: what the renders write (``passes.cast_passes``: the rays
+    they cast)."""
+    return tuple(name for name in TOGGLED_PASSES if getattr(settings, f"pass_{name}"))
 
 
 def image_name(pass_name, source):
@@ -116,16 +126,19 @@ def image_name(pass_name, source):
     return f"VDNIF {PASS_TITLES[pass_name]} ({source})"
 
 
-def set_view(reference, predicted, width, height, object_size, secondary=None, folder=None):
+def set_view(reference, predicted, width, height, object_size, secondary=None, folder=None,
+             shaded=None):
     """Keeps the images of a rendered view (reference and predicted Passes; with
-    ``secondary``, {"true", "predicted": SecondaryPasses}, the AO and shadow passes too) for
+    ``secondary``, {"true", "predicted": SecondaryPasses}, the AO and shadow passes too, and
+    the shaded image with ``shaded``, {"true", "predicted": (R, 3)}) for
     the viewer and writes each into its own float image: both passes on one distance scale,
     the error as heat maps; alpha is the hit mask (the error images are opaque). With a
     ``folder``, each image is saved there too (``keep``), so it comes back when the .blend
     is opened again."""
     shown = view_images(reference, predicted, height, width, object_size)
     if secondary is not None:
-        more = secondary_view_images(secondary["true"], secondary["predicted"], height, width)
+        more = secondary_view_images(secondary["true"], secondary["predicted"], height, width,
+                                     shaded)
         for source, images in more.items():
             shown[source].update(images)
     alphas = {"reference": reference.hit, "predicted": predicted.hit,
@@ -148,12 +161,13 @@ def set_view(reference, predicted, width, height, object_size, secondary=None, f
                 image.use_fake_user = False
 
 
-def write_files(obj, result, slots, width, height, frame, secondary_names=SECONDARY_PASSES):
+def write_files(obj, result, slots, width, height, frame, secondary_names=TOGGLED_PASSES):
     """Writes the predicted and the reference passes of a render (``neural.RenderResult`` of
-    world rays, its material pass in used-slot indices mapped by ``slots``), with its AO and
-    shadow passes ``secondary_names`` when it has them, into the object's passes folder as
-    the render command does: PNG previews (one distance scale for both) and one multilayer
-    EXR each for ``frame``, AO and Shadow in it. Returns the predicted EXR's path."""
+    world rays, its material pass in used-slot indices mapped by ``slots``), with its AO,
+    shadow and shaded passes ``secondary_names`` when it has them, into the object's passes
+    folder as the render command does: PNG previews (one distance scale for both) and one
+    multilayer EXR each for ``frame``, AO, Shadow and Shaded in it. Returns the predicted
+    EXR's path."""
     from . import storage
     from .vdnif_addon.blender.steps import DistanceScale, write_passes
     from .vdnif_addon.inference.evaluation import world_distances
@@ -161,14 +175,15 @@ def write_files(obj, result, slots, width, height, frame, secondary_names=SECOND
     folder = storage.passes_folder(obj)
     scale = DistanceScale()
     scale(*(world_distances(p, result.world_scale) for p in (result.predicted, result.true)))
-    secondary = result.secondary or {}
+    secondary, shaded = result.secondary or {}, result.shaded or {}
     written = None
     for name, prefix in (("true", "true-"), ("predicted", "")):
         written = write_passes(folder, getattr(result, name), height, width,
                                result.world_scale, prefix=prefix, slots=slots, frame=frame,
                                world_matrix=result.matrix_world,
                                secondary=secondary.get(name),
-                               secondary_names=secondary_names, scale=scale)
+                               secondary_names=secondary_names, scale=scale,
+                               shaded=shaded.get(name))
     return written[-1]
 
 

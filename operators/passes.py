@@ -25,20 +25,21 @@ def model_capture(obj, evaluation_count=None):
 
 
 def secondary_settings(context, obj):
-    """The AO and shadow passes' ``SecondarySettings`` while the object's AO or Shadow pass
-    toggle is on (the object's AO samples and distance, the scene's light in the object's
-    local space as it stands now), else None: they cost rays, so they are cast only when
-    asked for. Both are cast together; only the toggled ones are written."""
-    from ..vdnif_addon.blender.lights import scene_light
-    from ..vdnif_addon.inference.secondary import SecondarySettings
+    """The AO and shadow passes' ``SecondarySettings`` while the object's AO, Shadow or
+    Shaded pass toggle is on (the object's AO samples and distance, the scene's light in the
+    object's local space and its world as they stand now), else None: they cost rays, so
+    they are cast only when asked for. Both are cast together (Shaded needs both,
+    ``passes.PASS_NEEDS``); only the toggled ones are written."""
+    from ..vdnif_addon.blender.lights import scene_secondary
+    from ..vdnif_addon.passes import cast_passes
 
-    if not viewer.secondary_names(obj.vdnif):
+    if not cast_passes(viewer.secondary_names(obj.vdnif)):
         return None
     # The property holds float32, whose value at the range's ends lies just outside the
     # range the core checks: the decimal the panel shows (7 digits) is the one set.
     distance = float(f"{obj.vdnif.ao_distance:.7g}")
-    return SecondarySettings(samples=obj.vdnif.ao_samples, distance=distance,
-                             light=scene_light(context.scene, obj))
+    return scene_secondary(context.scene, obj, samples=obj.vdnif.ao_samples,
+                           distance=distance)
 
 
 def region_3d(context):
@@ -115,7 +116,7 @@ class VDNIF_OT_render_passes(JobOperator, bpy.types.Operator):
             result, slots = kept["result"], kept["slots"]   # the material pass: the slots
             viewer.set_view(result.true.with_slots(slots), result.predicted.with_slots(slots),
                             width, height, result.object_size, result.secondary,
-                            folder=storage.images_folder(obj))
+                            folder=storage.images_folder(obj), shaded=result.shaded)
             from ..vdnif_addon.output_rule import all_or_nothing
             from ..vdnif_addon.safe_io import claim_folder
 

@@ -23,7 +23,7 @@ from ..operators.training import VDNIF_OT_estimate, VDNIF_OT_train, fresh_estima
 from ..vdnif_addon import declarations as declared
 from ..vdnif_addon.inference.metrics import verdict
 from ..vdnif_addon.presets import PRESET_NAMES
-from ..vdnif_addon.text import EMBREE_NOTE, metrics_line, secondary_line
+from ..vdnif_addon.text import EMBREE_NOTE, metrics_line, secondary_line, shaded_line
 
 WRAP = 42   # characters per line of wrapped messages
 
@@ -255,7 +255,7 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
         if viewer.available(choice.pass_name, choice.source):
             layout.label(text=f"Image: {viewer.image_name(choice.pass_name, choice.source)}"
                          " (Image Editor)", icon="IMAGE_DATA")
-        elif choice.pass_name in viewer.SECONDARY_PASSES and choice.pass_name not in (
+        elif choice.pass_name in viewer.TOGGLED_PASSES and choice.pass_name not in (
                 viewer.secondary_names(settings)):
             layout.label(text=f"Turn {viewer.PASS_TITLES[choice.pass_name]} on above and "
                               "render", icon="INFO")
@@ -264,19 +264,25 @@ class VDNIF_PT_passes(StepPanel, bpy.types.Panel):
 
 
 def draw_secondary(layout, context, settings):
-    """The AO and Shadow pass toggles (on, renders and Evaluate cast their rays and write
-    them into each frame's EXR), with the AO settings and the light the shadow rays go to
-    while they are on."""
+    """The AO, Shadow and Shaded pass toggles (on, renders and Evaluate cast their rays and
+    write them into each frame's EXR), with the AO settings and the light the shadow rays go
+    to while their rays are cast (Shaded casts both: ``passes.PASS_NEEDS``)."""
     from ..vdnif_addon.blender.lights import scene_light
+    from ..vdnif_addon.passes import SHADED_PASS, cast_passes
 
     row = layout.row(heading="Passes")
-    row.prop(settings, "pass_ao", toggle=True)
-    row.prop(settings, "pass_shadow", toggle=True)
-    if settings.pass_ao:
+    for name in viewer.TOGGLED_PASSES:
+        row.prop(settings, f"pass_{name}", toggle=True)
+    names = viewer.secondary_names(settings)
+    cast = cast_passes(names)
+    if "ao" in cast:
         properties(layout, settings, ("ao_samples", "ao_distance"))
-    if settings.pass_shadow:
+    if "shadow" in cast:
         layout.label(text=f"Light: {scene_light(context.scene, context.active_object).source}",
                      icon="LIGHT_SUN")
+    if SHADED_PASS in names and not set(cast) <= set(names):
+        lines(layout, "Shaded casts the AO and shadow rays it is made of; their passes are "
+                      "written while their own toggles are on", "INFO")
 
 
 def draw_animation(layout, context, settings):
@@ -308,7 +314,8 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
         layout.prop(settings, "eval_poses")
         button(layout, context, VDNIF_OT_evaluate, "GRAPH")
         if viewer.secondary_names(settings):
-            lines(layout, "With AO and shadow: their pass toggles are on under Passes", "INFO")
+            lines(layout, "With AO, shadow and shaded: a pass toggle is on under Passes",
+                  "INFO")
         report = settings.parsed("metrics")
         if not report:
             return
@@ -323,6 +330,8 @@ class VDNIF_PT_evaluation(StepPanel, bpy.types.Panel):
             lines(box, metrics_line(report[name]))
             if "ao_mae" in report[name]:
                 lines(box, secondary_line(report[name]))
+            if "shaded_psnr" in report[name]:
+                lines(box, shaded_line(report[name]))
         timings = report.get("timings", {})
         box = layout.box()
         box.label(text="Speed on the same rays")

@@ -69,6 +69,25 @@ distance (1 open, 0 enclosed), and shadow, whether the light is reached (1 lit, 
 SECONDARY_COMPOSITOR = {"AO": "ao", "Shadow": "shadow"}
 """The secondary passes in the multilayer EXR, by the names Blender's render passes give them
 (Cycles' AO, EEVEE's Shadow), each RGB grey: 0 where nothing is hit."""
+SHADED_PASS = "shaded"
+"""The shaded image (``inference/shading.py``): the albedo under the scene's light and world,
+made of the primary passes and of both secondary ones, AO and shadow."""
+SHADED_COMPOSITOR = {"Shaded": "RGB"}
+"""The shaded pass in the multilayer EXR: linear RGB (the world's colour where nothing is
+hit), its own name: Combined holds the albedo."""
+TOGGLED_PASSES = (*SECONDARY_PASSES, SHADED_PASS)
+"""The passes that cost rays beyond the primary ones, each behind its own toggle."""
+PASS_NEEDS = {SHADED_PASS: SECONDARY_PASSES}
+"""The passes a toggled pass is computed from: a toggled Shaded casts the AO and shadow rays
+whether or not their own toggles are on (those toggles say only what is written)."""
+
+
+def cast_passes(names: Iterable[str]) -> tuple[str, ...]:
+    """The secondary passes whose rays the toggled passes ``names`` need (``PASS_NEEDS``):
+    the toggled ones and the ones a toggled pass is computed from."""
+    names = set(names)
+    needed = names | {need for name in names for need in PASS_NEEDS.get(name, ())}
+    return tuple(name for name in SECONDARY_PASSES if name in needed)
 
 
 @dataclass

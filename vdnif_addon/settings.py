@@ -95,6 +95,11 @@ SECONDARY_GRAZING_COSINE = 0.2
 # SECONDARY_SELF_COSINE of the left surface's is that surface (its hit lay below it): the ray
 # walks on from an offset past it, at most SECONDARY_SELF_SKIPS times.
 SECONDARY_SELF_REACH, SECONDARY_SELF_COSINE, SECONDARY_SELF_SKIPS = 4.0, 0.3, 3
+# The shaded pass's shadow rates are split at the terminator band |N.L| < TERMINATOR_BAND
+# (the reference's normal; 0.175: within 10 degrees of the terminator): there a small normal
+# error flips whether the surface faces the light, and the shaded value max(0, N.L) it flips
+# is small. Chosen on development poses (docs/results.md, "The shaded image").
+TERMINATOR_BAND = 0.175
 
 # --------------------------------------------------------------------------- names
 

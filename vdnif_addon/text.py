@@ -80,3 +80,16 @@ def secondary_line(m: dict) -> str:
             f"({percent(m['shadow_false_lit_rate_true_hit'])}), false shadow "
             f"{percent(m['shadow_false_shadow_rate'])} "
             f"({percent(m['shadow_false_shadow_rate_true_hit'])})")
+
+
+def shaded_line(m: dict) -> str:
+    """The shaded image's errors of an evaluation's metrics (``shading.compare_shaded``: its
+    PSNR on linear values, peak 1, and the share of pixels a user sees differ) and its shadow
+    rates split at the terminator band (``shading.shadow_split``)."""
+    psnr = m["shaded_psnr"]
+    return (f"shaded PSNR {value(psnr)}{'' if psnr is None else ' dB'}, visible steps "
+            f"{percent(m['shaded_visible_rate'])}; cast shadows false lit "
+            f"{percent(m['shadow_false_lit_rate_cast'])}, false shadow "
+            f"{percent(m['shadow_false_shadow_rate_cast'])}; at the terminator false lit "
+            f"{percent(m['shadow_false_lit_rate_terminator'])}, false shadow "
+            f"{percent(m['shadow_false_shadow_rate_terminator'])}")

@@ -261,11 +261,12 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
         out / "report.md").read_text()
     assert sorted(path.name for path in (out / "passes").iterdir()) == sorted(
         [f"{name}.png" for name in ("hit", "distance", "normal", "albedo", "material", "ao",
-                                    "shadow")] + ["passes.exr"])
+                                    "shadow", "shaded")] + ["passes.exr"])
     from blender_exr import pass_names
 
     assert pass_names(out / "passes" / "passes.exr") == {
-        "Combined", "Depth", "Normal", "DiffCol", "IndexMA", "AO", "Shadow"}
+        "Combined", "Depth", "Normal", "DiffCol", "IndexMA", "AO", "Shadow", "Shaded"}
+    assert "The shaded image" in (out / "report.md").read_text()
     assert timings["exact_rays_per_s"] > 0 and timings["exact_prepare_s"] > 0
     markdown = (out / "report.md").read_text()
     assert "Verdict against the mesh on the 2 unseen poses" in markdown

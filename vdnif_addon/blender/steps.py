@@ -16,7 +16,14 @@ from ..inference.evaluation import (
 from ..inference.exr import write_multilayer
 from ..kernels import runtime
 from ..model.variants import variant_config
-from ..passes import COMPOSITOR_PASSES, SECONDARY_PASSES, VIEW_LAYER
+from ..passes import (
+    COMPOSITOR_PASSES,
+    SECONDARY_PASSES,
+    SHADED_COMPOSITOR,
+    SHADED_PASS,
+    TOGGLED_PASSES,
+    VIEW_LAYER,
+)
 from ..pose_sets import TEST_POSES
 from ..posed.generate import generate_dataset
 from ..posed.render import evaluate_model, load_scene_model
@@ -122,14 +129,16 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
 
 
 def write_passes(folder, passes, height, width, world_scale=None, prefix="", slots=None,
-                 frame=None, world_matrix=None, secondary=None, secondary_names=SECONDARY_PASSES,
-                 scale=None):
+                 frame=None, world_matrix=None, secondary=None, secondary_names=TOGGLED_PASSES,
+                 scale=None, shaded=None):
     """Writes a PNG preview per pass (transparent where rays miss) and one multilayer EXR of
     the compositor's passes (``images.compositor_passes``): distance in world units when
     ``world_scale`` is given, normals in world space with the object's ``world_matrix``
     (4, 4), material as the object's slot with the used-slot table ``slots``, see
     ``Passes.with_slots``. With ``secondary`` (SecondaryPasses of the same rays) the passes
-    ``secondary_names`` of it go into the same EXR as AO and Shadow, and beside it as PNGs.
+    ``secondary_names`` of it go into the same EXR as AO and Shadow, and beside it as PNGs;
+    so does the shaded image ``shaded`` (R, 3) as Shaded where ``secondary_names`` holds
+    "shaded" (``passes.TOGGLED_PASSES``).
     A ``frame`` number goes into the names as Blender numbers image sequences
     (``normal.0030.png``, ``passes.0030.exr``). ``scale``: the ``DistanceScale`` shared with
     the images this one is compared with (default: its own). Returns the written paths.
@@ -151,6 +160,12 @@ def write_passes(folder, passes, height, width, world_scale=None, prefix="", slo
         channels.update(dict.fromkeys(extra, "RGB"))
         written += write_secondary(folder, secondary, height, width, prefix, frame,
                                    secondary_names)
+    if shaded is not None and SHADED_PASS in secondary_names:
+        layers.update(images.shaded_compositor(shaded, height, width))
+        channels.update(SHADED_COMPOSITOR)
+        alpha = passes.hit.reshape(height, width, 1).astype(np.float32)
+        written.append(save_image(folder / f"{prefix}{SHADED_PASS}{number}.png", np.concatenate(
+            [images.shaded_display(shaded, height, width), alpha], axis=2)))
     written.append(write_multilayer(folder / f"{prefix}passes{number}.exr", layers, channels,
                                     VIEW_LAYER))
     return written
@@ -162,11 +177,12 @@ def write_training_plot(path, history):
 
 
 def write_view(folder, result, height, width, slots=None, references=False, frame=None,
-               secondary_names=SECONDARY_PASSES, scale=None, prefix=""):
+               secondary_names=TOGGLED_PASSES, scale=None, prefix=""):
     """Writes a RenderResult's passes (``write_passes``, normals in world space with the
     pose's world matrix), with ``references`` those of its true and embedded references,
-    prefixed ``true-`` and ``embedded-``, each with its AO and shadow passes ``secondary_names``
-    when it has them (into its EXR, PNGs beside it), every distance preview on one
+    prefixed ``true-`` and ``embedded-``, each with its AO, shadow and shaded passes
+    ``secondary_names`` when it has them (into its EXR, PNGs beside it), every distance
+    preview on one
     ``DistanceScale`` (``scale``: a sequence's, default this view's own); ``prefix`` goes
     before every name. Returns the written paths."""
     sources = {"": result.predicted}
@@ -174,7 +190,7 @@ def write_view(folder, result, height, width, slots=None, references=False, fram
         sources.update({f"{name}-": getattr(result, name) for name in ("true", "embedded")})
     scale = scale or DistanceScale()
     scale(*(world_distances(passes, result.world_scale) for passes in sources.values()))
-    secondary = result.secondary or {}
+    secondary, shaded = result.secondary or {}, result.shaded or {}
     written = []
     for source, passes in sources.items():
         name = source.rstrip("-") or "predicted"
@@ -182,7 +198,8 @@ def write_view(folder, result, height, width, slots=None, references=False, fram
                                 prefix=prefix + source, slots=slots, frame=frame,
                                 world_matrix=result.matrix_world,
                                 secondary=secondary.get(name),
-                                secondary_names=secondary_names, scale=scale)
+                                secondary_names=secondary_names, scale=scale,
+                                shaded=shaded.get(name))
     return written
 
 
@@ -206,9 +223,10 @@ def write_figures(folder, view, height, width, object_size):
         paths[f"error_{name}"] = save_image(folder / f"error-{name}.png", errors[name])
     if "secondary" in view:             # reference | predicted | error, a row per pass
         shown = secondary_view_images(view["secondary"]["true"],
-                                      view["secondary"]["predicted"], height, width)
+                                      view["secondary"]["predicted"], height, width,
+                                      view.get("shaded"))
         rows = [[shown[source][name] for source in ("reference", "predicted", "error")]
-                for name in SECONDARY_PASSES]
+                for name in TOGGLED_PASSES if name in shown["reference"]]
         paths["figure_secondary_vs_true"] = save_image(
             folder / "figure-secondary-vs-true.png", images.comparison_figure(rows))
     return paths

@@ -8,6 +8,7 @@ from .. import declarations as declared
 from ..inference.metrics import verdict
 from ..pose_sets import POSE_SETS, TEST_POSES
 from .options import (
+    SHADED_HELP,
     add_image_options,
     add_pose_options,
     add_scene_options,
@@ -115,7 +116,8 @@ def cmd_render(args):
     print(f"rendered '{obj.name}' at {shown} through {view}, {args.width}x{args.height}: "
           f"{hits} hit pixels, {speed:,.0f} rays/s -> {args.out}")
     if secondary is not None:
-        print(f"  ambient occlusion and shadow: light {figures[0]['secondary']['light']}")
+        print(f"  ambient occlusion, shadow and shaded: light "
+              f"{figures[0]['secondary']['light']}")
     return 0
 
 
@@ -149,11 +151,13 @@ def cmd_evaluate(args):
             report["figures"] = {name: str(path) for name, path in write_figures(
                 args.out, view, args.height, args.width, captured.mesh.size).items()}
             scale, secondary = DistanceScale(), view.get("secondary", {})
+            shaded = view.get("shaded", {})
             scale(view["predicted"], view["true"])   # prediction and reference on one scale
             report["passes"] = [str(path) for name in ("predicted", "true") for path in
                                 write_passes(args.out, view[name], args.height, args.width,
                                              prefix="" if name == "predicted" else "true-",
-                                             secondary=secondary.get(name), scale=scale)]
+                                             secondary=secondary.get(name), scale=scale,
+                                             shaded=shaded.get(name))]
         write_json(args.json, report)
     print_evaluation(report)
     print(f"  verdict against the mesh: {verdict(report['vs_true'])}")
@@ -173,7 +177,7 @@ def _model_command(commands, name, run, notes):
     add_image_options(parser, name)
     add_setting(parser, declared.DEVICE, name)
     add_setting(parser, declared.PRECISION, name)
-    add_secondary_options(parser, name)
+    add_secondary_options(parser, name, SHADED_HELP)
     parser.set_defaults(run=run)
     return parser
 
@@ -183,7 +187,8 @@ def add_commands(commands):
     render = _model_command(commands, "render", cmd_render, (
         "Writes per pass (hit, distance, normal, albedo, material) a PNG transparent where "
         "rays miss, one multilayer EXR of Cycles-named passes (Depth in world units, "
-        "Normal, DiffCol, IndexMA, alpha in Combined; AO and Shadow with --secondary) and "
+        "Normal, DiffCol, IndexMA, alpha in Combined; AO, Shadow and Shaded with "
+        "--secondary) and "
         "render.json into --out."))
     when = render.add_mutually_exclusive_group()
     when.add_argument("--frame", type=float, metavar="F", help="the timeline frame to pose the "

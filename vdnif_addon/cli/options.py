@@ -24,7 +24,14 @@ from ..settings import (
     NetworkConfig,
     TrainConfig,
 )
-from ..text import EMBREE_NOTE, exact_speed_line, metrics_line, secondary_line, speed_line
+from ..text import (
+    EMBREE_NOTE,
+    exact_speed_line,
+    metrics_line,
+    secondary_line,
+    shaded_line,
+    speed_line,
+)
 from .outputs import check_outputs, names_scene  # noqa: F401 - names_scene for the commands
 
 PIPELINE_SCENE = "arm"
@@ -171,6 +178,8 @@ def add_capture_options(parser, command):
 
 SECONDARY_HELP = ("also the ambient-occlusion and shadow passes (light: the scene's first sun "
                   "or point light, else a default direction)")
+SHADED_HELP = ("also the ambient-occlusion, shadow and shaded passes (light: the scene's "
+               "first sun or point light, else a default direction; ambient: its world)")
 
 
 def add_secondary_options(parser, command, secondary_help=SECONDARY_HELP):
@@ -189,11 +198,10 @@ def secondary_settings(args, obj):
         return None
     import bpy
 
-    from ..blender.lights import scene_light
-    from ..inference.secondary import SecondarySettings
+    from ..blender.lights import scene_secondary
 
-    return SecondarySettings(samples=args.ao_samples, distance=args.ao_distance,
-                             light=scene_light(bpy.context.scene, obj))
+    return scene_secondary(bpy.context.scene, obj, samples=args.ao_samples,
+                           distance=args.ao_distance)
 
 
 def add_image_options(parser, command):
@@ -267,6 +275,10 @@ def print_evaluation(report):
         print(f"  secondary rays ({report['secondary']['light']}): "
               + "; ".join(f"{name.replace('_', ' ')} {secondary_line(report[name])}"
                           for name in ("vs_true", "vs_embedded")))
+        band = report["secondary"].get("terminator_band")
+        if "shaded_psnr" in report["vs_true"]:
+            print(f"  shaded image vs true (terminator band |N.L| < {band}): "
+                  f"{shaded_line(report['vs_true'])}")
     t = report["timings"]
     print(f"  pose preparation {t['prepare_pose_s'] * 1e3:.1f} ms, model "
           f"{report['model_bytes']:,} bytes")

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..errors import VDNIFError
-from ..passes import Passes, SecondaryPasses
+from ..passes import SHADED_PASS, Passes, SecondaryPasses
 from .images import (
     PASSES,
     comparison_figure,
@@ -18,8 +18,11 @@ from .images import (
     error_images,
     secondary_errors,
     secondary_images,
+    shaded_display,
+    shaded_error,
 )
 from .metrics import common_pixels, compare, compare_secondary, speed_withheld
+from .shading import compare_shaded, in_band, shadow_split
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -139,6 +142,22 @@ def compare_secondary_both(views: dict[str, SecondaryPasses],
     return result
 
 
+def compare_shaded_both(shaded: dict[str, Float[np.ndarray, "R 3"]],
+                        secondary: dict[str, SecondaryPasses],
+                        cosines: dict[str, Float[np.ndarray, " R"]], band: float
+                        ) -> dict[str, Metrics]:
+    """{"vs_true": ..., "vs_embedded": ...}: the shaded prediction against each reference
+    shaded alike (``shading.compare_shaded`` over every pixel: a hole shows the world where
+    the reference shows the surface), and the shadow rates from the network's own hits
+    split at the reference's terminator band |N.L| < ``band`` (``shading.shadow_split``);
+    ``shaded``, ``secondary`` and ``cosines`` (``shading.light_cosines``): {"predicted",
+    "true", "embedded": ...} of the same rays."""
+    return {f"vs_{name}": {**compare_shaded(shaded["predicted"], shaded[name]),
+                           **shadow_split(secondary["predicted"], secondary[name],
+                                          in_band(cosines[name], band))}
+            for name in REFERENCES}
+
+
 def compare_common(runs: Sequence[dict[str, Passes]], mesh: RestMesh,
                    voxel_sizes: Sequence[float]) -> list[dict[str, Metrics]]:
     """Compared models on one common pixel set per reference (DESIGN section 10).
@@ -219,12 +238,21 @@ def view_images(reference: Passes, predicted: Passes, height: int, width: int,
 
 
 def secondary_view_images(reference: SecondaryPasses, predicted: SecondaryPasses, height: int,
-                          width: int) -> dict[str, dict[str, Float[np.ndarray, "H W 3"]]]:
+                          width: int, shaded: dict[str, Float[np.ndarray, "R 3"]] | None = None
+                          ) -> dict[str, dict[str, Float[np.ndarray, "H W 3"]]]:
     """{"reference" | "predicted" | "error": {"ao" | "shadow": (H, W, 3) image}} of one
-    view's secondary passes: grey levels and the prediction's errors as heat maps."""
-    return {"reference": secondary_images(reference, height, width)["display"],
-            "predicted": secondary_images(predicted, height, width)["display"],
-            "error": secondary_errors(predicted, reference, height, width)}
+    view's secondary passes: grey levels and the prediction's errors as heat maps; with
+    ``shaded`` ({"true", "predicted": (R, 3)}) its "shaded" images too, as the user sees
+    them, the error in visible 8-bit steps (``images.shaded_error``)."""
+    shown = {"reference": secondary_images(reference, height, width)["display"],
+             "predicted": secondary_images(predicted, height, width)["display"],
+             "error": secondary_errors(predicted, reference, height, width)}
+    if shaded is not None:
+        shown["reference"][SHADED_PASS] = shaded_display(shaded["true"], height, width)
+        shown["predicted"][SHADED_PASS] = shaded_display(shaded["predicted"], height, width)
+        shown["error"][SHADED_PASS] = shaded_error(shaded["predicted"], shaded["true"], height,
+                                                   width)
+    return shown
 
 
 def figure(reference: Passes, predicted: Passes, height: int, width: int, object_size: float

@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..passes import COMPOSITOR_PASSES, MISS_DEPTH, SECONDARY_COMPOSITOR
+from ..passes import COMPOSITOR_PASSES, MISS_DEPTH, SECONDARY_COMPOSITOR, SHADED_COMPOSITOR
+from .shading import VISIBLE_STEP, display_8bit
 
 if TYPE_CHECKING:
     from jaxtyping import Float
@@ -106,6 +107,31 @@ def secondary_compositor(passes: SecondaryPasses, height: int, width: int,
     return {title: _image(np.repeat(np.where(passes.hit, values[name], 0.0)[:, None], 3,
                                     axis=1), height, width)
             for title, name in SECONDARY_COMPOSITOR.items() if name in names}
+
+
+def shaded_compositor(shaded: Float[np.ndarray, "R 3"], height: int, width: int
+                      ) -> dict[str, Float[np.ndarray, "H W 3"]]:
+    """{"Shaded": (H, W, 3) float32} (``passes.SHADED_COMPOSITOR``): the shaded image's
+    linear values for the multilayer EXR."""
+    (title,) = SHADED_COMPOSITOR
+    return {title: _image(shaded, height, width)}
+
+
+def shaded_display(shaded: Float[np.ndarray, "R 3"], height: int, width: int
+                   ) -> Float[np.ndarray, "H W 3"]:
+    """The shaded image as the user sees it (Blender's Standard view, 8-bit: the values
+    ``shading.display_8bit`` gives, over 255), for the PNG preview and the pass viewer."""
+    return _image(display_8bit(shaded) / np.float32(255.0), height, width)
+
+
+def shaded_error(predicted: Float[np.ndarray, "R 3"], reference: Float[np.ndarray, "R 3"],
+                 height: int, width: int, steps: float = 16.0) -> Float[np.ndarray, "H W 3"]:
+    """Heat map of the shaded image's largest channel difference in 8-bit steps (bright at
+    ``steps``); black where it is within ``shading.VISIBLE_STEP``, the steps nobody sees."""
+    difference = np.abs(display_8bit(predicted).astype(np.int16)
+                        - display_8bit(reference).astype(np.int16)).max(-1)
+    shown = np.where(difference > VISIBLE_STEP, difference, 0).astype(np.float32)
+    return _image(heat(shown, steps), height, width)
 
 
 def error_images(predicted: Passes, reference: Passes, height: int, width: int,

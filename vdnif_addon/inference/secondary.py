@@ -95,12 +95,15 @@ class Light:
 
 @dataclass(frozen=True)
 class SecondarySettings:
-    """AO rays per pixel, their reach in object units, the light, the directions' seed."""
+    """AO rays per pixel, their reach in object units, the light, the directions' seed, and
+    the shaded pass's ``lighting`` (a ``shading.Lighting`` whose light is ``light``; None:
+    its default strength, colour and world with ``light``)."""
 
     samples: int = AO_SAMPLES
     distance: float = AO_DISTANCE
     light: Light = field(default_factory=Light)
     seed: int = SECONDARY_SEED
+    lighting: Any = None
 
     def __post_init__(self) -> None:
         low, high = BOUNDS["ao_samples"]
@@ -110,6 +113,9 @@ class SecondarySettings:
         if not (np.isfinite(self.distance) and low <= self.distance <= high):
             raise VDNIFError(f"AO distance {self.distance} must be in {low:g}..{high:g} "
                              "object units")
+        if self.lighting is not None and self.lighting.light != self.light:
+            raise VDNIFError(f"the shaded pass's light {self.lighting.light.source} is not "
+                             f"the shadow rays' {self.light.source}")
 
     def describe(self, network_offset: float | None = None,
                  object_size: float = 1.0) -> dict[str, Any]:

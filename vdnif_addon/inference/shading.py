@@ -11,8 +11,9 @@ point light's is its power (W), radiating power / (4 pi) W/sr, so its irradiance
 with the inverse square of the distance in world units.
 
 The image is compared as the user sees it: Blender's *Standard* view transform (the sRGB
-transfer function) to 8-bit values. ``compare_shaded`` gives the PSNR of those values and the
-share of pixels where a channel steps by more than ``VISIBLE_STEP`` (2/255).
+transfer function) to 8-bit values. ``compare_shaded`` gives the PSNR of the linear values
+and of those 8-bit values, and the share of pixels where a channel steps by more than
+``VISIBLE_STEP`` (2/255).
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..passes import Passes, SecondaryPasses
-from .secondary import Light
+from .metrics import PSNR_FLOOR_MSE
+from .secondary import Light, SecondarySettings
 
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float
@@ -66,6 +68,18 @@ class Lighting:
         if not self.unit_scale > 0:
             raise VDNIFError("lighting: its unit scale must be above 0")
 
+    def describe(self) -> dict[str, object]:
+        """The strengths and the world as the JSON reports state them (the light's place:
+        ``SecondarySettings.describe``)."""
+        return {"light_strength": self.strength, "light_colour": list(self.colour),
+                "world_colour": list(self.world), "unit_scale": self.unit_scale}
+
+
+def settings_lighting(settings: SecondarySettings) -> Lighting:
+    """The shaded pass's ``Lighting`` of the secondary rays' ``settings``: theirs, or the
+    default strength, colour and world with their light."""
+    return Lighting(light=settings.light) if settings.lighting is None else settings.lighting
+
 
 def irradiance(lighting: Lighting, points: Float[np.ndarray, "N 3"]
                ) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"]]:
@@ -89,10 +103,7 @@ def shade(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"
     hit = passes.hit
     if not hit.any():
         return image.astype(np.float32)
-    points = origins[hit] + passes.distance[hit, None] * directions[hit]
-    normal = np.asarray(passes.normal[hit], np.float64)
-    # the side that faces the primary ray's origin, as the secondary rays leave it
-    normal = np.where(((normal * directions[hit]).sum(1) > 0)[:, None], -normal, normal)
+    points, normal = hit_points(origins, directions, passes)
     towards, light = irradiance(lighting, points)
     cosine = np.clip((normal * towards).sum(1), 0.0, None)
     albedo = np.asarray(passes.albedo[hit], np.float64)
@@ -100,6 +111,52 @@ def shade(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"
     ambient = albedo * world * np.asarray(secondary.ao[hit], np.float64)[:, None]
     image[hit] = direct + ambient
     return image.astype(np.float32)
+
+
+def hit_points(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],
+               passes: Passes) -> tuple[Float[np.ndarray, "H 3"], Float[np.ndarray, "H 3"]]:
+    """(hit points, unit normals turned towards the primary ray's origin), (H, 3) each, of
+    the rays of ``passes`` that hit (local units)."""
+    hit = passes.hit
+    points = origins[hit] + passes.distance[hit, None] * directions[hit]
+    normal = np.asarray(passes.normal[hit], np.float64)
+    # the side that faces the primary ray's origin, as the secondary rays leave it
+    normal = np.where(((normal * directions[hit]).sum(1) > 0)[:, None], -normal, normal)
+    return points, normal
+
+
+def light_cosines(origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],
+                  passes: Passes, lighting: Lighting) -> Float[np.ndarray, " R"]:
+    """(R,) float32 N.L of each hit of ``passes``: its normal turned towards the primary
+    ray's origin, towards ``lighting``'s light from the hit; NaN on a miss. The terminator
+    band is |N.L| < a width (``terminator_band``)."""
+    cosine = np.full(len(passes.hit), np.nan, np.float32)
+    if passes.hit.any():
+        points, normal = hit_points(origins, directions, passes)
+        towards, _ = lighting.light.towards(points)
+        cosine[passes.hit] = (normal * towards).sum(1)
+    return cosine
+
+
+def in_band(cosines: Float[np.ndarray, " R"], width: float) -> Bool[np.ndarray, " R"]:
+    """(R,) bool: the hits whose ``light_cosines`` lie in the terminator band |N.L| <
+    ``width``; False on a miss."""
+    return np.abs(np.nan_to_num(cosines, nan=np.inf)) < width
+
+
+def shaded_views(primaries: dict[str, Passes], secondary: dict[str, SecondaryPasses],
+                 origins: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],
+                 lighting: Lighting
+                 ) -> tuple[dict[str, Float[np.ndarray, "R 3"]],
+                            dict[str, Float[np.ndarray, " R"]]]:
+    """({name: shaded image (R, 3)}, {name: ``light_cosines`` (R,)}) of each primary pass
+    ``primaries`` (the prediction and the references, over the same rays) with its own
+    secondary passes ``secondary[name]``: one shading for every one of them."""
+    images = {name: shade(origins, directions, passes, secondary[name], lighting)
+              for name, passes in primaries.items()}
+    cosines = {name: light_cosines(origins, directions, passes, lighting)
+               for name, passes in primaries.items()}
+    return images, cosines
 
 
 def display_8bit(linear: Float[np.ndarray, "... 3"]) -> np.ndarray:
@@ -114,23 +171,31 @@ def display_8bit(linear: Float[np.ndarray, "... 3"]) -> np.ndarray:
 def compare_shaded(predicted: Float[np.ndarray, "R 3"], reference: Float[np.ndarray, "R 3"],
                    pixels: Bool[np.ndarray, " R"] | None = None
                    ) -> dict[str, float | int | None]:
-    """Image errors of the shaded ``predicted`` against ``reference`` as the user sees them
-    (8-bit, Standard view) over every pixel (or ``pixels``): ``shaded_psnr`` in dB (peak 1;
-    inf where they are equal), ``shaded_visible_rate``, the share of pixels where a channel
-    differs by more than VISIBLE_STEP 8-bit steps, and ``shaded_pixels``."""
+    """Image errors of the shaded ``predicted`` against ``reference`` over every pixel (or
+    ``pixels``): ``shaded_psnr`` in dB of the linear values clipped to 0..1 as the Standard
+    view clips them (peak 1, the display's white), ``shaded_psnr_8bit`` of the 8-bit values
+    the user sees (``display_8bit``, peak 255), each 100 dB where they are equal
+    (``metrics.PSNR_FLOOR_MSE``); ``shaded_visible_rate``, the share of pixels where a
+    channel differs by more than VISIBLE_STEP 8-bit steps; and ``shaded_pixels``."""
     if predicted.shape != reference.shape:
         raise ValueError(f"shaded images of shapes {predicted.shape} and {reference.shape}")
+    linear = [np.clip(np.asarray(image, np.float64), 0.0, 1.0)
+              for image in (predicted, reference)]
     a, b = display_8bit(predicted), display_8bit(reference)
     if pixels is not None:
-        a, b = a[pixels], b[pixels]
+        a, b, linear = a[pixels], b[pixels], [image[pixels] for image in linear]
     if not len(a):
-        return {"shaded_psnr": None, "shaded_visible_rate": None, "shaded_pixels": 0}
+        return {"shaded_psnr": None, "shaded_psnr_8bit": None, "shaded_visible_rate": None,
+                "shaded_pixels": 0}
     difference = a.astype(np.int16) - b.astype(np.int16)
-    mse = float(np.mean((difference / 255.0) ** 2))
-    psnr = math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+    def psnr(mse):
+        return float(-10.0 * math.log10(max(mse, PSNR_FLOOR_MSE)))
+
     visible = (np.abs(difference) > VISIBLE_STEP).any(-1)
-    return {"shaded_psnr": psnr, "shaded_visible_rate": float(visible.mean()),
-            "shaded_pixels": int(len(a))}
+    return {"shaded_psnr": psnr(float(np.mean((linear[0] - linear[1]) ** 2))),
+            "shaded_psnr_8bit": psnr(float(np.mean((difference / 255.0) ** 2))),
+            "shaded_visible_rate": float(visible.mean()), "shaded_pixels": int(len(a))}
 
 
 def terminator_band(normal: Float[np.ndarray, "R 3"], directions: Float[np.ndarray, "R 3"],

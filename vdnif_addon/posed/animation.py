@@ -59,6 +59,7 @@ def render_frames(source, captured, model, frames, width, height, view=None,
     animates with the scene); else the fixed pinhole ``view`` (world matrix, horizontal
     field of view in degrees: the 3D Viewport's); else an orbit viewpoint around the first
     frame's bounds, kept for the whole range so that the images line up."""
+    from ..inference.shading import settings_lighting
     from ..kernels import runtime
     from ..tracing.rays import orbit_viewpoints
     from .geometry import PosedObject
@@ -85,8 +86,9 @@ def render_frames(source, captured, model, frames, width, height, view=None,
                             "timings": timings})
             if settings is not None:
                 size = captured.mesh.size
-                figures[-1]["secondary"] = settings.describe(model.secondary_offset(size),
-                                                             size)
+                figures[-1]["secondary"] = dict(
+                    settings.describe(model.secondary_offset(size), size),
+                    **settings_lighting(settings).describe())
             if each is not None:
                 each(frame, result)
             if progress is not None:

@@ -10,7 +10,8 @@ import threading
 import numpy as np
 
 from ..inference.evaluation import DistanceScale
-from ..inference.images import display, secondary_images
+from ..inference.images import display, secondary_images, shaded_display
+from ..passes import SHADED_PASS
 from ..settings import DEFAULT_PRECISION
 from ..tracing.rays import orbit_viewpoints
 from .geometry import PosedObject
@@ -105,19 +106,23 @@ class PreviewRenderer:
                 result = render_orbit_rays(self._model, self._posed, geometry, *self._orbit,
                                            secondary=secondary)
             predicted = None if result.secondary is None else result.secondary["predicted"]
+            shaded = None if result.shaded is None else result.shaded["predicted"]
             self._outcome = (snapshot.pose["frame"], images(result.predicted, self.height,
                                                             self.width, predicted,
-                                                            self._scale))
+                                                            self._scale, shaded))
         except Exception as exc:   # shown in the panel; the preview must not stop Blender
             self._outcome = (snapshot.pose["frame"], exc)
 
 
-def images(passes, height, width, secondary=None, scale=None):
+def images(passes, height, width, secondary=None, scale=None, shaded=None):
     """{pass: (H, W, 4) display image} of predicted Passes, alpha the hit mask; "ao" and
-    "shadow" too with ``secondary``, the predicted SecondaryPasses of the same rays;
-    distance on ``scale`` (a ``DistanceScale`` kept over the frames, default its own)."""
+    "shadow" too with ``secondary``, the predicted SecondaryPasses of the same rays, and
+    "shaded" with ``shaded``, its shaded image (R, 3); distance on ``scale`` (a
+    ``DistanceScale`` kept over the frames, default its own)."""
     alpha = passes.hit.reshape(height, width, 1).astype(np.float32)
     shown = display(passes, height, width, (scale or DistanceScale())(passes))
     if secondary is not None:
         shown.update(secondary_images(secondary, height, width)["display"])
+    if shaded is not None:
+        shown[SHADED_PASS] = shaded_display(shaded, height, width)
     return {name: np.concatenate([image, alpha], axis=2) for name, image in shown.items()}

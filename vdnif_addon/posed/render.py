@@ -14,6 +14,7 @@ from ..inference.evaluation import (
     check_model_fits,
     compare_both,
     compare_secondary_both,
+    compare_shaded_both,
     concatenated,
     speed_figures,
 )
@@ -25,10 +26,11 @@ from ..inference.secondary import (
     neural_occluded,
     secondary_views,
 )
+from ..inference.shading import settings_lighting, shaded_views
 from ..kernels.cast import MeshCaster
 from ..passes import Passes, SecondaryPasses
 from ..pose_sets import pose_key
-from ..settings import DEFAULT_PRECISION, PRECISIONS
+from ..settings import DEFAULT_PRECISION, PRECISIONS, TERMINATOR_BAND
 from ..text import article
 from ..tracing.rays import camera_rays as pinhole_rays
 from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
@@ -98,6 +100,11 @@ class RenderResult:
     # {"predicted", "true", ...: SecondaryPasses} (``secondary.secondary_views``) when asked
     secondary: dict = None
     matrix_world: np.ndarray = None    # (4, 4) the object's world matrix in the pose
+    # with ``secondary``: {"predicted", "true", "embedded": (R, 3) shaded image} of each
+    # primary pass with its own secondary passes, and {same: (R,) N.L of its hits, NaN on a
+    # miss} (``shading.shaded_views``)
+    shaded: dict = None
+    cosines: dict = None
 
 
 def render_rays(obj, capture, model, pose, origins, directions, references=False,
@@ -218,6 +225,13 @@ def render_view(model, posed_object, geometry, view, width, height, references=F
         result.secondary[name] = SecondaryPasses(
             hit=kept, ao=np.where(kept, passes.ao, 0).astype(passes.ao.dtype),
             lit=passes.lit & kept, facing=passes.facing & kept)
+    if result.shaded is not None:             # a hit beyond the clip end shows the world
+        world = np.asarray(settings_lighting(secondary).world, np.float32)
+        for name, image in result.shaded.items():
+            kept = getattr(result, name).hit
+            result.shaded[name] = np.where(kept[:, None], image, world).astype(np.float32)
+            result.cosines[name] = np.where(kept, result.cosines[name], np.nan).astype(
+                np.float32)
     return result
 
 
@@ -260,7 +274,8 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
             views.append({name: getattr(result, name).with_slots(capture.mesh.material_slots)
                           for name in ("predicted", "true", "embedded")})
             if secondary is not None:
-                views[-1]["secondary"] = result.secondary
+                views[-1].update(secondary=result.secondary, shaded=result.shaded,
+                                 cosines=result.cosines)
             if progress is not None:
                 progress(index + 1, len(poses))
     joined = concatenated(views)
@@ -297,17 +312,28 @@ def evaluate_model(obj, capture, model, width, height, viewpoints=None, progress
 
 
 def _secondary_report(report, results, settings, network_offset, object_size):
-    """Adds the AO and shadow metrics (joined and per pose), their settings (the network's
-    offset ``network_offset`` local units, an object unit ``object_size`` local ones) and
-    the network's secondary rays per second to an evaluation ``report``."""
+    """Adds the AO, shadow and shaded metrics (joined and per pose), their settings (the
+    network's offset ``network_offset`` local units, an object unit ``object_size`` local
+    ones, the terminator band) and the network's secondary rays per second to an evaluation
+    ``report``."""
     joined = {name: SecondaryPasses.concatenate([r.secondary[name] for r in results])
               for name in results[0].secondary}
+    shaded, cosines = ({name: np.concatenate([getattr(r, field)[name] for r in results])
+                        for name in results[0].shaded} for field in ("shaded", "cosines"))
     for reference, metrics in compare_secondary_both(joined).items():
+        report[reference].update(metrics)
+    for reference, metrics in compare_shaded_both(shaded, joined, cosines,
+                                                  TERMINATOR_BAND).items():
         report[reference].update(metrics)
     for row, result in zip(report["per_pose"], results):
         for reference, metrics in compare_secondary_both(result.secondary).items():
             row[reference].update(metrics)
-    report["secondary"] = settings.describe(network_offset, object_size)
+        for reference, metrics in compare_shaded_both(result.shaded, result.secondary,
+                                                      result.cosines, TERMINATOR_BAND).items():
+            row[reference].update(metrics)
+    report["secondary"] = dict(settings.describe(network_offset, object_size),
+                               **settings_lighting(settings).describe(),
+                               terminator_band=TERMINATOR_BAND)
     rays = sum(r.timings["secondary_rays"] for r in results)
     seconds = sum(r.timings["secondary_s"] for r in results)
     report["timings"]["secondary_rays_per_s"] = (
@@ -364,6 +390,8 @@ def _render_secondary(result, model, posed_object, geometry, origins, directions
         primaries.update(true=result.true, embedded=result.embedded)
     result.secondary = secondary_views(primaries, origins, directions, occluders, mesh.size,
                                        settings, offset)
+    result.shaded, result.cosines = shaded_views(primaries, result.secondary, origins,
+                                                 directions, settings_lighting(settings))
     result.timings.update(secondary_rays=stats.get("rays", 0),
                           secondary_s=stats.get("seconds", 0.0))
 

@@ -9,7 +9,7 @@ import tempfile
 
 import bpy
 
-from ..blender.lights import scene_light
+from ..blender.lights import scene_secondary
 from ..blender.resolution import recipe_resolution
 from ..blender.scenes import demo_scene
 from ..blender.steps import (
@@ -21,7 +21,6 @@ from ..blender.steps import (
     write_passes,
     write_training_plot,
 )
-from ..inference.secondary import SecondarySettings
 from ..model.variants import choose_variant
 from ..output_rule import REPORT_FORMAT
 from ..pose_sets import TEST_POSES, PoseSpec
@@ -73,14 +72,14 @@ def run_demo(scene, out, quick=False, device="auto", steps=None, progress=None,
     evaluated = evaluation_poses(obj, resolution, spec, count=size["eval_poses"],
                                  pose_set=TEST_POSES, follow=captured.corners_follow)
     width, height = size["width"], size["height"]
-    secondary = SecondarySettings(light=scene_light(bpy.context.scene, obj))
+    secondary = scene_secondary(bpy.context.scene, obj)
     report, views = evaluate_file(obj, evaluated, model, width, height, device,
                                   secondary=secondary)
     view = views[0]
     figures = demo_figures(out, report, view, height, width, captured.mesh.size)
     passes = write_passes(out / "passes", view["predicted"], height, width,
                           secondary=view.get("secondary", {}).get("predicted"),
-                          scale=DistanceScale())
+                          scale=DistanceScale(), shaded=view.get("shaded", {}).get("predicted"))
     plot = write_training_plot(out / "training.png", summary["history"])
     report.update(train_poses=len(captured.poses), variant_note=note,
                   dataset_rays=summary["dataset"]["rays"],

@@ -5,9 +5,9 @@ import pathlib
 import re
 
 from ..inference.metrics import CLEAN_RATE, verdict
-from ..passes import COMPOSITOR_PASSES, SECONDARY_COMPOSITOR
+from ..passes import COMPOSITOR_PASSES, SECONDARY_COMPOSITOR, SHADED_COMPOSITOR
 from ..safe_io import write_text_atomic
-from ..text import EMBREE_NOTE, EXACT_PATH, percent, speed_line, value
+from ..text import EMBREE_NOTE, EXACT_PATH, percent, shaded_line, speed_line, value
 
 # The paper's proposed figures (DESIGN section 10), the accuracy goal of the deformed scenes
 # and of Table 1: at most these, against both references.
@@ -82,6 +82,10 @@ def secondary_section(report):
         "",
         secondary_table(report["vs_true"], report["vs_embedded"]),
         "",
+        *([f"The shaded image (the albedo under that light and the scene's world, against the "
+           f"true reference shaded alike; the terminator band |N.L| < "
+           f"{shown['terminator_band']}): {shaded_line(report['vs_true'])}.", ""]
+          if "shaded_psnr" in report["vs_true"] else []),
         "![AO and shadow: reference, predicted, error](figure-secondary-vs-true.png)",
         "",
     ]
@@ -238,10 +242,11 @@ def exact_speed(report):
 
 
 def exr_passes(report):
-    """The pass names of the demo's multilayer EXR: the compositor's, AO and Shadow where
-    the report has them."""
+    """The pass names of the demo's multilayer EXR: the compositor's, AO, Shadow and Shaded
+    where the report has them."""
     names = list(COMPOSITOR_PASSES)
-    return names + (list(SECONDARY_COMPOSITOR) if "secondary" in report else [])
+    return names + ([*SECONDARY_COMPOSITOR, *SHADED_COMPOSITOR] if "secondary" in report
+                    else [])
 
 
 def demo_markdown(report, command):
