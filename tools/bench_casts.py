@@ -33,9 +33,9 @@ from vdnif_addon.blender.bvh import BVHCaster  # noqa: E402
 from vdnif_addon.blender.capture_scene import capture  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.geometry import PosedObject  # noqa: E402
-from vdnif_addon.studies.provenance import stamp  # noqa: E402
 from vdnif_addon.tracing import groundtruth, references  # noqa: E402
 from vdnif_addon.tracing.rays import orbit_rays, orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.tracing.traverse import traverse  # noqa: E402

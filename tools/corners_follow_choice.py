@@ -26,6 +26,7 @@ from vdnif_addon.blender.follow_choice import choose_follow  # noqa: E402
 from vdnif_addon.blender.resolution import recipe_resolution  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.settings import SUGGEST_POSES, SUGGEST_VIEW_SIZE  # noqa: E402
 
@@ -72,7 +73,7 @@ def main():
                        "load_before: the 1-minute load average before each scene)",
                "rows": rows}
     args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(results, indent=1) + "\n")
+    args.json.write_text(json.dumps(stamp(results, with_machine=True), indent=1) + "\n")
     print(markdown(rows))
 
 

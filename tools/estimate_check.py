@@ -23,7 +23,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
-from vdnif_addon.studies.provenance import stamp  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 
 
 def check_scene(scene, train_options):

@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
-from vdnif_addon.studies.provenance import stamp  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 
 BATCH = [sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--"]
 EVALUATION = ["--poses", "8", "--width", "256", "--height", "256", "--device", "cpu"]

@@ -34,9 +34,9 @@ from vdnif_addon.blender.poses import evaluation_spec, posed  # noqa: E402
 from vdnif_addon.blender.read_mesh import deformers_disabled  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.generate import reference_run  # noqa: E402
-from vdnif_addon.studies.provenance import stamp  # noqa: E402
 
 FIGURES = ("distance_mae", "distance_mae_voxels", "hit_iou", "false_negative_rate",
            "false_positive_rate", "normal_error_deg")

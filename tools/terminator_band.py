@@ -32,6 +32,7 @@ from vdnif_addon.inference.shading import (  # noqa: E402
     in_band,
     shadow_split,
 )
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.passes import SecondaryPasses  # noqa: E402
 
 BIN = 0.025
@@ -117,12 +118,12 @@ def main():
     if known.json is not None:
         import os
 
-        known.json.write_text(json.dumps({"object": report["object"],
+        known.json.write_text(json.dumps(stamp({"object": report["object"],
                                           "pose_set": args.pose_set, "poses": report["poses"],
                                           "width": report["width"],
                                           "height": report["height"], "model": str(args.model),
                                           "load": os.getloadavg(), **table,
-                                          "report": report}, indent=1))
+                                          "report": report}, with_machine=True), indent=1))
 
 
 def _percent(share):

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
-from vdnif_addon.studies.provenance import stamp  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.threads import use_threads  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402
 

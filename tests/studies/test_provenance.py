@@ -9,7 +9,7 @@ import re
 
 from vdnif_addon import settings
 from vdnif_addon.kernels import runtime
-from vdnif_addon.studies import provenance
+from vdnif_addon.model import provenance
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 # Where results JSON is written: the studies, the batch commands' --json, the tools.

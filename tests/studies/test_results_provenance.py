@@ -1,6 +1,6 @@
 """Every results table describes today's default network or says which one it describes.
 
-A results JSON written since the provenance record (``studies.provenance``) carries the
+A results JSON written since the provenance record (``vdnif_addon.model.provenance``) carries the
 hash of the default network of its run; the files committed before it are classified in
 ``docs/results/provenance.json`` (by their model bytes where they hold them). Each section of
 docs/results.md and docs/performance.md that names a file whose network is not today's must
@@ -14,7 +14,7 @@ import json
 import pathlib
 import re
 
-from vdnif_addon.studies.provenance import network_hash
+from vdnif_addon.model.provenance import network_hash
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"

@@ -8,20 +8,21 @@ particles), whose shape in a pose depends on the frames simulated before it, not
 pose. A topology that changes between poses is refused where the poses are evaluated
 (``blender.deform``).
 
-Copies of the armature and lattice modifiers move the corners as the rig moves the mesh;
-the true mesh follows everything Blender evaluates. Any other modifier that moves vertices,
-and any shape key whose weight changes from pose to pose, would move the true mesh away
-from corners that follow the copies, so ``check_captured`` names them (and
-``deform.check_deformers`` then has the corners follow the surface). What stays the same in every pose is part
-of the rest mesh and is fine: a shape key that no curve or driver animates (whatever its
-value), and modifiers that build the mesh from its own input alone (subdivision, mirror,
-solidify...) placed before the rig. After the rig such a modifier works on the posed mesh,
-which the corners do not follow (a subdivision after an armature moves the surface by about
-1 % of the object's size in a bent pose): there only modifiers that keep every vertex where
-it is (triangulation, normals, UVs, weights) are fine. A modifier before the rig that reads
-another object (an array's offset object, a mirror's or a boolean's object) builds the rest
-mesh only while that object stays put: where it is animated, driven, constrained or parented
-to something that moves (a bone of a posed armature), the modifier is named.
+Copies of the armature and lattice modifiers move the corners as the rig moves the mesh; the
+true mesh follows everything Blender evaluates. Any other modifier that moves vertices, and
+any shape key whose weight changes from pose to pose, would move the true mesh away from
+corners that follow the copies, so ``check_captured`` names them (and
+``deform.check_deformers`` then has the corners follow the surface). What stays the same in
+every pose is part of the rest mesh and is fine: a shape key that no curve or driver
+animates (whatever its value), and modifiers that build the mesh from its own input alone
+(subdivision, mirror, solidify...) placed before the rig. After the rig such a modifier
+works on the posed mesh, which the corners do not follow (a subdivision after an armature
+moves the surface by about 1 % of the object's size in a bent pose): there only modifiers
+that keep every vertex where it is (triangulation, normals, UVs, weights) are fine. A
+modifier before the rig that reads another object (an array's offset object, a mirror's or a
+boolean's object) builds the rest mesh only while that object stays put: where it is
+animated, driven, constrained or parented to something that moves (a bone of a posed
+armature), the modifier is named.
 
 It is judged from the object's data, not by evaluating poses: a deform modifier is named
 even when it happens to be static (apply it to keep its shape), and an animation curve that

@@ -227,9 +227,9 @@ def write_json(path, data):
     """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
     file, no write through a symlink, no NaN), a mapping with its provenance (the commit,
     today's default network and recipe, the machine: its figures include times)."""
+    from ..model.provenance import stamp
     from ..output_rule import REPORT_FORMAT
     from ..safe_io import write_json_atomic
-    from ..studies.provenance import stamp
 
     if path is not None:
         if isinstance(data, dict):

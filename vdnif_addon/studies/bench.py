@@ -22,6 +22,7 @@ from ..blender.scenes import demo_scene
 from ..blender.steps import evaluate_file, evaluation_poses, variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_common, concatenated
+from ..model.provenance import provenance, stamp
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
 from ..presets import PRESET_ERROR, PRESET_VARIANT, PRESETS_FORMAT
 from ..safe_io import exclusive_lock, write_json_atomic
@@ -29,7 +30,6 @@ from ..settings import RECIPE, NetworkConfig, TrainConfig
 from ..training.fit import fit_model
 from .bench_report import NO_PRESETS, point_label, sweep_markdown, write_outputs
 from .pareto import derive_presets
-from .provenance import provenance, stamp
 from .report import write_section
 
 # The base point is the default recipe (``settings.RECIPE``: resolution, poses, rays per pose

@@ -21,13 +21,13 @@ from ..blender.steps import (
     write_passes,
     write_training_plot,
 )
+from ..model.provenance import stamp
 from ..model.variants import choose_variant
 from ..output_rule import REPORT_FORMAT
 from ..pose_sets import TEST_POSES, PoseSpec
 from ..safe_io import write_json_atomic, write_text_atomic
 from ..settings import RECIPE
 from .demo_figures import demo_figures
-from .provenance import stamp
 from .report import demo_markdown
 
 SIZES = {   # full: the main job, the default recipe at the resolution of the scene's mesh

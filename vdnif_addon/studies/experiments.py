@@ -32,6 +32,7 @@ import torch
 from ..blender.steps import variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_both, compare_common, concatenated
+from ..model.provenance import stamp
 from ..output_rule import REPORT_FORMAT
 from ..passes import Passes
 from ..posed.generate import generate_dataset
@@ -52,7 +53,6 @@ from .experiment_runs import (
     scene_record,
     table_rows,
 )
-from .provenance import stamp
 from .report import (
     common_pixels_line,
     metrics_table,
