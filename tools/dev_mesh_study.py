@@ -74,7 +74,11 @@ def run_mesh(mesh, seed, out, images=None):
                        stdout=subprocess.DEVNULL)
         evaluate_s = time.perf_counter() - start
         trained = json.loads(summary.read_text())
-        figures = json.loads(report.read_text())["vs_true"]
+        evaluated = json.loads(report.read_text())
+        if images:
+            (pathlib.Path(images) / f"{mesh}-seed{seed}" / "evaluate.json").write_text(
+                report.read_text())
+        figures = evaluated["vs_true"]
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
     row = {"mesh": mesh, "rig": rig, "seed": seed,
            "command": ["train", "--mesh", f"{mesh}.obj", "--rig", rig, "--seed", str(seed)],
@@ -82,6 +86,9 @@ def run_mesh(mesh, seed, out, images=None):
            "training": {"wall_s": train_s, "status": trained["train"]["status"],
                         "steps": trained["train"]["steps"], "segments": trained["segments"]},
            "evaluate_wall_s": evaluate_s, "test": figures, "clean": is_clean(holes, extras),
+           # The model against the embedded reference too (the rest surface carried through
+           # the voxel grid, what the network learns): tells the network's error from the grid's.
+           "test_embedded": evaluated.get("vs_embedded"),
            "commit": _commit(), "cpu": _cpu(), "cores": machine_cores(),
            "torch_threads": default_threads(), "load_average_before": load_before,
            "load_average_after": os.getloadavg()}
