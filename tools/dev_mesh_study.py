@@ -61,7 +61,7 @@ def run_mesh(mesh, seed, out, images=None):
         options = ["--mesh", str(path), "--rig", rig]
         model, summary, report = (folder / name for name in (
             "model.vdnif", "train.json", "evaluate.json"))
-        load_before = os.getloadavg()
+        commit, load_before = _commit(), os.getloadavg()
         start = time.perf_counter()
         subprocess.run([*BATCH, "train", *options, "--seed", str(seed), "--out", str(model),
                         "--json", str(summary)], check=True, stdout=subprocess.DEVNULL)
@@ -89,7 +89,7 @@ def run_mesh(mesh, seed, out, images=None):
            # The model against the embedded reference too (the rest surface carried through
            # the voxel grid, what the network learns): tells the network's error from the grid's.
            "test_embedded": evaluated.get("vs_embedded"),
-           "commit": _commit(), "cpu": _cpu(), "cores": machine_cores(),
+           "commit": commit, "cpu": _cpu(), "cores": machine_cores(),
            "torch_threads": default_threads(), "load_average_before": load_before,
            "load_average_after": os.getloadavg()}
     out = pathlib.Path(out)
