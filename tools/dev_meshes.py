@@ -36,6 +36,12 @@ MESHES = {
     "monkey": ("armature", "a creature head: Suzanne with her eyes, smoothed, on an armature"),
 }
 MAX_TRIANGLES = 50_000
+LONGEST_EDGE = 0.08
+"""Flat faces (the text, the slab, the horns' sides) are split until no edge is longer: about
+a voxel at the default resolution for meshes of this size. A rig moves a mesh's vertices
+only, so a long triangle stays straight where the rig bends; the voxel embedding bends it
+(a first build with edges of up to 3 units had 16 % holes against the true reference, from
+the embedding alone). A mesh rigged for bending has such edges split already."""
 
 
 def _reset():
@@ -56,6 +62,54 @@ def _applied(obj, name=None):
     name = name or obj.name
     bpy.data.objects.remove(obj)
     return _link(name, mesh)
+
+
+def _split_long_edges(obj, longest=LONGEST_EDGE):
+    """Splits ``obj``'s edges in halves until none is longer than ``longest`` (its shape is
+    unchanged: new vertices lie on the old faces), leaving triangles: each pass halves the
+    longest edge of every triangle that has one too long, and both triangles beside it."""
+    mesh = obj.data
+    mesh.calc_loop_triangles()
+    vertices = [tuple(vertex.co) for vertex in mesh.vertices]
+    triangles = {tuple(triangle.vertices) for triangle in mesh.loop_triangles}
+
+    def length(a, b):
+        return math.dist(vertices[a], vertices[b])
+
+    while True:
+        beside = {}
+        for triangle in triangles:
+            for k in range(3):
+                beside[frozenset((triangle[k], triangle[(k + 1) % 3]))] = beside.get(
+                    frozenset((triangle[k], triangle[(k + 1) % 3])), []) + [triangle]
+        long = set()
+        for a, b, c in triangles:
+            edge = max(((a, b), (b, c), (c, a)), key=lambda pair: length(*pair))
+            if length(*edge) > longest:
+                long.add(frozenset(edge))
+        if not long:
+            break
+        # Longest first: a long edge is never starved by its shorter neighbours' splits.
+        for edge in sorted(long, key=lambda edge: -length(*sorted(edge))):
+            a, b = sorted(edge)
+            if not all(t in triangles for t in beside[edge]):
+                continue            # a triangle beside it was split this pass: next pass
+            middle = len(vertices)
+            vertices.append(tuple((p + q) / 2 for p, q in zip(vertices[a], vertices[b])))
+            for triangle in beside[edge]:
+                triangles.discard(triangle)
+                k = next(k for k in range(3)
+                         if {triangle[k], triangle[(k + 1) % 3]} == {a, b})
+                first, second, third = triangle[k], triangle[(k + 1) % 3], triangle[(k + 2) % 3]
+                triangles.add((first, middle, third))
+                triangles.add((middle, second, third))
+        if len(triangles) > MAX_TRIANGLES:
+            raise RuntimeError(f"'{obj.name}': over {MAX_TRIANGLES} triangles while splitting")
+    split = bpy.data.meshes.new(mesh.name)
+    split.from_pydata(vertices, [], sorted(triangles))
+    split.validate()
+    obj.data = split
+    return obj
 
 
 def _primitive(operator, **options):
@@ -97,7 +151,7 @@ def text():
     bpy.ops.object.transform_apply(scale=True)
     obj = _boolean(obj, [bar], "UNION")
     obj.name = "Text"
-    return obj
+    return _split_long_edges(obj)
 
 
 def _link_curve(name, curve):
@@ -142,7 +196,7 @@ def horns(count=6, length=0.9, base=0.07):
         cone.rotation_mode = "QUATERNION"
         cone.rotation_quaternion = _z_to(direction)
         cutters.append(cone)
-    obj = _boolean(body, cutters, "UNION")
+    obj = _split_long_edges(_boolean(body, cutters, "UNION"))
     obj.name = "Horns"
     obj.data.shade_smooth()
     return obj
@@ -168,7 +222,7 @@ def slab(size=(2.0, 0.9, 0.12), holes=3, hole_radius=0.22):
         x = size[0] * ((index + 1) / (holes + 1) - 0.5)
         cutters.append(_primitive(bpy.ops.mesh.primitive_cylinder_add, vertices=48,
                                   radius=hole_radius, depth=4 * size[2], location=(x, 0, 0)))
-    obj = _boolean(box, cutters, "DIFFERENCE")
+    obj = _split_long_edges(_boolean(box, cutters, "DIFFERENCE"))
     obj.name = "Slab"
     return obj
 
