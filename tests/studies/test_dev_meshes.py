@@ -134,7 +134,10 @@ def test_the_table_gives_the_clean_verdict_of_each_run(tmp_path):
     cases = {("shell", 0): (0.004, 0.005, "yes"), ("shell", 1): (0.004, 0.0051, "no"),
              ("text", 0): (0.0051, 0.001, "no"), ("torus", 2): (0.0, 0.0, "yes")}
     for (mesh, seed), (holes, extras, _) in cases.items():
-        (runs / f"{mesh}-seed{seed}.json").write_text(json.dumps(_row(mesh, seed, holes, extras)))
+        row = _row(mesh, seed, holes, extras)
+        if mesh == "torus":
+            row["test_embedded"] = {"false_negative_rate": 0.0012, "false_positive_rate": 0.003}
+        (runs / f"{mesh}-seed{seed}.json").write_text(json.dumps(row))
     combined = tmp_path / "combined.json"
     lines = load_tool(STUDY_TOOL).table(runs, combined).splitlines()
     # Rows in the tool's mesh order, then by seed.
@@ -144,6 +147,9 @@ def test_the_table_gives_the_clean_verdict_of_each_run(tmp_path):
     verdicts = {(line.split("|")[1].strip(), int(line.split("|")[3])): line.split("|")[6].strip()
                 for line in lines[2:]}
     assert verdicts == {key: verdict for key, (_, _, verdict) in cases.items()}
+    # The model against the embedded reference, where a run recorded it.
+    assert [line.split("|")[7].strip() for line in lines[2:]] == [
+        "not recorded", "not recorded", "not recorded", "0.12 % / 0.3 %"]
     assert len(json.loads(combined.read_text())) == len(cases)
 
 
