@@ -1,0 +1,175 @@
+"""The development-mesh study: each mesh of ``tools/dev_meshes.py`` trained with the defaults
+as a user runs them (``train --mesh M --rig R --seed S``), then evaluated on 8 test poses at
+256x256 on the CPU (``evaluate``, test pose set, pose seed 0 for every training seed):
+holes (false negative rate) and extras (false positive rate) against the true reference,
+clean when both are at most the clean rate (0.5 %).
+
+    python tools/dev_mesh_study.py run --mesh text --seed 0 --out out/dev-meshes
+    python tools/dev_mesh_study.py table out/dev-meshes --json docs/results/dev-meshes.json
+
+``run`` writes ``MESH-seedS.json`` per training into --out (with the CPU, its cores, torch's
+threads, the load average before and after, and the wall time of the training and of the
+evaluation); ``--images DIR`` keeps evaluate's figures and error images in DIR/MESH-seedS.
+``table`` prints the Markdown table of every ``*.json`` in the folder and writes them
+together as one JSON file.
+"""
+
+import argparse
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+
+from resolution_table import BATCH, EVALUATION, _cpu  # noqa: E402
+
+from vdnif_addon.errors import VDNIFError  # noqa: E402
+from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
+
+MESHES_TOOL = ROOT / "tools" / "dev_meshes.py"
+DEFAULT_JSON = ROOT / "docs" / "results" / "dev-meshes.json"
+
+
+def mesh_table():
+    """``dev_meshes.MESHES`` (mesh: (rig, what it stresses)) without importing bpy here."""
+    import ast
+
+    tree = ast.parse(MESHES_TOOL.read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", None) == "MESHES":
+            return ast.literal_eval(node.value)
+    raise VDNIFError(f"no MESHES table in '{MESHES_TOOL}'")
+
+
+def run_mesh(mesh, seed, out, images=None):
+    """Builds, trains and evaluates ``mesh`` at training seed ``seed``; writes
+    ``out/MESH-seedS.json``."""
+    from vdnif_addon.threads import default_threads, machine_cores
+
+    rig = mesh_table()[mesh][0]
+    with tempfile.TemporaryDirectory(prefix=f"vdnif-{mesh}-") as folder:
+        folder = pathlib.Path(folder)
+        subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh",
+                        mesh], check=True, stdout=subprocess.DEVNULL)
+        path = folder / f"{mesh}.obj"
+        options = ["--mesh", str(path), "--rig", rig]
+        model, summary, report = (folder / name for name in (
+            "model.vdnif", "train.json", "evaluate.json"))
+        commit, load_before = _commit(), os.getloadavg()
+        start = time.perf_counter()
+        subprocess.run([*BATCH, "train", *options, "--seed", str(seed), "--out", str(model),
+                        "--json", str(summary)], check=True, stdout=subprocess.DEVNULL)
+        train_s = time.perf_counter() - start
+        figures_out = ["--out", str(pathlib.Path(images) / f"{mesh}-seed{seed}")] if images \
+            else []
+        start = time.perf_counter()
+        subprocess.run([*BATCH, "evaluate", "--model", str(model), *options, *EVALUATION,
+                        "--json", str(report), *figures_out], check=True,
+                       stdout=subprocess.DEVNULL)
+        evaluate_s = time.perf_counter() - start
+        trained = json.loads(summary.read_text())
+        evaluated = json.loads(report.read_text())
+        if images:
+            (pathlib.Path(images) / f"{mesh}-seed{seed}" / "evaluate.json").write_text(
+                report.read_text())
+        figures = evaluated["vs_true"]
+    holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
+    row = {"mesh": mesh, "rig": rig, "seed": seed,
+           "command": ["train", "--mesh", f"{mesh}.obj", "--rig", rig, "--seed", str(seed)],
+           "evaluation": [*EVALUATION, "--pose-set", "test", "--seed", "0"],
+           "training": {"wall_s": train_s, "status": trained["train"]["status"],
+                        "steps": trained["train"]["steps"], "segments": trained["segments"]},
+           "evaluate_wall_s": evaluate_s, "test": figures, "clean": is_clean(holes, extras),
+           # The model against the embedded reference too (the rest surface carried through
+           # the voxel grid, what the network learns): tells the network's error from the grid's.
+           "test_embedded": evaluated.get("vs_embedded"),
+           "commit": commit, "cpu": _cpu(), "cores": machine_cores(),
+           "torch_threads": default_threads(), "load_average_before": load_before,
+           "load_average_after": os.getloadavg()}
+    out = pathlib.Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{mesh}-seed{seed}.json").write_text(json.dumps(row, indent=1))
+    print(f"{mesh} seed {seed}: holes {100 * holes:.3g} %, extras {100 * extras:.3g} %, "
+          f"clean {row['clean']}, training {train_s:.0f} s", flush=True)
+
+
+def is_clean(holes, extras):
+    """The clean rule: holes and extras each at most CLEAN_RATE."""
+    return holes <= CLEAN_RATE and extras <= CLEAN_RATE
+
+
+def _commit():
+    done = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
+                          text=True)
+    return done.stdout.strip() or None
+
+
+def table(folder, json_path=None):
+    """The Markdown table of the run files in ``folder``; writes them together to
+    ``json_path`` when given."""
+    rows = [json.loads(path.read_text()) for path in sorted(pathlib.Path(folder).glob("*.json"))]
+    if not rows:
+        raise VDNIFError(f"no run files (*.json) in '{folder}'")
+    order = list(mesh_table())
+    rows.sort(key=lambda row: (order.index(row["mesh"]) if row["mesh"] in order else 99,
+                               row["seed"]))
+    if json_path is not None:
+        json_path = pathlib.Path(json_path)
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps(rows, indent=1))
+    lines = ["| mesh | rig | seed | holes | extras | clean | against the embedded reference: "
+             "holes / extras | training wall (s) | steps | load average (1 min) before / after |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for row in rows:
+        holes = row["test"]["false_negative_rate"]
+        extras = row["test"]["false_positive_rate"]
+        embedded = row.get("test_embedded")
+        lines.append(
+            f"| {row['mesh']} | {row['rig']} | {row['seed']} | {100 * holes:.3g} % | "
+            f"{100 * extras:.3g} % | {'yes' if is_clean(holes, extras) else 'no'} | " + (
+                f"{100 * embedded['false_negative_rate']:.3g} % / "
+                f"{100 * embedded['false_positive_rate']:.3g} % | " if embedded
+                else "not recorded | ") +
+            f"{row['training']['wall_s']:.0f} | {row['training']['steps']:,} | "
+            f"{row['load_average_before'][0]:.1f} / {row['load_average_after'][0]:.1f} |")
+    return "\n".join(lines)
+
+
+def main(argv):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="build, train and evaluate meshes")
+    run.add_argument("--mesh", action="append", choices=tuple(mesh_table()), required=True)
+    run.add_argument("--seed", type=int, action="append",
+                     help="training seed (repeatable; default 0)")
+    run.add_argument("--out", type=pathlib.Path, required=True, help="folder of MESH-seedS.json")
+    run.add_argument("--images", type=pathlib.Path, help="keep evaluate's images here")
+    show = commands.add_parser("table", help="the Markdown table of a run folder")
+    show.add_argument("folder", type=pathlib.Path)
+    show.add_argument("--json", type=pathlib.Path, default=DEFAULT_JSON,
+                      help="write the rows together here")
+    args = parser.parse_args(argv)
+    if args.command == "table":
+        print(table(args.folder, args.json))
+        return
+    for mesh in args.mesh:
+        for seed in args.seed or [0]:
+            run_mesh(mesh, seed, args.out, args.images)
+
+
+if __name__ == "__main__":
+    try:
+        main(sys.argv[1:])
+        code = 0
+    except (VDNIFError, subprocess.CalledProcessError) as error:
+        print(f"dev_mesh_study: error: {error}", file=sys.stderr)
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)       # bpy's exit handlers can hang at interpreter teardown
