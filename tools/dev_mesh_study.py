@@ -31,6 +31,7 @@ from resolution_table import BATCH, EVALUATION, _cpu  # noqa: E402
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
+from vdnif_addon.model.provenance import stamp  # noqa: E402
 
 MESHES_TOOL = ROOT / "tools" / "dev_meshes.py"
 DEFAULT_JSON = ROOT / "docs" / "results" / "dev-meshes.json"
@@ -94,7 +95,8 @@ def run_mesh(mesh, seed, out, images=None):
            "load_average_after": os.getloadavg()}
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / f"{mesh}-seed{seed}.json").write_text(json.dumps(row, indent=1))
+    (out / f"{mesh}-seed{seed}.json").write_text(json.dumps(stamp(row, with_machine=True),
+                                                            indent=1))
     print(f"{mesh} seed {seed}: holes {100 * holes:.3g} %, extras {100 * extras:.3g} %, "
           f"clean {row['clean']}, training {train_s:.0f} s", flush=True)
 
