@@ -2,7 +2,9 @@
 generating it and of training, from rates measured on a small sample of the same work.
 
 The sample walks ``PROBE_RAYS`` rays through each of the first ``PROBE_POSES`` poses with
-the real walk and ground truth and writes them as a real shard, then trains the real
+the real walk and ground truth and writes them as a real shard (and a quarter of the rays,
+to tell the cost per pose from the cost per ray; each size twice, the faster counting),
+then trains the real
 network on it at the real batch size for ``PROBE_STEPS`` steps, as the training job does
 (its torch threads, a validation every ``PROBE_WINDOW`` steps rather than after each,
 where the next batch would be gathered unseen), timing the windows after the first (which
@@ -38,18 +40,22 @@ rate is over the windows after the first, which warms up (four steps were not en
 
 
 SMALL_SHARE = 4
-"""The sample walks its poses twice, with all its rays and with 1/SMALL_SHARE of them: the
+"""The sample walks its poses at two sizes, with all its rays and with 1/SMALL_SHARE of them: the
 difference is the cost per ray, the rest the cost per pose (the walk's waves cost about a
 tenth of a second a pose whatever the rays, so one size alone overstates the rays' cost
 of a run with more rays a pose than the sample)."""
 RAY_TIMINGS = ("rays_s", "walk_s", "ground_truth_s", "records_s")
+REPEATS = 2
+"""Times each size of the sample is walked, alternating; the fastest counts (a machine shared
+with other work slows a second-long walk by up to 3x, never speeds it up)."""
 
 
 def probe_poses(captured):
     """The poses the sample reads, in order: the first one for the warm-up, then the
-    sample's, twice (a PoseSource must deliver exactly these)."""
+    sample's, 2 x REPEATS times (a PoseSource must deliver exactly these)."""
     sample = captured.poses[:PROBE_POSES]
-    return [pose for pose in captured.poses[:1] + sample + sample if not pose.get("rest")]
+    return [pose for pose in captured.poses[:1] + sample * (2 * REPEATS)
+            if not pose.get("rest")]
 
 
 def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose=PROBE_RAYS,
@@ -68,9 +74,13 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
                          scratch / "warm", WARM_RAYS, seed=seed, **mix)
         sample = dataclasses.replace(captured, poses=captured.poses[:PROBE_POSES])
         rays = min(PROBE_RAYS, rays_per_pose)
-        small = generate_dataset(source, sample, scratch / "small",
-                                 max(rays // SMALL_SHARE, 1), seed=seed, **mix)
-        header = generate_dataset(source, sample, scratch / "data", rays, seed=seed, **mix)
+        walks = {"small": [], "data": []}
+        for repeat in range(REPEATS):
+            for name, count in (("small", max(rays // SMALL_SHARE, 1)), ("data", rays)):
+                folder = scratch / (name if repeat == REPEATS - 1 else f"{name}-{repeat}")
+                walks[name].append(generate_dataset(source, sample, folder, count, seed=seed,
+                                                    **mix))
+        small, header = (min(walks[name], key=_walked) for name in ("small", "data"))
         written = sum(path.stat().st_size for path in (scratch / "data").iterdir())
         training = (_probe_training(scratch / "data", variant, overrides, header.counts.segments)
                     if variant is not None else {})
@@ -90,20 +100,22 @@ def measure(source, captured, variant, overrides, scratch, seed=0, rays_per_pose
     }
 
 
+def _walked(header):
+    """The seconds a dataset's walk and what follows it took (RAY_TIMINGS)."""
+    return sum(header.timings[name] for name in RAY_TIMINGS)
+
+
 def _split_ray_cost(small, large):
     """(seconds per ray, seconds per pose) of the walk and what follows it, from the sample
     walked with few rays (``small``) and with all of them (``large``, DatasetHeaders of the
     same poses): the line through the two. A noisy machine can make the difference
     negative; the cost is then the large sample's per ray alone."""
-    def walked(header):
-        return sum(header.timings[name] for name in RAY_TIMINGS)
-
     poses = len(large.poses)
     extra_rays = large.counts.rays - small.counts.rays
-    ray_s = (walked(large) - walked(small)) / extra_rays if extra_rays > 0 else 0.0
+    ray_s = (_walked(large) - _walked(small)) / extra_rays if extra_rays > 0 else 0.0
     if ray_s <= 0.0:
-        return walked(large) / large.counts.rays, 0.0
-    pose_s = max(walked(large) - ray_s * large.counts.rays, 0.0) / poses
+        return _walked(large) / large.counts.rays, 0.0
+    pose_s = max(_walked(large) - ray_s * large.counts.rays, 0.0) / poses
     return ray_s, pose_s
 
 
