@@ -11,6 +11,7 @@ import sys
 
 import numpy as np
 import pytest
+from obj_files import read_obj
 from tool_errors import load_tool, one_error_line
 
 from vdnif_addon.settings import RIGS
@@ -33,20 +34,6 @@ EXPECTED = {
     "monkey": (False, 3, (10_000, 30_000)),  # Suzanne's head is open where her eyes sit
 }
 SPLIT = ("text", "horns", "slab")
-
-
-def read_obj(path):
-    """The vertices and triangles (polygons split as fans) of an OBJ file."""
-    vertices, triangles = [], []
-    for line in path.read_text().splitlines():
-        fields = line.split()
-        if fields and fields[0] == "v":
-            vertices.append([float(x) for x in fields[1:4]])
-        elif fields and fields[0] == "f":
-            corners = [int(field.split("/")[0]) - 1 for field in fields[1:]]
-            triangles += [(corners[0], corners[k], corners[k + 1])
-                          for k in range(1, len(corners) - 1)]
-    return np.array(vertices), np.array(triangles)
 
 
 def pieces(count, triangles):

@@ -20,15 +20,13 @@ import time
 
 from ..geometry.capture import ARMATURE_COPY, CORNERS_FOLLOW, EVALUATED_SURFACE
 from ..pose_sets import DEVELOPMENT_POSES
-from ..posed.generate import reference_run
-from ..posed.pose_source import CalledReader
 from ..settings import FOLLOW_MARGIN, KNEE_TOLERANCE, SUGGEST_POSES, SUGGEST_VIEW_SIZE
 from ..worker import DirectCalls
 from .capture_scene import capture
 from .deform import check_deformers
-from .pose_reader import PoseReader
 from .poses import evaluation_spec
 from .read_mesh import check_mesh_object, deform_modifiers
+from .resolution import embedding_errors
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,15 +85,7 @@ def choose_follow(obj, resolution, spec, poses=SUGGEST_POSES, size=SUGGEST_VIEW_
     for follow in CORNERS_FOLLOW:
         captured = calls.call(lambda: capture(obj, resolution, development,
                                               deform_corners=False, follow=follow))
-        reader = calls.call(lambda: PoseReader(obj, captured))
-        try:
-            report = reference_run(CalledReader(calls, reader), captured, size, size)
-        finally:
-            calls.call(reader.close, always=True)
-        figures = report["embedded_vs_true"]
-        iou = figures["hit_iou"]
-        errors[follow] = {"embedding_error": figures["distance_mae"],
-                          "hit_mismatch": None if iou is None else 1.0 - iou}
+        errors[follow] = embedding_errors(obj, captured, size, calls)
         if progress is not None:
             progress(len(errors), len(CORNERS_FOLLOW))
     chosen = (EVALUATED_SURFACE if better(errors[EVALUATED_SURFACE], errors[ARMATURE_COPY])

@@ -159,6 +159,23 @@ def _figure(value):
     return "none" if value is None else f"{value:.2g}"
 
 
+def embedding_errors(obj, captured, size, calls=DirectCalls()):
+    """{embedding_error, hit_mismatch} of ``captured`` (a capture of mesh object ``obj``,
+    corners left to per-pose work): its embedded against its true reference
+    (``generate.reference_run``) at ``size`` x ``size``, as distance MAE in object units and
+    as 1 - the hit masks' IoU (None where neither hits). ``calls``: see
+    ``suggest_resolution``."""
+    reader = calls.call(lambda: PoseReader(obj, captured))
+    try:
+        report = reference_run(CalledReader(calls, reader), captured, size, size)
+    finally:
+        calls.call(reader.close, always=True)
+    figures = report["embedded_vs_true"]
+    iou = figures["hit_iou"]
+    return {"embedding_error": figures["distance_mae"],
+            "hit_mismatch": None if iou is None else 1.0 - iou}
+
+
 def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
                        poses=SUGGEST_POSES, size=SUGGEST_VIEW_SIZE, progress=None, floor=None,
                        calls=DirectCalls()):
@@ -181,17 +198,10 @@ def suggest_resolution(obj, spec, target=None, candidates=RESOLUTION_CANDIDATES,
     spec = evaluation_spec(spec, min(spec.count, poses), pose_set=DEVELOPMENT_POSES)
     for resolution in candidates:
         captured = calls.call(lambda: capture(obj, resolution, spec, deform_corners=False))
-        reader = calls.call(lambda: PoseReader(obj, captured))
-        try:
-            report = reference_run(CalledReader(calls, reader), captured, size, size)
-        finally:
-            calls.call(reader.close, always=True)
-        figures = report["embedded_vs_true"]
-        iou = figures["hit_iou"]
-        table.append({"resolution": resolution, "embedding_error": figures["distance_mae"],
-                      "hit_mismatch": None if iou is None else 1.0 - iou})
+        table.append({"resolution": resolution,
+                      **embedding_errors(obj, captured, size, calls)})
         if progress is not None:
-            progress(resolution, figures["distance_mae"])
+            progress(resolution, table[-1]["embedding_error"])
     # The errors are in object units already (shares of the rest mesh's longest side).
     chosen = knee(table, tolerance=KNEE_TOLERANCE)
     resolution = max(chosen["resolution"], floor.thin)
