@@ -300,10 +300,13 @@ CLAIMS = [
     # ---- the estimate
     Claim(R, "Sizes are within {} %", ESTIMATE, lambda d: [
         max(abs(pct(r["ratio"]["bytes"] - 1)) for r in d["rows"])]),
-    Claim(R, "but for the arm's, estimated {}x too long: its sample trained at {} samples/s and "
-          "the run's steps at {} (spot's at {} against {};", ESTIMATE, lambda d: [
-              1 / d["rows"][0]["ratio"]["train_s"], *sample_rates(d["rows"][0]),
-              *sample_rates(d["rows"][2])]),
+    Claim(R, "estimated the arm's training {}x too long: its sample trained at {} samples/s "
+          "and the run's steps at {} (spot's at {} against {})", ESTIMATE, lambda d: [
+              1 / d["loaded_run"]["rows"][0]["ratio"]["train_s"],
+              *sample_rates(d["loaded_run"]["rows"][0]),
+              *sample_rates(d["loaded_run"]["rows"][2])]),
+    Claim(R, "nothing else running (load average about {}, the command's own)", ESTIMATE,
+          lambda d: [d["provenance"]["machine"]["load_average"][0]]),
     Claim(R, "network is today's default, the normal field on its own grid (models of {} MB, {} "
           "MB textured)", "results/normal-grid-choices.json", lambda d: [
               d["runs"][s]["L3 T17"]["model_bytes"] / 1e6 for s in ("bunny", "spot")]),
