@@ -166,12 +166,7 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv[1:])
-        code = 0
-    except (VDNIFError, subprocess.CalledProcessError) as error:
-        print(f"dev_mesh_study: error: {error}", file=sys.stderr)
-        code = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)       # bpy's exit handlers can hang at interpreter teardown
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, sys.argv[1:], errors=(VDNIFError, subprocess.CalledProcessError),
+                 prefix="dev_mesh_study: error: ")

@@ -13,7 +13,6 @@ displacement's noise is Blender's procedural Clouds texture at fixed settings.
 
 import argparse
 import math
-import os
 import pathlib
 import sys
 
@@ -331,6 +330,6 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
-    sys.stdout.flush()
-    os._exit(0)      # bpy's exit handlers can hang at interpreter teardown
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, sys.argv[1:])

@@ -13,7 +13,6 @@ Anything after ``--`` is passed to the ``train`` command's parser (``--poses 16`
 
 import argparse
 import json
-import os
 import pathlib
 import sys
 import tempfile
@@ -103,12 +102,6 @@ def main():
 
 
 if __name__ == "__main__":
-    try:
-        main()
-        code = 0
-    except VDNIFError as error:
-        print(f"estimate_check: error: {error}", file=sys.stderr)
-        code = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)       # bpy's exit handlers can hang at interpreter teardown
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, errors=VDNIFError, prefix="estimate_check: error: ")

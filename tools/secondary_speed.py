@@ -17,7 +17,6 @@ stops after the device's queued work.
 """
 
 import argparse
-import os
 import pathlib
 import statistics
 import sys
@@ -25,6 +24,7 @@ import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))    # tool_exit, also when run by runpy
 
 import numpy as np  # noqa: E402
 
@@ -168,24 +168,15 @@ def main():
     timed.add_argument("--samples", type=int, nargs="+", default=[1, 16],
                        help="AO samples per pixel to time")
     args = parser.parse_args()
-    code = 0
-    try:
-        if args.command == "capture":
-            capture(args.out, [a for a in args.evaluate if a != "--"])
-        else:
-            if args.repeats < 1:
-                raise VDNIFError(f"--repeats must be at least 1, got {args.repeats}")
-            time_paths(args.pose, args.model, args.device, args.repeats, args.samples)
-    except VDNIFError as error:
-        print(f"error: {error}", file=sys.stderr)
-        code = 1
-    if "bpy" in sys.modules:
-        # As batch.py ends: bpy's exit handlers can hang once a scene was loaded.
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
-    return code
+    if args.command == "capture":
+        capture(args.out, [a for a in args.evaluate if a != "--"])
+    else:
+        if args.repeats < 1:
+            raise VDNIFError(f"--repeats must be at least 1, got {args.repeats}")
+        time_paths(args.pose, args.model, args.device, args.repeats, args.samples)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, errors=VDNIFError, prefix="error: ")

@@ -224,6 +224,6 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
-    sys.stdout.flush()
-    os._exit(0)     # past bpy's audio teardown, which can hang at exit (tests/conftest.py)
+    from tool_exit import run_and_exit
+
+    run_and_exit(main)
