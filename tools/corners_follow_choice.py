@@ -13,7 +13,6 @@ import argparse
 import json
 import os
 import pathlib
-import platform
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -26,6 +25,7 @@ from vdnif_addon.blender.follow_choice import choose_follow  # noqa: E402
 from vdnif_addon.blender.resolution import recipe_resolution  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
+from vdnif_addon.kernels.runtime import cpu_description  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.settings import SUGGEST_POSES, SUGGEST_VIEW_SIZE  # noqa: E402
@@ -63,8 +63,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", required=True, type=pathlib.Path)
     args = parser.parse_args()
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
-                if line.startswith("model name")), platform.processor())
+    cpu, _ = cpu_description()     # as every results JSON names it
     rows = [measure(name, build) for name, build in SCENES.items()]
     results = {"command": " ".join(["python", *sys.argv]), "cpu": cpu,
                "cpus": os.cpu_count(), "blender": bpy.app.version_string,

@@ -15,7 +15,6 @@ import argparse
 import json
 import os
 import pathlib
-import platform
 import statistics
 import sys
 import time
@@ -34,6 +33,7 @@ from vdnif_addon.blender.poses import evaluation_spec, posed  # noqa: E402
 from vdnif_addon.blender.read_mesh import deformers_disabled  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
+from vdnif_addon.kernels.runtime import cpu_description  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.generate import reference_run  # noqa: E402
@@ -198,8 +198,7 @@ def main():
     parser.add_argument("--resolution", type=int, default=32)
     parser.add_argument("--size", type=int, default=96, help="reference image side")
     args = parser.parse_args()
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo")
-                if line.startswith("model name")), platform.processor())
+    cpu, _ = cpu_description()     # as every results JSON names it
     results = {"command": " ".join(["python", *sys.argv]), "cpu": cpu,
                "cpus": os.cpu_count(), "blender": bpy.app.version_string,
                "note": "wall-clock medians on a machine shared with other sessions' work "
