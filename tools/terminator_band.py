@@ -91,15 +91,14 @@ def main():
     if not args.secondary:
         raise VDNIFError("give --secondary: the band splits the shadow pass's errors")
     report, views, _ = evaluated(args)
-    table = band_table(np.concatenate([v["cosines"]["true"] for v in views]),
-                       *(SecondaryPasses.concatenate([v["secondary"][name] for v in views])
-                         for name in ("predicted", "true")))
     names = ("predicted", "true")
+    secondary = {name: SecondaryPasses.concatenate([v["secondary"][name] for v in views])
+                 for name in names}
+    table = band_table(np.concatenate([v["cosines"]["true"] for v in views]),
+                       secondary["predicted"], secondary["true"])
     table["visible"] = visible_parts(
         {name: np.concatenate([v["shaded"][name] for v in views]) for name in names},
-        {name: np.concatenate([v[name].hit for v in views]) for name in names},
-        {name: SecondaryPasses.concatenate([v["secondary"][name] for v in views])
-         for name in names})
+        {name: np.concatenate([v[name].hit for v in views]) for name in names}, secondary)
     print(f"visible steps: {100 * report['vs_true']['shaded_visible_rate']:.2f} % of the "
           "pixels: " + ", ".join(f"{name.replace('_', ' ')} {100 * share:.2f} %"
                                  for name, share in table["visible"].items()))
