@@ -2,9 +2,9 @@
 error (embedded against true reference: distance MAE in object units, hit mismatch) of the
 copied modifiers and of the surface binding on the development poses the choice is made on
 (``blender/follow_choice.py``), the choice, and its seconds, on the arm and lattice demo
-scenes and a flat slab in a lattice fitted tightly around it (``tests/support/
-thin_lattice.py``), each at the recipe's resolution. Writes JSON and prints the Markdown
-table; no network is trained.
+scenes and a flat slab in a lattice fitted tightly around it (``tools/resolution_meshes.py``),
+each at the recipe's resolution. Writes JSON and prints the Markdown table; no network is
+trained.
 
     python tools/corners_follow_choice.py --json docs/results/corners-follow-choice.json
 """
@@ -16,10 +16,10 @@ import pathlib
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests" / "support")]
+sys.path.insert(0, str(ROOT))
 
 import bpy  # noqa: E402  isort: skip  (Blender's modules come with it)
-from thin_lattice import thin_lattice_slab  # noqa: E402
+from resolution_meshes import thin_lattice_slab  # noqa: E402
 
 from vdnif_addon.blender.follow_choice import choose_follow  # noqa: E402
 from vdnif_addon.blender.resolution import recipe_resolution  # noqa: E402

@@ -5,6 +5,11 @@ everywhere: their walls are a few hundredths of their size, under two voxels at 
 default resolution.
 
     python tools/resolution_meshes.py --cup out/cup.obj --plate out/plate.obj
+
+And, built in the open scene with its rig for ``tools/corners_follow_choice.py`` and the
+corner-following tests (``tests/support/thin_lattice.py``), a flat slab in a lattice fitted
+tightly around it. This module imports bpy and numpy, no copy of the core, so that a Blender
+test may import it.
 """
 
 import argparse
@@ -13,6 +18,7 @@ import pathlib
 import sys
 
 import bpy  # isort: skip  (Blender's modules come with it)
+import numpy as np
 
 CUP = {"radius": 0.35, "height": 1.0, "wall": 0.035, "sides": 48, "rings": 24}
 """Open at the top, closed at the bottom; the wall is 3.5 % of the height."""
@@ -82,6 +88,33 @@ def plate(path, length=PLATE["length"], width=PLATE["width"], thickness=PLATE["t
               (j + 1) * (nx + 1) + i)
              for j in range(ny) for i in range(nx) if not (i in open_x and j in open_y)]
     _export(_solid("Plate", vertices, faces, thickness), path)
+
+
+def thin_lattice_slab(cells=8, margin=1.1, points=3):
+    """A slab ``cells`` x ``cells`` x 1 quads (one unit long, one cell thick; every vertex on
+    the grid of its cells) in a ``points``^3 lattice ``margin`` times its extent on every
+    axis (thin like the slab), added to the open scene; random poses move the lattice's
+    points. Blender holds a lattice's deformation still outside its box, where the voxel
+    corners above and below the slab lie, so the copied lattice modifier leaves them behind
+    while the slab bends."""
+    step = 1.0 / cells
+    vertices = [(i * step, j * step, step) for j in range(cells + 1) for i in range(cells + 1)]
+    faces = [(j * (cells + 1) + i, j * (cells + 1) + i + 1, (j + 1) * (cells + 1) + i + 1,
+              (j + 1) * (cells + 1) + i) for j in range(cells) for i in range(cells)]
+    slab = _solid("Slab", vertices, faces, step)           # from z = step down to 0
+    co = np.array([vertex.co for vertex in slab.data.vertices])
+    data = bpy.data.lattices.new("Fitted")
+    data.points_u = data.points_v = data.points_w = points
+    lattice = bpy.data.objects.new("Fitted", data)
+    bpy.context.scene.collection.objects.link(lattice)
+    lattice.location = 0.5 * (co.min(axis=0) + co.max(axis=0))
+    rest = np.array([point.co for point in data.points])
+    lattice.scale = margin * np.ptp(co, axis=0) / np.ptp(rest, axis=0)
+    modifier = slab.modifiers.new("Lattice", "LATTICE")
+    modifier.object = lattice
+    bpy.context.view_layer.objects.active = slab
+    bpy.context.view_layer.update()
+    return slab
 
 
 def _export(obj, path):

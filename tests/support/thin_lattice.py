@@ -1,27 +1,13 @@
-"""A flat slab in a lattice fitted tightly around it, as a user fits one: Blender holds the
-lattice's deformation still outside its box, where the voxel corners above and below the
-slab lie, so the copied lattice modifier leaves them behind while the slab bends. Shared by
-the corner-follow tests and ``tools/follow_choice_table.py``."""
+"""The flat slab in a lattice fitted tightly around it, built by ``tools/resolution_meshes.py``
+(one builder for the corner-follow tests and ``tools/corners_follow_choice.py``; a tool does
+not import the tests). That module imports bpy and numpy, no copy of the core, so a Blender
+test may use it beside ``core(...)``."""
 
-import bpy
-import numpy as np
-import scene_builders as sb
+import pathlib
+import sys
 
+sys.path.append(str(pathlib.Path(__file__).resolve().parents[2] / "tools"))
 
-def thin_lattice_slab(cells=8, margin=1.1, points=3):
-    """A slab ``cells`` x ``cells`` x 1 quads (one unit long) in a ``points``^3 lattice
-    ``margin`` times its extent on every axis (thin like the slab); random poses move the
-    lattice's points."""
-    slab = sb.lattice_box((cells, cells, 1), 1.0 / cells, name="Slab")
-    co = sb.mesh_vertices(slab)
-    data = bpy.data.lattices.new("Fitted")
-    data.points_u = data.points_v = data.points_w = points
-    lattice = bpy.data.objects.new("Fitted", data)
-    bpy.context.scene.collection.objects.link(lattice)
-    lattice.location = 0.5 * (co.min(axis=0) + co.max(axis=0))
-    rest = np.array([p.co for p in data.points])
-    lattice.scale = margin * np.ptp(co, axis=0) / np.ptp(rest, axis=0)
-    modifier = slab.modifiers.new("Lattice", "LATTICE")
-    modifier.object = lattice
-    bpy.context.view_layer.update()
-    return slab
+from resolution_meshes import thin_lattice_slab  # noqa: E402
+
+__all__ = ["thin_lattice_slab"]
