@@ -108,12 +108,19 @@ def run_case(case, out, train=True):
         subprocess.run([*BATCH, "evaluate", "--model", str(model), *options, *EVALUATION,
                         "--json", str(report)], check=True, stdout=subprocess.DEVNULL)
         trained = json.loads(summary.read_text())
-        figures = json.loads(report.read_text())["vs_true"]
+        evaluated = json.loads(report.read_text())
+        from vdnif_addon.model.model_file import load_model
+
+        thresholds = load_model(model)[1].thresholds
+        figures = evaluated["vs_true"]
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
     row = {"case": case, "options": _named(options, case, mesh), "suggestion": suggested,
            "training": {"wall_s": train_s, "status": trained["train"]["status"],
-                        "steps": trained["train"]["steps"], "segments": trained["segments"]},
-           "test": figures, "clean": holes <= CLEAN_RATE and extras <= CLEAN_RATE,
+                        "steps": trained["train"]["steps"], "segments": trained["segments"],
+                        "occlusion_threshold": thresholds.occlusion,
+                        "candidate_threshold": thresholds.candidate},
+           "test": figures, "test_vs_embedded": evaluated.get("vs_embedded"),
+           "clean": holes <= CLEAN_RATE and extras <= CLEAN_RATE,
            "cpu": _cpu(), "load_average": os.getloadavg()}
     _write(out, row)
     print(f"{case}: R {suggested['resolution']}, holes {100 * holes:.3g} %, extras "
@@ -134,10 +141,9 @@ def _write(out, row):
 
 
 def _cpu():
-    for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown"
+    from vdnif_addon.kernels.runtime import cpu_description
+
+    return cpu_description()[0]
 
 
 def table(folder):
@@ -187,12 +193,7 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv[1:])
-        code = 0
-    except (VDNIFError, subprocess.CalledProcessError) as error:
-        print(f"resolution_table: error: {error}", file=sys.stderr)
-        code = 1
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)       # bpy's exit handlers can hang at interpreter teardown
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, sys.argv[1:], errors=(VDNIFError, subprocess.CalledProcessError),
+                 prefix="resolution_table: error: ")
