@@ -173,34 +173,23 @@ def calibrate_threshold(
     data: Segments,
     group: ProcessGroup | None = None,
 ) -> float:
-    """The occlusion threshold that misclassifies the fewest rays of ``data`` (the held-out
-    poses, with ``training.data.RAY_FIELDS``), given the network's ``head_outputs`` on them,
-    among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to the one nearest
-    OCCLUSION_THRESHOLD, and without held-out segments it is OCCLUSION_THRESHOLD.
-
-    A ray is counted as the render answers it (DESIGN section 9): it hits when any of its
-    segments is above the threshold, so a hole is a ray that the reference hits and whose
-    segments all lie at or below it, an extra a ray that the reference misses and one of
-    whose segments lies above it. Counted by segments instead, one false segment among the
-    dozens a missed ray crosses weighs as little as one hit segment, though either decides
-    its ray, and a hit ray's earlier segments above the threshold save it from a hole."""
+    """The occlusion threshold that misclassifies the fewest segments of ``data`` (the
+    held-out poses), given the network's ``head_outputs`` on them, among the multiples of
+    1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to the one nearest OCCLUSION_THRESHOLD, and
+    without held-out segments it is OCCLUSION_THRESHOLD. A hole is a hit segment below the
+    threshold, an extra a miss segment above it (DESIGN section 9)."""
     group = group or ProcessGroup()
     device = data["p0"].device
     counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
     if data["p0"].shape[0]:
-        ray, rays = _ray_index(data)
-        probability = torch.zeros(rays, dtype=torch.float32, device=device).scatter_reduce_(
-            0, ray, torch.sigmoid(outputs["occlusion"].float()), "amax", include_self=False)
-        hit = torch.zeros(rays, dtype=torch.bool, device=device).scatter_reduce_(
-            0, ray, data["hit"], "amax", include_self=False)
+        probability = torch.sigmoid(outputs["occlusion"].float())
         bins = (probability * THRESHOLD_BINS).long().clamp(0, THRESHOLD_BINS - 1)
-        counts.index_put_((hit.long(), bins),
+        counts.index_put_((data["hit"].long(), bins),
                           torch.ones_like(probability, dtype=torch.float64), accumulate=True)
     counts = group.sum(counts)
     if counts.sum() == 0:
         return OCCLUSION_THRESHOLD
-    # Threshold k / BINS: hit rays in bins below k are holes, missed rays in bins k and up
-    # extras.
+    # Threshold k / BINS: hits in bins below k are holes, misses in bins k and up extras.
     holes = torch.cat([counts.new_zeros(1), counts[1].cumsum(0)])
     extras = counts[0].sum() - torch.cat([counts.new_zeros(1), counts[0].cumsum(0)])
     errors = (holes + extras).tolist()
@@ -235,7 +224,9 @@ def calibrate_candidate_threshold(
         predicted = readout(outputs, distance_mode, voxel_size, data["rest_len"])
         probability = predicted["hit_probability"].float()
         distance = data["t0"].double() + predicted["fraction"].double() * data["seg_len"].double()
-        ray, rays = _ray_index(data)
+        _, ray = torch.unique(data["pose"] * (int(data["ray"].max()) + 1) + data["ray"],
+                              return_inverse=True)
+        rays = int(ray.max()) + 1
         reference = _first_per_ray(data["hit"], data["t0"].double() + data["hit_frac"].double()
                                    * data["seg_len"].double(), ray, rays)
         confident = _first_per_ray(probability > occlusion, distance, ray, rays)
@@ -249,14 +240,6 @@ def calibrate_candidate_threshold(
         return occlusion
     errors = sums[:-1].tolist()
     return thresholds[min(range(len(thresholds)), key=lambda k: (errors[k], -k))]
-
-
-def _ray_index(data: Segments) -> tuple[Int64[torch.Tensor, " S"], int]:
-    """Each row's ray of ``data`` as an index 0..rays-1 (a ray is a pose's ray number), and
-    the number of rays."""
-    _, ray = torch.unique(data["pose"] * (int(data["ray"].max()) + 1) + data["ray"],
-                          return_inverse=True)
-    return ray, int(ray.max()) + 1
 
 
 def _first_per_ray(mask: Bool[torch.Tensor, " S"], value: Float64[torch.Tensor, " S"],
