@@ -55,6 +55,17 @@ class Recipe:
 RECIPE = Recipe()
 """The default recipe."""
 
+CALIBRATION_VIEW_SHARE = 1 / 16
+"""The square orbit view walked per pose beside its training rays, as a share of them (64x64
+at the recipe's 65,536): held out with their pose, its rays calibrate the occlusion threshold
+as the render counts holes and extras, per camera ray
+(``training.validation.calibrate_threshold``); no training step reads them."""
+
+
+def calibration_view(rays_per_pose: int) -> int:
+    """Pixels on a side of the calibration view of a dataset of ``rays_per_pose``."""
+    return int((rays_per_pose * CALIBRATION_VIEW_SHARE) ** 0.5)
+
 OCCLUSION_THRESHOLD = 0.5
 """Occlusion probability above which a segment counts as a hit until training calibrates the
 thresholds on held-out poses (``model.metadata.Thresholds``), and the calibration's choice

@@ -56,7 +56,7 @@ def test_batches_move_from_host_memory_to_the_gpu_unchanged():
     heads = Heads(albedo=True, material_count=2)
     got = {}
     for device in ("cpu", "cuda:0"):
-        rows, _, _ = split_data(shards(), config, heads, torch.device(device), ProcessGroup())
+        rows, _, _, _ = split_data(shards(), config, heads, torch.device(device), ProcessGroup())
         batches = Batches(rows, 64, seed=3)
         got[device] = [batches.next() for _ in range(3)]
     for cpu, gpu in zip(got["cpu"], got["cuda:0"]):

@@ -49,21 +49,28 @@ def shards(rows=400, poses=4, seed=0):
     return out
 
 
-@pytest.mark.parametrize("poses, heads", [(4, Heads(albedo=True, material_count=2)),
-                                          (1, Heads()), (3, Heads(material_count=2))])
-def test_the_split_is_the_concatenated_rows_masked(poses, heads):
+@pytest.mark.parametrize("poses, heads, view_from", [
+    (4, Heads(albedo=True, material_count=2), None), (1, Heads(), None),
+    (3, Heads(material_count=2), None), (4, Heads(material_count=2), 320), (1, Heads(), 320)])
+def test_the_split_is_the_concatenated_rows_masked(poses, heads, view_from):
     """Each column written once, shard by shard, holds the rows, order and dtype of the
-    shards concatenated and then masked by the held-out poses (or rays, with one pose)."""
+    shards concatenated and then masked by the held-out poses (or rays, with one pose); rays
+    numbered ``view_from`` and up (a calibration view's) are never training rows, and the
+    held-out ones are kept apart from the validation rows."""
     config = TrainConfig(batch_size=64, val_fraction=0.25, device="cpu")
-    rows, held_out, val_poses = split_data(shards(poses=poses), config, heads,
-                                           torch.device("cpu"), ProcessGroup())
-    expected = oracle.split_data(shards(poses=poses), config, heads, ProcessGroup())
-    assert val_poses == expected[2] and (val_poses == []) == (poses == 1)
-    for got, want in zip((rows, held_out), expected[:2]):
+    rows, held_out, view, val_poses = split_data(shards(poses=poses), config, heads,
+                                                 torch.device("cpu"), ProcessGroup(),
+                                                 view_from)
+    expected = oracle.split_data(shards(poses=poses), config, heads, ProcessGroup(), view_from)
+    assert val_poses == expected[3] and (val_poses == []) == (poses == 1)
+    for got, want in zip((rows, held_out, view), expected[:3]):
         assert got.keys() == want.keys()
         for key in want:
             assert got[key].dtype == want[key].dtype and torch.equal(got[key], want[key]), key
     assert 0 < len(held_out["p0"]) < len(rows["p0"])
+    assert (len(view["p0"]) > 0) == (view_from is not None)
+    if view_from is not None:
+        assert (view["ray"] >= view_from).all() and (held_out["ray"] < view_from).all()
 
 
 def test_training_rows_stay_on_the_host_and_each_batch_moves_to_the_device():
@@ -71,7 +78,7 @@ def test_training_rows_stay_on_the_host_and_each_batch_moves_to_the_device():
     training rows stay in host memory, and every step's batch is moved there."""
     config = TrainConfig(val_fraction=0.25, batch_size=64, val_segments=30, device="cpu")
     heads = Heads(albedo=True, material_count=2)
-    rows, held_out, poses = split_data(shards(), config, heads, torch.device("meta"),
+    rows, held_out, _, poses = split_data(shards(), config, heads, torch.device("meta"),
                                        ProcessGroup())
     assert poses and {value.device.type for value in rows.values()} == {"cpu"}
     assert {value.device.type for value in held_out.values()} == {"meta"}
@@ -86,7 +93,7 @@ def test_training_rows_stay_on_the_host_and_each_batch_moves_to_the_device():
     probe = batches.subset(held_out, 30)
     assert all(value.device.type == "meta" and value.shape[0] == 30 for value in probe.values())
     # On the CPU the batches are the rows the host generator draws, as before.
-    rows, held_out, _ = split_data(shards(), config, heads, torch.device("cpu"), ProcessGroup())
+    rows, held_out, _, _ = split_data(shards(), config, heads, torch.device("cpu"), ProcessGroup())
     batches, generator = Batches(rows, 64, seed=3), torch.Generator().manual_seed(3)
     order = torch.randperm(held_out["p0"].shape[0], generator=generator)[:30]
     torch.testing.assert_close(batches.subset(held_out, 30)["p0"], held_out["p0"][order])
@@ -102,7 +109,7 @@ def test_batches_gathered_ahead_are_the_generators_draws_in_order():
     import threading
 
     config = TrainConfig(val_fraction=0.25, batch_size=64, val_segments=30, device="cpu")
-    rows, held_out, _ = split_data(shards(), config, Heads(albedo=True, material_count=2),
+    rows, held_out, _, _ = split_data(shards(), config, Heads(albedo=True, material_count=2),
                                    torch.device("cpu"), ProcessGroup())
     gathered_on = []
 

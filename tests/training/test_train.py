@@ -590,10 +590,52 @@ class _Logit(torch.nn.Module):
         return {"occlusion": 8.0 * (p0[:, 0] - 0.5)}
 
 
-def test_threshold_calibration_minimizes_held_out_errors_by_brute_force():
-    """Hits where x > 0.7 (10 % of labels flipped): the best threshold is near
-    sigmoid(8 * 0.2) = 0.83; the calibration finds the brute-force minimum among its
-    candidates, and 0.5 without held-out data."""
+def test_threshold_calibration_minimizes_misclassified_rays_by_brute_force():
+    """Rays of 1 to 12 segments in two poses whose ray numbers repeat; a third of the rays
+    hit on their last segment. The network's logit (read from x) is noisy, about 1.5 on
+    hit segments and -2 on the others. A ray is the reference's hit when one of its
+    segments is, and the network's when one is above the threshold: the calibration finds
+    the brute-force minimum of misclassified rays among its candidates, which is not the
+    minimum of misclassified segments, and none without held-out rays."""
+    generator = torch.Generator().manual_seed(3)
+    lengths = torch.randint(1, 13, (3000,), generator=generator)
+    ray_of_row = torch.repeat_interleave(torch.arange(len(lengths)), lengths)
+    rows = len(ray_of_row)
+    last = torch.ones(rows, dtype=torch.bool)
+    last[:-1] = ray_of_row[1:] != ray_of_row[:-1]
+    hit = last & (torch.rand(len(lengths), generator=generator) < 1 / 3)[ray_of_row]
+    logit = torch.where(hit, 1.5, -2.0) + 1.5 * torch.randn(rows, generator=generator)
+    x = torch.rand(rows, 3, generator=generator)
+    x[:, 0] = 0.5 + logit / 8.0                         # _Logit answers 8 (x - 0.5)
+    pose = (ray_of_row >= len(lengths) // 2).long()
+    data = {"p0": x, "p1": x, "hit": hit, "hit_frac": torch.zeros(rows), "pose": pose,
+            "ray": ray_of_row - pose * (len(lengths) // 2)}
+    probability = torch.sigmoid(8.0 * (x[:, 0] - 0.5))
+    candidates = (torch.arange(5, 46) / 50).tolist()
+    rays = [torch.nonzero(ray_of_row == r).flatten() for r in range(len(lengths))]
+
+    def misclassified(threshold):
+        return sum(bool((probability[r] > threshold).any()) != bool(hit[r].any())
+                   for r in rays)
+
+    def by_segments(threshold):
+        return int(((probability > threshold) != hit).sum())
+
+    def best(errors):
+        return min(candidates, key=lambda t: (errors(t), abs(t - 0.5)))
+
+    threshold = calibrate_threshold(head_outputs(_Logit(), data), data)
+    assert threshold == pytest.approx(best(misclassified))
+    assert threshold != pytest.approx(best(by_segments))
+    empty = {key: value[:0] for key, value in data.items()}
+    assert calibrate_threshold(head_outputs(_Logit(), empty), empty) is None
+
+
+def test_threshold_calibration_by_segments_minimizes_held_out_errors_by_brute_force():
+    """Each segment counted alone (a dataset without calibration views). Hits where x > 0.7
+    (10 % of labels flipped): the best threshold is near sigmoid(8 * 0.2) = 0.83; the
+    calibration finds the brute-force minimum among its candidates, and none without
+    held-out data."""
     generator = torch.Generator().manual_seed(3)
     x = torch.rand(20000, 3, generator=generator)
     hit = (x[:, 0] > 0.7) ^ (torch.rand(20000, generator=generator) < 0.1)
@@ -602,11 +644,11 @@ def test_threshold_calibration_minimizes_held_out_errors_by_brute_force():
     candidates = torch.arange(5, 46) / 50
     errors = [int(((probability > t) != hit).sum()) for t in candidates.tolist()]
     best = min(range(len(errors)), key=lambda i: (errors[i], abs(candidates[i] - 0.5)))
-    threshold = calibrate_threshold(head_outputs(_Logit(), data), data)
+    threshold = calibrate_threshold(head_outputs(_Logit(), data), data, by_ray=False)
     assert threshold == pytest.approx(candidates[best].item())
     assert 0.78 <= threshold <= 0.88
     empty = {key: value[:0] for key, value in data.items()}
-    assert calibrate_threshold(head_outputs(_Logit(), empty), empty) == 0.5
+    assert calibrate_threshold(head_outputs(_Logit(), empty), empty, by_ray=False) is None
 
 
 class _Table(torch.nn.Module):
@@ -676,6 +718,58 @@ def test_candidate_calibration_places_hits_best_by_brute_force():
     empty = {key: value[:0] for key, value in data.items()}
     assert calibrate_candidate_threshold(head_outputs(network, empty), empty, h, 0.5,
                                          "log1p-fraction") == 0.5
+
+
+def test_a_dataset_with_calibration_views_calibrates_on_their_held_out_rays(monkeypatch):
+    """Rows of rays numbered from the header's rays per pose on are calibration views
+    (``view_rays``): training never draws them, and the occlusion threshold is the
+    brute-force best count of misclassified rays (any segment above the threshold makes a
+    ray a hit) over the held-out poses' view rays alone."""
+    calls = []
+
+    def spy(outputs, data, *args, **kwargs):
+        calls.append(({key: value.clone() for key, value in data.items()}, kwargs))
+        return calibrate(outputs, data, *args, **kwargs)
+
+    calibrate = training.calibrate_threshold
+    monkeypatch.setattr(training, "calibrate_threshold", spy)
+    batches = training.Batches
+    monkeypatch.setattr(training, "Batches", lambda data, size, seed: calls.append(
+        ("trained", batches(data, size, seed))) or calls[-1][1])
+    shards = sphere_shards(n=2048, poses=8, seed=1)     # training rays numbered below 2048
+    per_pose = 4096
+    for shard in shards:          # a third of the rows: rays of 3 segments, numbered after
+        view = np.arange(len(shard["ray"])) % 3 == 0
+        shard["ray"] = shard["ray"].copy()
+        shard["ray"][view] = per_pose + np.arange(view.sum()) // 3
+    viewed = DatasetHeader.from_dict({**header_dict(), "rays_per_pose": per_pose,
+                                      "view_rays": 700}, "test header")
+    settings = variant_config("proposed", **SMALL, steps=50, batch_size=128,
+                              val_fraction=0.25, lr_mlp=1e-2, device="cpu")
+    result = train(shards, viewed, settings.train, settings.network)
+    trained = next(value for name, value in calls if name == "trained").data
+    views = [(data, kwargs) for data, kwargs in calls if isinstance(data, dict)]
+    assert len(views) == 1 and views[0][1] == {}        # by ray, no fallback to segments
+    data = views[0][0]
+    assert (data["ray"] >= per_pose).all() and len(data["ray"]) > 100
+    assert set(data["pose"].tolist()) <= set(result.val_poses)
+    rows = sum(int(((s["ray"] >= per_pose) & np.isin(s["pose"], result.val_poses)).sum())
+               for s in shards)
+    assert len(data["ray"]) == rows
+    untrained = sum(int(((s["ray"] >= per_pose) | np.isin(s["pose"], result.val_poses)).sum())
+                    for s in shards)
+    assert len(trained["p0"]) == 2048 - untrained and untrained < 2048 * 0.6
+
+    with torch.no_grad():
+        probability = torch.sigmoid(result.network(data["p0"], data["p1"])["occlusion"])
+    rays = {}
+    for row, key in enumerate(zip(data["pose"].tolist(), data["ray"].tolist())):
+        rays.setdefault(key, []).append(row)
+    tried = [k / 50 for k in range(5, 46)]
+    errors = [sum(bool((probability[r] > t).any()) != bool(data["hit"][r].any())
+                  for r in rays.values()) for t in tried]
+    best = min(range(len(tried)), key=lambda k: (errors[k], abs(tried[k] - 0.5)))
+    assert result.thresholds.occlusion == pytest.approx(tried[best])
 
 
 @pytest.mark.parametrize("variant, poses", [("lsnif", 1), ("deformed", 8), ("proposed", 8)])

@@ -20,7 +20,7 @@ from ..inference.secondary import (
 from ..kernels.cast import MeshCaster
 from ..limits import check_image, check_range
 from ..passes import Passes, SecondaryPasses
-from ..settings import BOUNDS, RECIPE
+from ..settings import BOUNDS, RECIPE, calibration_view
 from ..tracing.groundtruth import segment_targets
 from ..tracing.rays import orbit_rays, orbit_viewpoints, training_rays
 from ..tracing.references import embedded_reference, true_reference
@@ -54,6 +54,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
                    records_s=0.0)
     records, counts = [], dict(rays=0, segments=0, hits=0, truncated_rays=0)
     inverted = []
+    side = calibration_view(rays_per_pose)
     with PosedObject(obj, capture) as posed_object:
         host = posed_object.source.host
         clock = time.perf_counter()
@@ -85,10 +86,19 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
             clock = time.perf_counter()
             records.append(dataset.segment_records(capture.grid, segments, targets, index))
             timings["records_s"] += time.perf_counter() - clock
-            inverted.append(geometry.inverted_cells())
             counts["rays"] += rays_per_pose
             counts["segments"] += len(segments)
             counts["hits"] += int(targets.hit.sum())
+            if side:
+                segments, targets = _calibration_view(geometry, capture.mesh, rest_caster,
+                                                      side, rng, timings)
+                clock = time.perf_counter()
+                records.append(dataset.segment_records(capture.grid, segments, targets, index))
+                records[-1]["ray"] += rays_per_pose     # after the training rays' numbers
+                timings["records_s"] += time.perf_counter() - clock
+                counts["segments"] += len(segments)
+                counts["hits"] += int(targets.hit.sum())
+            inverted.append(geometry.inverted_cells())
             # the first pose's rows foretell the shard's (its size and memory): refused
             # then, not after the walk; later poses only past the limit itself
             dataset.check_shard_size(name, counts["segments"] * (stop - start) if done == 1
@@ -111,6 +121,7 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
         "rays_per_pose": rays_per_pose, "surface_fraction": surface_fraction,
         "grazing_fraction": grazing_fraction, "secondary_fraction": secondary_fraction,
         "inverted_cells": inverted, "counts": counts, "timings": timings,
+        "view_rays": side * side,
         "versions": _versions(host), "segments": len(merged["pose"]),
         **({} if capture.corners_follow == ARMATURE_COPY
            else {"corners_follow": capture.corners_follow}),
@@ -119,6 +130,24 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     dataset.write_shard(out_dir, name, merged, header)
     write_s = time.perf_counter() - clock                # in the returned header only
     return dataclasses.replace(header, timings={**header.timings, "write_s": write_s})
+
+
+def _calibration_view(geometry, mesh, rest_caster, side, rng, timings):
+    """(Segments, SurfaceHits) of one pose's calibration view: ``side`` x ``side`` rays of
+    an orbit camera from a random direction of ``rng``, walked and given their targets as
+    the training rays are (``settings.CALIBRATION_VIEW_SHARE``)."""
+    clock = time.perf_counter()
+    direction = rng.normal(size=3)
+    origins, directions = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
+                                     direction / np.linalg.norm(direction), side, side)
+    timings["rays_s"] += time.perf_counter() - clock
+    clock = time.perf_counter()
+    segments = traverse(geometry.cells, origins, directions)
+    timings["walk_s"] += time.perf_counter() - clock
+    clock = time.perf_counter()
+    targets = segment_targets(mesh, rest_caster, segments)
+    timings["ground_truth_s"] += time.perf_counter() - clock
+    return segments, targets
 
 
 def reference_run(obj, capture, width, height, rest_pose=False, progress=None,

@@ -172,10 +172,14 @@ def split_data(
     heads: Heads,
     device: torch.device,
     group: ProcessGroup,
-) -> tuple[TrainingRows, Segments, list[int]]:
-    """(training rows in host memory, validation data on ``device``, held-out poses): this
-    process's shards (``segments[rank::world]``) loaded and split by the held-out poses, or,
-    with one pose, by held-out rays (``held_out_rays``; no pose is then held out)."""
+    view_from: int | None = None,
+) -> tuple[TrainingRows, Segments, Segments, list[int]]:
+    """(training rows in host memory, validation data on ``device``, the held-out
+    calibration view's rows on ``device``, held-out poses): this process's shards
+    (``segments[rank::world]``) loaded and split by the held-out poses, or, with one pose, by
+    held-out rays (``held_out_rays``; no pose is then held out). Rows of rays numbered
+    ``view_from`` and up are the calibration view's (``settings.CALIBRATION_VIEW_SHARE``):
+    never trained on, the held-out ones kept apart from the validation data."""
     if len(segments) == 0:
         raise VDNIFError("no training segments: the dataset has no shards")
     shards = list(segments)[group.rank :: group.world]
@@ -191,7 +195,9 @@ def split_data(
     held_out = [np.isin(shard["pose"], val_poses) if val_poses else
                 held_out_rays(torch.from_numpy(shard["ray"]).long(), config.val_fraction,
                               config.seed).numpy() for shard in arrays]
-    kept = [~mask for mask in held_out]
+    view = [shard["ray"] >= view_from if view_from is not None
+            else np.zeros(len(shard["ray"]), bool) for shard in arrays]
+    kept = [~(mask | seen) for mask, seen in zip(held_out, view)]
     if not any(mask.any() for mask in kept):
         rows = sum(len(mask) for mask in kept)
         whose = ("the dataset" if group.world == 1 else f"process {group.rank}'s shards")
@@ -204,14 +210,17 @@ def split_data(
         raise VDNIFError(f"{whose} leave none to train on once {held} are held out for "
                          "validation: make a dataset with more rays (--rays-per-pose) or "
                          "poses")
-    train_rows, val_data = TrainingRows(device), {}
+    train_rows, val_data, view_data = TrainingRows(device), {}, {}
+    validated = [mask & ~seen for mask, seen in zip(held_out, view)]
+    calibrating = [mask & seen for mask, seen in zip(held_out, view)]
     for key in list(arrays[0]):
-        val_data[key] = _column(arrays, key, held_out).to(device)
+        val_data[key] = _column(arrays, key, validated).to(device)
+        view_data[key] = _column(arrays, key, calibrating).to(device)
         if key not in RAY_FIELDS:
             train_rows[key] = _column(arrays, key, kept)
         for shard in arrays:        # one field at a time: no second copy of the whole data
             del shard[key]
-    return train_rows, val_data, val_poses
+    return train_rows, val_data, view_data, val_poses
 
 
 class TrainingRows(dict):

@@ -235,6 +235,7 @@ class DatasetHeader:
     versions: dict[str, str]
     segments: int
     corners_follow: str = ARMATURE_COPY     # absent from the shards of the armature copy
+    view_rays: int = 0                      # per pose, after its training rays; absent: none
 
     @property
     def voxel_size(self) -> float:
@@ -261,6 +262,8 @@ class DatasetHeader:
                     segments=self.segments)
         if self.corners_follow != ARMATURE_COPY:
             data["corners_follow"] = self.corners_follow
+        if self.view_rays:
+            data["view_rays"] = self.view_rays
         return data
 
     @classmethod
@@ -276,7 +279,7 @@ class DatasetHeader:
                              "again")
         grid = _grid(where, data.get("grid"))
         _keys(where, "header", data, HEADER_KEYS,
-              ("grazing_fraction", "secondary_fraction", "corners_follow"))
+              ("grazing_fraction", "secondary_fraction", "corners_follow", "view_rays"))
         name = _name(where, data["object"])
         if data["voxel_size"] != grid.voxel_size:
             _fail(where, f"voxel size {shown(data['voxel_size'])} differs from the grid's "
@@ -328,7 +331,9 @@ class DatasetHeader:
             timings={key: float(value) for key, value in timings.items()},
             versions=dict(versions),
             segments=_int(where, "segments", data["segments"], 0, MAX_SHARD_SEGMENTS),
-            corners_follow=follow)
+            corners_follow=follow,
+            view_rays=_int(where, "view rays", data.get("view_rays", 0), 0,
+                           MAX_SHARD_SEGMENTS))
 
 
 _FLOAT32_MAX = float(np.finfo(np.float32).max)

@@ -29,7 +29,7 @@ from ..limits import GROUP_TIMEOUT_S
 from ..model.encoding import HashGrid
 from ..model.metadata import Thresholds, TrainingSummary
 from ..model.network import IntersectionNetwork
-from ..settings import NetworkConfig, TrainConfig
+from ..settings import OCCLUSION_THRESHOLD, NetworkConfig, TrainConfig
 from .data import Batches, Segments, split_data
 from .distributed import ProcessGroup, resolve_device
 from .header import DatasetHeader
@@ -299,7 +299,9 @@ def train(
     device = resolve_device(config.device)
     group = ProcessGroup.from_environment(device, group_timeout_s)
     try:
-        return _train(segments, h, config, network_config, device, group, progress, cancel)
+        view_from = header.rays_per_pose if header.view_rays else None
+        return _train(segments, h, config, network_config, device, group, progress, cancel,
+                      view_from)
     except RuntimeError as exc:
         stalled = group.stalled(exc)
         if stalled is None:
@@ -318,11 +320,13 @@ def _train(
     group: ProcessGroup,
     progress: Callable[[dict[str, Any]], None] | None,
     cancel: threading.Event | None,
+    view_from: int | None = None,
 ) -> TrainResult:
-    """``train`` once the voxel size h, the device and the process group are known."""
+    """``train`` once the voxel size h, the device and the process group are known; rays
+    numbered ``view_from`` and up are the calibration view's (``data.split_data``)."""
     started = time.perf_counter()
-    train_data, val_data, val_poses = split_data(
-        segments, config, network_config.heads, device, group
+    train_data, val_data, view_data, val_poses = split_data(
+        segments, config, network_config.heads, device, group, view_from
     )
     timings = {"split_s": time.perf_counter() - started, "validation_s": 0.0,
                "validations": 0, "held_out_rows": _rows(val_data)}
@@ -369,7 +373,11 @@ def _train(
     started = time.perf_counter()
     network.eval()
     outputs = head_outputs(network, val_data)
-    occlusion = calibrate_threshold(outputs, val_data, group)
+    occlusion = calibrate_threshold(head_outputs(network, view_data), view_data, group)
+    if occlusion is None:       # a dataset without calibration views: by its segments
+        occlusion = calibrate_threshold(outputs, val_data, group, by_ray=False)
+    if occlusion is None:
+        occlusion = OCCLUSION_THRESHOLD
     network.thresholds = Thresholds(occlusion, calibrate_candidate_threshold(
         outputs, val_data, h, occlusion, network_config.distance_mode, group))
     validation = validate(network, val_data, h, group, outputs)

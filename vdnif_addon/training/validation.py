@@ -1,6 +1,7 @@
 """How a network does on held-out segments: task losses and metrics (``evaluate``, summed
 over processes by ``validate``) and the calibrated thresholds of DESIGN section 9: the
-occlusion threshold that says whether a ray hits (``calibrate_threshold``) and the lower
+occlusion threshold that says whether a ray hits (``calibrate_threshold``, on the held-out
+calibration views) and the lower
 candidate threshold that says where (``calibrate_candidate_threshold``). All three read the
 network's outputs on the held-out rows (``head_outputs``), so that the end of training runs
 the network over them once."""
@@ -172,24 +173,37 @@ def calibrate_threshold(
     outputs: dict[str, torch.Tensor],
     data: Segments,
     group: ProcessGroup | None = None,
-) -> float:
-    """The occlusion threshold that misclassifies the fewest segments of ``data`` (the
-    held-out poses), given the network's ``head_outputs`` on them, among the multiples of
-    1/THRESHOLD_BINS in THRESHOLD_RANGE; ties go to the one nearest OCCLUSION_THRESHOLD, and
-    without held-out segments it is OCCLUSION_THRESHOLD. A hole is a hit segment below the
-    threshold, an extra a miss segment above it (DESIGN section 9)."""
+    by_ray: bool = True,
+) -> float | None:
+    """The occlusion threshold that misclassifies the fewest rays of ``data`` (the held-out
+    calibration views, with ``training.data.RAY_FIELDS``), given the network's
+    ``head_outputs`` on them, among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE;
+    ties go to the one nearest OCCLUSION_THRESHOLD; None without rows to count.
+
+    A ray is counted as the render answers it (DESIGN section 9): a hit when any of its
+    segments is above the threshold. A hole is a ray that the reference hits and whose
+    segments all lie at or below it, an extra a ray that the reference misses and one of
+    whose segments lies above it, as the clean rule counts pixels. With ``by_ray`` False
+    each segment is counted as a ray of its own (a dataset without calibration views)."""
     group = group or ProcessGroup()
     device = data["p0"].device
     counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
     if data["p0"].shape[0]:
         probability = torch.sigmoid(outputs["occlusion"].float())
+        hit = data["hit"]
+        if by_ray:
+            ray, rays = _ray_index(data)
+            probability = probability.new_zeros(rays).scatter_reduce_(
+                0, ray, probability, "amax", include_self=False)
+            hit = hit.new_zeros(rays).scatter_reduce_(0, ray, hit, "amax", include_self=False)
         bins = (probability * THRESHOLD_BINS).long().clamp(0, THRESHOLD_BINS - 1)
-        counts.index_put_((data["hit"].long(), bins),
+        counts.index_put_((hit.long(), bins),
                           torch.ones_like(probability, dtype=torch.float64), accumulate=True)
     counts = group.sum(counts)
     if counts.sum() == 0:
-        return OCCLUSION_THRESHOLD
-    # Threshold k / BINS: hits in bins below k are holes, misses in bins k and up extras.
+        return None
+    # Threshold k / BINS: hit rays in bins below k are holes, missed rays in bins k and up
+    # extras.
     holes = torch.cat([counts.new_zeros(1), counts[1].cumsum(0)])
     extras = counts[0].sum() - torch.cat([counts.new_zeros(1), counts[0].cumsum(0)])
     errors = (holes + extras).tolist()
@@ -224,9 +238,7 @@ def calibrate_candidate_threshold(
         predicted = readout(outputs, distance_mode, voxel_size, data["rest_len"])
         probability = predicted["hit_probability"].float()
         distance = data["t0"].double() + predicted["fraction"].double() * data["seg_len"].double()
-        _, ray = torch.unique(data["pose"] * (int(data["ray"].max()) + 1) + data["ray"],
-                              return_inverse=True)
-        rays = int(ray.max()) + 1
+        ray, rays = _ray_index(data)
         reference = _first_per_ray(data["hit"], data["t0"].double() + data["hit_frac"].double()
                                    * data["seg_len"].double(), ray, rays)
         confident = _first_per_ray(probability > occlusion, distance, ray, rays)
@@ -240,6 +252,14 @@ def calibrate_candidate_threshold(
         return occlusion
     errors = sums[:-1].tolist()
     return thresholds[min(range(len(thresholds)), key=lambda k: (errors[k], -k))]
+
+
+def _ray_index(data: Segments) -> tuple[Int64[torch.Tensor, " S"], int]:
+    """Each row's ray of ``data`` as an index 0..rays-1 (a ray is a pose's ray number), and
+    the number of rays."""
+    _, ray = torch.unique(data["pose"] * (int(data["ray"].max()) + 1) + data["ray"],
+                          return_inverse=True)
+    return ray, int(ray.max()) + 1
 
 
 def _first_per_ray(mask: Bool[torch.Tensor, " S"], value: Float64[torch.Tensor, " S"],
