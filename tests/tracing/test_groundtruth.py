@@ -151,11 +151,11 @@ def test_dataset_equals_the_golden_shard(empty_scene, core, tmp_path):
     # The heads gained the used-slot table after the golden was made: the arm uses slot 0.
     assert header.heads == dataclasses.replace(golden_header.heads, material_slots=(0,))
     assert header.counts.rays == golden_header.counts.rays
-    # The calibration view (made after the golden) walks its 4x4 rays after each pose's
+    # The calibration view (made after the golden) walks its 16x16 rays after each pose's
     # training rays, numbered after them; the training rays are drawn as before.
-    assert header.view_rays == 16 and golden_header.view_rays == 0
+    assert header.view_rays == 256 and golden_header.view_rays == 0
     view = new["ray"] >= 256
-    assert set(np.unique(new["ray"][view])) <= set(range(256, 272)) and view.any()
+    assert set(np.unique(new["ray"][view])) <= set(range(256, 512)) and view.any()
     new = {name: new[name][~view] for name in new.keys()}
     assert len(new["pose"]) == len(old["pose"])
     for name in ("pose", "ray"):
