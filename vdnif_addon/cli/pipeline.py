@@ -32,11 +32,15 @@ from .outputs import output_file, output_folder, output_model
 
 def cmd_capture(args):
     """Capture a scene: rest mesh, voxels, deformed corners per pose."""
-    from ..blender.capture_scene import capture
+    from ..blender.capture_scene import capture, check_corners_memory
     from ..blender.steps import training_follow
     from ..progress import Progress
 
     obj, spec = load_posed_scene(args)
+    planned = capture(obj, args.resolution, spec, deform_corners=False)   # grid and poses
+    if planned.mode != "static":        # refused before the choice is measured, not after
+        check_corners_memory(obj, args.resolution, len(planned.poses),
+                             len(planned.grid.corners))
     # the corners follow as a training of these poses would have them follow
     follow = training_follow(obj, args.resolution, spec, say=_say(f"capture '{obj.name}'"))
     progress = Progress(f"capture '{obj.name}'", spec.count, "poses")
