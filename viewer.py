@@ -52,11 +52,16 @@ def cell_edges(cell_corners):
     return np.unique(edges, axis=0)
 
 
-def voxel_preview(obj, resolution, preview=None):
+def voxel_preview(obj, resolution, preview=None, spec=PoseSpec()):
     """Voxelizes mesh object ``obj`` and shows its occupied cells, deformed as at the current
-    frame, as a wireframe child object (``preview`` updated, or a new one). Returns the
-    preview object and figures of the grid."""
-    captured = capture(obj, resolution, PoseSpec(count=1), deform_corners=False)
+    frame, as a wireframe child object (``preview`` updated, or a new one): the corners
+    follow as a training on the poses of ``spec`` would have them (``steps.training_follow``,
+    measured here: it renders, with PyTorch). Returns the preview object and figures of
+    the grid."""
+    from .vdnif_addon.blender.steps import training_follow
+
+    follow = training_follow(obj, resolution, spec)
+    captured = capture(obj, resolution, PoseSpec(count=1), deform_corners=False, follow=follow)
     grid = captured.grid
     corners = grid.corner_positions()
     if captured.mode != "static":

@@ -17,12 +17,13 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
     bl_idname = "vdnif.voxelize"
     bl_label = "Voxelize"
     bl_options = {"REGISTER", "UNDO"}
-    needs = ("mesh", "idle")
+    needs = ("mesh", "torch", "idle")     # the corners' way is measured by rendering
 
     def work(self, context, obj):
         settings = obj.vdnif
         settings.preview, figures = viewer.voxel_preview(obj, settings.resolution,
-                                                             settings.preview)
+                                                             settings.preview,
+                                                             settings.pose_spec())
         settings.voxel_info = (f"grid {'x'.join(map(str, figures['dims']))}, "
                                f"{figures['cells']} occupied cells, "
                                f"{figures['inverted']} inverted at frame "
@@ -74,12 +75,10 @@ def dataset_settings(obj):
             "rays_per_pose": settings.rays_per_pose}
 
 
-def dataset_stages(context, obj):
-    """Generates the object's dataset (``ui_jobs.dataset_job``) after choosing how its
-    corners follow it (``ui_jobs.follow_job``, measured in a worker): the poses are captured
-    on the main thread, walked in the worker; a cancel keeps the previous dataset. What it
-    records is what it was made with, whatever the settings became meanwhile."""
-    name, made = obj.name, {}
+def follow_stage(name, made, kept=""):
+    """Chooses how the corners of object ``name`` follow it in training with its settings
+    (``ui_jobs.follow_job``, measured in a worker) into ``made["choice"]``; ``kept``: what
+    a cancel or failure leaves, said after its message."""
 
     def choose():
         from ..vdnif_addon.blender.ui_jobs import follow_job
@@ -90,9 +89,20 @@ def dataset_stages(context, obj):
     def chosen(obj, state):
         outcome(state)
         if state.status != "completed":
-            return f"'{obj.name}': {state.message}; the previous dataset is kept"
+            return f"'{obj.name}': {state.message}{kept}"
         made["choice"] = state.result
         return f"'{obj.name}': {state.message}"
+
+    return Stage(choose, chosen, undo=False)
+
+
+def dataset_stages(context, obj, choice=None):
+    """Generates the object's dataset (``ui_jobs.dataset_job``) after choosing how its
+    corners follow it (``follow_stage``; ``choice``: the FollowChoice measured already for
+    these settings, by the estimate): the poses are captured on the main thread, walked in
+    the worker; a cancel keeps the previous dataset. What it records is what it was made
+    with, whatever the settings became meanwhile."""
+    name, made = obj.name, {"choice": choice}
 
     def make():
         from ..vdnif_addon.blender.capture_scene import capture
@@ -130,7 +140,9 @@ def dataset_stages(context, obj):
                 f"{choice.follow}" + (f" (chosen in {choice.seconds:.1f} s)" if choice.errors
                                       else ""))
 
-    return [Stage(choose, chosen, undo=False), Stage(make, finish)]
+    first = [] if choice is not None else [
+        follow_stage(name, made, "; the previous dataset is kept")]
+    return first + [Stage(make, finish)]
 
 
 class VDNIF_OT_generate_dataset(JobOperator, bpy.types.Operator):

@@ -2,6 +2,7 @@
 for other settings, then the network), after showing the estimated disk and time; and
 Estimate, which measures that estimate. Both run in workers (``running``)."""
 
+import dataclasses
 import json
 
 import bpy
@@ -9,7 +10,7 @@ from bpy.props import BoolProperty
 
 from .. import storage, viewer
 from .running import JobOperator, Stage, handed_over, outcome
-from .scene import dataset_settings, dataset_stages
+from .scene import dataset_settings, dataset_stages, follow_stage
 
 
 def needs_dataset(obj):
@@ -72,9 +73,24 @@ def training_stage(context, obj):
     return Stage(make, finish)
 
 
-def estimate_stage(context, obj):
-    """Measures what a run from scratch costs (``estimate``), kept in the settings."""
-    name, settings = obj.name, run_settings(context, obj)
+def kept_choice(context, obj):
+    """The FollowChoice the object's fresh estimate (``fresh_estimate``) was measured with,
+    for the dataset it estimated; else None (measured again)."""
+    if fresh_estimate(context, obj) is None:
+        return None
+    kept = obj.vdnif.parsed("estimate_info").get("corners_follow")
+    if kept is None:
+        return None
+    from ..vdnif_addon.blender.follow_choice import FollowChoice
+
+    return FollowChoice(**kept)
+
+
+def estimate_stages(context, obj):
+    """Measures what a run from scratch costs (``estimate``), kept in the settings, with the
+    corners following as that run's would (``follow_stage``; the choice is kept with the
+    estimate, and the run's dataset takes it from there)."""
+    name, settings, made = obj.name, run_settings(context, obj), {}
 
     def make():
         from ..vdnif_addon.blender.capture_scene import capture
@@ -83,7 +99,8 @@ def estimate_stage(context, obj):
         obj = bpy.data.objects[name]
         chosen = obj.vdnif
         variant, _ = chosen.chosen_variant()
-        captured = capture(obj, chosen.resolution, chosen.pose_spec(), deform_corners=False)
+        captured = capture(obj, chosen.resolution, chosen.pose_spec(), deform_corners=False,
+                           follow=made["choice"].follow)
         scratch = storage.user_folder("estimates") / storage.slug(obj)
         return estimate_job(obj, captured, variant, chosen.rays_per_pose, settings["training"],
                             scratch, chosen.seed)
@@ -91,11 +108,12 @@ def estimate_stage(context, obj):
     def finish(obj, state):
         outcome(state)
         if state.status == "completed":
-            obj.vdnif.estimate_info = json.dumps({"settings": settings,
-                                                  "figures": state.result})
+            obj.vdnif.estimate_info = json.dumps({
+                "settings": settings, "figures": state.result,
+                "corners_follow": dataclasses.asdict(made["choice"])})
         return f"'{obj.name}': {state.message}"
 
-    return Stage(make, finish)
+    return [follow_stage(name, made), Stage(make, finish)]
 
 
 class VDNIF_OT_estimate(JobOperator, bpy.types.Operator):
@@ -109,7 +127,7 @@ class VDNIF_OT_estimate(JobOperator, bpy.types.Operator):
     then_train: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
 
     def stages(self, context, obj):
-        return [estimate_stage(context, obj)]
+        return estimate_stages(context, obj)
 
     def finished(self, context, obj):
         if self.then_train and fresh_estimate(context, obj) is not None:
@@ -130,7 +148,8 @@ class VDNIF_OT_train(JobOperator, bpy.types.Operator):
     replace_loaded: BoolProperty(options={"HIDDEN", "SKIP_SAVE"})
 
     def stages(self, context, obj):
-        first = dataset_stages(context, obj) if needs_dataset(obj) else []
+        first = (dataset_stages(context, obj, kept_choice(context, obj))
+                 if needs_dataset(obj) else [])
         return first + [training_stage(context, obj)]
 
     def invoke(self, context, event):

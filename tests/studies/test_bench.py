@@ -10,6 +10,7 @@ from conftest import REPO
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.inference.metrics import speed_withheld
+from vdnif_addon.model.model_file import load_model
 from vdnif_addon.pose_sets import DEVELOPMENT_POSES
 from vdnif_addon.presets import PRESET_ERROR, PRESETS_FILE, SETTINGS, load_presets
 from vdnif_addon.safe_io import exclusive_lock
@@ -173,6 +174,8 @@ def test_bench_quick_writes_every_output(tmp_path):
                                    "--performance", performance, "--work", work, timeout=600)
     assert code == 0, err
     assert err.count("bench: point 3 of 5: ") == 1 and err.count("bench: point ") == 6
+    # its dataset's corners keep the arm's copied armature, chosen once for that dataset
+    assert err.count(": corners follow: armature copy (embedding error") == 1
     rows = list(csv.DictReader(open(out / "bench.csv")))
     records = json.loads((out / "bench.json").read_text())
     assert len(rows) == 5 == len(records)
@@ -181,6 +184,8 @@ def test_bench_quick_writes_every_output(tmp_path):
     assert "provenance" not in rows[0]
     assert sorted(p.name for p in work.glob("point-*.vdnif")) == [
         f"point-{n}.vdnif" for n in range(5)]
+    assert {load_model(p)[1].corners_follow for p in work.glob("point-*.vdnif")} == {
+        "armature copy"}
     # run again on the same work folder: nothing trains, every point is evaluated again
     # and scores as before (the speeds are measured anew)
     code, _, again = run_batch("bench", "--quick", "--out", out, "--presets", presets,
@@ -309,13 +314,18 @@ def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rou
         return report, [len(calls)]
 
     monkeypatch.setattr(bench, "evaluate_file", evaluate_file)
-    pose_sets = []
+    pose_sets, follows = [], []
 
-    def evaluation_poses(obj, resolution, spec, count, pose_set):
+    def evaluation_poses(obj, resolution, spec, count, pose_set, follow):
         pose_sets.append(pose_set)
+        follows.append((resolution, follow))
         return SimpleNamespace(grid=SimpleNamespace(voxel_size=0.1), mesh=None)
 
     monkeypatch.setattr(bench, "evaluation_poses", evaluation_poses)
+    # each point's corners follow as its model's did (the stand-in models say how)
+    recorded = {"point-0.vdnif": "evaluated surface", "point-1.vdnif": "armature copy"}
+    monkeypatch.setattr(bench, "load_model", lambda path: (
+        None, SimpleNamespace(corners_follow=recorded[path.name])))
     monkeypatch.setattr(bench, "finished_point", lambda path, model, size, point:
                         {"steps": 10, "converged": True})
     monkeypatch.setattr(bench, "concatenated", lambda views: views)
@@ -325,6 +335,7 @@ def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rou
     assert calls == [0, 1] * 5
     # the presets and the front are choices: made on the development poses alone
     assert pose_sets == [DEVELOPMENT_POSES] * 2
+    assert sorted(follows) == [(12, "armature copy"), (16, "evaluated surface")]
     assert rows[0]["render_rays_per_s"] == 3.0 and rows[1]["render_rays_per_s"] is None
     # the errors and the views compared on the common pixels are the first round's
     assert rows[0]["vs_true_distance_mae"] == pytest.approx(0.1)

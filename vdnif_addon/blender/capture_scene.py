@@ -48,10 +48,7 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
         poses = make_poses(obj, modifiers, spec)
         mode = "+".join(sorted({m.type.lower() for m in modifiers})) or "animated"
         if deform_corners:
-            check_memory(f"capturing {len(poses):,} poses of '{obj.name}' at resolution "
-                         f"{resolution} ({len(rest):,} voxel corners a pose)",
-                         corners_bytes(len(poses), len(rest)),
-                         "lower --poses or --resolution")
+            check_corners_memory(obj, resolution, len(poses), len(rest))
         corners = (_deformed_corners(obj, rest, poses, progress, follow) if deform_corners
                    else None)
     else:
@@ -85,6 +82,14 @@ def _check_rigs_invertible(obj):
         if not (np.isfinite(determinant) and abs(determinant) > 0):
             raise VDNIFError(f"the {name} is scaled to zero or to a non-finite size (its "
                              "matrix has no inverse): give it a non-zero scale")
+
+
+def check_corners_memory(obj, resolution, poses, corners):
+    """Raises a VDNIFError where the deformed corners of ``poses`` poses of ``obj`` at
+    ``resolution``, ``corners`` a pose, do not fit in the memory available."""
+    check_memory(f"capturing {poses:,} poses of '{obj.name}' at resolution {resolution} "
+                 f"({corners:,} voxel corners a pose)", corners_bytes(poses, corners),
+                 "lower --poses or --resolution")
 
 
 def corners_bytes(poses, corners):

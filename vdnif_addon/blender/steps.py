@@ -53,14 +53,22 @@ def variant_capture(captured, variant, rays_per_pose):
     return captured, rays_per_pose
 
 
-def training_capture(obj, resolution, spec, say=None):
-    """The capture a model of ``obj`` trains on (corners left to per-pose work), its
-    corners following as ``follow_choice.choose_follow`` measures best; ``say(line)``
-    hears the choice and its seconds where there was one to make."""
+def training_follow(obj, resolution, spec, say=None):
+    """How the corners of ``obj`` follow it in a model trained at ``resolution`` on the
+    poses of ``spec``: as ``follow_choice.choose_follow`` measures best (once a job: every
+    capture of the job takes it from here); ``say(line)`` hears the choice and its seconds
+    where there was one to make."""
     choice = choose_follow(obj, resolution, spec)
     if say is not None and choice.errors:
         say(choice.describe())
-    return capture(obj, resolution, spec, deform_corners=False, follow=choice.follow)
+    return choice.follow
+
+
+def training_capture(obj, resolution, spec, say=None):
+    """The capture a model of ``obj`` trains on (corners left to per-pose work), its
+    corners following as ``training_follow`` chooses (``say``: see there)."""
+    return capture(obj, resolution, spec, deform_corners=False,
+                   follow=training_follow(obj, resolution, spec, say))
 
 
 def evaluation_poses(obj, resolution, spec, rest=False, count=None, trained=None,

@@ -32,12 +32,20 @@ from .outputs import output_file, output_folder, output_model
 
 def cmd_capture(args):
     """Capture a scene: rest mesh, voxels, deformed corners per pose."""
-    from ..blender.capture_scene import capture
+    from ..blender.capture_scene import capture, check_corners_memory
+    from ..blender.steps import training_follow
     from ..progress import Progress
 
     obj, spec = load_posed_scene(args)
+    planned = capture(obj, args.resolution, spec, deform_corners=False)   # grid and poses
+    if planned.mode != "static":        # refused before the choice is measured, not after
+        check_corners_memory(obj, args.resolution, len(planned.poses),
+                             len(planned.grid.corners))
+    # the corners follow as a training of these poses would have them follow
+    follow = training_follow(obj, args.resolution, spec, say=_say(f"capture '{obj.name}'"))
     progress = Progress(f"capture '{obj.name}'", spec.count, "poses")
-    result = capture(obj, args.resolution, spec, progress=lambda done, _: progress.update(done))
+    result = capture(obj, args.resolution, spec, progress=lambda done, _: progress.update(done),
+                     follow=follow)
     summary = result.summary()
     summary["pose_source"] = "static" if result.mode == "static" else spec.source
     write_json(args.json, summary)
@@ -144,14 +152,15 @@ def parse_range(text, count):
 
 def cmd_references(args):
     """Render the true and embedded references on unseen poses; report the embedding error."""
-    from ..blender.capture_scene import capture
-    from ..blender.poses import evaluation_spec
+    from ..blender.steps import evaluation_poses, training_follow
     from ..inference.metrics import check_compared
     from ..posed.generate import reference_run
     from ..progress import Progress
 
     obj, spec = load_posed_scene(args)
-    result = capture(obj, args.resolution, evaluation_spec(spec), deform_corners=False)
+    # the embedding a model trained on the poses of spec would have: its corners' way
+    follow = training_follow(obj, args.resolution, spec, say=_say(f"references '{obj.name}'"))
+    result = evaluation_poses(obj, args.resolution, spec, follow=follow)
     progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
                            progress=lambda done, _: progress.update(done),

@@ -17,11 +17,11 @@ import tempfile
 
 import numpy as np
 
-from ..blender.capture_scene import capture
 from ..blender.scenes import demo_scene
-from ..blender.steps import evaluate_file, evaluation_poses, variant_dataset
+from ..blender.steps import evaluate_file, evaluation_poses, training_capture, variant_dataset
 from ..errors import VDNIFError
 from ..inference.evaluation import compare_common, concatenated
+from ..model.model_file import load_model
 from ..model.provenance import provenance, stamp
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
 from ..presets import PRESET_ERROR, PRESET_VARIANT, PRESETS_FORMAT
@@ -180,10 +180,16 @@ def _train_points(obj, spec, size, points, numbers, work, scratch, device, progr
             # resumed sweep builds none for the points it only evaluates
             data = scratch / f"r{point['resolution']}"
             if not data.exists():
-                captured = capture(obj, point["resolution"], spec, deform_corners=False)
+                captured = training_capture(obj, point["resolution"], spec,
+                                            say=_say(f"resolution {point['resolution']}"))
                 variant_dataset(obj, captured, PRESET_VARIANT, data, size["rays_per_pose"])
             write_json_atomic(path, _train_point(data, model, size, point, device, progress))
     return busy
+
+
+def _say(subject):
+    """A line's printer to stderr, beginning with the bench and ``subject``."""
+    return lambda line: print(f"bench: {subject}: {line}", file=sys.stderr, flush=True)
 
 
 def _evaluate_points(obj, spec, size, points, work, device):
@@ -191,11 +197,14 @@ def _evaluate_points(obj, spec, size, points, work, device):
     presets and the front are choices) of its resolution, in this one process: the CSV's rows
     with the common-set errors. One short render times a point only roughly, so each renders
     once per round for ``speed_rounds`` rounds and its speed is the median; its errors are the
-    first round's."""
-    scenes = {resolution: evaluation_poses(obj, resolution, spec, count=size["eval_poses"],
-                                           pose_set=DEVELOPMENT_POSES)
-              for resolution in sorted({p["resolution"] for p in points})}
+    first round's. Each model's corners follow as they did in its training."""
     files = [_point_files(work, number) for number in range(len(points))]
+    follows = [load_model(model)[1].corners_follow for model, _ in files]
+    scenes = {(resolution, follow): evaluation_poses(
+                  obj, resolution, spec, count=size["eval_poses"], pose_set=DEVELOPMENT_POSES,
+                  follow=follow)
+              for resolution, follow in sorted({(p["resolution"], f)
+                                                for p, f in zip(points, follows)})}
     records = [finished_point(path, model, size, point)
                for (model, path), point in zip(files, points)]
     first, speeds = [], [[] for _ in points]
@@ -205,7 +214,7 @@ def _evaluate_points(obj, spec, size, points, work, device):
                 print(f"bench: point {number + 1} of {len(points)} evaluated from "
                       f"{files[number][0]} ({records[number]['steps']:,} steps)",
                       file=sys.stderr, flush=True)
-            evaluated = scenes[point["resolution"]]
+            evaluated = scenes[point["resolution"], follows[number]]
             report, views = evaluate_file(obj, evaluated, files[number][0], size["width"],
                                           size["height"], device)
             speeds[number].append(report["timings"]["render_rays_per_s"])

@@ -64,10 +64,9 @@ import numpy as np
 import torch
 
 from .. import threads as thread_use
-from ..blender.capture_scene import capture as capture_scene
 from ..blender.poses import posed
 from ..blender.resolution import recipe_resolution
-from ..blender.steps import train_variant
+from ..blender.steps import train_variant, training_capture
 from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
 from ..inference.neural_render import neural_passes, predict_segments
@@ -591,8 +590,9 @@ def recipe_model(scene, folder, seed=0, device="auto", quick=False, progress=Non
     size = SIZES["quick" if quick else "full"]
     obj = load_side_by_side_scene(scene)
     resolution = size["resolution"] or recipe_resolution(obj)
-    captured = capture_scene(obj, resolution, PoseSpec(count=size["poses"], seed=seed),
-                             deform_corners=False)
+    captured = training_capture(obj, resolution, PoseSpec(count=size["poses"], seed=seed),
+                                say=lambda line: print(f"side-by-side: '{scene}': {line}",
+                                                       file=sys.stderr))
     variant, _ = choose_variant(None, captured.mode == "static")
     path.parent.mkdir(parents=True, exist_ok=True)
     print(f"side-by-side: training {variant} on '{obj.name}' ({scene}) by the "
