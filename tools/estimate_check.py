@@ -29,8 +29,7 @@ def check_scene(scene, train_options):
     """Estimate and actual figures of ``train --scene scene`` with ``train_options``."""
     import torch
 
-    from vdnif_addon.blender.capture_scene import capture
-    from vdnif_addon.blender.steps import variant_capture, variant_dataset
+    from vdnif_addon.blender.steps import training_capture, variant_capture, variant_dataset
     from vdnif_addon.cli import build_parser
     from vdnif_addon.cli.options import load_posed_scene, network_overrides
     from vdnif_addon.model.variants import choose_variant, variant_config
@@ -39,7 +38,7 @@ def check_scene(scene, train_options):
 
     args = build_parser().parse_args(["train", "--scene", scene, *train_options])
     obj, spec = load_posed_scene(args)
-    captured = capture(obj, args.resolution, spec, deform_corners=False)
+    captured = training_capture(obj, args.resolution, spec)    # as train captures it
     variant, _ = choose_variant(args.variant, captured.mode == "static")
     overrides = network_overrides(args)
     with tempfile.TemporaryDirectory(prefix="vdnif-estimate-") as scratch:
