@@ -154,8 +154,8 @@ def table(folder):
     rows.sort(key=lambda row: order.index(row["case"]) if row["case"] in order else 99)
     folder.with_suffix(".json").write_text(json.dumps(rows, indent=1))
     lines = ["| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
-             "embedding error | target met | holes | extras | clean |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "embedding error | target met | occlusion threshold | holes | extras | clean |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for row in rows:
         s = row["suggestion"]
         chosen = next(r for r in s["table"] if r["resolution"] == s["resolution"])
@@ -164,11 +164,19 @@ def table(folder):
             f"| {row['case']} | {s['resolution']} ({s['knee']}; {s['thin_floor'] or '-'}) | "
             f"{chosen['embedding_error']:.2g} | {finest['embedding_error']:.2g} | "
             f"{'yes' if s['met'] else 'no'} | " + (
+                f"{_threshold(row['training'])} | "
                 f"{100 * row['test']['false_negative_rate']:.3g} % | "
                 f"{100 * row['test']['false_positive_rate']:.3g} % | "
                 f"{'yes' if row['clean'] else 'no'} |" if row.get("training")
-                else "not trained | not trained | - |"))
+                else "- | not trained | not trained | - |"))
     return "\n".join(lines)
+
+
+def _threshold(training):
+    """The trained model's occlusion threshold as the table shows it ("-" where the run
+    predates its record)."""
+    value = training.get("occlusion_threshold")
+    return "-" if value is None else f"{value:g}"
 
 
 def main(argv):
