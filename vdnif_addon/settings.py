@@ -57,17 +57,17 @@ RECIPE = Recipe()
 
 CALIBRATION_VIEW_SHARE = 1.0
 """The square orbit view walked per pose beside its training rays, as a share of them (256x256
-at the recipe's 65,536): held out with their pose, its rays calibrate the occlusion threshold
-as the render counts holes and extras, per camera ray
-(``training.validation.calibrate_threshold``); no training step reads them. On the skinned
-character's three held-out poses the share of 1/16 (64x64) left the choice to a handful of
-rays: from one draw of views to another it fell on 0.5 or 0.8; a 128x128 or 256x256 view
-chose 0.72 (``docs/results.md``, *The occlusion threshold on rendered frames*)."""
+at the recipe's 65,536, the evaluation's size): held out with their pose, its rays calibrate
+the occlusion threshold as the render counts holes and extras, per camera ray
+(``training.validation.calibrate_threshold``); no training step reads them. The thresholds
+miss different rays by well under a percent of a view's rays, so a much smaller view leaves
+the choice to chance (``docs/results.md``, *The occlusion threshold on rendered frames*)."""
 
 
 def calibration_view(rays_per_pose: int) -> int:
     """Pixels on a side of the calibration view of a dataset of ``rays_per_pose``."""
     return int((rays_per_pose * CALIBRATION_VIEW_SHARE) ** 0.5)
+
 
 OCCLUSION_THRESHOLD = 0.5
 """Occlusion probability above which a segment counts as a hit until training calibrates the

@@ -76,28 +76,16 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
                                                 secondary_fraction=secondary_fraction,
                                                 offset=offset)
             timings["rays_s"] += time.perf_counter() - clock
-            clock = time.perf_counter()
-            segments = traverse(geometry.cells, origins, directions)
-            counts["truncated_rays"] += segments.truncated      # stopped by the walk's bounds
-            timings["walk_s"] += time.perf_counter() - clock
-            clock = time.perf_counter()
-            targets = segment_targets(capture.mesh, rest_caster, segments)
-            timings["ground_truth_s"] += time.perf_counter() - clock
-            clock = time.perf_counter()
-            records.append(dataset.segment_records(capture.grid, segments, targets, index))
-            timings["records_s"] += time.perf_counter() - clock
+            walked = _walk_rows(geometry, capture, rest_caster, origins, directions, index, 0,
+                                records, counts, timings)
+            counts["truncated_rays"] += walked.truncated        # stopped by the walk's bounds
             counts["rays"] += rays_per_pose
-            counts["segments"] += len(segments)
-            counts["hits"] += int(targets.hit.sum())
-            if side:
-                segments, targets = _calibration_view(geometry, capture.mesh, rest_caster,
-                                                      side, rng, timings)
+            if side:            # numbered after the training rays (``settings``)
                 clock = time.perf_counter()
-                records.append(dataset.segment_records(capture.grid, segments, targets, index))
-                records[-1]["ray"] += rays_per_pose     # after the training rays' numbers
-                timings["records_s"] += time.perf_counter() - clock
-                counts["segments"] += len(segments)
-                counts["hits"] += int(targets.hit.sum())
+                origins, directions = _calibration_rays(geometry, side, rng)
+                timings["rays_s"] += time.perf_counter() - clock
+                _walk_rows(geometry, capture, rest_caster, origins, directions, index,
+                           rays_per_pose, records, counts, timings)
             inverted.append(geometry.inverted_cells())
             # the first pose's rows foretell the shard's (its size and memory): refused
             # then, not after the walk; later poses only past the limit itself
@@ -132,22 +120,33 @@ def generate_dataset(obj, capture, out_dir, rays_per_pose, surface_fraction=None
     return dataclasses.replace(header, timings={**header.timings, "write_s": write_s})
 
 
-def _calibration_view(geometry, mesh, rest_caster, side, rng, timings):
-    """(Segments, SurfaceHits) of one pose's calibration view: ``side`` x ``side`` rays of
-    an orbit camera from a random direction of ``rng``, walked and given their targets as
-    the training rays are (``settings.CALIBRATION_VIEW_SHARE``)."""
-    clock = time.perf_counter()
-    direction = rng.normal(size=3)
-    origins, directions = orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
-                                     direction / np.linalg.norm(direction), side, side)
-    timings["rays_s"] += time.perf_counter() - clock
+def _walk_rows(geometry, capture, rest_caster, origins, directions, index, first_ray, records,
+               counts, timings):
+    """Walks the rays (``origins``, ``directions``) through pose ``index``'s cells
+    (``geometry``) and appends their rows, with their targets, to ``records``, the rays
+    numbered from ``first_ray``; adds their segments and hits to ``counts`` and their
+    seconds to ``timings``. Returns the walk's Segments."""
     clock = time.perf_counter()
     segments = traverse(geometry.cells, origins, directions)
     timings["walk_s"] += time.perf_counter() - clock
     clock = time.perf_counter()
-    targets = segment_targets(mesh, rest_caster, segments)
+    targets = segment_targets(capture.mesh, rest_caster, segments)
     timings["ground_truth_s"] += time.perf_counter() - clock
-    return segments, targets
+    clock = time.perf_counter()
+    records.append(dataset.segment_records(capture.grid, segments, targets, index))
+    records[-1]["ray"] += first_ray
+    timings["records_s"] += time.perf_counter() - clock
+    counts["segments"] += len(segments)
+    counts["hits"] += int(targets.hit.sum())
+    return segments
+
+
+def _calibration_rays(geometry, side, rng):
+    """The rays of one pose's calibration view (``settings.CALIBRATION_VIEW_SHARE``): ``side``
+    x ``side`` rays of an orbit camera from a random direction of ``rng``."""
+    direction = rng.normal(size=3)
+    return orbit_rays(geometry.vertices.min(0), geometry.vertices.max(0),
+                      direction / np.linalg.norm(direction), side, side)
 
 
 def reference_run(obj, capture, width, height, rest_pose=False, progress=None,

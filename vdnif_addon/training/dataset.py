@@ -227,7 +227,7 @@ def read_dataset(folder: str | os.PathLike) -> tuple[Dataset, list[Shard]]:
                              f"{headers[0].corners_follow}: make every shard one way")
         if headers and ((header.rays_per_pose, header.view_rays)
                         != (headers[0].rays_per_pose, headers[0].view_rays)):
-            # the calibration view's rows are told by their ray numbers (view_rows)
+            # the calibration view's rows are told by their ray numbers (data.split_data)
             raise VDNIFError(f"shard '{path}' walked {header.rays_per_pose} rays per pose "
                              f"and a view of {header.view_rays}, '{paths[0].name}' "
                              f"{headers[0].rays_per_pose} and {headers[0].view_rays}: make "

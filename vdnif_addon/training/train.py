@@ -298,8 +298,8 @@ def train(
     network_config = dataclasses.replace(network_config, heads=heads)
     device = resolve_device(config.device)
     group = ProcessGroup.from_environment(device, group_timeout_s)
+    view_from = header.rays_per_pose if header.view_rays else None
     try:
-        view_from = header.rays_per_pose if header.view_rays else None
         return _train(segments, h, config, network_config, device, group, progress, cancel,
                       view_from)
     except RuntimeError as exc:

@@ -1,10 +1,9 @@
 """How a network does on held-out segments: task losses and metrics (``evaluate``, summed
 over processes by ``validate``) and the calibrated thresholds of DESIGN section 9: the
 occlusion threshold that says whether a ray hits (``calibrate_threshold``, on the held-out
-calibration views) and the lower
-candidate threshold that says where (``calibrate_candidate_threshold``). All three read the
-network's outputs on the held-out rows (``head_outputs``), so that the end of training runs
-the network over them once."""
+calibration views) and the lower candidate threshold that says where
+(``calibrate_candidate_threshold``). Each reads the network's outputs on its held-out rows
+(``head_outputs``), so that the end of training runs the network over them once."""
 
 from __future__ import annotations
 
