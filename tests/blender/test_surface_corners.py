@@ -1,6 +1,7 @@
 """Corners that follow the evaluated surface: on rigs as artists build them (a Subdivision
 after the armature, a corrective shape key driven by a bone, a Corrective Smooth, a lattice
-with an animated shape key) the voxel embedding follows the true mesh, against Blender's
+with an animated shape key, a Mesh Deform cage, a Hook, a node tree moving points over the
+frames) the voxel embedding follows the true mesh, against Blender's
 evaluated mesh in each pose (the true reference), with the armature-only (lattice-only)
 twin of the same mesh beside it; a topology that changes between poses is refused in one
 line."""
@@ -42,7 +43,8 @@ def rig_figures(core, rig):
         figures[full, capture.corners_follow] = chosen
         other = "armature copy" if capture.corners_follow == "evaluated surface" \
             else "evaluated surface"
-        figures[full, other] = embedding_error(core, obj, spec, follow=other)[0]
+        figures[full, other], other_capture = embedding_error(core, obj, spec, follow=other)
+        figures[full, other]["mode"] = other_capture.mode
     return figures
 
 
@@ -62,7 +64,12 @@ def test_the_embedding_follows_the_true_mesh(empty_scene, core, rig):
     assert surface["distance_mae_voxels"] < MAX_DISTANCE_VOXELS
     assert surface["hit_iou"] > MIN_HIT_IOU and surface["compared_rays"] > 300
     assert twin["distance_mae_voxels"] < MAX_DISTANCE_VOXELS and twin["hit_iou"] > MIN_HIT_IOU
-    assert copy["distance_mae_voxels"] > 1.5 * surface["distance_mae_voxels"]
+    if rig == "mesh_deform":
+        # The box carries no armature, only the cage does: copies have nothing to copy, and
+        # such a capture is the static rest pose alone.
+        assert copy["mode"] == "static"
+    else:
+        assert copy["distance_mae_voxels"] > 1.5 * surface["distance_mae_voxels"]
 
 
 def test_the_capture_records_how_the_corners_follow(empty_scene, core):
