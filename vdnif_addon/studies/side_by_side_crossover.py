@@ -38,22 +38,26 @@ def crossings(points):
     return sorted(found)
 
 
-def crossover(results):
+SWEEP = "suzanne-"          # the scene names of the sweep: one mesh at several subdivisions
+
+
+def crossover(results, sweep=SWEEP):
     """{"rows": one per baseline, image size and thread setting: where the neural pose
     becomes cheaper ("triangles", None where it does not cross inside the sweep, "text"
-    saying why), the sweep's points and the other meshes' ratios; "bytes": one per mesh}."""
+    saying why), the sweep's points and the other meshes' ratios; "bytes": one per mesh}.
+    The sweep is the results whose scene name starts with ``sweep``."""
     groups = sorted({(r["width"], r["height"], setting(r)) for r in results},
                     key=lambda g: (-g[0] * g[1], -g[2]))
     rows = []
     for width, height, threads in groups:
         chosen = sorted((r for r in results if (r["width"], r["height"], setting(r))
                          == (width, height, threads)), key=lambda r: r["triangles"])
-        sweep = [r for r in chosen if r.get("scene", "").startswith("suzanne-")]
-        others = [r for r in chosen if r not in sweep]
+        swept = [r for r in chosen if r.get("scene", "").startswith(sweep)]
+        others = [r for r in chosen if r not in swept]
         for baseline in BASELINES:
             points = [(r["triangles"], pose_total(r, "neural"), pose_total(r, baseline))
-                      for r in sweep]
-            withheld = [r["object"] for r, (_, n, _) in zip(sweep, points) if n is None]
+                      for r in swept]
+            withheld = [r["object"] for r, (_, n, _) in zip(swept, points) if n is None]
             points = [p for p in points if p[1] is not None]
             triangles, text = _where(points, withheld)
             rows.append({
@@ -70,7 +74,7 @@ def _where(points, withheld):
     """(triangles where the neural pose becomes and stays cheaper, or None; the text)."""
     if len(points) < 2:
         reason = (f"no neural speed on {', '.join(withheld)}" if withheld
-                  else "fewer than two Suzanne meshes")
+                  else "fewer than two meshes in the sweep")
         return None, f"n/a ({reason})"
     found = crossings(points)
     last = points[-1]
@@ -95,8 +99,10 @@ def _bytes(results):
             for name, r in meshes.items()]
 
 
-def crossover_markdown(data, results, command=None, machine=None, plot=None):
-    """Markdown lines of a crossover (``crossover``) and the results it came from."""
+def crossover_markdown(data, results, command=None, machine=None, plot=None,
+                       sweep="the Suzanne sweep"):
+    """Markdown lines of a crossover (``crossover``) and the results it came from; ``sweep``
+    names the meshes it was interpolated on."""
     lines = [f"Command: `{command}`", ""] if command else []
     lines += [machine, ""] if machine else []
     groups = list(dict.fromkeys((row["width"], row["height"], row["threads"])
@@ -104,7 +110,7 @@ def crossover_markdown(data, results, command=None, machine=None, plot=None):
     heads = [f"{w}x{h}, {t} thread setting" for w, h, t in groups]
     lines += ["Triangles at which the neural pose (preparation + render) becomes cheaper than "
               "each classical pose (evaluation, read, refit or build, casts), interpolated "
-              "on the Suzanne sweep in log-log; other meshes as neural / classical at their "
+              f"on {sweep} in log-log; other meshes as neural / classical at their "
               "size (below 1: neural cheaper).", "",
               "| baseline | " + " | ".join(heads) + " |", "|---" * (len(groups) + 1) + "|"]
     for baseline in BASELINES:
