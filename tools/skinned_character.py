@@ -18,6 +18,8 @@ import math
 import pathlib
 import sys
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+
 import bpy  # isort: skip  (Blender's modules, addon_utils among them, come with it)
 import addon_utils  # isort: skip
 
@@ -86,6 +88,11 @@ def build(subdivide_after_rig=None):
     if subdivide_after_rig is not None:
         subdivision = body.modifiers.new("Subdivision", "SUBSURF")     # after the armature
         subdivision.levels = subdivision.render_levels = subdivide_after_rig
+        # As an artist's file plays them: the actions one after the other on the timeline
+        # (an exported file carries them as actions, which the importer lays out so).
+        from vdnif_addon.blender.mesh_files import animation_on_timeline
+
+        animation_on_timeline(rig, 1)
     return body
 
 

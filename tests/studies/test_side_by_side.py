@@ -491,6 +491,28 @@ def test_crossover_without_a_crossing_with_two_and_with_withheld_speeds(extensio
     assert all(other["ratio"] is None for row in rows for other in row["others"])
 
 
+def test_the_crossover_sweeps_the_scenes_it_is_named(extension):
+    """Another mesh's levels (the dense character's) are the sweep when named; Suzanne is
+    then one of the other meshes, reported at its size."""
+    cross = core("studies.side_by_side_crossover")
+    baselines = core("studies.baselines").BASELINES
+    scale = dict.fromkeys(baselines, 1e-4)
+    results = [fake_result(f"character-{level}", 5856 * 4 ** level, 40.0,
+                           {b: scale[b] * (5856 * 4 ** level) for b in baselines})
+               for level in (2, 3, 4)]
+    results.append(fake_result("suzanne-3", 61_952, 40.0, dict.fromkeys(baselines, 6.2)))
+    rows = cross.crossover(results, sweep="character-")["rows"]
+    for row in rows:
+        assert [p["triangles"] for p in row["points"]] == [93_696, 374_784, 1_499_136]
+        assert row["triangles"] == pytest.approx(400_000, rel=1e-9)
+        assert [o["object"] for o in row["others"]] == ["Suzanne-3"]
+    lone = cross.crossover(results[:1], sweep="character-")["rows"][0]
+    assert lone["text"] == "n/a (fewer than two meshes in the sweep)"
+    markdown = "\n".join(cross.crossover_markdown({"rows": rows, "bytes": []}, results,
+                                                   sweep="the character's levels"))
+    assert "interpolated on the character's levels in log-log" in markdown
+
+
 def test_crossover_markdown_and_plot(extension, tmp_path):
     cross = core("studies.side_by_side_crossover")
     plots = core("studies.side_by_side_report")

@@ -1,0 +1,63 @@
+"""tools/artist_rigs_study.py: a user's .blend with a topology-changing stack is refused by
+``train`` in one line naming the object and the modifier, and the table sets each rig beside
+its armature-only (lattice-only) twin."""
+
+import json
+import pathlib
+
+from tool_errors import load_tool
+
+TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "artist_rigs_study.py"
+study = load_tool(TOOL)
+
+
+def test_a_topology_changing_file_is_refused_by_train_in_one_line(extension, tmp_path):
+    study.run_case("topology", tmp_path)
+    row = json.loads((tmp_path / "topology.json").read_text())
+    refusal = row["refusal"]
+    assert refusal["exit_code"] == 1 and refusal["error_lines"] == 1
+    assert refusal["error"].startswith("vdnif: error: 'Box' changes its topology between "
+                                       "poses (modifier 'Cut', nodes)")
+    assert "training" not in row and row["options"][:4] == ["--blend", "topology.blend",
+                                                            "--object", "Box"]
+
+
+def rates(holes, extras):
+    return {"false_negative_rate": holes, "false_positive_rate": extras}
+
+
+def test_the_table_sets_each_rig_beside_its_twin(tmp_path):
+    folder = tmp_path / "rigs"
+    folder.mkdir()
+    embedding = {"distance_mae_voxels": 0.02, "hit_iou": 0.999}
+
+    def trained(case, holes, extras, follow="evaluated surface"):
+        return {"case": case, "rig": study.LABELS[case], "twin": study.TWIN.get(case),
+                "embedding": embedding, "test": rates(holes, extras),
+                "clean": holes <= 0.005 and extras <= 0.005,
+                "training": {"corners_follow": follow, "wall_s": 100.0}}
+
+    rows = [trained("twin-frames", 0.002, 0.007, "armature copy"),
+            trained("hook", 0.003, 0.0079),          # not clean, within 0.1 point of the twin
+            trained("mesh-deform", 0.003, 0.0081),   # not clean, 0.11 point above the twin
+            trained("nodes-wobble", 0.004, 0.004),   # clean
+            # holes above the clean rate, though within 0.1 point of the twin's clean ones
+            trained("twin-random", 0.001, 0.001, "armature copy"),
+            trained("subdivision", 0.0055, 0.001),
+            {"case": "topology", "rig": study.LABELS["topology"], "twin": None,
+             "embedding": None, "refusal": {"exit_code": 1, "error": "vdnif: error: no",
+                                            "error_lines": 1}}]
+    for row in rows:
+        (folder / f"{row['case']}.json").write_text(json.dumps(row))
+    lines = study.table(folder).splitlines()
+    cells = {line.split(" | ")[0][2:]: line.split(" | ") for line in lines[2:]}
+    assert cells[study.LABELS["hook"]][4:6] == ["no", "yes"]
+    assert cells[study.LABELS["mesh-deform"]][4:6] == ["no", "no"]
+    assert cells[study.LABELS["nodes-wobble"]][4:6] == ["yes", "yes"]
+    assert cells[study.LABELS["twin-frames"]][5] == "-"
+    assert cells[study.LABELS["subdivision"]][4:6] == ["no", "no"]
+    assert "refused (exit 1): `vdnif: error: no`" in cells[study.LABELS["topology"]][1]
+    # in the study's order, written together beside the folder
+    order = [row["case"] for row in json.loads((tmp_path / "rigs.json").read_text())]
+    assert order == ["subdivision", "twin-random", "mesh-deform", "hook", "nodes-wobble",
+                     "twin-frames", "topology"]

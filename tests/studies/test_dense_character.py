@@ -1,0 +1,48 @@
+"""tools/skinned_character.py --subdivide-after-rig: the dense character keeps its
+Subdivision after the armature, so that the network learns the subdivided surface while
+the voxel corners follow the cage; a file format that would apply the modifier is refused."""
+
+import pathlib
+import subprocess
+import sys
+
+from scene_builders import evaluated_vertices
+from tool_errors import load_tool
+
+TOOLS = pathlib.Path(__file__).resolve().parents[2] / "tools"
+character = load_tool(TOOLS / "skinned_character.py")
+CAGE_TRIANGLES = 5856
+
+
+def test_the_dense_character_subdivides_after_its_armature(empty_scene, core):
+    import bpy
+
+    body = character.build(subdivide_after_rig=1)
+    assert [m.type for m in body.modifiers] == ["ARMATURE", "SUBSURF"]
+    assert sum(len(p.vertices) - 2 for p in body.data.polygons) == CAGE_TRIANGLES
+    scene = bpy.context.scene
+    # both actions play one after the other: the walk (40 frames), then the wave (24)
+    assert (scene.frame_start, scene.frame_end) == (1, 64)
+    moved = []
+    for frame in (1, 20, 50):
+        scene.frame_set(frame)
+        moved.append(evaluated_vertices(body))
+    assert all(abs(pose - moved[0]).max() > 0.05 for pose in moved[1:])
+    scene.frame_set(1)
+    poses = core("blender.poses")
+    captured = core("blender.capture_scene").capture(
+        body, 8, poses.PoseSpec(count=2, source="frames"))
+    # the rest mesh is the subdivided one; the corners are bound to the cage before it
+    assert len(captured.mesh.triangles) == 4 * CAGE_TRIANGLES
+    assert captured.corners_follow == "evaluated surface"
+    deform = core("blender.deform")
+    with deform.CornerDeformer(body, captured.grid.corner_positions()) as deformer:
+        assert deformer.binding.vertex_count == len(body.data.vertices)
+
+
+def test_an_exported_dense_character_is_refused(tmp_path):
+    done = subprocess.run([sys.executable, str(TOOLS / "skinned_character.py"),
+                           "--subdivide-after-rig", "2", "--out", str(tmp_path / "c.glb")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "an exported file would apply the modifier" in done.stderr
+    assert not (tmp_path / "c.glb").exists()
