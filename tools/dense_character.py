@@ -5,8 +5,9 @@ actions, ``--pose-source frames``), evaluated on its test frames at 256x256 agai
 reference, and its pose cost timed beside Warp's and Embree's refit of the evaluated mesh
 by the side-by-side study's own timing (``studies.side_by_side.compare_paths``: Blender's
 evaluation of the mesh counted in every classical pose, the corners' in the neural one),
-at 256x256 and 64x64, at 1 thread and at every core. The crossover is interpolated on the
-levels as the side-by-side study does on Suzanne.
+at 256x256 and 64x64, at 1 thread and at every core; and the corners' own cost per pose,
+bound to the cage or to the subdivided surface against copies of the armature. The
+crossover is interpolated on the levels as the side-by-side study does on Suzanne.
 
     python tools/dense_character.py train --levels 2 --out DIR     # one level a process
     python tools/dense_character.py time --levels 2 3 4 --out DIR --json PATH --markdown PATH
@@ -84,9 +85,11 @@ def _write(path, row):
 
 
 def time_levels(levels, out, poses, repeats, threads):
-    """The side-by-side results of every level (``compare_paths``), scenes named
-    character-N."""
+    """(the side-by-side results of every level (``compare_paths``), scenes named
+    character-N; the corners' cost per pose each way of following, ``pose_costs`` of
+    ``tools/surface_corners_study.py``)."""
     import bpy
+    from surface_corners_study import pose_costs
 
     from vdnif_addon.blender.steps import model_capture
     from vdnif_addon.model.model_file import load_model
@@ -94,7 +97,7 @@ def time_levels(levels, out, poses, repeats, threads):
     from vdnif_addon.posed.render import load_scene_model
     from vdnif_addon.studies.side_by_side import compare_paths, thread_settings
 
-    results = []
+    results, costs = [], []
     for level in levels:
         files = _files(out, level)
         bpy.ops.wm.open_mainfile(filepath=str(files["blend"]))
@@ -103,6 +106,7 @@ def time_levels(levels, out, poses, repeats, threads):
         captured = model_capture(obj, loaded[1], PoseSpec(count=poses, source="frames"),
                                  evaluation=True)
         model = load_scene_model(files["model"], captured, "cpu", loaded)
+        costs.append({"level": level, **pose_costs(obj, RESOLUTION, poses, cage_too=True)})
         for (width, height) in SIZES:
             for setting in thread_settings(threads):
                 result = compare_paths(obj, captured, model, width, height, repeats,
@@ -112,7 +116,7 @@ def time_levels(levels, out, poses, repeats, threads):
                 print(f"level {level}, {width}x{height}, {setting} threads: "
                       + ", ".join(f"{name} {_total(result, name)}" for name in (
                           "neural", "warp", "embree_refit")), flush=True)
-    return results
+    return results, costs
 
 
 def _total(result, name):
@@ -146,7 +150,7 @@ def main(argv):
     from vdnif_addon.studies.side_by_side_crossover import crossover, crossover_markdown
 
     load_before = os.getloadavg()
-    results = time_levels(args.levels, args.out, args.poses, args.repeats, args.threads)
+    results, costs = time_levels(args.levels, args.out, args.poses, args.repeats, args.threads)
     data = crossover(results, sweep="character-")
     rows = [json.loads(_files(args.out, level)["row"].read_text()) for level in args.levels]
     for row in rows:                     # the evaluated mesh's, as the timing read it
@@ -158,7 +162,7 @@ def main(argv):
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(stamp({
         "command": command, "machine": machine, "levels": rows, "crossover": data,
-        "results": results}, with_machine=True), indent=1) + "\n")
+        "corner_costs": costs, "results": results}, with_machine=True), indent=1) + "\n")
     if args.markdown is not None:
         lines = ["| level | triangles | training s | holes | extras | clean |",
                  "| --- | --- | --- | --- | --- | --- |"]
