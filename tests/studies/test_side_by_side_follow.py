@@ -33,3 +33,23 @@ def test_a_thin_lattice_model_follows_the_surface(empty_scene, monkeypatch, tmp_
 
 def test_the_arm_model_keeps_the_copies(empty_scene, monkeypatch, tmp_path):
     assert trained_follow(monkeypatch, tmp_path, "arm") == "armature copy"
+
+
+def test_a_pose_bound_to_the_cage_is_timed_with_the_cage_evaluated(empty_scene):
+    """A rig with a Subdivision after its armature: the corners follow its cage, whose
+    evaluation is the neural pose's Blender work (the subdivided mesh is the classical
+    paths')."""
+    import artist_rigs
+
+    obj, keywords = artist_rigs.build("subdivision")
+    poses = core("blender.poses")
+    captured = core("blender.capture_scene").capture(
+        obj, 8, poses.evaluation_spec(poses.PoseSpec(count=2, **keywords)),
+        deform_corners=False)
+    assert captured.corners_follow == "evaluated surface"
+    result = core("studies.side_by_side").compare_paths(obj, captured, None, 8, 8, repeats=1)
+    records = result["runs"][0]["poses"]
+    assert len(records) == 2
+    for record in records:
+        assert record["neural_evaluate_s"] > 0
+        assert record["neural_pose_s"] >= record["neural_evaluate_s"]

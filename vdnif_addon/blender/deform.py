@@ -87,6 +87,12 @@ class CornerDeformer:
         for modifier in modifiers:
             _copy_modifier(modifier, self.helper)
 
+    @property
+    def evaluated(self):
+        """The object whose evaluation in a pose moves the corners: the helper carrying the
+        copies, or the surface they are bound to (the mesh itself, or its cage's copy)."""
+        return self.helper if self.binding is None else self.surface
+
     def deformed(self):
         """(C, 3) float64 deformed positions for the scene's current pose."""
         if self.binding is not None:

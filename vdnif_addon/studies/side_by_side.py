@@ -233,7 +233,7 @@ def _pose_record(obj, posed_object, baselines, model, pose, view, width, height,
             record.update({f"{baseline.name}_{part}": s for part, s in parts.items()})
             record[f"{baseline.name}_pose_s"] = sum(parts.values())
         deformer = posed_object.deformer
-        record["neural_evaluate_s"] = 0.0 if deformer is None else evaluation_s(deformer.helper)
+        record["neural_evaluate_s"] = 0.0 if deformer is None else evaluation_s(deformer.evaluated)
     record["neural_prepare_s"] = geometry.prepare_s
     record["neural_pose_s"] = record["neural_evaluate_s"] + geometry.prepare_s
     casts = {}
