@@ -11,7 +11,7 @@ TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "artist_rigs_stud
 study = load_tool(TOOL)
 
 
-def test_a_topology_changing_file_is_refused_by_train_in_one_line(extension, tmp_path):
+def test_a_topology_changing_file_is_refused_by_train_in_one_line(tmp_path):
     study.run_case("topology", tmp_path)
     row = json.loads((tmp_path / "topology.json").read_text())
     refusal = row["refusal"]

@@ -9,12 +9,15 @@ import sys
 from scene_builders import evaluated_vertices
 from tool_errors import load_tool
 
+# The tool imports the core directly, so this file does too (one identity of the core).
+from vdnif_addon.blender import capture_scene, deform, poses
+
 TOOLS = pathlib.Path(__file__).resolve().parents[2] / "tools"
 character = load_tool(TOOLS / "skinned_character.py")
 CAGE_TRIANGLES = 5856
 
 
-def test_the_dense_character_subdivides_after_its_armature(empty_scene, core):
+def test_the_dense_character_subdivides_after_its_armature():
     import bpy
 
     body = character.build(subdivide_after_rig=1)
@@ -29,13 +32,11 @@ def test_the_dense_character_subdivides_after_its_armature(empty_scene, core):
         moved.append(evaluated_vertices(body))
     assert all(abs(pose - moved[0]).max() > 0.05 for pose in moved[1:])
     scene.frame_set(1)
-    poses = core("blender.poses")
-    captured = core("blender.capture_scene").capture(
+    captured = capture_scene.capture(
         body, 8, poses.PoseSpec(count=2, source="frames"))
     # the rest mesh is the subdivided one; the corners are bound to the cage before it
     assert len(captured.mesh.triangles) == 4 * CAGE_TRIANGLES
     assert captured.corners_follow == "evaluated surface"
-    deform = core("blender.deform")
     with deform.CornerDeformer(body, captured.grid.corner_positions()) as deformer:
         assert deformer.binding.vertex_count == len(body.data.vertices)
 
