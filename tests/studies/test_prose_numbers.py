@@ -283,6 +283,11 @@ CLAIMS = [
           "surface, {} ms for Blender's Surface Deform modifier", "results/surface-corners.json",
           lambda d: [d["cost_arm"][k]["corners_ms"] for k in (
               "armature copy", "evaluated surface (cage)", "surface deform modifier")]),
+    Claim(R, "(3 k to 50 k triangles) {}-{} ms bound to the cage, {}-{} ms for the copies and "
+          "{}-{} ms bound to the subdivided surface", "results/surface-corners.json",
+          lambda d: [x for way in ("evaluated surface (cage)", "armature copy",
+                                   "evaluated surface (subdivided surface)")
+                     for x in span([r[way]["corners_ms"] for r in d["cost_arm_subdivided"]])]),
     # ---- the suggested resolution
     Claim(R, "the same training rows as above), chooses {} on its three held-out poses' views",
           AUTO, lambda d: [case(d, "character")["training"]["occlusion_threshold"]]),
@@ -520,21 +525,28 @@ def corners_row(d, rig):
     key = {"armature + Subdivision after it": "subdivision",
            "armature + bone-driven corrective key": "driven_key",
            "armature + Corrective Smooth": "corrective_smooth",
-           "lattice + animated shape key": "lattice_key",
-           "armature only (the same mesh)": "subdivision",
+           "lattice + animated shape key (frames)": "lattice_key",
+           "Mesh Deform cage on two bones (frames)": "mesh_deform",
+           "armature + Hook to an animated empty (frames)": "hook",
+           "armature + node tree Set Position by frame (frames)": "nodes_wobble",
+           "armature only, random poses (the same mesh)": "subdivision",
+           "armature only, over the frames (the same mesh)": "hook",
            "lattice only (the same mesh)": "lattice_key"}[rig]
     full, alone = d["embedding"][key]["full rig"], d["embedding"][key]["armature or lattice only"]
 
     def figures(way, iou=True):
         return [way["distance_mae_voxels"]] + ([way["hit_iou"]] if iou else [])
 
-    ways = ("evaluated surface", "armature copy", "surface deform modifier")
+    surface, copy, modifier = "evaluated surface", "armature copy", "surface deform modifier"
     if rig.endswith("(the same mesh)"):
-        return [alone[w]["distance_mae_voxels"] for w in ways[:2 if key == "lattice_key" else 3]]
+        return [*figures(alone[surface]), *figures(alone[copy]),
+                *figures(alone[modifier], False)]
     if key == "subdivision":
-        return [*figures(full[ways[0]]), full["evaluated surface (subdivided surface)"][
-            "distance_mae_voxels"], *figures(full[ways[1]], False), *figures(full[ways[2]], False)]
-    return [*figures(full[ways[0]]), *figures(full[ways[1]]), *figures(full[ways[2]], False)]
+        return [*figures(full[surface]), full["evaluated surface (subdivided surface)"][
+            "distance_mae_voxels"], *figures(full[copy]), *figures(full[modifier], False)]
+    if key == "mesh_deform":            # no armature on the mesh: nothing to copy
+        return [*figures(full[surface]), *figures(full[modifier], False)]
+    return [*figures(full[surface]), *figures(full[copy]), *figures(full[modifier], False)]
 
 
 def swept(d, pose_set):
