@@ -6,7 +6,15 @@ the GPU in waves split by a small wave cap, and again under a side ``torch.cuda.
 each GPU render must match the CPU's: hits equal but at most one pixel, distances within
 1e-5 where both hit. Prints the driver's, torch's and Warp's versions and the timings.
 
+With ``--benchmark JSON`` it then measures the trained ball on the GPU (``benchmark``): a
+1920x1080 frame's neural rays/s against Warp's BVH (refit to the bent ball + the same
+casts), the frame's host reads and Warp kernel launches, the network alone from 2^16 to
+2^22 segments in float32 and bfloat16, and each figure's share of the GPU's arithmetic and
+memory peaks where the GPU is one of ``PEAKS``. An H200 has no ray-tracing cores: OptiX on
+an RTX card is a stronger classical path, not measured here.
+
     make gpu-check          (or: .venv/bin/python tools/gpu_check.py)
+    .venv/bin/python tools/gpu_check.py --benchmark out/gpu-benchmark.json
 
 Exit status 0 when every comparison holds, 1 when one fails or there is no CUDA device (one
 line on stderr, before any work).
@@ -33,6 +41,16 @@ DISTANCE_TOLERANCE = 1e-5
 """Largest distance difference (object units) where both devices hit."""
 SPLIT_WAVE = 1000
 """The wave cap of the split render: far below the view's segments, so that waves split."""
+FRAME = (1920, 1080)
+"""The benchmark's frame, pixels."""
+SEGMENT_SWEEP = tuple(2 ** k for k in range(16, 23))
+"""Batch sizes of the benchmark's network-alone figures."""
+PEAKS = {
+    # NVIDIA's H200 SXM data sheet: FP32 67 TFLOPS, BF16 tensor cores 989 TFLOPS dense,
+    # HBM3e 4.8 TB/s; no RT cores.
+    "H200": {"float32_flops": 67e12, "bfloat16_flops": 989e12, "bytes_per_s": 4.8e12},
+}
+"""Peak arithmetic (per precision) and memory bandwidth of GPUs by a part of their name."""
 
 
 def cuda_problem() -> str | None:
@@ -150,9 +168,9 @@ def compare(cpu, gpu) -> tuple[int, float]:
 
 
 def check(steps: int = 2000, size: int = 128, poses: int = 6, rays_per_pose: int = 16384,
-          say=print) -> bool:
+          say=print, trained: list | None = None) -> bool:
     """Trains and renders as the module says; reports through ``say``; True when every
-    GPU render matches the CPU's."""
+    GPU render matches the CPU's. The trained network is appended to ``trained``."""
     import torch
 
     from vdnif_addon.inference.neural_render import neural_passes
@@ -174,6 +192,8 @@ def check(steps: int = 2000, size: int = 128, poses: int = 6, rays_per_pose: int
     say(f"training on cuda:0: {result.steps} steps in {result.seconds:.1f} s, "
         f"{result.samples_per_s:,.0f} segments/s, validation {result.validation}")
     network = result.network
+    if trained is not None:
+        trained.append(network)
     view = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
     origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), view, size, size)
     table = mesh.albedo_table()
@@ -207,17 +227,170 @@ def check(steps: int = 2000, size: int = 128, poses: int = 6, rays_per_pose: int
     return bool(ok)
 
 
+def _median_s(run, repeats: int, synchronize) -> float:
+    """Median seconds of ``repeats`` runs of ``run`` after one warm-up run."""
+    import statistics
+
+    run()
+    times = []
+    for _ in range(repeats):
+        synchronize()
+        clock = time.perf_counter()
+        run()
+        synchronize()
+        times.append(time.perf_counter() - clock)
+    return statistics.median(times)
+
+
+def network_cost(network) -> dict[str, float]:
+    """Per segment: multiply-adds of the segment MLP and heads (the Linear layers outside
+    the point fields, which run at candidate hits only) and bytes of hash-table rows the
+    segment encoder reads (8 corners a level at each of its 2 (1 + 2F) points)."""
+    import torch
+
+    fields = [m for m in (getattr(network, "albedo_field", None),
+                          getattr(network, "normal_field", None)) if m is not None]
+    in_fields = {id(m) for field in fields for m in field.modules()}
+    macs = sum(m.in_features * m.out_features for m in network.modules()
+               if isinstance(m, torch.nn.Linear) and id(m) not in in_fields)
+    encoder = network.encoder
+    grid = encoder.grid
+    points = 2 * (1 + 2 * encoder.pe_bands)
+    reads = points * grid.levels * 8
+    return {"macs": float(macs), "table_reads": float(reads),
+            "table_bytes": float(reads * grid.feature_dim * grid.table.element_size())}
+
+
+def roofline(segments_per_s: float, cost: dict, precision: str, gpu: str) -> dict | None:
+    """Achieved FLOP/s and table bytes/s at ``segments_per_s`` and their shares of the
+    peaks of ``gpu`` (None where ``PEAKS`` does not know it)."""
+    peaks = next((v for k, v in PEAKS.items() if k in gpu), None)
+    flops = 2 * cost["macs"] * segments_per_s
+    moved = cost["table_bytes"] * segments_per_s
+    figures = {"flops": flops, "table_bytes_per_s": moved}
+    if peaks is None:
+        return dict(figures, share_of_flops=None, share_of_bandwidth=None)
+    return dict(figures, share_of_flops=flops / peaks[f"{precision}_flops"],
+                share_of_bandwidth=moved / peaks["bytes_per_s"])
+
+
+def benchmark(network, mesh, grid, bend, device: str = "cuda", frame=FRAME,
+              sweep=SEGMENT_SWEEP, repeats: int = 3, say=print) -> dict:
+    """The benchmark of the module's docstring on ``device`` with the trained ``network``
+    of the ball (``mesh``, ``grid``, its ``bend``): a JSON-ready dict."""
+    import torch
+    import warp as wp
+
+    sys.path.insert(0, str(ROOT / "tests" / "support"))
+    from host_reads import counting_host_reads
+
+    from vdnif_addon.inference.neural_render import neural_passes
+    from vdnif_addon.kernels import runtime
+    from vdnif_addon.kernels.cast import MeshCaster
+    from vdnif_addon.kernels.cells import DeviceCells
+    from vdnif_addon.tracing import rays
+
+    warp_device = "cuda:0" if device == "cuda" else "cpu"
+    torch_device = torch.device(device)
+    gpu = torch.cuda.get_device_name(0) if device == "cuda" else "cpu"
+
+    def synchronize():
+        runtime.init().synchronize_device(warp_device)
+        if device == "cuda":
+            torch.cuda.synchronize()
+
+    width, height = frame
+    view = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), view, width, height)
+    table = mesh.albedo_table()
+    network = network.to(torch_device).eval()
+    cells = DeviceCells(grid, warp_device, corners=bend)
+
+    def render():
+        return neural_passes(network, grid, table, cells, origins, directions, device=device)
+
+    render_s = _median_s(render, repeats, synchronize)
+    launches, launch = [], wp.launch
+
+    def counted_launch(*args, **kwargs):
+        launches.append(getattr(args[0], "key", "kernel"))
+        return launch(*args, **kwargs)
+
+    wp.launch = counted_launch
+    try:
+        with counting_host_reads() as reads:
+            passes, stats = render()
+    finally:
+        wp.launch = launch
+    # Warp's BVH over the ball bent as its corners are (x += 0.15 z^2), refit and cast
+    bent = mesh.vertices.copy()
+    bent[:, 0] += 0.15 * bent[:, 2] ** 2
+    caster = MeshCaster(mesh.vertices, mesh.triangles, warp_device)
+    refit_s = _median_s(lambda: caster.refit(bent), repeats, synchronize)
+    cast_s = _median_s(lambda: caster.cast(origins, directions, np.inf), repeats, synchronize)
+    frame_figures = {
+        "width": width, "height": height, "rays": len(origins), "hits": int(passes.hit.sum()),
+        "waves": stats["waves"], "segments": stats["segments"], "render_s": render_s,
+        "neural_rays_per_s": len(origins) / render_s, "host_reads": len(reads),
+        "warp_launches": len(launches), "warp_refit_s": refit_s, "warp_cast_s": cast_s,
+        "warp_rays_per_s": len(origins) / (refit_s + cast_s)}
+    say(f"benchmark {width}x{height} on {gpu}: neural {frame_figures['neural_rays_per_s']:,.0f} "
+        f"rays/s ({render_s * 1e3:.1f} ms, {stats['waves']} waves, {len(reads)} host reads, "
+        f"{len(launches)} Warp launches); Warp BVH refit + casts "
+        f"{frame_figures['warp_rays_per_s']:,.0f} rays/s ({refit_s * 1e3:.2f} + "
+        f"{cast_s * 1e3:.1f} ms)")
+    cost = network_cost(network)
+    sweeps = []
+    generator = torch.Generator().manual_seed(0)
+    low, high = (torch.as_tensor(v, dtype=torch.float32) for v in (bend.min(0), bend.max(0)))
+    precisions = ["float32"] + (["bfloat16"] if runtime.bfloat16_native(torch_device) else [])
+    for precision in precisions:
+        network.precision = precision
+        for count in sweep:
+            p0, p1 = (low + (high - low) * torch.rand(count, 3, generator=generator)
+                      for _ in range(2))
+            p0, p1 = p0.to(torch_device), p1.to(torch_device)
+            rest = torch.full((count,), grid.voxel_size, device=torch_device)
+            seconds = _median_s(lambda p0=p0, p1=p1, rest=rest, count=count: network.predict(
+                p0, p1, rest, grid.voxel_size, batch=count), repeats, synchronize)
+            row = {"precision": precision, "segments": count,
+                   "segments_per_s": count / seconds,
+                   **roofline(count / seconds, cost, precision, gpu)}
+            sweeps.append(row)
+            share = row["share_of_bandwidth"]
+            say(f"network alone, {precision}, {count:,} segments: "
+                f"{row['segments_per_s']:,.0f} segments/s"
+                + ("" if share is None else f" ({share:.1%} of the memory peak, "
+                   f"{row['share_of_flops']:.1%} of the arithmetic peak)"))
+    network.precision = "float32"
+    return {"device": gpu, "frame": frame_figures, "network_cost": cost, "network": sweeps,
+            "peaks": next((v for k, v in PEAKS.items() if k in gpu), None),
+            "note": "an H200 has no ray-tracing cores: OptiX on an RTX card is a stronger "
+                    "classical path, not measured here"}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=2000, help="training steps on the GPU")
     parser.add_argument("--size", type=int, default=128, help="rendered view's side, pixels")
+    parser.add_argument("--benchmark", type=pathlib.Path, metavar="JSON",
+                        help="then benchmark the trained ball on the GPU into this file")
     args = parser.parse_args(argv)
     problem = cuda_problem()
     if problem is not None:
         print(f"gpu_check: error: no CUDA device to check: {problem}", file=sys.stderr)
         return 1
+    trained = []
     try:
-        ok = check(args.steps, args.size)
+        ok = check(args.steps, args.size, trained=trained)
+        if ok and args.benchmark is not None:
+            import json
+
+            from vdnif_addon.model.provenance import stamp
+
+            figures = stamp(dict(benchmark(trained[0], *ball()), versions=versions()))
+            args.benchmark.parent.mkdir(parents=True, exist_ok=True)
+            args.benchmark.write_text(json.dumps(figures, indent=1) + "\n")
     except VDNIFError as exc:
         print(f"gpu_check: error: {exc}", file=sys.stderr)
         return 1

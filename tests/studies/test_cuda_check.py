@@ -62,3 +62,36 @@ def test_batches_move_from_host_memory_to_the_gpu_unchanged():
     for cpu, gpu in zip(got["cpu"], got["cuda:0"]):
         for key, value in cpu.items():
             assert gpu[key].device.type == "cuda" and torch.equal(gpu[key].cpu(), value), key
+
+
+def test_the_benchmark_runs_on_the_cpu_and_counts_what_a_frame_costs():
+    """The GPU benchmark's code on the CPU at a small size with an untrained network of the
+    ball: every figure present, the frame's host reads and Warp launches counted, the
+    segment MLP's multiply-adds and table reads those of the default network (84 encoded
+    values, 84-64-64-64 and its heads; 2 (1 + 2 * 3) points, 2 levels, 8 corners)."""
+    tool = load_tool(TOOL)
+    from vdnif_addon.model.network import IntersectionNetwork
+    from vdnif_addon.settings import Heads, NetworkConfig
+
+    mesh, grid, bend = tool.ball(resolution=6, rings=8, sides=12)
+    heads = mesh.heads()
+    network = IntersectionNetwork(NetworkConfig(heads=Heads(
+        albedo=heads["albedo"], material_count=heads["material_count"])))
+    said = []
+    figures = tool.benchmark(network, mesh, grid, bend, device="cpu", frame=(24, 16),
+                             sweep=(256, 1024), repeats=1, say=said.append)
+    frame = figures["frame"]
+    assert frame["rays"] == 24 * 16 and frame["render_s"] > 0 and frame["warp_cast_s"] > 0
+    assert frame["host_reads"] >= frame["waves"] >= 1 and frame["warp_launches"] > frame["waves"]
+    outputs = network.mlp[-1].out_features          # the heads the segment MLP answers
+    assert network.encoder.output_dim == 84
+    assert figures["network_cost"]["macs"] == 84 * 64 + 2 * 64 * 64 + 64 * outputs
+    assert figures["network_cost"]["table_reads"] == 224
+    precisions = ["float32"] + (["bfloat16"] if runtime.bfloat16_native(torch.device("cpu"))
+                                else [])
+    assert [(r["precision"], r["segments"]) for r in figures["network"]] == [
+        (p, n) for p in precisions for n in (256, 1024)]
+    assert all(r["segments_per_s"] > 0 and r["share_of_flops"] is None
+               for r in figures["network"])
+    assert figures["peaks"] is None and "no ray-tracing cores" in figures["note"]
+    assert len(said) == 1 + len(figures["network"])
