@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.requirements-installed
 
-.PHONY: demo test lint package venv clean gpu-check
+.PHONY: demo test lint package venv clean gpu-check gpu-benchmark
 
 venv: $(STAMP)
 
@@ -31,6 +31,10 @@ lint: $(STAMP)
 # Trains and renders on the GPU against the CPU (tools/gpu_check.py); refused without CUDA.
 gpu-check: $(STAMP)
 	$(PY) tools/gpu_check.py
+
+# The check, then the GPU benchmark of the trained ball into out/gpu-benchmark.json.
+gpu-benchmark: $(STAMP)
+	$(PY) tools/gpu_check.py --benchmark out/gpu-benchmark.json
 
 # The standard library only (tools/package.py): zipping the files needs no venv.
 package:
