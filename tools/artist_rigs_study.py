@@ -11,6 +11,8 @@ topology-changing stack is given to ``train`` too, which must refuse it in one l
     python tools/artist_rigs_study.py run --case hook --case twin-frames --out DIR
     python tools/artist_rigs_study.py table DIR
 
+(``embed DIR`` computes the embedding's error of every trained case in DIR again.)
+
 ``run`` writes ``CASE.json`` per case into --out (cases may run in several processes at
 once); ``table`` prints the Markdown table of every ``*.json`` there and writes them
 together as ``DIR.json`` beside it.
@@ -74,9 +76,8 @@ def _pose_options(keywords):
         else []
 
 
-def _save(case, folder):
-    """Builds ``case`` in an empty scene and saves it as ``folder/CASE.blend``; (path, pose
-    options, the embedding's figures on the test poses at the recipe's resolution or None)."""
+def _build(case):
+    """Builds ``case`` in an empty scene: (its object, PoseSpec keywords)."""
     import artist_rigs
     import bpy
 
@@ -87,15 +88,37 @@ def _save(case, folder):
     else:
         obj, keywords = artist_rigs.build(rig, full)
     bpy.context.view_layer.objects.active = obj
+    return obj, keywords
+
+
+def _save(case, folder):
+    """Builds ``case`` and saves it as ``folder/CASE.blend``; (path, pose options)."""
+    import bpy
+
+    _, keywords = _build(case)
     path = pathlib.Path(folder) / f"{case}.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
-    embedding = None if rig is None else _embedding(obj, keywords)
-    return path, _pose_options(keywords), embedding
+    return path, _pose_options(keywords)
 
 
-def _embedding(obj, keywords):
+def embed(out):
+    """Adds to each trained case's row in ``out`` the voxel embedding's own error, its
+    corners following as its model's did."""
+    for path in sorted(pathlib.Path(out).glob("*.json")):
+        row = json.loads(path.read_text())
+        if "training" not in row:
+            continue
+        obj, keywords = _build(row["case"])
+        row["embedding"] = _embedding(obj, keywords, row["training"]["corners_follow"])
+        path.write_text(json.dumps(row, indent=1))
+        print(f"{row['case']}: embedding {row['embedding']['distance_mae_voxels']:.3g} "
+              f"voxel ({row['embedding']['corners_follow']})", flush=True)
+
+
+def _embedding(obj, keywords, follow):
     """The voxel embedding's error (embedded against true reference) of ``obj`` on the 8
-    test poses the evaluation uses, 256x256, at the recipe's resolution; how it followed."""
+    test poses the evaluation uses, 256x256, at the recipe's resolution, the corners
+    following as ``follow`` says (the trained model's way)."""
     from vdnif_addon.blender.capture_scene import capture
     from vdnif_addon.blender.poses import evaluation_spec
     from vdnif_addon.declarations import RESOLUTION
@@ -104,7 +127,7 @@ def _embedding(obj, keywords):
 
     resolution = RESOLUTION.default             # the box has no texture
     spec = evaluation_spec(PoseSpec(count=8, **keywords))
-    captured = capture(obj, resolution, spec, deform_corners=False)
+    captured = capture(obj, resolution, spec, deform_corners=False, follow=follow)
     error = reference_run(obj, captured, 256, 256)["embedded_vs_true"]
     return {"resolution": resolution, "corners_follow": captured.corners_follow,
             **{key: error.get(key) for key in EMBEDDING_FIGURES}}
@@ -114,7 +137,7 @@ def run_case(case, out):
     """Trains and evaluates ``case`` (or has ``train`` refuse it); writes ``out/CASE.json``."""
     row = {"case": case, "rig": LABELS[case], "twin": TWIN.get(case)}
     with tempfile.TemporaryDirectory(prefix=f"vdnif-{case}-") as folder:
-        blend, poses, row["embedding"] = _save(case, folder)
+        blend, poses = _save(case, folder)
         scene = ["--blend", str(blend), "--object", OBJECT, *poses]
         row["options"] = [item.replace(str(blend), blend.name) for item in scene]
         model, summary, report = (pathlib.Path(folder) / name for name in (
@@ -154,6 +177,8 @@ def run_case(case, out):
         test=figures, test_vs_embedded=evaluated.get("vs_embedded"),
         clean=(figures["false_negative_rate"] <= CLEAN_RATE
                and figures["false_positive_rate"] <= CLEAN_RATE))
+    obj, keywords = _build(case)
+    row["embedding"] = _embedding(obj, keywords, row["training"]["corners_follow"])
     _write(out, row)
     print(f"{case}: holes {100 * figures['false_negative_rate']:.3g} %, extras "
           f"{100 * figures['false_positive_rate']:.3g} %, clean {row['clean']}", flush=True)
@@ -223,9 +248,14 @@ def main(argv):
     run.add_argument("--out", required=True, type=pathlib.Path)
     show = commands.add_parser("table", help="the table of a folder of cases")
     show.add_argument("folder", type=pathlib.Path)
+    again = commands.add_parser("embed", help="the embedding's error of each trained case")
+    again.add_argument("folder", type=pathlib.Path)
     args = parser.parse_args(argv)
     if args.command == "table":
         print(table(args.folder))
+        return
+    if args.command == "embed":
+        embed(args.folder)
         return
     for case in args.case:
         run_case(case, args.out)

@@ -61,3 +61,16 @@ def test_the_table_sets_each_rig_beside_its_twin(tmp_path):
     order = [row["case"] for row in json.loads((tmp_path / "rigs.json").read_text())]
     assert order == ["subdivision", "twin-random", "mesh-deform", "hook", "nodes-wobble",
                      "twin-frames", "topology"]
+
+
+def test_the_embedding_follows_as_the_trained_model_did(tmp_path):
+    """The armature-only box over the frames would keep the copies, but its model followed
+    the surface: its embedding error is measured that way (the test frames at 256x256)."""
+    row = {"case": "twin-frames", "training": {"corners_follow": "evaluated surface"}}
+    (tmp_path / "twin-frames.json").write_text(json.dumps(row))
+    (tmp_path / "topology.json").write_text(json.dumps({"case": "topology", "refusal": {}}))
+    study.embed(tmp_path)
+    embedding = json.loads((tmp_path / "twin-frames.json").read_text())["embedding"]
+    assert embedding["corners_follow"] == "evaluated surface" and embedding["resolution"] == 32
+    assert embedding["hit_iou"] > 0.99 and 0 < embedding["distance_mae_voxels"] < 0.05
+    assert "embedding" not in json.loads((tmp_path / "topology.json").read_text())
