@@ -91,3 +91,26 @@ def test_a_rig_only_the_surface_follows_is_not_measured(empty_scene, core):
     spec = core("pose_sets").PoseSpec(count=2, **keywords)
     choice = core("blender.follow_choice").choose_follow(obj, 8, spec)
     assert choice.follow == SURFACE and choice.errors == {}
+
+
+def test_a_coarse_cage_under_a_subdivision_binds_to_the_subdivided_surface(empty_scene, core):
+    """The box's 74-vertex cage misses the rounding its Subdivision adds between the
+    vertices: the subdivided surface is measured closer by more than the margin and chosen,
+    and a capture following it binds every corner to the subdivided mesh's vertices."""
+    import artist_rigs
+    import scene_builders as sb
+
+    obj, keywords = artist_rigs.build("subdivision")
+    spec = core("pose_sets").PoseSpec(count=4, **keywords)
+    follow = core("blender.follow_choice")
+    choice = follow.choose_follow(obj, 16, spec)
+    subdivided = core("geometry.capture").SUBDIVIDED_SURFACE
+    assert choice.follow == subdivided and set(choice.errors) == {SURFACE, subdivided}
+    assert follow.better(choice.errors[subdivided], choice.errors[SURFACE])
+    captured = core("blender.capture_scene").capture(obj, 8, spec, deform_corners=False,
+                                                     follow=subdivided)
+    deform = core("blender.deform")
+    with deform.CornerDeformer(obj, captured.grid.corner_positions(),
+                               captured.corners_follow) as deformer:
+        assert deformer.binding.vertex_count == len(sb.evaluated_vertices(obj)) > len(
+            obj.data.vertices)

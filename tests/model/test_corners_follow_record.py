@@ -9,7 +9,7 @@ import torch
 from model_metadata import metadata_dict
 
 from vdnif_addon.errors import VDNIFError
-from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE
+from vdnif_addon.geometry.capture import ARMATURE_COPY, SURFACE_BOUND
 from vdnif_addon.model import metadata as metadata_module
 from vdnif_addon.model.metadata import ModelMetadata
 from vdnif_addon.model.model_file import load_model, save_model
@@ -29,12 +29,13 @@ def test_golden_models_read_as_the_armature_copy(name):
     assert "corners_follow" not in metadata.to_dict()          # files stay as they were
 
 
-def test_a_surface_model_keeps_its_record_through_the_file(tmp_path):
+@pytest.mark.parametrize("follow", SURFACE_BOUND)
+def test_a_surface_model_keeps_its_record_through_the_file(tmp_path, follow):
     metadata = ModelMetadata.from_dict(
-        metadata_dict(metadata_module, CONFIG, corners_follow=EVALUATED_SURFACE), "m.vdnif")
+        metadata_dict(metadata_module, CONFIG, corners_follow=follow), "m.vdnif")
     torch.manual_seed(0)
     save_model(tmp_path / "m.vdnif", IntersectionNetwork(CONFIG), metadata)
-    assert load_model(tmp_path / "m.vdnif")[1].corners_follow == EVALUATED_SURFACE
+    assert load_model(tmp_path / "m.vdnif")[1].corners_follow == follow
 
 
 def test_an_unknown_record_is_one_line_naming_the_file():
@@ -51,8 +52,9 @@ def test_dataset_headers_write_the_record_only_for_the_surface():
     data = json.loads((GOLDEN / "arm-dataset" / "shard-000000-000003.json").read_text())
     header = DatasetHeader.from_dict(data, "golden")
     assert header.corners_follow == ARMATURE_COPY and header.to_dict() == data
-    surface = DatasetHeader.from_dict(dict(data, corners_follow=EVALUATED_SURFACE), "shard")
-    assert surface.corners_follow == EVALUATED_SURFACE
-    assert surface.to_dict()["corners_follow"] == EVALUATED_SURFACE
+    for follow in SURFACE_BOUND:
+        surface = DatasetHeader.from_dict(dict(data, corners_follow=follow), "shard")
+        assert surface.corners_follow == follow
+        assert surface.to_dict()["corners_follow"] == follow
     with pytest.raises(VDNIFError, match="corners follow 'magic'"):
         DatasetHeader.from_dict(dict(data, corners_follow="magic"), "shard")

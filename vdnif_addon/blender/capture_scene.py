@@ -7,7 +7,7 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..geometry import voxels
-from ..geometry.capture import EVALUATED_SURFACE, Capture
+from ..geometry.capture import SURFACE_BOUND, Capture
 from ..memory import check_memory
 from ..pose_sets import PoseSpec
 from .deform import CornerDeformer, check_deformers
@@ -41,7 +41,7 @@ def capture(obj, resolution=32, spec=PoseSpec(), progress=None, deform_corners=T
     voxel_s = time.perf_counter()
     modifiers = deform_modifiers(obj)
     rest = grid.corner_positions()
-    if modifiers or follow == EVALUATED_SURFACE:
+    if modifiers or follow in SURFACE_BOUND:
         if not modifiers and spec.source != "frames":
             raise VDNIFError(f"'{obj.name}' has no armature or lattice to pose, and moves "
                              "only over the frames: use the frames pose source")

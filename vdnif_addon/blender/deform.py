@@ -25,7 +25,13 @@ import bpy
 import numpy as np
 
 from ..errors import VDNIFError
-from ..geometry.capture import ARMATURE_COPY, CORNERS_FOLLOW, EVALUATED_SURFACE
+from ..geometry.capture import (
+    ARMATURE_COPY,
+    CORNERS_FOLLOW,
+    EVALUATED_SURFACE,
+    SUBDIVIDED_SURFACE,
+    SURFACE_BOUND,
+)
 from ..posed.binding import bind
 from .read_mesh import deform_modifiers, deformers_disabled
 from .uncaptured import POSITION_KEEPING, check_captured, check_followable
@@ -70,14 +76,15 @@ class CornerDeformer:
     def __init__(self, obj, points, follow=None, cage=True):
         """``points``: (C, 3) rest-space positions in ``obj``'s local coordinates;
         ``follow``: how (``check_deformers``: chosen from the object when None; a capture
-        records its choice); ``cage``: follow the surface without the subdivision that
-        ends the stack (False: with it, for measuring what the cage costs in accuracy)."""
+        records its choice); ``cage``: with ``EVALUATED_SURFACE``, follow the surface
+        without the subdivision that ends the stack (False: with it, as
+        ``SUBDIVIDED_SURFACE`` does)."""
         self.follow = check_deformers(obj, follow)
         self.obj = obj
         self._created = []
         self.binding = None
-        if self.follow == EVALUATED_SURFACE:
-            self._bind_surface(obj, points, cage)
+        if self.follow in SURFACE_BOUND:
+            self._bind_surface(obj, points, cage and self.follow != SUBDIVIDED_SURFACE)
             return
         self.helper = self._new_object(f"{obj.name} VDNIF corners", points)
         self.helper.parent = obj
@@ -143,7 +150,7 @@ class CornerDeformer:
         """Binds ``points`` to the surface of ``obj`` evaluated at rest (its cage where a
         subdivision ends the stack and ``cage`` is True)."""
         self.surface = obj
-        trailing = _trailing_subdivision(obj) if cage else []
+        trailing = trailing_subdivision(obj) if cage else []
         if trailing:
             self.surface = self._new_object(f"{obj.name} VDNIF cage", None, data=obj.data,
                                             source=obj)
@@ -196,7 +203,7 @@ voxel at the default resolution; from 64 to 256 parts the embedding error of the
 moves by a few percent)."""
 
 
-def _trailing_subdivision(obj):
+def trailing_subdivision(obj):
     """The enabled Subdivision Surface and Multires modifiers that end ``obj``'s stack
     (only position-keeping modifiers after them): the surface before them is the cage the
     corners follow."""

@@ -12,18 +12,22 @@ suggested resolution is (``resolution``: the embedded against the true reference
 development poses at a small view, distance MAE in object units and hit mismatch), and the
 copies are kept unless the binding is better by a margin (``FOLLOW_MARGIN``, relative, and
 ``KNEE_TOLERANCE``, the measurement's noise): a tie keeps them. Anything else that deforms
-the mesh leaves the binding alone (``deform.check_deformers``), measured nothing.
+the mesh leaves the binding alone (``deform.check_deformers``). Where a Subdivision Surface
+or Multires ends the stack, the binding to its cage (whose cost per pose does not grow with
+the subdivided count) and the binding to the subdivided surface are measured the same way,
+and the cage is kept unless the subdivided surface is better by the margin: a coarse cage
+misses the subdivision's rounding between its vertices. Otherwise nothing is measured.
 """
 
 import dataclasses
 import time
 
-from ..geometry.capture import ARMATURE_COPY, CORNERS_FOLLOW, EVALUATED_SURFACE
+from ..geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE, SUBDIVIDED_SURFACE
 from ..pose_sets import DEVELOPMENT_POSES
 from ..settings import FOLLOW_MARGIN, KNEE_TOLERANCE, SUGGEST_POSES, SUGGEST_VIEW_SIZE
 from ..worker import DirectCalls
 from .capture_scene import capture
-from .deform import check_deformers
+from .deform import check_deformers, trailing_subdivision
 from .poses import evaluation_spec
 from .read_mesh import check_mesh_object, deform_modifiers
 from .resolution import embedding_errors
@@ -55,10 +59,11 @@ def _figure(value, scale=1):
 
 
 def better(surface, copy, margin=FOLLOW_MARGIN, tolerance=KNEE_TOLERANCE):
-    """Whether the binding's figures ``surface`` beat the copies' ``copy`` (rows
-    {embedding_error, hit_mismatch}): its distance error below the copies' by the relative
-    ``margin`` and the absolute ``tolerance["distance"]``, and its hit mismatch no worse
-    than theirs beyond ``tolerance["hit_mismatch"]``. A missing figure never beats."""
+    """Whether the figures ``surface`` of the way that must earn its place (the binding,
+    or the subdivided surface) beat those ``copy`` of the way kept on a tie (the copies, or
+    the cage) (rows {embedding_error, hit_mismatch}): its distance error below the other's
+    by the relative ``margin`` and the absolute ``tolerance["distance"]``, and its hit
+    mismatch no worse beyond ``tolerance["hit_mismatch"]``. A missing figure never beats."""
     if None in (surface["embedding_error"], copy["embedding_error"]):
         return False
     closer = (surface["embedding_error"] * (1 + margin) + tolerance["distance"]
@@ -76,18 +81,22 @@ def choose_follow(obj, resolution, spec, poses=SUGGEST_POSES, size=SUGGEST_VIEW_
     is read (in this thread, or from a worker on the main thread: ``worker.MainCalls``);
     ``progress(done, total)`` after each way measured."""
     start = time.perf_counter()
-    only, rigged = calls.call(lambda: (check_mesh_object(obj), check_deformers(obj),
-                                       bool(deform_modifiers(obj)))[1:])
-    if only != ARMATURE_COPY or not rigged:
+    only, rigged, subdivided = calls.call(lambda: (
+        check_mesh_object(obj), check_deformers(obj), bool(deform_modifiers(obj)),
+        bool(trailing_subdivision(obj)))[1:])
+    if only == ARMATURE_COPY and rigged:
+        kept, candidate = ARMATURE_COPY, EVALUATED_SURFACE
+    elif only == EVALUATED_SURFACE and subdivided:
+        kept, candidate = EVALUATED_SURFACE, SUBDIVIDED_SURFACE
+    else:
         return FollowChoice(only, {}, time.perf_counter() - start)
     development = evaluation_spec(spec, min(spec.count, poses), pose_set=DEVELOPMENT_POSES)
     errors = {}
-    for follow in CORNERS_FOLLOW:
+    for follow in (kept, candidate):
         captured = calls.call(lambda: capture(obj, resolution, development,
                                               deform_corners=False, follow=follow))
         errors[follow] = embedding_errors(obj, captured, size, calls)
         if progress is not None:
-            progress(len(errors), len(CORNERS_FOLLOW))
-    chosen = (EVALUATED_SURFACE if better(errors[EVALUATED_SURFACE], errors[ARMATURE_COPY])
-              else ARMATURE_COPY)
+            progress(len(errors), 2)
+    chosen = candidate if better(errors[candidate], errors[kept]) else kept
     return FollowChoice(chosen, errors, time.perf_counter() - start)

@@ -18,8 +18,14 @@ ARMATURE_COPY = "armature copy"
 (``blender.deform``), exact where nothing else deforms it."""
 EVALUATED_SURFACE = "evaluated surface"
 """How the corners follow the mesh: bound to the surface Blender evaluates at rest and moved
-with it (``posed.binding``), for any other deformation that keeps the topology."""
-CORNERS_FOLLOW = (ARMATURE_COPY, EVALUATED_SURFACE)
+with it (``posed.binding``), for any other deformation that keeps the topology; where a
+subdivision ends the stack, to its cage (the surface before it)."""
+SUBDIVIDED_SURFACE = "subdivided surface"
+"""As ``EVALUATED_SURFACE``, but bound to the surface after the subdivision that ends the
+stack: closer where the cage is coarse, dearer in every pose."""
+CORNERS_FOLLOW = (ARMATURE_COPY, EVALUATED_SURFACE, SUBDIVIDED_SURFACE)
+SURFACE_BOUND = (EVALUATED_SURFACE, SUBDIVIDED_SURFACE)
+"""The ways that bind the corners to the evaluated surface."""
 
 
 @dataclass
