@@ -97,3 +97,18 @@ def test_vertex_normals_of_a_tetrahedron_point_outward(core):
     centre = vertices.mean(0)
     assert ((normals * (vertices - centre)).sum(1) > 0).all()
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1)
+
+
+def test_the_nearest_vertices_do_not_depend_on_the_search_blocks(core, monkeypatch):
+    """The search holds a bounded number of distances at once (a million-vertex surface
+    takes a few points a block): any block size gives the same neighbours, distances and
+    radii as one block holding every point."""
+    binding = core("posed.binding")
+    rng = np.random.default_rng(3)
+    points, vertices = rng.normal(size=(37, 3)), rng.normal(size=(500, 3))
+    monkeypatch.setattr(binding, "_BLOCK_VALUES", 37 * 500)
+    whole = binding._nearest(points, vertices, 8)
+    for values in (1, 499, 501, 3 * 500):
+        monkeypatch.setattr(binding, "_BLOCK_VALUES", values)
+        for got, expected in zip(binding._nearest(points, vertices, 8), whole):
+            np.testing.assert_array_equal(got, expected)

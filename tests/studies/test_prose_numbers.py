@@ -549,6 +549,40 @@ def corners_row(d, rig):
     return [*figures(full[surface]), *figures(full[copy]), *figures(full[modifier], False)]
 
 
+def rig_row(d, label):
+    """The trained artist rigs table: holes and extras (%), the embedding's distance
+    (voxels) and hit IoU, the training seconds; a refused rig: its exit code and the
+    numbers of its error line."""
+    row = next(r for r in d if r["rig"] == label)
+    if "refusal" in row:
+        return [row["refusal"]["exit_code"],
+                *map(float, re.findall(r"\d+", row["refusal"]["error"]))]
+    test, embedding = row["test"], row["embedding"]
+    return [*rates(test, "false_negative_rate", "false_positive_rate"),
+            embedding["distance_mae_voxels"], embedding["hit_iou"], row["training"]["wall_s"]]
+
+
+def dense_level(d, level):
+    """The dense character's levels: evaluated triangles, training seconds, holes and
+    extras (%)."""
+    row = next(r for r in d["levels"] if r["level"] == int(level))
+    return [row["triangles"], row["training"]["wall_s"],
+            *rates(row["test"], "false_negative_rate", "false_positive_rate")]
+
+
+def dense_cost(d, level, image, threads):
+    """The dense character's pose totals (ms): neural, Warp refit, Embree refit, and the
+    neural pose over each refit."""
+    from vdnif_addon.studies.side_by_side_report import pose_total
+
+    width = int(image.split("x")[0])
+    result = next(r for r in d["results"] if r["scene"] == f"character-{level}"
+                  and r["width"] == width and str(r["threads"]["setting"]) == threads)
+    neural, warp, embree = (pose_total(result, name) for name in (
+        "neural", "warp", "embree_refit"))
+    return [neural, warp, embree, neural / warp, neural / embree]
+
+
 def swept(d, pose_set):
     """{occlusion threshold: its figures against the true reference} of a threshold sweep's
     pose set."""
@@ -640,6 +674,14 @@ TABLES = [
           resolution_row),
     Table(R, "| occlusion threshold | development: holes | extras | test: holes | extras |", 1,
           SWEEP, sweep_row),
+    Table(R, "| rig | corners follow | holes | extras | clean | clean, or within 0.1 point of an "
+          "unclean twin | embedding error, voxels (hit IoU) | training s | twin |", 1,
+          "results/artist-rigs.json", rig_row),
+    Table(R, "| level | triangles | training s | holes | extras | clean |", 1,
+          "results/dense-character.json", dense_level),
+    Table(R, "| level | image | threads | neural pose (ms) | Warp refit (ms) | Embree refit "
+          "(ms) | neural / Warp | neural / Embree |", 3, "results/dense-character.json",
+          dense_cost),
     Table(R, "| rig | surface binding (cage) | copied modifiers | Surface Deform modifier |", 1,
           "results/surface-corners.json", corners_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "

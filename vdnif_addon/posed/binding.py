@@ -38,7 +38,10 @@ squared: it only decides the directions the anchors do not span, far below their
 spread elsewhere (the Shepard weights can gather most of it on the nearest vertex, a spread
 of a few hundredths of the scale squared), so a rigid motion is followed to well under 1e-3
 of its angle times the point's distance from its anchors."""
-_CHUNK = 4096       # points per block of the nearest-vertex search (memory: CHUNK x V)
+_BLOCK_VALUES = 2**22
+"""Distances a block of the nearest-vertex search holds (points x vertices, 32 MB of
+float64; a few arrays of that size at once): a subdivided surface of a million vertices
+then takes a handful of points a block, not gigabytes."""
 
 
 @dataclass
@@ -117,8 +120,9 @@ def _nearest(points, vertices, k):
     index = np.empty((len(points), k), np.int64)
     distance = np.empty((len(points), k))
     radius = np.empty(len(points))
-    for start in range(0, len(points), _CHUNK):
-        block = points[start:start + _CHUNK]
+    chunk = max(1, _BLOCK_VALUES // len(vertices))
+    for start in range(0, len(points), chunk):
+        block = points[start:start + chunk]
         d2 = np.maximum((block * block).sum(1)[:, None] + square[None] - 2 * block @ vertices.T,
                         0.0)
         near = np.argpartition(d2, take - 1, axis=1)[:, :take] if take < len(vertices) \
