@@ -155,7 +155,7 @@ SECONDARY, FACING = "results/secondary-rays.json", "results/shadow-facing.json"
 FIELD, START = "results/normal-field-choices.json", "results/shadow-start-choices.json"
 SELF, SPOT = "results/self-hit-choices.json", "results/spot-shadow-seeds.json"
 AUTO, ESTIMATE = "results/resolution-auto.json", "results/estimate-check.json"
-SWEEP = "results/threshold-sweep.json"
+SWEEP, DENSE = "results/threshold-sweep.json", "results/dense-character.json"
 SIDE, BENCH = "side-by-side/side-by-side.json", "bench/bench.json"
 HEAD, OWN = "normal head", "own normal grid, start along the ray"
 WALK = "own normal grid, half offset, walks past its own surface"
@@ -288,6 +288,31 @@ CLAIMS = [
           lambda d: [x for way in ("evaluated surface (cage)", "armature copy",
                                    "evaluated surface (subdivided surface)")
                      for x in span([r[way]["corners_ms"] for r in d["cost_arm_subdivided"]])]),
+    # ---- the dense character
+    Claim(R, "at 64x64 the neural pose becomes the cheaper from {}-{} k triangles against "
+          "Warp's refit and {}-{} k against Embree's, at 256x256 from {}-{} k and {}-{} k",
+          DENSE, lambda d: [x / 1e3 for size in (64, 256) for baseline in (
+              "warp", "embree_refit") for x in span(
+              row["triangles"] for row in d["crossover"]["rows"]
+              if row["width"] == size and row["baseline"] == baseline)]),
+    Claim(R, "At 1.5 M triangles it costs {}-{} times either refit at 256x256 and {}-{} times "
+          "at 64x64", DENSE, lambda d: [x for size in (256, 64) for x in span(
+              dense_cost(d, 4, f"{size}x{size}", str(threads))[k]
+              for threads in (1, 2) for k in (3, 4))]),
+    Claim(R, "bound to the cage {}-{} ms at every level, against {}, {} and {} ms for copies of "
+          "the armature, and {}, {} and {} ms bound to the subdivided surface", DENSE,
+          lambda d: [*span(c["evaluated surface (cage)"]["corners_ms"]
+                           for c in d["corner_costs"]),
+                     *(c["armature copy"]["corners_ms"] for c in d["corner_costs"]),
+                     *(c["evaluated surface (subdivided surface)"]["corners_ms"]
+                       for c in d["corner_costs"])]),
+    Claim(R, "(its `neural_evaluate_s`, {}, {} and {} ms at the three levels", DENSE,
+          lambda d: [1e3 * statistics.median(
+              r["median"]["neural_evaluate_s"] for r in d["results"]
+              if r["scene"] == f"character-{level}") for level in (2, 3, 4)]),
+    Claim(R, "(Warp's `warp_read_s`, {}, {} and {} ms)", DENSE, lambda d: [
+        1e3 * statistics.median(r["median"]["warp_read_s"] for r in d["results"]
+                                if r["scene"] == f"character-{level}") for level in (2, 3, 4)]),
     # ---- the suggested resolution
     Claim(R, "the same training rows as above), chooses {} on its three held-out poses' views",
           AUTO, lambda d: [case(d, "character")["training"]["occlusion_threshold"]]),
