@@ -460,6 +460,16 @@ sys.exit(cli.main(["bench-network"]))
 """
 
 
+def _as_from_a_terminal():
+    """A child's preexec: the stop signals delivered and handled by default, as for a
+    command run from a terminal, whatever this process inherited (a shell starts background
+    jobs with SIGINT ignored; a parent may block signals, and a child inherits the mask)."""
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_SETMASK, set())
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["SIGTERM", "SIGHUP", "SIGINT"])
 def test_a_stop_signal_during_a_shard_write_leaves_no_partial_shard(name, tmp_path):
@@ -470,7 +480,7 @@ def test_a_stop_signal_during_a_shard_write_leaves_no_partial_shard(name, tmp_pa
     before = _snapshot(folder)
     child = subprocess.Popen([sys.executable, "-c", SHARD_SCRIPT, str(REPO), str(folder),
                               str(GOLDEN_DATA)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True)
+                             stderr=subprocess.PIPE, text=True, preexec_fn=_as_from_a_terminal)
     try:
         assert child.stdout.readline().strip() == "writing"
         assert any(path.name.startswith(".shard-") for path in folder.iterdir())
