@@ -92,13 +92,14 @@ def _build(case):
 
 
 def _save(case, folder):
-    """Builds ``case`` and saves it as ``folder/CASE.blend``; (path, pose options)."""
+    """Builds ``case`` and saves it as ``folder/CASE.blend``; (path, the object and its
+    PoseSpec keywords, which stay in this session for the embedding's error)."""
     import bpy
 
-    _, keywords = _build(case)
+    obj, keywords = _build(case)
     path = pathlib.Path(folder) / f"{case}.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path), copy=True)
-    return path, _pose_options(keywords)
+    return path, obj, keywords
 
 
 def embed(out):
@@ -137,8 +138,8 @@ def run_case(case, out):
     """Trains and evaluates ``case`` (or has ``train`` refuse it); writes ``out/CASE.json``."""
     row = {"case": case, "rig": LABELS[case], "twin": TWIN.get(case)}
     with tempfile.TemporaryDirectory(prefix=f"vdnif-{case}-") as folder:
-        blend, poses = _save(case, folder)
-        scene = ["--blend", str(blend), "--object", OBJECT, *poses]
+        blend, obj, keywords = _save(case, folder)
+        scene = ["--blend", str(blend), "--object", OBJECT, *_pose_options(keywords)]
         row["options"] = [item.replace(str(blend), blend.name) for item in scene]
         model, summary, report = (pathlib.Path(folder) / name for name in (
             "model.vdnif", "train.json", "evaluate.json"))
@@ -177,7 +178,6 @@ def run_case(case, out):
         test=figures, test_vs_embedded=evaluated.get("vs_embedded"),
         clean=(figures["false_negative_rate"] <= CLEAN_RATE
                and figures["false_positive_rate"] <= CLEAN_RATE))
-    obj, keywords = _build(case)
     row["embedding"] = _embedding(obj, keywords, row["training"]["corners_follow"])
     _write(out, row)
     print(f"{case}: holes {100 * figures['false_negative_rate']:.3g} %, extras "

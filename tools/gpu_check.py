@@ -51,6 +51,20 @@ PEAKS = {
     "H200": {"float32_flops": 67e12, "bfloat16_flops": 989e12, "bytes_per_s": 4.8e12},
 }
 """Peak arithmetic (per precision) and memory bandwidth of GPUs by a part of their name."""
+VIEW = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
+"""The rendered views' direction, onto the ball's bent side."""
+
+
+def bent(points):
+    """``points`` (N, 3) moved by the ball's smooth non-affine pose: x += 0.15 z^2."""
+    moved = np.array(points, np.float64)
+    moved[:, 0] += 0.15 * moved[:, 2] ** 2
+    return moved
+
+
+def peaks_of(gpu: str) -> dict | None:
+    """The ``PEAKS`` of the GPU named ``gpu`` (None where not known)."""
+    return next((value for part, value in PEAKS.items() if part in gpu), None)
 
 
 def cuda_problem() -> str | None:
@@ -117,9 +131,7 @@ def ball(resolution: int = 12, rings: int = 24, sides: int = 32):
     mesh = RestMesh(name="Ball", vertices=vertices, triangles=triangles, corner_normals=normals,
                     material_index=material, albedo=albedo)
     grid = voxels.build_grid(mesh.vertices, mesh.triangles, resolution)
-    bend = grid.corner_positions().copy()
-    bend[:, 0] += 0.15 * bend[:, 2] ** 2
-    return mesh, grid, bend
+    return mesh, grid, bent(grid.corner_positions())
 
 
 def dataset(mesh, grid, bend, poses: int, rays_per_pose: int, device: str):
@@ -194,8 +206,7 @@ def check(steps: int = 2000, size: int = 128, poses: int = 6, rays_per_pose: int
     network = result.network
     if trained is not None:
         trained.append(network)
-    view = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
-    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), view, size, size)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), VIEW, size, size)
     table = mesh.albedo_table()
 
     def render(device, net, **options):
@@ -264,7 +275,7 @@ def network_cost(network) -> dict[str, float]:
 def roofline(segments_per_s: float, cost: dict, precision: str, gpu: str) -> dict | None:
     """Achieved FLOP/s and table bytes/s at ``segments_per_s`` and their shares of the
     peaks of ``gpu`` (None where ``PEAKS`` does not know it)."""
-    peaks = next((v for k, v in PEAKS.items() if k in gpu), None)
+    peaks = peaks_of(gpu)
     flops = 2 * cost["macs"] * segments_per_s
     moved = cost["table_bytes"] * segments_per_s
     figures = {"flops": flops, "table_bytes_per_s": moved}
@@ -300,8 +311,7 @@ def benchmark(network, mesh, grid, bend, device: str = "cuda", frame=FRAME,
             torch.cuda.synchronize()
 
     width, height = frame
-    view = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
-    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), view, width, height)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), VIEW, width, height)
     table = mesh.albedo_table()
     network = network.to(torch_device).eval()
     cells = DeviceCells(grid, warp_device, corners=bend)
@@ -322,11 +332,10 @@ def benchmark(network, mesh, grid, bend, device: str = "cuda", frame=FRAME,
             passes, stats = render()
     finally:
         wp.launch = launch
-    # Warp's BVH over the ball bent as its corners are (x += 0.15 z^2), refit and cast
-    bent = mesh.vertices.copy()
-    bent[:, 0] += 0.15 * bent[:, 2] ** 2
+    # Warp's BVH over the ball bent as its corners are, refit and cast
+    posed = bent(mesh.vertices)
     caster = MeshCaster(mesh.vertices, mesh.triangles, warp_device)
-    refit_s = _median_s(lambda: caster.refit(bent), repeats, synchronize)
+    refit_s = _median_s(lambda: caster.refit(posed), repeats, synchronize)
     cast_s = _median_s(lambda: caster.cast(origins, directions, np.inf), repeats, synchronize)
     frame_figures = {
         "width": width, "height": height, "rays": len(origins), "hits": int(passes.hit.sum()),
@@ -364,7 +373,7 @@ def benchmark(network, mesh, grid, bend, device: str = "cuda", frame=FRAME,
                    f"{row['share_of_flops']:.1%} of the arithmetic peak)"))
     network.precision = "float32"
     return {"device": gpu, "frame": frame_figures, "network_cost": cost, "network": sweeps,
-            "peaks": next((v for k, v in PEAKS.items() if k in gpu), None),
+            "peaks": peaks_of(gpu),
             "note": "an H200 has no ray-tracing cores: OptiX on an RTX card is a stronger "
                     "classical path, not measured here"}
 

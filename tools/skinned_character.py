@@ -166,6 +166,9 @@ def main(argv):
                         help="the dense character: a Subdivision of N levels after the "
                              "armature")
     args = parser.parse_args(argv)
+    if args.subdivide_after_rig is not None and args.subdivide_after_rig < 1:
+        parser.error(f"--subdivide-after-rig {args.subdivide_after_rig}: the levels of a "
+                     "subdivision are at least 1")
     if (args.subdivide_after_rig is None) == (args.out.suffix.lower() == ".blend"):
         parser.error("a .blend file is written with --subdivide-after-rig, and only then "
                      "(an exported file would apply the modifier)")

@@ -47,3 +47,11 @@ def test_an_exported_dense_character_is_refused(tmp_path):
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and "an exported file would apply the modifier" in done.stderr
     assert not (tmp_path / "c.glb").exists()
+
+
+def test_a_subdivision_of_no_levels_is_refused(tmp_path):
+    done = subprocess.run([sys.executable, str(TOOLS / "skinned_character.py"),
+                           "--subdivide-after-rig", "0", "--out", str(tmp_path / "c.blend")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "levels of a subdivision are at least 1" in done.stderr
+    assert not (tmp_path / "c.blend").exists()
