@@ -55,7 +55,7 @@ def train(level, out):
     scene = ["--blend", str(files["blend"]), "--object", OBJECT, "--pose-source", "frames"]
     start = time.perf_counter()
     subprocess.run([*BATCH, "train", *scene, "--resolution", str(RESOLUTION), "--out",
-                    str(files["model"]), "--force", "--json", str(files["train"])],
+                    str(files["model"]), "--json", str(files["train"])],
                    check=True, stdout=subprocess.DEVNULL)
     train_s = time.perf_counter() - start
     subprocess.run([*BATCH, "evaluate", "--model", str(files["model"]), *scene, *EVALUATION,
