@@ -6,6 +6,7 @@ import pathlib
 import subprocess
 import sys
 
+import pytest
 from scene_builders import evaluated_vertices
 from tool_errors import load_tool
 
@@ -41,17 +42,12 @@ def test_the_dense_character_subdivides_after_its_armature():
         assert deformer.binding.vertex_count == len(body.data.vertices)
 
 
-def test_an_exported_dense_character_is_refused(tmp_path):
+@pytest.mark.parametrize("levels, out, message", [
+    ("2", "c.glb", "an exported file would apply the modifier"),
+    ("0", "c.blend", "levels of a subdivision are at least 1")])
+def test_a_dense_character_it_cannot_write_is_refused(tmp_path, levels, out, message):
     done = subprocess.run([sys.executable, str(TOOLS / "skinned_character.py"),
-                           "--subdivide-after-rig", "2", "--out", str(tmp_path / "c.glb")],
+                           "--subdivide-after-rig", levels, "--out", str(tmp_path / out)],
                           capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2 and "an exported file would apply the modifier" in done.stderr
-    assert not (tmp_path / "c.glb").exists()
-
-
-def test_a_subdivision_of_no_levels_is_refused(tmp_path):
-    done = subprocess.run([sys.executable, str(TOOLS / "skinned_character.py"),
-                           "--subdivide-after-rig", "0", "--out", str(tmp_path / "c.blend")],
-                          capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2 and "levels of a subdivision are at least 1" in done.stderr
-    assert not (tmp_path / "c.blend").exists()
+    assert done.returncode == 2 and message in done.stderr
+    assert not (tmp_path / out).exists()
