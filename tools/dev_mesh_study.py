@@ -9,7 +9,9 @@ clean when both are at most the clean rate (0.5 %).
 
 ``run`` writes ``MESH-seedS.json`` per training into --out (with the CPU, its cores, torch's
 threads, the load average before and after, and the wall time of the training and of the
-evaluation); ``--images DIR`` keeps evaluate's figures and error images in DIR/MESH-seedS.
+evaluation); ``--images DIR`` keeps evaluate's figures and error images in DIR/MESH-seedS,
+``--keep DIR`` the mesh and the model as DIR/MESH.obj and DIR/MESH-seedS.vdnif (for the
+shaded pass's study, ``tools/terminator_band.py``).
 ``table`` prints the Markdown table of every ``*.json`` in the folder and writes them
 together as one JSON file.
 """
@@ -18,6 +20,7 @@ import argparse
 import json
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -48,12 +51,15 @@ def mesh_table():
     raise VDNIFError(f"no MESHES table in '{MESHES_TOOL}'")
 
 
-def run_mesh(mesh, seed, out, images=None):
+def run_mesh(mesh, seed, out, images=None, keep=None):
     """Builds, trains and evaluates ``mesh`` at training seed ``seed``; writes
     ``out/MESH-seedS.json``."""
     from vdnif_addon.threads import default_threads, machine_cores
 
     rig = mesh_table()[mesh][0]
+    kept = (pathlib.Path(keep) / f"{mesh}-seed{seed}.vdnif") if keep else None
+    if kept is not None and kept.exists():
+        raise VDNIFError(f"'{kept}' exists; the study does not replace a model")
     with tempfile.TemporaryDirectory(prefix=f"vdnif-{mesh}-") as folder:
         folder = pathlib.Path(folder)
         subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh",
@@ -80,6 +86,10 @@ def run_mesh(mesh, seed, out, images=None):
             (pathlib.Path(images) / f"{mesh}-seed{seed}" / "evaluate.json").write_text(
                 report.read_text())
         figures = evaluated["vs_true"]
+        if kept is not None:
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, kept.parent / path.name)
+            shutil.copyfile(model, kept)
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
     row = {"mesh": mesh, "rig": rig, "seed": seed,
            "command": ["train", "--mesh", f"{mesh}.obj", "--rig", rig, "--seed", str(seed)],
@@ -152,6 +162,7 @@ def main(argv):
                      help="training seed (repeatable; default 0)")
     run.add_argument("--out", type=pathlib.Path, required=True, help="folder of MESH-seedS.json")
     run.add_argument("--images", type=pathlib.Path, help="keep evaluate's images here")
+    run.add_argument("--keep", type=pathlib.Path, help="keep the meshes and models here")
     show = commands.add_parser("table", help="the Markdown table of a run folder")
     show.add_argument("folder", type=pathlib.Path)
     show.add_argument("--json", type=pathlib.Path, default=DEFAULT_JSON,
@@ -162,7 +173,7 @@ def main(argv):
         return
     for mesh in args.mesh:
         for seed in args.seed or [0]:
-            run_mesh(mesh, seed, args.out, args.images)
+            run_mesh(mesh, seed, args.out, args.images, args.keep)
 
 
 if __name__ == "__main__":

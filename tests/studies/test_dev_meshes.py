@@ -143,3 +143,15 @@ def test_the_table_gives_the_clean_verdict_of_each_run(tmp_path):
 def test_an_empty_run_folder_ends_in_one_error_line(tmp_path):
     line = one_error_line(STUDY_TOOL, ["table", tmp_path, "--json", tmp_path / "x.json"])
     assert "no run files" in line
+
+
+def test_a_kept_model_is_never_replaced(tmp_path):
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    model = kept / "torus-seed1.vdnif"
+    model.write_bytes(b"a model of the user's")
+    line = one_error_line(STUDY_TOOL, ["run", "--mesh", "torus", "--seed", "1", "--out",
+                                       tmp_path / "runs", "--keep", kept])
+    assert "exists" in line and "torus-seed1.vdnif" in line
+    assert model.read_bytes() == b"a model of the user's"
+    assert not (tmp_path / "runs").exists()
