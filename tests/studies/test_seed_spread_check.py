@@ -1,0 +1,52 @@
+"""tools/seed_spread_check.py: a median now is better, within or worse against the earlier
+run's smallest and largest seed, per metric and reference, and a commit without the file
+ends in one error line."""
+
+import pathlib
+
+import pytest
+from tool_errors import load_tool, one_error_line
+
+from vdnif_addon.errors import VDNIFError
+
+TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "seed_spread_check.py"
+
+
+def report(median, seeds):
+    """An experiment JSON of one run whose metrics all take ``median`` (the table's figure)
+    and, per seed, the values of ``seeds``."""
+    def metrics(value):
+        return {"distance_mae": value, "normal_error_deg": 10 * value,
+                "false_negative_rate": value / 100, "false_positive_rate": value / 100}
+
+    def both(value):
+        return {"vs_true": metrics(value), "vs_embedded": metrics(value)}
+
+    return {"runs": {"arm/proposed": {"common": both(median),
+                                      "seeds": [{"common": both(v)} for v in seeds]},
+                     "arm/original (rest pose)": both(median)}}
+
+
+def test_each_median_is_placed_against_the_earlier_seeds():
+    tool = load_tool(TOOL)
+    before = report(2.0, [1.0, 2.0, 3.0])
+    for median, verdict in ((0.5, "better"), (1.0, "within"), (3.0, "within"),
+                            (3.5, "worse")):
+        rows = tool.compare(before, report(median, [median] * 3))
+        # four metrics against two references; the run without seeds is left out
+        assert len(rows) == 8
+        assert {row["verdict"] for row in rows} == {verdict}
+        assert {(row["before_min"], row["before_max"]) for row in rows
+                if row["metric"] == "distance_mae"} == {(1.0, 3.0)}
+    lines = tool.table(tool.compare(before, report(3.5, [3.5]))).splitlines()
+    assert "**worse**" in lines[2] and "3.5 %" in "".join(lines)
+
+
+def test_a_file_missing_now_ends_in_one_error_line():
+    line = one_error_line(TOOL, ["--before", "HEAD", "--files", "docs/results/no-such.json"])
+    assert "no-such.json" in line
+
+
+def test_a_file_missing_at_the_earlier_commit_is_named():
+    with pytest.raises(VDNIFError, match="no-such.json' at HEAD"):
+        load_tool(TOOL).committed("docs/results/no-such.json", "HEAD")
