@@ -87,6 +87,8 @@ def _renderer(obj, scene, session):
     """The session's renderer, made again when the model or the preview settings changed
     (the capture, at the model's resolution, is read here on the main thread)."""
     from ..vdnif_addon.blender.capture_scene import capture
+    from ..vdnif_addon.blender.steps import still_captured
+    from ..vdnif_addon.geometry.capture import ARMATURE_COPY
     from ..vdnif_addon.posed.preview import PreviewRenderer
 
     settings = obj.vdnif
@@ -97,8 +99,11 @@ def _renderer(obj, scene, session):
         info = settings.parsed("model_info")
         # the corners follow as the model's did (a summary kept before that was recorded
         # lets the capture choose, as it chose then)
+        follow = info.get("corners_follow")
+        if follow == ARMATURE_COPY:
+            still_captured(obj)
         captured = capture(obj, info["resolution"], settings.pose_spec(1), deform_corners=False,
-                           follow=info.get("corners_follow"))
+                           follow=follow)
         session.renderer = PreviewRenderer(storage.model_path(obj), captured, device, width,
                                            height, precision=settings.precision)
         session.key = key

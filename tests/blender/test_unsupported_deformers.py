@@ -5,6 +5,7 @@ that only build or shade the mesh) is captured by the copies, and the corners th
 Blender's own evaluation exactly."""
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -104,6 +105,32 @@ def test_a_deforming_modifier_is_named_and_followed_on_the_surface(empty_scene, 
         modifier.node_group = push_nodes()
     message = refusal(core, box)
     assert f"modifier 'My {kind.title()}' ({kind.lower().replace('_', ' ')})" in message
+
+
+def test_a_model_on_the_copies_is_refused_once_its_rig_gains_what_they_miss(empty_scene,
+                                                                           core):
+    """A model records that its corners follow copies of the rig; captured again for it
+    (evaluate, render, the panel) after the rig gained a modifier the copies miss, it is
+    refused in one line that names the modifier and says to retrain, not rendered with
+    corners that miss it. A model of the surface is still captured."""
+    steps, deform = core("blender.steps"), core("blender.deform")
+    box = rigged_box()
+    spec = core("blender.poses").PoseSpec(count=2)
+
+    def model(follow):
+        return types.SimpleNamespace(corners_follow=follow, grid=types.SimpleNamespace(
+            resolution=8), train_poses=[])
+
+    on_copies = steps.model_capture(box, model(deform.ARMATURE_COPY), spec)
+    assert on_copies.corners_follow == deform.ARMATURE_COPY
+    box.modifiers.new("Relax", "CORRECTIVE_SMOOTH")
+    with pytest.raises(core("errors").VDNIFError) as caught:
+        steps.model_capture(box, model(deform.ARMATURE_COPY), spec)
+    message = str(caught.value)
+    assert "\n" not in message and "'Box'" in message
+    assert "modifier 'Relax' (corrective smooth)" in message and "retrain" in message
+    on_surface = steps.model_capture(box, model(deform.EVALUATED_SURFACE), spec)
+    assert on_surface.corners_follow == deform.EVALUATED_SURFACE
 
 
 @pytest.mark.parametrize("kind", SIMULATIONS)

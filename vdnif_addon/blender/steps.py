@@ -6,6 +6,8 @@ import pathlib
 
 import numpy as np
 
+from ..errors import VDNIFError
+from ..geometry.capture import ARMATURE_COPY
 from ..inference import images
 from ..inference.evaluation import (
     DistanceScale,
@@ -34,6 +36,7 @@ from .capture_scene import capture
 from .follow_choice import choose_follow
 from .image_io import save_image
 from .poses import REST_POSE, evaluation_spec
+from .uncaptured import check_captured
 
 
 def variant_dataset(obj, captured, variant, folder, rays_per_pose, seed=0, progress=None):
@@ -101,12 +104,26 @@ def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
     ``deform.check_deformers`` chooses."""
     resolution = resolution or metadata.grid.resolution
     follow = None if metadata is None else metadata.corners_follow
+    if follow == ARMATURE_COPY:
+        still_captured(obj)
     if not evaluation:
         return capture(obj, resolution, dataclasses.replace(spec, count=1),
                        deform_corners=False, follow=follow)
     trained = None if metadata is None else list(metadata.train_poses)
     return evaluation_poses(obj, resolution, spec, rest=rest, count=count, trained=trained,
                             pose_set=pose_set, follow=follow)
+
+
+def still_captured(obj):
+    """Raises a VDNIFError where copies of ``obj``'s armature and lattice modifiers, which
+    the corners of a model trained on it follow, no longer capture it: a modifier or key
+    added to the rig since would move the mesh away from the copied corners."""
+    try:
+        check_captured(obj)
+    except VDNIFError as error:
+        raise VDNIFError(f"{error}; the model's corners follow copies of the armature and "
+                         "lattice modifiers, which miss that: retrain the model on the rig "
+                         "as it is now") from None
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
