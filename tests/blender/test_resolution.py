@@ -171,6 +171,29 @@ def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
     assert suggestion.resolution >= 12
 
 
+def test_a_suggested_resolution_is_recorded_with_its_curve(arm, core, monkeypatch):
+    """``--resolution auto`` keeps why it chose: the command's JSON holds the suggestion's
+    curve, knee, floor and target (strict JSON), and a given resolution adds nothing."""
+    import json
+
+    build_parser, options = core("cli").build_parser, core("cli.options")
+    resolution = core("blender.resolution")
+    suggest = resolution.suggest_resolution
+    monkeypatch.setattr(resolution, "suggest_resolution", lambda obj, spec: suggest(
+        obj, spec, None, (8, 16), poses=1, size=24))
+    args = build_parser().parse_args(["references", "--scene", "arm", "--resolution", "auto"])
+    options.load_posed_scene(args)
+    recorded = options.with_suggestion(args, {"object": "Arm"})["resolution_suggestion"]
+    assert args.resolution == recorded["resolution"] in (8, 16)
+    assert [row["resolution"] for row in recorded["table"]] == [8, 16]
+    assert all(row["embedding_error"] > 0 for row in recorded["table"])
+    assert recorded["knee"] in (8, 16) and recorded["target"] == core("settings").EMBEDDING_TARGET
+    assert json.loads(json.dumps(recorded, allow_nan=False)) == recorded
+    given = build_parser().parse_args(["references", "--scene", "arm", "--resolution", "16"])
+    options.load_posed_scene(given)
+    assert options.with_suggestion(given, {"object": "Arm"}) == {"object": "Arm"}
+
+
 def test_the_procedural_lattice_holds_every_corner_of_a_flat_mesh(empty_scene, core):
     """Blender holds a lattice's deformation constant outside its box: a lattice as thin as a
     flat mesh leaves the voxel corners above and below it unbent, and the embedding of a

@@ -139,6 +139,17 @@ class Suggestion:
         return not any(row["embedding_error"] is not None
                        and row["embedding_error"] <= self.target for row in self.table)
 
+    def record(self):
+        """The suggestion as strict JSON: the choice, the curve it was read from (object
+        units), the knee, the thin-part floor (thickness None where nothing is thin), the
+        target and whether the choice meets it."""
+        floor = dataclasses.asdict(self.floor)
+        if not math.isfinite(floor["thickness"]):
+            floor["thickness"] = None
+        return {"resolution": self.resolution, "table": [dict(row) for row in self.table],
+                "knee": self.knee["resolution"], "floor": floor, "target": self.target,
+                "met": self.met}
+
     def describe(self):
         """One line: the choice, why, the curve and the target."""
         error = self.row["embedding_error"]

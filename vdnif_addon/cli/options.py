@@ -88,7 +88,8 @@ def load_posed_scene(args):
     obj = load_scene(args)
     spec = apply_stress(args, obj, pose_spec(args))
     if getattr(args, "resolution", None) == AUTO_RESOLUTION:
-        args.resolution = suggested_resolution(obj, spec)
+        suggestion = suggested_resolution(obj, spec)
+        args.resolution, args.resolution_suggestion = suggestion.resolution, suggestion.record()
     elif hasattr(args, "resolution") and args.resolution is None:   # not given, no model
         from ..blender.resolution import recipe_resolution
 
@@ -97,13 +98,20 @@ def load_posed_scene(args):
 
 
 def suggested_resolution(obj, spec):
-    """``--resolution auto``: the suggested resolution of the scene (``blender/resolution``),
-    with the embedding errors that decided it on stderr."""
+    """``--resolution auto``: the suggestion for the scene (``blender/resolution``), with
+    the embedding errors that decided it on stderr."""
     from ..blender.resolution import suggest_resolution
 
     suggestion = suggest_resolution(obj, spec)
     print(f"resolution auto for '{obj.name}': {suggestion.describe()}", file=sys.stderr)
-    return suggestion.resolution
+    return suggestion
+
+
+def with_suggestion(args, data):
+    """``data`` with the suggestion that chose ``--resolution auto`` (its curve, knee and
+    floor: ``Suggestion.record``) under ``resolution_suggestion``, where one did."""
+    suggestion = getattr(args, "resolution_suggestion", None)
+    return data if suggestion is None else {**data, "resolution_suggestion": suggestion}
 
 
 def resolution_option(text):

@@ -25,6 +25,7 @@ from .options import (
     network_overrides,
     report_training,
     secondary_settings,
+    with_suggestion,
     write_json,
 )
 from .outputs import output_file, output_folder, output_model
@@ -48,7 +49,7 @@ def cmd_capture(args):
                      follow=follow)
     summary = result.summary()
     summary["pose_source"] = "static" if result.mode == "static" else spec.source
-    write_json(args.json, summary)
+    write_json(args.json, with_suggestion(args, summary))
     inverted = summary["inverted_cells"]
     print(f"captured '{summary['object']}' ({summary['mode']}"
           + (": no deform modifier, one pose" if result.mode == "static" else "") + ")")
@@ -166,7 +167,7 @@ def cmd_references(args):
                            progress=lambda done, _: progress.update(done),
                            secondary=secondary_settings(args, obj))
     check_compared(report["embedded_vs_true"], obj.name)
-    write_json(args.json, report)
+    write_json(args.json, with_suggestion(args, report))
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
           f"{'rest' if args.rest_pose else 'unseen'} poses, {args.width}x{args.height}")
@@ -219,7 +220,7 @@ def cmd_train(args):
     model = pathlib.Path(summary["model"])
     summary["plot"] = str(write_training_plot(model.with_name(f"{model.stem}-training.png"),
                                               summary["history"]))
-    write_json(args.json, summary)
+    write_json(args.json, with_suggestion(args, summary))
     print(f"trained {summary['variant']} on '{summary['object']}' ({summary['segments']} "
           f"segments): "
           f"{result.status} after {result.steps} steps in {result.seconds:.1f} s, "
