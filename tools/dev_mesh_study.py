@@ -13,7 +13,12 @@ evaluation); ``--images DIR`` keeps evaluate's figures and error images in DIR/M
 ``--keep DIR`` the mesh and the model as DIR/MESH.obj and DIR/MESH-seedS.vdnif (for the
 shaded pass's study, ``tools/terminator_band.py``).
 ``table`` prints the Markdown table of every ``*.json`` in the folder and writes them
-together as one JSON file.
+together as one JSON file. ``shaded`` evaluates kept models' shaded pass on the same test
+poses (``tools/terminator_band.py``: PSNR, the visible-step share, the shadow rates inside
+and outside the terminator band) and writes them together:
+
+    python tools/dev_mesh_study.py shaded --keep out/kept --mesh blob --seed 1 \\
+        --json docs/results/shaded-dev-meshes.json
 """
 
 import argparse
@@ -37,6 +42,7 @@ from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 
 MESHES_TOOL = ROOT / "tools" / "dev_meshes.py"
+BAND_TOOL = ROOT / "tools" / "terminator_band.py"
 DEFAULT_JSON = ROOT / "docs" / "results" / "dev-meshes.json"
 
 
@@ -111,6 +117,29 @@ def run_mesh(mesh, seed, out, images=None, keep=None):
           f"clean {row['clean']}, training {train_s:.0f} s", flush=True)
 
 
+def shaded(keep, meshes, seed, json_path):
+    """The shaded pass of each kept model ``keep/MESH-seedS.vdnif`` on the test poses of
+    the study's evaluation (``terminator_band.py --secondary``), written together to
+    ``json_path``; returns the rows."""
+    keep, rows = pathlib.Path(keep), []
+    for mesh in meshes:
+        model, obj = keep / f"{mesh}-seed{seed}.vdnif", keep / f"{mesh}.obj"
+        if not (model.is_file() and obj.is_file()):
+            raise VDNIFError(f"no kept model and mesh of '{mesh}' seed {seed} in '{keep}' "
+                             "(run --keep first)")
+        with tempfile.TemporaryDirectory(prefix=f"vdnif-{mesh}-shaded-") as folder:
+            band = pathlib.Path(folder) / "band.json"
+            subprocess.run([sys.executable, str(BAND_TOOL), "--model", str(model), "--mesh",
+                            str(obj), "--rig", mesh_table()[mesh][0], *EVALUATION,
+                            "--secondary", "--pose-set", "test", "--seed", "0", "--json",
+                            str(band)], check=True, stdout=subprocess.DEVNULL)
+            rows.append({"mesh": mesh, "seed": seed, **json.loads(band.read_text())})
+    json_path = pathlib.Path(json_path)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(rows, indent=1))
+    return rows
+
+
 def is_clean(holes, extras):
     """The clean rule: holes and extras each at most CLEAN_RATE."""
     return holes <= CLEAN_RATE and extras <= CLEAN_RATE
@@ -167,7 +196,20 @@ def main(argv):
     show.add_argument("folder", type=pathlib.Path)
     show.add_argument("--json", type=pathlib.Path, default=DEFAULT_JSON,
                       help="write the rows together here")
+    band = commands.add_parser("shaded", help="the shaded pass of kept models")
+    band.add_argument("--keep", type=pathlib.Path, required=True,
+                      help="the folder of run --keep")
+    band.add_argument("--mesh", action="append", choices=tuple(mesh_table()), required=True)
+    band.add_argument("--seed", type=int, default=0, help="training seed of the kept models")
+    band.add_argument("--json", type=pathlib.Path, required=True,
+                      help="write the rows together here")
     args = parser.parse_args(argv)
+    if args.command == "shaded":
+        for row in shaded(args.keep, args.mesh, args.seed, args.json):
+            m = row["report"]["vs_true"]
+            print(f"{row['mesh']}: shaded PSNR {m['shaded_psnr']:.3g} dB, visible steps "
+                  f"{100 * m['shaded_visible_rate']:.3g} %")
+        return
     if args.command == "table":
         print(table(args.folder, args.json))
         return

@@ -155,3 +155,10 @@ def test_a_kept_model_is_never_replaced(tmp_path):
     assert "exists" in line and "torus-seed1.vdnif" in line
     assert model.read_bytes() == b"a model of the user's"
     assert not (tmp_path / "runs").exists()
+
+
+def test_the_shaded_pass_needs_the_kept_model(tmp_path):
+    line = one_error_line(STUDY_TOOL, ["shaded", "--keep", tmp_path, "--mesh", "blob",
+                                       "--seed", "1", "--json", tmp_path / "shaded.json"])
+    assert "blob" in line and "--keep" in line
+    assert not (tmp_path / "shaded.json").exists()
