@@ -1,14 +1,15 @@
 """Whether an experiment's medians stayed within the seed spread of an earlier run of it: for
-every scene and model of each experiment JSON (``docs/results/deformation-S.json`` by
-default), the median over seeds now (its table's figure) against the smallest and largest
-seed of the run committed at ``--before``, for the spread table's four headline metrics
-(distance MAE, normal error, holes, extras) against the true and the embedded reference.
-Each figure is "better" (below the earlier seeds' smallest), "within" their range, or
-"worse" (above the largest): every one of these metrics is an error, lower is better.
+every run (scene and model) of the experiment JSON files ``--now`` in the working tree, the
+median over seeds (its table's figure) against the smallest and largest seed of the same
+run in the files ``--then`` as committed at ``--before``, for the spread table's four
+headline metrics (distance MAE, normal error, holes, extras) against the true and the
+embedded reference. Each figure is "better" (below the earlier seeds' smallest), "within"
+their range, or "worse" (above the largest): every one of these metrics is an error, lower
+is better. By default, Figure 3: its four per-scene files then, its two files now.
 
     python tools/seed_spread_check.py --before 5ae3d47 --json out/figure3-spread.json
     python tools/seed_spread_check.py --before 5ae3d47 \
-        --files docs/results/ablation-arm-1-seed.json
+        --then docs/results/ablation-arm-1-seed.json --now docs/results/ablation-arm-1-seed.json
 
 Medians and seeds are each run's own: its common pixel set (where all its models and seeds
 and the reference hit) is not the other run's.
@@ -26,8 +27,9 @@ sys.path.insert(0, str(ROOT))
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 
-FIGURE3 = tuple(f"docs/results/deformation-{scene}.json"
-                for scene in ("arm", "lattice", "spot", "bunny"))
+THEN = tuple(f"docs/results/deformation-{scene}.json"
+             for scene in ("arm", "lattice", "spot", "bunny"))
+NOW = ("docs/results/deformation-arm-lattice.json", "docs/results/deformation-spot-bunny.json")
 METRICS = {"distance_mae": "distance MAE", "normal_error_deg": "normal error (deg)",
            "false_negative_rate": "holes", "false_positive_rate": "extras"}
 REFERENCES = ("true", "embedded")
@@ -50,10 +52,11 @@ def verdict(value, low, high):
 
 def compare(before, now):
     """Rows (run, reference, metric, now's median, before's median, before's min, max,
-    verdict) for every run with seeds in both reports."""
+    verdict) for every run with seeds in both: ``before`` and ``now`` map a run's name to
+    its record (an experiment JSON's ``runs``)."""
     rows = []
-    for run, record in now["runs"].items():
-        earlier = before["runs"].get(run)
+    for run, record in now.items():
+        earlier = before.get(run)
         if not (earlier and "seeds" in record and "seeds" in earlier):
             continue
         for reference in REFERENCES:
@@ -92,16 +95,20 @@ def table(rows):
 def main(argv):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--before", required=True, help="the commit of the earlier run")
-    parser.add_argument("--files", nargs="+", default=FIGURE3,
-                        help="experiment JSON files, relative to the repository")
+    parser.add_argument("--then", nargs="+", default=THEN,
+                        help="its experiment JSON files, relative to the repository")
+    parser.add_argument("--now", nargs="+", default=NOW,
+                        help="today's experiment JSON files, relative to the repository")
     parser.add_argument("--json", type=pathlib.Path, help="write the rows here")
     args = parser.parse_args(argv)
-    rows = []
-    for path in args.files:
+    before, now = {}, {}
+    for path in args.now:
         if not (ROOT / path).is_file():
             raise VDNIFError(f"'{path}': no such file in the working tree")
-        now = json.loads((ROOT / path).read_text())
-        rows += compare(committed(path, args.before), now)
+        now.update(json.loads((ROOT / path).read_text())["runs"])
+    for path in args.then:
+        before.update(committed(path, args.before)["runs"])
+    rows = compare(before, now)
     if not rows:
         raise VDNIFError("no run with seeds in both the earlier and the current files")
     print(table(rows))
@@ -113,7 +120,7 @@ def main(argv):
         args.json.write_text(json.dumps(stamp({
             "what": "medians now against the seed spread of the run committed at --before",
             "command": ["python", "tools/seed_spread_check.py", "--before", args.before,
-                        "--files", *args.files],
+                        "--then", *args.then, "--now", *args.now],
             "before": args.before, "counts": counts, "rows": rows}), indent=1))
 
 

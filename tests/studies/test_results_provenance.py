@@ -152,10 +152,10 @@ def test_a_table_of_another_network_fails_unless_it_says_so():
     # the sentence next to a stale table removed
     cut = dict(docs, **{"results.md": re.sub("network before the normal field", "network",
                                              docs["results.md"], flags=re.I)})
-    assert any("deformation-arm.json" in p for p in problems(index, files, cut, today))
+    assert any("ablation-arm-1-seed.json" in p for p in problems(index, files, cut, today))
     # a stale file relabelled as today's: its model bytes give it away
     relabelled = copy.deepcopy(index)
-    relabelled["files"]["results/deformation-arm.json"]["network"] = "own grid"
+    relabelled["files"]["results/ablation-arm-1-seed.json"]["network"] = "own grid"
     assert any("1,640,297 bytes" in p for p in problems(relabelled, files, docs, today))
     # today's default network changes: every table of the old one is stale and unsaid
     assert any("give that network a phrase" in p

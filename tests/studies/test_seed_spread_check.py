@@ -13,7 +13,7 @@ TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "seed_spread_chec
 
 
 def report(median, seeds):
-    """An experiment JSON of one run whose metrics all take ``median`` (the table's figure)
+    """An experiment JSON's runs: one run whose metrics all take ``median`` (the table's figure)
     and, per seed, the values of ``seeds``."""
     def metrics(value):
         return {"distance_mae": value, "normal_error_deg": 10 * value,
@@ -22,9 +22,9 @@ def report(median, seeds):
     def both(value):
         return {"vs_true": metrics(value), "vs_embedded": metrics(value)}
 
-    return {"runs": {"arm/proposed": {"common": both(median),
-                                      "seeds": [{"common": both(v)} for v in seeds]},
-                     "arm/original (rest pose)": both(median)}}
+    return {"arm/proposed": {"common": both(median),
+                             "seeds": [{"common": both(v)} for v in seeds]},
+            "arm/original (rest pose)": both(median)}
 
 
 def test_each_median_is_placed_against_the_earlier_seeds():
@@ -43,7 +43,8 @@ def test_each_median_is_placed_against_the_earlier_seeds():
 
 
 def test_a_file_missing_now_ends_in_one_error_line():
-    line = one_error_line(TOOL, ["--before", "HEAD", "--files", "docs/results/no-such.json"])
+    line = one_error_line(TOOL, ["--before", "HEAD", "--then", "docs/results.md", "--now",
+                                 "docs/results/no-such.json"])
     assert "no-such.json" in line
 
 
