@@ -165,6 +165,26 @@ ABLATION_SCENES = ("arm", "lattice", "spot")
 ABLATION = tuple(f"results/ablation-{s}-1-seed.json" for s in ABLATION_SCENES)
 
 SPREAD = "results/figure3-spread.json"
+SHADED_DEV = "results/shaded-dev-meshes.json"
+
+
+def shaded_dev(d, mesh):
+    """A mesh's row of shaded-dev-meshes.json: (its figures against the true reference, its
+    band row at settings.TERMINATOR_BAND)."""
+    row = next(r for r in d if r["mesh"] == mesh)
+    band = next(w for w in row["widths"] if abs(w["width"] - 0.175) < 1e-9)
+    return row["report"]["vs_true"], band
+
+
+def shaded_dev_row(d, mesh, rig):
+    m, band = shaded_dev(d, mesh)
+    return [m["normal_error_deg"], m["shaded_psnr"], m["shaded_psnr_8bit"],
+            pct(m["shaded_visible_rate"]),
+            *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
+            pct(band["pixels_inside"]),
+            *rates(band, "shadow_false_lit_rate_terminator",
+                   "shadow_false_shadow_rate_terminator",
+                   "shadow_false_lit_rate_cast", "shadow_false_shadow_rate_cast")]
 
 
 def spread_row(d, run, metric, reference="true"):
@@ -234,6 +254,10 @@ CLAIMS = [
           "bunny ({} % against {}-{} %)", SPREAD, lambda d: [
               pct(v) for run in ("arm/proposed", "lattice/proposed", "bunny/proposed")
               for v in spread_values(d, run, "false_negative_rate")]),
+    Claim(R, "monkey's false shadow is {} %, over that target (its false lit {} %)",
+          SHADED_DEV, lambda d: (lambda band: [
+              pct(band["shadow_false_shadow_rate_cast"]),
+              pct(band["shadow_false_lit_rate_cast"])])(shaded_dev(d, "monkey")[1])),
     Claim(R, "and spot's extras ({} % against {}-{} %)", SPREAD, lambda d: [
         pct(v) for v in spread_values(d, "spot/proposed", "false_positive_rate")]),
     Claim(R, "distance MAE {} ({}-{}) against {} ({}-{}), holes {} % ({}-{} %) against {} % "
@@ -784,6 +808,10 @@ TABLES = [
           dense_cost),
     Table(R, "| rig | surface binding (cage) | copied modifiers | Surface Deform modifier |", 1,
           "results/surface-corners.json", corners_row),
+    Table(R, "| mesh | rig | normal error (deg) | shaded PSNR, linear / 8-bit | visible-step "
+          "share | false lit / false shadow, all | in the band: its pixels, false lit / false "
+          "shadow | cast shadows outside it: false lit / false shadow |", 2, SHADED_DEV,
+          shaded_dev_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
