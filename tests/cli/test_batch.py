@@ -13,6 +13,7 @@ from batch_runner import error_lines, run_batch
 from conftest import REPO
 
 from vdnif_addon.inference.metrics import SPEED_MIN_HIT_IOU, speed_withheld
+from vdnif_addon.model.model_file import load_model
 from vdnif_addon.output_rule import OUTPUT_MARK
 
 
@@ -251,6 +252,8 @@ def test_demo_quick_runs_the_main_job_end_to_end(quick_demo):
         assert report["speed_withheld"] == speed_withheld(iou)
         assert f"n/a ({speed_withheld(iou)})" in (out / "report.md").read_text()
     assert report["model_bytes"] == (out / "arm-proposed.vdnif").stat().st_size
+    # the thresholds the model calibrated, which set its trade of holes for extras
+    assert report["thresholds"] == load_model(out / "arm-proposed.vdnif")[1].thresholds.to_dict()
     # a regression loss below 0.5 lowers its s
     # below where the recipe starts it (log 0.5, every task at weight 1)
     weights = report["log_variances"]

@@ -149,6 +149,8 @@ def evaluate_file(obj, captured, model_path, width, height, device="auto", progr
     # The loss weighting's final s_i: at the recipe they show whether it balanced the tasks or
     # only followed its learning rate (DESIGN.md section 8, uncertainty weighting).
     report["log_variances"] = dict(training.log_variances)
+    # The calibrated thresholds decide the trade of holes for extras the report measures.
+    report["thresholds"] = model.metadata.thresholds.to_dict()
     report["model_bytes"] = pathlib.Path(model_path).stat().st_size
     return report, views
 

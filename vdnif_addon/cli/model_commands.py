@@ -206,7 +206,8 @@ def add_commands(commands):
         "Poses are the evaluation poses of --seed: another random seed or frames between "
         "the training frames, never trained on. Writes --json with variant, config, vs_true "
         "and vs_embedded (distance_mae in object units, normal_error_deg, hit_iou, "
-        "albedo_psnr, material_accuracy), timings and model_bytes."))
+        "albedo_psnr, material_accuracy), timings, thresholds (the model's calibrated ones) "
+        "and model_bytes."))
     evaluate.add_argument("--rest-pose", action="store_true",
                           help="evaluate on views of the undeformed rest pose instead")
     evaluate.add_argument("--pose-set", choices=tuple(POSE_SETS), default=TEST_POSES,
