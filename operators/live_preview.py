@@ -87,8 +87,7 @@ def _renderer(obj, scene, session):
     """The session's renderer, made again when the model or the preview settings changed
     (the capture, at the model's resolution, is read here on the main thread)."""
     from ..vdnif_addon.blender.capture_scene import capture
-    from ..vdnif_addon.blender.steps import still_captured
-    from ..vdnif_addon.geometry.capture import ARMATURE_COPY
+    from ..vdnif_addon.blender.steps import model_follow
     from ..vdnif_addon.posed.preview import PreviewRenderer
 
     settings = obj.vdnif
@@ -99,11 +98,8 @@ def _renderer(obj, scene, session):
         info = settings.parsed("model_info")
         # the corners follow as the model's did (a summary kept before that was recorded
         # lets the capture choose, as it chose then)
-        follow = info.get("corners_follow")
-        if follow == ARMATURE_COPY:
-            still_captured(obj)
         captured = capture(obj, info["resolution"], settings.pose_spec(1), deform_corners=False,
-                           follow=follow)
+                           follow=model_follow(obj, info.get("corners_follow")))
         session.renderer = PreviewRenderer(storage.model_path(obj), captured, device, width,
                                            height, precision=settings.precision)
         session.key = key

@@ -26,6 +26,8 @@ sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.text import percent  # noqa: E402
+from vdnif_addon.text import value as text_value  # noqa: E402
 
 THEN = tuple(f"docs/results/deformation-{scene}.json"
              for scene in ("arm", "lattice", "spot", "bunny"))
@@ -76,7 +78,7 @@ def compare(before, now):
 
 
 def _number(key, value):
-    return f"{100 * value:.3g} %" if key.endswith("_rate") else f"{value:.4g}"
+    return percent(value) if key.endswith("_rate") else text_value(value)
 
 
 def table(rows):

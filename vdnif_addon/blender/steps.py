@@ -103,9 +103,7 @@ def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
     ``resolution`` is required, the poses avoid those of ``spec`` and the corners follow as
     ``deform.check_deformers`` chooses."""
     resolution = resolution or metadata.grid.resolution
-    follow = None if metadata is None else metadata.corners_follow
-    if follow == ARMATURE_COPY:
-        still_captured(obj)
+    follow = None if metadata is None else model_follow(obj, metadata.corners_follow)
     if not evaluation:
         return capture(obj, resolution, dataclasses.replace(spec, count=1),
                        deform_corners=False, follow=follow)
@@ -114,16 +112,19 @@ def model_capture(obj, metadata, spec, evaluation=False, count=None, rest=False,
                             pose_set=pose_set, follow=follow)
 
 
-def still_captured(obj):
-    """Raises a VDNIFError where copies of ``obj``'s armature and lattice modifiers, which
-    the corners of a model trained on it follow, no longer capture it: a modifier or key
-    added to the rig since would move the mesh away from the copied corners."""
-    try:
-        check_captured(obj)
-    except VDNIFError as error:
-        raise VDNIFError(f"{error}; the model's corners follow copies of the armature and "
-                         "lattice modifiers, which miss that: retrain the model on the rig "
-                         "as it is now") from None
+def model_follow(obj, follow):
+    """``follow``, how the corners of a model of ``obj`` follow it (None: as the capture
+    chooses), once checked: where they follow copies of the armature and lattice modifiers
+    that no longer capture ``obj`` (a modifier or key added to the rig since), a VDNIFError
+    naming what they miss, as the copied corners would stay while the mesh moves."""
+    if follow == ARMATURE_COPY:
+        try:
+            check_captured(obj)
+        except VDNIFError as error:
+            raise VDNIFError(f"{error}; the model's corners follow copies of the armature "
+                             "and lattice modifiers, which miss that: retrain the model on "
+                             "the rig as it is now") from None
+    return follow
 
 
 def evaluate_file(obj, captured, model_path, width, height, device="auto", progress=None,
