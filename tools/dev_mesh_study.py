@@ -71,6 +71,12 @@ def run_mesh(mesh, seed, out, images=None, keep=None):
         subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh",
                         mesh], check=True, stdout=subprocess.DEVNULL)
         path = folder / f"{mesh}.obj"
+        kept_mesh = kept.parent / path.name if kept is not None else None
+        if kept_mesh is not None and kept_mesh.exists() and \
+                kept_mesh.read_bytes() != path.read_bytes():
+            # another seed's run keeps the same mesh; any other file of that name is not ours
+            raise VDNIFError(f"'{kept_mesh}' exists and is not the mesh '{mesh}' the study "
+                             "builds; the study does not replace it")
         options = ["--mesh", str(path), "--rig", rig]
         model, summary, report = (folder / name for name in (
             "model.vdnif", "train.json", "evaluate.json"))
@@ -94,7 +100,8 @@ def run_mesh(mesh, seed, out, images=None, keep=None):
         figures = evaluated["vs_true"]
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(path, kept.parent / path.name)
+            if not kept_mesh.exists():
+                shutil.copyfile(path, kept_mesh)
             shutil.copyfile(model, kept)
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
     row = {"mesh": mesh, "rig": rig, "seed": seed,

@@ -157,6 +157,21 @@ def test_a_kept_model_is_never_replaced(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_foreign_file_in_the_mesh_s_place_is_never_replaced(tmp_path):
+    # The study builds the torus and finds another file where it would keep it: it stops
+    # before training, naming that file.
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    mesh = kept / "torus.obj"
+    mesh.write_text("o the user's torus\n")
+    line = one_error_line(STUDY_TOOL, ["run", "--mesh", "torus", "--seed", "1", "--out",
+                                       tmp_path / "runs", "--keep", kept])
+    assert "exists" in line and "torus.obj" in line
+    assert mesh.read_text() == "o the user's torus\n"
+    assert sorted(path.name for path in kept.iterdir()) == ["torus.obj"]
+    assert not (tmp_path / "runs").exists()
+
+
 def test_the_shaded_pass_needs_the_kept_model(tmp_path):
     line = one_error_line(STUDY_TOOL, ["shaded", "--keep", tmp_path, "--mesh", "blob",
                                        "--seed", "1", "--json", tmp_path / "shaded.json"])
