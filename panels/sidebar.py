@@ -165,8 +165,14 @@ class VDNIF_PT_network(StepPanel, bpy.types.Panel):
     def draw_step(self, layout, context, settings):
         row = layout.row(align=True)
         row.label(text="Preset")
+        unavailable = VDNIF_OT_apply_preset.unavailable_presets()
         for name in PRESET_NAMES:
-            row.operator(VDNIF_OT_apply_preset.bl_idname, text=name.title()).preset = name
+            cell = row.row(align=True)
+            cell.enabled = name not in unavailable
+            cell.operator(VDNIF_OT_apply_preset.bl_idname, text=name.title()).preset = name
+        for name in PRESET_NAMES:
+            if name in unavailable:
+                lines(layout, unavailable[name], "INFO")
         properties(layout, settings, ("variant", "steps", "device"))
 
 

@@ -28,14 +28,15 @@ that predict hits (DESIGN section 10). A presets file names it as its ``error``.
 def describe_preset(name: str, presets: dict[str, dict[str, Any]]) -> str:
     """One line for the panel's tooltip and the Apply Preset report: preset ``name``'s
     settings in the panel's words and what ``bench`` measured with them (PRESET_ERROR, rays/s,
-    each where the file holds it); a preset that another one beats on both (balanced, where
-    the sweep's front has no third point) says so."""
+    each where the file holds it); a preset that another one of ``presets`` beats on both
+    (balanced, where the sweep's front has no third point) says so."""
     preset = presets[name]
     measured = preset.get("measured", {})
     error, speed = measured.get(PRESET_ERROR), measured.get("render_rays_per_s")
     figures = [f"a distance error of {error:.3g} object units" if error is not None else "",
                f"{speed:,.0f} rays/s" if speed else ""]
-    beaten_by = [other.title() for other in PRESET_NAMES if error is not None and speed
+    beaten_by = [other.title() for other in PRESET_NAMES if other in presets
+                 and error is not None and speed
                  and _beats(presets[other].get("measured", {}), error, speed)]
     return (f"{name.title()}: the {PRESET_VARIANT.title()} variant at resolution "
             f"{preset['resolution']}, {preset['levels']} hash-grid levels of "
@@ -58,28 +59,51 @@ def _beats(measured: dict[str, Any], error: float, speed: float) -> bool:
 
 
 def load_presets(path: str | pathlib.Path | None = None) -> dict[str, dict[str, Any]]:
-    """The presets written by ``bench`` (default: the shipped file); a missing or malformed
-    file, one whose presets measured another error than PRESET_ERROR (an older bench's), or
-    one where two presets share their settings (the panel offers three distinct points),
-    raises VDNIFError."""
+    """The presets written by ``bench`` (default: the shipped file), by name: those it
+    offers, which ``read_presets`` checks."""
+    return read_presets(path)[0]
+
+
+def read_presets(path: str | pathlib.Path | None = None
+                 ) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
+    """(presets, dropped) of the file ``bench`` wrote (default: the shipped file): the
+    presets it offers by name, and the reason, one line, of each name of PRESET_NAMES that
+    it dropped (measured no faster than the next more accurate one). Each name is either
+    offered or dropped, and one at least is offered; a file without ``dropped`` (written
+    before presets could be) drops none. A missing or malformed file, one that offers a name
+    it also drops or neither offers nor drops one, one whose presets measured another error
+    than PRESET_ERROR (an older bench's), or one where two presets share their settings
+    (the panel offers distinct points), raises VDNIFError."""
     path = pathlib.Path(path or PRESETS_FILE)
     try:
         data = json.loads(path.read_text())
-        presets = data["presets"]
+        presets, dropped = data["presets"], data.get("dropped", {})
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise VDNIFError(f"presets file '{path}' cannot be read: {exc}") from None
-    if not isinstance(presets, dict) or set(presets) != set(PRESET_NAMES) or any(
+    if not isinstance(presets, dict) or not isinstance(dropped, dict) or any(
+            name not in PRESET_NAMES for name in (*presets, *dropped)) or any(
             not isinstance(preset, dict) or set(SETTINGS) - set(preset)
             or not isinstance(preset.get("measured"), dict)
-            or PRESET_ERROR not in preset["measured"] for preset in presets.values()):
-        raise VDNIFError(f"presets file '{path}' does not hold {', '.join(PRESET_NAMES)} "
-                         f"with {', '.join(SETTINGS)} and a measured {PRESET_ERROR}")
+            or PRESET_ERROR not in preset["measured"] for preset in presets.values()) or any(
+            not isinstance(reason, str) or not reason.strip() for reason in dropped.values()):
+        raise VDNIFError(f"presets file '{path}' does not hold {', '.join(PRESET_NAMES)}, "
+                         f"each a preset with {', '.join(SETTINGS)} and a measured "
+                         f"{PRESET_ERROR} or dropped with its reason")
+    both = [name for name in PRESET_NAMES if name in presets and name in dropped]
+    neither = [name for name in PRESET_NAMES if name not in presets and name not in dropped]
+    if both or neither or not presets:
+        raise VDNIFError(f"presets file '{path}' "
+                         + (f"both offers and drops {both[0]}" if both else
+                            f"neither offers nor drops {neither[0]}" if neither else
+                            "drops every preset")
+                         + ": run bench again")
     if data.get("error") != PRESET_ERROR:
         raise VDNIFError(f"presets file '{path}' measures its presets by "
                          f"{data.get('error')!r}, not {PRESET_ERROR!r}: run bench again")
-    shared = [f"{a} and {b}" for i, a in enumerate(PRESET_NAMES) for b in PRESET_NAMES[i + 1:]
+    offered = [name for name in PRESET_NAMES if name in presets]
+    shared = [f"{a} and {b}" for i, a in enumerate(offered) for b in offered[i + 1:]
               if all(presets[a][key] == presets[b][key] for key in SETTINGS)]
     if shared:
         raise VDNIFError(f"presets file '{path}' gives {shared[0]} the same settings: run "
                          "bench again")
-    return presets
+    return presets, dropped

@@ -16,13 +16,19 @@ SUBLAYOUTS = {"row", "column", "box", "split", "grid_flow", "column_flow"}
 class RecordingLayout:
     """Stands in for UILayout: records what a panel draws and checks every call against
     Blender's own definitions (the function and its keywords exist, properties exist on
-    their data, operators are registered, icons are valid)."""
+    their data, operators are registered, icons are valid). An operator button drawn where
+    a layout or one around it is disabled (``enabled = False``) is recorded with
+    ``enabled=False`` among its keywords."""
 
-    def __init__(self, record):
+    def __init__(self, record, inherited=True):
         object.__setattr__(self, "record", record)
+        object.__setattr__(self, "inherited", inherited)    # every layout around it enabled
+        object.__setattr__(self, "own", True)
 
     def __setattr__(self, name, value):
         assert name in bpy.types.UILayout.bl_rna.properties, f"UILayout has no '{name}'"
+        if name == "enabled":
+            object.__setattr__(self, "own", bool(value))
 
     def __getattr__(self, name):
         assert name in UILAYOUT, f"UILayout has no function '{name}'"
@@ -31,8 +37,9 @@ class RecordingLayout:
         def call(*args, **kwargs):
             assert set(kwargs) <= allowed, f"{name}() takes no {set(kwargs) - allowed}"
             assert kwargs.get("icon", "NONE") in ICONS, f"no icon {kwargs['icon']}"
+            enabled = self.inherited and self.own
             if name in SUBLAYOUTS:
-                return RecordingLayout(self.record)
+                return RecordingLayout(self.record, enabled)
             if name == "prop":
                 data, prop = args
                 assert prop in data.bl_rna.properties, f"no property '{prop}' on {data}"
@@ -42,7 +49,8 @@ class RecordingLayout:
             if name == "progress":
                 assert 0 <= kwargs["factor"] <= 1
             key = {"prop": args[1:2], "operator": args[:1]}.get(name) or [kwargs.get("text")]
-            self.record.append((name, key[0], kwargs))
+            self.record.append((name, key[0], kwargs if enabled or name != "operator"
+                                else dict(kwargs, enabled=False)))
             return OperatorSettings(rna) if name == "operator" else None
 
         return call

@@ -2,6 +2,7 @@
 setting of the panel says in its tooltip what it does."""
 
 import json
+import re
 import types
 
 import pytest
@@ -65,6 +66,57 @@ def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene
     tooltip = bpy.types.VDNIF_OT_apply_preset.description(
         bpy.context, types.SimpleNamespace(preset="fast"))
     assert tooltip.startswith("Set variant, resolution") and "cannot be read" in tooltip
+
+
+def test_a_dropped_preset_keeps_a_disabled_button_that_says_why(empty_scene, extension, core,
+                                                                tmp_path, monkeypatch):
+    """A presets file that drops balanced: its button stays, disabled, with bench's reason
+    under the buttons and in its tooltip, and Apply Preset refuses it naming it and why."""
+    import bpy
+    from test_ui_panels import draw_all, texts
+
+    presets = core("presets")
+    measured = {presets.PRESET_ERROR: 0.1, "render_rays_per_s": 1e5}
+    chosen = {name: dict(resolution=16, levels=4, log2_table_size=18, pe_bands=6,
+                         width=16 * (i + 1), steps=3000, measured=measured)
+              for i, name in enumerate(presets.PRESET_NAMES)}
+    path = tmp_path / "presets.json"
+    monkeypatch.setattr(presets, "PRESETS_FILE", path)
+    bpy.ops.mesh.primitive_cube_add()
+    obj = bpy.context.active_object
+    obj.vdnif.width = 128                                # no preset's
+
+    def buttons():
+        """(text, enabled) of each preset button the Network panel draws, and its text."""
+        drawn = draw_all(extension)["VDNIF_PT_network"]
+        return [(call[2]["text"], call[2].get("enabled", True)) for call in drawn
+                if call[:2] == ("operator", "vdnif.apply_preset")], texts({"network": drawn})
+
+    # every preset offered, or a file that cannot be read (applying one says why): every
+    # button enabled, none with a reason
+    for text in (json.dumps({"error": presets.PRESET_ERROR, "presets": chosen}), "{"):
+        path.write_text(text)
+        drawn, said = buttons()
+        assert drawn == [("Fast", True), ("Balanced", True), ("Accurate", True)]
+        assert "dropped" not in said
+    reason = "measured no faster than Accurate: 427-446 k rays/s against 420-440 k"
+    why = f"Balanced was dropped by bench, {reason}"
+    path.write_text(json.dumps({"error": presets.PRESET_ERROR, "dropped": {"balanced": reason},
+                                "presets": {name: chosen[name] for name in ("fast", "accurate")}
+                                }))
+    drawn, said = buttons()
+    assert drawn == [("Fast", True), ("Balanced", False), ("Accurate", True)]
+    assert why in said
+    tooltip = bpy.types.VDNIF_OT_apply_preset.description
+    assert tooltip(bpy.context, types.SimpleNamespace(preset="balanced")) == why
+    assert tooltip(bpy.context, types.SimpleNamespace(preset="fast")).startswith(
+        "Fast: the Proposed variant at resolution 16")
+    with pytest.raises(RuntimeError, match=re.escape(why)):
+        bpy.ops.vdnif.apply_preset(preset="balanced")
+    assert obj.vdnif.last_error == f"'Cube': {why}"
+    assert obj.vdnif.width == 128                        # nothing applied
+    bpy.ops.vdnif.apply_preset(preset="accurate")
+    assert obj.vdnif.width == 48 and obj.vdnif.last_error == ""
 
 
 @pytest.mark.parametrize("preset", ["fast", "balanced", "accurate"])

@@ -12,7 +12,14 @@ from vdnif_addon.errors import VDNIFError
 from vdnif_addon.inference.metrics import speed_withheld
 from vdnif_addon.model.model_file import load_model
 from vdnif_addon.pose_sets import DEVELOPMENT_POSES
-from vdnif_addon.presets import PRESET_ERROR, PRESETS_FILE, SETTINGS, load_presets
+from vdnif_addon.presets import (
+    PRESET_ERROR,
+    PRESET_NAMES,
+    PRESETS_FILE,
+    SETTINGS,
+    load_presets,
+    read_presets,
+)
 from vdnif_addon.safe_io import exclusive_lock
 from vdnif_addon.studies.pareto import derive_presets, pareto_front
 
@@ -92,13 +99,16 @@ def test_a_two_point_front_takes_balanced_from_the_point_nearest_it():
 def test_shipped_presets_come_from_a_full_sweep():
     shipped = json.loads(PRESETS_FILE.read_text())
     assert shipped["source"] == "bench"                   # not a --quick run
-    presets = load_presets()
-    # three distinct points; fast and accurate are the front's ends, the one faster and
-    # the other more accurate
-    assert len({tuple(presets[name][key] for key in SETTINGS) for name in presets}) == 3
-    fast, accurate = presets["fast"]["measured"], presets["accurate"]["measured"]
-    assert fast["render_rays_per_s"] > accurate["render_rays_per_s"]
-    assert fast[PRESET_ERROR] > accurate[PRESET_ERROR]
+    presets, dropped = read_presets()
+    # distinct points, accurate among them; each offered one faster and less accurate than
+    # the next more accurate one offered
+    assert "accurate" in presets and set(presets) | set(dropped) == set(PRESET_NAMES)
+    assert len({tuple(presets[name][key] for key in SETTINGS) for name in presets}) == len(
+        presets)
+    offered = [presets[name]["measured"] for name in PRESET_NAMES if name in presets]
+    for faster, slower in zip(offered, offered[1:]):
+        assert faster["render_rays_per_s"] > slower["render_rays_per_s"]
+        assert faster[PRESET_ERROR] > slower[PRESET_ERROR]
 
 
 def test_shipped_presets_are_the_front_of_the_points_that_predict_hits():
@@ -145,6 +155,47 @@ def test_bad_presets_files_are_refused(tmp_path):
     with pytest.raises(VDNIFError, match="gives fast and balanced the same settings: run "
                                          "bench again"):
         load_presets(broken)
+
+
+def presets_file(path, presets, **extra):
+    """Writes a presets file of ``presets`` (and ``extra`` keys, ``dropped``) to ``path``."""
+    path.write_text(json.dumps({"format": "vdnif-presets", "source": "bench",
+                                "error": PRESET_ERROR, "presets": presets, **extra}))
+    return path
+
+
+def test_a_presets_file_may_drop_presets_each_name_offered_or_dropped(tmp_path):
+    measured = {PRESET_ERROR: 0.01, "render_rays_per_s": 1e5}
+    three = {name: dict(dict.fromkeys(SETTINGS, 2), width=16 * (i + 1), measured=measured)
+             for i, name in enumerate(PRESET_NAMES)}
+    # a file written before presets could be dropped, without rounds: every preset offered
+    path = presets_file(tmp_path / "older.json", three)
+    assert read_presets(path) == (three, {}) and load_presets(path) == three
+    # balanced dropped: fast and accurate offered, balanced's reason kept
+    reason = "measured no faster than Accurate: 427-446 k rays/s against 420-440 k"
+    two = {name: three[name] for name in ("fast", "accurate")}
+    path = presets_file(tmp_path / "two.json", two, dropped={"balanced": reason})
+    assert read_presets(path) == (two, {"balanced": reason}) and load_presets(path) == two
+    assert read_presets(presets_file(tmp_path / "one.json", {"accurate": three["accurate"]},
+                                     dropped={"fast": reason, "balanced": reason}))[1] == {
+        "fast": reason, "balanced": reason}
+    refused = {
+        "both offers and drops balanced: run bench again": (three, {"balanced": reason}),
+        "neither offers nor drops balanced: run bench again": (two, {}),
+        "drops every preset: run bench again": ({}, dict.fromkeys(PRESET_NAMES, reason)),
+        "neither offers nor drops fast: run bench again": ({}, {}),
+        # a name it does not know, a reason that says nothing or is not text
+        "does not hold fast, balanced, accurate, each a preset": (two, {"balanced": reason,
+                                                                         "quick": reason}),
+        "does not hold fast, balanced, accurate, each a": (two, {"balanced": " "}),
+        "does not hold fast, balanced, accurate, each": (two, {"balanced": 3}),
+        "does not hold fast, balanced, accurate,": (two, [reason]),
+    }
+    for message, (presets, dropped) in refused.items():
+        path = presets_file(tmp_path / "refused.json", presets, dropped=dropped)
+        with pytest.raises(VDNIFError, match=f"^presets file '.*refused.json' {message}") as error:
+            read_presets(path)
+        assert "\n" not in str(error.value)
 
 
 @pytest.mark.slow
@@ -216,7 +267,8 @@ def test_bench_quick_writes_every_output(tmp_path):
     compared = [r for r in records if r["speed_withheld"] is None]
     if compared:
         assert len({r["common_vs_true_compared_rays"] for r in compared}) == 1
-        assert set(load_presets(presets)) == {"fast", "balanced", "accurate"}
+        offered, dropped = read_presets(presets)
+        assert set(offered) | set(dropped) == set(PRESET_NAMES) and "accurate" in offered
     else:         # the quick size's small networks (hit IoU 0.0-0.7 here) predict no hits
         assert not presets.exists() and "presets n/a (no sweep point predicts hits" in printed
         assert "Presets: n/a, no sweep point predicts hits" in text

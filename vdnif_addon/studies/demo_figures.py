@@ -230,6 +230,8 @@ def speed_accuracy_plot(path, report, presets=None, sweep=None):
     if sweep:
         ax.scatter(*zip(*sweep), s=18, color="0.6", label="bench sweep (arm scene)", zorder=2)
     for index, name in enumerate(PRESET_NAMES):
+        if name not in presets:         # dropped by bench: no point of its own to mark
+            continue
         measured = presets[name]["measured"]
         speed, error = measured.get("render_rays_per_s"), measured.get(PRESET_ERROR)
         if speed and error is not None:
