@@ -25,6 +25,13 @@ against the true reference (object units) over the common pixel set of the sweep
 that predict hits (DESIGN section 10). A presets file names it as its ``error``."""
 
 
+
+SPEED_ROUNDS = "render_rays_per_s_rounds"
+"""A sweep point's rays/s in each of ``bench``'s timing rounds (its ``render_rays_per_s`` is
+their median), kept beside it in bench.json and in a preset's ``measured``: their spread is
+the timing's noise."""
+
+
 def describe_preset(name: str, presets: dict[str, dict[str, Any]]) -> str:
     """One line for the panel's tooltip and the Apply Preset report: preset ``name``'s
     settings in the panel's words and what ``bench`` measured with them (PRESET_ERROR, rays/s,

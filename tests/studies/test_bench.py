@@ -17,11 +17,13 @@ from vdnif_addon.presets import (
     PRESET_NAMES,
     PRESETS_FILE,
     SETTINGS,
+    SPEED_ROUNDS,
     load_presets,
     read_presets,
 )
 from vdnif_addon.safe_io import exclusive_lock
 from vdnif_addon.studies.pareto import derive_presets, pareto_front
+from vdnif_addon.text import percent
 
 
 def test_pareto_front_keeps_only_undominated_points():
@@ -264,6 +266,23 @@ def test_bench_quick_writes_every_output(tmp_path):
         assert record["speed_withheld"] == withheld
         assert (record["render_rays_per_s"] is None) == (withheld is not None)
         assert (record["common_vs_true_distance_mae"] is None) == (withheld is not None)
+    # every round's speed of a point that has one, its median the speed; the CSV gives
+    # their range, the section the protocol and the largest spread of a point's rounds
+    rounds = bench.SIZES["quick"]["speed_rounds"]
+    spreads = []
+    for record, row in zip(records, rows):
+        timed = record[SPEED_ROUNDS]
+        assert (timed is None) == (record["render_rays_per_s"] is None)
+        assert SPEED_ROUNDS not in row
+        if timed is not None:
+            assert len(timed) == rounds and record["render_rays_per_s"] == pytest.approx(
+                sum(timed) / rounds)                # the median of two rounds
+            assert (float(row["render_rays_per_s_min"]), float(row["render_rays_per_s_max"])
+                    ) == (min(timed), max(timed))
+            spreads.append((max(timed) - min(timed)) / record["render_rays_per_s"])
+    assert f"Render speed: {rounds} rounds, each rendering every point once in turn" in text
+    assert (f"at most {percent(max(spreads))} here" if spreads
+            else "not measured here, as no point has a speed") in text
     compared = [r for r in records if r["speed_withheld"] is None]
     if compared:
         assert len({r["common_vs_true_compared_rays"] for r in compared}) == 1
@@ -296,7 +315,8 @@ def test_a_point_trains_again_unless_its_record_and_model_match(tmp_path):
 def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     """Three sweep points on the same rays: two predict hits (one predicts fewer), one does
     not. The two are compared over the pixels both hit; the third has no speed, no
-    common-set error and no say in the presets."""
+    common-set error and no say in the presets. The speeds are medians of timing rounds,
+    whose ranges and spreads the outputs give."""
     from test_metrics import image, one_material_mesh
 
     from vdnif_addon.inference.evaluation import compare_both, speed_figures
@@ -309,14 +329,16 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     many.distance[[9, 19]] += 0.3                         # ... and 0.35 where "few" misses
     none = image(["#........."] * 2)                      # IoU 0.1
     rows, runs = [], []
-    for number, (predicted, speed) in enumerate(((few, 3000.0), (many, 1000.0),
-                                                 (none, 9000.0))):
+    for number, (predicted, rounds) in enumerate(((few, [2900.0, 3150.0, 3000.0]),
+                                                  (many, [1000.0, 990.0, 1010.0]),
+                                                  (none, [9000.0, 9000.0, 9000.0]))):
         metrics = compare_both(predicted, reference, reference, mesh, 0.1)
-        timings, withheld = speed_figures({"render_rays_per_s": speed}, metrics["vs_true"])
+        timings, withheld = speed_figures({"render_rays_per_s": rounds[0]}, metrics["vs_true"])
         report = dict(metrics, timings=dict(timings, train_s=10.0 * (number + 1)),
                       speed_withheld=withheld, model_bytes=1000)
         rows.append(bench._row(dict(bench.SIZES["quick"]["base"], width=32 * (number + 1),
-                                    steps=400 + 100 * number, converged=number != 1), report))
+                                    steps=400 + 100 * number, converged=number != 1), report,
+                               rounds=None if withheld else rounds))
         runs.append(({"predicted": predicted, "true": reference, "embedded": reference}, 0.1))
     bench._add_common(rows, runs, mesh)
     assert [r["render_rays_per_s"] for r in rows] == [3000.0, 1000.0, None]
@@ -327,19 +349,42 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     # two points to compare: too few for three distinct presets
     with pytest.raises(VDNIFError, match="no third for balanced; widen the sweep") as refused:
         derive_presets(rows, PRESET_ERROR)
+    assert [r[SPEED_ROUNDS] for r in rows] == [[2900.0, 3150.0, 3000.0],
+                                               [1000.0, 990.0, 1010.0], None]
     bench_report.write_outputs(tmp_path, rows)
     assert (tmp_path / "pareto.png").stat().st_size > 10_000
+    # bench.json keeps every round; bench.csv, flat, their slowest and fastest
+    assert json.loads((tmp_path / "bench.json").read_text())[0][SPEED_ROUNDS] == [
+        2900.0, 3150.0, 3000.0]
+    flat = list(csv.DictReader(open(tmp_path / "bench.csv")))
+    assert SPEED_ROUNDS not in flat[0] and [(r["render_rays_per_s_min"],
+                                             r["render_rays_per_s_max"]) for r in flat] == [
+        ("2900.0", "3150.0"), ("990.0", "1010.0"), ("", "")]
     text = "\n".join(bench_report.sweep_markdown(rows, str(refused.value),
                                                  bench.SIZES["quick"], "cmd", tmp_path, None))
     assert "have a speed, 2 of 3 here" in text and "the 18 pixels" in text
     assert "Presets: n/a, the sweep has two points that predict hits" in text
-    presets = derive_presets(rows + [dict(rows[1], width=96, render_rays_per_s=900.0)],
-                             PRESET_ERROR)
+    # the protocol and its noise: spreads (3150 - 2900) / 3000 = 8.33 % and 20 / 1000 = 2 %
+    assert ("Render speed: 2 rounds, each rendering every point once in turn (the rounds "
+            "interleaved" in text)
+    assert ("A point's speed is the median of its rounds; their spread, (max - min) / median, "
+            "is the timing's noise on it: at most 8.33 % here (R16 L2 T12 F3 W32 S400), "
+            "5.17 % on the median point" in text)
+    assert "| 3,000 (2,900-3,150) | 8.33 % | 1,000 |" in text
+    assert "| 1,000 (990-1,010) | 2 % | 1,000 |" in text and "| n/a | n/a | 1,000 |" in text
+    points = rows + [dict(rows[1], width=96, render_rays_per_s=900.0,
+                          **{SPEED_ROUNDS: [880.0, 900.0, 920.0]})]
+    presets = derive_presets(points, PRESET_ERROR)
     assert [presets[name]["width"] for name in ("fast", "balanced", "accurate")] == [
         32, 96, 64]
     text = "\n".join(bench_report.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
                                                  tmp_path, None))
-    assert "| balanced | 16 | 2 | 12 | 3 | 96 | 500 | 0.05 | 900 |" in text
+    assert "| fast | 16 | 2 | 12 | 3 | 32 | 400 | 0.1 | 3,000 (2,900-3,150) |" in text
+    assert "| balanced | 16 | 2 | 12 | 3 | 96 | 500 | 0.05 | 900 (880-920) |" in text
+    # a sweep where no point has a speed states that the noise is not measured
+    text = "\n".join(bench_report.sweep_markdown(rows[2:], bench_report.NO_PRESETS,
+                                                 bench.SIZES["quick"], "cmd", tmp_path, None))
+    assert "timing's noise on it: not measured here, as no point has a speed." in text
 
 
 def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rounds(
@@ -389,6 +434,8 @@ def test_a_points_speed_is_the_median_of_its_rounds_and_its_errors_the_first_rou
     assert pose_sets == [DEVELOPMENT_POSES] * 2
     assert sorted(follows) == [(12, "armature copy"), (16, "evaluated surface")]
     assert rows[0]["render_rays_per_s"] == 3.0 and rows[1]["render_rays_per_s"] is None
+    # every round's speed is kept beside the median, none where the speed is withheld
+    assert rows[0][SPEED_ROUNDS] == [9.0, 1.0, 4.0, 2.0, 3.0] and rows[1][SPEED_ROUNDS] is None
     # the errors and the views compared on the common pixels are the first round's
     assert rows[0]["vs_true_distance_mae"] == pytest.approx(0.1)
     assert rows[1]["vs_true_distance_mae"] == pytest.approx(0.2)

@@ -24,7 +24,7 @@ from ..inference.evaluation import compare_common, concatenated
 from ..model.model_file import load_model
 from ..model.provenance import provenance, stamp
 from ..pose_sets import DEVELOPMENT_POSES, PoseSpec
-from ..presets import PRESET_ERROR, PRESET_VARIANT, PRESETS_FORMAT
+from ..presets import PRESET_ERROR, PRESET_VARIANT, PRESETS_FORMAT, SPEED_ROUNDS
 from ..safe_io import exclusive_lock, write_json_atomic
 from ..settings import RECIPE, NetworkConfig, TrainConfig
 from ..training.fit import fit_model
@@ -196,8 +196,10 @@ def _evaluate_points(obj, spec, size, points, work, device):
     """Every point's model evaluated on the development poses (``pose_sets.POSE_SETS``: the
     presets and the front are choices) of its resolution, in this one process: the CSV's rows
     with the common-set errors. One short render times a point only roughly, so each renders
-    once per round for ``speed_rounds`` rounds and its speed is the median; its errors are the
-    first round's. Each model's corners follow as they did in its training."""
+    once per round for ``speed_rounds`` rounds, the rounds interleaved (every point once, then
+    again), and its speed is the median; the rows keep every round's speed too (SPEED_ROUNDS,
+    None where the speed is withheld), their spread being the protocol's noise. Its errors
+    are the first round's. Each model's corners follow as they did in its training."""
     files = [_point_files(work, number) for number in range(len(points))]
     follows = [load_model(model)[1].corners_follow for model, _ in files]
     scenes = {(resolution, follow): evaluation_poses(
@@ -220,11 +222,9 @@ def _evaluate_points(obj, spec, size, points, work, device):
             speeds[number].append(report["timings"]["render_rays_per_s"])
             if round_ == 0:
                 first.append((report, (concatenated(views), evaluated.grid.voxel_size)))
-    for (report, _), speed in zip(first, speeds):
-        report["timings"]["render_rays_per_s"] = None if None in speed else np.median(speed)
     rows = [_row(dict(point, steps=record["steps"], converged=record["converged"]), report,
-                 record.get("provenance"))
-            for (report, _), point, record in zip(first, points, records)]
+                 record.get("provenance"), None if None in rounds else rounds)
+            for (report, _), point, record, rounds in zip(first, points, records, speeds)]
     _add_common(rows, [run for _, run in first], evaluated.mesh)
     return rows
 
@@ -263,16 +263,20 @@ def finished_point(path, model, size, point):
     return record
 
 
-def _row(point, report, trained=None):
+def _row(point, report, trained=None, rounds=None):
     """One point's row; ``trained``: its training record's provenance (None where it trained
-    before records had one)."""
+    before records had one); ``rounds``: its rays/s in each timing round, whose median is its
+    speed (None: the report's one timing is)."""
     row = dict(point)
     for reference in ("vs_true", "vs_embedded"):
         for key in METRICS:
             row[f"{reference}_{key}"] = report[reference][key]
     timings = report["timings"]
-    row.update(train_s=timings["train_s"], render_rays_per_s=timings["render_rays_per_s"],
-               speed_withheld=report["speed_withheld"], model_bytes=report["model_bytes"])
+    speed = timings["render_rays_per_s"] if rounds is None else float(np.median(rounds))
+    row.update({"train_s": timings["train_s"], "render_rays_per_s": speed,
+                SPEED_ROUNDS: None if rounds is None else [float(r) for r in rounds],
+                "speed_withheld": report["speed_withheld"],
+                "model_bytes": report["model_bytes"]})
     if trained is not None:
         row["provenance"] = trained
     return row

@@ -7,10 +7,10 @@ import pathlib
 import numpy as np
 
 from ..inference.metrics import SPEED_MIN_HIT_IOU
-from ..presets import PRESET_ERROR, SETTINGS
+from ..presets import PRESET_ERROR, SETTINGS, SPEED_ROUNDS
 from ..safe_io import atomic_path, write_json_atomic
 from ..text import percent, value
-from .pareto import pareto_front
+from .pareto import pareto_front, speed_range
 
 NO_PRESETS = (f"no sweep point predicts hits (hit IoU at least {SPEED_MIN_HIT_IOU} against the "
               "true reference): nothing to compare, no presets derived")
@@ -18,15 +18,60 @@ NO_PRESETS = (f"no sweep point predicts hits (hit IoU at least {SPEED_MIN_HIT_IO
 
 def write_outputs(out, rows):
     """bench.csv, bench.json and pareto.png (error vs render speed and vs training time)."""
+    flat = [_flat(row) for row in rows]
     with atomic_path(out / "bench.csv", "CSV file") as temporary, \
             open(temporary, "w", newline="") as file:
-        # the provenance (commit, network, machine) is the JSON's: one nested record per row
-        writer = csv.DictWriter(file, fieldnames=[k for k in rows[0] if k != "provenance"],
-                                extrasaction="ignore")
+        writer = csv.DictWriter(file, fieldnames=list(flat[0]), extrasaction="ignore")
         writer.writeheader()
-        writer.writerows(rows)
+        writer.writerows(flat)
     write_json_atomic(out / "bench.json", rows)
     _plot(out / "pareto.png", rows)
+
+
+def _flat(row):
+    """``row`` as a line of bench.csv: its timing rounds as their slowest and fastest
+    (``render_rays_per_s_min`` / ``_max``, empty where it has none), and without its
+    provenance (commit, network, machine), the JSON's nested record."""
+    flat = {}
+    for key, entry in row.items():
+        if key == SPEED_ROUNDS:
+            flat["render_rays_per_s_min"], flat["render_rays_per_s_max"] = (
+                speed_range(row) or (None, None))
+        elif key != "provenance":
+            flat[key] = entry
+    return flat
+
+
+def speed_spread(row):
+    """The spread of ``row``'s timing rounds, (max - min) / median (its speed), None where it
+    has none: the timing protocol's noise on that point."""
+    extent = speed_range(row)
+    return None if extent is None else (extent[1] - extent[0]) / row["render_rays_per_s"]
+
+
+def _speed(figures):
+    """A speed with the range of its timing rounds, "n/a" without a speed."""
+    speed, extent = figures.get("render_rays_per_s"), speed_range(figures)
+    if speed is None:
+        return "n/a"
+    return f"{speed:,.0f}" + (f" ({extent[0]:,.0f}-{extent[1]:,.0f})" if extent else "")
+
+
+def timing_text(rows, rounds):
+    """The timing protocol of a sweep of ``rounds`` rounds and the noise its ``rows``
+    measured: the largest spread of a point's rounds, and the median point's."""
+    spreads = [(speed_spread(r), point_label(r)) for r in rows if speed_spread(r) is not None]
+    protocol = (f"Render speed: {rounds} rounds, each rendering every point once in turn (the "
+                "rounds interleaved, so that a change in the machine's load falls on every "
+                "point alike). A point's speed is the median of its rounds; their spread, "
+                "(max - min) / median, is the timing's noise on it")
+    if not spreads:
+        return protocol + ": not measured here, as no point has a speed."
+    largest = max(spreads)
+    return (protocol + f": at most {percent(largest[0])} here ({largest[1]}), "
+            f"{percent(float(np.median([s for s, _ in spreads])))} on the median point. Two "
+            "speeds differ measurably when the ranges of their rounds (min-max) do not "
+            "overlap.")
 
 
 def _plot(path, rows):
@@ -95,8 +140,8 @@ def rule_text(convergence):
 
 
 def sweep_markdown(rows, presets, size, command, out, performance):
-    """The sweep's table, plot and ``presets`` (or why there are none, a text) for
-    docs/performance.md."""
+    """The lines of the sweep's section of docs/performance.md: its protocol and timing noise,
+    its table, its plot and ``presets`` (or why there are none, a text)."""
     relative = pathlib.Path(out).resolve().relative_to(
         pathlib.Path(performance).resolve().parent) if performance else out
     import torch
@@ -107,10 +152,9 @@ def sweep_markdown(rows, presets, size, command, out, performance):
              f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
              f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} development "
              f"poses at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
-             f"thread(s); render speed: median of {size['speed_rounds']} rounds, each "
-             "rendering every point once. One setting moves at a time from the base "
+             "thread(s). One setting moves at a time from the base "
              + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
-             rule_text(size["convergence"]), "",
+             rule_text(size["convergence"]), "", timing_text(rows, size["speed_rounds"]), "",
              f"Only points that predict hits (hit IoU at least {SPEED_MIN_HIT_IOU} against "
              f"the true reference) have a speed, {len(compared)} of {len(rows)} here; their "
              f"distance and normal errors are taken over one common pixel set, the {pixels:,} "
@@ -123,12 +167,10 @@ def sweep_markdown(rows, presets, size, command, out, performance):
              "| R | L | log2 T | F | width | steps (converged) | distance MAE true / embedded "
              "| distance MAE true (voxels) | normal error true / embedded (deg) "
              "| hit IoU (true) | false neg. / pos. (true) | train (s) | render rays/s "
-             "| model bytes |",
+             "(rounds min-max) | spread | model bytes |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
-             "| --- |"]
+             "| --- | --- |"]
     for r in rows:
-        speed = (f"{r['render_rays_per_s']:,.0f}" if r["render_rays_per_s"] is not None
-                 else "n/a")
         lines.append(
             f"| {r['resolution']} | {r['levels']} | {r['log2_table_size']} | {r['pe_bands']} | "
             f"{r['width']} | {r['steps']:,} ({'yes' if r['converged'] else 'no: cap'}) | "
@@ -138,8 +180,8 @@ def sweep_markdown(rows, presets, size, command, out, performance):
             f"{value(r['common_vs_true_normal_error_deg'], 3)}"
             f" / {value(r['common_vs_embedded_normal_error_deg'], 3)} | "
             f"{value(r['vs_true_hit_iou'])} | {percent(r['vs_true_false_negative_rate'])} / "
-            f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f} | {speed} | "
-            f"{r['model_bytes']:,} |")
+            f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f} | "
+            f"{_speed(r)} | {percent(speed_spread(r))} | {r['model_bytes']:,} |")
     lines += ["", f"![Pareto fronts]({relative}/pareto.png)", ""]
     if isinstance(presets, str):
         return lines + [f"Presets: n/a, {presets}.", "",
@@ -150,12 +192,12 @@ def sweep_markdown(rows, presets, size, command, out, performance):
               "the front has no point between them, balanced is the point nearest the front "
               "(the smallest gain, the same factor in speed and in error, that would put it "
               "there):",
-              "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s |",
+              "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s (rounds "
+              "min-max) |",
               "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
     for name, preset in presets.items():
         measured = preset["measured"]
         lines.append(f"| {name} | " + " | ".join(str(preset[k]) for k in SETTINGS)
-                     + f" | {value(measured[PRESET_ERROR])} | "
-                     f"{measured['render_rays_per_s']:,.0f} |")
+                     + f" | {value(measured[PRESET_ERROR])} | {_speed(measured)} |")
     lines += ["", f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
     return lines

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..inference.metrics import speed_withheld
-from ..presets import SETTINGS
+from ..presets import SETTINGS, SPEED_ROUNDS
 
 
 def pareto_front(error: Sequence[float], cost: Sequence[float]) -> list[int]:
@@ -42,11 +42,20 @@ def front_distance(error: Sequence[float], cost: Sequence[float],
     return distance
 
 
+def speed_range(point: dict[str, Any]) -> tuple[float, float] | None:
+    """(slowest, fastest) of ``point``'s timing rounds (its SPEED_ROUNDS), None where it has
+    none (a sweep point of an older bench.json, a preset of an older presets file, a point
+    whose speed is withheld)."""
+    rounds = point.get(SPEED_ROUNDS)
+    return (min(rounds), max(rounds)) if rounds else None
+
+
 def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
                    speed_key: str = "render_rays_per_s",
                    iou_key: str = "vs_true_hit_iou") -> dict[str, dict[str, Any]]:
-    """{fast, balanced, accurate}, three distinct sweep ``points`` (dicts with SETTINGS, the
-    error, the speed and the hit IoU against the true reference). On the front of error vs
+    """{fast, balanced, accurate}: three distinct sweep ``points`` (dicts with SETTINGS, the
+    error, the speed, its timing rounds SPEED_ROUNDS where they were kept, and the hit IoU
+    against the true reference), each as a preset (``_preset``). On the front of error vs
     1/speed of the points that predict hits (metrics.speed_withheld): the fastest point, the
     most accurate one, and between them the knee, the interior point closest to the ideal
     corner in log space normalized over the front. A front of two points has no interior:
@@ -86,7 +95,13 @@ def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
         distance[front] = np.inf
         balanced = int(np.argmin(distance))
     chosen = {"fast": front[0], "balanced": balanced, "accurate": front[-1]}
-    return {name: {**{key: usable[i][key] for key in SETTINGS},
-                   "measured": {error_key: usable[i][error_key],
-                                speed_key: usable[i][speed_key]}}
-            for name, i in chosen.items()}
+    return {name: _preset(usable[i], error_key, speed_key) for name, i in chosen.items()}
+
+
+def _preset(point: dict[str, Any], error_key: str, speed_key: str) -> dict[str, Any]:
+    """Sweep ``point`` as a preset: its SETTINGS and what it ``measured``, its error, its
+    speed and that speed's timing rounds where the point kept them."""
+    measured = {error_key: point[error_key], speed_key: point[speed_key]}
+    if point.get(SPEED_ROUNDS):
+        measured[SPEED_ROUNDS] = point[SPEED_ROUNDS]
+    return {**{key: point[key] for key in SETTINGS}, "measured": measured}
