@@ -25,11 +25,11 @@ against the true reference (object units) over the common pixel set of the sweep
 that predict hits (DESIGN section 10). A presets file names it as its ``error``."""
 
 
-
 SPEED_ROUNDS = "render_rays_per_s_rounds"
 """A sweep point's rays/s in each of ``bench``'s timing rounds (its ``render_rays_per_s`` is
 their median), kept beside it in bench.json and in a preset's ``measured``: their spread is
-the timing's noise."""
+the timing's noise, and whether two speeds differ measurably is read from them
+(``studies.pareto.measurably_faster``)."""
 
 
 def describe_preset(name: str, presets: dict[str, dict[str, Any]]) -> str:

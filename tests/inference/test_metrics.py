@@ -23,7 +23,7 @@ from vdnif_addon.inference.metrics import (
     verdict,
 )
 from vdnif_addon.presets import SETTINGS
-from vdnif_addon.studies.pareto import derive_presets
+from vdnif_addon.studies.pareto import pick_presets
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -176,11 +176,11 @@ def test_presets_come_only_from_points_that_predict_hits():
     preset, though both would be on the front."""
     points = [point(0.08, 1000.0, 16), point(0.04, 900.0, 24), point(0.02, 100.0, 48),
               point(0.09, 5000.0, 8, hit_iou=0.5), point(0.001, 800.0, 64, hit_iou=0.89)]
-    presets = derive_presets(points)
+    presets = pick_presets(points)
     assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
         16, 24, 48]
     with pytest.raises(VDNIFError, match="no sweep point has both"):
-        derive_presets([point(0.01, 10.0, 8, hit_iou=0.3)])
+        pick_presets([point(0.01, 10.0, 8, hit_iou=0.3)])
 
 
 def test_summary_lines_give_units_and_grammar():

@@ -22,7 +22,12 @@ from vdnif_addon.presets import (
     read_presets,
 )
 from vdnif_addon.safe_io import exclusive_lock
-from vdnif_addon.studies.pareto import derive_presets, pareto_front
+from vdnif_addon.studies.pareto import (
+    derive_presets,
+    measurably_faster,
+    pareto_front,
+    pick_presets,
+)
 from vdnif_addon.text import percent
 
 
@@ -43,12 +48,12 @@ def point(error, speed, resolution):
 def test_presets_are_the_fastest_the_knee_and_the_most_accurate_of_the_front():
     points = [point(0.08, 1000.0, 16), point(0.04, 900.0, 24), point(0.01, 100.0, 64),
               point(0.09, 500.0, 8)]                     # the last one is dominated
-    presets = derive_presets(points)
+    presets = pick_presets(points)
     assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
         16, 24, 64]
     assert presets["balanced"]["measured"] == {"error": 0.04, "render_rays_per_s": 900.0}
     with pytest.raises(VDNIFError, match="no sweep point has both"):
-        derive_presets([point(None, 10.0, 8)])
+        pick_presets([point(None, 10.0, 8)])
 
 
 def on_unit_front(unit_error, unit_cost, resolution):
@@ -62,7 +67,7 @@ def test_balanced_is_the_knee_of_the_fronts_interior_points():
     # ends lie nearer the ideal corner (distance 1) than it does (hypot(0.98, 0.99))
     three = [on_unit_front(1, 0, 8), on_unit_front(0.98, 0.99, 16), on_unit_front(0, 1, 32),
              on_unit_front(1, 1, 64)]                     # the last one is dominated
-    presets = derive_presets(three)
+    presets = pick_presets(three)
     assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
         8, 16, 32]
     # five front points at hand-placed unit coordinates: distances to the corner 1 (end),
@@ -70,7 +75,7 @@ def test_balanced_is_the_knee_of_the_fronts_interior_points():
     five = [on_unit_front(e, c, r) for e, c, r in (
         (1, 0, 8), (0.5, 0.1, 12), (0.2, 0.3, 16), (0.05, 0.8, 24), (0, 1, 32),
         (0.3, 0.35, 48))]                                 # the last one is dominated
-    presets = derive_presets(five)
+    presets = pick_presets(five)
     assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
         8, 16, 32]
 
@@ -82,20 +87,93 @@ def test_a_two_point_front_takes_balanced_from_the_point_nearest_it():
     ln(1.1) = 0.095: the second is balanced."""
     fast, accurate = point(0.02, 1000.0, 16), point(0.01, 500.0, 64)
     by_fast, by_accurate = point(0.025, 900.0, 24), point(0.011, 450.0, 32)
-    presets = derive_presets([fast, by_fast, by_accurate, accurate])
+    presets = pick_presets([fast, by_fast, by_accurate, accurate])
     assert [presets[name]["resolution"] for name in ("fast", "balanced", "accurate")] == [
         16, 32, 64]
     assert presets["balanced"]["measured"] == {"error": 0.011, "render_rays_per_s": 450.0}
     # beaten by fast 10 % less on each: the nearer one now
     nearer = point(0.02 * 1.09, 1000.0 / 1.09, 12)
-    presets = derive_presets([fast, by_fast, by_accurate, accurate, nearer])
+    presets = pick_presets([fast, by_fast, by_accurate, accurate, nearer])
     assert presets["balanced"]["resolution"] == 12
     # no third point, or one point the fastest and the most accurate: refused
     with pytest.raises(VDNIFError, match="no third for balanced; widen the sweep"):
-        derive_presets([fast, accurate])
+        pick_presets([fast, accurate])
     with pytest.raises(VDNIFError, match="both the fastest and the most accurate.*widen the "
                                          "sweep"):
-        derive_presets([fast, point(0.03, 900.0, 8), point(0.04, 100.0, 12)])
+        pick_presets([fast, point(0.03, 900.0, 8), point(0.04, 100.0, 12)])
+
+
+def timed(rounds):
+    """A point measured in timing ``rounds`` (rays/s), its speed their median."""
+    return {SPEED_ROUNDS: rounds, "render_rays_per_s": sorted(rounds)[len(rounds) // 2]}
+
+
+def test_a_speed_is_measurably_faster_only_when_the_ranges_of_rounds_do_not_overlap():
+    slow, fast = timed([100.0, 110.0, 105.0]), timed([120.0, 111.0, 130.0])
+    assert measurably_faster(fast, slow) and not measurably_faster(slow, fast)
+    # the ranges overlap, though every median and mean of the one is above the other's
+    overlapping = timed([109.0, 150.0, 160.0])
+    assert not measurably_faster(overlapping, slow) and not measurably_faster(slow, overlapping)
+    # ends that touch overlap: the slowest round of the one equals the other's fastest
+    touching = timed([110.0, 140.0, 150.0])
+    assert not measurably_faster(touching, slow)
+    assert measurably_faster(timed([110.5, 140.0]), slow)
+    # a range inside the other's
+    assert not measurably_faster(timed([102.0, 108.0]), slow)
+    # without rounds (an older bench.json or presets file) no speed can be shown to differ,
+    # however far apart the medians
+    assert not measurably_faster({"render_rays_per_s": 1e6}, slow)
+    assert not measurably_faster(fast, {"render_rays_per_s": 1.0})
+    assert not measurably_faster(dict(fast, **{SPEED_ROUNDS: None}), slow)
+    assert not measurably_faster(dict(fast, **{SPEED_ROUNDS: []}), slow)
+
+
+def three_presets(fast_rounds, balanced_rounds, accurate_rounds):
+    """A sweep whose front is three points, the fastest, the knee and the most accurate, with
+    these timing rounds, and a dominated fourth (timed too)."""
+    points = [dict(point(error, None, resolution), **timed(rounds))
+              for error, resolution, rounds in ((0.08, 16, fast_rounds),
+                                                (0.04, 24, balanced_rounds),
+                                                (0.01, 64, accurate_rounds))]
+    return points + [dict(point(0.09, None, 8), **timed([50.0, 60.0, 70.0]))]
+
+
+def test_a_preset_not_measurably_faster_than_the_next_more_accurate_one_is_dropped():
+    # disjoint ranges: all three kept, each measured with its rounds
+    presets, dropped = derive_presets(three_presets([900.0, 1000.0, 950.0], [600.0, 700.0, 650.0],
+                                                    [300.0, 400.0, 350.0]))
+    assert list(presets) == list(PRESET_NAMES) and dropped == {}
+    assert presets["balanced"]["measured"] == {"error": 0.04, "render_rays_per_s": 650.0,
+                                               SPEED_ROUNDS: [600.0, 700.0, 650.0]}
+    # balanced's rounds overlap accurate's: balanced buys nothing measurable and is dropped;
+    # fast is then weighed against accurate, and is measurably faster
+    presets, dropped = derive_presets(three_presets([900.0, 1000.0, 950.0], [420.0, 460.0, 440.0],
+                                                    [400.0, 430.0, 410.0]))
+    assert [presets[name]["resolution"] for name in presets] == [16, 64]
+    assert dropped == {"balanced": "measured no faster than Accurate: 420-460 rays/s against "
+                                   "400-430"}
+    # fast's rounds overlap balanced's (touching ends): fast is dropped, balanced kept
+    presets, dropped = derive_presets(three_presets([700.0, 800.0, 750.0], [600.0, 700.0, 650.0],
+                                                    [300.0, 400.0, 350.0]))
+    assert list(presets) == ["balanced", "accurate"]
+    assert dropped == {"fast": "measured no faster than Balanced: 700-800 rays/s against "
+                               "600-700"}
+    # balanced dropped, and fast, measurably faster than balanced, still within accurate's
+    # range: fast is dropped too, against accurate
+    presets, dropped = derive_presets(three_presets([500.0, 560.0, 530.0], [420.0, 480.0, 450.0],
+                                                    [400.0, 500.0, 410.0]))
+    assert list(presets) == ["accurate"] and list(dropped) == ["fast", "balanced"]
+    assert dropped["fast"] == "measured no faster than Accurate: 500-560 rays/s against 400-500"
+    # a sweep without rounds (an older bench.json): no preset is shown faster than another,
+    # and accurate is kept alone, each of the others saying so with the medians
+    untimed = [point(0.08, 1000.0, 16), point(0.04, 900.0, 24), point(0.01, 100.0, 64)]
+    presets, dropped = derive_presets(untimed)
+    assert list(presets) == ["accurate"]
+    assert dropped == {
+        "fast": "not shown faster than Accurate: no timing rounds recorded (1,000 rays/s "
+                "against 100, medians)",
+        "balanced": "not shown faster than Accurate: no timing rounds recorded (900 rays/s "
+                    "against 100, medians)"}
 
 
 def test_shipped_presets_come_from_a_full_sweep():
@@ -119,13 +197,21 @@ def test_shipped_presets_are_the_front_of_the_points_that_predict_hits():
     shipped = json.loads(PRESETS_FILE.read_text())
     rows = json.loads((REPO / "docs" / "bench" / "bench.json").read_text())
     assert shipped["error"] == PRESET_ERROR
-    assert derive_presets(rows, PRESET_ERROR) == shipped["presets"]
+    picked = pick_presets(rows, PRESET_ERROR)
+    assert {name: picked[name] for name in shipped["presets"]} == shipped["presets"]
+    # the same sweep without its timing rounds cannot show one preset faster than another:
+    # accurate alone is kept
+    untimed = [{key: entry for key, entry in row.items() if key != SPEED_ROUNDS}
+               for row in rows]
+    presets, dropped = derive_presets(untimed, PRESET_ERROR)
+    assert presets == {"accurate": picked["accurate"]} and set(dropped) == {"fast", "balanced"}
+    assert all("no timing rounds recorded" in reason for reason in dropped.values())
     # the same sweep with its most accurate point no longer predicting hits: that point
     # drops out of the presets (every point of the converged sweep predicts hits)
     best = min((row for row in rows if speed_withheld(row["vs_true_hit_iou"]) is None),
                key=lambda row: row[PRESET_ERROR])
     best["vs_true_hit_iou"] = 0.5
-    accurate = derive_presets(rows, PRESET_ERROR)["accurate"]
+    accurate = derive_presets(rows, PRESET_ERROR)[0]["accurate"]
     assert accurate["measured"][PRESET_ERROR] > shipped["presets"]["accurate"]["measured"][
         PRESET_ERROR]
 
@@ -288,6 +374,7 @@ def test_bench_quick_writes_every_output(tmp_path):
         assert len({r["common_vs_true_compared_rays"] for r in compared}) == 1
         offered, dropped = read_presets(presets)
         assert set(offered) | set(dropped) == set(PRESET_NAMES) and "accurate" in offered
+        assert "\nDropped: " in text    # which, if any: the third run above timed anew
     else:         # the quick size's small networks (hit IoU 0.0-0.7 here) predict no hits
         assert not presets.exists() and "presets n/a (no sweep point predicts hits" in printed
         assert "Presets: n/a, no sweep point predicts hits" in text
@@ -372,15 +459,24 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
             "5.17 % on the median point" in text)
     assert "| 3,000 (2,900-3,150) | 8.33 % | 1,000 |" in text
     assert "| 1,000 (990-1,010) | 2 % | 1,000 |" in text and "| n/a | n/a | 1,000 |" in text
+    # a balanced nearer the two-point front than any other, but slower than accurate:
+    # dropped, and the section says why
     points = rows + [dict(rows[1], width=96, render_rays_per_s=900.0,
                           **{SPEED_ROUNDS: [880.0, 900.0, 920.0]})]
-    presets = derive_presets(points, PRESET_ERROR)
-    assert [presets[name]["width"] for name in ("fast", "balanced", "accurate")] == [
+    assert [pick_presets(points, PRESET_ERROR)[name]["width"] for name in PRESET_NAMES] == [
         32, 96, 64]
-    text = "\n".join(bench_report.sweep_markdown(rows, presets, bench.SIZES["quick"], "cmd",
-                                                 tmp_path, None))
+    presets, dropped = derive_presets(points, PRESET_ERROR)
+    assert list(presets) == ["fast", "accurate"]
+    text = "\n".join(bench_report.sweep_markdown(rows, (presets, dropped),
+                                                 bench.SIZES["quick"], "cmd", tmp_path, None))
     assert "| fast | 16 | 2 | 12 | 3 | 32 | 400 | 0.1 | 3,000 (2,900-3,150) |" in text
+    assert ("Dropped: balanced, measured no faster than Accurate: 880-920 rays/s against "
+            "990-1,010." in text) and "| balanced |" not in text
+    text = "\n".join(bench_report.sweep_markdown(rows, (pick_presets(points, PRESET_ERROR), {}),
+                                                 bench.SIZES["quick"], "cmd", tmp_path, None))
     assert "| balanced | 16 | 2 | 12 | 3 | 96 | 500 | 0.05 | 900 (880-920) |" in text
+    assert ("Dropped: none, every round of each preset was faster than every round of the next "
+            "more accurate one." in text)
     # a sweep where no point has a speed states that the noise is not measured
     text = "\n".join(bench_report.sweep_markdown(rows[2:], bench_report.NO_PRESETS,
                                                  bench.SIZES["quick"], "cmd", tmp_path, None))

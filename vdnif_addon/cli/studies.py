@@ -82,8 +82,9 @@ def cmd_bench(args):
               "by this run")
         return 0
     print(f"bench: {len(rows)} points -> {out}/bench.csv, bench.json, pareto.png; presets "
-          + (f"-> {presets}" if not isinstance(derived, str) else f"n/a ({derived}; "
-             f"{presets} left as it was)")
+          + (f"n/a ({derived}; {presets} left as it was)" if isinstance(derived, str) else
+             f"-> {presets}" + "".join(f" ({name} dropped: {reason})"
+                                       for name, reason in derived[1].items()))
           + (f"; section of {performance}" if performance else ""))
     return 0
 

@@ -3,7 +3,8 @@ evaluated on unseen poses of the arm while one setting at a time moves away from
 (voxel resolution, hash levels and table size, PE bands, MLP width). Every point trains to
 the same convergence rule (``training.stopping``), so the front compares converged models, not
 models stopped at one step count. Writes CSV, JSON, Pareto plots and a section of
-``docs/performance.md`` (``bench_report``) and the presets derived from the front.
+``docs/performance.md`` (``bench_report``) and the presets derived from the front, less
+those not measurably faster than a more accurate one (``pareto.derive_presets``).
 
 Only points that predict hits (``metrics.speed_withheld``) have a speed, and their errors
 are compared on one common pixel set (DESIGN section 10): the front and the presets come
@@ -97,8 +98,9 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     Several runs on one ``work`` folder share the training: a point being trained holds
     its lock (``safe_io.exclusive_lock``), and the others pass it by. A run that finds,
     after its own points, one still training in another run stops there; the run that
-    finishes last evaluates every point, alone. Returns (rows, the presets or why there are
-    none), or (None, None) when this run left the evaluation to another."""
+    finishes last evaluates every point, alone. Returns (rows, the (presets, dropped) of
+    ``pareto.derive_presets`` or why there are none), or (None, None) when this run left the
+    evaluation to another."""
     size = SIZES["quick" if quick else "full"]
     out, work = pathlib.Path(out), pathlib.Path(work)
     work.mkdir(parents=True, exist_ok=True)
@@ -128,27 +130,29 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
     # No presets from models that do not predict hits, nor from a sweep with too few points
     # for three distinct ones: the presets file is then left as it was, and the section
     # says why.
-    presets, no_presets = None, NO_PRESETS
+    derived, no_presets = None, NO_PRESETS
     if any(row["speed_withheld"] is None for row in rows):
         try:
-            presets = derive_presets(rows, PRESET_ERROR)
+            derived = derive_presets(rows, PRESET_ERROR)
         except VDNIFError as error:
             no_presets = str(error)
     out.mkdir(parents=True, exist_ok=True)
     write_outputs(out, rows)
-    if presets is not None:
+    if derived is not None:
+        presets, dropped = derived
         write_json_atomic(presets_path, stamp({"format": PRESETS_FORMAT,
                                                "source": "bench" + (" --quick" if quick else ""),
-                                               "error": PRESET_ERROR, "presets": presets}),
+                                               "error": PRESET_ERROR, "presets": presets,
+                                               "dropped": dropped}),
                           "presets file")
     if performance is not None:
         command = command or shlex.join(["python", "vdnif_addon/batch.py", "--", "bench"]
                                         + (["--quick"] if quick else []))
         write_section(performance, "bench", "Speed/accuracy sweep",
-                      sweep_markdown(rows, presets or no_presets, size, command, out,
+                      sweep_markdown(rows, derived or no_presets, size, command, out,
                                      performance),
                       PERFORMANCE_PREAMBLE)
-    return rows, presets or no_presets
+    return rows, derived or no_presets
 
 
 def _point_files(work, number):

@@ -141,7 +141,8 @@ def rule_text(convergence):
 
 def sweep_markdown(rows, presets, size, command, out, performance):
     """The lines of the sweep's section of docs/performance.md: its protocol and timing noise,
-    its table, its plot and ``presets`` (or why there are none, a text)."""
+    its table, its plot and ``presets``, the (presets, dropped) of ``pareto.derive_presets``
+    (or why there are none, a text)."""
     relative = pathlib.Path(out).resolve().relative_to(
         pathlib.Path(performance).resolve().parent) if performance else out
     import torch
@@ -186,12 +187,15 @@ def sweep_markdown(rows, presets, size, command, out, performance):
     if isinstance(presets, str):
         return lines + [f"Presets: n/a, {presets}.", "",
                         f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
+    presets, dropped = presets
     lines += [f"Presets (the panel's preset menu), from the front of {PRESET_ERROR} vs render "
               "speed: fast is its fastest point, accurate its most accurate, balanced the knee "
               "of the points between them (closest to the ideal corner in log space); where "
               "the front has no point between them, balanced is the point nearest the front "
               "(the smallest gain, the same factor in speed and in error, that would put it "
-              "there):",
+              "there). A preset not measurably faster than the next more accurate one kept "
+              "would trade a larger error for no speed that the timing can show: it is "
+              "dropped, and the more accurate one stays.",
               "", "| preset | " + " | ".join(SETTINGS) + " | distance MAE | rays/s (rounds "
               "min-max) |",
               "| --- | " + " | ".join("---" for _ in SETTINGS) + " | --- | --- |"]
@@ -199,5 +203,9 @@ def sweep_markdown(rows, presets, size, command, out, performance):
         measured = preset["measured"]
         lines.append(f"| {name} | " + " | ".join(str(preset[k]) for k in SETTINGS)
                      + f" | {value(measured[PRESET_ERROR])} | {_speed(measured)} |")
+    for line in ([f"Dropped: {name}, {reason}." for name, reason in dropped.items()]
+                 or ["Dropped: none, every round of each preset was faster than every round "
+                     "of the next more accurate one."]):
+        lines += ["", line]
     lines += ["", f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
     return lines

@@ -1,5 +1,6 @@
 """The Pareto front of a measured speed/accuracy sweep and the fast / balanced / accurate
-presets derived from it (the ``bench`` command writes them; ``presets.py`` reads them)."""
+presets derived from it, less those not measurably faster than a more accurate one (the
+``bench`` command writes them; ``presets.py`` reads them)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 
 from ..errors import VDNIFError
 from ..inference.metrics import speed_withheld
-from ..presets import SETTINGS, SPEED_ROUNDS
+from ..presets import PRESET_NAMES, SETTINGS, SPEED_ROUNDS
 
 
 def pareto_front(error: Sequence[float], cost: Sequence[float]) -> list[int]:
@@ -50,9 +51,54 @@ def speed_range(point: dict[str, Any]) -> tuple[float, float] | None:
     return (min(rounds), max(rounds)) if rounds else None
 
 
+def measurably_faster(point: dict[str, Any], other: dict[str, Any]) -> bool:
+    """Whether ``point``'s speed differs measurably from ``other``'s, and is the faster: its
+    slowest timing round is faster than the other's fastest, so that their ranges of rounds
+    (``speed_range``) do not overlap; ranges whose ends touch overlap. A point without rounds
+    cannot be shown to differ from any: False. Two points differ measurably when either is
+    measurably faster than the other."""
+    ours, theirs = speed_range(point), speed_range(other)
+    return ours is not None and theirs is not None and ours[0] > theirs[1]
+
+
 def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
-                   speed_key: str = "render_rays_per_s",
-                   iou_key: str = "vs_true_hit_iou") -> dict[str, dict[str, Any]]:
+                   speed_key: str = "render_rays_per_s", iou_key: str = "vs_true_hit_iou"
+                   ) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
+    """(presets, dropped): ``pick_presets``'s fast, balanced and accurate, less each that is
+    not measurably faster (``measurably_faster``) than the next more accurate one kept, which
+    it would trade a larger error for nothing measurable; ``dropped`` gives each dropped
+    name's reason in one line. Accurate is always kept, and a sweep without timing rounds
+    (an older bench.json) keeps it alone: no speed of it can be shown to differ."""
+    picked = pick_presets(points, error_key, speed_key, iou_key)
+    kept, dropped = [], {}
+    for name in reversed(PRESET_NAMES):         # from the most accurate to the fastest
+        if kept and not measurably_faster(picked[name]["measured"],
+                                          picked[kept[-1]]["measured"]):
+            dropped[name] = _not_faster(picked[name]["measured"], kept[-1],
+                                        picked[kept[-1]]["measured"], speed_key)
+        else:
+            kept.append(name)
+    return ({name: picked[name] for name in PRESET_NAMES if name in kept},
+            {name: dropped[name] for name in PRESET_NAMES if name in dropped})
+
+
+def _not_faster(measured: dict[str, Any], slower: str, other: dict[str, Any],
+                speed_key: str) -> str:
+    """Why a preset measured ``measured`` is dropped against the more accurate ``slower``,
+    measured ``other``: one line with both speeds' ranges of rounds, or their medians where
+    either has no rounds."""
+    ours, theirs = speed_range(measured), speed_range(other)
+    if ours is None or theirs is None:
+        return (f"not shown faster than {slower.title()}: no timing rounds recorded "
+                f"({measured[speed_key]:,.0f} rays/s against {other[speed_key]:,.0f}, "
+                "medians)")
+    return (f"measured no faster than {slower.title()}: {ours[0]:,.0f}-{ours[1]:,.0f} rays/s "
+            f"against {theirs[0]:,.0f}-{theirs[1]:,.0f}")
+
+
+def pick_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
+                 speed_key: str = "render_rays_per_s",
+                 iou_key: str = "vs_true_hit_iou") -> dict[str, dict[str, Any]]:
     """{fast, balanced, accurate}: three distinct sweep ``points`` (dicts with SETTINGS, the
     error, the speed, its timing rounds SPEED_ROUNDS where they were kept, and the hit IoU
     against the true reference), each as a preset (``_preset``). On the front of error vs
@@ -94,7 +140,7 @@ def derive_presets(points: Sequence[dict[str, Any]], error_key: str = "error",
         distance = front_distance(error, cost, front)
         distance[front] = np.inf
         balanced = int(np.argmin(distance))
-    chosen = {"fast": front[0], "balanced": balanced, "accurate": front[-1]}
+    chosen = dict(zip(PRESET_NAMES, (front[0], balanced, front[-1])))
     return {name: _preset(usable[i], error_key, speed_key) for name, i in chosen.items()}
 
 
