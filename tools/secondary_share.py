@@ -12,7 +12,7 @@ test poses at 256x256 against the true reference.
 
 ``run`` keeps each run's model and reports in OUT/SCENE-SHARE (``M.vdnif``, ``train.json``,
 ``development.json``, ``test.json``) and skips the parts a run already holds; ``table`` writes
-them together, stamped with this checkout's provenance, and prints the Markdown tables.
+them together, stamped with this checkout's provenance, and prints the Markdown table.
 """
 
 import argparse
@@ -104,30 +104,32 @@ def collect(folder):
                                                        item[1]["secondary_fraction"])))
 
 
-def markdown(runs, pose_set):
-    """The Markdown table of ``runs`` on ``pose_set`` against the true reference."""
-    lines = ["| scene | share | holes / extras | primary distance MAE | primary normal (deg) "
-             "| AO MAE, own / true hits | false lit, own / true hits | false shadow, own / "
-             "true hits | shaded PSNR (dB) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+def markdown(runs):
+    """The Markdown table of ``runs`` against the true reference, each run's development poses
+    (the choice's) and then its test poses (the report's)."""
+    lines = ["| scene | share | poses | holes / extras | primary distance MAE | primary normal "
+             "(deg) | AO MAE, own / true hits | false lit, own / true hits | false shadow, own "
+             "/ true hits | shaded PSNR (dB) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for record in runs.values():
-        m = record[pose_set]["vs_true"]
-        lines.append(
-            f"| {record['scene']} | {record['secondary_fraction']:g} | "
-            f"{percent(m['false_negative_rate'])} / {percent(m['false_positive_rate'])} | "
-            f"{text_value(m['distance_mae'])} | {m['normal_error_deg']:.3g} | "
-            f"{m['ao_mae']:.2g} / {m['ao_mae_true_hit']:.2g} | "
-            f"{percent(m['shadow_false_lit_rate'])} / "
-            f"{percent(m['shadow_false_lit_rate_true_hit'])} | "
-            f"{percent(m['shadow_false_shadow_rate'])} / "
-            f"{percent(m['shadow_false_shadow_rate_true_hit'])} | "
-            f"{m['shaded_psnr']:.3g} |")
+        for pose_set in POSE_SETS:
+            m = record[pose_set]["vs_true"]
+            lines.append(
+                f"| {record['scene']} | {record['secondary_fraction']:g} | {pose_set} | "
+                f"{percent(m['false_negative_rate'])} / {percent(m['false_positive_rate'])} | "
+                f"{text_value(m['distance_mae'])} | {m['normal_error_deg']:.3g} | "
+                f"{m['ao_mae']:.2g} / {m['ao_mae_true_hit']:.2g} | "
+                f"{percent(m['shadow_false_lit_rate'])} / "
+                f"{percent(m['shadow_false_lit_rate_true_hit'])} | "
+                f"{percent(m['shadow_false_shadow_rate'])} / "
+                f"{percent(m['shadow_false_shadow_rate_true_hit'])} | "
+                f"{m['shaded_psnr']:.3g} |")
     return "\n".join(lines)
 
 
 def table(folder, json_path=None):
-    """The development and test tables of the runs in ``folder``; writes them together to
-    ``json_path`` when given."""
+    """The table of the runs in ``folder``; writes them together to ``json_path`` when
+    given."""
     runs = collect(folder)
     if json_path is not None:
         record = {"commands": [" ".join(["python vdnif_addon/batch.py --", *command])
@@ -139,8 +141,7 @@ def table(folder, json_path=None):
         json_path = pathlib.Path(json_path)
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(stamp(record), indent=1))
-    return "\n\n".join(f"{pose_set.title()} poses:\n\n{markdown(runs, pose_set)}"
-                       for pose_set in POSE_SETS)
+    return markdown(runs)
 
 
 def main(argv):
@@ -150,7 +151,7 @@ def main(argv):
     runs.add_argument("--out", type=pathlib.Path, required=True, help="the runs' folder")
     runs.add_argument("--run", action="append", required=True,
                       metavar="SCENE:SHARE", help="a scene and its share (repeatable)")
-    show = sub.add_parser("table", help="the tables of a runs' folder")
+    show = sub.add_parser("table", help="the table of a runs' folder")
     show.add_argument("folder", type=pathlib.Path)
     show.add_argument("--json", type=pathlib.Path, help="write the runs together here")
     args = parser.parse_args(argv)

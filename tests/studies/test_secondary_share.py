@@ -1,5 +1,5 @@
 """tools/secondary_share.py: each run's commands, the runs collected from their folders (a run
-without both evaluations left out) and the two tables, and a folder without runs or a run
+without both evaluations left out) and their table, and a folder without runs or a run
 that is not SCENE:SHARE ending in one error line."""
 
 import json
@@ -47,12 +47,12 @@ def test_the_tables_hold_every_finished_run_in_share_order(tmp_path):
     write_run(tmp_path, "bunny-0.2", figures(0.004, 0.02))          # no test report yet
     out = tmp_path / "secondary.json"
     text = tool.table(tmp_path, out)
-    development, test = text.split("Test poses:")
-    assert [line.split("|")[1:3] for line in development.splitlines()
-            if line.startswith("| spot")] == [[" spot ", " 0 "], [" spot ", " 0.1 "]]
-    assert "| spot | 0 | 0.1 % / 0.2 % |" in development
-    assert "| spot | 0 | 0.15 % / 0.3 % |" in test
-    assert "0.008 / 0.004" in development and "0.009 / 0.0045" in test
+    rows = [line.split(" | ")[:3] for line in text.splitlines() if line.startswith("| spot")]
+    assert rows == [["| spot", "0", "development"], ["| spot", "0", "test"],
+                    ["| spot", "0.1", "development"], ["| spot", "0.1", "test"]]
+    assert "| spot | 0 | development | 0.1 % / 0.2 % |" in text
+    assert "| spot | 0 | test | 0.15 % / 0.3 % |" in text
+    assert "0.008 / 0.004" in text and "0.009 / 0.0045" in text
     record = json.loads(out.read_text())
     assert list(record["runs"]) == ["spot/0.0", "spot/0.1"]
     assert record["runs"]["spot/0.1"]["secondary_fraction"] == 0.1
