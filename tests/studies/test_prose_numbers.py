@@ -165,6 +165,7 @@ ABLATION_SCENES = ("arm", "lattice", "spot")
 ABLATION = tuple(f"results/ablation-{s}-1-seed.json" for s in ABLATION_SCENES)
 
 SPREAD = "results/figure3-spread.json"
+BF16 = "results/bfloat16.json"
 SHADED_DEV = "results/shaded-dev-meshes.json"
 
 
@@ -454,6 +455,18 @@ CLAIMS = [
               *span(common(d[f], f"{s}/proposed, log-MSE of d/h") / common(d[f], f"{s}/proposed")
                     for f, s in zip(ABLATION, ABLATION_SCENES))]),
     # ---- performance: the side-by-side run
+    Claim(P, "The rates move by at most {} points and every other figure by at most {} % of",
+          BF16, lambda d: [
+              max(abs(pct(d["runs"][f"{s}/bfloat16"]["vs_true"][k])
+                      - pct(d["runs"][f"{s}/float32"]["vs_true"][k]))
+                  for s in ("bunny", "spot") for k in (
+                      "false_negative_rate", "false_positive_rate", "shadow_false_lit_rate",
+                      "shadow_false_shadow_rate")),
+              max(pct(abs(d["runs"][f"{s}/bfloat16"]["vs_true"][k]
+                          / d["runs"][f"{s}/float32"]["vs_true"][k] - 1))
+                  for s in ("bunny", "spot") for k in (
+                      "distance_mae", "normal_error_deg", "albedo_psnr", "ao_mae",
+                      "shaded_psnr"))]),
     Claim(P, "The 1 M-triangle pose at 256x256 costs {}x Warp's refit and {}x Embree's refit "
           "at both cores, {}x and {}x at one thread", SIDE, lambda d: [
               result(d, "suzanne-5", 256, t)["ratios"][f"pose_neural_over_{b}"]
@@ -812,6 +825,13 @@ TABLES = [
           "share | false lit / false shadow, all | in the band: its pixels, false lit / false "
           "shadow | cast shadows outside it: false lit / false shadow |", 2, SHADED_DEV,
           shaded_dev_row),
+    Table(P, "| scene, precision | holes | extras | distance MAE | normal (deg) | albedo PSNR "
+          "(dB) | AO MAE | false lit / false shadow | shaded PSNR (dB) |", 1, BF16,
+          lambda d, row: (lambda m: [
+              *rates(m, "false_negative_rate", "false_positive_rate"), m["distance_mae"],
+              m["normal_error_deg"], m["albedo_psnr"], m["ao_mae"],
+              *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
+              m["shaded_psnr"]])(d["runs"]["/".join(row.split(", "))]["vs_true"])),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
