@@ -117,13 +117,13 @@ def markdown(runs):
             lines.append(
                 f"| {record['scene']} | {record['secondary_fraction']:g} | {pose_set} | "
                 f"{percent(m['false_negative_rate'])} / {percent(m['false_positive_rate'])} | "
-                f"{text_value(m['distance_mae'])} | {m['normal_error_deg']:.3g} | "
-                f"{m['ao_mae']:.2g} / {m['ao_mae_true_hit']:.2g} | "
+                f"{text_value(m['distance_mae'])} | {m['normal_error_deg']:.2f} | "
+                f"{m['ao_mae']:.3g} / {m['ao_mae_true_hit']:.3g} | "
                 f"{percent(m['shadow_false_lit_rate'])} / "
                 f"{percent(m['shadow_false_lit_rate_true_hit'])} | "
                 f"{percent(m['shadow_false_shadow_rate'])} / "
                 f"{percent(m['shadow_false_shadow_rate_true_hit'])} | "
-                f"{m['shaded_psnr']:.3g} |")
+                f"{m['shaded_psnr']:.2f} |")
     return "\n".join(lines)
 
 

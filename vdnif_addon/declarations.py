@@ -193,8 +193,8 @@ GRAZING_FRACTION = Setting(
     "(silhouette rays); the rest aim at random points in the bounds", 0.0, 1.0,
     option=Option("--grazing-fraction", ("dataset",), "F"))
 SECONDARY_FRACTION = Setting(
-    # None: the network's secondary rays leave its own hits, which the offset sized to the
-    # model serves as well without them, and a share costs primary distance (results.md).
+    # None: on the development poses no share above 0 gave a better shaded image, and every
+    # one cost primary distance (results.md, "Secondary rays").
     "secondary_fraction", float, 0.0, "share of rays that start on the surface and leave it, "
     "as shadow and occlusion rays do", 0.0, 1.0,
     option=Option("--secondary-fraction", ("dataset",), "F"))

@@ -52,7 +52,8 @@ def test_the_tables_hold_every_finished_run_in_share_order(tmp_path):
                     ["| spot", "0.1", "development"], ["| spot", "0.1", "test"]]
     assert "| spot | 0 | development | 0.1 % / 0.2 % |" in text
     assert "| spot | 0 | test | 0.15 % / 0.3 % |" in text
-    assert "0.008 / 0.004" in text and "0.009 / 0.0045" in text
+    assert "| 4.00 | 0.008 / 0.004 |" in text and "0.009 / 0.0045" in text
+    assert text.splitlines()[-1].endswith("| 35.00 |")
     record = json.loads(out.read_text())
     assert list(record["runs"]) == ["spot/0.0", "spot/0.1"]
     assert record["runs"]["spot/0.1"]["secondary_fraction"] == 0.1
