@@ -27,12 +27,13 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
+from resolution_table import BATCH  # noqa: E402
+
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.text import percent  # noqa: E402
 from vdnif_addon.text import value as text_value  # noqa: E402
 
-BATCH = [sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--"]
 POSE_SETS = ("development", "test")
 EVALUATION = ("--poses", "8", "--width", "256", "--height", "256", "--secondary",
               "--device", "cpu")
