@@ -13,10 +13,18 @@ is better. By default, Figure 3: its four per-scene files then, its two files no
 
 Medians and seeds are each run's own: its common pixel set (where all its models and seeds
 and the reference hit) is not the other run's.
+
+What chance alone gives: if both runs' seeds were draws of one distribution (nothing
+changed), a median of 3 seeds lands above the largest of 3 earlier seeds with probability
+1/5, and below the smallest with 1/5 (``beyond_by_chance``), so the verdicts above count
+about a fifth of the figures worse with no change at all. Each row also says whether every
+seed now lies beyond every earlier seed ("separated": 1 in 20 on each side by chance with
+3 and 3 seeds, ``separated_by_chance``), the stronger sign that a figure moved.
 """
 
 import argparse
 import json
+import math
 import pathlib
 import subprocess
 import sys
@@ -52,10 +60,36 @@ def verdict(value, low, high):
     return "within" if value <= high else "worse"
 
 
+def beyond_by_chance(seeds_before, seeds_now):
+    """The probability that the median of ``seeds_now`` draws (an odd count) lies above the
+    largest of ``seeds_before`` draws of the same continuous distribution (as likely as below
+    the smallest): at least (n + 1) / 2 of the new draws above every earlier one, which is
+    the top (n + 1) / 2 ranks of the pooled draws all being new."""
+    if seeds_now % 2 == 0:
+        raise VDNIFError(f"a median of {seeds_now} seeds is not one of them: use an odd count")
+    top = (seeds_now + 1) // 2
+    return math.comb(seeds_before + seeds_now - top, seeds_now - top) / math.comb(
+        seeds_before + seeds_now, seeds_now)
+
+
+def separated_by_chance(seeds_before, seeds_now):
+    """The probability that every one of ``seeds_now`` draws lies above every one of
+    ``seeds_before`` draws of the same continuous distribution (as likely as below)."""
+    return 1 / math.comb(seeds_before + seeds_now, seeds_now)
+
+
+def separated(now_seeds, low, high):
+    """"worse" where every seed now lies above the earlier seeds' largest, "better" where
+    every one lies below their smallest, else "overlapping"."""
+    if min(now_seeds) > high:
+        return "worse"
+    return "better" if max(now_seeds) < low else "overlapping"
+
+
 def compare(before, now):
     """Rows (run, reference, metric, now's median, before's median, before's min, max,
-    verdict) for every run with seeds in both: ``before`` and ``now`` map a run's name to
-    its record (an experiment JSON's ``runs``)."""
+    now's min, max, verdict, separated) for every run with seeds in both: ``before`` and
+    ``now`` map a run's name to its record (an experiment JSON's ``runs``)."""
     rows = []
     for run, record in now.items():
         earlier = before.get(run)
@@ -66,15 +100,29 @@ def compare(before, now):
                 seeds = [seed["common"][f"vs_{reference}"].get(key)
                          for seed in earlier["seeds"]]
                 median = record["common"][f"vs_{reference}"].get(key)
-                if median is None or None in seeds:
+                now_seeds = [seed["common"][f"vs_{reference}"].get(key)
+                             for seed in record["seeds"]]
+                if median is None or None in seeds or None in now_seeds:
                     continue
                 old = earlier["common"][f"vs_{reference}"][key]
                 rows.append({"run": run, "reference": reference, "metric": key,
                              "now": median, "before": old, "before_min": min(seeds),
                              "before_max": max(seeds), "seeds_before": len(seeds),
                              "seeds_now": len(record["seeds"]),
-                             "verdict": verdict(median, min(seeds), max(seeds))})
+                             "now_min": min(now_seeds), "now_max": max(now_seeds),
+                             "verdict": verdict(median, min(seeds), max(seeds)),
+                             "separated": separated(now_seeds, min(seeds), max(seeds))})
     return rows
+
+
+def chance_counts(rows):
+    """Per side, the probability and the expected count of figures beyond the earlier seeds
+    (median beyond their range; every seed beyond every one) if nothing had changed."""
+    beyond = sum(beyond_by_chance(r["seeds_before"], r["seeds_now"]) for r in rows)
+    apart = sum(separated_by_chance(r["seeds_before"], r["seeds_now"]) for r in rows)
+    return {"what": "if both runs' seeds were draws of one distribution, per side",
+            "beyond_probability": beyond / len(rows), "beyond_expected": beyond,
+            "separated_probability": apart / len(rows), "separated_expected": apart}
 
 
 def _number(key, value):
@@ -83,14 +131,17 @@ def _number(key, value):
 
 def table(rows):
     lines = ["| run | reference | metric | median now | median before | seeds before (min - "
-             "max) | now |", "| --- | --- | --- | --- | --- | --- | --- |"]
+             "max) | seeds now (min - max) | median | every seed |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for row in rows:
         key = row["metric"]
-        mark = f"**{row['verdict']}**" if row["verdict"] == "worse" else row["verdict"]
+        mark, apart = (f"**{word}**" if word == "worse" else word
+                       for word in (row["verdict"], row["separated"]))
         lines.append(f"| {row['run']} | {row['reference']} | {METRICS[key]} | "
                      f"{_number(key, row['now'])} | {_number(key, row['before'])} | "
                      f"{_number(key, row['before_min'])} - {_number(key, row['before_max'])} "
-                     f"| {mark} |")
+                     f"| {_number(key, row['now_min'])} - {_number(key, row['now_max'])} "
+                     f"| {mark} | {apart} |")
     return "\n".join(lines)
 
 
@@ -116,14 +167,22 @@ def main(argv):
     print(table(rows))
     counts = {name: sum(row["verdict"] == name for row in rows)
               for name in ("better", "within", "worse")}
-    print(f"\n{len(rows)} figures: " + ", ".join(f"{n} {name}" for name, n in counts.items()))
+    separations = {name: sum(row["separated"] == name for row in rows)
+                   for name in ("better", "overlapping", "worse")}
+    chance = chance_counts(rows)
+    print(f"\n{len(rows)} figures: " + ", ".join(f"{n} {name}" for name, n in counts.items())
+          + f" (by chance alone about {chance['beyond_expected']:.1f} each side)")
+    print("every seed beyond every earlier seed: " + ", ".join(
+        f"{n} {name}" for name, n in separations.items())
+          + f" (by chance alone about {chance['separated_expected']:.1f} each side)")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(stamp({
             "what": "medians now against the seed spread of the run committed at --before",
             "command": ["python", "tools/seed_spread_check.py", "--before", args.before,
                         "--then", *args.then, "--now", *args.now],
-            "before": args.before, "counts": counts, "rows": rows}), indent=1))
+            "before": args.before, "counts": counts, "separated": separations,
+            "chance": chance, "rows": rows}), indent=1))
 
 
 if __name__ == "__main__":

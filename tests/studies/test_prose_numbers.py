@@ -459,6 +459,17 @@ CLAIMS = [
           BASELINE, lambda d: [pct(spread_row(d, "bunny/proposed", "distance_mae")["now"]
                                    / spread_row(d, "bunny/proposed", "distance_mae")[
                                        "before_max"] - 1)]),
+    Claim(R, "about {} of 64 figures on each side; the {} worse and {} better", BASELINE,
+          lambda d: [d["chance"]["beyond_expected"], d["counts"]["worse"],
+                     d["counts"]["better"]]),
+    Claim(R, "(about {} of 64): {} figures are so much better and {} so much worse", BASELINE,
+          lambda d: [d["chance"]["separated_expected"], d["separated"]["better"],
+                     d["separated"]["worse"]]),
+    Claim(R, "(against the true reference {}-{} % now against {}-{} % then), whose extras fell "
+          "as clearly ({}-{} % against {}-{} %)", BASELINE, lambda d: [
+              pct(spread_row(d, "arm/proposed", rate)[key])
+              for rate in ("false_negative_rate", "false_positive_rate")
+              for key in ("now_min", "now_max", "before_min", "before_max")]),
     Claim(R, "the bunny {} dB against {} and {} dB, spot {} against {} dB", SECONDARY,
           lambda d: [share_figure(d, scene, share, "shaded_psnr") for scene, share in (
               ("bunny", 0), ("bunny", 0.1), ("bunny", 0.2), ("spot", 0), ("spot", 0.1))]),

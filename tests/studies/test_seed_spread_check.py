@@ -2,6 +2,7 @@
 run's smallest and largest seed, per metric and reference, and a commit without the file
 ends in one error line."""
 
+import itertools
 import pathlib
 
 import pytest
@@ -51,3 +52,33 @@ def test_a_file_missing_now_ends_in_one_error_line():
 def test_a_file_missing_at_the_earlier_commit_is_named():
     with pytest.raises(VDNIFError, match="no-such.json' at HEAD"):
         load_tool(TOOL).committed("docs/results/no-such.json", "HEAD")
+
+
+@pytest.mark.parametrize("before, now", [(3, 3), (3, 1), (5, 3), (2, 5)])
+def test_the_chance_of_a_figure_beyond_the_earlier_seeds_counts_every_ordering(before, now):
+    """Against brute force: every ordering of the pooled draws is equally likely when nothing
+    changed; the median now lies above the earlier largest, and every draw now above every
+    earlier one, in the counted share of them."""
+    tool = load_tool(TOOL)
+    beyond = apart = 0
+    orderings = list(itertools.permutations(range(before + now)))
+    for ranks in orderings:
+        earlier, later = ranks[:before], sorted(ranks[before:])
+        beyond += later[now // 2] > max(earlier)
+        apart += later[0] > max(earlier)
+    assert tool.beyond_by_chance(before, now) == pytest.approx(beyond / len(orderings))
+    assert tool.separated_by_chance(before, now) == pytest.approx(apart / len(orderings))
+    assert tool.beyond_by_chance(3, 3) == pytest.approx(1 / 5)
+
+
+def test_every_seed_beyond_every_earlier_seed_is_told_from_an_overlap():
+    tool = load_tool(TOOL)
+    before = report(2.0, [1.0, 2.0, 3.0])
+    for seeds, word in (([3.5, 4.0, 5.0], "worse"), ([2.5, 3.5, 4.0], "overlapping"),
+                        ([0.1, 0.5, 0.9], "better")):
+        rows = tool.compare(before, report(seeds[1], seeds))
+        assert {row["separated"] for row in rows} == {word}
+        assert {(row["now_min"], row["now_max"]) for row in rows
+                if row["metric"] == "distance_mae"} == {(seeds[0], seeds[2])}
+    with pytest.raises(VDNIFError, match="odd count"):
+        tool.beyond_by_chance(3, 2)
