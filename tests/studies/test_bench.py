@@ -27,6 +27,7 @@ from vdnif_addon.studies.pareto import (
     measurably_faster,
     pareto_front,
     pick_presets,
+    round_ratios,
 )
 from vdnif_addon.text import percent
 
@@ -108,18 +109,21 @@ def timed(rounds):
     return {SPEED_ROUNDS: rounds, "render_rays_per_s": sorted(rounds)[len(rounds) // 2]}
 
 
-def test_a_speed_is_measurably_faster_only_when_the_ranges_of_rounds_do_not_overlap():
-    slow, fast = timed([100.0, 110.0, 105.0]), timed([120.0, 111.0, 130.0])
+def test_a_speed_is_measurably_faster_only_when_it_is_faster_in_every_round():
+    slow = timed([100.0, 110.0, 105.0])
+    # faster in every round though the ranges of rounds overlap (109 < 110): the rounds are
+    # compared one by one, as they were timed
+    fast = timed([109.0, 150.0, 160.0])
     assert measurably_faster(fast, slow) and not measurably_faster(slow, fast)
-    # the ranges overlap, though every median and mean of the one is above the other's
-    overlapping = timed([109.0, 150.0, 160.0])
-    assert not measurably_faster(overlapping, slow) and not measurably_faster(slow, overlapping)
-    # ends that touch overlap: the slowest round of the one equals the other's fastest
-    touching = timed([110.0, 140.0, 150.0])
-    assert not measurably_faster(touching, slow)
-    assert measurably_faster(timed([110.5, 140.0]), slow)
-    # a range inside the other's
-    assert not measurably_faster(timed([102.0, 108.0]), slow)
+    assert round_ratios(fast, slow) == pytest.approx([1.09, 150 / 110, 160 / 105])
+    # faster on the median and the mean, slower in one round: not shown
+    once_slower = timed([99.0, 150.0, 160.0])
+    assert not measurably_faster(once_slower, slow) and not measurably_faster(slow, once_slower)
+    # a tie in one round is not faster
+    assert not measurably_faster(timed([100.0, 150.0, 160.0]), slow)
+    # rounds of another count are not of the same sweep
+    assert round_ratios(timed([200.0, 210.0]), slow) is None
+    assert not measurably_faster(timed([200.0, 210.0]), slow)
     # without rounds (an older bench.json or presets file) no speed can be shown to differ,
     # however far apart the medians
     assert not measurably_faster({"render_rays_per_s": 1e6}, slow)
@@ -139,31 +143,32 @@ def three_presets(fast_rounds, balanced_rounds, accurate_rounds):
 
 
 def test_a_preset_not_measurably_faster_than_the_next_more_accurate_one_is_dropped():
-    # disjoint ranges: all three kept, each measured with its rounds
+    # each faster in every round: all three kept, each measured with its rounds
     presets, dropped = derive_presets(three_presets([900.0, 1000.0, 950.0], [600.0, 700.0, 650.0],
                                                     [300.0, 400.0, 350.0]))
     assert list(presets) == list(PRESET_NAMES) and dropped == {}
     assert presets["balanced"]["measured"] == {"error": 0.04, "render_rays_per_s": 650.0,
                                                SPEED_ROUNDS: [600.0, 700.0, 650.0]}
-    # balanced's rounds overlap accurate's: balanced buys nothing measurable and is dropped;
-    # fast is then weighed against accurate, and is measurably faster
-    presets, dropped = derive_presets(three_presets([900.0, 1000.0, 950.0], [420.0, 460.0, 440.0],
+    # balanced slower than accurate in its second round: it buys nothing measurable and is
+    # dropped; fast is then weighed against accurate, and is faster in every round
+    presets, dropped = derive_presets(three_presets([900.0, 1000.0, 950.0], [420.0, 420.0, 440.0],
                                                     [400.0, 430.0, 410.0]))
     assert [presets[name]["resolution"] for name in presets] == [16, 64]
-    assert dropped == {"balanced": "measured no faster than Accurate: 420-460 rays/s against "
-                                   "400-430"}
-    # fast's rounds overlap balanced's (touching ends): fast is dropped, balanced kept
-    presets, dropped = derive_presets(three_presets([700.0, 800.0, 750.0], [600.0, 700.0, 650.0],
+    assert dropped == {"balanced": "measured no faster than Accurate: faster in 2 of 3 timing "
+                                   "rounds, 0.98-1.07x round by round"}
+    # fast ties balanced in one round: fast is dropped, balanced kept
+    presets, dropped = derive_presets(three_presets([700.0, 800.0, 750.0], [700.0, 700.0, 650.0],
                                                     [300.0, 400.0, 350.0]))
     assert list(presets) == ["balanced", "accurate"]
-    assert dropped == {"fast": "measured no faster than Balanced: 700-800 rays/s against "
-                               "600-700"}
-    # balanced dropped, and fast, measurably faster than balanced, still within accurate's
-    # range: fast is dropped too, against accurate
+    assert dropped == {"fast": "measured no faster than Balanced: faster in 2 of 3 timing "
+                               "rounds, 1.00-1.15x round by round"}
+    # balanced dropped, and fast, faster than balanced in every round, slower than accurate
+    # in one: fast is dropped too, against accurate
     presets, dropped = derive_presets(three_presets([500.0, 560.0, 530.0], [420.0, 480.0, 450.0],
-                                                    [400.0, 500.0, 410.0]))
+                                                    [400.0, 570.0, 410.0]))
     assert list(presets) == ["accurate"] and list(dropped) == ["fast", "balanced"]
-    assert dropped["fast"] == "measured no faster than Accurate: 500-560 rays/s against 400-500"
+    assert dropped["fast"] == ("measured no faster than Accurate: faster in 2 of 3 timing "
+                               "rounds, 0.98-1.29x round by round")
     # a sweep without rounds (an older bench.json): no preset is shown faster than another,
     # and accurate is kept alone, each of the others saying so with the medians
     untimed = [point(0.08, 1000.0, 16), point(0.04, 900.0, 24), point(0.01, 100.0, 64)]
@@ -199,12 +204,15 @@ def test_shipped_presets_are_the_front_of_the_points_that_predict_hits():
     assert shipped["error"] == PRESET_ERROR
     picked = pick_presets(rows, PRESET_ERROR)
     assert {name: picked[name] for name in shipped["presets"]} == shipped["presets"]
+    assert derive_presets(rows, PRESET_ERROR) == (shipped["presets"], shipped["dropped"])
     # the same sweep without its timing rounds cannot show one preset faster than another:
     # accurate alone is kept
     untimed = [{key: entry for key, entry in row.items() if key != SPEED_ROUNDS}
                for row in rows]
     presets, dropped = derive_presets(untimed, PRESET_ERROR)
-    assert presets == {"accurate": picked["accurate"]} and set(dropped) == {"fast", "balanced"}
+    assert list(presets) == ["accurate"] and set(dropped) == {"fast", "balanced"}
+    assert {k: presets["accurate"][k] for k in SETTINGS} == {
+        k: picked["accurate"][k] for k in SETTINGS}
     assert all("no timing rounds recorded" in reason for reason in dropped.values())
     # the same sweep with its most accurate point no longer predicting hits: that point
     # drops out of the presets (every point of the converged sweep predicts hits)
@@ -239,6 +247,7 @@ def test_bad_presets_files_are_refused(tmp_path):
     # a file whose balanced repeats fast's settings (what a two-point front once gave)
     older["error"] = PRESET_ERROR
     older["presets"]["balanced"] = dict(older["presets"]["fast"])
+    older.get("dropped", {}).pop("balanced", None)
     broken.write_text(json.dumps(older))
     with pytest.raises(VDNIFError, match="gives fast and balanced the same settings: run "
                                          "bench again"):
@@ -458,6 +467,14 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
             "is the timing's noise on it: at most 8.33 % here (R16 L2 T12 F3 W32 S400), "
             "5.17 % on the median point" in text)
     assert "| 3,000 (2,900-3,150) | 8.33 % | 1,000 |" in text
+    # compared round by round: the two points' ratios 2.9, 3.18, 2.97 spread by 9.49 %
+    assert ("one differs measurably from the other when it is faster in every round (by "
+            "chance one time in 4 with 2 rounds). The ratio of two points' speeds spreads "
+            "over the rounds by 9.49 % for the median pair" in text)
+    # neither machine, threads nor load recorded (rows without provenance): said so
+    assert "torch's CPU threads not recorded" in text
+    assert "recorded neither machine nor load: their training times do not compare" in text
+    assert "| 10.0 | 3,000 (2,900-3,150)" in text
     assert "| 1,000 (990-1,010) | 2 % | 1,000 |" in text and "| n/a | n/a | 1,000 |" in text
     # a balanced nearer the two-point front than any other, but slower than accurate:
     # dropped, and the section says why
@@ -470,13 +487,13 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     text = "\n".join(bench_report.sweep_markdown(rows, (presets, dropped),
                                                  bench.SIZES["quick"], "cmd", tmp_path, None))
     assert "| fast | 16 | 2 | 12 | 3 | 32 | 400 | 0.1 | 3,000 (2,900-3,150) |" in text
-    assert ("Dropped: balanced, measured no faster than Accurate: 880-920 rays/s against "
-            "990-1,010." in text) and "| balanced |" not in text
+    assert ("Dropped: balanced, measured no faster than Accurate: faster in 0 of 3 timing "
+            "rounds, 0.88-0.91x round by round." in text) and "| balanced |" not in text
     text = "\n".join(bench_report.sweep_markdown(rows, (pick_presets(points, PRESET_ERROR), {}),
                                                  bench.SIZES["quick"], "cmd", tmp_path, None))
     assert "| balanced | 16 | 2 | 12 | 3 | 96 | 500 | 0.05 | 900 (880-920) |" in text
-    assert ("Dropped: none, every round of each preset was faster than every round of the next "
-            "more accurate one." in text)
+    assert ("Dropped: none, each preset was faster in every round than the next more "
+            "accurate one." in text)
     # a sweep where no point has a speed states that the noise is not measured
     text = "\n".join(bench_report.sweep_markdown(rows[2:], bench_report.NO_PRESETS,
                                                  bench.SIZES["quick"], "cmd", tmp_path, None))

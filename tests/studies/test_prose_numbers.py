@@ -144,19 +144,13 @@ def sample_rates(row):
             actual["steps"] * row["batch_size"] / actual["train_steps_s"])
 
 
-def preset_row(d, name):
-    settings = {"balanced": (32, 2, 16, 3, 32), "accurate": (64, 2, 16, 3, 64)}[name]
-    keys = ("resolution", "levels", "log2_table_size", "pe_bands", "width")
-    return next(row for row in d if tuple(row[k] for k in keys) == settings)
-
-
 TTC, SEEDS = "results/time-to-clean-wall.json", "results/lattice-normal-grid-seeds.json"
 SECONDARY, FACING = "results/secondary-rays.json", "results/shadow-facing.json"
 FIELD, START = "results/normal-field-choices.json", "results/shadow-start-choices.json"
 SELF, SPOT = "results/self-hit-choices.json", "results/spot-shadow-seeds.json"
 AUTO, ESTIMATE = "results/resolution-auto.json", "results/estimate-check.json"
 SWEEP, DENSE = "results/threshold-sweep.json", "results/dense-character.json"
-SIDE, BENCH = "side-by-side/side-by-side.json", "bench/bench.json"
+SIDE = "side-by-side/side-by-side.json"
 HEAD, OWN = "normal head", "own normal grid, start along the ray"
 WALK = "own normal grid, half offset, walks past its own surface"
 SCENES = ("arm", "lattice", "spot", "bunny")
@@ -516,11 +510,6 @@ CLAIMS = [
                            for t in (1, 2) for b in ("warp", "embree_refit")),
                      *span(result(d, "suzanne-5", 256, t)["secondary"]["trade"][
                          "embree_rebuild"]["samples"] for t in (1, 2))]),
-    Claim(P, "Balanced and accurate differ by {} % in render speed", BENCH, lambda d: [
-        pct(preset_row(d, "balanced")["render_rays_per_s"]
-            / preset_row(d, "accurate")["render_rays_per_s"] - 1)]),
-    Claim(P, "models of {} MB where today's weigh", BENCH, lambda d: [
-        d[0]["model_bytes"] / 1e6]),
     Claim(R, "but is still {} % (slab), {} % (horns) and {} % (text) at 128", FOLDS,
           lambda d: [pct(fold_curve(d, m)[128]["hit_mismatch"]) for m in FOLDED]),
     Claim(R, "(slab {} at 8 and {} at 128 object units)", FOLDS, lambda d: [

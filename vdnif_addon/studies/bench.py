@@ -127,6 +127,14 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
         return None, None
     with evaluation:
         rows = _evaluate_points(obj, spec, size, points, work, device)
+    return rows, publish_sweep(rows, out, presets_path, performance, quick, command)
+
+
+def publish_sweep(rows, out, presets_path, performance=None, quick=False, command=None):
+    """Writes a sweep's ``rows`` (``_evaluate_points``'s) into ``out``, the presets they
+    derive (``pareto.derive_presets``) to ``presets_path`` and, if given, its section of
+    ``performance``; returns the (presets, dropped) or why there are none."""
+    out, size = pathlib.Path(out), SIZES["quick" if quick else "full"]
     # No presets from models that do not predict hits, nor from a sweep with too few points
     # for three distinct ones: the presets file is then left as it was, and the section
     # says why.
@@ -152,7 +160,7 @@ def run_bench(out, presets_path, work, performance=None, quick=False, device="au
                       sweep_markdown(rows, derived or no_presets, size, command, out,
                                      performance),
                       PERFORMANCE_PREAMBLE)
-    return rows, derived or no_presets
+    return derived or no_presets
 
 
 def _point_files(work, number):

@@ -2,6 +2,7 @@
 Pareto plots and the sweep's section of ``docs/performance.md``."""
 
 import csv
+import itertools
 import pathlib
 
 import numpy as np
@@ -10,7 +11,7 @@ from ..inference.metrics import SPEED_MIN_HIT_IOU
 from ..presets import PRESET_ERROR, SETTINGS, SPEED_ROUNDS
 from ..safe_io import atomic_path, write_json_atomic
 from ..text import percent, value
-from .pareto import pareto_front, speed_range
+from .pareto import pareto_front, round_ratios, speed_range
 
 NO_PRESETS = (f"no sweep point predicts hits (hit IoU at least {SPEED_MIN_HIT_IOU} against the "
               "true reference): nothing to compare, no presets derived")
@@ -59,8 +60,10 @@ def _speed(figures):
 
 def timing_text(rows, rounds):
     """The timing protocol of a sweep of ``rounds`` rounds and the noise its ``rows``
-    measured: the largest spread of a point's rounds, and the median point's."""
-    spreads = [(speed_spread(r), point_label(r)) for r in rows if speed_spread(r) is not None]
+    measured: the largest spread of a point's rounds and the median point's, and the median
+    spread of two points' round-by-round ratio, which the comparisons read."""
+    spreads = [(spread, point_label(r)) for r in rows
+               if (spread := speed_spread(r)) is not None]
     protocol = (f"Render speed: {rounds} rounds, each rendering every point once in turn (the "
                 "rounds interleaved, so that a change in the machine's load falls on every "
                 "point alike). A point's speed is the median of its rounds; their spread, "
@@ -68,10 +71,16 @@ def timing_text(rows, rounds):
     if not spreads:
         return protocol + ": not measured here, as no point has a speed."
     largest = max(spreads)
+    paired = [np.ptp(ratios) / np.median(ratios)
+              for a, b in itertools.combinations(rows, 2)
+              if (ratios := round_ratios(a, b)) is not None]
     return (protocol + f": at most {percent(largest[0])} here ({largest[1]}), "
             f"{percent(float(np.median([s for s, _ in spreads])))} on the median point. Two "
-            "speeds differ measurably when the ranges of their rounds (min-max) do not "
-            "overlap.")
+            "speeds are compared round by round: one differs measurably from the other when "
+            "it is faster in every round (by chance one time in "
+            f"{2 ** rounds:,} with {rounds} rounds). The ratio of two points' speeds spreads "
+            f"over the rounds by {percent(float(np.median(paired)))} for the median pair "
+            "((max - min) / median ratio).")
 
 
 def _plot(path, rows):
@@ -119,6 +128,38 @@ def _plot(path, rows):
     pyplot.close(figure)
 
 
+def _machine(row):
+    """The machine record of ``row``'s provenance (where and as it ran), {} without one."""
+    return (row.get("provenance") or {}).get("machine") or {}
+
+
+def _threads(rows):
+    """The torch threads the sweep's points recorded (their provenance), in words."""
+    counts = sorted({str(_machine(r)["torch_threads"]) for r in rows
+                     if "torch_threads" in _machine(r)})
+    return (f"torch on {' or '.join(counts)} CPU thread(s)" if counts
+            else "torch's CPU threads not recorded")
+
+
+def _load(row):
+    """`` (load L)``: the machine's 1-minute load average as ``row``'s training ended, or
+    nothing where its provenance has none."""
+    load = _machine(row).get("load_average")
+    return f" (load {load[0]:.1f})" if load else ""
+
+
+def _load_text(rows):
+    """What a training time in the table is measured on and under."""
+    machines = sorted({f"{m['cpu']}, {m['cores']} cores" for m in map(_machine, rows)
+                       if "cpu" in m and "cores" in m})
+    if not machines:
+        return ("The points recorded neither machine nor load: their training times do not "
+                "compare.")
+    return ("Each point's training ran on " + "; ".join(machines) + ", and its time is given "
+            "with the machine's 1-minute load average as it ended: points trained in separate "
+            "runs beside other work, whose times compare only at like loads.")
+
+
 def point_label(row):
     """A point's settings in short: R32 L2 T16 F3 W64, and S<steps> once trained."""
     return (f"R{row['resolution']} L{row['levels']} T{row['log2_table_size']} "
@@ -145,17 +186,16 @@ def sweep_markdown(rows, presets, size, command, out, performance):
     (or why there are none, a text)."""
     relative = pathlib.Path(out).resolve().relative_to(
         pathlib.Path(performance).resolve().parent) if performance else out
-    import torch
-
     compared = [r for r in rows if r["speed_withheld"] is None]
     pixels = compared[0]["common_vs_true_compared_rays"] if compared else 0
     lines = [f"Command: `{command}`", "",
              f"The proposed variant on the `arm` scene: {size['poses']} random training poses "
              f"x {size['rays_per_pose']} rays, evaluated on {size['eval_poses']} development "
-             f"poses at {size['width']}x{size['height']}, torch on {torch.get_num_threads()} CPU "
-             "thread(s). One setting moves at a time from the base "
+             f"poses at {size['width']}x{size['height']}, {_threads(rows)}. "
+             "One setting moves at a time from the base "
              + ", ".join(f"{k} {v}" for k, v in size["base"].items()) + ".", "",
-             rule_text(size["convergence"]), "", timing_text(rows, size["speed_rounds"]), "",
+             rule_text(size["convergence"]) + " " + _load_text(rows), "",
+             timing_text(rows, size["speed_rounds"]), "",
              f"Only points that predict hits (hit IoU at least {SPEED_MIN_HIT_IOU} against "
              f"the true reference) have a speed, {len(compared)} of {len(rows)} here; their "
              f"distance and normal errors are taken over one common pixel set, the {pixels:,} "
@@ -181,7 +221,7 @@ def sweep_markdown(rows, presets, size, command, out, performance):
             f"{value(r['common_vs_true_normal_error_deg'], 3)}"
             f" / {value(r['common_vs_embedded_normal_error_deg'], 3)} | "
             f"{value(r['vs_true_hit_iou'])} | {percent(r['vs_true_false_negative_rate'])} / "
-            f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f} | "
+            f"{percent(r['vs_true_false_positive_rate'])} | {r['train_s']:.1f}{_load(r)} | "
             f"{_speed(r)} | {percent(speed_spread(r))} | {r['model_bytes']:,} |")
     lines += ["", f"![Pareto fronts]({relative}/pareto.png)", ""]
     if isinstance(presets, str):
@@ -204,8 +244,8 @@ def sweep_markdown(rows, presets, size, command, out, performance):
         lines.append(f"| {name} | " + " | ".join(str(preset[k]) for k in SETTINGS)
                      + f" | {value(measured[PRESET_ERROR])} | {_speed(measured)} |")
     for line in ([f"Dropped: {name}, {reason}." for name, reason in dropped.items()]
-                 or ["Dropped: none, every round of each preset was faster than every round "
-                     "of the next more accurate one."]):
+                 or ["Dropped: none, each preset was faster in every round than the next "
+                     "more accurate one."]):
         lines += ["", line]
     lines += ["", f"Raw figures: `{relative}/bench.csv`, `{relative}/bench.json`."]
     return lines
