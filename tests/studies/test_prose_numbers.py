@@ -172,6 +172,15 @@ def share_figure(d, scene, share, key, poses="development"):
 
 
 BF16 = "results/bfloat16.json"
+STAGES, NETBASE = "results/network-stages.json", "results/bench-network-baseline.json"
+
+
+def netbase(d, commit, key):
+    """A commit's median of bench-network-baseline.json's runs, then their smallest and
+    largest."""
+    values = sorted(run[key] for run in d["runs"][commit])
+    return [values[len(values) // 2], values[0], values[-1]]
+
 SHADED_DEV = "results/shaded-dev-meshes.json"
 
 
@@ -464,6 +473,39 @@ CLAIMS = [
               pct(spread_row(d, "arm/proposed", rate)[key])
               for rate in ("false_negative_rate", "false_positive_rate")
               for key in ("now_min", "now_max", "before_min", "before_max")]),
+    # ---- where the network's time goes
+    *(Claim(P, f"| {commit} | {{}} ({{}}-{{}}) | {{}} ({{}}-{{}}) |", NETBASE,
+            lambda d, commit=commit: [*netbase(d, commit, "infer_segments_per_s"),
+                                      *netbase(d, commit, "train_samples_per_s")])
+      for commit in ("6246eb6", "dc87ca5")),
+    Claim(P, "the same code moves by up to {}x between runs", NETBASE, lambda d: [
+        max(v[2] / v[1] for v in (netbase(d, c, k) for c in d["runs"]
+                                   for k in ("infer_segments_per_s", "train_samples_per_s")))]),
+    Claim(P, "| encoder (28 lookups of 8 corners) | {} | {} ns a lookup, {} with a 6 kB table "
+          "that stays in the L1 cache: the reads of the 1.5 MB table are {} % of it", STAGES,
+          lambda d: [d["ns"]["encoder"], d["encoder_ns_per_lookup"],
+                     d["encoder_small_table_ns_per_lookup"], pct(d["table_read_share"])]),
+    Claim(P, "| MLP, float32 ({} multiply-adds) | {} | {} GFLOP/s, {} % of a 2048x2048 matrix "
+          "product's {} on the same thread |", STAGES, lambda d: [
+              d["mlp_multiply_adds"], d["ns"]["mlp"], d["mlp_gflops"]["float32"],
+              pct(d["mlp_share_of_gemm"]["float32"]), d["gemm_gflops"]["float32"]]),
+    Claim(P, "| MLP, bfloat16 | {} | {} GFLOP/s, {} % of the product's {} |", STAGES,
+          lambda d: [d["ns"]["mlp_bfloat16"], d["mlp_gflops"]["bfloat16"],
+                     pct(d["mlp_share_of_gemm"]["bfloat16"]), d["gemm_gflops"]["bfloat16"]]),
+    Claim(P, "| readout of the heads | {} |", STAGES, lambda d: [d["ns"]["readout"]]),
+    Claim(P, "| normal field, per point | {} | its 3-level grid ({} multiply-adds) |", STAGES,
+          lambda d: [d["ns"]["normal_field"], d["field_multiply_adds"]["normal"]]),
+    Claim(P, "| albedo field, per point | {} | its 2-level grid ({} multiply-adds) |", STAGES,
+          lambda d: [d["ns"]["albedo_field"], d["field_multiply_adds"]["albedo"]]),
+    Claim(P, "about {} ns of arithmetic a lookup (hashing eight corners, the trilinear weights, "
+          "three features) against {} ns for all eight corner reads", STAGES, lambda d: [
+              d["encoder_small_table_ns_per_lookup"],
+              d["encoder_ns_per_lookup"] - d["encoder_small_table_ns_per_lookup"]]),
+    Claim(P, "28 lookups cost {} us a segment on one core, {} us on two, which alone caps "
+          "inference at about {} M segments/s on both cores before the MLP ({} us in float32, "
+          "{} in bfloat16)", STAGES, lambda d: [
+              d["ns"]["encoder"] / 1e3, d["ns"]["encoder"] / 2e3, 2e3 / d["ns"]["encoder"],
+              d["ns"]["mlp"] / 1e3, d["ns"]["mlp_bfloat16"] / 1e3]),
     Claim(R, "the bunny {} dB against {} and {} dB, spot {} against {} dB", SECONDARY,
           lambda d: [share_figure(d, scene, share, "shaded_psnr") for scene, share in (
               ("bunny", 0), ("bunny", 0.1), ("bunny", 0.2), ("spot", 0), ("spot", 0.1))]),

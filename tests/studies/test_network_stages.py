@@ -1,0 +1,43 @@
+"""tools/network_stages.py: the arithmetic it reports follows from the network's layers and
+the encoder's layout, counted here independently, and a short run gives every stage a time;
+absurd sizes end in one error line."""
+
+import pathlib
+
+import pytest
+import torch
+from tool_errors import load_tool, one_error_line
+
+from vdnif_addon.model.network import IntersectionNetwork
+from vdnif_addon.settings import Heads, NetworkConfig
+
+TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "network_stages.py"
+
+
+def test_the_counts_follow_from_the_layers_and_the_encoders_layout():
+    tool = load_tool(TOOL)
+    network = IntersectionNetwork(NetworkConfig(heads=Heads(albedo=True)))
+    # 84 encoded values, three hidden layers of 64, the heads' columns
+    weights = [p for name, p in network.mlp.named_parameters() if name.endswith("weight")]
+    assert tool.multiply_adds(network.mlp) == sum(w.shape[0] * w.shape[1] for w in weights)
+    assert tool.multiply_adds(torch.nn.Sequential(torch.nn.Linear(3, 5), torch.nn.ReLU(),
+                                                  torch.nn.Linear(5, 2))) == 25
+    # two end points, x and F sin / cos points each, one lookup per level
+    config = network.config
+    assert tool.lookups(network.encoder) == 2 * (1 + 2 * config.pe_bands) * config.levels == 28
+    assert network.encoder.output_dim == tool.lookups(network.encoder) * config.feature_dim
+
+
+def test_a_short_run_times_every_stage():
+    threads = torch.get_num_threads()
+    result = load_tool(TOOL).measure(segments=256, rounds=1)
+    assert torch.get_num_threads() == threads            # one thread within, as before after
+    assert set(result["ns"]) == {"encoder", "encoder_small_table", "mlp", "mlp_bfloat16",
+                                 "readout", "normal_field", "albedo_field"}
+    assert all(value > 0 for value in result["ns"].values())
+    assert result["encoder_ns_per_lookup"] == pytest.approx(result["ns"]["encoder"] / 28)
+    assert result["gemm_gflops"]["float32"] > 0 and result["table_read_share"] < 1
+
+
+def test_absurd_sizes_end_in_one_error_line():
+    assert "at least 1" in one_error_line(TOOL, ["--segments", "0"])
