@@ -273,7 +273,7 @@ def _chain_weights(obj, bones, axis, lo, hi):
     middle, blending linearly into the next bone's up to that one's middle.
 
     Blender's automatic weights (bone heat) leave a part of some meshes without any weight
-    (thin plates with holes, letters, horns on a ball: a third to a tenth of their vertices);
+    (thin plates with holes, letters, horns on a ball: 6-10 % of their vertices);
     an armature leaves such vertices where they are while their neighbours turn, which tears
     the surface. These weights depend on the place along the chain alone, so both faces of a
     thin part move alike and nothing tears."""
