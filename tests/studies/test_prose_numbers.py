@@ -498,6 +498,15 @@ CLAIMS = [
               d["ns"]["encoder"] / 1e3, d["ns"]["encoder"] / 2e3, 2e3 / d["ns"]["encoder"],
               d["ns"]["mlp"] / 1e3, d["ns"]["mlp_bfloat16"] / 1e3]),
     # ---- the procedural armature's weights
+    Claim(R, "picks {} voxels for the horns and {} for the text", "results/dev-meshes-auto.json",
+          lambda d: [d["runs"][m]["evaluate"]["resolution"] for m in ("horns", "text")]),
+    Claim(R, "the horns have {} % holes and {} % extras and the text {} % and {} % (`python",
+          "results/dev-meshes-auto.json", lambda d: [
+              pct(d["runs"][m]["evaluate"]["vs_true"][k]) for m in ("horns", "text")
+              for k in ("false_negative_rate", "false_positive_rate")]),
+    Claim(R, "Their 3,000 steps took {} s and {} s.", "results/dev-meshes-auto.json", lambda d: [
+        d["runs"][m]["train"]["train"]["seconds"] for m in ("horns", "text")]),
+
     Claim(R, "holes {} %, {} % and {} % against the true reference). The rig now", WEIGHTS,
           lambda d: [pct(retrained(d, m, BEFORE)["false_negative_rate"]) for m in TORN]),
     Claim(R, "the slab, the horns and the text misses {} %, {} % and {} % of the true hits, where "
@@ -512,7 +521,8 @@ CLAIMS = [
                      for w in (BEFORE, AFTER)]),
     Claim(R, "a pose of the horns still inverts up to {} cells", WEIGHTS, lambda d: [
         max(p["inverted_cells"] for p in torn_embedding(d, "horns", AFTER)["per_pose"])]),
-    Claim(R, "the horns have {} % holes and {} % extras and the text {} % and {} %", WEIGHTS,
+    Claim(R, "the horns have {} % holes and {} % extras and the text {} % and {} %, made by",
+          WEIGHTS,
           lambda d: [pct(retrained(d, m, AFTER, "test_embedded")[k]) for m in ("horns", "text")
                      for k in ("false_negative_rate", "false_positive_rate")]),
     Claim(R, "the bunny {} dB against {} and {} dB, spot {} against {} dB", SECONDARY,
