@@ -509,6 +509,14 @@ CLAIMS = [
               e["resolution"], pct(e["vs_true"]["false_negative_rate"]),
               pct(e["vs_true"]["false_positive_rate"])])(
                   d["runs"]["creature, seed 1"]["evaluate"])),
+    Claim(R, "the neural render ran at {} against {} rays/s on the horns, {} against {} on the "
+          "text and {} against {} on the creature (medians; the rounds of one model spread by "
+          "up to {} %)", "results/dev-meshes-auto-cost.json", lambda d: [
+              *(statistics.median(r["timings"]["render_rays_per_s"] for r in d["runs"][
+                  f"{m}/{k}"]) for m in ("horns", "text", "creature") for k in ("auto", "32")),
+              max(pct((max(x) - min(x)) / statistics.median(x)) for x in (
+                  [r["timings"]["render_rays_per_s"] for r in rounds]
+                  for rounds in d["runs"].values()))]),
     Claim(R, "Their 3,000 steps took {} s and {} s.", "results/dev-meshes-auto.json", lambda d: [
         d["runs"][m]["train"]["train"]["seconds"] for m in ("horns", "text")]),
 
