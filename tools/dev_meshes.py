@@ -305,9 +305,35 @@ def build(name):
     return globals()[name]()
 
 
+def _canonical(obj):
+    """``obj`` with its vertices in the order of their coordinates and its faces in the order
+    of their vertices (each starting at its lowest, winding kept): Blender's boolean returns
+    the same surface in another order from run to run, and a model names the mesh it was
+    trained on by its vertices and faces in order."""
+    mesh = obj.data
+    co = np.empty(len(mesh.vertices) * 3)
+    mesh.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    order = np.lexsort((co[:, 2], co[:, 1], co[:, 0]))
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    faces = []
+    for polygon in mesh.polygons:
+        ring = [int(rank[v]) for v in polygon.vertices]
+        first = ring.index(min(ring))
+        faces.append((tuple(ring[first:] + ring[:first]), polygon.use_smooth))
+    faces.sort()
+    canonical = bpy.data.meshes.new(mesh.name)
+    canonical.from_pydata(co[order].tolist(), [], [ring for ring, _ in faces])
+    canonical.polygons.foreach_set("use_smooth", [smooth for _, smooth in faces])
+    name = obj.name
+    bpy.data.objects.remove(obj)
+    return _link(name, canonical)
+
+
 def write(name, path):
-    """Writes mesh ``name`` as an OBJ file at ``path``."""
-    obj = build(name)
+    """Writes mesh ``name`` as an OBJ file at ``path``, in a canonical order (``_canonical``)."""
+    obj = _canonical(build(name))
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     for other in bpy.data.objects:
