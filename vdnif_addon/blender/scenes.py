@@ -211,12 +211,17 @@ def _local_bounds(obj):
     vertex does not stretch the rig)."""
     from ..geometry.framing import framing_bounds
 
-    co = np.empty(len(obj.data.vertices) * 3)
-    obj.data.vertices.foreach_get("co", co)
     obj.data.calc_loop_triangles()
     triangles = np.empty(len(obj.data.loop_triangles) * 3, np.int64)
     obj.data.loop_triangles.foreach_get("vertices", triangles)
-    return framing_bounds(co.reshape(-1, 3), triangles.reshape(-1, 3))
+    return framing_bounds(_local_vertices(obj), triangles.reshape(-1, 3))
+
+
+def _local_vertices(obj):
+    """(V, 3) the mesh's vertex coordinates in its object's space."""
+    co = np.empty(len(obj.data.vertices) * 3)
+    obj.data.vertices.foreach_get("co", co)
+    return co.reshape(-1, 3)
 
 
 def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
@@ -273,16 +278,13 @@ def _chain_weights(obj, bones, axis, lo, hi):
     middle, blending linearly into the next bone's up to that one's middle.
 
     Blender's automatic weights (bone heat) leave a part of some meshes without any weight
-    (thin plates with holes, letters, horns on a ball: 6-10 % of their vertices);
-    an armature leaves such vertices where they are while their neighbours turn, which tears
-    the surface. These weights depend on the place along the chain alone, so both faces of a
-    thin part move alike and nothing tears."""
-    co = np.empty(len(obj.data.vertices) * 3)
-    obj.data.vertices.foreach_get("co", co)
-    place = (co.reshape(-1, 3)[:, axis] - lo) / max(hi - lo, 1e-30) * bones - 0.5
+    (thin plates with holes, letters, horns on a ball; docs/results.md, "Development
+    meshes"); an armature leaves such vertices where they are while their neighbours turn,
+    which tears the surface. These weights depend on the place along the chain alone, so
+    both faces of a thin part move alike and nothing tears."""
+    place = (_local_vertices(obj)[:, axis] - lo) / max(hi - lo, 1e-30) * bones - 0.5
     place = np.clip(place, 0.0, bones - 1.0)
-    first = np.minimum(np.floor(place).astype(int), bones - 2) if bones > 1 else np.zeros(
-        len(place), int)
+    first = np.clip(np.floor(place).astype(int), 0, max(bones - 2, 0))
     share = place - first
     everyone = list(range(len(place)))
     for index in range(bones):
@@ -290,8 +292,8 @@ def _chain_weights(obj, bones, axis, lo, hi):
         group = obj.vertex_groups.get(name) or obj.vertex_groups.new(name=name)
         group.remove(everyone)
         weight = np.where(first == index, 1.0 - share, np.where(first + 1 == index, share, 0.0))
-        for value in np.unique(weight[weight > 0]):
-            group.add(np.flatnonzero(weight == value).tolist(), float(value), "REPLACE")
+        for vertex in np.flatnonzero(weight > 0):
+            group.add([int(vertex)], float(weight[vertex]), "REPLACE")
 
 
 def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
