@@ -475,6 +475,9 @@ def test_sweep_compares_and_plots_only_points_that_predict_hits(tmp_path):
     assert "torch's CPU threads not recorded" in text
     assert "recorded neither machine nor load: their training times do not compare" in text
     assert "| 10.0 | 3,000 (2,900-3,150)" in text
+    # one timed point has no pair: its noise is said, no ratio's spread
+    alone = bench_report.timing_text(rows[:1], 3)
+    assert "at most 8.33 % here" in alone and "ratio" not in alone and "nan" not in alone
     assert "| 1,000 (990-1,010) | 2 % | 1,000 |" in text and "| n/a | n/a | 1,000 |" in text
     # a balanced nearer the two-point front than any other, but slower than accurate:
     # dropped, and the section says why

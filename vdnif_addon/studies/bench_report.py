@@ -74,13 +74,15 @@ def timing_text(rows, rounds):
     paired = [np.ptp(ratios) / np.median(ratios)
               for a, b in itertools.combinations(rows, 2)
               if (ratios := round_ratios(a, b)) is not None]
+    # a single timed point has no pair to spread
+    pairs = (f" The ratio of two points' speeds spreads over the rounds by "
+             f"{percent(float(np.median(paired)))} for the median pair ((max - min) / median "
+             "ratio)." if paired else "")
     return (protocol + f": at most {percent(largest[0])} here ({largest[1]}), "
             f"{percent(float(np.median([s for s, _ in spreads])))} on the median point. Two "
             "speeds are compared round by round: one differs measurably from the other when "
             "it is faster in every round (by chance one time in "
-            f"{2 ** rounds:,} with {rounds} rounds). The ratio of two points' speeds spreads "
-            f"over the rounds by {percent(float(np.median(paired)))} for the median pair "
-            "((max - min) / median ratio).")
+            f"{2 ** rounds:,} with {rounds} rounds)." + pairs)
 
 
 def _plot(path, rows):

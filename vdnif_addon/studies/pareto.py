@@ -63,9 +63,10 @@ def round_ratios(point: dict[str, Any], other: dict[str, Any]) -> list[float] | 
 def measurably_faster(point: dict[str, Any], other: dict[str, Any]) -> bool:
     """Whether ``point``'s speed differs measurably from ``other``'s, and is the faster: it
     is faster in every timing round (``round_ratios`` all above 1). A point's rounds spread
-    by 20-40 % on a quiet 2-core VM, so ranges of rounds overlap where one point is faster
-    in every round; if neither were faster, each round would favour either as a coin toss,
-    and all of 7 rounds one way would happen once in 128. Points without rounds of the same
+    widely on a shared VM (the sweep's section of docs/performance.md says how widely), so
+    ranges of rounds overlap where one point is faster in every round; if neither were
+    faster, each round would favour either as a coin toss, and all of n rounds one way would
+    happen once in 2^n. Points without rounds of the same
     sweep cannot be shown to differ: False. Two points differ measurably when either is
     measurably faster than the other."""
     ratios = round_ratios(point, other)
