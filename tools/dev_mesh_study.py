@@ -57,9 +57,9 @@ def mesh_table():
     raise VDNIFError(f"no MESHES table in '{MESHES_TOOL}'")
 
 
-def run_mesh(mesh, seed, out, images=None, keep=None):
-    """Builds, trains and evaluates ``mesh`` at training seed ``seed``; writes
-    ``out/MESH-seedS.json``."""
+def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
+    """Builds, trains and evaluates ``mesh`` at training seed ``seed`` (and ``--resolution
+    resolution`` where given, else the default); writes ``out/MESH-seedS.json``."""
     from vdnif_addon.threads import default_threads, machine_cores
 
     rig = mesh_table()[mesh][0]
@@ -78,12 +78,14 @@ def run_mesh(mesh, seed, out, images=None, keep=None):
             raise VDNIFError(f"'{kept_mesh}' exists and is not the mesh '{mesh}' the study "
                              "builds; the study does not replace it")
         options = ["--mesh", str(path), "--rig", rig]
+        chosen = [] if resolution is None else ["--resolution", str(resolution)]
         model, summary, report = (folder / name for name in (
             "model.vdnif", "train.json", "evaluate.json"))
         commit, load_before = _commit(), os.getloadavg()
         start = time.perf_counter()
-        subprocess.run([*BATCH, "train", *options, "--seed", str(seed), "--out", str(model),
-                        "--json", str(summary)], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run([*BATCH, "train", *options, *chosen, "--seed", str(seed), "--out",
+                        str(model), "--json", str(summary)], check=True,
+                       stdout=subprocess.DEVNULL)
         train_s = time.perf_counter() - start
         figures_out = ["--out", str(pathlib.Path(images) / f"{mesh}-seed{seed}")] if images \
             else []
@@ -105,7 +107,10 @@ def run_mesh(mesh, seed, out, images=None, keep=None):
             shutil.copyfile(model, kept)
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
     row = {"mesh": mesh, "rig": rig, "seed": seed,
-           "command": ["train", "--mesh", f"{mesh}.obj", "--rig", rig, "--seed", str(seed)],
+           "command": ["train", "--mesh", f"{mesh}.obj", "--rig", rig, *chosen, "--seed",
+                       str(seed)],
+           "resolution": evaluated.get("resolution"),
+           "resolution_suggestion": trained.get("resolution_suggestion"),
            "evaluation": [*EVALUATION, "--pose-set", "test", "--seed", "0"],
            "training": {"wall_s": train_s, "status": trained["train"]["status"],
                         "steps": trained["train"]["steps"], "segments": trained["segments"]},
@@ -199,6 +204,7 @@ def main(argv):
     run.add_argument("--out", type=pathlib.Path, required=True, help="folder of MESH-seedS.json")
     run.add_argument("--images", type=pathlib.Path, help="keep evaluate's images here")
     run.add_argument("--keep", type=pathlib.Path, help="keep the meshes and models here")
+    run.add_argument("--resolution", help="train's --resolution (default: train's default)")
     show = commands.add_parser("table", help="the Markdown table of a run folder")
     show.add_argument("folder", type=pathlib.Path)
     show.add_argument("--json", type=pathlib.Path, default=DEFAULT_JSON,
@@ -222,7 +228,7 @@ def main(argv):
         return
     for mesh in args.mesh:
         for seed in args.seed or [0]:
-            run_mesh(mesh, seed, args.out, args.images, args.keep)
+            run_mesh(mesh, seed, args.out, args.images, args.keep, args.resolution)
 
 
 if __name__ == "__main__":
