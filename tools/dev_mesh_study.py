@@ -176,15 +176,17 @@ def table(folder, json_path=None):
         json_path = pathlib.Path(json_path)
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(rows, indent=1))
-    lines = ["| mesh | rig | seed | holes | extras | clean | against the embedded reference: "
-             "holes / extras | training wall (s) | steps | load average (1 min) before / after |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = ["| mesh | rig | seed | resolution | holes | extras | clean | against the embedded "
+             "reference: holes / extras | training wall (s) | steps | load average (1 min) "
+             "before / after |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for row in rows:
         holes = row["test"]["false_negative_rate"]
         extras = row["test"]["false_positive_rate"]
         embedded = row.get("test_embedded")
         lines.append(
-            f"| {row['mesh']} | {row['rig']} | {row['seed']} | {100 * holes:.3g} % | "
+            f"| {row['mesh']} | {row['rig']} | {row['seed']} | "
+            f"{row.get('resolution') or 'not recorded'} | {100 * holes:.3g} % | "
             f"{100 * extras:.3g} % | {'yes' if is_clean(holes, extras) else 'no'} | " + (
                 f"{100 * embedded['false_negative_rate']:.3g} % / "
                 f"{100 * embedded['false_positive_rate']:.3g} % | " if embedded

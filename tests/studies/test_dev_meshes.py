@@ -124,6 +124,7 @@ def test_the_table_gives_the_clean_verdict_of_each_run(tmp_path):
         row = _row(mesh, seed, holes, extras)
         if mesh == "torus":
             row["test_embedded"] = {"false_negative_rate": 0.0012, "false_positive_rate": 0.003}
+            row["resolution"] = 48          # what the model trained at (older runs: none)
         (runs / f"{mesh}-seed{seed}.json").write_text(json.dumps(row))
     combined = tmp_path / "combined.json"
     lines = load_tool(STUDY_TOOL).table(runs, combined).splitlines()
@@ -131,11 +132,13 @@ def test_the_table_gives_the_clean_verdict_of_each_run(tmp_path):
     assert [tuple(cell.strip() for cell in line.split("|")[1:4]) for line in lines[2:]] == [
         ("text", "armature", "0"), ("shell", "armature", "0"), ("shell", "armature", "1"),
         ("torus", "armature", "2")]
-    verdicts = {(line.split("|")[1].strip(), int(line.split("|")[3])): line.split("|")[6].strip()
+    verdicts = {(line.split("|")[1].strip(), int(line.split("|")[3])): line.split("|")[7].strip()
                 for line in lines[2:]}
     assert verdicts == {key: verdict for key, (_, _, verdict) in cases.items()}
-    # The model against the embedded reference, where a run recorded it.
-    assert [line.split("|")[7].strip() for line in lines[2:]] == [
+    # The resolution and the model against the embedded reference, where a run recorded them.
+    assert [line.split("|")[4].strip() for line in lines[2:]] == [
+        "not recorded", "not recorded", "not recorded", "48"]
+    assert [line.split("|")[8].strip() for line in lines[2:]] == [
         "not recorded", "not recorded", "not recorded", "0.12 % / 0.3 %"]
     assert len(json.loads(combined.read_text())) == len(cases)
 
