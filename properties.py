@@ -33,6 +33,28 @@ def _variant_changed(settings: "VDNIFSettings", _context: bpy.types.Context) -> 
 _UPDATES = {"variant": _variant_changed}
 """Panel properties that act when they change."""
 
+SUGGESTED_BY_DEFAULT = (declared.RESOLUTION.option.default_for(declared.RESOLUTION, "train")
+                        == declared.AUTO_RESOLUTION)
+"""Whether a run from scratch suggests the resolution unless told: as ``train`` does."""
+
+
+_SUGGEST_KEY = "resolution_auto_set"
+"""Where Suggest's value is kept once set (an ID property of the object's settings)."""
+
+
+def _suggests(settings: "VDNIFSettings") -> bool:
+    """Suggest's value. An object whose resolution was set before the toggle was (by a .blend
+    of an earlier version, where a resolution was always the user's) reads it as off, so that
+    its resolution is never replaced."""
+    stored = settings.get(_SUGGEST_KEY)
+    if stored is not None:
+        return bool(stored)
+    return SUGGESTED_BY_DEFAULT and "resolution" not in settings.keys()
+
+
+def _set_suggests(settings: "VDNIFSettings", value: bool) -> None:
+    settings[_SUGGEST_KEY] = bool(value)
+
 
 def declared_property(setting: declared.Setting, panel: declared.Panel) -> object:
     """The Blender property that ``panel`` declares for ``setting``: its type from the
@@ -111,6 +133,10 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     metrics: StringProperty(options={"HIDDEN"},
                             description="The last evaluation's report (JSON)")
     voxel_info: StringProperty(options={"HIDDEN"}, description="What Voxelize found")
+    resolution_auto: BoolProperty(
+        name="Suggest", default=SUGGESTED_BY_DEFAULT, get=_suggests, set=_set_suggests,
+        description="Train, Generate Dataset and Estimate suggest the voxel resolution first "
+                    "(as the magnifier does) and train at it; off: the resolution set here")
     resolution_info: StringProperty(options={"HIDDEN"},
                                     description="Why the suggested resolution was chosen")
     dataset_info: StringProperty(options={"HIDDEN"},
@@ -176,15 +202,17 @@ class VDNIFSettings(bpy.types.PropertyGroup):
     def apply_preset(self, preset: dict[str, object]) -> None:
         """Takes every setting of a preset (an entry of ``presets.load_presets``), whole: the
         variant it was measured with first, then its own settings, the positional bands
-        included."""
+        and its resolution (Suggest off) included."""
         self.variant = PRESET_VARIANT
+        self.resolution_auto = False        # a preset was measured at its own resolution
         for name in PRESET_SETTINGS:
             setattr(self, name, preset[name])
 
     def adopt(self, metadata: object) -> None:
-        """Takes the variant, resolution and network settings of a loaded model (its
-        ``ModelMetadata``)."""
+        """Takes the variant, resolution (Suggest off) and network settings of a loaded model
+        (its ``ModelMetadata``)."""
         self.variant = metadata.variant
+        self.resolution_auto = False        # training again keeps the model's resolution
         self.resolution = metadata.grid.resolution
         network = metadata.network_config
         for name in NETWORK_FIELDS:

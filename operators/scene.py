@@ -32,6 +32,40 @@ class VDNIF_OT_voxelize(VDNIFOperator, bpy.types.Operator):
         return f"'{obj.name}': {settings.voxel_info}"
 
 
+def suggestion_stage(name, kept=""):
+    """Suggests the voxel resolution of object ``name`` for its pose settings
+    (``ui_jobs.suggestion_job``) into its resolution field; ``kept``: what a cancel or
+    failure leaves, said after its message."""
+
+    def make():
+        from ..vdnif_addon.blender.resolution import resolution_floor
+        from ..vdnif_addon.blender.ui_jobs import suggestion_job
+        from ..vdnif_addon.settings import RESOLUTION_CANDIDATES
+
+        obj = bpy.data.objects[name]
+        floor = resolution_floor(obj)          # reads the rest mesh: on the main thread
+        return suggestion_job(obj, obj.vdnif.pose_spec(), None, floor, RESOLUTION_CANDIDATES)
+
+    def finish(obj, state):
+        outcome(state)
+        if state.status != "completed":
+            return f"'{obj.name}': {state.message}{kept}"
+        settings, suggestion = obj.vdnif, state.result
+        suggests = settings.resolution_auto       # a resolution set reads as the user's
+        settings.resolution = suggestion.resolution
+        settings.resolution_auto = suggests
+        settings.resolution_info = f"suggested {suggestion.describe()}"
+        return f"'{obj.name}': {settings.resolution_info}"
+
+    return Stage(make, finish)
+
+
+def suggested_first(obj, kept=""):
+    """The suggestion's stage where the object's resolution is suggested (Suggest on), else
+    nothing: what a run from scratch does before it captures."""
+    return [suggestion_stage(obj.name, kept)] if obj.vdnif.resolution_auto else []
+
+
 class VDNIF_OT_suggest_resolution(JobOperator, bpy.types.Operator):
     """Set the coarsest voxel resolution whose embedding error is close to the best candidate's,
     finer where parts are thin (measured on a few poses at each candidate). Esc cancels"""
@@ -41,27 +75,7 @@ class VDNIF_OT_suggest_resolution(JobOperator, bpy.types.Operator):
     needs = ("mesh", "idle")
 
     def stages(self, context, obj):
-        from ..vdnif_addon.blender.resolution import resolution_floor
-        from ..vdnif_addon.settings import RESOLUTION_CANDIDATES
-
-        floor = resolution_floor(obj)          # reads the rest mesh: on the main thread
-
-        def make():
-            from ..vdnif_addon.blender.ui_jobs import suggestion_job
-
-            return suggestion_job(obj, obj.vdnif.pose_spec(), None, floor,
-                                  RESOLUTION_CANDIDATES)
-
-        def finish(obj, state):
-            outcome(state)
-            if state.status != "completed":
-                return f"'{obj.name}': {state.message}"
-            settings, suggestion = obj.vdnif, state.result
-            settings.resolution = suggestion.resolution
-            settings.resolution_info = f"suggested {suggestion.describe()}"
-            return f"'{obj.name}': {settings.resolution_info}"
-
-        return [Stage(make, finish)]
+        return [suggestion_stage(obj.name)]
 
 
 def dataset_settings(obj):
@@ -97,11 +111,12 @@ def follow_stage(name, made, kept=""):
 
 
 def dataset_stages(context, obj, choice=None):
-    """Generates the object's dataset (``ui_jobs.dataset_job``) after choosing how its
-    corners follow it (``follow_stage``; ``choice``: the FollowChoice measured already for
-    these settings, by the estimate): the poses are captured on the main thread, walked in
-    the worker; a cancel keeps the previous dataset. What it records is what it was made
-    with, whatever the settings became meanwhile."""
+    """Generates the object's dataset (``ui_jobs.dataset_job``) after suggesting its
+    resolution where it is suggested and choosing how its corners follow it
+    (``follow_stage``; ``choice``: the FollowChoice measured already for these settings, by
+    the estimate, which suggested the resolution before it): the poses are captured on the
+    main thread, walked in the worker; a cancel keeps the previous dataset. What it records
+    is what it was made with, whatever the settings became meanwhile."""
     name, made = obj.name, {"choice": choice}
 
     def make():
@@ -140,8 +155,10 @@ def dataset_stages(context, obj, choice=None):
                 f"{choice.follow}" + (f" (chosen in {choice.seconds:.1f} s)" if choice.errors
                                       else ""))
 
-    first = [] if choice is not None else [
-        follow_stage(name, made, "; the previous dataset is kept")]
+    # An estimate measured for these settings (``choice``) suggested the resolution already.
+    kept = "; the previous dataset is kept"
+    first = [] if choice is not None else [*suggested_first(obj, kept),
+                                           follow_stage(name, made, kept)]
     return first + [Stage(make, finish)]
 
 

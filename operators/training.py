@@ -10,7 +10,7 @@ from bpy.props import BoolProperty
 
 from .. import storage, viewer
 from .running import JobOperator, Stage, handed_over, outcome
-from .scene import dataset_settings, dataset_stages, follow_stage
+from .scene import dataset_settings, dataset_stages, follow_stage, suggested_first
 
 
 def needs_dataset(obj):
@@ -87,16 +87,19 @@ def kept_choice(context, obj):
 
 
 def estimate_stages(context, obj):
-    """Measures what a run from scratch costs (``estimate``), kept in the settings, with the
+    """Measures what a run from scratch costs (``estimate``), kept in the settings, at the
+    resolution that run trains at (suggested first where it is suggested) and with the
     corners following as that run's would (``follow_stage``; the choice is kept with the
     estimate, and the run's dataset takes it from there)."""
-    name, settings, made = obj.name, run_settings(context, obj), {}
+    name, made = obj.name, {}
 
     def make():
         from ..vdnif_addon.blender.capture_scene import capture
         from ..vdnif_addon.blender.ui_jobs import estimate_job
 
         obj = bpy.data.objects[name]
+        # read after the suggestion, which sets the resolution the estimate is measured at
+        made["settings"] = settings = run_settings(bpy.context, obj)
         chosen = obj.vdnif
         variant, _ = chosen.chosen_variant()
         captured = capture(obj, chosen.resolution, chosen.pose_spec(), deform_corners=False,
@@ -109,11 +112,11 @@ def estimate_stages(context, obj):
         outcome(state)
         if state.status == "completed":
             obj.vdnif.estimate_info = json.dumps({
-                "settings": settings, "figures": state.result,
+                "settings": made["settings"], "figures": state.result,
                 "corners_follow": dataclasses.asdict(made["choice"])})
         return f"'{obj.name}': {state.message}"
 
-    return [follow_stage(name, made), Stage(make, finish)]
+    return [*suggested_first(obj), follow_stage(name, made), Stage(make, finish)]
 
 
 class VDNIF_OT_estimate(JobOperator, bpy.types.Operator):

@@ -142,7 +142,10 @@ class VDNIF_PT_voxels(StepPanel, bpy.types.Panel):
 
     def draw_step(self, layout, context, settings):
         row = layout.row(align=True)
-        row.prop(settings, "resolution")
+        field = row.row(align=True)
+        field.enabled = not settings.resolution_auto      # set by the suggestion while on
+        field.prop(settings, "resolution")
+        row.prop(settings, "resolution_auto", toggle=True)
         row.operator(VDNIF_OT_suggest_resolution.bl_idname, text="", icon="VIEWZOOM")
         if settings.resolution_info:
             lines(layout, settings.resolution_info)

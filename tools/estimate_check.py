@@ -36,7 +36,9 @@ def check_scene(scene, train_options):
     from vdnif_addon.posed import estimate as estimates
     from vdnif_addon.training.fit import fit_model
 
-    args = build_parser().parse_args(["train", "--scene", scene, *train_options])
+    # the recipe's fixed resolution unless given: the one its table was measured at
+    resolution = [] if "--resolution" in train_options else ["--resolution", "recipe"]
+    args = build_parser().parse_args(["train", "--scene", scene, *resolution, *train_options])
     obj, spec = load_posed_scene(args)
     captured = training_capture(obj, args.resolution, spec)    # as train captures it
     variant, _ = choose_variant(args.variant, captured.mode == "static")

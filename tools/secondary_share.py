@@ -31,6 +31,7 @@ from resolution_table import BATCH  # noqa: E402
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.settings import RECIPE_RESOLUTION  # noqa: E402
 from vdnif_addon.text import percent  # noqa: E402
 from vdnif_addon.text import value as text_value  # noqa: E402
 
@@ -44,8 +45,9 @@ def commands(scene, share, folder):
     evaluation per pose set), each an argument list after ``batch.py --``."""
     folder = pathlib.Path(folder)
     data, model = folder / "data", folder / "M.vdnif"
-    return ([["dataset", "--scene", scene, "--secondary-fraction", str(share), "--out",
-              str(data)],
+    # the recipe's fixed resolution, which the study's table was measured at
+    return ([["dataset", "--scene", scene, "--secondary-fraction", str(share), "--resolution",
+              RECIPE_RESOLUTION, "--out", str(data)],
              ["train", "--data", str(data), "--out", str(model), "--json",
               str(folder / "train.json")]]
             + [["evaluate", "--model", str(model), "--scene", scene, *EVALUATION,

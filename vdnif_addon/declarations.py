@@ -43,7 +43,8 @@ class Option:
     ``parse_choices`` is false takes any word and is refused by the validation with the
     choices named (the network options, all None until the variant fills them). ``label``
     names the option in range errors (the flag unless given); ``group`` the set of options it
-    belongs to where the command adds them together (``NETWORK_GROUP``)."""
+    belongs to where the command adds them together (``NETWORK_GROUP``); ``words`` the values
+    a number option takes besides a number, each resolved by the command."""
 
     flag: str
     commands: tuple[str, ...]
@@ -55,6 +56,7 @@ class Option:
     label: str | None = None
     choices: tuple[str, ...] | None = None
     group: str = ""
+    words: tuple[str, ...] = ()
 
     def names(self, setting: Setting) -> tuple[str, ...]:
         """The words the option takes: its own ``choices``, else the setting's."""
@@ -142,9 +144,18 @@ _POSE_COUNT = (1, limits.MAX_POSES)
 EVALUATION_POSES = Setting(
     "evaluation_poses", int, 8, "unseen poses a model is evaluated on", *_POSE_COUNT,
     panel=(Panel("eval_poses", "Evaluation Poses", "Unseen poses the model is evaluated on"),))
+AUTO_RESOLUTION = "auto"
+"""``--resolution auto``: the resolution suggested for the scene (``blender/resolution.py``),
+the default of the commands that read a scene. The setting's own default is the recipe's
+fixed resolution: the panel's field, and what the paper's experiments train at."""
+RECIPE_RESOLUTION = "recipe"
+"""``--resolution recipe``: the recipe's fixed resolution for the mesh (``Recipe.resolution_for``),
+as the paper's experiments train."""
 RESOLUTION = Setting(
     "resolution", int, 32, "voxels along the longest side", 4, 256,
-    option=Option("--resolution", (*POSE_COMMANDS, "side-by-side"), "R", default=None),
+    option=Option("--resolution", (*POSE_COMMANDS, "side-by-side"), "R", default=None,
+                  per_command=tuple((command, AUTO_RESOLUTION) for command in SCENE_COMMANDS),
+                  words=(AUTO_RESOLUTION, RECIPE_RESOLUTION)),
     panel=(Panel("resolution", "Voxel Resolution", "Voxels along the object's longest side: "
                  "more follow finer detail and bends, and make the dataset larger"),))
 POSES = Setting(

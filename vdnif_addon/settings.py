@@ -139,8 +139,8 @@ DEFAULT_WEIGHTING_START = "equal"
 """The recipe's start (``TrainConfig.weighting_start`` says why); the paper names none."""
 PE_SCALES = dict(zip(declared.PE_FORM.names, (1.0, math.pi), strict=True))
 """``pe_form`` -> frequency scale s in ``sin(2^k s x)``: the paper's form and PEPS's."""
-AUTO_RESOLUTION = "auto"
-"""``--resolution auto``: the suggested resolution of the scene."""
+AUTO_RESOLUTION, RECIPE_RESOLUTION = declared.AUTO_RESOLUTION, declared.RECIPE_RESOLUTION
+"""``--resolution auto``: the suggested resolution of the scene; ``recipe``: the recipe's."""
 
 # --------------------------------------------------------------------------- ranges
 

@@ -131,20 +131,25 @@ def spot(empty_scene, core):
     return core("blender.scenes").demo_scene("spot")
 
 
-def test_a_textured_mesh_trains_at_the_recipes_textured_resolution(spot, core):
+def test_a_textured_mesh_is_never_suggested_coarser_than_the_recipes_textured_resolution(spot,
+                                                                                         core):
     build_parser, RECIPE = core("cli").build_parser, core("settings").RECIPE
     load_posed_scene = core("cli.options").load_posed_scene
 
     kinds = {albedo.kind for albedo in core("blender.read_mesh").read_rest_mesh(spot).albedo}
     assert "texture" in kinds and RECIPE.textured_resolution > RECIPE.resolution
     assert core("blender.resolution").recipe_resolution(spot) == RECIPE.textured_resolution
-    # A command without --resolution takes it once the mesh is read; a given one stays.
-    # (The command builds the scene again: ``spot`` is gone after it.)
-    name, args = spot.name, build_parser().parse_args(["capture", "--scene", "spot"])
-    assert args.resolution is None
+    # A scene command without --resolution suggests one (test_a_suggested_resolution_...);
+    # a given one stays. (The command builds the scene again: ``spot`` is gone after it.)
+    for command in ("capture", "dataset", "references", "train"):
+        args = build_parser().parse_args([command, "--scene", "spot"]
+                                         + (["--out", "d"] if command == "dataset" else []))
+        assert args.resolution == core("settings").AUTO_RESOLUTION, command
+    # ``recipe`` is the recipe's, which the paper's experiments train at.
+    name = spot.name
+    args = build_parser().parse_args(["capture", "--scene", "spot", "--resolution", "recipe"])
     spot = load_posed_scene(args)[0]
-    assert spot.name == name
-    assert args.resolution == RECIPE.textured_resolution
+    assert spot.name == name and args.resolution == RECIPE.textured_resolution
     args = build_parser().parse_args(["capture", "--scene", "spot", "--resolution", "24"])
     spot = load_posed_scene(args)[0]
     assert args.resolution == 24
@@ -155,13 +160,18 @@ def test_a_textured_mesh_trains_at_the_recipes_textured_resolution(spot, core):
     assert suggestion.resolution == 16 and [row["resolution"] for row in suggestion.table] == [16]
 
 
-def test_an_untextured_mesh_trains_at_the_recipes_resolution(arm, core):
+def test_an_untextured_mesh_has_the_recipes_resolution_and_a_floor_holds(arm, core):
     build_parser, RECIPE = core("cli").build_parser, core("settings").RECIPE
     load_posed_scene = core("cli.options").load_posed_scene
 
     assert core("blender.resolution").recipe_resolution(arm) == RECIPE.resolution
-    args = build_parser().parse_args(["capture", "--scene", "arm"])
+    # A model command's resolution is the model's unless given (test_cli_models).
+    args = build_parser().parse_args(["evaluate", "--scene", "arm", "--model", "m.vdnif"])
+    assert args.resolution is None
     arm = load_posed_scene(args)[0]                      # the scene built again
+    assert args.resolution is None
+    args = build_parser().parse_args(["capture", "--scene", "arm", "--resolution", "recipe"])
+    arm = load_posed_scene(args)[0]
     assert args.resolution == RECIPE.resolution
     # A given floor holds: nothing under it is tried.
     spec = core("blender.poses").PoseSpec(count=1)

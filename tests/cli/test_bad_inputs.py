@@ -46,7 +46,7 @@ CASES = [
     ("capture-resolution-huge", "capture --resolution 100000", r"resolution 100000 is outside",
      "proc"),
     ("capture-resolution-text", "capture --resolution abc",
-     r"--resolution: expected an integer or 'auto', got 'abc'", "proc"),
+     r"--resolution: expected an integer, 'auto' or 'recipe', got 'abc'", "proc"),
     ("capture-poses-zero", "capture --poses 0", r"--poses 0 must be at least 1", "proc"),
     ("capture-poses-huge", "capture --poses 10000000", r"--poses 10000000 is more than", "proc"),
     ("capture-max-angle-nan", "capture --max-angle nan", r"--max-angle nan must be a number in",

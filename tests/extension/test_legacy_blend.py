@@ -23,6 +23,8 @@ def test_a_blend_saved_by_an_older_version_keeps_its_settings_and_model(extensio
     settings = obj.vdnif
     names = {prop.identifier for prop in settings.bl_rna.properties}
     assert set(expected["settings"]) <= names, "a saved setting has no property today"
+    # Its resolution was the user's: training after the upgrade keeps it, not a suggestion.
+    assert "resolution" in expected["settings"] and not settings.resolution_auto
     for name, value in expected["settings"].items():
         now = getattr(settings, name)
         if isinstance(value, float):

@@ -35,10 +35,12 @@ def test_presets_set_the_objects_settings_and_a_bad_file_is_reported(empty_scene
     monkeypatch.setattr(presets, "PRESETS_FILE", path)
     bpy.ops.mesh.primitive_cube_add()
     obj = bpy.context.active_object
+    obj.vdnif.resolution_auto = True
     bpy.ops.vdnif.apply_preset(preset="balanced")
     for name, value in chosen["balanced"].items():
         if name != "measured":
             assert getattr(obj.vdnif, name) == value, name
+    assert not obj.vdnif.resolution_auto, "a preset trains at the resolution it was measured at"
     # The button's tooltip gives the settings and bench's figures, in the panel's words.
     tooltip = bpy.types.VDNIF_OT_apply_preset.description(
         bpy.context, types.SimpleNamespace(preset="balanced"))

@@ -119,6 +119,47 @@ def test_suggest_resolution_sets_the_suggested_one_and_says_why(empty_scene, mon
     assert "embedding error 8: " in obj.vdnif.resolution_info
 
 
+def test_a_new_object_suggests_its_resolution_before_its_dataset(empty_scene, monkeypatch):
+    """As ``train`` does unless told, Generate Dataset suggests the resolution first on an
+    object whose resolution nobody set (Suggest reads on), and keeps it on; one whose
+    resolution was set (a .blend of an earlier version, a script) keeps that resolution."""
+    obj = module("vdnif_addon.blender.scenes").demo_scene("arm")
+    bpy.context.view_layer.objects.active = obj
+    settings = obj.vdnif
+    assert settings.resolution_auto and "resolution" not in settings.keys()
+    for name, value in SMALL.items():
+        if name != "resolution":
+            setattr(settings, name, value)
+    resolution = module("vdnif_addon.blender.resolution")
+    suggest, calls = resolution.suggest_resolution, []
+
+    def small(target_obj, spec, target, _candidates, **options):
+        calls.append(target_obj)
+        return suggest(target_obj, spec, target, (8, 16), poses=1, size=24, **options)
+
+    monkeypatch.setattr(resolution, "suggest_resolution", small)
+    bpy.ops.vdnif.generate_dataset()
+    header = json.loads(next(module("storage").dataset_folder(obj).glob("shard-*.json"))
+                        .read_text())
+    assert calls == [obj] and header["grid"]["resolution"] == 16 == settings.resolution
+    assert settings.resolution_auto and settings.resolution_info.startswith("suggested 16 (")
+    # The estimate is measured at the resolution it suggests, so that Train finds it fresh.
+    bpy.ops.vdnif.estimate()
+    assert calls == [obj, obj]
+    assert settings.parsed("estimate_info")["settings"]["dataset"]["resolution"] == 16
+    assert module("operators.training").fresh_estimate(bpy.context, obj) is not None
+
+    settings.resolution_auto = False
+    settings.resolution = 12
+    bpy.ops.vdnif.generate_dataset()
+    header = json.loads(next(module("storage").dataset_folder(obj).glob("shard-*.json"))
+                        .read_text())
+    assert calls == [obj, obj] and header["grid"]["resolution"] == 12
+    other = module("vdnif_addon.blender.scenes").demo_scene("lattice")
+    other.vdnif.resolution = 40                    # set, Suggest never touched: the user's
+    assert not other.vdnif.resolution_auto
+
+
 def test_voxelize_shows_the_occupied_cells_deformed_at_the_current_frame(empty_scene):
     obj = arm_scene()
     scene = bpy.context.scene

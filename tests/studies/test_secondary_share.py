@@ -32,7 +32,8 @@ def write_run(folder, name, development, test=None):
 def test_a_run_is_a_dataset_a_training_and_an_evaluation_per_pose_set(tmp_path):
     tool = load_tool(TOOL)
     dataset, train, *evaluations = tool.commands("spot", 0.1, tmp_path)
-    assert dataset[:5] == ["dataset", "--scene", "spot", "--secondary-fraction", "0.1"]
+    assert dataset[:7] == ["dataset", "--scene", "spot", "--secondary-fraction", "0.1",
+                           "--resolution", "recipe"]      # its table's, not a suggestion
     assert train[train.index("--data") + 1] == dataset[dataset.index("--out") + 1]
     model = train[train.index("--out") + 1]
     assert [(e[e.index("--model") + 1], e[e.index("--pose-set") + 1], "--secondary" in e)

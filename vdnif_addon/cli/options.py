@@ -20,6 +20,7 @@ from ..settings import (
     MAX_RESOLUTION,
     MIN_RESOLUTION,
     RECIPE,
+    RECIPE_RESOLUTION,
     RIGS,
     NetworkConfig,
     TrainConfig,
@@ -87,10 +88,10 @@ def load_posed_scene(args):
 
     obj = load_scene(args)
     spec = apply_stress(args, obj, pose_spec(args))
-    if getattr(args, "resolution", None) == AUTO_RESOLUTION:
+    if getattr(args, "resolution", None) == AUTO_RESOLUTION:     # the scene commands' default
         suggestion = suggested_resolution(obj, spec)
         args.resolution, args.resolution_suggestion = suggestion.resolution, suggestion.record()
-    elif hasattr(args, "resolution") and args.resolution is None:   # not given, no model
+    elif getattr(args, "resolution", None) == RECIPE_RESOLUTION:
         from ..blender.resolution import recipe_resolution
 
         args.resolution = recipe_resolution(obj)
@@ -115,14 +116,16 @@ def with_suggestion(args, data):
 
 
 def resolution_option(text):
-    """``--resolution``: an integer, or ``auto`` (the suggested resolution)."""
-    if text == AUTO_RESOLUTION:
+    """``--resolution``: an integer, ``auto`` (the suggested resolution) or ``recipe`` (the
+    recipe's fixed one)."""
+    if text in declared.RESOLUTION.option.words:
         return text
     try:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"expected an integer or '{AUTO_RESOLUTION}', got {text!r}") from None
+            f"expected an integer, '{AUTO_RESOLUTION}' or '{RECIPE_RESOLUTION}', "
+            f"got {text!r}") from None
 
 
 def add_setting(parser, setting, command, **words):
@@ -178,9 +181,10 @@ def pose_spec(args):
 
 def add_capture_options(parser, command):
     add_setting(parser, declared.RESOLUTION, command, type=resolution_option,
-                help=f"voxels along the longest side ({MIN_RESOLUTION}..{MAX_RESOLUTION}), "
-                f"or '{AUTO_RESOLUTION}' to suggest one (default {RECIPE.resolution}, "
-                f"{RECIPE.textured_resolution} for a textured mesh)")
+                help=f"voxels along the longest side ({MIN_RESOLUTION}..{MAX_RESOLUTION}); "
+                f"'{AUTO_RESOLUTION}': the coarsest that follows the mesh and its thin parts; "
+                f"'{RECIPE_RESOLUTION}': {RECIPE.resolution}, {RECIPE.textured_resolution} "
+                f"textured, as the paper's experiments (default: {AUTO_RESOLUTION})")
     add_pose_options(parser, command)
 
 
@@ -247,7 +251,7 @@ def write_json(path, data):
 
 
 def check_resolution(value):
-    if value in (AUTO_RESOLUTION, None):   # resolved once the scene is loaded
+    if value in (AUTO_RESOLUTION, RECIPE_RESOLUTION, None):   # resolved once the scene is read
         return
     if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
         raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")
