@@ -31,18 +31,18 @@ def test_training_config_and_commands_default_to_the_recipe():
     assert (config.steps, config.batch_size) == (RECIPE.steps, RECIPE.batch_size)
     parser = build_parser()
     train = parser.parse_args(["train", "--scene", "arm"])
-    # No resolution: the recipe's of the mesh, resolved once it is read (test_resolution.py).
+    # No resolution: the suggested one, resolved once the mesh is read (test_resolution.py).
     assert (train.resolution, train.poses, train.rays_per_pose, train.steps, train.batch) == (
-        None, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.steps, RECIPE.batch_size)
+        "auto", RECIPE.poses, RECIPE.rays_per_pose, RECIPE.steps, RECIPE.batch_size)
     data = parser.parse_args(["dataset", "--scene", "arm", "--out", "d"])
     assert (data.resolution, data.poses, data.rays_per_pose, data.surface_fraction,
             data.grazing_fraction, data.secondary_fraction) == (
-        None, RECIPE.poses, RECIPE.rays_per_pose, RECIPE.surface_fraction,
+        "auto", RECIPE.poses, RECIPE.rays_per_pose, RECIPE.surface_fraction,
         RECIPE.grazing_fraction, RECIPE.secondary_fraction)
     assert parser.parse_args(["demo"]).scene == settings.DEMO_SCENE == "spot"
 
 
-@pytest.mark.parametrize("text, expected", [("auto", "auto"), ("24", 24)])
-def test_resolution_takes_a_number_or_auto(text, expected):
+@pytest.mark.parametrize("text, expected", [("auto", "auto"), ("recipe", "recipe"), ("24", 24)])
+def test_resolution_takes_a_number_auto_or_recipe(text, expected):
     args = build_parser().parse_args(["capture", "--scene", "arm", "--resolution", text])
     assert args.resolution == expected
