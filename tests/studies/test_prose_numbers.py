@@ -498,6 +498,17 @@ CLAIMS = [
               d["ns"]["encoder"] / 1e3, d["ns"]["encoder"] / 2e3, 2e3 / d["ns"]["encoder"],
               d["ns"]["mlp"] / 1e3, d["ns"]["mlp_bfloat16"] / 1e3]),
     # ---- the development meshes
+    Claim(R, "the neural render ran at {} against {} rays/s on the blob, {} against {} on the "
+          "monkey and {} against {} on the slab (medians; the rounds of one model spread by up "
+          "to {} %, so only", "results/resolution-cost.json", lambda d: [
+              *(statistics.median(r["timings"]["render_rays_per_s"] for r in d["runs"][
+                  f"{m}/{k}"]) for m in ("blob", "monkey", "slab") for k in ("auto", "32")),
+              max(pct((max(x) - min(x)) / statistics.median(x)) for x in (
+                  [r["timings"]["render_rays_per_s"] for r in rounds]
+                  for rounds in d["runs"].values()))]),
+    Claim(R, "on the blob ({}), the monkey ({}) and the slab ({}), each model evaluated",
+          "results/resolution-cost.json", lambda d: [
+              d["runs"][f"{m}/auto"][0]["resolution"] for m in ("blob", "monkey", "slab")]),
     Claim(R, "Clean at the default: {} of the {} runs", "results/dev-meshes.json", lambda d: [
         sum(row["clean"] for row in d), len(d)]),
     Claim(R, "not clean: the text ({} % holes, {} % extras)", "results/dev-meshes.json",
