@@ -500,12 +500,8 @@ CLAIMS = [
     # ---- the development meshes
     Claim(R, "the neural render ran at {} against {} rays/s on the blob, {} against {} on the "
           "monkey and {} against {} on the slab (medians; the rounds of one model spread by up "
-          "to {} %, so only", "results/resolution-cost.json", lambda d: [
-              *(statistics.median(r["timings"]["render_rays_per_s"] for r in d["runs"][
-                  f"{m}/{k}"]) for m in ("blob", "monkey", "slab") for k in ("auto", "32")),
-              max(pct((max(x) - min(x)) / statistics.median(x)) for x in (
-                  [r["timings"]["render_rays_per_s"] for r in rounds]
-                  for rounds in d["runs"].values()))]),
+          "to {} %, so only", "results/resolution-cost.json",
+          lambda d: resolution_costs(d, ("blob", "monkey", "slab"))),
     Claim(R, "on the blob ({}), the monkey ({}) and the slab ({}), each model evaluated",
           "results/resolution-cost.json", lambda d: [
               d["runs"][f"{m}/auto"][0]["resolution"] for m in ("blob", "monkey", "slab")]),
@@ -545,12 +541,8 @@ CLAIMS = [
                   d["runs"]["creature, seed 1"]["evaluate"])),
     Claim(R, "the neural render ran at {} against {} rays/s on the horns, {} against {} on the "
           "text and {} against {} on the creature (medians; the rounds of one model spread by "
-          "up to {} %)", "results/dev-meshes-auto-cost.json", lambda d: [
-              *(statistics.median(r["timings"]["render_rays_per_s"] for r in d["runs"][
-                  f"{m}/{k}"]) for m in ("horns", "text", "creature") for k in ("auto", "32")),
-              max(pct((max(x) - min(x)) / statistics.median(x)) for x in (
-                  [r["timings"]["render_rays_per_s"] for r in rounds]
-                  for rounds in d["runs"].values()))]),
+          "up to {} %)", "results/dev-meshes-auto-cost.json",
+          lambda d: resolution_costs(d, ("horns", "text", "creature"))),
     Claim(R, "Their 3,000 steps took {} s and {} s.", "results/dev-meshes-auto.json", lambda d: [
         d["runs"][m]["train"]["train"]["seconds"] for m in ("horns", "text")]),
 
@@ -686,6 +678,15 @@ class Table(NamedTuple):
     keys: int
     source: str
     values: object      # (the file's JSON, the row's naming cells) -> the printed numbers
+
+
+def resolution_costs(d, meshes):
+    """A cost file's median rays/s of each mesh's model at the suggested resolution and at 32,
+    then the largest spread of one model's rounds (%)."""
+    speeds = {run: [r["timings"]["render_rays_per_s"] for r in rounds]
+              for run, rounds in d["runs"].items()}
+    return [*(statistics.median(speeds[f"{m}/{k}"]) for m in meshes for k in ("auto", "32")),
+            max(pct((max(x) - min(x)) / statistics.median(x)) for x in speeds.values())]
 
 
 def dev_mesh_run(d, mesh, seed):
