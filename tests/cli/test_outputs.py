@@ -572,12 +572,16 @@ def test_train_replaces_the_model_a_blend_keeps_only_with_force(tmp_path):
     train = ["train", "--blend", shot, "--object", "Ball", "--resolution", 8, "--poses", 2,
              "--rays-per-pose", 64, "--steps", 2, "--batch", 256, "--log2-table-size", 10,
              "--out", model]
+    refusal = (f"vdnif: error: --out '{model}' is the model that 'Ball' keeps in its .blend, "
+               "which this run reads: refusing to replace it (give --force to replace it)")
     result = _batch_process(train)
     assert result.returncode == 1
-    assert result.stderr.strip().splitlines()[-1] == (
-        f"vdnif: error: --out '{model}' is the model that 'Ball' keeps in its .blend, which "
-        "this run reads: refusing to replace it (give --force to replace it)")
+    assert result.stderr.strip().splitlines()[-1] == refusal
     assert model.read_bytes() == kept
+    # With the resolution suggested (the default), the refusal comes before the suggestion.
+    result = _batch_process([word for word in train if word not in ("--resolution", 8)])
+    assert result.returncode == 1 and result.stderr.strip().splitlines()[-1] == refusal
+    assert "resolution auto" not in result.stderr and model.read_bytes() == kept
     result = _batch_process([*train, "--force"])
     assert result.returncode == 0, result.stderr
     assert model.read_bytes() != kept

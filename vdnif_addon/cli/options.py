@@ -81,13 +81,16 @@ def load_scene(args):
     return scenes.demo_scene(args.scene or PIPELINE_SCENE, rig=args.rig)
 
 
-def load_posed_scene(args):
+def load_posed_scene(args, check=None):
     """(mesh object, PoseSpec): the scene of the options with ``--scale`` applied and
-    ``--deform`` carried by the pose spec."""
+    ``--deform`` carried by the pose spec; ``check(obj)``, where given, refuses what the
+    object makes wrong before its resolution is suggested (seconds of work)."""
     from ..blender.extremes import apply_stress
 
     obj = load_scene(args)
     spec = apply_stress(args, obj, pose_spec(args))
+    if check is not None:
+        check(obj)
     if getattr(args, "resolution", None) == AUTO_RESOLUTION:     # the scene commands' default
         suggestion = suggested_resolution(obj, spec)
         args.resolution, args.resolution_suggestion = suggestion.resolution, suggestion.record()

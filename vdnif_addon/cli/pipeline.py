@@ -253,12 +253,14 @@ def _train_on_scene(args):
     if args.data is not None and any(pathlib.Path(args.data).glob("*.json")):
         raise VDNIFError(f"dataset folder '{args.data}' already holds shards: give an empty "
                          "folder with scene options, or train on it with --data alone")
-    obj, spec = load_posed_scene(args)
-    kept = _kept_model(obj)
-    if kept is not None:            # replacing it asks for --force (safe_io's output rule)
-        note_input(kept, f"the model that '{obj.name}' keeps in its .blend, which")
-        if args.out is not None:
-            check_output_file(args.out, "--out", "model")
+    def refuse_replacing_kept(obj):
+        kept = _kept_model(obj)
+        if kept is not None:        # replacing it asks for --force (safe_io's output rule)
+            note_input(kept, f"the model that '{obj.name}' keeps in its .blend, which")
+            if args.out is not None:
+                check_output_file(args.out, "--out", "model")
+
+    obj, spec = load_posed_scene(args, check=refuse_replacing_kept)
     captured = training_capture(obj, args.resolution, spec, say=_say(f"train '{obj.name}'"))
     variant = _variant(args, obj.name, captured.mode == "static")
     out = args.out or pathlib.Path("out") / f"{file_stem(obj.name.lower())}-{variant}.vdnif"
