@@ -36,8 +36,6 @@ _UPDATES = {"variant": _variant_changed}
 SUGGESTED_BY_DEFAULT = (declared.RESOLUTION.option.default_for(declared.RESOLUTION, "train")
                         == declared.AUTO_RESOLUTION)
 """Whether a run from scratch suggests the resolution unless told: as ``train`` does."""
-
-
 _SUGGEST_KEY = "resolution_auto_set"
 """Where Suggest's value is kept once set (an ID property of the object's settings)."""
 

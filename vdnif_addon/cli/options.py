@@ -121,14 +121,15 @@ def with_suggestion(args, data):
 def resolution_option(text):
     """``--resolution``: an integer, ``auto`` (the suggested resolution) or ``recipe`` (the
     recipe's fixed one)."""
-    if text in declared.RESOLUTION.option.words:
+    words = declared.RESOLUTION.option.words
+    if text in words:
         return text
     try:
         return int(text)
     except ValueError:
+        named = " or ".join(f"'{word}'" for word in words)
         raise argparse.ArgumentTypeError(
-            f"expected an integer, '{AUTO_RESOLUTION}' or '{RECIPE_RESOLUTION}', "
-            f"got {text!r}") from None
+            f"expected an integer, {named}, got {text!r}") from None
 
 
 def add_setting(parser, setting, command, **words):
@@ -254,7 +255,7 @@ def write_json(path, data):
 
 
 def check_resolution(value):
-    if value in (AUTO_RESOLUTION, RECIPE_RESOLUTION, None):   # resolved once the scene is read
+    if value is None or value in declared.RESOLUTION.option.words:   # resolved with the scene
         return
     if not MIN_RESOLUTION <= value <= MAX_RESOLUTION:
         raise VDNIFError(f"resolution {value} is outside {MIN_RESOLUTION}..{MAX_RESOLUTION}")

@@ -66,9 +66,8 @@ def measurably_faster(point: dict[str, Any], other: dict[str, Any]) -> bool:
     widely on a shared VM (the sweep's section of docs/performance.md says how widely), so
     ranges of rounds overlap where one point is faster in every round; if neither were
     faster, each round would favour either as a coin toss, and all of n rounds one way would
-    happen once in 2^n. Points without rounds of the same
-    sweep cannot be shown to differ: False. Two points differ measurably when either is
-    measurably faster than the other."""
+    happen once in 2^n. Points without rounds of the same sweep cannot be shown to differ:
+    False. Two points differ measurably when either is measurably faster than the other."""
     ratios = round_ratios(point, other)
     return ratios is not None and all(ratio > 1 for ratio in ratios)
 
