@@ -1,0 +1,99 @@
+"""tools/separate_parts.py: a mesh's parts are found as its connected pieces, the largest
+first; the rig's second file gives every other part the weights of the largest part's
+nearest vertex, and nothing else changes."""
+
+import pathlib
+
+import numpy as np
+import pytest
+from tool_errors import load_tool, one_error_line
+
+TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "separate_parts.py"
+
+
+def box(lo, hi, cuts=1):
+    """The vertices and edges of a box from ``lo`` to ``hi`` cut into ``cuts`` along x: the
+    rings of 4 corners at each cut, each ring a loop, joined to the next ring."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    vertices, edges = [], []
+    for ring in range(cuts + 1):
+        x = lo[0] + (hi[0] - lo[0]) * ring / cuts
+        base = len(vertices)
+        vertices += [(x, y, z) for y, z in ((lo[1], lo[2]), (hi[1], lo[2]), (hi[1], hi[2]),
+                                            (lo[1], hi[2]))]
+        edges += [(base + k, base + (k + 1) % 4) for k in range(4)]
+        if ring:
+            edges += [(base - 4 + k, base + k) for k in range(4)]
+    return np.array(vertices), edges
+
+
+def test_parts_are_the_connected_pieces_largest_first():
+    tool = load_tool(TOOL)
+    small, small_edges = box((0, 0, 0), (1, 1, 1))
+    large, large_edges = box((5, 0, 0), (9, 1, 1), cuts=3)
+    vertices = np.concatenate([small, large])
+    edges = small_edges + [(a + 8, b + 8) for a, b in large_edges]
+    label = tool.parts(vertices, edges)
+    assert (label[8:] == 0).all() and (label[:8] == 1).all()
+    # against brute force: the nearest of random points
+    rng = np.random.default_rng(0)
+    points, targets = rng.normal(size=(700, 3)), rng.normal(size=(300, 3))
+    index, distance = tool.nearest(points, targets, chunk=64)
+    brute = np.linalg.norm(points[:, None] - targets[None], axis=2)
+    assert (index == brute.argmin(1)).all()
+    np.testing.assert_allclose(distance, brute.min(1))
+
+
+def write_obj(path, pieces):
+    """An OBJ of closed bars ``pieces`` [(lo, hi, cuts)]: rings of 4 vertices at ``cuts`` + 1
+    places along x, quads between neighbouring rings, a quad at each end."""
+    lines, base = [], 1
+    for lo, hi, cuts in pieces:
+        for ring in range(cuts + 1):
+            x = lo[0] + (hi[0] - lo[0]) * ring / cuts
+            lines += [f"v {x} {y} {z}" for y, z in ((lo[1], lo[2]), (hi[1], lo[2]),
+                                                     (hi[1], hi[2]), (lo[1], hi[2]))]
+        for ring in range(cuts):
+            a, b = base + 4 * ring, base + 4 * ring + 4
+            lines += [f"f {a + k} {a + (k + 1) % 4} {b + (k + 1) % 4} {b + k}" for k in range(4)]
+        lines += [f"f {base + 3} {base + 2} {base + 1} {base}",
+                  f"f {base + 4 * cuts} {base + 4 * cuts + 1} {base + 4 * cuts + 2} "
+                  f"{base + 4 * cuts + 3}"]
+        base += 4 * (cuts + 1)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_the_second_file_weights_every_part_as_its_nearest_largest_part_vertex(tmp_path):
+    import bpy
+
+    tool = load_tool(TOOL)
+    mesh = tmp_path / "parts.obj"
+    # a bar along the chain (the largest part) and a small box beside its first joint
+    write_obj(mesh, [((0, 0, 0), (6, 1, 1), 12), ((1.3, 1.0, 0.3), (1.7, 1.4, 0.7), 1)])
+    paths, figures = tool.rig_files(mesh, tmp_path, near=1.0)
+    assert len(figures) == 1 and figures[0]["vertices"] == 8
+    assert figures[0]["near_vertices"] == 8
+    weights = {}
+    for path in paths:
+        bpy.ops.wm.open_mainfile(filepath=str(path))
+        obj = next(o for o in bpy.data.objects if o.type == "MESH")
+        bones = sorted(g.name for g in obj.vertex_groups if g.name.startswith("Bone."))
+        weights[path.name] = tool.bone_weights(obj, bones)
+        vertices = np.array([v.co for v in obj.data.vertices])
+        label = tool.parts(vertices, [e.vertices[:] for e in obj.data.edges])
+    rigged, follow = weights["as-rigged.blend"], weights["parts-follow.blend"]
+    largest, other = np.flatnonzero(label == 0), np.flatnonzero(label != 0)
+    assert len(other) == 8
+    index, _ = tool.nearest(vertices[other], vertices[largest])
+    np.testing.assert_allclose(follow[other], rigged[largest[index]], atol=1e-6)
+    np.testing.assert_allclose(follow[largest], rigged[largest], atol=1e-6)
+    # the figure is the same difference, before the parts were reweighted
+    difference = np.abs(rigged[other] - rigged[largest[index]]).sum(1)
+    assert figures[0]["weight_difference_median"] == pytest.approx(np.median(difference))
+    assert difference.max() > 0.01     # bone heat weighted the box otherwise: the test can fail
+
+
+def test_a_lattice_mesh_is_refused_in_one_line(tmp_path):
+    line = one_error_line(TOOL, ["--mesh", "torus", "--json", tmp_path / "x.json"])
+    assert "'torus'" in line and "lattice" in line
+    assert not (tmp_path / "x.json").exists()

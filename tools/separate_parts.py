@@ -1,0 +1,173 @@
+"""How a development mesh's separate parts move against the surface they touch under the
+procedural armature, and what the voxel embedding makes of it.
+
+A mesh of several separate shells (Suzanne's eyes in their sockets) is weighted by Blender's
+automatic weights shell by shell, so a part can follow the bones otherwise than the surface
+it touches: in a bend the two slide apart in the true mesh, while one voxel gives both one
+motion. Per part other than the largest: its vertices within ``--near`` object units of the
+largest part and the difference of their normalized bone weights from the nearest vertex
+there (the sum over bones of the absolute differences: 0 alike, 2 on other bones). Then the
+embedding alone (``references --secondary``, no network, 8 test poses at 256x256) of the mesh
+as rigged and of the same rig with every part weighted as the surface it touches (each vertex
+given its nearest largest-part vertex's weights), at each ``--resolution``:
+
+    python tools/separate_parts.py --mesh monkey --resolution 96 --resolution 192 \\
+        --json docs/results/separate-parts.json
+"""
+
+import argparse
+import json
+import pathlib
+import subprocess
+import sys
+import tempfile
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
+
+import numpy as np  # noqa: E402
+from dev_mesh_study import MESHES_TOOL, mesh_table  # noqa: E402
+from resolution_table import BATCH  # noqa: E402
+
+from vdnif_addon.errors import VDNIFError  # noqa: E402
+
+REFERENCES = ["--poses", "8", "--width", "256", "--height", "256", "--secondary"]
+VARIANTS = ("as rigged", "parts weighted as the surface they touch")
+FIGURES = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
+           "shadow_false_lit_rate", "shadow_false_shadow_rate", "ao_mae")
+
+
+def parts(vertices, edges):
+    """(V,) label of each vertex's connected part, 0 for the part with the most vertices."""
+    parent = np.arange(len(vertices))
+
+    def root(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in edges:
+        ra, rb = root(a), root(b)
+        if ra != rb:
+            parent[ra] = rb
+    _, label = np.unique([root(i) for i in range(len(vertices))], return_inverse=True)
+    order = np.argsort(-np.bincount(label), kind="stable")
+    return np.argsort(order)[label]
+
+
+def nearest(points, targets, chunk=512):
+    """(index into ``targets``, distance) of each of ``points``' nearest target."""
+    index, distance = [], []
+    for start in range(0, len(points), chunk):
+        d = np.linalg.norm(points[start:start + chunk, None] - targets[None], axis=2)
+        index.append(d.argmin(1))
+        distance.append(d.min(1))
+    return np.concatenate(index), np.concatenate(distance)
+
+
+def bone_weights(obj, bones):
+    """(V, len(bones)) weights of ``obj``'s vertices in the groups ``bones``, normalized."""
+    columns = {obj.vertex_groups[name].index: k for k, name in enumerate(bones)}
+    weights = np.zeros((len(obj.data.vertices), len(bones)))
+    for vertex in obj.data.vertices:
+        for group in vertex.groups:
+            if group.group in columns:
+                weights[vertex.index, columns[group.group]] = group.weight
+    return weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
+
+
+def rig_files(obj_path, folder, near):
+    """Rigs the mesh at ``obj_path`` with the procedural armature; writes it as rigged and
+    with its parts weighted as the surface they touch; (the two .blend paths, the parts'
+    figures)."""
+    import bpy
+
+    from vdnif_addon.blender.mesh_files import import_mesh
+    from vdnif_addon.blender.scenes import add_rig
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    obj = add_rig(import_mesh(str(obj_path)), "armature")
+    vertices = np.array([v.co for v in obj.data.vertices])
+    label = parts(vertices, [e.vertices[:] for e in obj.data.edges])
+    bones = sorted(g.name for g in obj.vertex_groups if g.name.startswith("Bone."))
+    weights = bone_weights(obj, bones)
+    largest = np.flatnonzero(label == 0)
+    figures = []
+    for part in range(1, label.max() + 1):
+        members = np.flatnonzero(label == part)
+        index, distance = nearest(vertices[members], vertices[largest])
+        close = distance < near
+        difference = np.abs(weights[members] - weights[largest[index]]).sum(1)[close]
+        figures.append({
+            "vertices": int(len(members)), "centre": vertices[members].mean(0).tolist(),
+            "near_vertices": int(close.sum()),
+            "weight_difference_median": float(np.median(difference)) if close.any() else None,
+            "weight_difference_max": float(difference.max()) if close.any() else None,
+            "weights": dict(zip(bones, weights[members][close].mean(0).tolist())),
+            "touched_weights": dict(zip(bones, weights[largest[index[close]]].mean(0)
+                                        .tolist()))})
+    paths = [folder / "as-rigged.blend", folder / "parts-follow.blend"]
+    bpy.ops.wm.save_as_mainfile(filepath=str(paths[0]))
+    others = np.flatnonzero(label != 0)
+    index, _ = nearest(vertices[others], vertices[largest])
+    for name in bones:
+        group = obj.vertex_groups[name]
+        group.remove(others.tolist())
+        column = bones.index(name)
+        for vertex, source in zip(others, largest[index]):
+            if weights[source, column] > 0:
+                group.add([int(vertex)], float(weights[source, column]), "REPLACE")
+    bpy.ops.wm.save_as_mainfile(filepath=str(paths[1]))
+    return paths, figures
+
+
+def main(argv):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--mesh", default="monkey", choices=tuple(mesh_table()),
+                        help="the development mesh (default: monkey)")
+    parser.add_argument("--resolution", type=int, action="append",
+                        help="voxel resolution (repeatable; default 96)")
+    parser.add_argument("--near", type=float, default=0.05,
+                        help="a part's vertices this close to the largest part touch it")
+    parser.add_argument("--json", type=pathlib.Path, required=True, help="write the figures")
+    args = parser.parse_args(argv)
+    if mesh_table()[args.mesh][0] != "armature":
+        raise VDNIFError(f"'{args.mesh}' is rigged with a lattice, which has no bone weights")
+    from vdnif_addon.model.provenance import stamp
+    from vdnif_addon.safe_io import write_json_atomic
+
+    resolutions = args.resolution or [96]
+    runs = {}
+    with tempfile.TemporaryDirectory(prefix="vdnif-parts-") as folder:
+        folder = pathlib.Path(folder)
+        subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh",
+                        args.mesh], check=True, stdout=subprocess.DEVNULL)
+        blends, figures = rig_files(folder / f"{args.mesh}.obj", folder, args.near)
+        for variant, blend in zip(VARIANTS, blends):
+            for resolution in resolutions:
+                report = folder / "references.json"
+                subprocess.run([*BATCH, "references", "--blend", str(blend), "--resolution",
+                                str(resolution), *REFERENCES, "--json", str(report)],
+                               check=True, stdout=subprocess.DEVNULL)
+                error = json.loads(report.read_text())["embedded_vs_true"]
+                runs[f"{variant}/{resolution}"] = {key: error[key] for key in FIGURES}
+                print(f"{args.mesh}, {variant}, R {resolution}: distance MAE "
+                      f"{error['distance_mae']:.3g}, false shadow "
+                      f"{100 * error['shadow_false_shadow_rate']:.3g} %, false lit "
+                      f"{100 * error['shadow_false_lit_rate']:.3g} %")
+    for number, part in enumerate(figures, 1):
+        print(f"part {number}: {part['vertices']} vertices, {part['near_vertices']} touch the "
+              f"largest part; weight difference there median {part['weight_difference_median']}")
+    write_json_atomic(args.json, stamp({
+        "mesh": args.mesh, "rig": "armature", "near": args.near,
+        "references": REFERENCES, "command": ["python", "tools/separate_parts.py", *argv],
+        "parts": figures, "runs": runs}, with_machine=False))
+    print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, sys.argv[1:], errors=VDNIFError, prefix="separate_parts: error: ")
