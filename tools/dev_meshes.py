@@ -66,7 +66,10 @@ def _applied(obj, name=None):
 def _split_long_edges(obj, longest=LONGEST_EDGE):
     """Splits ``obj``'s edges in halves until none is longer than ``longest`` (its shape is
     unchanged: new vertices lie on the old faces), leaving triangles: each pass halves the
-    longest edge of every triangle that has one too long, and both triangles beside it."""
+    longest edge of every triangle that has one too long, and both triangles beside it. At
+    most MAX_TRIANGLES at LONGEST_EDGE, more in proportion to the area of a shorter edge's
+    triangle."""
+    limit = int(MAX_TRIANGLES * max(1.0, (LONGEST_EDGE / longest) ** 2))
     mesh = obj.data
     mesh.calc_loop_triangles()
     vertices = [tuple(vertex.co) for vertex in mesh.vertices]
@@ -102,8 +105,8 @@ def _split_long_edges(obj, longest=LONGEST_EDGE):
                 first, second, third = triangle[k], triangle[(k + 1) % 3], triangle[(k + 2) % 3]
                 triangles.add((first, middle, third))
                 triangles.add((middle, second, third))
-        if len(triangles) > MAX_TRIANGLES:
-            raise RuntimeError(f"'{obj.name}': over {MAX_TRIANGLES} triangles while splitting")
+        if len(triangles) > limit:
+            raise RuntimeError(f"'{obj.name}': over {limit} triangles while splitting")
     split = bpy.data.meshes.new(mesh.name)
     split.from_pydata(vertices, [], sorted(triangles))
     split.validate()
@@ -128,7 +131,7 @@ def _boolean(obj, cutters, operation):
     return result
 
 
-def text():
+def text(longest=LONGEST_EDGE):
     curve = bpy.data.curves.new("Text", "FONT")
     curve.body = "VDNIF"
     curve.size, curve.extrude, curve.resolution_u = 1.0, 0.12, 4
@@ -150,7 +153,7 @@ def text():
     bpy.ops.object.transform_apply(scale=True)
     obj = _boolean(obj, [bar], "UNION")
     obj.name = "Text"
-    return _split_long_edges(obj)
+    return _split_long_edges(obj, longest)
 
 
 def _link_curve(name, curve):
@@ -180,7 +183,7 @@ def shell(radius=1.0, thickness=0.02):
     return obj
 
 
-def horns(count=6, length=0.9, base=0.07):
+def horns(count=6, length=0.9, base=0.07, longest=LONGEST_EDGE):
     body = _primitive(bpy.ops.mesh.primitive_uv_sphere_add, segments=48, ring_count=24,
                       radius=0.6)
     rng = np.random.default_rng(SEED)
@@ -195,7 +198,7 @@ def horns(count=6, length=0.9, base=0.07):
         cone.rotation_mode = "QUATERNION"
         cone.rotation_quaternion = _z_to(direction)
         cutters.append(cone)
-    obj = _split_long_edges(_boolean(body, cutters, "UNION"))
+    obj = _split_long_edges(_boolean(body, cutters, "UNION"), longest)
     obj.name = "Horns"
     obj.data.shade_smooth()
     return obj
@@ -212,7 +215,7 @@ def _z_to(direction):
     return (math.cos(half), *(math.sin(half) * axis / sine))
 
 
-def slab(size=(2.0, 0.9, 0.12), holes=3, hole_radius=0.22):
+def slab(size=(2.0, 0.9, 0.12), holes=3, hole_radius=0.22, longest=LONGEST_EDGE):
     box = _primitive(bpy.ops.mesh.primitive_cube_add, size=1.0)
     box.scale = size
     bpy.ops.object.transform_apply(scale=True)
@@ -221,7 +224,7 @@ def slab(size=(2.0, 0.9, 0.12), holes=3, hole_radius=0.22):
         x = size[0] * ((index + 1) / (holes + 1) - 0.5)
         cutters.append(_primitive(bpy.ops.mesh.primitive_cylinder_add, vertices=48,
                                   radius=hole_radius, depth=4 * size[2], location=(x, 0, 0)))
-    obj = _split_long_edges(_boolean(box, cutters, "DIFFERENCE"))
+    obj = _split_long_edges(_boolean(box, cutters, "DIFFERENCE"), longest)
     obj.name = "Slab"
     return obj
 
@@ -299,10 +302,19 @@ def monkey():
     return obj
 
 
-def build(name):
-    """Builds mesh ``name`` in an emptied file; its object."""
+SPLIT = ("text", "horns", "slab")
+"""The meshes whose flat faces are split (``LONGEST_EDGE``)."""
+
+
+def build(name, longest=None):
+    """Builds mesh ``name`` in an emptied file, its flat faces split to edges of at most
+    ``longest`` (default LONGEST_EDGE; only the SPLIT meshes); its object."""
     _reset()
-    return globals()[name]()
+    if longest is None:
+        return globals()[name]()
+    if name not in SPLIT:
+        raise ValueError(f"'{name}' has no split faces; only {', '.join(SPLIT)} do")
+    return globals()[name](longest=longest)
 
 
 def _canonical(obj):
@@ -331,9 +343,10 @@ def _canonical(obj):
     return _link(name, canonical)
 
 
-def write(name, path):
-    """Writes mesh ``name`` as an OBJ file at ``path``, in a canonical order (``_canonical``)."""
-    obj = _canonical(build(name))
+def write(name, path, longest=None):
+    """Writes mesh ``name`` (``build``) as an OBJ file at ``path``, in a canonical order
+    (``_canonical``)."""
+    obj = _canonical(build(name, longest))
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     for other in bpy.data.objects:
@@ -349,9 +362,19 @@ def main(argv):
                         help="folder to write NAME.obj into")
     parser.add_argument("--mesh", action="append", choices=tuple(MESHES),
                         help="only this mesh (repeatable; default every one)")
+    parser.add_argument("--longest-edge", type=float, metavar="L",
+                        help=f"split flat faces to edges of at most L (default {LONGEST_EDGE}; "
+                             f"{', '.join(SPLIT)} only)")
     args = parser.parse_args(argv)
-    for name in args.mesh or MESHES:
-        write(name, args.out / f"{name}.obj")
+    names = args.mesh or MESHES
+    if args.longest_edge is not None:
+        if not args.longest_edge > 0:
+            parser.error("--longest-edge must be positive")
+        if set(names) - set(SPLIT):
+            parser.error(f"--longest-edge applies to {', '.join(SPLIT)} only: name them with "
+                         "--mesh")
+    for name in names:
+        write(name, args.out / f"{name}.obj", args.longest_edge)
         print(f"wrote {args.out / f'{name}.obj'} (rig {MESHES[name][0]})")
 
 

@@ -191,3 +191,26 @@ def test_two_builds_write_the_same_file(tmp_path, built):
     assert all(np.array_equal(a, b) for a, b in zip(again, built["horns"]))
     # in the order of their coordinates, x first (the OBJ keeps Blender's x)
     assert np.all(np.diff(again[0][:, 0]) >= 0)
+
+
+def longest_edge(vertices, triangles):
+    return max(np.linalg.norm(vertices[triangles[:, k]] - vertices[triangles[:, (k + 1) % 3]],
+                              axis=1).max() for k in range(3))
+
+
+def test_flat_faces_are_split_to_the_longest_edge_asked(tmp_path, built):
+    """The split meshes' edges are at most 0.08 (``LONGEST_EDGE``) by default and at most
+    ``--longest-edge`` when asked, the shape the same; a mesh without split faces refuses it."""
+    for name in SPLIT:
+        assert longest_edge(*built[name]) <= 0.08 + 1e-9, name
+    subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(tmp_path), "--mesh", "slab",
+                    "--longest-edge", "0.16"], check=True, capture_output=True, timeout=300)
+    coarse = read_obj(tmp_path / "slab.obj")
+    assert 0.08 < longest_edge(*coarse) <= 0.16 + 1e-9
+    assert len(coarse[1]) < len(built["slab"][1])
+    assert signed_volume(*coarse) == pytest.approx(signed_volume(*built["slab"]), rel=1e-6)
+    done = subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(tmp_path), "--mesh",
+                           "torus", "--longest-edge", "0.04"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode != 0 and "--longest-edge" in done.stderr
+    assert not (tmp_path / "torus.obj").exists()

@@ -200,6 +200,12 @@ PARTS, EYES = "results/separate-parts.json", "parts weighted as the surface they
 AUTO_DEV = "results/dev-meshes.json"
 
 
+def embedding_figures(d):
+    """A ``references`` report's embedding error: distance MAE, holes and extras (%)."""
+    e = d["embedded_vs_true"]
+    return [e["distance_mae"], pct(e["false_negative_rate"]), pct(e["false_positive_rate"])]
+
+
 def shaded_dev(d, mesh):
     """A mesh's row of shaded-dev-meshes.json: (its figures against the true reference, its
     band row at settings.TERMINATOR_BAND)."""
@@ -290,6 +296,10 @@ CLAIMS = [
         lambda s: [next(r["embedding_error"] for r in s["table"]
                         if r["resolution"] == s["resolution"]), s["resolution"], s["target"]])(
         dev_mesh_run(d, "monkey", 0)["resolution_suggestion"])),
+    Claim(R, "errs ten times less: distance MAE {} object units, holes {} % and extras {} %",
+          "results/text-edges-0.04.json", embedding_figures),
+    Claim(R, "against {}, {} % and {} % at 0.08", "results/text-edges-0.08.json",
+          embedding_figures),
     Claim(R, "and spot's extras ({} % against {}-{} %)", SPREAD, lambda d: [
         pct(v) for v in spread_values(d, "spot/proposed", "false_positive_rate")]),
     Claim(R, "distance MAE {} ({}-{}) against {} ({}-{}), holes {} % ({}-{} %) against {} % "
