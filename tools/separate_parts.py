@@ -31,6 +31,7 @@ from dev_mesh_study import MESHES_TOOL, mesh_table  # noqa: E402
 from resolution_table import BATCH  # noqa: E402
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
+from vdnif_addon.geometry.framing import components  # noqa: E402
 
 REFERENCES = ["--poses", "8", "--width", "256", "--height", "256", "--secondary"]
 VARIANTS = ("as rigged", "parts weighted as the surface they touch")
@@ -38,23 +39,12 @@ FIGURES = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
            "shadow_false_lit_rate", "shadow_false_shadow_rate", "ao_mae")
 
 
-def parts(vertices, edges):
-    """(V,) label of each vertex's connected part, 0 for the part with the most vertices."""
-    parent = np.arange(len(vertices))
-
-    def root(a):
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for a, b in edges:
-        ra, rb = root(a), root(b)
-        if ra != rb:
-            parent[ra] = rb
-    _, label = np.unique([root(i) for i in range(len(vertices))], return_inverse=True)
-    order = np.argsort(-np.bincount(label), kind="stable")
-    return np.argsort(order)[label]
+def parts(vertex_count, triangles):
+    """(V,) label of each vertex's connected piece (``geometry.framing.components``), ranked
+    by vertex count: 0 for the piece with the most vertices."""
+    _, piece = np.unique(components(vertex_count, triangles), return_inverse=True)
+    order = np.argsort(-np.bincount(piece), kind="stable")
+    return np.argsort(order)[piece]
 
 
 def nearest(points, targets, chunk=512):
@@ -65,6 +55,12 @@ def nearest(points, targets, chunk=512):
         index.append(d.argmin(1))
         distance.append(d.min(1))
     return np.concatenate(index), np.concatenate(distance)
+
+
+def mesh_triangles(obj):
+    """(T, 3) vertex indices of the triangles of mesh object ``obj``."""
+    obj.data.calc_loop_triangles()
+    return np.array([t.vertices[:] for t in obj.data.loop_triangles], np.int64).reshape(-1, 3)
 
 
 def bone_weights(obj, bones):
@@ -90,7 +86,7 @@ def rig_files(obj_path, folder, near):
     bpy.ops.wm.read_homefile(use_empty=True)
     obj = add_rig(import_mesh(str(obj_path)), "armature")
     vertices = np.array([v.co for v in obj.data.vertices])
-    label = parts(vertices, [e.vertices[:] for e in obj.data.edges])
+    label = parts(len(vertices), mesh_triangles(obj))
     bones = sorted(g.name for g in obj.vertex_groups if g.name.startswith("Bone."))
     weights = bone_weights(obj, bones)
     largest = np.flatnonzero(label == 0)

@@ -11,30 +11,12 @@ from tool_errors import load_tool, one_error_line
 TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "separate_parts.py"
 
 
-def box(lo, hi, cuts=1):
-    """The vertices and edges of a box from ``lo`` to ``hi`` cut into ``cuts`` along x: the
-    rings of 4 corners at each cut, each ring a loop, joined to the next ring."""
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    vertices, edges = [], []
-    for ring in range(cuts + 1):
-        x = lo[0] + (hi[0] - lo[0]) * ring / cuts
-        base = len(vertices)
-        vertices += [(x, y, z) for y, z in ((lo[1], lo[2]), (hi[1], lo[2]), (hi[1], hi[2]),
-                                            (lo[1], hi[2]))]
-        edges += [(base + k, base + (k + 1) % 4) for k in range(4)]
-        if ring:
-            edges += [(base - 4 + k, base + k) for k in range(4)]
-    return np.array(vertices), edges
-
-
 def test_parts_are_the_connected_pieces_largest_first():
     tool = load_tool(TOOL)
-    small, small_edges = box((0, 0, 0), (1, 1, 1))
-    large, large_edges = box((5, 0, 0), (9, 1, 1), cuts=3)
-    vertices = np.concatenate([small, large])
-    edges = small_edges + [(a + 8, b + 8) for a, b in large_edges]
-    label = tool.parts(vertices, edges)
-    assert (label[8:] == 0).all() and (label[:8] == 1).all()
+    # a fan of 3 triangles (vertices 2-6) and a lone triangle (0, 1, 7) around it
+    triangles = np.array([[2, 3, 4], [2, 4, 5], [2, 5, 6], [0, 1, 7]])
+    label = tool.parts(8, triangles)
+    assert (label[2:7] == 0).all() and (label[[0, 1, 7]] == 1).all()
     # against brute force: the nearest of random points
     rng = np.random.default_rng(0)
     points, targets = rng.normal(size=(700, 3)), rng.normal(size=(300, 3))
@@ -80,7 +62,7 @@ def test_the_second_file_weights_every_part_as_its_nearest_largest_part_vertex(t
         bones = sorted(g.name for g in obj.vertex_groups if g.name.startswith("Bone."))
         weights[path.name] = tool.bone_weights(obj, bones)
         vertices = np.array([v.co for v in obj.data.vertices])
-        label = tool.parts(vertices, [e.vertices[:] for e in obj.data.edges])
+        label = tool.parts(len(vertices), tool.mesh_triangles(obj))
     rigged, follow = weights["as-rigged.blend"], weights["parts-follow.blend"]
     largest, other = np.flatnonzero(label == 0), np.flatnonzero(label != 0)
     assert len(other) == 8
