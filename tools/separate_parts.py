@@ -63,17 +63,6 @@ def mesh_triangles(obj):
     return np.array([t.vertices[:] for t in obj.data.loop_triangles], np.int64).reshape(-1, 3)
 
 
-def bone_weights(obj, bones):
-    """(V, len(bones)) weights of ``obj``'s vertices in the groups ``bones``, normalized."""
-    columns = {obj.vertex_groups[name].index: k for k, name in enumerate(bones)}
-    weights = np.zeros((len(obj.data.vertices), len(bones)))
-    for vertex in obj.data.vertices:
-        for group in vertex.groups:
-            if group.group in columns:
-                weights[vertex.index, columns[group.group]] = group.weight
-    return weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
-
-
 def rig_files(obj_path, folder, near):
     """Rigs the mesh at ``obj_path`` with the procedural armature; writes it as rigged and
     with its parts weighted as the surface they touch; (the two .blend paths, the parts'
@@ -81,14 +70,16 @@ def rig_files(obj_path, folder, near):
     import bpy
 
     from vdnif_addon.blender.mesh_files import import_mesh
-    from vdnif_addon.blender.scenes import add_rig
+    from vdnif_addon.blender.scenes import add_rig, bone_weights
 
     bpy.ops.wm.read_homefile(use_empty=True)
     obj = add_rig(import_mesh(str(obj_path)), "armature")
     vertices = np.array([v.co for v in obj.data.vertices])
     label = parts(len(vertices), mesh_triangles(obj))
-    bones = sorted(g.name for g in obj.vertex_groups if g.name.startswith("Bone."))
-    weights = bone_weights(obj, bones)
+    bones = sorted((g.name for g in obj.vertex_groups if g.name.startswith("Bone.")),
+                   key=lambda name: int(name.split(".")[1]))
+    raw = bone_weights(obj)
+    weights = raw / np.maximum(raw.sum(1, keepdims=True), 1e-30)
     largest = np.flatnonzero(label == 0)
     figures = []
     for part in range(1, label.max() + 1):

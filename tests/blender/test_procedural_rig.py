@@ -22,18 +22,6 @@ def slab_file(tmp_path_factory):
     return folder / "slab.obj"
 
 
-def chain_weights(obj):
-    """(vertices, bones) of the chain's weights ``Bone.i`` of every vertex."""
-    names = sorted(g.name for g in obj.vertex_groups if g.name.startswith("Bone."))
-    columns = {obj.vertex_groups[name].index: k for k, name in enumerate(names)}
-    weights = np.zeros((len(obj.data.vertices), len(names)))
-    for vertex in obj.data.vertices:
-        for g in vertex.groups:
-            if g.group in columns:
-                weights[vertex.index, columns[g.group]] = g.weight
-    return weights
-
-
 def largest_stretch(obj):
     """The largest ratio of an edge's length in the current pose to its rest length."""
     import bpy
@@ -60,7 +48,7 @@ def test_every_vertex_is_weighted_and_a_bent_slab_does_not_tear(empty_scene, cor
 
     scenes = core("blender.scenes")
     obj = scenes.mesh_scene(slab_file, rig="armature")
-    weights = chain_weights(obj)
+    weights = scenes.bone_weights(obj)
     np.testing.assert_allclose(weights.sum(1), 1.0, atol=1e-6)
     bend(obj, 45)
     stretch = largest_stretch(obj)
@@ -71,6 +59,6 @@ def test_every_vertex_is_weighted_and_a_bent_slab_does_not_tear(empty_scene, cor
     bpy.ops.wm.read_homefile(use_empty=True)
     monkeypatch.setattr(scenes, "_chain_weights", lambda *args: None)
     bare = scenes.mesh_scene(slab_file, rig="armature")
-    assert (chain_weights(bare).sum(1) == 0).any()
+    assert (scenes.bone_weights(bare).sum(1) == 0).any()
     bend(bare, 45)
     assert largest_stretch(bare) > 3.0 > 1.5 * stretch

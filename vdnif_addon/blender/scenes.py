@@ -252,7 +252,7 @@ def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
     bpy.ops.object.parent_set(type="ARMATURE_AUTO")
     if not any(group.name.startswith("Bone.") for group in obj.vertex_groups):
         raise VDNIFError(f"automatic weights failed on '{obj.name}'")
-    if (_bone_weight_totals(obj, bones) <= 0).any():
+    if (bone_weights(obj).sum(1) <= 0).any():
         _chain_weights(obj, bones, axis, lo[axis], hi[axis])
     bend = math.radians(total_bend_degrees / bones)
     for pose_bone in armature.pose.bones:
@@ -264,12 +264,18 @@ def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
     return armature
 
 
-def _bone_weight_totals(obj, bones):
-    """Per vertex of ``obj``, the sum of its weights in the chain's groups ``Bone.i``."""
-    indices = {obj.vertex_groups[f"Bone.{index}"].index for index in range(bones)
-               if f"Bone.{index}" in obj.vertex_groups}
-    return np.array([sum(g.weight for g in vertex.groups if g.group in indices)
-                     for vertex in obj.data.vertices])
+def bone_weights(obj):
+    """(V, bones) the weights of every vertex of ``obj`` in the procedural chain's groups
+    ``Bone.i``, in the chain's order (0 where a vertex is not in a group)."""
+    names = sorted((g.name for g in obj.vertex_groups if g.name.startswith("Bone.")),
+                   key=lambda name: int(name.split(".")[1]))
+    columns = {obj.vertex_groups[name].index: k for k, name in enumerate(names)}
+    weights = np.zeros((len(obj.data.vertices), len(names)))
+    for vertex in obj.data.vertices:
+        for group in vertex.groups:
+            if group.group in columns:
+                weights[vertex.index, columns[group.group]] = group.weight
+    return weights
 
 
 def _chain_weights(obj, bones, axis, lo, hi):
