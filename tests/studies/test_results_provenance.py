@@ -149,14 +149,25 @@ def test_a_table_of_another_network_fails_unless_it_says_so():
     # the same file stamped with today's network passes
     other["results/spot-shadow-seeds.json"]["provenance"] = {"network_hash": today}
     assert problems(index, other, docs, today) == []
-    # the sentence next to a stale table removed
-    cut = dict(docs, **{"results.md": re.sub("network before the normal field", "network",
-                                             docs["results.md"], flags=re.I)})
-    assert any("ablation-arm-1-seed.json" in p for p in problems(index, files, cut, today))
-    # a stale file relabelled as today's: its model bytes give it away
-    relabelled = copy.deepcopy(index)
-    relabelled["files"]["results/ablation-arm-1-seed.json"]["network"] = "own grid"
-    assert any("1,640,297 bytes" in p for p in problems(relabelled, files, docs, today))
+    # a table of the network before the normal field, classified by its model's bytes, in a
+    # section that says so
+    stale = "results/old-study.json"
+    old_files = dict(files, **{stale: {"runs": {"arm/proposed": {"model_bytes": 1_640_297}}}})
+    old_index = copy.deepcopy(index)
+    old_index["files"][stale] = {"network": "normal head", "evidence": "a test's",
+                                 "model_bytes": ["runs", "arm/proposed", "model_bytes"],
+                                 "textured": False}
+    said = dict(docs, **{"results.md": docs["results.md"] + "\n## An old table\n\nNetwork "
+                         "before the normal field: `results/old-study.json`.\n"})
+    assert problems(old_index, old_files, said, today) == []
+    # the sentence next to the stale table removed
+    cut = dict(said, **{"results.md": re.sub("network before the normal field", "network",
+                                             said["results.md"], flags=re.I)})
+    assert any("old-study.json" in p for p in problems(old_index, old_files, cut, today))
+    # the stale file relabelled as today's: its model bytes give it away
+    relabelled = copy.deepcopy(old_index)
+    relabelled["files"][stale]["network"] = "own grid"
+    assert any("1,640,297 bytes" in p for p in problems(relabelled, old_files, said, today))
     # today's default network changes: every table of the old one is stale and unsaid
     assert any("give that network a phrase" in p
                for p in problems(index, files, docs, network_hash({"width": 128})))
