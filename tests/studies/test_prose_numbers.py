@@ -200,6 +200,17 @@ PARTS, EYES = "results/separate-parts.json", "parts weighted as the surface they
 AUTO_DEV = "results/dev-meshes.json"
 
 
+def ablation_ratios(d, row):
+    """Per ablation scene, ``row``'s distance MAE over proposed's (common pixels, true
+    reference)."""
+    return [common(d[f], f"{s}/{row}") / common(d[f], f"{s}/proposed")
+            for f, s in zip(ABLATION, ABLATION_SCENES)]
+
+
+def ablation_span(d, row):
+    return span(ablation_ratios(d, row))
+
+
 def embedding_figures(d):
     """A ``references`` report's embedding error: distance MAE, holes and extras (%)."""
     e = d["embedded_vs_true"]
@@ -475,12 +486,22 @@ CLAIMS = [
           "MB textured)", "results/normal-grid-choices.json", lambda d: [
               d["runs"][s]["L3 T17"]["model_bytes"] / 1e6 for s in ("bunny", "spot")]),
     # ---- the ablation's summary
-    Claim(R, "without the positional encoding the distance error is {}-{}x proposed's, with "
-          "the paper's log-MSE of d/h {}-{}x", ABLATION, lambda d: [
-              *span(common(d[f], f"{s}/no positional encoding") / common(d[f], f"{s}/proposed")
-                    for f, s in zip(ABLATION, ABLATION_SCENES)),
-              *span(common(d[f], f"{s}/proposed, log-MSE of d/h") / common(d[f], f"{s}/proposed")
-                    for f, s in zip(ABLATION, ABLATION_SCENES))]),
+    Claim(R, "without the positional encoding ({}-{}x), with the paper's log-MSE of d/h ({}-{}x) "
+          "and with `sin(pi 2^k x)` ({}-{}x)", ABLATION, lambda d: [
+              *ablation_span(d, "no positional encoding"),
+              *ablation_span(d, "proposed, log-MSE of d/h"),
+              *ablation_span(d, "proposed, sin(pi 2^k x)")]),
+    Claim(R, "a little smaller without the log distance or without the uncertainty weighting "
+          "({}-{}x)", ABLATION, lambda d: span(
+              ratio for row in ("no log distance", "no uncertainty weighting")
+              for ratio in ablation_ratios(d, row))),
+    # ---- one network per pose
+    Claim(R, "with an eighth of their bytes ({} MB against {} MB) and a quarter of their training "
+          "time ({} s against {} s", "results/per-pose.json", lambda d: [
+              *(d["runs"][run]["model_bytes"] / 1e6 for run in ("arm/proposed",
+                                                                 "arm/lsnif per pose")),
+              *(d["runs"][run]["timings"]["train_s"] for run in ("arm/proposed",
+                                                                 "arm/lsnif per pose"))]),
     # ---- performance: the side-by-side run
     Claim(R, "(`results/figure3-spread-6246eb6.json`): of 64 figures, {} are better, {} within "
           "and {}", BASELINE, lambda d: [d["counts"][k] for k in ("better", "within", "worse")]),
