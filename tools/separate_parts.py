@@ -70,42 +70,40 @@ def rig_files(obj_path, folder, near):
     import bpy
 
     from vdnif_addon.blender.mesh_files import import_mesh
-    from vdnif_addon.blender.scenes import add_rig, bone_weights
+    from vdnif_addon.blender.scenes import add_rig, bone_weights, chain_bones
 
     bpy.ops.wm.read_homefile(use_empty=True)
     obj = add_rig(import_mesh(str(obj_path)), "armature")
     vertices = np.array([v.co for v in obj.data.vertices])
     label = parts(len(vertices), mesh_triangles(obj))
-    bones = sorted((g.name for g in obj.vertex_groups if g.name.startswith("Bone.")),
-                   key=lambda name: int(name.split(".")[1]))
+    bones = chain_bones(obj)
     raw = bone_weights(obj)
     weights = raw / np.maximum(raw.sum(1, keepdims=True), 1e-30)
-    largest = np.flatnonzero(label == 0)
+    largest, others = np.flatnonzero(label == 0), np.flatnonzero(label != 0)
+    # each other part's vertex: its nearest vertex of the largest part, and how far
+    source, distance = np.arange(len(vertices)), np.zeros(len(vertices))
+    index, distance[others] = nearest(vertices[others], vertices[largest])
+    source[others] = largest[index]
     figures = []
     for part in range(1, label.max() + 1):
         members = np.flatnonzero(label == part)
-        index, distance = nearest(vertices[members], vertices[largest])
-        close = distance < near
-        difference = np.abs(weights[members] - weights[largest[index]]).sum(1)[close]
+        close = members[distance[members] < near]
+        difference = np.abs(weights[close] - weights[source[close]]).sum(1)
         figures.append({
             "vertices": int(len(members)), "centre": vertices[members].mean(0).tolist(),
-            "near_vertices": int(close.sum()),
-            "weight_difference_median": float(np.median(difference)) if close.any() else None,
-            "weight_difference_max": float(difference.max()) if close.any() else None,
-            "weights": dict(zip(bones, weights[members][close].mean(0).tolist())),
-            "touched_weights": dict(zip(bones, weights[largest[index[close]]].mean(0)
-                                        .tolist()))})
+            "near_vertices": int(len(close)),
+            "weight_difference_median": float(np.median(difference)) if len(close) else None,
+            "weight_difference_max": float(difference.max()) if len(close) else None,
+            "weights": dict(zip(bones, weights[close].mean(0).tolist())),
+            "touched_weights": dict(zip(bones, weights[source[close]].mean(0).tolist()))})
     paths = [folder / "as-rigged.blend", folder / "parts-follow.blend"]
     bpy.ops.wm.save_as_mainfile(filepath=str(paths[0]))
-    others = np.flatnonzero(label != 0)
-    index, _ = nearest(vertices[others], vertices[largest])
-    for name in bones:
+    for column, name in enumerate(bones):
         group = obj.vertex_groups[name]
         group.remove(others.tolist())
-        column = bones.index(name)
-        for vertex, source in zip(others, largest[index]):
-            if weights[source, column] > 0:
-                group.add([int(vertex)], float(weights[source, column]), "REPLACE")
+        for vertex in others:
+            if weights[source[vertex], column] > 0:
+                group.add([int(vertex)], float(weights[source[vertex], column]), "REPLACE")
     bpy.ops.wm.save_as_mainfile(filepath=str(paths[1]))
     return paths, figures
 
@@ -122,10 +120,15 @@ def main(argv):
     args = parser.parse_args(argv)
     if mesh_table()[args.mesh][0] != "armature":
         raise VDNIFError(f"'{args.mesh}' is rigged with a lattice, which has no bone weights")
+    if not args.near > 0:
+        raise VDNIFError(f"--near must be positive, got {args.near}")
+    from vdnif_addon.cli.options import check_resolution
     from vdnif_addon.model.provenance import stamp
     from vdnif_addon.safe_io import write_json_atomic
 
     resolutions = args.resolution or [96]
+    for resolution in resolutions:          # before minutes of references, not after
+        check_resolution(resolution)
     runs = {}
     with tempfile.TemporaryDirectory(prefix="vdnif-parts-") as folder:
         folder = pathlib.Path(folder)

@@ -77,7 +77,11 @@ def test_the_second_file_weights_every_part_as_its_nearest_largest_part_vertex(t
     assert difference.max() > 0.01     # bone heat weighted the box otherwise: the test can fail
 
 
-def test_a_lattice_mesh_is_refused_in_one_line(tmp_path):
+def test_bad_options_are_refused_in_one_line_before_any_work(tmp_path):
     line = one_error_line(TOOL, ["--mesh", "torus", "--json", tmp_path / "x.json"])
     assert "'torus'" in line and "lattice" in line
     assert not (tmp_path / "x.json").exists()
+    line = one_error_line(TOOL, ["--resolution", "1000", "--json", tmp_path / "x.json"])
+    assert "resolution 1000" in line and not (tmp_path / "x.json").exists()
+    line = one_error_line(TOOL, ["--near", "0", "--json", tmp_path / "x.json"])
+    assert "--near" in line and not (tmp_path / "x.json").exists()

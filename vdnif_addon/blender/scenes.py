@@ -264,11 +264,17 @@ def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
     return armature
 
 
+def chain_bones(obj):
+    """The names of ``obj``'s vertex groups of the procedural chain, ``Bone.i``, in the
+    chain's order."""
+    return sorted((g.name for g in obj.vertex_groups if g.name.startswith("Bone.")),
+                  key=lambda name: int(name.split(".")[1]))
+
+
 def bone_weights(obj):
     """(V, bones) the weights of every vertex of ``obj`` in the procedural chain's groups
-    ``Bone.i``, in the chain's order (0 where a vertex is not in a group)."""
-    names = sorted((g.name for g in obj.vertex_groups if g.name.startswith("Bone.")),
-                   key=lambda name: int(name.split(".")[1]))
+    (``chain_bones``, in that order; 0 where a vertex is not in a group)."""
+    names = chain_bones(obj)
     columns = {obj.vertex_groups[name].index: k for k, name in enumerate(names)}
     weights = np.zeros((len(obj.data.vertices), len(names)))
     for vertex in obj.data.vertices:
