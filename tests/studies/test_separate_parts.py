@@ -6,6 +6,7 @@ import pathlib
 
 import numpy as np
 import pytest
+from obj_files import write_bars
 from tool_errors import load_tool, one_error_line
 
 TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "separate_parts.py"
@@ -26,25 +27,6 @@ def test_parts_are_the_connected_pieces_largest_first():
     np.testing.assert_allclose(distance, brute.min(1))
 
 
-def write_obj(path, pieces):
-    """An OBJ of closed bars ``pieces`` [(lo, hi, cuts)]: rings of 4 vertices at ``cuts`` + 1
-    places along x, quads between neighbouring rings, a quad at each end."""
-    lines, base = [], 1
-    for lo, hi, cuts in pieces:
-        for ring in range(cuts + 1):
-            x = lo[0] + (hi[0] - lo[0]) * ring / cuts
-            lines += [f"v {x} {y} {z}" for y, z in ((lo[1], lo[2]), (hi[1], lo[2]),
-                                                     (hi[1], hi[2]), (lo[1], hi[2]))]
-        for ring in range(cuts):
-            a, b = base + 4 * ring, base + 4 * ring + 4
-            lines += [f"f {a + k} {a + (k + 1) % 4} {b + (k + 1) % 4} {b + k}" for k in range(4)]
-        lines += [f"f {base + 3} {base + 2} {base + 1} {base}",
-                  f"f {base + 4 * cuts} {base + 4 * cuts + 1} {base + 4 * cuts + 2} "
-                  f"{base + 4 * cuts + 3}"]
-        base += 4 * (cuts + 1)
-    path.write_text("\n".join(lines) + "\n")
-
-
 def test_the_second_file_weights_every_part_as_its_nearest_largest_part_vertex(tmp_path):
     import bpy
 
@@ -53,7 +35,7 @@ def test_the_second_file_weights_every_part_as_its_nearest_largest_part_vertex(t
     tool = load_tool(TOOL)
     mesh = tmp_path / "parts.obj"
     # a bar along the chain (the largest part) and a small box beside its first joint
-    write_obj(mesh, [((0, 0, 0), (6, 1, 1), 12), ((1.3, 1.0, 0.3), (1.7, 1.4, 0.7), 1)])
+    write_bars(mesh, [((0, 0, 0), (6, 1, 1), 12), ((1.3, 1.0, 0.3), (1.7, 1.4, 0.7), 1)])
     paths, figures = tool.rig_files(mesh, tmp_path, near=1.0)
     assert len(figures) == 1 and figures[0]["vertices"] == 8
     assert figures[0]["near_vertices"] == 8

@@ -26,6 +26,13 @@ LATTICE_MIN_SPAN = 0.6
 candidate grid (8 voxels) reaches up to 1.5 voxels, 0.19 of the longest side, past each
 side of a flat mesh, so its corners need at least 0.38 plus the mesh's own thickness."""
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
+RIDER_REACH = 0.01
+"""A separate piece with a vertex within this share of the largest piece's longest side of
+that piece's surface touches it (Suzanne's eyes: 0.001 from their sockets)."""
+RIDER_SIZE = 0.25
+"""A touching piece whose bounding-box diagonal is at most this share of the largest
+piece's rides on it (eyes, teeth, buttons: Suzanne's eyes are 0.2); a larger one, a limb
+modelled apart, keeps the weights of its own."""
 
 
 def demo_scene(name, rig=None, meshes_dir=MESHES):
@@ -108,14 +115,16 @@ def find_camera(name=None):
     return obj
 
 
-def add_rig(obj, rig):
-    """Adds the procedural armature or lattice rig with its animation to ``obj``."""
+def add_rig(obj, rig, riders_follow=True):
+    """Adds the procedural armature or lattice rig with its animation to ``obj``;
+    ``riders_follow`` False leaves an armature's riding pieces (``riders``) with bone heat's
+    weights of their own (what that costs: ``tools/separate_parts.py``)."""
     if rig not in RIGS:
         raise VDNIFError(f"unknown rig '{rig}': choose one of {', '.join(RIGS)}")
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = FRAME_START, FRAME_END
     if rig == "armature":
-        _armature_chain(obj)
+        _armature_chain(obj, riders_follow=riders_follow)
     else:
         _bend_twist_lattice(obj)
     scene.frame_set(FRAME_START)
@@ -224,9 +233,10 @@ def _local_vertices(obj):
     return co.reshape(-1, 3)
 
 
-def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
-    """A chain of ``bones`` along the longest local axis, automatic weights, and an action
-    that bends the chain by ``total_bend_degrees`` over the frame range."""
+def _armature_chain(obj, bones=3, total_bend_degrees=120.0, riders_follow=True):
+    """A chain of ``bones`` along the longest local axis, automatic weights (the riding
+    pieces weighted as the surface they ride on, ``follow_riders``), and an action that
+    bends the chain by ``total_bend_degrees`` over the frame range."""
     lo, hi = _local_bounds(obj)
     axis = int(np.argmax(hi - lo))
     centre = 0.5 * (lo + hi)
@@ -254,6 +264,8 @@ def _armature_chain(obj, bones=3, total_bend_degrees=120.0):
         raise VDNIFError(f"automatic weights failed on '{obj.name}'")
     if (bone_weights(obj).sum(1) <= 0).any():
         _chain_weights(obj, bones, axis, lo[axis], hi[axis])
+    if riders_follow:
+        follow_riders(obj)
     bend = math.radians(total_bend_degrees / bones)
     for pose_bone in armature.pose.bones:
         pose_bone.rotation_mode = "XYZ"
@@ -306,6 +318,69 @@ def _chain_weights(obj, bones, axis, lo, hi):
         weight = np.where(first == index, 1.0 - share, np.where(first + 1 == index, share, 0.0))
         for vertex in np.flatnonzero(weight > 0):
             group.add([int(vertex)], float(weight[vertex]), "REPLACE")
+
+
+def riders(obj):
+    """(vertices, sources): the vertices of ``obj``'s pieces that ride on its largest piece
+    (``RIDER_REACH``, ``RIDER_SIZE``), and each one's nearest vertex of the largest piece.
+
+    A piece is a connected set of faces (``geometry.framing.components``), the largest the
+    one with the most vertices; nothing rides on a mesh of one piece."""
+    from mathutils.bvhtree import BVHTree
+    from mathutils.kdtree import KDTree
+
+    from ..geometry.framing import components
+
+    obj.data.calc_loop_triangles()
+    triangles = np.empty(len(obj.data.loop_triangles) * 3, np.int64)
+    obj.data.loop_triangles.foreach_get("vertices", triangles)
+    triangles = triangles.reshape(-1, 3)
+    vertices = _local_vertices(obj)
+    _, piece = np.unique(components(len(vertices), triangles), return_inverse=True)
+    none = np.zeros(0, np.int64)
+    counts = np.bincount(piece)
+    if len(counts) < 2:
+        return none, none
+    pieces = np.split(np.argsort(piece, kind="stable"), np.cumsum(counts)[:-1])
+    largest = pieces[counts.argmax()]
+    tree = KDTree(len(largest))
+    for index, co in zip(largest, vertices[largest]):
+        tree.insert(co, int(index))
+    tree.balance()
+    surface = BVHTree.FromPolygons(vertices.tolist(),
+                                   triangles[piece[triangles[:, 0]] == counts.argmax()].tolist())
+    diagonal = lambda co: float(np.linalg.norm(np.ptp(co, axis=0)))  # noqa: E731
+    reach = RIDER_REACH * float(np.ptp(vertices[largest], axis=0).max())
+    size = RIDER_SIZE * diagonal(vertices[largest])
+    chosen, sources = [none], [none]
+    for label, members in enumerate(pieces):
+        if label == counts.argmax() or diagonal(vertices[members]) > size:
+            continue
+        if min(surface.find_nearest(co, reach)[3] or np.inf
+               for co in vertices[members]) <= reach:
+            chosen.append(members)
+            sources.append(np.array([tree.find(co)[1] for co in vertices[members]], np.int64))
+    return np.concatenate(chosen), np.concatenate(sources)
+
+
+def follow_riders(obj):
+    """Gives every riding vertex (``riders``) the chain weights of its nearest vertex of the
+    largest piece.
+
+    Blender's automatic weights weight each separate piece by itself, so an eye can follow
+    the bones otherwise than the socket it sits in and slide in a bend, where one voxel
+    gives both one motion (DESIGN section 4; docs/results.md, "The shaded image"). Weighted
+    as the surface it rides on, it moves with it, as an artist parents eyes and buttons."""
+    vertices, sources = riders(obj)
+    if not len(vertices):
+        return
+    weights = bone_weights(obj)
+    for column, name in enumerate(chain_bones(obj)):
+        group = obj.vertex_groups[name]
+        group.remove(vertices.tolist())
+        for vertex, source in zip(vertices, sources):
+            if weights[source, column] > 0:
+                group.add([int(vertex)], float(weights[source, column]), "REPLACE")
 
 
 def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
