@@ -1,15 +1,17 @@
 """How a development mesh's separate parts move against the surface they touch under the
 procedural armature, and what the voxel embedding makes of it.
 
-A mesh of several separate shells (Suzanne's eyes in their sockets) is weighted by Blender's
-automatic weights shell by shell, so a part can follow the bones otherwise than the surface
-it touches: in a bend the two slide apart in the true mesh, while one voxel gives both one
-motion. Per part other than the largest: its vertices within ``--near`` object units of the
-largest part and the difference of their normalized bone weights from the nearest vertex
-there (the sum over bones of the absolute differences: 0 alike, 2 on other bones). Then the
-embedding alone (``references --secondary``, no network, 8 test poses at 256x256) of the mesh
-as rigged and of the same rig with every part weighted as the surface it touches (each vertex
-given its nearest largest-part vertex's weights), at each ``--resolution``:
+Blender's automatic weights (bone heat) weight a mesh of several separate shells (Suzanne's
+eyes in their sockets) shell by shell, so a part can follow the bones otherwise than the
+surface it touches: in a bend the two slide apart in the true mesh, while one voxel gives
+both one motion. The procedural armature therefore weights a small piece that touches the
+largest one as that piece's nearest vertex (``blender.scenes.follow_riders``). Per riding
+part (``blender.scenes.riders``): its vertices within ``--near`` object units of the largest
+part and the difference of their normalized bone weights, as bone heat leaves them, from the
+nearest vertex there (the sum over bones of the absolute differences: 0 alike, 2 on other
+bones). Then the embedding alone (``references --secondary``, no network, 8 test poses at
+256x256) of the rig with bone heat's weights alone and of the procedural rig, whose riding
+parts are weighted as the surface they touch, at each ``--resolution``:
 
     python tools/separate_parts.py --mesh monkey --resolution 96 --resolution 192 \\
         --json docs/results/separate-parts.json
@@ -34,7 +36,7 @@ from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.geometry.framing import components  # noqa: E402
 
 REFERENCES = ["--poses", "8", "--width", "256", "--height", "256", "--secondary"]
-VARIANTS = ("as rigged", "parts weighted as the surface they touch")
+VARIANTS = ("bone heat alone", "riding parts weighted as the surface they touch")
 FIGURES = ("distance_mae", "distance_mae_voxels", "normal_error_deg", "hit_iou",
            "shadow_false_lit_rate", "shadow_false_shadow_rate", "ao_mae")
 
@@ -47,16 +49,6 @@ def parts(vertex_count, triangles):
     return np.argsort(order)[piece]
 
 
-def nearest(points, targets, chunk=512):
-    """(index into ``targets``, distance) of each of ``points``' nearest target."""
-    index, distance = [], []
-    for start in range(0, len(points), chunk):
-        d = np.linalg.norm(points[start:start + chunk, None] - targets[None], axis=2)
-        index.append(d.argmin(1))
-        distance.append(d.min(1))
-    return np.concatenate(index), np.concatenate(distance)
-
-
 def mesh_triangles(obj):
     """(T, 3) vertex indices of the triangles of mesh object ``obj``."""
     obj.data.calc_loop_triangles()
@@ -64,46 +56,45 @@ def mesh_triangles(obj):
 
 
 def rig_files(obj_path, folder, near):
-    """Rigs the mesh at ``obj_path`` with the procedural armature; writes it as rigged and
-    with its parts weighted as the surface they touch; (the two .blend paths, the parts'
-    figures)."""
+    """Rigs the mesh at ``obj_path`` with the procedural armature; writes it with bone heat's
+    weights alone and as the procedural rig weights it; (the two .blend paths, the riding
+    parts' figures)."""
     import bpy
 
     from vdnif_addon.blender.mesh_files import import_mesh
-    from vdnif_addon.blender.scenes import add_rig, bone_weights, chain_bones
+    from vdnif_addon.blender.scenes import (
+        add_rig,
+        bone_weights,
+        chain_bones,
+        follow_riders,
+        riders,
+    )
 
     bpy.ops.wm.read_homefile(use_empty=True)
-    obj = add_rig(import_mesh(str(obj_path)), "armature")
+    obj = add_rig(import_mesh(str(obj_path)), "armature", riders_follow=False)
     vertices = np.array([v.co for v in obj.data.vertices])
     label = parts(len(vertices), mesh_triangles(obj))
     bones = chain_bones(obj)
     raw = bone_weights(obj)
     weights = raw / np.maximum(raw.sum(1, keepdims=True), 1e-30)
-    largest, others = np.flatnonzero(label == 0), np.flatnonzero(label != 0)
-    # each other part's vertex: its nearest vertex of the largest part, and how far
-    source, distance = np.arange(len(vertices)), np.zeros(len(vertices))
-    index, distance[others] = nearest(vertices[others], vertices[largest])
-    source[others] = largest[index]
+    riding, source = riders(obj)
+    distance = np.linalg.norm(vertices[riding] - vertices[source], axis=1)
     figures = []
-    for part in range(1, label.max() + 1):
-        members = np.flatnonzero(label == part)
-        close = members[distance[members] < near]
-        difference = np.abs(weights[close] - weights[source[close]]).sum(1)
+    for part in np.unique(label[riding]):
+        inside = label[riding] == part
+        close = distance[inside] < near
+        members, sources = riding[inside][close], source[inside][close]
+        difference = np.abs(weights[members] - weights[sources]).sum(1)
         figures.append({
-            "vertices": int(len(members)), "centre": vertices[members].mean(0).tolist(),
-            "near_vertices": int(len(close)),
-            "weight_difference_median": float(np.median(difference)) if len(close) else None,
-            "weight_difference_max": float(difference.max()) if len(close) else None,
-            "weights": dict(zip(bones, weights[close].mean(0).tolist())),
-            "touched_weights": dict(zip(bones, weights[source[close]].mean(0).tolist()))})
-    paths = [folder / "as-rigged.blend", folder / "parts-follow.blend"]
+            "vertices": int(inside.sum()), "centre": vertices[riding[inside]].mean(0).tolist(),
+            "near_vertices": int(close.sum()),
+            "weight_difference_median": float(np.median(difference)) if close.any() else None,
+            "weight_difference_max": float(difference.max()) if close.any() else None,
+            "weights": dict(zip(bones, weights[members].mean(0).tolist())),
+            "touched_weights": dict(zip(bones, weights[sources].mean(0).tolist()))})
+    paths = [folder / "bone-heat.blend", folder / "riders-follow.blend"]
     bpy.ops.wm.save_as_mainfile(filepath=str(paths[0]))
-    for column, name in enumerate(bones):
-        group = obj.vertex_groups[name]
-        group.remove(others.tolist())
-        for vertex in others:
-            if weights[source[vertex], column] > 0:
-                group.add([int(vertex)], float(weights[source[vertex], column]), "REPLACE")
+    follow_riders(obj)
     bpy.ops.wm.save_as_mainfile(filepath=str(paths[1]))
     return paths, figures
 
@@ -115,7 +106,7 @@ def main(argv):
     parser.add_argument("--resolution", type=int, action="append",
                         help="voxel resolution (repeatable; default 96)")
     parser.add_argument("--near", type=float, default=0.05,
-                        help="a part's vertices this close to the largest part touch it")
+                        help="count a riding part's vertices this close to the largest part")
     parser.add_argument("--json", type=pathlib.Path, required=True, help="write the figures")
     args = parser.parse_args(argv)
     if mesh_table()[args.mesh][0] != "armature":
@@ -148,8 +139,9 @@ def main(argv):
                       f"{100 * error['shadow_false_shadow_rate']:.3g} %, false lit "
                       f"{100 * error['shadow_false_lit_rate']:.3g} %")
     for number, part in enumerate(figures, 1):
-        print(f"part {number}: {part['vertices']} vertices, {part['near_vertices']} touch the "
-              f"largest part; weight difference there median {part['weight_difference_median']}")
+        print(f"riding part {number}: {part['vertices']} vertices, {part['near_vertices']} "
+              f"near the largest part; weight difference there, bone heat alone, median "
+              f"{part['weight_difference_median']}")
     write_json_atomic(args.json, stamp({
         "mesh": args.mesh, "rig": "armature", "near": args.near,
         "references": REFERENCES, "command": ["python", "tools/separate_parts.py", *argv],
