@@ -68,7 +68,8 @@ def test_every_vertex_is_weighted_and_a_bent_slab_does_not_tear(empty_scene, cor
 def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_path):
     """A separate piece weighted by bone heat on its own slides on the surface it sits on in
     a bend (Suzanne's eyes in their sockets); the rig gives a small touching piece the
-    weights of the body's nearest vertex, and leaves a far piece and a large one alone."""
+    weights of the body's nearest vertex (also one seated on the body's vertices, 0 away), and
+    leaves a far piece and a large one alone."""
     import bpy
 
     scenes = core("blender.scenes")
@@ -77,10 +78,12 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
     touching = ((1.3, 1.0, 0.3), (1.7, 1.4, 0.7), 1)     # on the body's side, a tenth its size
     far = ((4.3, 3.0, 0.3), (4.7, 3.4, 0.7), 1)          # as small, 2 units away
     limb = ((0.5, -4.0, 0.2), (1.0, 0.0, 0.8), 4)        # touching, but 0.7 of the body's size
-    write_bars(mesh, [body, touching, far, limb])
+    seated = ((2.0, 1.0, 0.0), (2.5, 1.4, 1.0), 1)       # its base on body vertices: 0 away
+    write_bars(mesh, [body, touching, far, limb, seated])
     rings = lambda piece: 4 * (piece[2] + 1)  # noqa: E731
-    first = np.cumsum([0] + [rings(p) for p in (body, touching, far, limb)])
-    body_v, touching_v, far_v, limb_v = (np.arange(first[k], first[k + 1]) for k in range(4))
+    first = np.cumsum([0] + [rings(p) for p in (body, touching, far, limb, seated)])
+    body_v, touching_v, far_v, limb_v, seated_v = (np.arange(first[k], first[k + 1])
+                                                   for k in range(5))
 
     def rigged(riders_follow):
         bpy.ops.wm.read_homefile(use_empty=True)
@@ -92,16 +95,19 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
     weights = scenes.bone_weights(obj)
     vertices = np.array([v.co[:] for v in obj.data.vertices])
 
+    def nearest_body(members):
+        """The body's nearest vertex to each of ``members``, by brute force."""
+        gaps = np.linalg.norm(vertices[members, None] - vertices[None, body_v], axis=2)
+        return body_v[gaps.argmin(1)]
+
     riding, sources = scenes.riders(obj)
-    assert sorted(riding) == list(touching_v)
-    # each source is the body's nearest vertex, by brute force
-    gaps = np.linalg.norm(vertices[touching_v, None] - vertices[None, body_v], axis=2)
-    assert sorted(zip(riding, sources)) == list(zip(touching_v, body_v[gaps.argmin(1)]))
-    np.testing.assert_allclose(weights[touching_v], weights[body_v[gaps.argmin(1)]])
+    assert sorted(riding) == [*touching_v, *seated_v]
+    assert (sources == nearest_body(riding)).all()
+    np.testing.assert_allclose(weights[riding], weights[sources])
     for kept in (body_v, far_v, limb_v):
         np.testing.assert_allclose(weights[kept], raw[kept])
     normalized = raw / raw.sum(1, keepdims=True)
-    assert np.abs(normalized[touching_v] - normalized[body_v[gaps.argmin(1)]]).sum(1).max() > 0.1
+    assert np.abs(normalized[touching_v] - normalized[nearest_body(touching_v)]).sum(1).max() > 0.1
 
     # Blender's own evaluation: bent, the riding piece keeps its place on the body, where
     # with bone heat's weights alone it slides
@@ -112,7 +118,7 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
         bend(scene_obj, 45)
         depsgraph = bpy.context.evaluated_depsgraph_get()
         posed = np.array([v.co[:] for v in scene_obj.evaluated_get(depsgraph).data.vertices])
-        nearest = body_v[gaps.argmin(1)]
+        nearest = nearest_body(touching_v)
         before = np.linalg.norm(rest[touching_v] - rest[nearest], axis=1)
         after = np.linalg.norm(posed[touching_v] - posed[nearest], axis=1)
         return float(np.abs(after - before).max())

@@ -356,8 +356,8 @@ def riders(obj):
     for label, members in enumerate(pieces):
         if label == counts.argmax() or diagonal(vertices[members]) > size:
             continue
-        if min(surface.find_nearest(co, reach)[3] or np.inf
-               for co in vertices[members]) <= reach:
+        # find_nearest answers (None, ...) beyond ``reach``; a vertex on the surface, 0.0
+        if any(surface.find_nearest(co, reach)[3] is not None for co in vertices[members]):
             chosen.append(members)
             sources.append(np.array([tree.find(co)[1] for co in vertices[members]], np.int64))
     return np.concatenate(chosen), np.concatenate(sources)
