@@ -6,7 +6,7 @@ eyes in their sockets) shell by shell, so a part can follow the bones otherwise 
 surface it touches: in a bend the two slide apart in the true mesh, while one voxel gives
 both one motion. The procedural armature therefore weights a small piece that touches the
 largest one as that piece's nearest vertex (``blender.scenes.follow_riders``). Per riding
-part (``blender.scenes.riders``): its vertices within ``--near`` object units of the largest
+part (``blender.pieces.riders``): its vertices within ``--near`` object units of the largest
 part and the difference of their normalized bone weights, as bone heat leaves them, from the
 nearest vertex there (the sum over bones of the absolute differences: 0 alike, 2 on other
 bones). Then the embedding alone (``references --secondary``, no network, 8 test poses at
@@ -62,13 +62,8 @@ def rig_files(obj_path, folder, near):
     import bpy
 
     from vdnif_addon.blender.mesh_files import import_mesh
-    from vdnif_addon.blender.scenes import (
-        add_rig,
-        bone_weights,
-        chain_bones,
-        follow_riders,
-        riders,
-    )
+    from vdnif_addon.blender.pieces import riders
+    from vdnif_addon.blender.scenes import add_rig, bone_weights, chain_bones, follow_riders
 
     bpy.ops.wm.read_homefile(use_empty=True)
     obj = add_rig(import_mesh(str(obj_path)), "armature", riders_follow=False)

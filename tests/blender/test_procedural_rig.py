@@ -100,7 +100,7 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
         gaps = np.linalg.norm(vertices[members, None] - vertices[None, body_v], axis=2)
         return body_v[gaps.argmin(1)]
 
-    riding, sources = scenes.riders(obj)
+    riding, sources = core("blender.pieces").riders(obj)
     assert sorted(riding) == [*touching_v, *seated_v]
     assert (sources == nearest_body(riding)).all()
     np.testing.assert_allclose(weights[riding], weights[sources])
@@ -127,3 +127,46 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
     alone_slide = slide(rigged(False))
     # riding, the gaps (0.36-0.6 at rest) change only by the blend of the bones' turns
     assert riding_slide < 0.1 < 0.5 < alone_slide
+
+
+def test_a_piece_that_slides_is_named_where_the_corners_are_chosen(empty_scene, core,
+                                                                   tmp_path):
+    """An armature that moves a riding piece otherwise than the surface it touches (here
+    bone heat's weights alone) cannot be followed by one voxel: the corners' choice names
+    the piece, with its place and how far its weights differ; the procedural armature's own
+    weighting, and a lattice, give nothing to name."""
+    import bpy
+
+    pieces, scenes = core("blender.pieces"), core("blender.scenes")
+    steps, spec = core("blender.steps"), core("pose_sets").PoseSpec(count=2)
+    mesh = tmp_path / "pieces.obj"
+    write_bars(mesh, [((0, 0, 0), (6, 1, 1), 12), ((1.3, 1.0, 0.3), (1.7, 1.4, 0.7), 1)])
+    body_v, box_v = np.arange(52), np.arange(52, 60)
+
+    def rigged(rig, riders_follow=True):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        obj = core("blender.mesh_files").import_mesh(str(mesh))
+        return scenes.add_rig(obj, rig, riders_follow=riders_follow)
+
+    obj = rigged("armature", riders_follow=False)
+    vertices = np.array([v.co[:] for v in obj.data.vertices])
+    raw = scenes.bone_weights(obj)
+    weights = raw / raw.sum(1, keepdims=True)
+    np.testing.assert_allclose(pieces.armature_weights(obj), weights)
+    gaps = np.linalg.norm(vertices[box_v, None] - vertices[None, body_v], axis=2)
+    expected = np.abs(weights[box_v] - weights[body_v[gaps.argmin(1)]]).sum(1).max()
+    assert expected > pieces.SLIDE_DIFFERENCE      # bone heat weights the box by itself
+    (count, centre, difference), = pieces.sliding(obj)
+    assert count == 8 and difference == pytest.approx(expected)
+    np.testing.assert_allclose(centre, vertices[box_v].mean(0), atol=1e-6)
+    said = []
+    steps.training_follow(obj, 16, spec, say=said.append)
+    assert len(said) == 1 and "1 separate piece at (" in said[0]
+    assert "moves otherwise than the surface it touches" in said[0]
+
+    for rig in ("armature", "lattice"):
+        quiet = rigged(rig)
+        assert pieces.sliding(quiet) == ()
+        said = []
+        steps.training_follow(quiet, 16, spec, say=said.append)
+        assert not any("separate piece" in line for line in said)

@@ -12,11 +12,15 @@ suggested resolution is (``resolution``: the embedded against the true reference
 development poses at a small view, distance MAE in object units and hit mismatch), and the
 copies are kept unless the binding is better by a margin (``FOLLOW_MARGIN``, relative, and
 ``KNEE_TOLERANCE``, the measurement's noise): a tie keeps them. Anything else that deforms
-the mesh leaves the binding alone (``deform.check_deformers``). Where a Subdivision Surface
+the mesh leaves the binding alone (``deform.check_deformers``). Neither way can give a
+separate piece that an armature moves apart from the surface it touches a motion of its
+own (``pieces.sliding``): the report names such pieces. Where a Subdivision Surface
 or Multires ends the stack, the binding to its cage (whose cost per pose does not grow with
 the subdivided count) and the binding to the subdivided surface are measured the same way,
 and the cage is kept unless the subdivided surface is better by the margin: a coarse cage
 misses the subdivision's rounding between its vertices. Otherwise nothing is measured.
+Neither way can give a separate piece that an armature moves apart from the surface it
+touches a motion of its own (``pieces.sliding``): the choice names such pieces.
 """
 
 import dataclasses
@@ -28,6 +32,7 @@ from ..settings import FOLLOW_MARGIN, KNEE_TOLERANCE, SUGGEST_POSES, SUGGEST_VIE
 from ..worker import DirectCalls
 from .capture_scene import capture
 from .deform import check_deformers, trailing_subdivision
+from .pieces import describe_sliding, sliding
 from .poses import evaluation_spec
 from .read_mesh import check_mesh_object, deform_modifiers
 from .resolution import embedding_errors
@@ -37,21 +42,24 @@ from .resolution import embedding_errors
 class FollowChoice:
     """How the corners follow (``follow``, one of ``CORNERS_FOLLOW``), the measured
     ``errors`` ({follow: {"embedding_error": object units, "hit_mismatch": share}}; empty
-    where only one way applies) and the ``seconds`` the choice took."""
+    where only one way applies), the ``seconds`` the choice took, and the ``sliding``
+    pieces that no way of following can give a motion of their own (``pieces.sliding``)."""
 
     follow: str
     errors: dict
     seconds: float
+    sliding: tuple = ()
 
     def describe(self):
-        """One line: the choice and the figures it was made on."""
+        """One line: the choice and the figures it was made on, and what slides."""
+        slides = f"; {describe_sliding(self.sliding)}" if self.sliding else ""
         if not self.errors:
-            return f"corners follow: {self.follow} (the only way that applies)"
+            return f"corners follow: {self.follow} (the only way that applies){slides}"
         figures = ", ".join(
             f"{name} {_figure(row['embedding_error'])} ({_figure(row['hit_mismatch'], 100)} "
             "% hit mismatch)" for name, row in self.errors.items())
         return (f"corners follow: {self.follow} (embedding error on development poses: "
-                f"{figures}; {self.seconds:.1f} s)")
+                f"{figures}; {self.seconds:.1f} s){slides}")
 
 
 def _figure(value, scale=1):
@@ -81,15 +89,15 @@ def choose_follow(obj, resolution, spec, poses=SUGGEST_POSES, size=SUGGEST_VIEW_
     is read (in this thread, or from a worker on the main thread: ``worker.MainCalls``);
     ``progress(done, total)`` after each way measured."""
     start = time.perf_counter()
-    only, rigged, subdivided = calls.call(lambda: (
+    only, rigged, subdivided, slides = calls.call(lambda: (
         check_mesh_object(obj), check_deformers(obj), bool(deform_modifiers(obj)),
-        bool(trailing_subdivision(obj)))[1:])
+        bool(trailing_subdivision(obj)), sliding(obj))[1:])
     if only == ARMATURE_COPY and rigged:
         kept, candidate = ARMATURE_COPY, EVALUATED_SURFACE
     elif only == EVALUATED_SURFACE and subdivided:
         kept, candidate = EVALUATED_SURFACE, SUBDIVIDED_SURFACE
     else:
-        return FollowChoice(only, {}, time.perf_counter() - start)
+        return FollowChoice(only, {}, time.perf_counter() - start, slides)
     development = evaluation_spec(spec, min(spec.count, poses), pose_set=DEVELOPMENT_POSES)
     errors = {}
     for follow in (kept, candidate):
@@ -99,4 +107,4 @@ def choose_follow(obj, resolution, spec, poses=SUGGEST_POSES, size=SUGGEST_VIEW_
         if progress is not None:
             progress(len(errors), 2)
     chosen = candidate if better(errors[candidate], errors[kept]) else kept
-    return FollowChoice(chosen, errors, time.perf_counter() - start)
+    return FollowChoice(chosen, errors, time.perf_counter() - start, slides)

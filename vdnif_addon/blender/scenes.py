@@ -17,6 +17,7 @@ from ..errors import VDNIFError
 from ..mesh_input import check_input, check_mesh_file
 from ..settings import DEMO_SCENES, RIGS
 from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
+from .pieces import riders
 from .rig import bend_twist
 from .trial_load import check_images, trial_load
 
@@ -26,13 +27,6 @@ LATTICE_MIN_SPAN = 0.6
 candidate grid (8 voxels) reaches up to 1.5 voxels, 0.19 of the longest side, past each
 side of a flat mesh, so its corners need at least 0.38 plus the mesh's own thickness."""
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
-RIDER_REACH = 0.01
-"""A separate piece with a vertex within this share of the largest piece's longest side of
-that piece's surface touches it (Suzanne's eyes: 0.001 from their sockets)."""
-RIDER_SIZE = 0.25
-"""A touching piece whose bounding-box diagonal is at most this share of the largest
-piece's rides on it (eyes, teeth, buttons: Suzanne's eyes are 0.2); a larger one, a limb
-modelled apart, keeps the weights of its own."""
 
 
 def demo_scene(name, rig=None, meshes_dir=MESHES):
@@ -117,7 +111,7 @@ def find_camera(name=None):
 
 def add_rig(obj, rig, riders_follow=True):
     """Adds the procedural armature or lattice rig with its animation to ``obj``;
-    ``riders_follow`` False leaves an armature's riding pieces (``riders``) with bone heat's
+    ``riders_follow`` False leaves an armature's riding pieces (``pieces.riders``) with bone heat's
     weights of their own (what that costs: ``tools/separate_parts.py``)."""
     if rig not in RIGS:
         raise VDNIFError(f"unknown rig '{rig}': choose one of {', '.join(RIGS)}")
@@ -235,7 +229,8 @@ def _local_vertices(obj):
 
 def _armature_chain(obj, bones=3, total_bend_degrees=120.0, riders_follow=True):
     """A chain of ``bones`` along the longest local axis, automatic weights (the riding
-    pieces weighted as the surface they ride on, ``follow_riders``), and an action that
+    pieces, ``pieces.riders``, weighted as the surface they ride on: ``follow_riders``), and
+    an action that
     bends the chain by ``total_bend_degrees`` over the frame range."""
     lo, hi = _local_bounds(obj)
     axis = int(np.argmax(hi - lo))
@@ -320,52 +315,9 @@ def _chain_weights(obj, bones, axis, lo, hi):
             group.add([int(vertex)], float(weight[vertex]), "REPLACE")
 
 
-def riders(obj):
-    """(vertices, sources): the vertices of ``obj``'s pieces that ride on its largest piece
-    (``RIDER_REACH``, ``RIDER_SIZE``), and each one's nearest vertex of the largest piece.
-
-    A piece is a connected set of faces (``geometry.framing.components``), the largest the
-    one with the most vertices; nothing rides on a mesh of one piece."""
-    from mathutils.bvhtree import BVHTree
-    from mathutils.kdtree import KDTree
-
-    from ..geometry.framing import components
-
-    obj.data.calc_loop_triangles()
-    triangles = np.empty(len(obj.data.loop_triangles) * 3, np.int64)
-    obj.data.loop_triangles.foreach_get("vertices", triangles)
-    triangles = triangles.reshape(-1, 3)
-    vertices = _local_vertices(obj)
-    _, piece = np.unique(components(len(vertices), triangles), return_inverse=True)
-    none = np.zeros(0, np.int64)
-    counts = np.bincount(piece)
-    if len(counts) < 2:
-        return none, none
-    pieces = np.split(np.argsort(piece, kind="stable"), np.cumsum(counts)[:-1])
-    largest = pieces[counts.argmax()]
-    tree = KDTree(len(largest))
-    for index, co in zip(largest, vertices[largest]):
-        tree.insert(co, int(index))
-    tree.balance()
-    surface = BVHTree.FromPolygons(vertices.tolist(),
-                                   triangles[piece[triangles[:, 0]] == counts.argmax()].tolist())
-    diagonal = lambda co: float(np.linalg.norm(np.ptp(co, axis=0)))  # noqa: E731
-    reach = RIDER_REACH * float(np.ptp(vertices[largest], axis=0).max())
-    size = RIDER_SIZE * diagonal(vertices[largest])
-    chosen, sources = [none], [none]
-    for label, members in enumerate(pieces):
-        if label == counts.argmax() or diagonal(vertices[members]) > size:
-            continue
-        # find_nearest answers (None, ...) beyond ``reach``; a vertex on the surface, 0.0
-        if any(surface.find_nearest(co, reach)[3] is not None for co in vertices[members]):
-            chosen.append(members)
-            sources.append(np.array([tree.find(co)[1] for co in vertices[members]], np.int64))
-    return np.concatenate(chosen), np.concatenate(sources)
-
-
 def follow_riders(obj):
-    """Gives every riding vertex (``riders``) the chain weights of its nearest vertex of the
-    largest piece.
+    """Gives every riding vertex (``pieces.riders``) the chain weights of its nearest vertex
+    of the largest piece.
 
     Blender's automatic weights weight each separate piece by itself, so an eye can follow
     the bones otherwise than the socket it sits in and slide in a bend, where one voxel

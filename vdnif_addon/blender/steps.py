@@ -60,9 +60,9 @@ def training_follow(obj, resolution, spec, say=None):
     """How the corners of ``obj`` follow it in a model trained at ``resolution`` on the
     poses of ``spec``: as ``follow_choice.choose_follow`` measures best (once a job: every
     capture of the job takes it from here); ``say(line)`` hears the choice and its seconds
-    where there was one to make."""
+    where there was one to make, or where a separate piece slides (``pieces.sliding``)."""
     choice = choose_follow(obj, resolution, spec)
-    if say is not None and choice.errors:
+    if say is not None and (choice.errors or choice.sliding):
         say(choice.describe())
     return choice.follow
 
