@@ -66,10 +66,11 @@ def riders(obj):
     return np.concatenate(chosen), np.concatenate(sources)
 
 
-def armature_weights(obj):
-    """(V, bones) the normalized weights of every vertex of ``obj`` in the vertex groups named
-    after the deforming bones of its enabled Armature modifiers (0 where a vertex has none);
-    None when no armature deforms it by vertex groups."""
+def armature_weights(obj, indices=None):
+    """(len(indices), bones) the normalized weights of the vertices ``indices`` of ``obj``
+    (default every vertex) in the vertex groups named after the deforming bones of its
+    enabled Armature modifiers (0 where a vertex has none); None when no armature deforms
+    it by vertex groups."""
     names = []
     for modifier in obj.modifiers:
         if (modifier.type == "ARMATURE" and modifier.show_viewport and modifier.use_vertex_groups
@@ -80,27 +81,30 @@ def armature_weights(obj):
                if name in obj.vertex_groups}
     if not columns:
         return None
-    weights = np.zeros((len(obj.data.vertices), len(names)))
-    for vertex in obj.data.vertices:
-        for group in vertex.groups:
+    if indices is None:
+        indices = range(len(obj.data.vertices))
+    weights = np.zeros((len(indices), len(names)))
+    for row, index in enumerate(indices):
+        for group in obj.data.vertices[int(index)].groups:
             if group.group in columns:
-                weights[vertex.index, columns[group.group]] = group.weight
+                weights[row, columns[group.group]] = group.weight
     return weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
 
 
 def sliding(obj):
     """The riding pieces of ``obj`` that its armature moves otherwise than the surface they
     touch (``SLIDE_DIFFERENCE``): a tuple of (vertices, centre (x, y, z) in object space,
-    largest weight difference) per piece; empty without an armature or a riding piece."""
-    weights = armature_weights(obj)
-    if weights is None:
+    largest weight difference) per piece; empty without an armature or a riding piece.
+    Only the riding vertices and their sources' weights are read (a Python loop each)."""
+    if armature_weights(obj, indices=()) is None:
         return ()
     vertices, sources = riders(obj)
     if not len(vertices):
         return ()
+    difference = np.abs(armature_weights(obj, vertices)
+                        - armature_weights(obj, sources)).sum(1)
     _, piece = np.unique(components(len(obj.data.vertices), _triangles(obj)),
                          return_inverse=True)
-    difference = np.abs(weights[vertices] - weights[sources]).sum(1)
     found = []
     for label in np.unique(piece[vertices]):
         inside = piece[vertices] == label
