@@ -4,6 +4,7 @@ writes a results JSON stamps it."""
 
 import ast
 import dataclasses
+import json
 import pathlib
 import re
 
@@ -38,6 +39,29 @@ def test_a_stamp_names_the_commit_todays_network_and_the_recipe(monkeypatch):
     assert record["recipe"]["data"] == dataclasses.asdict(settings.RECIPE)
     assert record["recipe"]["training"]["lr_mlp"] == settings.TrainConfig().lr_mlp
     assert record["recipe"]["resolution_rules"]["textured"] == settings.RECIPE.textured_resolution
+
+
+def test_a_report_of_a_model_trained_otherwise_is_stamped_with_its_network(monkeypatch,
+                                                                          tmp_path):
+    """A report that holds its model's network (``evaluate --json``: ``config["network"]``)
+    names that network, so that a table of a model with other settings is not taken for
+    one of today's default; a report without one names today's default."""
+    from vdnif_addon.cli.options import write_json
+
+    monkeypatch.setattr(provenance, "commit", lambda repo=None: "0" * 40)
+    other = dict(settings.NetworkConfig(levels=3).to_dict())
+    write_json(tmp_path / "model.json", {"config": {"network": other}, "vs_true": {}})
+    write_json(tmp_path / "plain.json", {"rows": []})
+    model = json.loads((tmp_path / "model.json").read_text())["provenance"]
+    plain = json.loads((tmp_path / "plain.json").read_text())["provenance"]
+    assert model["network"]["levels"] == 3 and "heads" not in model["network"]
+    assert model["network_hash"] == provenance.network_hash(
+        {k: v for k, v in other.items() if k != "heads"}) != provenance.network_hash()
+    assert plain["network_hash"] == provenance.network_hash()
+    today = dict(settings.NetworkConfig().to_dict())        # a default model: today's hash
+    write_json(tmp_path / "default.json", {"config": {"network": today}})
+    assert json.loads((tmp_path / "default.json").read_text())["provenance"][
+        "network_hash"] == provenance.network_hash()
 
 
 def test_the_hash_changes_with_any_field_of_the_network():

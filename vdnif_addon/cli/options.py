@@ -242,15 +242,17 @@ def add_network_options(parser):
 def write_json(path, data):
     """Writes ``data`` as strict JSON to ``path`` atomically (``safe_io``: no half-written
     file, no write through a symlink, no NaN), a mapping with its provenance (the commit,
-    today's default network and recipe, the machine: its figures include times)."""
+    the network its figures describe: a report's model's, ``config["network"]``, else
+    today's default; the recipe, the machine: its figures include times)."""
     from ..model.provenance import stamp
     from ..output_rule import REPORT_FORMAT
     from ..safe_io import write_json_atomic
 
     if path is not None:
         if isinstance(data, dict):
+            network = (data.get("config") or {}).get("network")
             data = stamp({"format": REPORT_FORMAT, **data} if "format" not in data else data,
-                         with_machine=True)
+                         with_machine=True, network=network if isinstance(network, dict) else None)
         write_json_atomic(path, data)
 
 

@@ -99,9 +99,14 @@ def machine() -> dict[str, Any]:
             "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None}
 
 
-def provenance(with_machine: bool = False) -> dict[str, Any]:
-    """The ``provenance`` entry of a results JSON; ``with_machine`` where it holds times."""
-    network = default_network()
+def provenance(with_machine: bool = False, network: dict[str, Any] | None = None
+               ) -> dict[str, Any]:
+    """The ``provenance`` entry of a results JSON; ``with_machine`` where it holds times;
+    ``network`` the configuration of the network the figures describe where it is not
+    today's default (a model trained with other settings), its heads left out as the
+    default's are."""
+    network = default_network() if network is None else {
+        key: value for key, value in network.items() if key != "heads"}
     record = {"commit": commit(), "network_hash": network_hash(network), "network": network,
               "recipe": default_recipe()}
     if with_machine:
@@ -109,6 +114,7 @@ def provenance(with_machine: bool = False) -> dict[str, Any]:
     return record
 
 
-def stamp(data: dict[str, Any], with_machine: bool = False) -> dict[str, Any]:
+def stamp(data: dict[str, Any], with_machine: bool = False,
+          network: dict[str, Any] | None = None) -> dict[str, Any]:
     """``data`` with its ``provenance`` (a copy; ``data`` is left as it is)."""
-    return {**data, "provenance": provenance(with_machine)}
+    return {**data, "provenance": provenance(with_machine, network)}
