@@ -43,9 +43,10 @@ def test_a_stamp_names_the_commit_todays_network_and_the_recipe(monkeypatch):
 
 def test_a_report_of_a_model_trained_otherwise_is_stamped_with_its_network(monkeypatch,
                                                                           tmp_path):
-    """A report that holds its model's network (``evaluate --json``: ``config["network"]``)
-    names that network, so that a table of a model with other settings is not taken for
-    one of today's default; a report without one names today's default."""
+    """A report that holds its model's network (``evaluate --json``, the demo's report:
+    ``config["network"]``) names that network, so that a table of a model with other
+    settings is not taken for one of today's default; a report without one names today's
+    default. ``stamp`` decides it, so every writer stamps alike."""
     from vdnif_addon.cli.options import write_json
 
     monkeypatch.setattr(provenance, "commit", lambda repo=None: "0" * 40)
@@ -62,6 +63,8 @@ def test_a_report_of_a_model_trained_otherwise_is_stamped_with_its_network(monke
     write_json(tmp_path / "default.json", {"config": {"network": today}})
     assert json.loads((tmp_path / "default.json").read_text())["provenance"][
         "network_hash"] == provenance.network_hash()
+    assert provenance.stamp({"config": {"network": other}})["provenance"]["network_hash"] == \
+        model["network_hash"]
 
 
 def test_the_hash_changes_with_any_field_of_the_network():

@@ -250,9 +250,8 @@ def write_json(path, data):
 
     if path is not None:
         if isinstance(data, dict):
-            network = (data.get("config") or {}).get("network")
             data = stamp({"format": REPORT_FORMAT, **data} if "format" not in data else data,
-                         with_machine=True, network=network if isinstance(network, dict) else None)
+                         with_machine=True)
         write_json_atomic(path, data)
 
 

@@ -114,7 +114,11 @@ def provenance(with_machine: bool = False, network: dict[str, Any] | None = None
     return record
 
 
-def stamp(data: dict[str, Any], with_machine: bool = False,
-          network: dict[str, Any] | None = None) -> dict[str, Any]:
-    """``data`` with its ``provenance`` (a copy; ``data`` is left as it is)."""
-    return {**data, "provenance": provenance(with_machine, network)}
+def stamp(data: dict[str, Any], with_machine: bool = False) -> dict[str, Any]:
+    """``data`` with its ``provenance`` (a copy; ``data`` is left as it is), which names the
+    network its figures describe: a report's model's (``data["config"]["network"]``, as
+    ``evaluate`` and the demo write it) where it holds one, else today's default."""
+    config = data.get("config")
+    network = config.get("network") if isinstance(config, dict) else None
+    return {**data, "provenance": provenance(
+        with_machine, network if isinstance(network, dict) else None)}
