@@ -12,9 +12,7 @@ suggested resolution is (``resolution``: the embedded against the true reference
 development poses at a small view, distance MAE in object units and hit mismatch), and the
 copies are kept unless the binding is better by a margin (``FOLLOW_MARGIN``, relative, and
 ``KNEE_TOLERANCE``, the measurement's noise): a tie keeps them. Anything else that deforms
-the mesh leaves the binding alone (``deform.check_deformers``). Neither way can give a
-separate piece that an armature moves apart from the surface it touches a motion of its
-own (``pieces.sliding``): the report names such pieces. Where a Subdivision Surface
+the mesh leaves the binding alone (``deform.check_deformers``). Where a Subdivision Surface
 or Multires ends the stack, the binding to its cage (whose cost per pose does not grow with
 the subdivided count) and the binding to the subdivided surface are measured the same way,
 and the cage is kept unless the subdivided surface is better by the margin: a coarse cage

@@ -35,6 +35,12 @@ def riders(obj):
 
     A piece is a connected set of faces (``geometry.framing.components``), the largest the
     one with the most vertices; nothing rides on a mesh of one piece."""
+    vertices, sources, _, _ = _riders(obj)
+    return vertices, sources
+
+
+def _riders(obj):
+    """``riders``, with every vertex's coordinates (V, 3) and piece label (V,)."""
     triangles = _triangles(obj)
     flat = np.empty(len(obj.data.vertices) * 3)
     obj.data.vertices.foreach_get("co", flat)
@@ -43,7 +49,7 @@ def riders(obj):
     none = np.zeros(0, np.int64)
     counts = np.bincount(piece)
     if len(counts) < 2:
-        return none, none
+        return none, none, vertices, piece
     pieces = np.split(np.argsort(piece, kind="stable"), np.cumsum(counts)[:-1])
     largest = pieces[counts.argmax()]
     tree = KDTree(len(largest))
@@ -63,24 +69,15 @@ def riders(obj):
         if any(surface.find_nearest(co, reach)[3] is not None for co in vertices[members]):
             chosen.append(members)
             sources.append(np.array([tree.find(co)[1] for co in vertices[members]], np.int64))
-    return np.concatenate(chosen), np.concatenate(sources)
+    return np.concatenate(chosen), np.concatenate(sources), vertices, piece
 
 
-def armature_weights(obj, indices=None):
-    """(len(indices), bones) the normalized weights of the vertices ``indices`` of ``obj``
-    (default every vertex) in the vertex groups named after the deforming bones of its
-    enabled Armature modifiers (0 where a vertex has none); None when no armature deforms
-    it by vertex groups."""
-    names = []
-    for modifier in obj.modifiers:
-        if (modifier.type == "ARMATURE" and modifier.show_viewport and modifier.use_vertex_groups
-                and modifier.object is not None and modifier.object.type == "ARMATURE"):
-            names += [bone.name for bone in modifier.object.data.bones
-                      if bone.use_deform and bone.name not in names]
+def group_weights(obj, names, indices=None):
+    """(len(indices), len(names)) the weights of the vertices ``indices`` of ``obj`` (default
+    every vertex) in its vertex groups ``names``, in that order (0 where a vertex is not in
+    a group, or the group does not exist)."""
     columns = {obj.vertex_groups[name].index: k for k, name in enumerate(names)
                if name in obj.vertex_groups}
-    if not columns:
-        return None
     if indices is None:
         indices = range(len(obj.data.vertices))
     weights = np.zeros((len(indices), len(names)))
@@ -88,6 +85,30 @@ def armature_weights(obj, indices=None):
         for group in obj.data.vertices[int(index)].groups:
             if group.group in columns:
                 weights[row, columns[group.group]] = group.weight
+    return weights
+
+
+def _deform_groups(obj):
+    """The names of ``obj``'s vertex groups that its enabled Armature modifiers deform it by:
+    those of the armatures' deforming bones."""
+    names = []
+    for modifier in obj.modifiers:
+        if (modifier.type == "ARMATURE" and modifier.show_viewport and modifier.use_vertex_groups
+                and modifier.object is not None and modifier.object.type == "ARMATURE"):
+            names += [bone.name for bone in modifier.object.data.bones
+                      if bone.use_deform and bone.name not in names]
+    return [name for name in names if name in obj.vertex_groups]
+
+
+def armature_weights(obj, indices=None):
+    """(len(indices), bones) the normalized weights of the vertices ``indices`` of ``obj``
+    (default every vertex) in the vertex groups named after the deforming bones of its
+    enabled Armature modifiers (0 where a vertex has none); None when no armature deforms
+    it by vertex groups."""
+    names = _deform_groups(obj)
+    if not names:
+        return None
+    weights = group_weights(obj, names, indices)
     return weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
 
 
@@ -96,22 +117,20 @@ def sliding(obj):
     touch (``SLIDE_DIFFERENCE``): a tuple of (vertices, centre (x, y, z) in object space,
     largest weight difference) per piece; empty without an armature or a riding piece.
     Only the riding vertices and their sources' weights are read (a Python loop each)."""
-    if armature_weights(obj, indices=()) is None:
+    if not _deform_groups(obj):
         return ()
-    vertices, sources = riders(obj)
+    vertices, sources, co, piece = _riders(obj)
     if not len(vertices):
         return ()
     difference = np.abs(armature_weights(obj, vertices)
                         - armature_weights(obj, sources)).sum(1)
-    _, piece = np.unique(components(len(obj.data.vertices), _triangles(obj)),
-                         return_inverse=True)
     found = []
     for label in np.unique(piece[vertices]):
         inside = piece[vertices] == label
         largest = float(difference[inside].max())
         if largest > SLIDE_DIFFERENCE:
-            centre = np.array([obj.data.vertices[int(v)].co[:] for v in vertices[inside]])
-            found.append((int(inside.sum()), tuple(float(x) for x in centre.mean(0)), largest))
+            centre = co[vertices[inside]].mean(0)
+            found.append((int(inside.sum()), tuple(float(x) for x in centre), largest))
     return tuple(found)
 
 

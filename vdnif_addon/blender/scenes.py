@@ -17,7 +17,7 @@ from ..errors import VDNIFError
 from ..mesh_input import check_input, check_mesh_file
 from ..settings import DEMO_SCENES, RIGS
 from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
-from .pieces import riders
+from .pieces import group_weights, riders
 from .rig import bend_twist
 from .trial_load import check_images, trial_load
 
@@ -281,14 +281,7 @@ def chain_bones(obj):
 def bone_weights(obj):
     """(V, bones) the weights of every vertex of ``obj`` in the procedural chain's groups
     (``chain_bones``, in that order; 0 where a vertex is not in a group)."""
-    names = chain_bones(obj)
-    columns = {obj.vertex_groups[name].index: k for k, name in enumerate(names)}
-    weights = np.zeros((len(obj.data.vertices), len(names)))
-    for vertex in obj.data.vertices:
-        for group in vertex.groups:
-            if group.group in columns:
-                weights[vertex.index, columns[group.group]] = group.weight
-    return weights
+    return group_weights(obj, chain_bones(obj))
 
 
 def _chain_weights(obj, bones, axis, lo, hi):
@@ -326,13 +319,14 @@ def follow_riders(obj):
     vertices, sources = riders(obj)
     if not len(vertices):
         return
-    weights = bone_weights(obj)
-    for column, name in enumerate(chain_bones(obj)):
+    names = chain_bones(obj)
+    weights = group_weights(obj, names, sources)       # before any group is changed
+    for column, name in enumerate(names):
         group = obj.vertex_groups[name]
         group.remove(vertices.tolist())
-        for vertex, source in zip(vertices, sources):
-            if weights[source, column] > 0:
-                group.add([int(vertex)], float(weights[source, column]), "REPLACE")
+        for row, vertex in enumerate(vertices):
+            if weights[row, column] > 0:
+                group.add([int(vertex)], float(weights[row, column]), "REPLACE")
 
 
 def _bend_twist_lattice(obj, bend_degrees=60.0, twist_degrees=90.0):
