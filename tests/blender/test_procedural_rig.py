@@ -65,12 +65,20 @@ def test_every_vertex_is_weighted_and_a_bent_slab_does_not_tear(empty_scene, cor
     assert largest_stretch(bare) > 3.0 > 1.5 * stretch
 
 
+def rigged(core, mesh, rig="armature", riders_follow=True):
+    """The mesh file ``mesh`` imported into an emptied file with the procedural ``rig``."""
+    import bpy
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    obj = core("blender.mesh_files").import_mesh(str(mesh))
+    return core("blender.scenes").add_rig(obj, rig, riders_follow=riders_follow)
+
+
 def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_path):
     """A separate piece weighted by bone heat on its own slides on the surface it sits on in
     a bend (Suzanne's eyes in their sockets); the rig gives a small touching piece the
     weights of the body's nearest vertex (also one seated on the body's vertices, 0 away), and
     leaves a far piece and a large one alone."""
-    import bpy
 
     scenes = core("blender.scenes")
     mesh = tmp_path / "pieces.obj"
@@ -85,12 +93,7 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
     body_v, touching_v, far_v, limb_v, seated_v = (np.arange(first[k], first[k + 1])
                                                    for k in range(5))
 
-    def rigged(riders_follow):
-        bpy.ops.wm.read_homefile(use_empty=True)
-        obj = core("blender.mesh_files").import_mesh(str(mesh))
-        return scenes.add_rig(obj, "armature", riders_follow=riders_follow)
-
-    raw = scenes.bone_weights(rigged(False))     # the weights as bone heat leaves them
+    raw = scenes.bone_weights(rigged(core, mesh, riders_follow=False))   # bone heat's
     obj = scenes.mesh_scene(mesh, rig="armature")
     weights = scenes.bone_weights(obj)
     vertices = np.array([v.co[:] for v in obj.data.vertices])
@@ -124,7 +127,7 @@ def test_a_small_piece_that_touches_the_body_rides_on_it(empty_scene, core, tmp_
         return float(np.abs(after - before).max())
 
     riding_slide = slide(obj)
-    alone_slide = slide(rigged(False))
+    alone_slide = slide(rigged(core, mesh, riders_follow=False))
     # riding, the gaps (0.36-0.6 at rest) change only by the blend of the bones' turns
     assert riding_slide < 0.1 < 0.5 < alone_slide
 
@@ -135,7 +138,6 @@ def test_a_piece_that_slides_is_named_where_the_corners_are_chosen(empty_scene, 
     bone heat's weights alone) cannot be followed by one voxel: the corners' choice names
     the piece, with its place and how far its weights differ; the procedural armature's own
     weighting, and a lattice, give nothing to name."""
-    import bpy
 
     pieces, scenes = core("blender.pieces"), core("blender.scenes")
     steps, spec = core("blender.steps"), core("pose_sets").PoseSpec(count=2)
@@ -143,12 +145,7 @@ def test_a_piece_that_slides_is_named_where_the_corners_are_chosen(empty_scene, 
     write_bars(mesh, [((0, 0, 0), (6, 1, 1), 12), ((1.3, 1.0, 0.3), (1.7, 1.4, 0.7), 1)])
     body_v, box_v = np.arange(52), np.arange(52, 60)
 
-    def rigged(rig, riders_follow=True):
-        bpy.ops.wm.read_homefile(use_empty=True)
-        obj = core("blender.mesh_files").import_mesh(str(mesh))
-        return scenes.add_rig(obj, rig, riders_follow=riders_follow)
-
-    obj = rigged("armature", riders_follow=False)
+    obj = rigged(core, mesh, riders_follow=False)
     vertices = np.array([v.co[:] for v in obj.data.vertices])
     raw = scenes.bone_weights(obj)
     weights = raw / raw.sum(1, keepdims=True)
@@ -165,7 +162,7 @@ def test_a_piece_that_slides_is_named_where_the_corners_are_chosen(empty_scene, 
     assert "moves otherwise than the surface it touches" in said[0]
 
     for rig in ("armature", "lattice"):
-        quiet = rigged(rig)
+        quiet = rigged(core, mesh, rig)
         assert pieces.sliding(quiet) == ()
         said = []
         steps.training_follow(quiet, 16, spec, say=said.append)
