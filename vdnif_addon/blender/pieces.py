@@ -18,15 +18,16 @@ from ..geometry.framing import components
 
 RIDER_REACH = 0.01
 """A separate piece with a vertex within this share of the largest piece's longest side of
-that piece's surface touches it (Suzanne's eyes: 0.001 from their sockets)."""
+that piece's surface touches it: an eye sits in its socket, closer than any voxel."""
 RIDER_SIZE = 0.25
 """A touching piece whose bounding-box diagonal is at most this share of the largest
-piece's rides on it (eyes, teeth, buttons: Suzanne's eyes are 0.2); a larger one, a limb
-modelled apart, keeps the weights of its own."""
+piece's rides on it (eyes, teeth, buttons are small beside the body they sit on); a larger
+one, a limb modelled apart, keeps the weights of its own."""
 SLIDE_DIFFERENCE = 0.1
 """A riding piece slides when, at any of its vertices, the summed absolute difference of
 the normalized bone weights from its nearest largest-piece vertex's exceeds this (0 alike,
-2 on other bones; Suzanne's eyes under automatic weights: up to 0.59, a median of 0.36)."""
+2 on other bones): a tenth of a bone's turn, far above rounding, where a piece weighted by
+itself differs by several tenths (docs/results.md, "The shaded image")."""
 
 
 def riders(obj):
