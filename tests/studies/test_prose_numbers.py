@@ -198,6 +198,8 @@ def netbase(d, commit, key):
     return [values[len(values) // 2], values[0], values[-1]]
 
 SHADED_DEV = "results/shaded-dev-meshes.json"
+STEPS = "results/text-steps.json"
+LEVELS = "results/text-levels.json"
 PARTS, EYES = "results/separate-parts.json", "riding parts weighted as the surface they touch"
 BONE_HEAT_MONKEY = "monkey, eyes by bone heat"
 
@@ -211,6 +213,14 @@ def ablation_ratios(d, row):
 
 def ablation_span(d, row):
     return span(ablation_ratios(d, row))
+
+
+def development_rates(rows, key, value):
+    """Holes and extras (%) against the true, then the embedded reference, of the row of
+    ``rows`` whose ``key`` is ``value``, read on the development poses."""
+    row, = (row for row in rows if (row[key], row["pose_set"]) == (value, "development"))
+    return [pct(row["report"][against][rate]) for against in ("vs_true", "vs_embedded")
+            for rate in ("false_negative_rate", "false_positive_rate")]
 
 
 def embedding_figures(d):
@@ -336,6 +346,21 @@ CLAIMS = [
                      for seed in (1, 2) for row in d
                      if (row["seed"], row["pose_set"]) == (seed, pose_set)
                      for rate in ("false_negative_rate", "false_positive_rate")]),
+    Claim(R, "the development poses give {} % holes and {} % extras against the true reference "
+          "({} % and {} % against the embedded one), where 3,000 steps give {} % and {} % "
+          "({} % and {} %); with the cap at 12,000 the stopping rule ended it at {} steps, at "
+          "{} % holes and {} % extras", (STEPS, LEVELS), lambda d: [
+              *development_rates(d[STEPS], "steps_cap", 6000),
+              *development_rates(d[LEVELS], "levels", 2),
+              *(row["steps_run"] for row in d[STEPS]
+                if (row["steps_cap"], row["pose_set"]) == (12000, "development")),
+              *development_rates(d[STEPS], "steps_cap", 12000)[:2]]),
+    Claim(R, "they exceed those against the embedded reference by {}-{} % at every step count",
+          (STEPS, LEVELS), lambda d: span(
+              pct(row["report"]["vs_true"]["false_negative_rate"]
+                  - row["report"]["vs_embedded"]["false_negative_rate"])
+              for row in [*d[STEPS], *d[LEVELS]]
+              if row["pose_set"] == "development" and row.get("levels", 2) == 2)),
     Claim(R, "(against the embedded reference, extras of {}-{} % on that build)",
           "results/text-edges-0.04-seeds.json", lambda d: [
               pct(f(row["report"]["vs_embedded"]["false_positive_rate"] for row in d))
