@@ -202,6 +202,7 @@ STEPS = "results/text-steps.json"
 LEVELS = "results/text-levels.json"
 DEV = "results/dev-meshes.json"
 TEXT_SWEEP, LOWEST = "results/text-threshold-sweep.json", 0.1
+BEND = "results/text-bend.json"
 PARTS, EYES = "results/separate-parts.json", "riding parts weighted as the surface they touch"
 BONE_HEAT_MONKEY = "monkey, eyes by bone heat"
 
@@ -239,6 +240,15 @@ def lowest(run):
     row, = (row for row in run["rows"]
             if (row["pose_set"], row["occlusion"]) == ("development", LOWEST))
     return row
+
+
+def bend_rates(d, angle):
+    """Holes and extras (%) against the true reference of the text's model on development
+    poses of at most ``angle`` degrees (``results/text-bend.json``)."""
+    row, = (row for row in d["model"]
+            if (row["max_angle"], row["pose_set"]) == (angle, "development"))
+    return [pct(row["report"]["vs_true"][rate])
+            for rate in ("false_negative_rate", "false_positive_rate")]
 
 
 def embedding_figures(d):
@@ -400,6 +410,16 @@ CLAIMS = [
               LOWEST, *span(pct(lowest(run)["vs_true"]["false_positive_rate"]) for run in d),
               *span(pct(lowest(run)["vs_true"]["false_negative_rate"]) for run in d),
               *span(pct(lowest(run)["vs_embedded"]["false_negative_rate"]) for run in d)]),
+    Claim(R, "is clean on the development poses, {} % holes and {} % extras, and at {} degrees "
+          "{} % and {} %. The embedding alone", BEND, lambda d: [
+              *bend_rates(d, 30), 15, *bend_rates(d, 15)]),
+    Claim(R, "misses {} %, {} % and {} % of the true hits at {}, {} and {} degrees, and a pose "
+          "inverts up to {}, {} and {} occupied cells", BEND, lambda d: [
+              *(pct(row["report"]["embedded_vs_true"]["false_negative_rate"])
+                for row in d["embedding"]),
+              *(row["max_angle"] for row in d["embedding"]),
+              *(max(pose["inverted_cells"] for pose in row["report"]["per_pose"])
+                for row in d["embedding"])]),
     Claim(R, "(against the embedded reference, extras of {}-{} % on that build)",
           "results/text-edges-0.04-seeds.json", lambda d: [
               pct(f(row["report"]["vs_embedded"]["false_positive_rate"] for row in d))
