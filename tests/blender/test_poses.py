@@ -3,6 +3,7 @@ for timeline frames and random poses, against a training spec or a model's store
 request that cannot be disjoint is refused on one line naming the object."""
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -175,3 +176,27 @@ def test_development_and_test_poses_are_disjoint_and_each_study_uses_its_own(emp
     experiment = runs.Experiment(size, "unused", None, "cpu", None, ())
     drawn = {core("pose_sets").pose_key(p) for p in experiment.evaluation(box).poses}
     assert experiment.spec == spec and drawn == keys[pose_sets.TEST_POSES]
+
+
+def test_references_measures_the_pose_set_it_is_asked_for(empty_scene, core, capsys, tmp_path):
+    """``references --pose-set``: the embedding error on the development or the test poses
+    (default: test), each what ``reference_run`` gives on a capture of that set's poses; the
+    report says which set."""
+    reports = {}
+    for name in ("development", "test", None):
+        out = tmp_path / f"{name}.json"
+        chosen = [] if name is None else ["--pose-set", name]
+        assert core("cli").main(["references", "--scene", "arm", "--resolution", "16",
+                                 "--poses", "2", "--width", "16", "--height", "16", *chosen,
+                                 "--json", str(out)]) == 0
+        reports[name] = json.loads(out.read_text())
+    assert reports[None]["pose_set"] == "test"
+    assert reports[None]["per_pose"] == reports["test"]["per_pose"]
+    arm = core("blender.scenes").find_object()          # the scene the commands loaded
+    spec = core("pose_sets").PoseSpec(count=2)
+    for name in ("development", "test"):
+        captured = core("blender.steps").evaluation_poses(arm, 16, spec, pose_set=name)
+        direct = core("posed.generate").reference_run(arm, captured, 16, 16)
+        assert reports[name]["pose_set"] == name
+        assert reports[name]["per_pose"] == direct["per_pose"]
+    assert reports["development"]["per_pose"] != reports["test"]["per_pose"]

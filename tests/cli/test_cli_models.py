@@ -39,6 +39,7 @@ def test_render_evaluate_and_side_by_side_take_a_model(small_model, tmp_path, ca
                      "--json", str(tmp_path / "evaluate.json")]) == 0
     evaluated = json.loads((tmp_path / "evaluate.json").read_text())
     assert evaluated["vs_true"]["false_negative_rate"] is not None
+    assert evaluated["pose_set"] == "test"          # the reported set unless asked otherwise
     assert cli.main(["side-by-side", "--scene", "lattice", "--model", f"lattice={model}",
                      "--poses", "1", "--repeats", "1", *VIEW, "--device", device,
                      "--json", str(tmp_path / "sbs.json")]) == 0

@@ -6,11 +6,12 @@ import pathlib
 
 from .. import declarations as declared
 from ..inference.metrics import verdict
-from ..pose_sets import POSE_SETS, TEST_POSES
+from ..pose_sets import TEST_POSES
 from .options import (
     SHADED_HELP,
     add_image_options,
     add_pose_options,
+    add_pose_set_option,
     add_scene_options,
     add_secondary_options,
     add_setting,
@@ -35,8 +36,7 @@ def _model_scene(args, evaluation=False):
     loaded, asked = load_model(args.model), args.resolution
     obj, spec = load_posed_scene(args)
     captured = model_capture(obj, loaded[1], spec, evaluation, resolution=asked,
-                             rest=getattr(args, "rest_pose", False),
-                             pose_set=getattr(args, "pose_set", TEST_POSES))
+                             rest=getattr(args, "rest_pose", False), pose_set=_pose_set(args))
     args.resolution = captured.grid.resolution
     return loaded, obj, captured
 
@@ -134,7 +134,13 @@ def evaluated(args):
                                   args.device, lambda done, _: progress.update(done),
                                   loaded=loaded, secondary=secondary_settings(args, obj),
                                   precision=args.precision)
+    report["pose_set"] = None if getattr(args, "rest_pose", False) else _pose_set(args)
     return report, views, captured
+
+
+def _pose_set(args):
+    """The set of unseen poses the options ask for (a tool's namespace may not hold one)."""
+    return getattr(args, "pose_set", TEST_POSES)
 
 
 def cmd_evaluate(args):
@@ -210,9 +216,7 @@ def add_commands(commands):
         "and model_bytes."))
     evaluate.add_argument("--rest-pose", action="store_true",
                           help="evaluate on views of the undeformed rest pose instead")
-    evaluate.add_argument("--pose-set", choices=tuple(POSE_SETS), default=TEST_POSES,
-                          help="the unseen poses: the test set, reported; or the "
-                               "development set, for choices (default test)")
+    add_pose_set_option(evaluate)
     evaluate.add_argument("--out", type=output_folder, metavar="DIR",
                           help="write the figures, error images and first pose's passes here")
     evaluate.add_argument("--json", type=output_file, metavar="PATH", help="write the report "

@@ -13,7 +13,7 @@ import sys
 from .. import declarations as declared
 from ..errors import VDNIFError
 from ..extreme_deform import ExtremeDeform, parse_scale
-from ..pose_sets import PoseSpec
+from ..pose_sets import POSE_SETS, TEST_POSES, PoseSpec
 from ..settings import (
     AUTO_RESOLUTION,
     DEMO_SCENES,
@@ -176,6 +176,14 @@ def add_pose_options(parser, command):
     group = parser.add_argument_group("poses")
     for setting in (declared.POSES, declared.POSE_SOURCE, declared.SEED, declared.MAX_ANGLE):
         add_setting(group, setting, command)
+
+
+def add_pose_set_option(parser):
+    """``--pose-set``: which set of unseen poses a command on them takes (DESIGN section 4:
+    development poses serve choices, test poses the reported figures)."""
+    parser.add_argument("--pose-set", choices=tuple(POSE_SETS), default=TEST_POSES,
+                        help="the unseen poses: the test set, reported; or the "
+                             "development set, for choices (default test)")
 
 
 def pose_spec(args):

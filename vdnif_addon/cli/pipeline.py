@@ -15,6 +15,7 @@ from .options import (
     add_capture_options,
     add_image_options,
     add_network_options,
+    add_pose_set_option,
     add_scene_options,
     add_secondary_options,
     add_setting,
@@ -161,12 +162,14 @@ def cmd_references(args):
     obj, spec = load_posed_scene(args)
     # the embedding a model trained on the poses of spec would have: its corners' way
     follow = training_follow(obj, args.resolution, spec, say=_say(f"references '{obj.name}'"))
-    result = evaluation_poses(obj, args.resolution, spec, follow=follow)
+    result = evaluation_poses(obj, args.resolution, spec, follow=follow,
+                              pose_set=args.pose_set)
     progress = Progress(f"references '{obj.name}'", len(result.poses), "poses")
     report = reference_run(obj, result, args.width, args.height, rest_pose=args.rest_pose,
                            progress=lambda done, _: progress.update(done),
                            secondary=secondary_settings(args, obj))
     check_compared(report["embedded_vs_true"], obj.name)
+    report["pose_set"] = None if args.rest_pose else args.pose_set
     write_json(args.json, with_suggestion(args, report))
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
@@ -325,6 +328,7 @@ def add_commands(commands):
         "Writes --json with embedded_vs_true (distance_mae in object units, "
         "normal_error_deg, hit_iou), rays_per_s and segments_per_s."))
     refs.add_argument("--rest-pose", action="store_true", help="use the undeformed pose")
+    add_pose_set_option(refs)
     add_image_options(refs, "references")
     refs.add_argument("--json", type=output_file, metavar="PATH", help="write the report")
     add_secondary_options(refs, "references")
