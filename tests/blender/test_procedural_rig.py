@@ -65,6 +65,73 @@ def test_every_vertex_is_weighted_and_a_bent_slab_does_not_tear(empty_scene, cor
     assert largest_stretch(bare) > 3.0 > 1.5 * stretch
 
 
+@pytest.fixture(scope="module")
+def text_file(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("text")
+    subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh", "text"],
+                   check=True, capture_output=True, timeout=300)
+    return folder / "text.obj"
+
+
+def inverted_cells(core, obj, resolution=96, poses=2):
+    """The voxel cells each of ``poses`` development poses of ``obj`` inverts."""
+    spec = core("blender.poses").evaluation_spec(core("pose_sets").PoseSpec(count=poses),
+                                                 pose_set="development")
+    return core("blender.capture_scene").capture(obj, resolution, spec).inverted_cells
+
+
+def test_weights_that_jump_between_near_vertices_give_way_to_the_chains(empty_scene, core,
+                                                                       text_file, monkeypatch):
+    """The text of ``tools/dev_meshes.py``: bone heat weights every vertex, but vertices
+    closer than a voxel at 96 a bone apart, and the voxels between them invert in a bend; the
+    rig weights it by place along the chain instead, and they do not."""
+    import bpy
+
+    scenes = core("blender.scenes")
+    obj = scenes.mesh_scene(text_file, rig="armature")
+    weights = scenes.bone_weights(obj)
+    np.testing.assert_allclose(weights.sum(1), 1.0, atol=1e-6)
+    assert scenes.weight_jump(obj) < 0.1
+    chained = inverted_cells(core, obj)
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    monkeypatch.setattr(scenes, "WEIGHT_JUMP", math.inf)
+    bare = scenes.mesh_scene(text_file, rig="armature")
+    assert (scenes.bone_weights(bare).sum(1) > 0).all()      # nothing torn: every vertex
+    assert scenes.weight_jump(bare) > 2 * 0.5
+    heat = inverted_cells(core, bare)
+    assert heat.min() > 50 and chained.max() <= heat.min() / 10, (chained, heat)
+
+
+def test_the_weight_jump_is_the_largest_between_vertices_within_reach(empty_scene, core):
+    """``weight_jump`` against every pair of vertices, on points with weights of their own:
+    pairs farther apart than the reach do not count, however different."""
+    import bpy
+
+    scenes = core("blender.scenes")
+    rng = np.random.default_rng(3)
+    co = rng.uniform(0, 1, (300, 3)) * [4.0, 1.0, 1.0]
+    mesh = bpy.data.meshes.new("points")
+    mesh.from_pydata(co.tolist(), [], [])
+    obj = bpy.data.objects.new("points", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    weights = rng.uniform(0, 1, (300, 3)) * (rng.uniform(size=(300, 3)) < 0.7)
+    weights[weights.sum(1) == 0, 0] = 1.0
+    for bone in range(3):
+        group = obj.vertex_groups.new(name=f"Bone.{bone}")
+        for vertex in range(300):
+            if weights[vertex, bone] > 0:
+                group.add([vertex], float(weights[vertex, bone]), "REPLACE")
+    normalized = weights / weights.sum(1, keepdims=True)
+    reach = scenes.JUMP_REACH * np.ptp(co, axis=0).max()
+    distance = np.linalg.norm(co[:, None] - co[None], axis=2)
+    difference = np.abs(normalized[:, None] - normalized[None]).sum(2)
+    expected = difference[distance <= reach].max()
+    assert (distance <= reach).sum() > 300                    # some pairs besides the diagonal
+    assert scenes.weight_jump(obj) == pytest.approx(expected, rel=1e-6)
+    assert difference[distance > reach].max() > expected      # a far pair would say more
+
+
 def rigged(core, mesh, rig="armature", riders_follow=True):
     """The mesh file ``mesh`` imported into an emptied file with the procedural ``rig``."""
     import bpy

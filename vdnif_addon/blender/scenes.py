@@ -27,6 +27,14 @@ LATTICE_MIN_SPAN = 0.6
 candidate grid (8 voxels) reaches up to 1.5 voxels, 0.19 of the longest side, past each
 side of a flat mesh, so its corners need at least 0.38 plus the mesh's own thickness."""
 MESHES = pathlib.Path(__file__).resolve().parents[2] / "assets" / "meshes"
+WEIGHT_JUMP, JUMP_REACH = 0.5, 0.01
+"""Automatic weights that differ by more than WEIGHT_JUMP (summed normalized bone weights: 0
+alike, 2 on other bones) between two vertices closer than JUMP_REACH of the mesh's longest
+side (a voxel at 96) fold the voxels between them in a bend: each voxel corner takes the
+weights of its nearest surface point, so neighbouring corners turn apart and cells invert.
+The procedural armature then weights by place along the chain instead. The bound lies
+between the jumps whose voxels the development meshes show to follow and those they show
+to fold (docs/results.md, "Development meshes")."""
 
 
 def demo_scene(name, rig=None, meshes_dir=MESHES):
@@ -111,8 +119,9 @@ def find_camera(name=None):
 
 def add_rig(obj, rig, riders_follow=True):
     """Adds the procedural armature or lattice rig with its animation to ``obj``;
-    ``riders_follow`` False leaves an armature's riding pieces (``pieces.riders``) with bone heat's
-    weights of their own (what that costs: ``tools/separate_parts.py``)."""
+    ``riders_follow`` False keeps bone heat's weights as they come wherever they weight every
+    vertex: an armature's riding pieces (``pieces.riders``) weighted by themselves (what that
+    costs: ``tools/separate_parts.py``), and no ``WEIGHT_JUMP`` check."""
     if rig not in RIGS:
         raise VDNIFError(f"unknown rig '{rig}': choose one of {', '.join(RIGS)}")
     scene = bpy.context.scene
@@ -257,10 +266,14 @@ def _armature_chain(obj, bones=3, total_bend_degrees=120.0, riders_follow=True):
     bpy.ops.object.parent_set(type="ARMATURE_AUTO")
     if not any(group.name.startswith("Bone.") for group in obj.vertex_groups):
         raise VDNIFError(f"automatic weights failed on '{obj.name}'")
-    if (bone_weights(obj).sum(1) <= 0).any():
+    torn = (bone_weights(obj).sum(1) <= 0).any()
+    if torn:
         _chain_weights(obj, bones, axis, lo[axis], hi[axis])
     if riders_follow:
         follow_riders(obj)
+        if not torn and weight_jump(obj) > WEIGHT_JUMP:
+            _chain_weights(obj, bones, axis, lo[axis], hi[axis])
+            follow_riders(obj)
     bend = math.radians(total_bend_degrees / bones)
     for pose_bone in armature.pose.bones:
         pose_bone.rotation_mode = "XYZ"
@@ -282,6 +295,29 @@ def bone_weights(obj):
     """(V, bones) the weights of every vertex of ``obj`` in the procedural chain's groups
     (``chain_bones``, in that order; 0 where a vertex is not in a group)."""
     return group_weights(obj, chain_bones(obj))
+
+
+def weight_jump(obj):
+    """The largest summed absolute difference of the normalized chain weights
+    (``bone_weights``) between two vertices of ``obj`` closer than JUMP_REACH of its longest
+    local side (0 for a mesh without them)."""
+    from mathutils.kdtree import KDTree
+
+    weights = bone_weights(obj)
+    weights = weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
+    vertices = _local_vertices(obj)
+    if len(vertices) < 2:
+        return 0.0
+    reach = JUMP_REACH * float(np.ptp(vertices, axis=0).max())
+    tree = KDTree(len(vertices))
+    for index, co in enumerate(vertices):
+        tree.insert(co, index)
+    tree.balance()
+    largest = 0.0
+    for index, co in enumerate(vertices):
+        near = [found for _, found, _ in tree.find_range(co, reach)]
+        largest = max(largest, float(np.abs(weights[near] - weights[index]).sum(1).max()))
+    return largest
 
 
 def _chain_weights(obj, bones, axis, lo, hi):
