@@ -15,12 +15,17 @@ from obj_files import write_bars
 MESHES_TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "dev_meshes.py"
 
 
+def dev_mesh(tmp_path_factory, name):
+    """The development mesh ``name`` of ``tools/dev_meshes.py``, built into a fresh folder."""
+    folder = tmp_path_factory.mktemp(name)
+    subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh", name],
+                   check=True, capture_output=True, timeout=300)
+    return folder / f"{name}.obj"
+
+
 @pytest.fixture(scope="module")
 def slab_file(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("slab")
-    subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh", "slab"],
-                   check=True, capture_output=True, timeout=300)
-    return folder / "slab.obj"
+    return dev_mesh(tmp_path_factory, "slab")
 
 
 def largest_stretch(obj):
@@ -67,10 +72,7 @@ def test_every_vertex_is_weighted_and_a_bent_slab_does_not_tear(empty_scene, cor
 
 @pytest.fixture(scope="module")
 def text_file(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("text")
-    subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh", "text"],
-                   check=True, capture_output=True, timeout=300)
-    return folder / "text.obj"
+    return dev_mesh(tmp_path_factory, "text")
 
 
 def inverted_cells(core, obj, resolution=96, poses=2):
