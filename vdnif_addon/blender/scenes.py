@@ -12,6 +12,7 @@ import pathlib
 
 import bpy
 import numpy as np
+from mathutils.kdtree import KDTree
 
 from ..errors import VDNIFError
 from ..mesh_input import check_input, check_mesh_file
@@ -301,8 +302,6 @@ def weight_jump(obj):
     """The largest summed absolute difference of the normalized chain weights
     (``bone_weights``) between two vertices of ``obj`` closer than JUMP_REACH of its longest
     local side (0 for a mesh without them)."""
-    from mathutils.kdtree import KDTree
-
     weights = bone_weights(obj)
     weights = weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
     vertices = _local_vertices(obj)
