@@ -62,7 +62,7 @@ def rig_files(obj_path, folder, near):
     import bpy
 
     from vdnif_addon.blender.mesh_files import import_mesh
-    from vdnif_addon.blender.pieces import riders
+    from vdnif_addon.blender.pieces import normalized, riders
     from vdnif_addon.blender.scenes import add_rig, bone_weights, chain_bones, follow_riders
 
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -70,8 +70,7 @@ def rig_files(obj_path, folder, near):
     vertices = np.array([v.co for v in obj.data.vertices])
     label = parts(len(vertices), mesh_triangles(obj))
     bones = chain_bones(obj)
-    raw = bone_weights(obj)
-    weights = raw / np.maximum(raw.sum(1, keepdims=True), 1e-30)
+    weights = normalized(bone_weights(obj))
     riding, source = riders(obj)
     distance = np.linalg.norm(vertices[riding] - vertices[source], axis=1)
     figures = []

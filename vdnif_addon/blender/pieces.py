@@ -109,7 +109,12 @@ def armature_weights(obj, indices=None):
     names = _deform_groups(obj)
     if not names:
         return None
-    weights = group_weights(obj, names, indices)
+    return normalized(group_weights(obj, names, indices))
+
+
+def normalized(weights):
+    """Bone weights (V, bones) with each row over its sum, as an armature blends them (a
+    row of zeros stays zero)."""
     return weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
 
 

@@ -18,7 +18,7 @@ from ..errors import VDNIFError
 from ..mesh_input import check_input, check_mesh_file
 from ..settings import DEMO_SCENES, RIGS
 from .mesh_files import animation_on_timeline, first_line, import_mesh, own_armature
-from .pieces import group_weights, riders
+from .pieces import group_weights, normalized, riders
 from .rig import bend_twist
 from .trial_load import check_images, trial_load
 
@@ -302,8 +302,7 @@ def weight_jump(obj):
     """The largest summed absolute difference of the normalized chain weights
     (``bone_weights``) between two vertices of ``obj`` closer than JUMP_REACH of its longest
     local side (0 for a mesh without them)."""
-    weights = bone_weights(obj)
-    weights = weights / np.maximum(weights.sum(1, keepdims=True), 1e-30)
+    weights = normalized(bone_weights(obj))
     vertices = _local_vertices(obj)
     if len(vertices) < 2:
         return 0.0
