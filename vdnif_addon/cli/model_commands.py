@@ -16,6 +16,7 @@ from .options import (
     add_secondary_options,
     add_setting,
     add_stress_options,
+    asked_pose_set,
     frames_option,
     load_posed_scene,
     print_evaluation,
@@ -36,7 +37,8 @@ def _model_scene(args, evaluation=False):
     loaded, asked = load_model(args.model), args.resolution
     obj, spec = load_posed_scene(args)
     captured = model_capture(obj, loaded[1], spec, evaluation, resolution=asked,
-                             rest=getattr(args, "rest_pose", False), pose_set=_pose_set(args))
+                             rest=getattr(args, "rest_pose", False),
+                             pose_set=asked_pose_set(args) or TEST_POSES)
     args.resolution = captured.grid.resolution
     return loaded, obj, captured
 
@@ -134,13 +136,8 @@ def evaluated(args):
                                   args.device, lambda done, _: progress.update(done),
                                   loaded=loaded, secondary=secondary_settings(args, obj),
                                   precision=args.precision)
-    report["pose_set"] = None if getattr(args, "rest_pose", False) else _pose_set(args)
+    report["pose_set"] = asked_pose_set(args)
     return report, views, captured
-
-
-def _pose_set(args):
-    """The set of unseen poses the options ask for (a tool's namespace may not hold one)."""
-    return getattr(args, "pose_set", TEST_POSES)
 
 
 def cmd_evaluate(args):

@@ -186,6 +186,12 @@ def add_pose_set_option(parser):
                              "development set, for choices (default test)")
 
 
+def asked_pose_set(args):
+    """The set of unseen poses the options ask for: None for views of the rest pose
+    (``--rest-pose``), the test set where the options hold no ``--pose-set`` (a tool's)."""
+    return None if getattr(args, "rest_pose", False) else getattr(args, "pose_set", TEST_POSES)
+
+
 def pose_spec(args):
     return PoseSpec(source=args.pose_source, count=args.poses, seed=args.seed,
                     max_angle_deg=args.max_angle)

@@ -21,6 +21,7 @@ from .options import (
     add_setting,
     add_stress_options,
     add_training_options,
+    asked_pose_set,
     load_posed_scene,
     names_scene,
     network_overrides,
@@ -169,7 +170,7 @@ def cmd_references(args):
                            progress=lambda done, _: progress.update(done),
                            secondary=secondary_settings(args, obj))
     check_compared(report["embedded_vs_true"], obj.name)
-    report["pose_set"] = None if args.rest_pose else args.pose_set
+    report["pose_set"] = asked_pose_set(args)
     write_json(args.json, with_suggestion(args, report))
     error = report["embedded_vs_true"]
     print(f"references '{report['object']}' R={report['resolution']}, {report['poses']} "
