@@ -225,8 +225,8 @@ def text_rates(rows, key, value, seed=0, pose_set="development"):
     ``rows`` whose ``key`` is ``value`` at training seed ``seed``, read on ``pose_set``."""
     row, = (row for row in rows
             if (row[key], row["seed"], row["pose_set"]) == (value, seed, pose_set))
-    return [pct(row["report"][against][rate]) for against in ("vs_true", "vs_embedded")
-            for rate in ("false_negative_rate", "false_positive_rate")]
+    return [value for against in ("vs_true", "vs_embedded") for value in rates(
+        row["report"][against], "false_negative_rate", "false_positive_rate")]
 
 
 def even_trade(run):
@@ -249,8 +249,7 @@ def bend_rates(d, angle):
     poses of at most ``angle`` degrees (``results/text-bend.json``)."""
     row, = (row for row in d["model"]
             if (row["max_angle"], row["pose_set"]) == (angle, "development"))
-    return [pct(row["report"]["vs_true"][rate])
-            for rate in ("false_negative_rate", "false_positive_rate")]
+    return rates(row["report"]["vs_true"], "false_negative_rate", "false_positive_rate")
 
 
 def embedding_rows(d, pose_set):
