@@ -590,13 +590,14 @@ class _Logit(torch.nn.Module):
         return {"occlusion": 8.0 * (p0[:, 0] - 0.5)}
 
 
-def test_threshold_calibration_minimizes_misclassified_rays_by_brute_force():
+def test_threshold_calibration_minimizes_the_larger_of_holes_and_extras_by_brute_force():
     """Rays of 1 to 12 segments in two poses whose ray numbers repeat; a third of the rays
     hit on their last segment. The network's logit (read from x) is noisy, about 1.5 on
     hit segments and -2 on the others. A ray is the reference's hit when one of its
     segments is, and the network's when one is above the threshold: the calibration finds
-    the brute-force minimum of misclassified rays among its candidates, which is not the
-    minimum of misclassified segments, and none without held-out rays."""
+    the brute-force minimum of the larger of holes (hit rays the network misses) and extras
+    (missed rays it hits) among its candidates, which is neither the fewest misclassified
+    rays nor the fewest misclassified segments, and none without held-out rays."""
     generator = torch.Generator().manual_seed(3)
     lengths = torch.randint(1, 13, (3000,), generator=generator)
     ray_of_row = torch.repeat_interleave(torch.arange(len(lengths)), lengths)
@@ -614,9 +615,11 @@ def test_threshold_calibration_minimizes_misclassified_rays_by_brute_force():
     candidates = (torch.arange(5, 46) / 50).tolist()
     rays = [torch.nonzero(ray_of_row == r).flatten() for r in range(len(lengths))]
 
-    def misclassified(threshold):
-        return sum(bool((probability[r] > threshold).any()) != bool(hit[r].any())
-                   for r in rays)
+    def holes_and_extras(threshold):
+        answers = [(bool((probability[r] > threshold).any()), bool(hit[r].any()))
+                   for r in rays]
+        return (sum(truth and not said for said, truth in answers),
+                sum(said and not truth for said, truth in answers))
 
     def by_segments(threshold):
         return int(((probability > threshold) != hit).sum())
@@ -625,7 +628,8 @@ def test_threshold_calibration_minimizes_misclassified_rays_by_brute_force():
         return min(candidates, key=lambda t: (errors(t), abs(t - 0.5)))
 
     threshold = calibrate_threshold(head_outputs(_Logit(), data), data)
-    assert threshold == pytest.approx(best(misclassified))
+    assert threshold == pytest.approx(best(lambda t: max(holes_and_extras(t))))
+    assert threshold != pytest.approx(best(lambda t: sum(holes_and_extras(t))))
     assert threshold != pytest.approx(best(by_segments))
     empty = {key: value[:0] for key, value in data.items()}
     assert calibrate_threshold(head_outputs(_Logit(), empty), empty) is None
@@ -723,8 +727,8 @@ def test_candidate_calibration_places_hits_best_by_brute_force():
 def test_a_dataset_with_calibration_views_calibrates_on_their_held_out_rays(monkeypatch):
     """Rows of rays numbered from the header's rays per pose on are calibration views
     (``view_rays``): training never draws them, and the occlusion threshold is the
-    brute-force best count of misclassified rays (any segment above the threshold makes a
-    ray a hit) over the held-out poses' view rays alone."""
+    brute-force least of the larger of holes and extras (any segment above the threshold
+    makes a ray a hit) over the held-out poses' view rays alone."""
     calls = []
 
     def spy(outputs, data, *args, **kwargs):
@@ -766,8 +770,10 @@ def test_a_dataset_with_calibration_views_calibrates_on_their_held_out_rays(monk
     for row, key in enumerate(zip(data["pose"].tolist(), data["ray"].tolist())):
         rays.setdefault(key, []).append(row)
     tried = [k / 50 for k in range(5, 46)]
-    errors = [sum(bool((probability[r] > t).any()) != bool(data["hit"][r].any())
-                  for r in rays.values()) for t in tried]
+    answers = [[(bool((probability[r] > t).any()), bool(data["hit"][r].any()))
+                for r in rays.values()] for t in tried]
+    errors = [max(sum(truth and not said for said, truth in told),
+                  sum(said and not truth for said, truth in told)) for told in answers]
     best = min(range(len(tried)), key=lambda k: (errors[k], abs(tried[k] - 0.5)))
     assert result.thresholds.occlusion == pytest.approx(tried[best])
 

@@ -174,16 +174,21 @@ def calibrate_threshold(
     group: ProcessGroup | None = None,
     by_ray: bool = True,
 ) -> float | None:
-    """The occlusion threshold that misclassifies the fewest rays of ``data`` (the held-out
-    calibration views, with ``training.data.RAY_FIELDS``), given the network's
-    ``head_outputs`` on them, among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE;
-    ties go to the one nearest OCCLUSION_THRESHOLD; None without rows to count.
+    """The occlusion threshold whose larger count of holes and extras on the rays of ``data``
+    (the held-out calibration views, with ``training.data.RAY_FIELDS``) is least, given the
+    network's ``head_outputs`` on them, among the multiples of 1/THRESHOLD_BINS in
+    THRESHOLD_RANGE; ties go to the one nearest OCCLUSION_THRESHOLD; None without rows to
+    count.
 
     A ray is counted as the render answers it (DESIGN section 9): a hit when any of its
     segments is above the threshold. A hole is a ray that the reference hits and whose
     segments all lie at or below it, an extra a ray that the reference misses and one of
-    whose segments lies above it, as the clean rule counts pixels. With ``by_ray`` False
-    each segment is counted as a ray of its own (a dataset without calibration views)."""
+    whose segments lies above it, as the clean rule counts pixels. The clean rule bounds
+    each of the two, so the larger is what a threshold must keep low; their sum is flat over
+    a wide band of thresholds on a camera's rays, and its least fell where one of them ran
+    over the other (DESIGN section 8). With ``by_ray`` False each segment is counted as a
+    ray of its own (a dataset without calibration views), and the threshold is the one that
+    misclassifies the fewest: segments are not a camera's pixels, most of a ray's miss."""
     group = group or ProcessGroup()
     device = data["p0"].device
     counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
@@ -205,7 +210,7 @@ def calibrate_threshold(
     # extras.
     holes = torch.cat([counts.new_zeros(1), counts[1].cumsum(0)])
     extras = counts[0].sum() - torch.cat([counts.new_zeros(1), counts[0].cumsum(0)])
-    errors = (holes + extras).tolist()
+    errors = (torch.maximum(holes, extras) if by_ray else holes + extras).tolist()
     low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
     best = min(range(low, high + 1),
                key=lambda k: (errors[k], abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)))
