@@ -168,27 +168,22 @@ def validate(
 
 
 @torch.inference_mode()
-def calibrate_threshold(
+def threshold_errors(
     outputs: dict[str, torch.Tensor],
     data: Segments,
     group: ProcessGroup | None = None,
     by_ray: bool = True,
-) -> float | None:
-    """The occlusion threshold whose larger count of holes and extras on the rays of ``data``
-    (the held-out calibration views, with ``training.data.RAY_FIELDS``) is least, given the
-    network's ``head_outputs`` on them, among the multiples of 1/THRESHOLD_BINS in
-    THRESHOLD_RANGE; ties go to the one nearest OCCLUSION_THRESHOLD; None without rows to
+) -> tuple[list[float], list[float]] | None:
+    """(holes, extras): their counts on the rays of ``data`` (with
+    ``training.data.RAY_FIELDS``) at each occlusion threshold k / THRESHOLD_BINS, k = 0 ..
+    THRESHOLD_BINS, given the network's ``head_outputs`` on them; None without rows to
     count.
 
     A ray is counted as the render answers it (DESIGN section 9): a hit when any of its
     segments is above the threshold. A hole is a ray that the reference hits and whose
     segments all lie at or below it, an extra a ray that the reference misses and one of
-    whose segments lies above it, as the clean rule counts pixels. The clean rule bounds
-    each of the two, so the larger is what a threshold must keep low; their sum is flat over
-    a wide band of thresholds on a camera's rays, and its least fell where one of them ran
-    over the other (DESIGN section 8). With ``by_ray`` False each segment is counted as a
-    ray of its own (a dataset without calibration views), and the threshold is the one that
-    misclassifies the fewest: segments are not a camera's pixels, most of a ray's miss."""
+    whose segments lies above it, as the clean rule counts pixels. With ``by_ray`` False
+    each segment is counted as a ray of its own."""
     group = group or ProcessGroup()
     device = data["p0"].device
     counts = torch.zeros(2, THRESHOLD_BINS, dtype=torch.float64, device=device)
@@ -210,10 +205,34 @@ def calibrate_threshold(
     # extras.
     holes = torch.cat([counts.new_zeros(1), counts[1].cumsum(0)])
     extras = counts[0].sum() - torch.cat([counts.new_zeros(1), counts[0].cumsum(0)])
-    errors = (torch.maximum(holes, extras) if by_ray else holes + extras).tolist()
+    return holes.tolist(), extras.tolist()
+
+
+def calibrate_threshold(
+    outputs: dict[str, torch.Tensor],
+    data: Segments,
+    group: ProcessGroup | None = None,
+    by_ray: bool = True,
+) -> float | None:
+    """The occlusion threshold whose larger count of holes and extras (``threshold_errors``)
+    on the rays of ``data`` (the held-out calibration views) is least, given the network's
+    ``head_outputs`` on them, among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE;
+    ties go to the one nearest OCCLUSION_THRESHOLD; None without rows to count.
+
+    The clean rule bounds each of the two, so the larger is what a threshold must keep low;
+    their sum is flat over a wide band of thresholds on a camera's rays, and its least fell
+    where one of them ran over the rule (DESIGN section 8). With ``by_ray`` False each
+    segment is counted as a ray of its own (a dataset without calibration views), and the
+    threshold is the one that misclassifies the fewest: a segment is not a camera's pixel,
+    and most of a ray's segments miss."""
+    errors = threshold_errors(outputs, data, group, by_ray)
+    if errors is None:
+        return None
+    holes, extras = errors
+    score = [max(h, e) if by_ray else h + e for h, e in zip(holes, extras)]
     low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
     best = min(range(low, high + 1),
-               key=lambda k: (errors[k], abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)))
+               key=lambda k: (score[k], abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)))
     return best / THRESHOLD_BINS
 
 

@@ -1,0 +1,126 @@
+"""The occlusion threshold's calibration, threshold by threshold: a trained model's holes and
+extras on the calibration views of its held-out poses (the rays training calibrates on,
+DESIGN section 8) at every threshold the calibration may choose, as shares of the views'
+rays that the reference hits, with the threshold each rule picks: the larger of the two
+least (training's rule, ``training.validation.calibrate_threshold``) and, beside it, their
+sum least (the rule before it).
+
+    python vdnif_addon/batch.py -- dataset --mesh DIR/text.obj --rig armature \\
+        --resolution 96 --seed 1 --out out/text-data
+    python tools/calibration_curve.py --model M.vdnif --data out/text-data --json OUT.json
+
+The dataset must be made with the options the model was trained with (scene, rig,
+resolution, seed): its rays depend only on them, so it holds the rows training held out.
+The held-out poses are the model's own (``training.val_poses``), checked against the split
+that training makes.
+"""
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from vdnif_addon.errors import VDNIFError  # noqa: E402
+
+
+def curve(model_path, data_folder):
+    """The JSON record of ``model_path``'s calibration curve on ``data_folder``."""
+    import torch
+
+    from vdnif_addon.model.model_file import load_model
+    from vdnif_addon.model.provenance import stamp
+    from vdnif_addon.settings import OCCLUSION_THRESHOLD, TrainConfig
+    from vdnif_addon.training.data import split_data
+    from vdnif_addon.training.dataset import read_dataset
+    from vdnif_addon.training.distributed import ProcessGroup
+    from vdnif_addon.training.validation import (
+        THRESHOLD_BINS,
+        THRESHOLD_RANGE,
+        calibrate_threshold,
+        head_outputs,
+        threshold_errors,
+    )
+
+    started = time.perf_counter()
+    network, meta = load_model(model_path)
+    network.eval()
+    dataset, shards = read_dataset(data_folder)
+    header = dataset.header
+    if not header.view_rays:
+        raise VDNIFError(f"dataset '{data_folder}' has no calibration views")
+    if abs(header.voxel_size - meta.grid.voxel_size) > 1e-9 * meta.grid.voxel_size:
+        raise VDNIFError(f"dataset '{data_folder}' has voxels of {header.voxel_size}, model "
+                         f"'{model_path}' of {meta.grid.voxel_size}: make it with the "
+                         "model's resolution")
+    if [dict(pose) for pose in dataset.poses] != [dict(pose) for pose in meta.train_poses]:
+        raise VDNIFError(f"dataset '{data_folder}' holds other poses than model "
+                         f"'{model_path}' was trained on: make it with the model's options "
+                         "(scene, rig, poses, seed)")
+    config = TrainConfig(**{key: value for key, value in meta.training.config.items()
+                            if key in TrainConfig.__dataclass_fields__})
+    _, _, views, held_out = split_data(shards, config, header.heads.network_heads(),
+                                       torch.device("cpu"), ProcessGroup(),
+                                       header.rays_per_pose)
+    if tuple(held_out) != tuple(meta.training.val_poses):
+        raise VDNIFError(f"dataset '{data_folder}' holds out the poses {held_out}, model "
+                         f"'{model_path}' held out {list(meta.training.val_poses)}: the model was "
+                         "trained with another seed")
+    outputs = head_outputs(network, views)
+    holes, extras = threshold_errors(outputs, views)
+    hits = holes[-1]                    # at threshold 1 every hit ray is a hole
+    low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
+    ks = range(low, high + 1)
+
+    def nearest_default(k):
+        return abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)
+
+    least_sum = min(ks, key=lambda k: (holes[k] + extras[k], nearest_default(k)))
+    return stamp({
+        "what": "holes and extras (shares of the reference's hit rays) of one model on its "
+                "held-out poses' calibration views at each occlusion threshold, and the "
+                "threshold each calibration rule picks (tools/calibration_curve.py)",
+        "model": str(model_path), "data": str(data_folder),
+        "stored_thresholds": {"occlusion": meta.thresholds.occlusion,
+                              "candidate": meta.thresholds.candidate},
+        "held_out_poses": list(held_out), "rays_in_cells": int(hits + _misses(extras)),
+        "hit_rays": int(hits),
+        "larger_least": calibrate_threshold(outputs, views),
+        "sum_least": least_sum / THRESHOLD_BINS,
+        "rows": [{"occlusion": k / THRESHOLD_BINS, "holes": holes[k] / hits,
+                  "extras": extras[k] / hits} for k in ks],
+        "seconds": time.perf_counter() - started,
+    })
+
+
+def _misses(extras):
+    """The views' rays the reference misses: at threshold 0 each is an extra."""
+    return extras[0]
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--model", type=pathlib.Path, required=True, help="a trained model")
+    parser.add_argument("--data", type=pathlib.Path, required=True,
+                        help="its dataset folder, made with the model's options")
+    parser.add_argument("--json", type=pathlib.Path, required=True, metavar="OUT",
+                        help="where to write the curve")
+    args = parser.parse_args(argv)
+    record = curve(args.model, args.data)
+    args.json.write_text(json.dumps(record, indent=1) + "\n")
+    print(f"{args.model}: stored {record['stored_thresholds']['occlusion']}, larger least "
+          f"{record['larger_least']}, sum least {record['sum_least']} "
+          f"({record['hit_rays']:,} hit rays of the {record['rays_in_cells']:,} that cross "
+          "occupied cells)")
+    for row in record["rows"]:
+        print(f"  {row['occlusion']:.2f}: holes {100 * row['holes']:.3f} %, extras "
+              f"{100 * row['extras']:.3f} %")
+
+
+if __name__ == "__main__":
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, sys.argv[1:], errors=VDNIFError, prefix="calibration_curve: error: ")
