@@ -57,14 +57,16 @@ def network_hash(network: dict[str, Any] | None = None) -> str:
 
 
 def default_recipe() -> dict[str, Any]:
-    """The recipe's defaults: data sizes, optimization, the resolution rules and the
-    secondary rays' start (``settings``)."""
+    """The recipe's defaults: data sizes, optimization, what the occlusion threshold's
+    calibration minimizes, the resolution rules and the secondary rays' start
+    (``settings``)."""
     training = settings.TrainConfig().to_dict()
     for key in ("device", "seed"):      # a run's own choices, not the recipe's
         training.pop(key)
     return {
         "data": dataclasses.asdict(settings.RECIPE),
         "training": training,
+        "occlusion_calibration": settings.OCCLUSION_CALIBRATION,
         "resolution_rules": {
             "default": settings.RECIPE.resolution,
             "textured": settings.RECIPE.textured_resolution,

@@ -215,7 +215,8 @@ def calibrate_threshold(
     by_ray: bool = True,
 ) -> float | None:
     """The occlusion threshold whose larger count of holes and extras (``threshold_errors``)
-    on the rays of ``data`` (the held-out calibration views) is least, given the network's
+    on the rays of ``data`` (the held-out calibration views) is least
+    (``settings.OCCLUSION_CALIBRATION``), given the network's
     ``head_outputs`` on them, among the multiples of 1/THRESHOLD_BINS in THRESHOLD_RANGE;
     ties go to the one nearest OCCLUSION_THRESHOLD; None without rows to count.
 
