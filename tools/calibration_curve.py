@@ -9,6 +9,8 @@ sum least (the rule before it).
         --resolution 96 --seed 1 --out out/text-data
     python tools/calibration_curve.py --model M.vdnif --data out/text-data --json OUT.json
 
+``--model`` and ``--data`` repeat in pairs; the JSON is a list of one record per model.
+
 The dataset must be made with the options the model was trained with (scene, rig,
 resolution, seed): its rays depend only on them, so it holds the rows training held out.
 The held-out poses are the model's own (``training.val_poses``), checked against the split
@@ -103,21 +105,28 @@ def _misses(extras):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", type=pathlib.Path, required=True, help="a trained model")
-    parser.add_argument("--data", type=pathlib.Path, required=True,
+    parser.add_argument("--model", type=pathlib.Path, action="append", required=True,
+                        help="a trained model (repeatable, each with its --data)")
+    parser.add_argument("--data", type=pathlib.Path, action="append", required=True,
                         help="its dataset folder, made with the model's options")
     parser.add_argument("--json", type=pathlib.Path, required=True, metavar="OUT",
-                        help="where to write the curve")
+                        help="where to write the curves, a list in the models' order")
     args = parser.parse_args(argv)
-    record = curve(args.model, args.data)
-    args.json.write_text(json.dumps(record, indent=1) + "\n")
-    print(f"{args.model}: stored {record['stored_thresholds']['occlusion']}, larger least "
-          f"{record['larger_least']}, sum least {record['sum_least']} "
-          f"({record['hit_rays']:,} hit rays of the {record['rays_in_cells']:,} that cross "
-          "occupied cells)")
-    for row in record["rows"]:
-        print(f"  {row['occlusion']:.2f}: holes {100 * row['holes']:.3f} %, extras "
-              f"{100 * row['extras']:.3f} %")
+    if len(args.model) != len(args.data):
+        raise VDNIFError(f"{len(args.model)} --model but {len(args.data)} --data: give each "
+                         "model its dataset")
+    records = []
+    for model, data in zip(args.model, args.data):
+        record = curve(model, data)
+        records.append(record)
+        print(f"{model}: stored {record['stored_thresholds']['occlusion']}, larger least "
+              f"{record['larger_least']}, sum least {record['sum_least']} "
+              f"({record['hit_rays']:,} hit rays of the {record['rays_in_cells']:,} that "
+              "cross occupied cells)")
+        for row in record["rows"]:
+            print(f"  {row['occlusion']:.2f}: holes {100 * row['holes']:.3f} %, extras "
+                  f"{100 * row['extras']:.3f} %")
+    args.json.write_text(json.dumps(records, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -3,9 +3,9 @@ threshold that training's calibration could choose, on the development and the t
 with holes and extras (the clean rule's two rates) against the true and the embedded
 references. For the development poses it marks the threshold with the least holes + extras
 against the true reference (ties to the default 0.5, as the calibration breaks them) and
-gives that threshold's figures on the test poses; the stored (calibrated) threshold and 0.5
-are always swept. The candidate threshold stays the model's, lowered to the occlusion
-threshold where it lies above it, as the render requires.
+gives that threshold's figures on the test poses; the stored (calibrated) threshold, 0.5 and
+any given with ``--also`` are always swept. The candidate threshold stays the model's,
+lowered to the occlusion threshold where it lies above it, as the render requires.
 
     python tools/threshold_sweep.py run --model M.vdnif --mesh C.glb --pose-source frames \\
         --json out/threshold-sweep.json
@@ -157,7 +157,7 @@ def _model_record(path, metadata):
                 "status", "steps", "seconds", "validation", "config")}}
 
 
-def sweep(model_path, options, step):
+def sweep(model_path, options, step, also=()):
     """The sweep's JSON-ready record (module docstring) of the model file ``model_path`` on
     the scene of the evaluate ``options``."""
     from vdnif_addon.blender.steps import evaluate_file, model_capture
@@ -178,7 +178,7 @@ def sweep(model_path, options, step):
     network, metadata = load_model(args.model)
     stored = metadata.thresholds
     swept = thresholds(step, *THRESHOLD_RANGE, THRESHOLD_BINS,
-                       extra=(stored.occlusion, OCCLUSION_THRESHOLD))
+                       extra=(stored.occlusion, OCCLUSION_THRESHOLD, *also))
     load_start, start = os.getloadavg(), time.perf_counter()
     asked = args.resolution            # load_posed_scene fills in the recipe's without it
     obj, spec = load_posed_scene(args)
@@ -222,6 +222,8 @@ def main(argv):
     run.add_argument("--model", type=pathlib.Path, required=True, help="a trained model file")
     run.add_argument("--step", type=float, default=0.02,
                      help="the thresholds' spacing, a multiple of 0.02 (default 0.02)")
+    run.add_argument("--also", type=float, action="append", default=[], metavar="T",
+                     help="sweep threshold T as well (repeatable), e.g. another rule's choice")
     run.add_argument("--json", type=pathlib.Path, required=True, metavar="OUT",
                      help="write the sweep here")
     show = commands.add_parser("table", help="the Markdown table of a sweep's JSON")
@@ -233,12 +235,18 @@ def main(argv):
         print(table(json.loads(args.json.read_text())))
         return
     check_options(rest)
+    from vdnif_addon.training.validation import THRESHOLD_RANGE
+
+    for value in args.also:
+        if not THRESHOLD_RANGE[0] <= value <= THRESHOLD_RANGE[1]:
+            raise VDNIFError(f"--also {value:g} is outside the calibration's range "
+                             f"{THRESHOLD_RANGE[0]:g}..{THRESHOLD_RANGE[1]:g}")
     if not args.model.is_file():
         raise VDNIFError(f"model file '{args.model}' does not exist")
     from vdnif_addon.threads import use_threads
 
     use_threads(None)                   # as the batch commands do
-    record = sweep(args.model, rest, args.step)
+    record = sweep(args.model, rest, args.step, args.also)
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(record, indent=1) + "\n")
     best_row = record["development_best"]

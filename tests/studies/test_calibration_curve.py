@@ -51,7 +51,9 @@ def test_the_curve_reproduces_the_stored_threshold(trained, tmp_path):
     assert record["held_out_poses"] and record["provenance"]["network_hash"]
     out = tmp_path / "curve.json"
     tool.main(["--model", str(model), "--data", str(data), "--json", str(out)])
-    assert json.loads(out.read_text())["larger_least"] == record["larger_least"]
+    [written] = json.loads(out.read_text())
+    assert written["larger_least"] == record["larger_least"]
+    assert written["rows"] == record["rows"]          # the same model and rows, exactly
 
 
 def test_a_dataset_of_another_seed_ends_in_one_error_line(trained, tmp_path):
@@ -59,6 +61,13 @@ def test_a_dataset_of_another_seed_ends_in_one_error_line(trained, tmp_path):
     line = one_error_line(TOOL, ["--model", model, "--data", other, "--json",
                                  tmp_path / "x.json"])
     assert "holds other poses than model" in line
+
+
+def test_models_and_datasets_come_in_pairs(trained, tmp_path):
+    data, other, model = trained
+    line = one_error_line(TOOL, ["--model", model, "--data", data, "--data", other,
+                                 "--json", tmp_path / "x.json"])
+    assert "1 --model but 2 --data" in line
 
 
 def test_a_missing_dataset_ends_in_one_error_line(trained, tmp_path):

@@ -15,6 +15,7 @@ import pathlib
 import re
 
 from vdnif_addon.model.provenance import network_hash
+from vdnif_addon.settings import OCCLUSION_CALIBRATION
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
@@ -22,6 +23,11 @@ INDEX = DOCS / "results" / "provenance.json"
 RESULT_FOLDERS = ("results", "bench", "side-by-side")
 MARKDOWN = ("results.md", "performance.md")
 TABLE_HEADING = "Where each table comes from"
+TODAYS_TRAINING = "today's training"
+LEAST_SUM = "least-sum threshold"
+"""How the table at the top of docs/results.md says that a row's models calibrated the
+occlusion threshold on the least sum of holes and extras, as training did before
+``settings.OCCLUSION_CALIBRATION``."""
 
 
 def sections(text):
@@ -174,6 +180,63 @@ def test_a_table_of_another_network_fails_unless_it_says_so():
     # a file nobody classified
     unlisted = dict(files, **{"results/new-study.json": {"rows": []}})
     assert any("new-study.json" in p for p in problems(index, unlisted, docs, today))
+
+
+def index_rows(results_md):
+    """{JSON name: the cells of its row} of the table at the top of docs/results.md."""
+    body = dict(sections(results_md))[TABLE_HEADING]
+    return {cells[0].strip("` "): cells for cells in
+            ([c.strip() for c in line.strip().strip("|").split("|")]
+             for line in body.splitlines() if line.startswith("| `"))}
+
+
+def calibration_problems(files, results_md, today):
+    """Rows of the index table whose recipe says today's training but whose JSON records
+    another calibration of the occlusion threshold than ``today``'s (or none, written
+    before it was recorded) without saying LEAST_SUM, or that say it of a JSON of today's."""
+    found = []
+    for name, cells in index_rows(results_md).items():
+        if name not in files:
+            continue
+        records = files[name] if isinstance(files[name], list) else [files[name]]
+        recorded = {((row.get("provenance") or {}).get("recipe") or {}).get(
+            "occlusion_calibration") for row in records if isinstance(row, dict)}
+        recipe = cells[3].lower()
+        if recorded == {today}:
+            if LEAST_SUM in recipe:
+                found.append(f"{name} records today's calibration, its row says "
+                             f"'{LEAST_SUM}'")
+        elif TODAYS_TRAINING in recipe and LEAST_SUM not in recipe:
+            found.append(f"{name}: its row says {TODAYS_TRAINING}, but its models "
+                         "calibrated the occlusion threshold otherwise "
+                         f"({sorted(map(str, recorded))}): say '{LEAST_SUM}'")
+    return found
+
+
+def test_every_row_of_todays_training_records_todays_calibration():
+    index, files, docs = repository()
+    assert calibration_problems(files, docs["results.md"], OCCLUSION_CALIBRATION) == []
+
+
+def test_a_row_of_another_calibration_fails_unless_it_says_so():
+    index, files, docs = repository()
+    rows = index_rows(docs["results.md"])
+    labelled = [name for name, cells in rows.items() if LEAST_SUM in cells[3].lower()]
+    assert labelled, "no row to check the rule on"
+    name = labelled[0]
+    # its label removed: the row claims today's training
+    cut = docs["results.md"].replace(rows[name][3], rows[name][3].replace(
+        "with the " + LEAST_SUM, "").replace(LEAST_SUM, ""), 1)
+    assert any(name in p for p in calibration_problems(files, cut, OCCLUSION_CALIBRATION))
+    # the same file stamped with today's calibration: now the label is wrong
+    stamped = dict(files, **{name: {"provenance": {"recipe": {
+        "occlusion_calibration": OCCLUSION_CALIBRATION}}}})
+    assert any(name in p for p in calibration_problems(stamped, docs["results.md"],
+                                                         OCCLUSION_CALIBRATION))
+    # rerun and its label removed, it passes, until today's calibration changes again
+    assert not any(name in p for p in calibration_problems(stamped, cut,
+                                                             OCCLUSION_CALIBRATION))
+    assert any(name in p for p in calibration_problems(stamped, cut, "another rule"))
 
 
 def test_results_md_names_every_files_network():

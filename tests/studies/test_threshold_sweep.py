@@ -76,6 +76,8 @@ def test_the_table_shows_the_default_the_stored_one_and_the_optimums_neighbours(
      "does not exist"),
     (["run", "--model", "{tmp}/missing.vdnif", "--scene", "arm", "--pose-set", "test",
       "--json", "{tmp}/x.json"], "--pose-set: the sweep chooses its poses"),
+    (["run", "--model", "{tmp}/missing.vdnif", "--scene", "arm", "--also", "0.95", "--json",
+      "{tmp}/x.json"], "--also 0.95 is outside the calibration's range 0.1..0.9"),
 ])
 def test_bad_input_ends_in_one_error_line(tmp_path, arguments, message):
     line = one_error_line(TOOL, [a.format(tmp=tmp_path) for a in arguments])
