@@ -200,7 +200,7 @@ def netbase(d, commit, key):
 SHADED_DEV = "results/shaded-dev-meshes.json"
 STEPS = "results/text-steps.json"
 LEVELS = "results/text-levels.json"
-DEV = "results/dev-meshes.json"
+DEV, LEAST_SUM_DEV = "results/dev-meshes.json", "results/dev-meshes-least-sum.json"
 BONE_HEAT_TEXT = "results/dev-meshes-text-bone-heat.json"
 CURVES, RULE_SWEEPS = ("results/text-calibration-curves.json",
                        "results/text-calibration-sweeps.json")
@@ -720,17 +720,19 @@ CLAIMS = [
               d["runs"][f"{m}/auto"][0]["resolution"] for m in ("blob", "monkey", "slab")]),
     Claim(R, "Clean at the default: {} of the {} runs", "results/dev-meshes.json", lambda d: [
         sum(row["clean"] for row in d), len(d)]),
-    Claim(R, "not clean: the text at seeds 0 and 1 ({} % holes and {} % extras; {} % and {} %), "
-          "by its network's own errors now (against the embedded reference {} % / {} % and {} "
-          "% / {} %)", DEV, lambda d: [
-              pct(dev_mesh_run(d, "text", seed)[against][k])
-              for against in ("test", "test_embedded") for seed in (0, 1)
-              for k in ("false_negative_rate", "false_positive_rate")]),
-    Claim(R, "at seeds 0 and 1 its holes and extras against the true reference are within {} "
-          "points of those against the embedded one", DEV, lambda d: [max(
-              abs(pct(dev_mesh_run(d, "text", seed)["test"][k]
-                      - dev_mesh_run(d, "text", seed)["test_embedded"][k]))
-              for seed in (0, 1) for k in ("false_negative_rate", "false_positive_rate"))]),
+    Claim(R, "the text at every seed among them (with the least-sum threshold {}: the text's "
+          "seeds 0 and 1 were not). The worst rate of any run is {} % (the text's seed-1 "
+          "holes), where it was {} %; the goal of 0.25 % each is met by {} of the {} runs",
+          (DEV, LEAST_SUM_DEV), lambda d: [
+              sum(row["clean"] for row in d[LEAST_SUM_DEV]),
+              text_seed_1_holes_worst(d[DEV]),
+              max(pct(worst_rate(row)) for row in d[LEAST_SUM_DEV]),
+              sum(worst_rate(row) <= 0.0025 for row in d[DEV]), len(d[DEV])]),
+    Claim(R, "is clean at every seed, at the rule's edge: its larger rate is {}-{} %, most of it "
+          "the network's own (against the embedded reference {}-{} %)", DEV, lambda d: [
+              *span(pct(worst_rate(dev_mesh_run(d, "text", seed))) for seed in (0, 1, 2)),
+              *span(pct(dev_mesh_run(d, "text", seed)["test_embedded"][k]) for seed in (0, 1, 2)
+                    for k in ("false_negative_rate", "false_positive_rate"))]),
     Claim(R, "against the embedded reference it has {} % holes and {} % extras",
           BONE_HEAT_TEXT, lambda d: [
               pct(dev_mesh_run(d, "text", 0)["test_embedded"][k])
@@ -925,10 +927,28 @@ def dev_mesh_run(d, mesh, seed):
     return next(row for row in d if row["mesh"] == mesh and row["seed"] == int(seed))
 
 
+def worst_rate(run):
+    """The larger of a development-mesh run's holes and extras on the test poses."""
+    return max(run["test"]["false_negative_rate"], run["test"]["false_positive_rate"])
+
+
+def text_seed_1_holes_worst(d):
+    """The worst rate of any development-mesh run, in %, which the prose says is the text's
+    seed-1 holes."""
+    worst = max(d, key=worst_rate)
+    assert (worst["mesh"], worst["seed"]) == ("text", 1)
+    assert worst_rate(worst) == worst["test"]["false_negative_rate"]
+    return pct(worst_rate(worst))
+
+
 def dev_mesh_row(d, mesh, _rig, seed):
-    row = dev_mesh_run(d, mesh, seed)
-    return [row["resolution"], *(pct(row[against][rate]) for against in ("test", "test_embedded")
-                                 for rate in ("false_negative_rate", "false_positive_rate")),
+    """The development meshes' table: the run's resolution and rates, the same run's rates
+    with the least-sum threshold, against the embedded reference, its training and load."""
+    row, before = dev_mesh_run(d[DEV], mesh, seed), dev_mesh_run(d[LEAST_SUM_DEV], mesh, seed)
+    assert row["resolution"] == before["resolution"]
+    return [row["resolution"], *(pct(run[against][rate]) for run, against in (
+        (row, "test"), (before, "test"), (row, "test_embedded"))
+        for rate in ("false_negative_rate", "false_positive_rate")),
             row["training"]["wall_s"], row["training"]["steps"],
             row["load_average_before"][0], row["load_average_after"][0]]
 
@@ -1200,9 +1220,10 @@ TABLES = [
     Table(R, "| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
           "embedding error | target met | occlusion threshold | holes | extras | clean |", 1, AUTO,
           resolution_row),
-    Table(R, "| mesh | rig | seed | resolution | holes | extras | clean | against the embedded "
-          "reference: holes / extras | training wall (s) | steps | load average (1 min) before / "
-          "after |", 3, "results/dev-meshes.json", dev_mesh_row),
+    Table(R, "| mesh | rig | seed | resolution | holes | extras | clean | with the least-sum "
+          "threshold: holes / extras | against the embedded reference: holes / extras | "
+          "training wall (s) | steps | load average (1 min) before / after |", 3,
+          (DEV, LEAST_SUM_DEV), dev_mesh_row),
     Table(R, "| occlusion threshold | development: holes | extras | test: holes | extras |", 1,
           SWEEP, sweep_row),
     Table(R, "| text seed | rule | threshold | views: holes / extras | development: holes / "
