@@ -115,6 +115,9 @@ def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
            "training": {"wall_s": train_s, "status": trained["train"]["status"],
                         "steps": trained["train"]["steps"], "segments": trained["segments"]},
            "evaluate_wall_s": evaluate_s, "test": figures, "clean": is_clean(holes, extras),
+           # The calibrated thresholds the figures were rendered at: a later calibration rule
+           # can be judged against them without training again.
+           "thresholds": evaluated.get("thresholds"),
            # The model against the embedded reference too (the rest surface carried through
            # the voxel grid, what the network learns): tells the network's error from the grid's.
            "test_embedded": evaluated.get("vs_embedded"),
