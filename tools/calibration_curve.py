@@ -35,15 +35,15 @@ def curve(model_path, data_folder):
 
     from vdnif_addon.model.model_file import load_model
     from vdnif_addon.model.provenance import stamp
-    from vdnif_addon.settings import OCCLUSION_THRESHOLD, TrainConfig
+    from vdnif_addon.settings import TrainConfig
     from vdnif_addon.training.data import split_data
     from vdnif_addon.training.dataset import read_dataset
     from vdnif_addon.training.distributed import ProcessGroup
     from vdnif_addon.training.validation import (
         THRESHOLD_BINS,
         THRESHOLD_RANGE,
-        calibrate_threshold,
         head_outputs,
+        least_threshold,
         threshold_errors,
     )
 
@@ -74,13 +74,8 @@ def curve(model_path, data_folder):
     outputs = head_outputs(network, views)
     holes, extras = threshold_errors(outputs, views)
     hits = holes[-1]                    # at threshold 1 every hit ray is a hole
+    misses = extras[0]                  # at threshold 0 every missed ray is an extra
     low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
-    ks = range(low, high + 1)
-
-    def nearest_default(k):
-        return abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)
-
-    least_sum = min(ks, key=lambda k: (holes[k] + extras[k], nearest_default(k)))
     return stamp({
         "what": "holes and extras (shares of the reference's hit rays) of one model on its "
                 "held-out poses' calibration views at each occlusion threshold, and the "
@@ -88,19 +83,15 @@ def curve(model_path, data_folder):
         "model": str(model_path), "data": str(data_folder),
         "stored_thresholds": {"occlusion": meta.thresholds.occlusion,
                               "candidate": meta.thresholds.candidate},
-        "held_out_poses": list(held_out), "rays_in_cells": int(hits + _misses(extras)),
+        "held_out_poses": list(held_out), "rays_in_cells": int(hits + misses),
         "hit_rays": int(hits),
-        "larger_least": calibrate_threshold(outputs, views),
-        "sum_least": least_sum / THRESHOLD_BINS,
+        # training's rule (calibrate_threshold) and the one before it, on the same counts
+        "larger_least": least_threshold([max(h, e) for h, e in zip(holes, extras)]),
+        "sum_least": least_threshold([h + e for h, e in zip(holes, extras)]),
         "rows": [{"occlusion": k / THRESHOLD_BINS, "holes": holes[k] / hits,
-                  "extras": extras[k] / hits} for k in ks],
+                  "extras": extras[k] / hits} for k in range(low, high + 1)],
         "seconds": time.perf_counter() - started,
     })
-
-
-def _misses(extras):
-    """The views' rays the reference misses: at threshold 0 each is an extra."""
-    return extras[0]
 
 
 def main(argv=None):

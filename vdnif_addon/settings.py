@@ -77,8 +77,8 @@ among equally good ones."""
 OCCLUSION_CALIBRATION = "least larger of holes and extras on the held-out poses' views"
 """What training's calibration of the occlusion threshold minimizes
 (``training.validation.calibrate_threshold``), as results files record it under their
-recipe (``model.provenance``): tables trained before 2026-11-30 calibrated on the least sum
-of the two, and their files lack it."""
+recipe (``model.provenance``): files that lack it were calibrated on the least sum of the two
+(docs/results.md, the first section)."""
 
 DEMO_SCENES, RIGS = ("arm", "lattice", "spot", "bunny"), ("armature", "lattice")
 """Embedded demo scenes; procedural rigs of a scene or a rigless mesh (``blender/scenes.py``)."""

@@ -230,7 +230,13 @@ def calibrate_threshold(
     if errors is None:
         return None
     holes, extras = errors
-    score = [max(h, e) if by_ray else h + e for h, e in zip(holes, extras)]
+    return least_threshold([max(h, e) if by_ray else h + e for h, e in zip(holes, extras)])
+
+
+def least_threshold(score: list[float]) -> float:
+    """The threshold k / THRESHOLD_BINS in THRESHOLD_RANGE whose ``score[k]`` is least (one
+    score per threshold of ``threshold_errors``); ties go to the one nearest
+    OCCLUSION_THRESHOLD."""
     low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
     best = min(range(low, high + 1),
                key=lambda k: (score[k], abs(k / THRESHOLD_BINS - OCCLUSION_THRESHOLD)))
