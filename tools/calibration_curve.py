@@ -9,7 +9,8 @@ sum least (the rule before it).
         --resolution 96 --seed 1 --out out/text-data
     python tools/calibration_curve.py --model M.vdnif --data out/text-data --json OUT.json
 
-``--model`` and ``--data`` repeat in pairs; the JSON is a list of one record per model.
+``--model`` and ``--data`` repeat in pairs; the JSON holds one record per model under
+``curves``, in their order. It refuses to replace a file it did not write, or one it reads.
 
 The dataset must be made with the options the model was trained with (scene, rig,
 resolution, seed): its rays depend only on them, so it holds the rows training held out.
@@ -18,7 +19,6 @@ that training makes.
 """
 
 import argparse
-import json
 import pathlib
 import sys
 import time
@@ -27,6 +27,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
+
+FORMAT = "vdnif-calibration-curves"
+"""The JSON's format mark: the output rule lets the tool replace only its own files."""
 
 
 def curve(model_path, data_folder):
@@ -101,11 +104,19 @@ def main(argv=None):
     parser.add_argument("--data", type=pathlib.Path, action="append", required=True,
                         help="its dataset folder, made with the model's options")
     parser.add_argument("--json", type=pathlib.Path, required=True, metavar="OUT",
-                        help="where to write the curves, a list in the models' order")
+                        help="where to write the curves, in the models' order")
     args = parser.parse_args(argv)
     if len(args.model) != len(args.data):
         raise VDNIFError(f"{len(args.model)} --model but {len(args.data)} --data: give each "
                          "model its dataset")
+    from vdnif_addon.output_rule import run_inputs
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
+    inputs = [(model, "the model file") for model in args.model] + [
+        (path, "a dataset file") for data in args.data if data.is_dir()
+        for path in data.iterdir()]
+    with run_inputs(inputs):            # the output rule, before any work
+        check_output_file(args.json, "--json", "json")
     records = []
     for model, data in zip(args.model, args.data):
         record = curve(model, data)
@@ -117,7 +128,7 @@ def main(argv=None):
         for row in record["rows"]:
             print(f"  {row['occlusion']:.2f}: holes {100 * row['holes']:.3f} %, extras "
                   f"{100 * row['extras']:.3f} %")
-    args.json.write_text(json.dumps(records, indent=1) + "\n")
+    write_json_atomic(args.json, {"format": FORMAT, "curves": records}, "--json", indent=1)
 
 
 if __name__ == "__main__":

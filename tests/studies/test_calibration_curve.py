@@ -50,10 +50,25 @@ def test_the_curve_reproduces_the_stored_threshold(trained, tmp_path):
     assert 0 < record["hit_rays"] <= record["rays_in_cells"]
     assert record["held_out_poses"] and record["provenance"]["network_hash"]
     out = tmp_path / "curve.json"
-    tool.main(["--model", str(model), "--data", str(data), "--json", str(out)])
-    [written] = json.loads(out.read_text())
-    assert written["larger_least"] == record["larger_least"]
-    assert written["rows"] == record["rows"]          # the same model and rows, exactly
+    for _ in range(2):                  # the second run replaces the first's file
+        tool.main(["--model", str(model), "--data", str(data), "--json", str(out)])
+    written = json.loads(out.read_text())
+    assert written["format"] == tool.FORMAT
+    [curve] = written["curves"]
+    assert curve["larger_least"] == record["larger_least"]
+    assert curve["rows"] == record["rows"]            # the same model and rows, exactly
+
+
+def test_it_replaces_neither_a_file_it_did_not_write_nor_one_it_reads(trained, tmp_path):
+    data, _, model = trained
+    foreign = tmp_path / "notes.json"
+    foreign.write_text('{"mine": true}')
+    line = one_error_line(TOOL, ["--model", model, "--data", data, "--json", foreign])
+    assert "--json" in line and str(foreign) in line
+    assert foreign.read_text() == '{"mine": true}'
+    before = model.read_bytes()
+    line = one_error_line(TOOL, ["--model", model, "--data", data, "--json", model])
+    assert "is the model file this run reads" in line and model.read_bytes() == before
 
 
 def test_a_dataset_of_another_seed_ends_in_one_error_line(trained, tmp_path):

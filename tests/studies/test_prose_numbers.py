@@ -1134,7 +1134,7 @@ def sweep_row(d, label):
 
 def rule_run(d, seed):
     """(the calibration curve, the threshold sweep) of the text's model at ``seed``."""
-    curve, sweep = d[CURVES][int(seed)], d[RULE_SWEEPS][int(seed)]
+    curve, sweep = d[CURVES]["curves"][int(seed)], d[RULE_SWEEPS][int(seed)]
     assert curve["model"].endswith(f"/text-seed{seed}.vdnif")
     assert curve["model"].endswith("/" + sweep["model"]["file"])
     return curve, sweep
