@@ -33,11 +33,11 @@ FORMAT = "vdnif-calibration-curves"
 
 
 def curve(model_path, data_folder):
-    """The JSON record of ``model_path``'s calibration curve on ``data_folder``."""
+    """The record of ``model_path``'s calibration curve on ``data_folder`` (``main`` writes
+    the records together with their provenance)."""
     import torch
 
     from vdnif_addon.model.model_file import load_model
-    from vdnif_addon.model.provenance import stamp
     from vdnif_addon.settings import TrainConfig
     from vdnif_addon.training.data import split_data
     from vdnif_addon.training.dataset import read_dataset
@@ -79,7 +79,7 @@ def curve(model_path, data_folder):
     hits = holes[-1]                    # at threshold 1 every hit ray is a hole
     misses = extras[0]                  # at threshold 0 every missed ray is an extra
     low, high = (round(edge * THRESHOLD_BINS) for edge in THRESHOLD_RANGE)
-    return stamp({
+    return {
         "what": "holes and extras (shares of the reference's hit rays) of one model on its "
                 "held-out poses' calibration views at each occlusion threshold, and the "
                 "threshold each calibration rule picks (tools/calibration_curve.py)",
@@ -94,7 +94,7 @@ def curve(model_path, data_folder):
         "rows": [{"occlusion": k / THRESHOLD_BINS, "holes": holes[k] / hits,
                   "extras": extras[k] / hits} for k in range(low, high + 1)],
         "seconds": time.perf_counter() - started,
-    })
+    }
 
 
 def main(argv=None):
@@ -109,6 +109,7 @@ def main(argv=None):
     if len(args.model) != len(args.data):
         raise VDNIFError(f"{len(args.model)} --model but {len(args.data)} --data: give each "
                          "model its dataset")
+    from vdnif_addon.model.provenance import stamp
     from vdnif_addon.output_rule import run_inputs
     from vdnif_addon.safe_io import check_output_file, write_json_atomic
 
@@ -128,7 +129,8 @@ def main(argv=None):
         for row in record["rows"]:
             print(f"  {row['occlusion']:.2f}: holes {100 * row['holes']:.3f} %, extras "
                   f"{100 * row['extras']:.3f} %")
-    write_json_atomic(args.json, {"format": FORMAT, "curves": records}, "--json", indent=1)
+    write_json_atomic(args.json, stamp({"format": FORMAT, "curves": records}), "--json",
+                      indent=1)
 
 
 if __name__ == "__main__":
