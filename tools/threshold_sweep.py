@@ -1,9 +1,10 @@
 """The occlusion threshold on rendered frames: one trained model rendered at each occlusion
 threshold that training's calibration could choose, on the development and the test poses,
 with holes and extras (the clean rule's two rates) against the true and the embedded
-references. For the development poses it marks the threshold with the least holes + extras
-against the true reference (ties to the default 0.5, as the calibration breaks them) and
-gives that threshold's figures on the test poses; the stored (calibrated) threshold, 0.5 and
+references. For the development poses it marks the threshold where the larger of holes and
+extras against the true reference is least, as training's calibration chooses on its views
+(``settings.OCCLUSION_CALIBRATION``; ties to the default 0.5), and gives that threshold's
+figures on the test poses; the stored (calibrated) threshold, 0.5 and
 any given with ``--also`` are always swept. The candidate threshold stays the model's,
 lowered to the occlusion threshold where it lies above it, as the render requires.
 
@@ -21,7 +22,10 @@ a multiple of 0.02. Each threshold renders the poses again with both references,
 ``evaluate`` does (one runtime path): the skinned character's 82 renders (41 thresholds, 8
 poses per set at 256x256) took 142 s on one thread of a loaded 2-core Xeon. ``table``
 prints the Markdown table of a run's JSON: 0.5, the stored threshold and the development
-optimum with its neighbours.
+optimum with its neighbours. Files written before the optimum followed the calibration's rule
+lack ``development_rule``: their optimum is the least sum of the two. ``run`` refuses a
+``--json`` that is its model or a file it did not write, before any work, and writes it
+atomically.
 """
 
 import argparse
@@ -41,6 +45,8 @@ from vdnif_addon.errors import VDNIFError  # noqa: E402
 DEFAULTS = ["--poses", "8", "--width", "256", "--height", "256", "--device", "cpu"]
 # evaluate's options that the sweep sets itself or that have no meaning for it
 REFUSED = ("--pose-set", "--rest-pose", "--out", "--secondary")
+FORMAT = "vdnif-threshold-sweep"
+"""The JSON's format mark: the output rule lets the tool replace only its own files."""
 DIGITS = 6          # thresholds are rounded to this many decimals (0.76, not 0.7600000001)
 NEIGHBOURS = 3      # the table's rows on each side of the development optimum
 
@@ -60,11 +66,12 @@ def thresholds(step, low, high, bins, extra=()):
 
 
 def best(rows, default):
-    """The row of ``rows`` (one pose set's) with the least holes + extras against the true
-    reference; ties go to the occlusion threshold nearest ``default``."""
+    """The row of ``rows`` (one pose set's) whose larger of holes and extras against the true
+    reference is least, the rule of training's calibration; ties go to the occlusion
+    threshold nearest ``default``."""
     def errors(row):
         true = row["vs_true"]
-        return true["false_negative_rate"] + true["false_positive_rate"]
+        return max(true["false_negative_rate"], true["false_positive_rate"])
 
     return min(rows, key=lambda row: (errors(row), abs(row["occlusion"] - default)))
 
@@ -169,7 +176,7 @@ def sweep(model_path, options, step, also=()):
     from vdnif_addon.model.model_file import load_model
     from vdnif_addon.model.provenance import stamp
     from vdnif_addon.pose_sets import DEVELOPMENT_POSES, TEST_POSES
-    from vdnif_addon.settings import OCCLUSION_THRESHOLD
+    from vdnif_addon.settings import OCCLUSION_CALIBRATION, OCCLUSION_THRESHOLD
     from vdnif_addon.training.validation import THRESHOLD_BINS, THRESHOLD_RANGE
 
     args = build_parser().parse_args(["evaluate", "--model", str(model_path), *DEFAULTS,
@@ -200,6 +207,7 @@ def sweep(model_path, options, step, also=()):
             print(f"{pose_set} {occlusion:g}: holes {100 * true['false_negative_rate']:.3g} %, "
                   f"extras {100 * true['false_positive_rate']:.3g} %", flush=True)
     record = {
+        "format": FORMAT,
         "what": "holes (false_negative_rate) and extras (false_positive_rate) of one model "
                 "at each occlusion threshold swept, on development and test poses, against "
                 "the true and the embedded references (tools/threshold_sweep.py)",
@@ -208,6 +216,7 @@ def sweep(model_path, options, step, also=()):
         "step": step, "clean_rate": CLEAN_RATE, "poses": spec.count, "width": args.width,
         "height": args.height, "device": args.device, "rows": rows,
         "development_best": summarize(rows, OCCLUSION_THRESHOLD, CLEAN_RATE),
+        "development_rule": OCCLUSION_CALIBRATION,
         "cpu": cpu_description()[0], "load_average_start": list(load_start),
         "load_average_end": list(os.getloadavg()),
         "seconds": time.perf_counter() - start}
@@ -243,12 +252,15 @@ def main(argv):
                              f"{THRESHOLD_RANGE[0]:g}..{THRESHOLD_RANGE[1]:g}")
     if not args.model.is_file():
         raise VDNIFError(f"model file '{args.model}' does not exist")
+    from vdnif_addon.output_rule import run_inputs
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
     from vdnif_addon.threads import use_threads
 
     use_threads(None)                   # as the batch commands do
+    with run_inputs([(args.model, "the model file")]):     # the output rule, before any work
+        check_output_file(args.json, "--json", "json")
     record = sweep(args.model, rest, args.step, args.also)
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(record, indent=1) + "\n")
+    write_json_atomic(args.json, record, "--json", indent=1)
     best_row = record["development_best"]
     print(f"development optimum {best_row['occlusion']:g} (stored "
           f"{record['stored_thresholds']['occlusion']:g}) -> {args.json}")
