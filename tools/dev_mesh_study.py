@@ -7,7 +7,8 @@ clean when both are at most the clean rate (0.5 %).
     python tools/dev_mesh_study.py run --mesh text --seed 0 --out out/dev-meshes
     python tools/dev_mesh_study.py table out/dev-meshes --json docs/results/dev-meshes.json
 
-``run`` writes ``MESH-seedS.json`` per training into --out (with the CPU, its cores, torch's
+``run`` writes ``MESH-seedS.json`` per training into --out (marked as the study's run file,
+with the CPU, its cores, torch's
 threads, the load average before and after, and the wall time of the training and of the
 evaluation); ``--images DIR`` keeps evaluate's figures and error images in DIR/MESH-seedS,
 ``--keep DIR`` the mesh and the model as DIR/MESH.obj and DIR/MESH-seedS.vdnif (for the
@@ -19,6 +20,10 @@ and outside the terminator band) and writes them together:
 
     python tools/dev_mesh_study.py shaded --keep out/kept --mesh blob --seed 1 \\
         --json docs/results/shaded-dev-meshes.json
+
+Every file is written atomically under the output rule, checked before the work starts: a
+run file replaces only a run file of the study, and ``table`` and ``shaded`` write lists,
+which carry no mark, so they replace nothing (remove the old file first, or write elsewhere).
 """
 
 import argparse
@@ -44,6 +49,8 @@ from vdnif_addon.model.provenance import stamp  # noqa: E402
 MESHES_TOOL = ROOT / "tools" / "dev_meshes.py"
 BAND_TOOL = ROOT / "tools" / "terminator_band.py"
 DEFAULT_JSON = ROOT / "docs" / "results" / "dev-meshes.json"
+FORMAT = "vdnif-dev-mesh-run"
+"""A run file's format mark: the output rule lets ``run`` replace only its own files."""
 
 
 def mesh_table():
@@ -60,12 +67,15 @@ def mesh_table():
 def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
     """Builds, trains and evaluates ``mesh`` at training seed ``seed`` (and ``--resolution
     resolution`` where given, else the default); writes ``out/MESH-seedS.json``."""
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
     from vdnif_addon.threads import default_threads, machine_cores
 
     rig = mesh_table()[mesh][0]
     kept = (pathlib.Path(keep) / f"{mesh}-seed{seed}.vdnif") if keep else None
     if kept is not None and kept.exists():
         raise VDNIFError(f"'{kept}' exists; the study does not replace a model")
+    run_file = pathlib.Path(out) / f"{mesh}-seed{seed}.json"
+    check_output_file(run_file, "the run file", "json")       # before an hour of training
     with tempfile.TemporaryDirectory(prefix=f"vdnif-{mesh}-") as folder:
         folder = pathlib.Path(folder)
         subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh",
@@ -106,7 +116,7 @@ def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
                 shutil.copyfile(path, kept_mesh)
             shutil.copyfile(model, kept)
     holes, extras = figures["false_negative_rate"], figures["false_positive_rate"]
-    row = {"mesh": mesh, "rig": rig, "seed": seed,
+    row = {"format": FORMAT, "mesh": mesh, "rig": rig, "seed": seed,
            "command": ["train", "--mesh", f"{mesh}.obj", "--rig", rig, *chosen, "--seed",
                        str(seed)],
            "resolution": evaluated.get("resolution"),
@@ -124,10 +134,7 @@ def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
            "commit": commit, "cpu": _cpu(), "cores": machine_cores(),
            "torch_threads": default_threads(), "load_average_before": load_before,
            "load_average_after": os.getloadavg()}
-    out = pathlib.Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / f"{mesh}-seed{seed}.json").write_text(json.dumps(stamp(row, with_machine=True),
-                                                            indent=1))
+    write_json_atomic(run_file, stamp(row, with_machine=True), "the run file", indent=1)
     print(f"{mesh} seed {seed}: holes {100 * holes:.3g} %, extras {100 * extras:.3g} %, "
           f"clean {row['clean']}, training {train_s:.0f} s", flush=True)
 
@@ -136,6 +143,9 @@ def shaded(keep, meshes, seed, json_path):
     """The shaded pass of each kept model ``keep/MESH-seedS.vdnif`` on the test poses of
     the study's evaluation (``terminator_band.py --secondary``), written together to
     ``json_path``; returns the rows."""
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
+    check_output_file(json_path, "--json", "json")          # before the renders
     keep, rows = pathlib.Path(keep), []
     for mesh in meshes:
         model, obj = keep / f"{mesh}-seed{seed}.vdnif", keep / f"{mesh}.obj"
@@ -149,9 +159,7 @@ def shaded(keep, meshes, seed, json_path):
                             "--secondary", "--pose-set", "test", "--seed", "0", "--json",
                             str(band)], check=True, stdout=subprocess.DEVNULL)
             rows.append({"mesh": mesh, "seed": seed, **json.loads(band.read_text())})
-    json_path = pathlib.Path(json_path)
-    json_path.parent.mkdir(parents=True, exist_ok=True)
-    json_path.write_text(json.dumps(rows, indent=1))
+    write_json_atomic(json_path, rows, "--json", indent=1)
     return rows
 
 
@@ -168,17 +176,20 @@ def _commit():
 
 def table(folder, json_path=None):
     """The Markdown table of the run files in ``folder``; writes them together to
-    ``json_path`` when given."""
+    ``json_path`` when given, without the run files' format mark."""
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
+    if json_path is not None:
+        check_output_file(json_path, "--json", "json")
     rows = [json.loads(path.read_text()) for path in sorted(pathlib.Path(folder).glob("*.json"))]
     if not rows:
         raise VDNIFError(f"no run files (*.json) in '{folder}'")
+    rows = [{key: value for key, value in row.items() if key != "format"} for row in rows]
     order = list(mesh_table())
     rows.sort(key=lambda row: (order.index(row["mesh"]) if row["mesh"] in order else 99,
                                row["seed"]))
     if json_path is not None:
-        json_path = pathlib.Path(json_path)
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(rows, indent=1))
+        write_json_atomic(json_path, rows, "--json", indent=1)
     lines = ["| mesh | rig | seed | resolution | holes | extras | clean | against the embedded "
              "reference: holes / extras | training wall (s) | steps | load average (1 min) "
              "before / after |",

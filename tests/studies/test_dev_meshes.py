@@ -175,6 +175,38 @@ def test_a_foreign_file_in_the_mesh_s_place_is_never_replaced(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+NOTES = '{"the user\'s": "notes"}\n'
+
+
+def test_no_file_it_did_not_write_is_replaced_and_the_check_comes_first(tmp_path):
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    foreign = runs / "torus-seed1.json"
+    foreign.write_text(NOTES)
+    line = one_error_line(STUDY_TOOL, ["run", "--mesh", "torus", "--seed", "1", "--out",
+                                       runs])
+    assert "torus-seed1.json" in line and "refusing to replace it" in line
+    assert foreign.read_text() == NOTES
+    (runs / "torus-seed2.json").write_text(json.dumps(_row("torus", 2, 0.0, 0.0)))
+    for command in (["table", runs, "--json", foreign],
+                    ["shaded", "--keep", tmp_path, "--mesh", "blob", "--json", foreign]):
+        line = one_error_line(STUDY_TOOL, command)
+        assert "--json" in line and "refusing to replace it" in line
+        assert foreign.read_text() == NOTES
+
+
+def test_a_run_file_is_marked_and_the_table_drops_the_mark(tmp_path):
+    study = load_tool(STUDY_TOOL)
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "torus-seed0.json").write_text(json.dumps({"format": study.FORMAT,
+                                                       **_row("torus", 0, 0.0, 0.0)}))
+    combined = tmp_path / "combined.json"
+    study.table(runs, combined)
+    assert [sorted(row) for row in json.loads(combined.read_text())] == [
+        sorted(_row("torus", 0, 0.0, 0.0))]
+
+
 def test_the_shaded_pass_needs_the_kept_model(tmp_path):
     line = one_error_line(STUDY_TOOL, ["shaded", "--keep", tmp_path, "--mesh", "blob",
                                        "--seed", "1", "--json", tmp_path / "shaded.json"])
