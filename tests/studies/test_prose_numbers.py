@@ -1255,6 +1255,45 @@ TABLES = [
 ]
 
 
+SUMMARY = ("| scene | model | holes | extras | distance MAE (object units) | distance MAE "
+           "(voxels) | normal error (deg) | albedo PSNR (dB) | material accuracy | JSON |")
+
+
+def summary_problems(text, read_json):
+    """What is wrong with the experiments' summary tables (Figure 3, Table 1, the ablation,
+    one network per pose) in ``text``: each row's figures against the run it names in the
+    JSON of its last cell, that run's medians over its seeds on its common pixels against
+    the true reference (``read_json``: a results path to its JSON)."""
+    found, lines = [], text.splitlines()
+    starts = [i for i, line in enumerate(lines) if line == SUMMARY]
+    for start in starts:
+        for cells in table_rows("\n".join(lines[start:]), SUMMARY):
+            (scene, model), rest, source = cells[:2], cells[2:-1], cells[-1].strip("`")
+            run = read_json(source)["runs"][f"{scene}/{model}"]["common"]["vs_true"]
+            values = [*rates(run, "false_negative_rate", "false_positive_rate"), *(
+                run[key] for key in ("distance_mae", "distance_mae_voxels", "normal_error_deg",
+                                     "albedo_psnr", "material_accuracy") if key in run)]
+            printed = re.findall(NUMBER, " | ".join(rest))
+            if len(printed) != len(values):
+                found.append(f"{source}: row {scene}/{model} prints {len(printed)} numbers, "
+                             f"the run has {len(values)}")
+            found += [f"{source}: row {scene}/{model}: printed {p}, the JSON gives {v:.6g}"
+                      for p, v in zip(printed, values) if not agrees(p, v)]
+    return found or ([] if starts else ["no summary table"])
+
+
+def test_the_experiments_summary_tables_agree_with_the_runs_they_name():
+    text = (DOCS / R).read_text()
+    assert text.count(SUMMARY) == 4          # Figure 3, Table 1, the ablation, per pose
+    assert summary_problems(text, read) == []
+    # a figure off by one in its last digit, in the last of the tables, is caught
+    rows = text[text.rindex(SUMMARY):]
+    row = next(line for line in rows.splitlines() if line.startswith("| arm | proposed |"))
+    cells = row.split("|")
+    cells[5] = " " + str(float(cells[5].strip()) * 1.01) + " "
+    assert summary_problems(text.replace(row, "|".join(cells)), read) != []
+
+
 def test_every_hand_written_table_agrees_with_its_json():
     docs = {name: (DOCS / name).read_text() for name in (R, P)}
     problems = [p for table in TABLES
