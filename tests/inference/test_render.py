@@ -211,6 +211,9 @@ def test_display_images_and_figure():
     np.testing.assert_array_equal(data["Combined"][..., 3], passes.hit.reshape(2, 3))
     preview = images.previews(passes, 2, 3, (1.0, 3.0))
     np.testing.assert_array_equal(preview["albedo"][..., 3], passes.hit.reshape(2, 3))
+    # the mask in the colour too, for a viewer that drops alpha: white hits, black misses
+    for channel in range(4):
+        np.testing.assert_array_equal(preview["hit"][..., channel], passes.hit.reshape(2, 3))
     other = Passes.empty(6)
     other.hit[:2] = True
     other.distance[:2] = [1.5, 2.0]

@@ -68,11 +68,12 @@ def display(passes: Passes, height: int, width: int, distance_range: tuple[float
 
 def previews(passes: Passes, height: int, width: int, distance_range: tuple[float, float]
              ) -> dict[str, Float[np.ndarray, "H W 4"]]:
-    """{pass name: (H, W, 4) preview}: the ``display`` images and the hit mask (white), each
-    with the hit mask as alpha, so that misses are transparent."""
+    """{pass name: (H, W, 4) preview}: the ``display`` images and the hit mask (white on
+    black, so that a viewer that drops alpha still shows it), each with the hit mask as
+    alpha, so that misses are transparent."""
     alpha = passes.hit.astype(np.float32)[:, None]
     shown = display(passes, height, width, distance_range)
-    shown["hit"] = _image(np.ones((len(alpha), 3), np.float32), height, width)
+    shown["hit"] = _image(np.repeat(alpha, 3, axis=1), height, width)
     return {name: np.concatenate([image, _image(alpha, height, width)], axis=2)
             for name, image in shown.items()}
 
