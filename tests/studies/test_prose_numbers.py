@@ -297,6 +297,52 @@ def shaded_dev_row(d, mesh, rig):
                    "shadow_false_lit_rate_cast", "shadow_false_shadow_rate_cast")]
 
 
+SHADED_IMAGE, CORNERS = "results/shaded-image.json", "results/corners-follow-choice.json"
+
+
+def band_bins_row(d, label):
+    """The terminator band's table on the development poses: for spot, then the bunny, the
+    pixels and flips of the bins from |N.L| a to b (``label`` "a-b", or every pixel) and
+    their flip rate (%)."""
+    values = []
+    for scene in ("Spot", "Bunny"):
+        run = d["runs"][scene]["development"]
+        if label == "every pixel":
+            pixels, flips = run["pixels"], run["flips"]
+        else:
+            low, high = (float(x) for x in label.split("-"))
+            inside = [b for b in run["bins"]
+                      if b["low"] >= low - 1e-9 and b["high"] <= high + 1e-9]
+            pixels, flips = (sum(b[k] for b in inside) for k in ("pixels", "flips"))
+        values += [pixels, flips, pct(flips / pixels)]
+    return values
+
+
+def shaded_image_row(d, scene):
+    """The shaded image on the test poses: a scene's figures as ``shaded_dev_row`` gives a
+    development mesh's, at settings.TERMINATOR_BAND."""
+    run = d["runs"][scene.capitalize()]["test"]
+    band = next(w for w in run["widths"] if abs(w["width"] - 0.175) < 1e-9)
+    m = run["vs_true"]
+    return [m["normal_error_deg"], m["shaded_psnr"], m["shaded_psnr_8bit"],
+            pct(m["shaded_visible_rate"]),
+            *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
+            pct(band["pixels_inside"]),
+            *rates(band, "shadow_false_lit_rate_terminator",
+                   "shadow_false_shadow_rate_terminator",
+                   "shadow_false_lit_rate_cast", "shadow_false_shadow_rate_cast")]
+
+
+def corners_choice_row(d, rig):
+    """The corners' choice: the rig's resolution, each binding's embedding error and hit
+    mismatch (%), the seconds of the choice (the chosen binding is a name)."""
+    row = next(r for r in d["rows"] if r["scene"] == rig)
+    return [row["resolution"], *(value for binding in ("armature copy", "evaluated surface")
+                                 for value in (row["errors"][binding]["embedding_error"],
+                                               pct(row["errors"][binding]["hit_mismatch"]))),
+            row["seconds"]]
+
+
 def spread_row(d, run, metric, reference="true"):
     return next(row for row in d["rows"] if (row["run"], row["metric"], row["reference"])
                 == (run, metric, reference))
@@ -1226,6 +1272,14 @@ TABLES = [
           (DEV, LEAST_SUM_DEV), dev_mesh_row),
     Table(R, "| occlusion threshold | development: holes | extras | test: holes | extras |", 1,
           SWEEP, sweep_row),
+    Table(R, "| \\|N.L\\| | spot: pixels | flips | flip rate | bunny: pixels | flips | flip "
+          "rate |", 1, SHADED_IMAGE, band_bins_row),
+    Table(R, "| scene | normal error (deg) | shaded PSNR, linear / 8-bit | visible-step share | "
+          "false lit / false shadow, all | in the band: its pixels, false lit / false shadow | "
+          "cast shadows outside it: false lit / false shadow |", 1, SHADED_IMAGE,
+          shaded_image_row),
+    Table(R, "| rig | resolution | copied modifiers | surface binding | chosen | seconds |", 1,
+          CORNERS, corners_choice_row),
     Table(R, "| text seed | rule | threshold | views: holes / extras | development: holes / "
           "extras | test: holes / extras |", 2, (CURVES, RULE_SWEEPS), rule_row),
     Table(R, "| rig | corners follow | holes | extras | clean | clean, or within 0.1 point of an "
