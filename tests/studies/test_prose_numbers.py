@@ -162,6 +162,7 @@ ABLATION = tuple(f"results/ablation-{s}-1-seed.json" for s in ABLATION_SCENES)
 
 SPREAD = "results/figure3-spread.json"
 BASELINE = "results/figure3-spread-6246eb6.json"
+LEAST_SUM_SPREAD = "results/figure3-spread-least-sum.json"
 
 
 def share_run(d, scene, share):
@@ -351,6 +352,17 @@ def spread_row(d, run, metric, reference="true"):
 def earlier_range(d, run, metric):
     row = spread_row(d, run, metric)
     return [row["before_min"], row["before_max"]]
+
+
+FIG3_RUNS = [f"{scene}/{model}" for scene in ("arm", "lattice", "spot", "bunny")
+             for model in ("deformed", "proposed")]
+
+
+def larger(d, run, when):
+    """The larger of a Figure 3 run's median holes and extras against the true reference
+    (%), ``when`` "now" or "before", from a spread file."""
+    return pct(max(spread_row(d, run, rate)[when]
+                   for rate in ("false_negative_rate", "false_positive_rate")))
 
 
 def spread_values(d, run, metric):
@@ -694,26 +706,37 @@ CLAIMS = [
               *(d["runs"][run]["timings"]["train_s"] for run in ("arm/proposed",
                                                                  "arm/lsnif per pose"))]),
     # ---- performance: the side-by-side run
+    Claim(R, "; `results/figure3-spread-least-sum.json`): of 64 figures, {} are better, {} within "
+          "and {} worse, fewer than chance", LEAST_SUM_SPREAD,
+          lambda d: [d["counts"][k] for k in ("better", "within", "worse")]),
+    Claim(R, "the rate the clean rule bounds, fell on the arm's proposed ({} to {} %), the "
+          "lattice's ({} to {} %), spot's ({} to {} %) and the bunny's deformed ({} to {} %), "
+          "and rose on the lattice's deformed ({} to {} %) and the bunny's proposed ({} to {} "
+          "%)", LEAST_SUM_SPREAD, lambda d: [
+              larger(d, run, when) for run in (
+                  "arm/proposed", "lattice/proposed", "spot/proposed", "bunny/deformed",
+                  "lattice/deformed", "bunny/proposed") for when in ("before", "now")]),
+    Claim(R, "the bunny's deformed, the paper's baseline, still does not (holes {} %)",
+          LEAST_SUM_SPREAD, lambda d: [
+              pct(spread_row(d, "bunny/deformed", "false_negative_rate")["now"])]),
     Claim(R, "(`results/figure3-spread-6246eb6.json`): of 64 figures, {} are better, {} within "
           "and {}", BASELINE, lambda d: [d["counts"][k] for k in ("better", "within", "worse")]),
-    Claim(R, "fell on the arm's proposed ({} to {} %) and the lattice's ({} to {} %) and rose on "
-          "spot's ({} to {} %) and the bunny's deformed ({} to {} %)", BASELINE, lambda d: [
-              pct(sum(spread_row(d, run, rate)[when] for rate in (
-                  "false_negative_rate", "false_positive_rate")))
-              for run in ("arm/proposed", "lattice/proposed", "spot/proposed", "bunny/deformed")
-              for when in ("before", "now")]),
-    Claim(R, "The eleventh is the bunny's proposed distance MAE, {} % above its largest seed",
-          BASELINE, lambda d: [pct(spread_row(d, "bunny/proposed", "distance_mae")["now"]
-                                   / spread_row(d, "bunny/proposed", "distance_mae")[
-                                       "before_max"] - 1)]),
+    Claim(R, "The larger of the two against the true reference fell on {} of the {} runs (the "
+          "arm's proposed {} to {} %, the lattice's deformed {} to {} %) and rose on the bunny's "
+          "proposed ({} to {} %)", BASELINE, lambda d: [
+              sum(larger(d, run, "now") < larger(d, run, "before") for run in FIG3_RUNS),
+              len(FIG3_RUNS),
+              *(larger(d, run, when) for run in ("arm/proposed", "lattice/deformed",
+                                                  "bunny/proposed")
+                for when in ("before", "now"))]),
     Claim(R, "about {} of 64 figures on each side; the {} worse and {} better", BASELINE,
           lambda d: [d["chance"]["beyond_expected"], d["counts"]["worse"],
                      d["counts"]["better"]]),
     Claim(R, "(about {} of 64): {} figures are so much better and {} so much worse", BASELINE,
           lambda d: [d["chance"]["separated_expected"], d["separated"]["better"],
                      d["separated"]["worse"]]),
-    Claim(R, "(against the true reference {}-{} % now against {}-{} % then), whose extras fell "
-          "as clearly ({}-{} % against {}-{} %)", BASELINE, lambda d: [
+    Claim(R, "(against the true reference {}-{} % now against {}-{} % then) traded for its "
+          "extras, which fell as clearly ({}-{} % against {}-{} %)", BASELINE, lambda d: [
               pct(spread_row(d, "arm/proposed", rate)[key])
               for rate in ("false_negative_rate", "false_positive_rate")
               for key in ("now_min", "now_max", "before_min", "before_max")]),
