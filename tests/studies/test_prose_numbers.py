@@ -699,7 +699,7 @@ CLAIMS = [
               ratio for row in ("no log distance", "no uncertainty weighting")
               for ratio in ablation_ratios(d, row))),
     # ---- one network per pose
-    Claim(R, "with an eighth of their bytes ({} MB against {} MB) and a quarter of their training "
+    Claim(R, "with an eighth of their bytes ({} MB against {} MB) and a fifth of their training "
           "time ({} s against {} s", "results/per-pose.json", lambda d: [
               *(d["runs"][run]["model_bytes"] / 1e6 for run in ("arm/proposed",
                                                                  "arm/lsnif per pose")),
