@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import pytest
 
+from vdnif_addon.settings import TERMINATOR_BAND
+
 REPO = pathlib.Path(__file__).resolve().parents[2]
 DOCS = REPO / "docs"
 NUMBER = r"(\d[\d,]*(?:\.\d+)?(?:e-?\d+)?)"     # a range's dash is no minus sign
@@ -283,12 +285,22 @@ def shaded_dev(d, mesh):
     comma ("monkey, eyes by bone heat"); without, the row of today's rig."""
     name, _, weights = mesh.partition(", ")
     row = next(r for r in d if r["mesh"] == name and r.get("weights", "") == weights)
-    band = next(w for w in row["widths"] if abs(w["width"] - 0.175) < 1e-9)
-    return row["report"]["vs_true"], band
+    return row["report"]["vs_true"], band_at(row["widths"])
+
+
+def band_at(widths):
+    """The band row of a terminator-band record's ``widths`` at settings.TERMINATOR_BAND."""
+    return next(w for w in widths if abs(w["width"] - TERMINATOR_BAND) < 1e-9)
 
 
 def shaded_dev_row(d, mesh, rig):
-    m, band = shaded_dev(d, mesh)
+    return shaded_figures(*shaded_dev(d, mesh))
+
+
+def shaded_figures(m, band):
+    """A shaded table's row: the figures against the true reference ``m``, then the band
+    row ``band`` at settings.TERMINATOR_BAND (its share of the pixels, the rates inside it
+    and outside)."""
     return [m["normal_error_deg"], m["shaded_psnr"], m["shaded_psnr_8bit"],
             pct(m["shaded_visible_rate"]),
             *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
@@ -323,15 +335,7 @@ def shaded_image_row(d, scene):
     """The shaded image on the test poses: a scene's figures as ``shaded_dev_row`` gives a
     development mesh's, at settings.TERMINATOR_BAND."""
     run = d["runs"][scene.capitalize()]["test"]
-    band = next(w for w in run["widths"] if abs(w["width"] - 0.175) < 1e-9)
-    m = run["vs_true"]
-    return [m["normal_error_deg"], m["shaded_psnr"], m["shaded_psnr_8bit"],
-            pct(m["shaded_visible_rate"]),
-            *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
-            pct(band["pixels_inside"]),
-            *rates(band, "shadow_false_lit_rate_terminator",
-                   "shadow_false_shadow_rate_terminator",
-                   "shadow_false_lit_rate_cast", "shadow_false_shadow_rate_cast")]
+    return shaded_figures(run["vs_true"], band_at(run["widths"]))
 
 
 def corners_choice_row(d, rig):
@@ -1042,15 +1046,19 @@ def check_table(table, text, data):
     rows = table_rows(text, table.header)
     for cells in rows:
         keys, rest = cells[:table.keys], cells[table.keys:]
-        printed = re.findall(NUMBER, " | ".join(rest))
-        values = list(table.values(data, *keys))
-        if len(values) != len(printed):
-            found.append(f"{table.doc}: row {keys} prints {len(printed)} numbers, the table's "
-                         f"claim computes {len(values)}")
-            continue
-        found += [f"{table.doc}: row {keys}: printed {p}, {table.source} gives {v:.6g}"
-                  for p, v in zip(printed, values) if v is not None and not agrees(p, v)]
+        found += row_problems(f"{table.doc}: row {keys}", rest,
+                              list(table.values(data, *keys)), table.source)
     return found or ([] if rows else [f"{table.doc}: '{table.header[:60]}' has no rows"])
+
+
+def row_problems(where, cells, values, source):
+    """What is wrong with a table row's ``cells`` (``where``: the row, in the messages)
+    against ``values``, the numbers they print in order (None for one no JSON holds)."""
+    printed = re.findall(NUMBER, " | ".join(cells))
+    if len(values) != len(printed):
+        return [f"{where} prints {len(printed)} numbers, its check computes {len(values)}"]
+    return [f"{where}: printed {p}, {source} gives {v:.6g}"
+            for p, v in zip(printed, values) if v is not None and not agrees(p, v)]
 
 
 def rates(run, *keys):
@@ -1350,12 +1358,7 @@ def summary_problems(text, read_json):
             values = [*rates(run, "false_negative_rate", "false_positive_rate"), *(
                 run[key] for key in ("distance_mae", "distance_mae_voxels", "normal_error_deg",
                                      "albedo_psnr", "material_accuracy") if key in run)]
-            printed = re.findall(NUMBER, " | ".join(rest))
-            if len(printed) != len(values):
-                found.append(f"{source}: row {scene}/{model} prints {len(printed)} numbers, "
-                             f"the run has {len(values)}")
-            found += [f"{source}: row {scene}/{model}: printed {p}, the JSON gives {v:.6g}"
-                      for p, v in zip(printed, values) if not agrees(p, v)]
+            found += row_problems(f"{R}: row {scene}/{model}", rest, values, source)
     return found or ([] if starts else ["no summary table"])
 
 
