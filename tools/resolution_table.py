@@ -6,13 +6,16 @@ then ``evaluate`` on 8 test poses at 256x256 on the CPU: holes and extras agains
 reference, and whether both are within the clean rate.
 
     python tools/resolution_table.py run --case arm --case cup --out docs/results/resolution-auto
-    python tools/resolution_table.py table docs/results/resolution-auto
+    python tools/resolution_table.py table docs/results/resolution-auto \\
+        --json docs/results/resolution-auto.json
 
 ``run --suggest-only`` writes the suggestion alone (the row then says it was not trained).
 
 ``run`` writes ``CASE.json`` per case into --out (cases may run in several processes at
-once); ``table`` prints the Markdown table of every ``*.json`` in the folder and writes them
-together as ``resolution-auto.json`` beside it. Cases: the demo scenes (arm, lattice, spot,
+once), each checked by the output rule before the case starts and written atomically;
+``table`` prints the Markdown table of every ``*.json`` in the folder and, with ``--json``,
+writes them together as one list there (checked first, so an unmarked list of an earlier
+run is refused: remove it to replace it). Cases: the demo scenes (arm, lattice, spot,
 bunny), the skinned character of ``tools/skinned_character.py`` (its own armature and
 actions) and the thin-walled cup and holed plate of ``tools/resolution_meshes.py``.
 """
@@ -33,6 +36,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 
+FORMAT = "vdnif-resolution-case"
 BATCH = [sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--"]
 EVALUATION = ["--poses", "8", "--width", "256", "--height", "256", "--device", "cpu"]
 # case: (how its mesh file is written into a folder, or None; the scene options)
@@ -136,8 +140,10 @@ def _write(out, row):
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
     # each case trains in its own process, perhaps at another commit: its own record
-    row = stamp(row, with_machine=True)
-    (out / f"{row['case']}.json").write_text(json.dumps(row, indent=1))
+    from vdnif_addon.safe_io import write_json_atomic
+
+    row = stamp({"format": FORMAT, **row}, with_machine=True)
+    write_json_atomic(out / f"{row['case']}.json", row, "--out", indent=1)
 
 
 def _cpu():
@@ -146,13 +152,25 @@ def _cpu():
     return cpu_description()[0]
 
 
-def table(folder):
-    """The Markdown table of the case files in ``folder``; writes them together beside it."""
+def table(folder, json_path=None):
+    """The Markdown table of the case files in ``folder``; with ``json_path``, writes them
+    there together as one list."""
     folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        raise VDNIFError(f"run folder '{folder}' is not a folder")
+    if json_path is not None:
+        from vdnif_addon.safe_io import check_output_file
+
+        check_output_file(json_path, "--json", "json")
     rows = [json.loads(path.read_text()) for path in sorted(folder.glob("*.json"))]
+    if not rows:
+        raise VDNIFError(f"run folder '{folder}' holds no case files (CASE.json)")
     order = list(CASES)
     rows.sort(key=lambda row: order.index(row["case"]) if row["case"] in order else 99)
-    folder.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+    if json_path is not None:
+        from vdnif_addon.safe_io import write_json_atomic
+
+        write_json_atomic(json_path, rows, "--json", indent=1)
     lines = ["| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
              "embedding error | target met | occlusion threshold | holes | extras | clean |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -189,12 +207,17 @@ def main(argv):
                      help="only the suggestion (no training, no evaluation)")
     show = commands.add_parser("table", help="the Markdown table of a run folder")
     show.add_argument("folder", type=pathlib.Path)
+    show.add_argument("--json", type=pathlib.Path, metavar="OUT",
+                      help="write the folder's rows here together as one list")
     args = parser.parse_args(argv)
     if args.command == "table":
-        print(table(args.folder))
+        print(table(args.folder, args.json))
         return
+    from vdnif_addon.safe_io import check_output_file
     from vdnif_addon.threads import use_threads
 
+    for case in args.case:              # the output rule, before any case starts
+        check_output_file(args.out / f"{case}.json", "--out", "json")
     use_threads(None)                   # as the batch commands do
     for case in args.case:
         run_case(case, args.out, train=not args.suggest_only)
