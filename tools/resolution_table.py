@@ -155,12 +155,12 @@ def _cpu():
 def table(folder, json_path=None):
     """The Markdown table of the case files in ``folder``; with ``json_path``, writes them
     there together as one list."""
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
     folder = pathlib.Path(folder)
     if not folder.is_dir():
         raise VDNIFError(f"run folder '{folder}' is not a folder")
     if json_path is not None:
-        from vdnif_addon.safe_io import check_output_file
-
         check_output_file(json_path, "--json", "json")
     rows = [json.loads(path.read_text()) for path in sorted(folder.glob("*.json"))]
     if not rows:
@@ -168,8 +168,6 @@ def table(folder, json_path=None):
     order = list(CASES)
     rows.sort(key=lambda row: order.index(row["case"]) if row["case"] in order else 99)
     if json_path is not None:
-        from vdnif_addon.safe_io import write_json_atomic
-
         write_json_atomic(json_path, rows, "--json", indent=1)
     lines = ["| mesh | chosen R (knee; thin-part floor) | its embedding error | finest (R 128) "
              "embedding error | target met | occlusion threshold | holes | extras | clean |",

@@ -616,27 +616,22 @@ CLAIMS = [
           "Warp's refit and {}-{} k against Embree's (the range over 1 thread and both cores); "
           "at 256x256 from {}-{} k against both refits at 1 thread, and at both cores from {} k "
           "against Warp's, while Embree's refit stays the cheaper up to {} M", DENSE,
-          lambda d: (lambda at: [
+          lambda d: [
               *(x / 1e3 for baseline in ("warp", "embree_refit") for x in span(
-                  at(64, threads, baseline) for threads in (1, 2))),
-              *span(at(256, 1, baseline) / 1e3 for baseline in ("warp", "embree_refit")),
-              at(256, 2, "warp") / 1e3,
+                  dense_crossover(d, 64, threads, baseline) for threads in (1, 2))),
+              *span(dense_crossover(d, 256, 1, baseline) / 1e3
+                    for baseline in ("warp", "embree_refit")),
+              dense_crossover(d, 256, 2, "warp") / 1e3,
               # not a number unless Embree's refit is the cheaper over the whole sweep
               max(r["triangles"] for r in d["results"]) / 1e6
-              if at(256, 2, "embree_refit") is None else math.nan])(
-              lambda size, threads, baseline: next(
-                  row["triangles"] for row in d["crossover"]["rows"] if row["width"] == size
-                  and row["threads"] == threads and row["baseline"] == baseline))),
+              if dense_crossover(d, 256, 2, "embree_refit") is None else math.nan]),
     Claim(R, "both cores, Blender's evaluation of the cage took {} ms (`neural_evaluate_s`), "
           "against {}-{} ms in the level's other three settings, so the pose took {} ms where "
-          "one thread took {}", DENSE, lambda d: (lambda level4: [
-              1e3 * level4(256, 2)["median"]["neural_evaluate_s"],
-              *span(1e3 * level4(size, threads)["median"]["neural_evaluate_s"]
+          "one thread took {}", DENSE, lambda d: [
+              1e3 * dense_result(d, 4, 256, 2)["median"]["neural_evaluate_s"],
+              *span(1e3 * dense_result(d, 4, size, threads)["median"]["neural_evaluate_s"]
                     for size, threads in ((256, 1), (64, 1), (64, 2))),
-              dense_cost(d, 4, "256x256", "2")[0], dense_cost(d, 4, "256x256", "1")[0]])(
-              lambda size, threads: next(
-                  r for r in d["results"] if r["scene"] == "character-4"
-                  and r["width"] == size and str(r["threads"]["setting"]) == str(threads)))),
+              dense_cost(d, 4, "256x256", "2")[0], dense_cost(d, 4, "256x256", "1")[0]]),
     Claim(R, "At 1.5 M triangles the neural pose costs {}-{} times either refit at 256x256 and "
           "{}-{} times at 64x64", DENSE, lambda d: [x for size in (256, 64) for x in span(
               dense_cost(d, 4, f"{size}x{size}", str(threads))[k]
@@ -1179,12 +1174,24 @@ def dense_cost(d, level, image, threads):
     neural pose over each refit."""
     from vdnif_addon.studies.side_by_side_report import pose_total
 
-    width = int(image.split("x")[0])
-    result = next(r for r in d["results"] if r["scene"] == f"character-{level}"
-                  and r["width"] == width and str(r["threads"]["setting"]) == threads)
+    result = dense_result(d, level, int(image.split("x")[0]), threads)
     neural, warp, embree = (pose_total(result, name) for name in (
         "neural", "warp", "embree_refit"))
     return [neural, warp, embree, neural / warp, neural / embree]
+
+
+def dense_result(d, level, width, threads):
+    """The dense character's timing result at ``level``, image ``width`` and thread
+    setting ``threads``."""
+    return next(r for r in d["results"] if r["scene"] == f"character-{level}"
+                and r["width"] == width and str(r["threads"]["setting"]) == str(threads))
+
+
+def dense_crossover(d, width, threads, baseline):
+    """Triangles where the dense character's neural pose becomes the cheaper against
+    ``baseline`` (None where one side is the cheaper over the whole sweep)."""
+    return next(row["triangles"] for row in d["crossover"]["rows"] if row["width"] == width
+                and row["threads"] == threads and row["baseline"] == baseline)
 
 
 def swept(d, pose_set):
