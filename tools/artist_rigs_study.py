@@ -9,13 +9,15 @@ through the batch commands as a user's file would: ``train`` with the defaults, 
 topology-changing stack is given to ``train`` too, which must refuse it in one line.
 
     python tools/artist_rigs_study.py run --case hook --case twin-frames --out DIR
-    python tools/artist_rigs_study.py table DIR
+    python tools/artist_rigs_study.py table DIR --json docs/results/artist-rigs.json
 
 (``embed DIR`` computes the embedding's error of every trained case in DIR again.)
 
 ``run`` writes ``CASE.json`` per case into --out (cases may run in several processes at
-once); ``table`` prints the Markdown table of every ``*.json`` there and writes them
-together as ``DIR.json`` beside it.
+once), each checked by the output rule before any case starts and written atomically, as
+``embed`` rewrites them; ``table`` prints the Markdown table of every ``*.json`` there and,
+with ``--json``, writes them together as one list there (checked first, so an unmarked list
+of an earlier run is refused: remove it to replace it).
 """
 
 import argparse
@@ -30,6 +32,9 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tools"), str(ROOT / "tests" / "support")]
 
+FORMAT = "vdnif-artist-rig-case"
+"""A case file's format mark: the output rule lets ``run`` and ``embed`` replace only the
+study's own files."""
 BATCH = [sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--"]
 EVALUATION = ["--poses", "8", "--width", "256", "--height", "256", "--device", "cpu"]
 OBJECT = "Box"
@@ -104,14 +109,20 @@ def _save(case, folder):
 
 def embed(out):
     """Adds to each trained case's row in ``out`` the voxel embedding's own error, its
-    corners following as its model's did."""
-    for path in sorted(pathlib.Path(out).glob("*.json")):
+    corners following as its model's did (the output rule: the study's own files only,
+    every one checked before the first is measured)."""
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
+    paths = sorted(pathlib.Path(out).glob("*.json"))
+    for path in paths:
+        check_output_file(path, "case file", "json")
+    for path in paths:
         row = json.loads(path.read_text())
         if "training" not in row:
             continue
         obj, keywords = _build(row["case"])
         row["embedding"] = _embedding(obj, keywords, row["training"]["corners_follow"])
-        path.write_text(json.dumps(row, indent=1))
+        write_json_atomic(path, row, "case file", indent=1)
         print(f"{row['case']}: embedding {row['embedding']['distance_mae_voxels']:.3g} "
               f"voxel ({row['embedding']['corners_follow']})", flush=True)
 
@@ -188,12 +199,13 @@ def run_case(case, out):
 def _write(out, row):
     from vdnif_addon.kernels.runtime import cpu_description
     from vdnif_addon.model.provenance import stamp
+    from vdnif_addon.safe_io import write_json_atomic
 
     out = pathlib.Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    row = stamp({**row, "cpu": cpu_description()[0], "load_average": os.getloadavg()},
-                with_machine=True)
-    (out / f"{row['case']}.json").write_text(json.dumps(row, indent=1))
+    row = stamp({"format": FORMAT, **row, "cpu": cpu_description()[0],
+                 "load_average": os.getloadavg()}, with_machine=True)
+    write_json_atomic(out / f"{row['case']}.json", row, "--out", indent=1)
 
 
 def _percent(value):
@@ -208,13 +220,24 @@ def _allowed(twin_rate):
     return CLEAN_RATE if twin_rate <= CLEAN_RATE else twin_rate + 0.001
 
 
-def table(folder):
-    """The Markdown table of the case files in ``folder``; writes them together beside it."""
+def table(folder, json_path=None):
+    """The Markdown table of the case files in ``folder``; with ``json_path``, writes them
+    there together as one list, in the study's order."""
+    from vdnif_addon.errors import VDNIFError
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
     folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        raise VDNIFError(f"run folder '{folder}' is not a folder")
+    if json_path is not None:
+        check_output_file(json_path, "--json", "json")
     rows = {row["case"]: row for row in (json.loads(path.read_text())
                                           for path in sorted(folder.glob("*.json")))}
     ordered = [rows[case] for case in CASES if case in rows]
-    folder.with_suffix(".json").write_text(json.dumps(ordered, indent=1))
+    if not ordered:
+        raise VDNIFError(f"run folder '{folder}' holds no case files (CASE.json)")
+    if json_path is not None:
+        write_json_atomic(json_path, ordered, "--json", indent=1)
     lines = ["| rig | corners follow | holes | extras | clean | clean, or within 0.1 point "
              "of an unclean twin | embedding error, voxels (hit IoU) | training s | twin |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -249,15 +272,21 @@ def main(argv):
     run.add_argument("--out", required=True, type=pathlib.Path)
     show = commands.add_parser("table", help="the table of a folder of cases")
     show.add_argument("folder", type=pathlib.Path)
+    show.add_argument("--json", type=pathlib.Path, metavar="OUT",
+                      help="write the folder's rows here together as one list")
     again = commands.add_parser("embed", help="the embedding's error of each trained case")
     again.add_argument("folder", type=pathlib.Path)
     args = parser.parse_args(argv)
     if args.command == "table":
-        print(table(args.folder))
+        print(table(args.folder, args.json))
         return
     if args.command == "embed":
         embed(args.folder)
         return
+    from vdnif_addon.safe_io import check_output_file
+
+    for case in args.case:              # the output rule, before any case starts
+        check_output_file(args.out / f"{case}.json", "--out", "json")
     for case in args.case:
         run_case(case, args.out)
 
@@ -265,4 +294,7 @@ def main(argv):
 if __name__ == "__main__":
     from tool_exit import run_and_exit
 
-    run_and_exit(main, sys.argv[1:], errors=(subprocess.CalledProcessError,))
+    from vdnif_addon.errors import VDNIFError
+
+    run_and_exit(main, sys.argv[1:], errors=(VDNIFError, subprocess.CalledProcessError),
+                 prefix="artist_rigs_study: error: ")
