@@ -11,8 +11,10 @@ test poses at 256x256 against the true reference.
         --json docs/results/secondary-rays.json
 
 ``run`` keeps each run's model and reports in OUT/SCENE-SHARE (``M.vdnif``, ``train.json``,
-``development.json``, ``test.json``) and skips the parts a run already holds; ``table`` writes
-them together, stamped with this checkout's provenance, and prints the Markdown table.
+``development.json``, ``test.json``) and skips the parts a run already holds; ``table`` prints
+the Markdown table and, with ``--json``, writes the runs together there, stamped with this
+checkout's provenance and marked as the study's (checked before anything is read, so an
+unmarked file is refused: remove it to replace it).
 """
 
 import argparse
@@ -35,6 +37,8 @@ from vdnif_addon.settings import RECIPE_RESOLUTION  # noqa: E402
 from vdnif_addon.text import percent  # noqa: E402
 from vdnif_addon.text import value as text_value  # noqa: E402
 
+FORMAT = "vdnif-secondary-share"
+"""The table's format mark: the output rule lets ``table --json`` replace only its own file."""
 POSE_SETS = ("development", "test")
 EVALUATION = ("--poses", "8", "--width", "256", "--height", "256", "--secondary",
               "--device", "cpu")
@@ -133,17 +137,20 @@ def markdown(runs):
 def table(folder, json_path=None):
     """The table of the runs in ``folder``; writes them together to ``json_path`` when
     given."""
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
+    if json_path is not None:
+        check_output_file(json_path, "--json", "json")
     runs = collect(folder)
     if json_path is not None:
-        record = {"commands": [" ".join(["python vdnif_addon/batch.py --", *command])
+        record = {"format": FORMAT,
+                  "commands": [" ".join(["python vdnif_addon/batch.py --", *command])
                                for command in commands("S", "F", "OUT")],
                   "note": "one training (seed 0) per scene and share, torch on 1 thread, "
                           "the recipe otherwise; the share is chosen on the development "
                           "poses and reported on the test poses",
                   "runs": runs}
-        json_path = pathlib.Path(json_path)
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(stamp(record), indent=1))
+        write_json_atomic(json_path, stamp(record), "--json", indent=1)
     return markdown(runs)
 
 

@@ -59,6 +59,20 @@ def test_the_tables_hold_every_finished_run_in_share_order(tmp_path):
     assert list(record["runs"]) == ["spot/0.0", "spot/0.1"]
     assert record["runs"]["spot/0.1"]["secondary_fraction"] == 0.1
     assert "commit" in json.dumps(record["provenance"])
+    assert tool.table(tmp_path, out) == text            # its own file, replaced
+
+
+def test_the_table_writes_only_where_json_names_it_and_never_over_a_foreign_file(tmp_path):
+    tool = load_tool(TOOL)
+    runs = tmp_path / "runs"
+    write_run(runs, "spot-0.0", figures(0.001, 0.008), figures(0.0015, 0.009))
+    tool.table(runs)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["runs"]
+    notes = tmp_path / "notes.json"
+    notes.write_text('{"mine": true}\n')
+    line = one_error_line(TOOL, ["table", runs, "--json", notes])
+    assert "--json" in line and "refusing to replace it" in line
+    assert notes.read_text() == '{"mine": true}\n'
 
 
 def test_a_folder_without_finished_runs_ends_in_one_error_line(tmp_path):
