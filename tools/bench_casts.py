@@ -12,6 +12,10 @@ the root of a BVH of the whole rest mesh instead of their cells' subtrees. The B
 is the pipeline before the kernels (``tests/oracles/surface_casts.py``): a Python loop over
 ``BVHTree.ray_cast``, weights and normals in numpy; its true reference builds a BVHTree per
 pose, as it did.
+
+``--json PATH`` writes the figures there, stamped with this checkout's provenance and marked as
+the benchmark's: checked by the output rule before any scene is built, it replaces only a file
+the benchmark wrote.
 """
 
 import argparse
@@ -32,13 +36,18 @@ from oracles import surface_casts as oracle  # noqa: E402
 from vdnif_addon.blender.bvh import BVHCaster  # noqa: E402
 from vdnif_addon.blender.capture_scene import capture  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
+from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.geometry.attributes import sample_surface  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.geometry import PosedObject  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 from vdnif_addon.tracing import groundtruth, references  # noqa: E402
 from vdnif_addon.tracing.rays import orbit_rays, orbit_viewpoints, training_rays  # noqa: E402
 from vdnif_addon.tracing.traverse import traverse  # noqa: E402
+
+FORMAT = "vdnif-bench-casts"
+"""The figures' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 
 
 def poses_of(args):
@@ -81,6 +90,8 @@ def main(argv=None):
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path)
     args = parser.parse_args(argv)
+    if args.json:
+        check_output_file(args.json, "--json", "json")     # the output rule, before any work
     captured, inputs = poses_of(args)
     mesh = captured.mesh
     build_start = time.perf_counter()
@@ -123,7 +134,7 @@ def main(argv=None):
     segments = sum(len(s) for s, *_ in inputs)
     rays = sum(len(o) for _, o, *_ in inputs)
     report = {
-        "scene": args.scene, "resolution": args.resolution, "poses": args.poses,
+        "format": FORMAT, "scene": args.scene, "resolution": args.resolution, "poses": args.poses,
         "rays": rays, "segments": segments, "triangles": int(len(mesh.triangles)),
         "repeats": args.repeats, "torch_threads": torch.get_num_threads(),
         "rest_surface_build_s": build_s,
@@ -142,8 +153,10 @@ def main(argv=None):
     report = stamp(report, with_machine=True)
     print(json.dumps(report, indent=1))
     if args.json:
-        args.json.write_text(json.dumps(report, indent=1) + "\n")
+        write_json_atomic(args.json, report, "--json", indent=1)
 
 
 if __name__ == "__main__":
-    main()
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, sys.argv[1:], errors=VDNIFError, prefix="bench_casts: error: ")

@@ -3,14 +3,14 @@ error (embedded against true reference: distance MAE in object units, hit mismat
 copied modifiers and of the surface binding on the development poses the choice is made on
 (``blender/follow_choice.py``), the choice, and its seconds, on the arm and lattice demo
 scenes and a flat slab in a lattice fitted tightly around it (``tools/resolution_meshes.py``),
-each at the recipe's resolution. Writes JSON and prints the Markdown table; no network is
-trained.
+each at the recipe's resolution. Writes JSON (marked as the tool's and checked by the output
+rule before any scene is built: it replaces only a file the tool wrote) and prints the
+Markdown table; no network is trained.
 
     python tools/corners_follow_choice.py --json docs/results/corners-follow-choice.json
 """
 
 import argparse
-import json
 import os
 import pathlib
 import sys
@@ -24,12 +24,16 @@ from resolution_meshes import thin_lattice_slab  # noqa: E402
 from vdnif_addon.blender.follow_choice import choose_follow  # noqa: E402
 from vdnif_addon.blender.resolution import recipe_resolution  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
+from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
 from vdnif_addon.kernels.runtime import cpu_description  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 from vdnif_addon.settings import SUGGEST_POSES, SUGGEST_VIEW_SIZE  # noqa: E402
 
+FORMAT = "vdnif-corners-follow-choice"
+"""The results' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 SCENES = {"arm (armature)": lambda: demo_scene("arm"),
           "lattice (Suzanne)": lambda: demo_scene("lattice"),
           "slab in a tightly fitted lattice": thin_lattice_slab}
@@ -63,20 +67,20 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", required=True, type=pathlib.Path)
     args = parser.parse_args()
+    check_output_file(args.json, "--json", "json")      # the output rule, before any scene
     cpu, _ = cpu_description()     # as every results JSON names it
     rows = [measure(name, build) for name, build in SCENES.items()]
-    results = {"command": " ".join(["python", *sys.argv]), "cpu": cpu,
+    results = {"format": FORMAT, "command": " ".join(["python", *sys.argv]), "cpu": cpu,
                "cpus": os.cpu_count(), "blender": bpy.app.version_string,
                "poses": SUGGEST_POSES, "view": SUGGEST_VIEW_SIZE,
                "note": "seconds on a machine shared with other sessions' work (loaded; "
                        "load_before: the 1-minute load average before each scene)",
                "rows": rows}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(stamp(results, with_machine=True), indent=1) + "\n")
+    write_json_atomic(args.json, stamp(results, with_machine=True), "--json", indent=1)
     print(markdown(rows))
 
 
 if __name__ == "__main__":
     from tool_exit import run_and_exit
 
-    run_and_exit(main)
+    run_and_exit(main, errors=VDNIFError, prefix="corners_follow_choice: error: ")

@@ -13,7 +13,10 @@ crossover is interpolated on the levels as the side-by-side study does on Suzann
     python tools/dense_character.py time --levels 2 3 4 --out DIR --json PATH --markdown PATH
 
 ``train`` writes DIR/character-N.blend, .vdnif and .json (training and test figures);
-``time`` reads them and writes the timings, the crossover and a Markdown summary.
+``time`` reads them and writes the timings, the crossover and a Markdown summary. The
+study's own files (each level's character-N.json, ``time``'s --json and --markdown) are
+marked as its, checked by the output rule before any level is built, trained or timed (each
+replaces only a file the study wrote) and written atomically.
 """
 
 import argparse
@@ -27,6 +30,12 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tools")]
 
+from vdnif_addon.errors import VDNIFError  # noqa: E402
+
+LEVEL_FORMAT = "vdnif-dense-character-level"
+"""A level's run file's format mark: the output rule lets ``train`` replace only its own."""
+FORMAT = "vdnif-dense-character"
+"""The timings' format mark: the output rule lets ``time --json`` replace only its own file."""
 BATCH = [sys.executable, str(ROOT / "vdnif_addon" / "batch.py"), "--"]
 OBJECT = "Character"
 # The resolution --resolution auto chooses for the character (its limbs span two voxels
@@ -78,10 +87,11 @@ def train(level, out):
 def _write(path, row):
     from vdnif_addon.kernels.runtime import cpu_description
     from vdnif_addon.model.provenance import stamp
+    from vdnif_addon.safe_io import write_json_atomic
 
-    row = stamp({**row, "cpu": cpu_description()[0], "load_average": os.getloadavg()},
-                with_machine=True)
-    pathlib.Path(path).write_text(json.dumps(row, indent=1))
+    row = stamp({"format": LEVEL_FORMAT, **row, "cpu": cpu_description()[0],
+                 "load_average": os.getloadavg()}, with_machine=True)
+    write_json_atomic(path, row, "--out", indent=1)
 
 
 def time_levels(levels, out, poses, repeats, threads):
@@ -141,10 +151,22 @@ def main(argv):
     times.add_argument("--json", type=pathlib.Path, required=True)
     times.add_argument("--markdown", type=pathlib.Path)
     args = parser.parse_args(argv)
+    from vdnif_addon.safe_io import (
+        MARKDOWN_MARK,
+        check_output_file,
+        write_json_atomic,
+        write_text_atomic,
+    )
+
     if args.command == "train":
+        for level in args.levels:       # the output rule, before any level starts
+            check_output_file(_files(args.out, level)["row"], "--out", "json")
         for level in args.levels:
             train(level, args.out)
         return
+    check_output_file(args.json, "--json", "json")        # the output rule, before the timing
+    if args.markdown is not None:
+        check_output_file(args.markdown, "--markdown", "markdown")
     from vdnif_addon.kernels.runtime import cpu_description
     from vdnif_addon.model.provenance import stamp
     from vdnif_addon.studies.side_by_side_crossover import crossover, crossover_markdown
@@ -153,18 +175,19 @@ def main(argv):
     results, costs = time_levels(args.levels, args.out, args.poses, args.repeats, args.threads)
     data = crossover(results, sweep="character-")
     rows = [json.loads(_files(args.out, level)["row"].read_text()) for level in args.levels]
+    rows = [{key: value for key, value in row.items() if key != "format"} for row in rows]
     for row in rows:                     # the evaluated mesh's, as the timing read it
         row["triangles"] = next(r["triangles"] for r in results
                                 if r["scene"] == f"character-{row['level']}")
     command = " ".join(["python", "tools/dense_character.py", *argv])
     machine = (f"{cpu_description()[0]}, {os.cpu_count()} cores, load average before "
                f"{load_before[0]:.2f}, after {os.getloadavg()[0]:.2f}")
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(stamp({
-        "command": command, "machine": machine, "levels": rows, "crossover": data,
-        "corner_costs": costs, "results": results}, with_machine=True), indent=1) + "\n")
+    write_json_atomic(args.json, stamp({
+        "format": FORMAT, "command": command, "machine": machine, "levels": rows,
+        "crossover": data, "corner_costs": costs, "results": results}, with_machine=True),
+        "--json", indent=1)
     if args.markdown is not None:
-        lines = ["| level | triangles | training s | holes | extras | clean |",
+        lines = [MARKDOWN_MARK, "| level | triangles | training s | holes | extras | clean |",
                  "| --- | --- | --- | --- | --- | --- |"]
         for row in rows:
             lines.append(f"| {row['level']} | {row['triangles']:,} | "
@@ -174,10 +197,11 @@ def main(argv):
                          f"{'yes' if row['clean'] else 'no'} |")
         lines += ["", *crossover_markdown(data, results, command, machine,
                                           sweep="the character's levels")]
-        args.markdown.write_text("\n".join(lines) + "\n")
+        write_text_atomic(args.markdown, "\n".join(lines) + "\n", "--markdown", "markdown")
 
 
 if __name__ == "__main__":
     from tool_exit import run_and_exit
 
-    run_and_exit(main, sys.argv[1:], errors=(subprocess.CalledProcessError,))
+    run_and_exit(main, sys.argv[1:], errors=(VDNIFError, subprocess.CalledProcessError),
+                 prefix="dense_character: error: ")

@@ -21,9 +21,10 @@ and outside the terminator band) and writes them together:
     python tools/dev_mesh_study.py shaded --keep out/kept --mesh blob --seed 1 \\
         --json docs/results/shaded-dev-meshes.json
 
-Every file is written atomically under the output rule, checked before the work starts: a
-run file replaces only a run file of the study, and ``table`` and ``shaded`` write lists,
-which carry no mark, so they replace nothing (remove the old file first, or write elsewhere).
+Every file is written atomically under the output rule, checked before the work starts (the
+--images folder as evaluate checks it, and evaluate's report copied into it): a run file
+replaces only a run file of the study, and ``table`` and ``shaded`` write lists, which carry
+no mark, so they replace nothing (remove the old file first, or write elsewhere).
 """
 
 import argparse
@@ -67,7 +68,7 @@ def mesh_table():
 def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
     """Builds, trains and evaluates ``mesh`` at training seed ``seed`` (and ``--resolution
     resolution`` where given, else the default); writes ``out/MESH-seedS.json``."""
-    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+    from vdnif_addon.safe_io import check_output_file, check_output_folder, write_json_atomic
     from vdnif_addon.threads import default_threads, machine_cores
 
     rig = mesh_table()[mesh][0]
@@ -76,6 +77,9 @@ def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
         raise VDNIFError(f"'{kept}' exists; the study does not replace a model")
     run_file = pathlib.Path(out) / f"{mesh}-seed{seed}.json"
     check_output_file(run_file, "the run file", "json")       # before an hour of training
+    figures_folder = pathlib.Path(images) / f"{mesh}-seed{seed}" if images else None
+    if figures_folder is not None:                  # evaluate's --out, checked as it will be
+        check_output_folder(figures_folder, "--images folder")
     with tempfile.TemporaryDirectory(prefix=f"vdnif-{mesh}-") as folder:
         folder = pathlib.Path(folder)
         subprocess.run([sys.executable, str(MESHES_TOOL), "--out", str(folder), "--mesh",
@@ -97,8 +101,7 @@ def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
                         str(model), "--json", str(summary)], check=True,
                        stdout=subprocess.DEVNULL)
         train_s = time.perf_counter() - start
-        figures_out = ["--out", str(pathlib.Path(images) / f"{mesh}-seed{seed}")] if images \
-            else []
+        figures_out = ["--out", str(figures_folder)] if images else []
         start = time.perf_counter()
         subprocess.run([*BATCH, "evaluate", "--model", str(model), *options, *EVALUATION,
                         "--json", str(report), *figures_out], check=True,
@@ -107,8 +110,7 @@ def run_mesh(mesh, seed, out, images=None, keep=None, resolution=None):
         trained = json.loads(summary.read_text())
         evaluated = json.loads(report.read_text())
         if images:
-            (pathlib.Path(images) / f"{mesh}-seed{seed}" / "evaluate.json").write_text(
-                report.read_text())
+            write_json_atomic(figures_folder / "evaluate.json", evaluated, "--images")
         figures = evaluated["vs_true"]
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
@@ -158,7 +160,9 @@ def shaded(keep, meshes, seed, json_path):
                             str(obj), "--rig", mesh_table()[mesh][0], *EVALUATION,
                             "--secondary", "--pose-set", "test", "--seed", "0", "--json",
                             str(band)], check=True, stdout=subprocess.DEVNULL)
-            rows.append({"mesh": mesh, "seed": seed, **json.loads(band.read_text())})
+            figures = json.loads(band.read_text())      # without the band tool's own mark
+            rows.append({"mesh": mesh, "seed": seed,
+                         **{key: value for key, value in figures.items() if key != "format"}})
     write_json_atomic(json_path, rows, "--json", indent=1)
     return rows
 

@@ -9,10 +9,12 @@ and the training's time (wall seconds, data loading, validation and saving inclu
 
 Anything after ``--`` is passed to the ``train`` command's parser (``--poses 16``,
 ``--steps 1000``, ``--resolution 24`` ...), the same for every scene.
+
+``--json`` is rewritten atomically after each scene, marked as the tool's and checked by the
+output rule before the first scene starts: it replaces only a file the tool wrote.
 """
 
 import argparse
-import json
 import pathlib
 import sys
 import tempfile
@@ -23,6 +25,10 @@ sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
+
+FORMAT = "vdnif-estimate-check"
+"""The figures' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 
 
 def check_scene(scene, train_options):
@@ -83,6 +89,8 @@ def main():
                         help="a demo scene (repeat for several)")
     parser.add_argument("--json", type=pathlib.Path, help="write the figures here")
     args = parser.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json", "json")      # the output rule, before any scene
     from vdnif_addon.threads import use_threads
 
     use_threads(None)                  # as the batch commands do before they run
@@ -97,9 +105,9 @@ def main():
               f" (x{ratio['dataset_s']:.2f}); training {row['estimate']['train_s']:.1f} s / "
               f"{row['actual']['train_s']:.1f} s (x{ratio['train_s']:.2f})", flush=True)
         if args.json is not None:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps(stamp({"command": " ".join(sys.argv), "rows": rows},
-                                                  with_machine=True), indent=1))
+            write_json_atomic(args.json, stamp({"format": FORMAT, "command": " ".join(sys.argv),
+                                                "rows": rows}, with_machine=True),
+                              "--json", indent=1)
 
 
 if __name__ == "__main__":

@@ -11,7 +11,9 @@ With ``--benchmark JSON`` it then measures the trained ball on the GPU (``benchm
 casts), the frame's host reads and Warp kernel launches, the network alone from 2^16 to
 2^22 segments in float32 and bfloat16, and each figure's share of the GPU's arithmetic and
 memory peaks where the GPU is one of ``PEAKS``. An H200 has no ray-tracing cores: OptiX on
-an RTX card is a stronger classical path, not measured here.
+an RTX card is a stronger classical path, not measured here. The JSON is marked as the
+benchmark's, checked by the output rule before anything else (the CUDA device included) and
+written atomically: it replaces only a file the benchmark wrote.
 
     make gpu-check          (or: .venv/bin/python tools/gpu_check.py)
     .venv/bin/python tools/gpu_check.py --benchmark out/gpu-benchmark.json
@@ -51,6 +53,9 @@ PEAKS = {
     "H200": {"float32_flops": 67e12, "bfloat16_flops": 989e12, "bytes_per_s": 4.8e12},
 }
 """Peak arithmetic (per precision) and memory bandwidth of GPUs by a part of their name."""
+FORMAT = "vdnif-gpu-benchmark"
+"""The benchmark's format mark: the output rule lets ``--benchmark`` replace only its own
+file."""
 VIEW = np.array([-0.5, 0.4, 1.0]) / np.linalg.norm([-0.5, 0.4, 1.0])
 """The rendered views' direction, onto the ball's bent side."""
 
@@ -385,21 +390,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--benchmark", type=pathlib.Path, metavar="JSON",
                         help="then benchmark the trained ball on the GPU into this file")
     args = parser.parse_args(argv)
-    problem = cuda_problem()
-    if problem is not None:
-        print(f"gpu_check: error: no CUDA device to check: {problem}", file=sys.stderr)
-        return 1
+    from vdnif_addon.safe_io import check_output_file, write_json_atomic
+
     trained = []
     try:
+        if args.benchmark is not None:      # the output rule, before the device and any work
+            check_output_file(args.benchmark, "--benchmark", "json")
+        problem = cuda_problem()
+        if problem is not None:
+            raise VDNIFError(f"no CUDA device to check: {problem}")
         ok = check(args.steps, args.size, trained=trained)
         if ok and args.benchmark is not None:
-            import json
-
             from vdnif_addon.model.provenance import stamp
 
-            figures = stamp(dict(benchmark(trained[0], *ball()), versions=versions()))
-            args.benchmark.parent.mkdir(parents=True, exist_ok=True)
-            args.benchmark.write_text(json.dumps(figures, indent=1) + "\n")
+            figures = stamp({"format": FORMAT, **benchmark(trained[0], *ball()),
+                             "versions": versions()})
+            write_json_atomic(args.benchmark, figures, "--benchmark", indent=1)
     except VDNIFError as exc:
         print(f"gpu_check: error: {exc}", file=sys.stderr)
         return 1

@@ -11,11 +11,12 @@ One torch thread (the product's default); each Warp launch runs on the calling t
 encoder's not split (``threads.lane_cores(1, encoder=1)``). The stages alternate within each
 round and each figure is the median of the rounds. The network is the default one
 (``NetworkConfig()``) with the albedo field of a textured scene; its weights are random,
-which changes no stage's cost.
+which changes no stage's cost. ``--json`` writes the figures marked as the tool's, checked by
+the output rule before any stage is timed and written atomically: it replaces only a file the
+tool wrote.
 """
 
 import argparse
-import json
 import pathlib
 import statistics
 import sys
@@ -32,6 +33,7 @@ from vdnif_addon.kernels import runtime  # noqa: E402
 from vdnif_addon.model.encoding import HashGrid, SegmentEncoder  # noqa: E402
 from vdnif_addon.model.network import IntersectionNetwork, readout  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 from vdnif_addon.settings import Heads, NetworkConfig  # noqa: E402
 
 SMALL_TABLE = 8
@@ -41,6 +43,9 @@ GEMM_SIDE = 2048
 """The side of the square matrix product whose rate stands for the thread's peak."""
 
 VOXEL_SIZE = 0.03
+
+FORMAT = "vdnif-network-stages"
+"""The figures' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 
 
 def multiply_adds(mlp: torch.nn.Module) -> int:
@@ -156,11 +161,13 @@ def main(argv):
     parser.add_argument("--rounds", type=int, default=7, help="alternating rounds; medians")
     parser.add_argument("--json", type=pathlib.Path, help="write the figures here")
     args = parser.parse_args(argv)
+    if args.json:
+        check_output_file(args.json, "--json", "json")     # the output rule, before the timing
     result = measure(args.segments, args.rounds)
     print(table(result))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(stamp(result, with_machine=True), indent=1))
+        write_json_atomic(args.json, stamp({"format": FORMAT, **result}, with_machine=True),
+                          "--json", indent=1)
 
 
 if __name__ == "__main__":

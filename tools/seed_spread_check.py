@@ -20,6 +20,9 @@ changed), a median of 3 seeds lands above the largest of 3 earlier seeds with pr
 about a fifth of the figures worse with no change at all. Each row also says whether every
 seed now lies beyond every earlier seed ("separated": 1 in 20 on each side by chance with
 3 and 3 seeds, ``separated_by_chance``), the stronger sign that a figure moved.
+
+``--json`` writes the rows marked as the tool's, checked by the output rule before any file is
+read and written atomically: it replaces only a file the tool wrote.
 """
 
 import argparse
@@ -34,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 from vdnif_addon.text import percent  # noqa: E402
 from vdnif_addon.text import value as text_value  # noqa: E402
 
@@ -43,6 +47,8 @@ NOW = ("docs/results/deformation-arm-lattice.json", "docs/results/deformation-sp
 METRICS = {"distance_mae": "distance MAE", "normal_error_deg": "normal error (deg)",
            "false_negative_rate": "holes", "false_positive_rate": "extras"}
 REFERENCES = ("true", "embedded")
+FORMAT = "vdnif-seed-spread-check"
+"""The rows' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 
 
 def committed(path, commit):
@@ -154,6 +160,8 @@ def main(argv):
                         help="today's experiment JSON files, relative to the repository")
     parser.add_argument("--json", type=pathlib.Path, help="write the rows here")
     args = parser.parse_args(argv)
+    if args.json:
+        check_output_file(args.json, "--json", "json")      # the output rule, before the work
     before, now = {}, {}
     for path in args.now:
         if not (ROOT / path).is_file():
@@ -176,13 +184,13 @@ def main(argv):
         f"{n} {name}" for name, n in separations.items())
           + f" (by chance alone about {chance['separated_expected']:.1f} each side)")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(stamp({
+        write_json_atomic(args.json, stamp({
+            "format": FORMAT,
             "what": "medians now against the seed spread of the run committed at --before",
             "command": ["python", "tools/seed_spread_check.py", "--before", args.before,
                         "--then", *args.then, "--now", *args.now],
             "before": args.before, "counts": counts, "separated": separations,
-            "chance": chance, "rows": rows}), indent=1))
+            "chance": chance, "rows": rows}), "--json", indent=1)
 
 
 if __name__ == "__main__":

@@ -5,7 +5,9 @@ embedding's own error (embedded vs true reference: distance MAE and hit IoU) on 
 rigs of ``tests/support/artist_rigs.py`` and their armature-only (lattice-only) twins, with
 both ways of following where both apply; and beside them Blender's own Surface Deform
 modifier on a helper object of the corners (bound to the mesh at rest, its default falloff),
-the alternative the binding was measured against. Writes JSON; no network is trained.
+the alternative the binding was measured against. Writes JSON (marked as the study's,
+checked by the output rule before any scene is built and written atomically: it replaces only
+a file the study wrote); no network is trained.
 
     python tools/surface_corners_study.py --json out/surface-corners.json \\
         [--poses 8] [--resolution 32] [--size 96]
@@ -32,14 +34,18 @@ from vdnif_addon.blender.pose_reader import PoseReader  # noqa: E402
 from vdnif_addon.blender.poses import evaluation_spec, posed  # noqa: E402
 from vdnif_addon.blender.read_mesh import deformers_disabled  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
+from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.geometry.capture import ARMATURE_COPY, EVALUATED_SURFACE  # noqa: E402
 from vdnif_addon.kernels.runtime import cpu_description  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.pose_sets import PoseSpec  # noqa: E402
 from vdnif_addon.posed.generate import reference_run  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 
 FIGURES = ("distance_mae", "distance_mae_voxels", "hit_iou", "false_negative_rate",
            "false_positive_rate", "normal_error_deg")
+FORMAT = "vdnif-surface-corners"
+"""The results' format mark: the output rule lets ``--json`` replace only the study's own file."""
 
 
 SURFACE_DEFORM = "surface deform modifier"
@@ -198,8 +204,9 @@ def main():
     parser.add_argument("--resolution", type=int, default=32)
     parser.add_argument("--size", type=int, default=96, help="reference image side")
     args = parser.parse_args()
+    check_output_file(args.json, "--json", "json")      # the output rule, before any scene
     cpu, _ = cpu_description()     # as every results JSON names it
-    results = {"command": " ".join(["python", *sys.argv]), "cpu": cpu,
+    results = {"format": FORMAT, "command": " ".join(["python", *sys.argv]), "cpu": cpu,
                "cpus": os.cpu_count(), "blender": bpy.app.version_string,
                "note": "wall-clock medians on a machine shared with other sessions' work "
                        "(loaded): compare the figures side by side, not with other runs"}
@@ -216,13 +223,12 @@ def main():
     results["embedding"] = {
         rig: rig_errors(rig, args.resolution, args.size, args.poses)
         for rig in artist_rigs.RIGS}
-    args.json.parent.mkdir(parents=True, exist_ok=True)
     results = stamp(results, with_machine=True)
-    args.json.write_text(json.dumps(results, indent=1) + "\n")
+    write_json_atomic(args.json, results, "--json", indent=1)
     print(json.dumps(results, indent=1))
 
 
 if __name__ == "__main__":
     from tool_exit import run_and_exit
 
-    run_and_exit(main)
+    run_and_exit(main, errors=VDNIFError, prefix="surface_corners_study: error: ")

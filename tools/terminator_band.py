@@ -8,7 +8,8 @@ cast shadows' flips spread over every angle. Prints the table and, per candidate
 w, the share of the flips inside |N.L| < w and the false lit and false shadow rates of the
 cast shadows outside it (``shading.shadow_split``), and what the visibly different shaded
 pixels are (``visible_parts``); ``--json`` writes them with evaluate's own report and the load
-average.
+average, marked as the tool's (checked by the output rule before the model is read and
+written atomically: it replaces only a file the tool wrote).
 
     python vdnif_addon/batch.py -- train --scene spot --out out/spot.vdnif
     python tools/terminator_band.py --model out/spot.vdnif --scene spot --poses 8 \\
@@ -16,7 +17,6 @@ average.
 """
 
 import argparse
-import json
 import pathlib
 import sys
 
@@ -34,9 +34,12 @@ from vdnif_addon.inference.shading import (  # noqa: E402
 )
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.passes import SecondaryPasses  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 
 BIN = 0.025
 WIDTHS = (0.0, 0.025, 0.05, 0.075, 0.1, 0.15, 0.175, 0.2, 0.3)
+FORMAT = "vdnif-terminator-band"
+"""The tables' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 
 
 def band_table(cosines, predicted: SecondaryPasses, reference: SecondaryPasses,
@@ -82,6 +85,8 @@ def main():
     own = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], add_help=False)
     own.add_argument("--json", type=pathlib.Path, help="write the tables here")
     known, rest = own.parse_known_args()
+    if known.json is not None:          # the output rule, before the model is read
+        check_output_file(known.json, "--json", "json")
     from vdnif_addon.cli import build_parser
     from vdnif_addon.cli.model_commands import evaluated
     from vdnif_addon.cli.options import validate_arguments
@@ -117,12 +122,13 @@ def main():
     if known.json is not None:
         import os
 
-        known.json.write_text(json.dumps(stamp({"object": report["object"],
-                                          "pose_set": args.pose_set, "poses": report["poses"],
-                                          "width": report["width"],
-                                          "height": report["height"], "model": str(args.model),
-                                          "load": os.getloadavg(), **table,
-                                          "report": report}, with_machine=True), indent=1))
+        write_json_atomic(known.json, stamp({"format": FORMAT, "object": report["object"],
+                                             "pose_set": args.pose_set, "poses": report["poses"],
+                                             "width": report["width"],
+                                             "height": report["height"],
+                                             "model": str(args.model), "load": os.getloadavg(),
+                                             **table, "report": report}, with_machine=True),
+                          "--json", indent=1)
 
 
 def _percent(share):
@@ -130,7 +136,6 @@ def _percent(share):
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except VDNIFError as error:
-        sys.exit(f"terminator_band: error: {error}")
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, errors=VDNIFError, prefix="terminator_band: error: ")

@@ -6,6 +6,8 @@ seconds and steps, and then evaluates the model on the development poses and the
 holes (false-negative rate), extras (false-positive rate), distance and normal. With
 ``--repeats N`` it trains N times and reports every run's wall seconds and their median; the
 runs draw the same batches, so they give the same model, and the last one is evaluated.
+``--json`` (marked as the tool's, written atomically) and ``--model`` are checked by the output
+rule before the training: each replaces only a file of its kind that VDNIF wrote.
 
     python vdnif_addon/batch.py -- dataset --scene bunny --out out/bunny-data
     OMP_NUM_THREADS=1 python tools/time_to_clean.py --data out/bunny-data --scene bunny \\
@@ -28,8 +30,12 @@ sys.path.insert(0, str(ROOT))
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 from vdnif_addon.threads import use_threads  # noqa: E402
 from vdnif_addon.training.fit import fit_model  # noqa: E402
+
+FORMAT = "vdnif-time-to-clean"
+"""The figures' format mark: the output rule lets ``--json`` replace only the tool's own file."""
 
 
 def parse_setting(item):
@@ -58,6 +64,9 @@ def main():
     parser.add_argument("--model", type=pathlib.Path,
                         help="keep the evaluated model here (default: discarded)")
     args = parser.parse_args()
+    check_output_file(args.json, "--json", "json")        # the output rule, before the training
+    if args.model is not None:
+        check_output_file(args.model, "--model", "model")
     if args.repeats < 1:
         raise VDNIFError(f"--repeats must be at least 1, got {args.repeats}")
     overrides = dict(parse_setting(item) for item in args.set)
@@ -72,7 +81,7 @@ def main():
             steps_s.append(result.seconds)
         history = [(r["step"], (r["validation"] or {}).get("occlusion_accuracy"))
                    for r in result.history]
-        report = {"data": args.data, "scene": args.scene, "overrides": overrides,
+        report = {"format": FORMAT, "data": args.data, "scene": args.scene, "overrides": overrides,
                   "torch_threads": threads, "status": result.status, "steps": result.steps,
                   "train_s": statistics.median(steps_s), "wall_s": statistics.median(walls),
                   "train_s_runs": steps_s, "wall_s_runs": walls,
@@ -90,7 +99,7 @@ def main():
                                 and figures["false_positive_rate"] <= CLEAN_RATE)
             report[name] = figures
     report = stamp(report, with_machine=True)       # training times: the machine's load
-    pathlib.Path(args.json).write_text(json.dumps(report, indent=1))
+    write_json_atomic(args.json, report, "--json", indent=1)
     print(json.dumps({k: report[k] for k in ("status", "steps", "train_s", "wall_s")}))
     for name in ("dev", "test"):
         f = report[name]
@@ -100,7 +109,6 @@ def main():
 
 
 if __name__ == "__main__":
-    try:
-        main()
-    except VDNIFError as error:
-        sys.exit(f"time_to_clean: error: {error}")
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, errors=VDNIFError, prefix="time_to_clean: error: ")

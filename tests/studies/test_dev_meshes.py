@@ -195,6 +195,18 @@ def test_no_file_it_did_not_write_is_replaced_and_the_check_comes_first(tmp_path
         assert foreign.read_text() == NOTES
 
 
+def test_a_foreign_images_folder_is_refused_before_the_training(tmp_path):
+    figures = tmp_path / "images" / "torus-seed1"
+    figures.mkdir(parents=True)
+    (figures / "notes.txt").write_text(NOTES)
+    line = one_error_line(STUDY_TOOL, ["run", "--mesh", "torus", "--seed", "1", "--out",
+                                       tmp_path / "runs", "--images", tmp_path / "images"])
+    assert "--images folder" in line and "did not write" in line
+    assert (figures / "notes.txt").read_text() == NOTES
+    assert sorted(path.name for path in figures.iterdir()) == ["notes.txt"]
+    assert not (tmp_path / "runs").exists()
+
+
 def test_a_run_file_is_marked_and_the_table_drops_the_mark(tmp_path):
     study = load_tool(STUDY_TOOL)
     runs = tmp_path / "runs"

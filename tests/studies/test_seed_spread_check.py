@@ -3,6 +3,7 @@ run's smallest and largest seed, per metric and reference, and a commit without 
 ends in one error line."""
 
 import itertools
+import json
 import pathlib
 
 import pytest
@@ -82,3 +83,27 @@ def test_every_seed_beyond_every_earlier_seed_is_told_from_an_overlap():
                 if row["metric"] == "distance_mae"} == {(seeds[0], seeds[2])}
     with pytest.raises(VDNIFError, match="odd count"):
         tool.beyond_by_chance(3, 2)
+
+
+FOREIGN = b'{"mine": true}\n'
+SPREAD = "docs/results/deformation-arm-lattice.json"
+
+
+def test_a_foreign_json_file_is_refused_before_any_file_is_read(tmp_path):
+    foreign = tmp_path / "spread.json"
+    foreign.write_bytes(FOREIGN)
+    # a file missing now: only a check that comes first names the output
+    line = one_error_line(TOOL, ["--before", "HEAD", "--now", "docs/results/no-such.json",
+                                 "--json", foreign])
+    assert "--json" in line and "refusing to replace it" in line
+    assert foreign.read_bytes() == FOREIGN
+
+
+def test_a_rerun_replaces_its_own_rows(tmp_path):
+    tool = load_tool(TOOL)
+    out = tmp_path / "spread.json"
+    for _ in range(2):
+        tool.main(["--before", "HEAD", "--then", SPREAD, "--now", SPREAD, "--json", str(out)])
+        record = json.loads(out.read_text())
+        assert next(iter(record)) == "format" and record["format"] == tool.FORMAT
+        assert record["rows"] and "provenance" in record
