@@ -6,7 +6,7 @@ files checked before any case starts, the table's list written only where --json
 import json
 import pathlib
 
-from tool_errors import load_tool, one_error_line
+from tool_errors import load_tool, one_error_line, refuses_foreign_output
 
 TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "artist_rigs_study.py"
 study = load_tool(TOOL)
@@ -85,13 +85,9 @@ def test_the_embedding_follows_as_the_trained_model_did(tmp_path):
 def test_a_foreign_case_file_is_refused_before_any_case_starts(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
-    foreign = out / "twin-frames.json"
-    foreign.write_text('{"mine": true}\n')
-    line = one_error_line(TOOL, ["run", "--case", "hook", "--case", "twin-frames", "--out",
-                                 str(out)])
-    assert "--out" in line and "twin-frames.json" in line and "refusing to replace it" in line
-    assert foreign.read_text() == '{"mine": true}\n'
-    assert sorted(p.name for p in out.iterdir()) == ["twin-frames.json"]   # nothing started
+    line = refuses_foreign_output(TOOL, ["run", "--case", "hook", "--case", "twin-frames",
+                                         "--out", out], out / "twin-frames.json", "--out")
+    assert "twin-frames.json" in line                   # and the hook never started
 
 
 def test_embed_and_the_table_refuse_files_that_are_not_the_studys(tmp_path):
@@ -102,9 +98,5 @@ def test_embed_and_the_table_refuse_files_that_are_not_the_studys(tmp_path):
     line = one_error_line(TOOL, ["embed", str(out)])
     assert "hook.json" in line and "refusing to replace it" in line
     notes = tmp_path / "notes.json"
-    notes.write_text("[1, 2]\n")
-    line = one_error_line(TOOL, ["table", str(out), "--json", str(notes)])
-    assert "--json" in line and "refusing to replace it" in line
-    assert notes.read_text() == "[1, 2]\n"
-    line = one_error_line(TOOL, ["table", str(tmp_path / "missing")])
-    assert "is not a folder" in line
+    refuses_foreign_output(TOOL, ["table", out, "--json", notes], notes, "--json")
+    assert "is not a folder" in one_error_line(TOOL, ["table", tmp_path / "missing"])

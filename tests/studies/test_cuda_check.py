@@ -95,13 +95,3 @@ def test_the_benchmark_runs_on_the_cpu_and_counts_what_a_frame_costs():
                for r in figures["network"])
     assert figures["peaks"] is None and "no ray-tracing cores" in figures["note"]
     assert len(said) == 1 + len(figures["network"])
-
-
-def test_a_foreign_benchmark_file_is_refused_before_the_device_and_any_work(tmp_path):
-    """The output rule comes first, with or without a CUDA device: nothing is trained."""
-    foreign = tmp_path / "benchmark.json"
-    foreign.write_bytes(b'{"mine": true}\n')
-    line = one_error_line(TOOL, ["--benchmark", foreign])
-    assert "--benchmark" in line and "refusing to replace it" in line
-    assert foreign.read_bytes() == b'{"mine": true}\n'
-    assert sorted(path.name for path in tmp_path.iterdir()) == ["benchmark.json"]

@@ -11,7 +11,7 @@ import sys
 
 import pytest
 from scene_builders import evaluated_vertices
-from tool_errors import load_tool, one_error_line
+from tool_errors import load_tool
 
 # The tool imports the core directly, so this file does too (one identity of the core).
 from vdnif_addon.blender import capture_scene, deform, poses
@@ -55,32 +55,6 @@ def test_a_dense_character_it_cannot_write_is_refused(tmp_path, levels, out, mes
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and message in done.stderr
     assert not (tmp_path / out).exists()
-
-
-FOREIGN = b'{"mine": true}\n'
-
-
-def test_a_foreign_level_file_is_refused_before_any_level_is_built(tmp_path):
-    foreign = tmp_path / "character-2.json"
-    foreign.write_bytes(FOREIGN)
-    line = one_error_line(DENSE, ["train", "--levels", "1", "2", "--out", tmp_path])
-    assert "--out" in line and "character-2.json" in line and "refusing to replace it" in line
-    assert foreign.read_bytes() == FOREIGN
-    assert sorted(path.name for path in tmp_path.iterdir()) == ["character-2.json"]
-
-
-@pytest.mark.parametrize("option, name", [("--json", "timings.json"),
-                                          ("--markdown", "timings.md")])
-def test_a_foreign_timings_file_is_refused_before_the_timing(tmp_path, option, name):
-    foreign = tmp_path / name
-    foreign.write_bytes(FOREIGN)
-    outputs = {"--json": tmp_path / "new.json", option: foreign}
-    # no trained level in --out: only a check that comes first names the file
-    line = one_error_line(DENSE, ["time", "--levels", "2", "--out", tmp_path / "missing",
-                                  *(str(item) for pair in outputs.items() for item in pair)])
-    assert option in line and "refusing to replace it" in line
-    assert foreign.read_bytes() == FOREIGN
-    assert sorted(path.name for path in tmp_path.iterdir()) == [name]
 
 
 def test_a_level_file_is_marked_and_replaced_by_the_next_run(tmp_path):

@@ -44,18 +44,6 @@ def test_absurd_sizes_end_in_one_error_line():
     assert "at least 1" in one_error_line(TOOL, ["--segments", "0"])
 
 
-FOREIGN = b'{"mine": true}\n'
-
-
-def test_a_foreign_json_file_is_refused_before_the_timing(tmp_path):
-    foreign = tmp_path / "stages.json"
-    foreign.write_bytes(FOREIGN)
-    # absurd sizes: only a check that comes first names the file
-    line = one_error_line(TOOL, ["--segments", "0", "--json", foreign])
-    assert "--json" in line and "refusing to replace it" in line
-    assert foreign.read_bytes() == FOREIGN
-
-
 def test_a_rerun_replaces_its_own_figures(tmp_path):
     tool = load_tool(TOOL)
     out = tmp_path / "stages.json"

@@ -4,7 +4,7 @@ checked before any work, and its table written only where --json names it."""
 import json
 import pathlib
 
-from tool_errors import load_tool, one_error_line
+from tool_errors import load_tool, one_error_line, refuses_foreign_output
 
 TOOL = pathlib.Path(__file__).resolve().parents[2] / "tools" / "resolution_table.py"
 tool = load_tool(TOOL)
@@ -48,10 +48,6 @@ def test_the_table_refuses_to_replace_a_foreign_file(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
     (out / "arm.json").write_text(json.dumps(case_row("arm")))
-    foreign = tmp_path / "notes.json"
-    foreign.write_text("[1, 2]\n")
-    line = one_error_line(TOOL, ["table", str(out), "--json", str(foreign)])
-    assert "--json" in line and "refusing to replace it" in line
-    assert foreign.read_text() == "[1, 2]\n"
-    line = one_error_line(TOOL, ["table", str(tmp_path / "missing")])
-    assert "is not a folder" in line
+    notes = tmp_path / "notes.json"
+    refuses_foreign_output(TOOL, ["table", out, "--json", notes], notes, "--json")
+    assert "is not a folder" in one_error_line(TOOL, ["table", tmp_path / "missing"])

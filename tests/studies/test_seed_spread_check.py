@@ -85,18 +85,7 @@ def test_every_seed_beyond_every_earlier_seed_is_told_from_an_overlap():
         tool.beyond_by_chance(3, 2)
 
 
-FOREIGN = b'{"mine": true}\n'
 SPREAD = "docs/results/deformation-arm-lattice.json"
-
-
-def test_a_foreign_json_file_is_refused_before_any_file_is_read(tmp_path):
-    foreign = tmp_path / "spread.json"
-    foreign.write_bytes(FOREIGN)
-    # a file missing now: only a check that comes first names the output
-    line = one_error_line(TOOL, ["--before", "HEAD", "--now", "docs/results/no-such.json",
-                                 "--json", foreign])
-    assert "--json" in line and "refusing to replace it" in line
-    assert foreign.read_bytes() == FOREIGN
 
 
 def test_a_rerun_replaces_its_own_rows(tmp_path):

@@ -32,19 +32,3 @@ def test_a_setting_is_a_key_and_a_json_value():
 def test_bad_input_ends_in_one_error_line(tmp_path, arguments, message):
     line = one_error_line(TOOL, [a.format(tmp=tmp_path) for a in arguments])
     assert message in line
-
-
-FOREIGN = b'{"mine": true}\n'
-
-
-@pytest.mark.parametrize("option, name", [("--json", "x.json"), ("--model", "x.vdnif")])
-def test_a_foreign_output_file_is_refused_before_the_training(tmp_path, option, name):
-    foreign = tmp_path / name
-    foreign.write_bytes(FOREIGN)
-    outputs = {"--json": tmp_path / "figures.json", option: foreign}
-    # a dataset folder that does not exist: only a check that comes first names the file
-    line = one_error_line(TOOL, ["--data", tmp_path / "missing", "--scene", "arm",
-                                 *(str(item) for pair in outputs.items() for item in pair)])
-    assert option in line and "refusing to replace it" in line
-    assert foreign.read_bytes() == FOREIGN
-    assert sorted(path.name for path in tmp_path.iterdir()) == [name]
