@@ -107,6 +107,11 @@ def time_levels(levels, out, poses, repeats, threads):
     from vdnif_addon.posed.render import load_scene_model
     from vdnif_addon.studies.side_by_side import compare_paths, thread_settings
 
+    for level in levels:            # every level's files, before the first is timed
+        for kind in ("blend", "model"):
+            if not _files(out, level)[kind].is_file():
+                raise VDNIFError(f"level {level} has no trained character in '{out}' (no "
+                                 f"'{_files(out, level)[kind].name}'): run 'train' first")
     results, costs = [], []
     for level in levels:
         files = _files(out, level)

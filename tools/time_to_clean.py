@@ -111,4 +111,5 @@ def main():
 if __name__ == "__main__":
     from tool_exit import run_and_exit
 
-    run_and_exit(main, errors=VDNIFError, prefix="time_to_clean: error: ")
+    run_and_exit(main, errors=(VDNIFError, subprocess.CalledProcessError),
+                 prefix="time_to_clean: error: ")

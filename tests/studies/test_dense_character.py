@@ -11,7 +11,7 @@ import sys
 
 import pytest
 from scene_builders import evaluated_vertices
-from tool_errors import load_tool
+from tool_errors import load_tool, one_error_line
 
 # The tool imports the core directly, so this file does too (one identity of the core).
 from vdnif_addon.blender import capture_scene, deform, poses
@@ -65,3 +65,10 @@ def test_a_level_file_is_marked_and_replaced_by_the_next_run(tmp_path):
         record = json.loads(path.read_text())
         assert next(iter(record)) == "format" and record["format"] == dense.LEVEL_FORMAT
         assert record["clean"] is clean and "provenance" in record
+
+
+def test_timing_levels_that_were_never_trained_ends_in_one_error_line(tmp_path):
+    line = one_error_line(DENSE, [
+        "time", "--levels", "2", "--out", tmp_path, "--json", tmp_path / "timings.json"])
+    assert "level 2 has no trained character" in line and "character-2.blend" in line
+    assert list(tmp_path.iterdir()) == []

@@ -47,3 +47,4 @@ def test_a_foreign_output_is_refused_before_the_work(tmp_path, tool, arguments, 
               for a in arguments]
     line = refuses_foreign_output(TOOLS / f"{tool}.py", filled, foreign, option)
     assert name in line
+
