@@ -13,10 +13,10 @@ threads, the load average before and after, and the wall time of the training an
 evaluation); ``--images DIR`` keeps evaluate's figures and error images in DIR/MESH-seedS,
 ``--keep DIR`` the mesh and the model as DIR/MESH.obj and DIR/MESH-seedS.vdnif (for the
 shaded pass's study, ``tools/terminator_band.py``).
-``table`` prints the Markdown table of every ``*.json`` in the folder and writes them
-together as one JSON file. ``shaded`` evaluates kept models' shaded pass on the same test
-poses (``tools/terminator_band.py``: PSNR, the visible-step share, the shadow rates inside
-and outside the terminator band) and writes them together:
+``table`` prints the Markdown table of every ``*.json`` in the folder and, with ``--json``
+only, writes them together as one JSON file there. ``shaded`` evaluates kept models' shaded
+pass on the same test poses (``tools/terminator_band.py``: PSNR, the visible-step share, the
+shadow rates inside and outside the terminator band) and writes them together:
 
     python tools/dev_mesh_study.py shaded --keep out/kept --mesh blob --seed 1 \\
         --json docs/results/shaded-dev-meshes.json
@@ -24,7 +24,8 @@ and outside the terminator band) and writes them together:
 Every file is written atomically under the output rule, checked before the work starts (the
 --images folder as evaluate checks it, and evaluate's report copied into it): a run file
 replaces only a run file of the study, and ``table`` and ``shaded`` write lists, which carry
-no mark, so they replace nothing (remove the old file first, or write elsewhere).
+no mark, so they replace nothing outside a folder VDNIF marked as its own (remove the old
+file first, or write elsewhere).
 """
 
 import argparse
@@ -49,7 +50,6 @@ from vdnif_addon.model.provenance import stamp  # noqa: E402
 
 MESHES_TOOL = ROOT / "tools" / "dev_meshes.py"
 BAND_TOOL = ROOT / "tools" / "terminator_band.py"
-DEFAULT_JSON = ROOT / "docs" / "results" / "dev-meshes.json"
 FORMAT = "vdnif-dev-mesh-run"
 """A run file's format mark: the output rule lets ``run`` replace only its own files."""
 
@@ -227,8 +227,8 @@ def main(argv):
     run.add_argument("--resolution", help="train's --resolution (default: train's default)")
     show = commands.add_parser("table", help="the Markdown table of a run folder")
     show.add_argument("folder", type=pathlib.Path)
-    show.add_argument("--json", type=pathlib.Path, default=DEFAULT_JSON,
-                      help="write the rows together here")
+    show.add_argument("--json", type=pathlib.Path,
+                      help="write the rows together here (nothing is written without it)")
     band = commands.add_parser("shaded", help="the shaded pass of kept models")
     band.add_argument("--keep", type=pathlib.Path, required=True,
                       help="the folder of run --keep")

@@ -16,7 +16,8 @@ from tool_errors import load_tool, one_error_line
 
 from vdnif_addon.settings import RIGS
 
-TOOLS = pathlib.Path(__file__).resolve().parents[2] / "tools"
+REPO = pathlib.Path(__file__).resolve().parents[2]
+TOOLS = REPO / "tools"
 MESHES_TOOL, STUDY_TOOL = TOOLS / "dev_meshes.py", TOOLS / "dev_mesh_study.py"
 
 # mesh: (closed, connected pieces, triangles: an exact count or a (low, high) range)
@@ -217,6 +218,21 @@ def test_a_run_file_is_marked_and_the_table_drops_the_mark(tmp_path):
     study.table(runs, combined)
     assert [sorted(row) for row in json.loads(combined.read_text())] == [
         sorted(_row("torus", 0, 0.0, 0.0))]
+
+
+def test_the_table_writes_nothing_unless_json_names_a_file(tmp_path, capsys):
+    """Without --json the table is printed only: the committed results stay as they are."""
+    study = load_tool(STUDY_TOOL)
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "torus-seed0.json").write_text(json.dumps(_row("torus", 0, 0.0, 0.0)))
+    results = sorted((REPO / "docs" / "results").iterdir())
+    before = {path: path.read_bytes() for path in results}
+    study.main(["table", str(runs)])
+    assert "| torus | armature | 0 |" in capsys.readouterr().out
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["runs"]
+    assert sorted((REPO / "docs" / "results").iterdir()) == results
+    assert all(path.read_bytes() == data for path, data in before.items())
 
 
 def test_the_shaded_pass_needs_the_kept_model(tmp_path):
