@@ -32,6 +32,8 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tools"), str(ROOT / "tests" / "support")]
 
+from vdnif_addon.errors import VDNIFError  # noqa: E402
+
 FORMAT = "vdnif-artist-rig-case"
 """A case file's format mark: the output rule lets ``run`` and ``embed`` replace only the
 study's own files."""
@@ -223,7 +225,6 @@ def _allowed(twin_rate):
 def table(folder, json_path=None):
     """The Markdown table of the case files in ``folder``; with ``json_path``, writes them
     there together as one list, in the study's order."""
-    from vdnif_addon.errors import VDNIFError
     from vdnif_addon.safe_io import check_output_file, write_json_atomic
 
     folder = pathlib.Path(folder)
@@ -293,8 +294,6 @@ def main(argv):
 
 if __name__ == "__main__":
     from tool_exit import run_and_exit
-
-    from vdnif_addon.errors import VDNIFError
 
     run_and_exit(main, sys.argv[1:], errors=(VDNIFError, subprocess.CalledProcessError),
                  prefix="artist_rigs_study: error: ")
