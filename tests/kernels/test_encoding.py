@@ -106,9 +106,15 @@ def test_vertices_and_cube_corners_read_their_own_table_rows():
             assert features[level].tolist() == grid.table[row].tolist()
 
 
-def test_launches_split_at_the_int32_limit_give_the_same_features_and_gradient(monkeypatch):
-    """Batches beyond 2^31 output vectors are encoded in several launches (the kernels index
-    in int32); a tiny limit makes this batch take 21 launches."""
+@pytest.mark.parametrize("segments", [32, 49])
+def test_launches_split_at_the_int32_limit_give_the_same_features_and_gradient(
+    monkeypatch, segments
+):
+    """Batches beyond 2^31 output floats are encoded in several launches (a launch counts its
+    end points in int32); a tiny limit splits this batch into launches of ``segments``, whose
+    blocks fall where one launch's do (32: two CPU blocks of 16 end points) or elsewhere (49).
+    The backward scatters end point by end point, so both give one launch's features and
+    gradient bit for bit."""
     torch.manual_seed(1)
     encoder = SegmentEncoder(HashGrid(2, 8, 2.0, 10, 2), pe_bands=1)
     p0, p1 = torch.rand(2, 1000, 3)
@@ -116,11 +122,17 @@ def test_launches_split_at_the_int32_limit_give_the_same_features_and_gradient(m
     (encoder(p0, p1) * weights).sum().backward()
     whole, whole_grad = encoder(p0, p1).detach(), encoder.grid.table.grad.clone()
     encoder.grid.table.grad = None
-    monkeypatch.setattr(kernel, "MAX_LAUNCH_VECTORS", 599)  # 49 segments of 12 vectors
+    width = encoder.output_dim  # 24 floats a segment
+    monkeypatch.setattr(kernel, "MAX_LAUNCH_FLOATS", segments * width + width - 1)
+    launched = []
+    run = kernel.launches.run
+    monkeypatch.setattr(kernel.launches, "run", lambda kernel_, device, stream, workers, jobs: (
+        launched.append(len(jobs)), run(kernel_, device, stream, workers, jobs)))
     pieces = encoder(p0, p1)
     (pieces * weights).sum().backward()
+    assert launched == [-(-1000 // segments)] * 2
     assert torch.equal(pieces, whole)
-    torch.testing.assert_close(encoder.grid.table.grad, whole_grad, rtol=1e-6, atol=1e-7)
+    assert torch.equal(encoder.grid.table.grad, whole_grad)
 
 
 @pytest.mark.parametrize("form", ["paper", "pi"])

@@ -8,9 +8,11 @@ import math
 
 import pytest
 import torch
+from oracles import encoder_scalar
 from oracles import encoding_torch as oracle
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.kernels import encoder as kernel
 from vdnif_addon.model.encoding import HashGrid, SegmentEncoder
 
 CONFIGS = [  # levels, base, growth, log2 table size, Fd, bands, form, dense levels expected
@@ -80,6 +82,28 @@ def test_features_and_table_gradient_equal_the_torch_oracle(
     torch.testing.assert_close(features, expected, rtol=1e-6, atol=1e-6)  # |table| <= 1
     scale = expected_gradient.abs().max().item()
     torch.testing.assert_close(gradient, expected_gradient, rtol=1e-6, atol=1e-6 * scale)
+
+
+@pytest.mark.parametrize("levels, base, growth, log2_size, feature_dim, bands, form, dense",
+                         CONFIGS)
+def test_blocks_equal_the_scalar_kernel_bit_for_bit(
+    levels, base, growth, log2_size, feature_dim, bands, form, dense
+):
+    """The block encoder runs the scalar kernel's operations in its order, several end points
+    at once: features and table gradients are the same bits, partial blocks, NaN and points
+    outside the cube included."""
+    encoder, _ = encoder_pair(levels, base, growth, log2_size, feature_dim, bands, form)
+    table = encoder.grid.table.detach()
+    enc = encoder.grid.encoding(encoder.pe_bands, encoder.pe_scale)
+    p0, p1 = points(base), points(base, seed=1)
+    weights = torch.randn(len(p0), encoder.output_dim)
+
+    features = kernel.encode(enc, table, p0, p1)
+    assert torch.equal(features, encoder_scalar.encode(enc, table, p0, p1))
+    assert torch.equal(kernel.encode(enc, table, p0, None),
+                       encoder_scalar.encode(enc, table, p0, None))
+    assert torch.equal(kernel.encode_backward(enc, len(table), p0, p1, weights),
+                       encoder_scalar.encode_backward(enc, len(table), p0, p1, weights))
 
 
 def test_torch_float32_sin_moves_gamma_points_by_at_most_a_unit_in_the_last_place():

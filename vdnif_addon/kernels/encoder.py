@@ -5,26 +5,31 @@ points ``gamma`` (x, then ``(sin(2^k s x) + 1) / 2`` and ``(cos(2^k s x) + 1) / 
 k), each looked up at every hash-grid level (trilinear, dense or hashed exactly as
 ``encoding.HashGrid`` lays out its table), written straight into the MLP's input row
 ``(end point, gamma point, level, feature)``. The backward recomputes the corners and
-scatter-adds ``weight * output gradient`` into the table gradient (``wp.atomic_add``);
+scatter-adds ``weight * output gradient`` into the table gradient (``wp::atomic_add``);
 positions get no gradient.
 
-Layout: thread ``t`` encodes end point ``t % ends`` of segment ``t // ends`` (``ends`` is 2
-for segments, 1 for plain points), all its ``1 + 2F`` gamma points. The table is row-major,
-``(rows, Fd)``, read as one vector of ``K`` floats per access (``K`` the largest of 4, 3, 2, 1
-dividing Fd; ``Fd / K`` chunks per row): one 12-byte load per corner at Fd = 3, 1.2-1.5x the
-throughput of a per-float loop over a runtime Fd on the row-major table and 1.3-1.6x that of
-the feature-major ``(Fd, rows)`` table of model format 1 (``tools/encoder_bench.py``, paper
-setting, one CPU thread). Every array is 1-D, so Warp's contiguous-array specialization makes
-its strides constants.
+Layout: task ``t`` encodes the end points ``[t B, (t + 1) B)`` of its launch, end point ``e``
+being end ``e % ends`` of segment ``e // ends`` (``ends`` is 2 for segments, 1 for plain
+points); ``B`` is ``CPU_BLOCK`` on the CPU and 1 on CUDA, where a task is a GPU thread. The
+table is row-major ``(rows, Fd)``.
+
+Why blocks, and why the body is C++ (``wp.func_native``, one source compiled for both
+devices): Warp's CPU back end runs a kernel task after task in scalar code, so a lookup cost
+about 35 ns of arithmetic (hashing eight corners, the weights, the features). Within a block
+the lookups of one gamma point and level run as a loop over the block's end points that the
+compiler vectorizes (``#pragma clang loop vectorize(assume_safety)``: the table is read and
+the output written at indices the compiler cannot bound, which only this promise lets it
+vectorize; the rows read and written never overlap): hashing, weights and the corner reads
+(AVX2 or AVX-512 gathers) for 8 or 16 end points at once. On CUDA the pragma is left out and
+a block is one end point.
 
 Arithmetic follows the torch reference (``tests/oracles/encoding_torch.py``) operation by
-operation, in float32, without fused multiply-adds (module option ``fuse_fp`` off): features
-equal it to a unit in the last place (the order of 8 float32 additions). A band's sin and
-cos are the correctly rounded float32 values of the reference's angle; torch's float32
-sin/cos (SLEEF) are sometimes one unit in the last place off them.
-
-On the CPU a launch is serial and latency-bound on the table reads: at the paper's setting
-(two 2^16-row levels, 1.5 MB) a 2^8-row table encodes 1.3-1.5x faster.
+operation, in float32, without fused multiply-adds (module option ``fuse_fp`` off, which
+reaches the C++ too): features equal it to a unit in the last place (the order of 8 float32
+additions); vectorizing runs the same operations on several end points at once, in the same
+order for each. A band's sin and cos are the correctly rounded float32 values of the
+reference's angle; torch's float32 sin/cos (SLEEF) are sometimes one unit in the last place
+off them.
 """
 
 from __future__ import annotations
@@ -48,239 +53,242 @@ wp.set_module_options({"enable_backward": False, "fuse_fp": False})
 LEVEL_FIELDS = 4
 """Per-level int32 parameters: resolution, first table row, y and z multipliers (bits)."""
 
-MAX_LAUNCH_VECTORS = 2**31 - 1
-"""Output vectors of one launch at most: the kernels index them with int32."""
+MAX_LAUNCH_FLOATS = 2**31 - 1
+"""Output floats of one launch at most: a launch's end points are counted in int32."""
 
-NON_NEGATIVE = 0x7FFFFFFF
-"""Masks an array index known to be in [0, 2^31): Warp wraps negative indices Python-style,
-and an index whose sign bit is visibly clear lets the compiler drop that test, 4 instructions
-per table read (1.05-1.08x the throughput, tools/encoder_bench.py)."""
+CPU_BLOCK = 64
+"""End points a CPU task encodes, the width of its vectorized loops' trip: 16 gave 0.9x the
+throughput of 64, 256 1.03x (one CPU thread, the paper's setting); the block's corners live
+on the task's stack (about 10 kB)."""
 
-VECTOR_WIDTHS = (4, 3, 2, 1)
-"""Table-row access widths compiled, widest first: a row of Fd floats is read as Fd / K
-vectors of the widest K that divides Fd."""
+CPU_SCATTER_BLOCK = 16
+"""End points a CPU task of the backward takes: its corners of ``PAIRS`` pairs live on the
+task's stack (32 kB at 16)."""
+
+PAIRS = 32
+"""(Gamma point, level) pairs whose corners a backward task keeps before it scatters."""
+
+# The C++ shared by the forward and the backward. A task's block: the end points' raw
+# coordinates ``raw``, band sines and cosines ``sn``/``cs`` in float64 (double-angle steps, as
+# ``_next_band`` did), the current gamma point ``pt`` clamped to [0, 1] (NaN as 0), and at
+# each level its 8 corners' table rows and trilinear weights, corner ``4i + 2j + k`` being
+# vertex ``cell + (i, j, k)``.
+_BLOCK = r"""
+#if defined(__CUDA_ARCH__)
+constexpr int BLOCK = 1;
+#define VDNIF_SIMD
+#else
+constexpr int BLOCK = %(cpu_block)d;
+#define VDNIF_SIMD _Pragma("clang loop vectorize(assume_safety)")
+#endif
+const int first = task * BLOCK;
+int n = count - first;
+if (n > BLOCK) n = BLOCK;
+if (n <= 0) return 0;
+const float* P0 = (const float*)p0.data;
+const float* P1 = (const float*)p1.data;
+const int* LV = (const int*)levels.data;
+const int L = levels.shape[0] / %(fields)d;
+const int G = 1 + 2 * bands;
+const long long width = (long long)G * L * fd;
+float raw[3][BLOCK], pt[3][BLOCK];
+double sn[3][BLOCK], cs[3][BLOCK];
+for (int i = 0; i < n; ++i) {
+    const int e = first + i;
+    const float* src = ((e & (ends - 1)) == 1 ? P1 : P0) + 3 * (long long)(e >> (ends - 1));
+    for (int k = 0; k < 3; ++k) raw[k][i] = src[k];
+}
+"""
+
+_GAMMA = r"""
+    for (int k = 0; k < 3; ++k) {
+        if (g == 0) {
+            for (int i = 0; i < n; ++i) pt[k][i] = raw[k][i];
+        } else if (g == 1) {
+            for (int i = 0; i < n; ++i) {
+                const double angle = (double)(raw[k][i] * scale);
+                sn[k][i] = wp::sin(angle);
+                cs[k][i] = wp::cos(angle);
+                pt[k][i] = ((float)sn[k][i] + 1.0f) * 0.5f;
+            }
+        } else if (g & 1) {
+            VDNIF_SIMD
+            for (int i = 0; i < n; ++i) {
+                const double s = sn[k][i], c = cs[k][i];
+                sn[k][i] = (s * c) * 2.0;
+                cs[k][i] = (c - s) * (c + s);
+                pt[k][i] = ((float)sn[k][i] + 1.0f) * 0.5f;
+            }
+        } else {
+            for (int i = 0; i < n; ++i) pt[k][i] = ((float)cs[k][i] + 1.0f) * 0.5f;
+        }
+        VDNIF_SIMD
+        for (int i = 0; i < n; ++i) {
+            float v = pt[k][i];
+            v = v != v ? 0.0f : v;
+            pt[k][i] = wp::min(wp::max(v, 0.0f), 1.0f);
+        }
+    }
+"""
+
+_CORNERS = r"""
+        const float res = (float)LV[%(fields)d * l];
+        const float last = res - 1.0f;
+        const int start = LV[%(fields)d * l + 1];
+        const unsigned int my = (unsigned int)LV[%(fields)d * l + 2];
+        const unsigned int mz = (unsigned int)LV[%(fields)d * l + 3];
+        const bool hashed = l >= dense;
+        VDNIF_SIMD
+        for (int i = 0; i < n; ++i) {
+            const float x = pt[0][i] * res, y = pt[1][i] * res, z = pt[2][i] * res;
+            const float cx = wp::min(wp::floor(x), last);
+            const float cy = wp::min(wp::floor(y), last);
+            const float cz = wp::min(wp::floor(z), last);
+            const float fx = x - cx, fy = y - cy, fz = z - cz;
+            const unsigned int x0 = (unsigned int)(int)cx;
+            const unsigned int y0 = (unsigned int)(int)cy * my;
+            const unsigned int z0 = (unsigned int)(int)cz * mz;
+            const unsigned int x1 = x0 + 1u, y1 = y0 + my, z1 = z0 + mz;
+            // dense: x + y (res+1) + z (res+1)^2; hashed (instant-ngp):
+            // (x * 1 ^ y * 2654435761 ^ z * 805459861) mod 2^T in wrapping uint32 arithmetic
+            const unsigned int a = hashed ? x0 ^ y0 : x0 + y0;
+            const unsigned int b = hashed ? x0 ^ y1 : x0 + y1;
+            const unsigned int c = hashed ? x1 ^ y0 : x1 + y0;
+            const unsigned int d = hashed ? x1 ^ y1 : x1 + y1;
+            const unsigned int keep = hashed ? (unsigned int)mask : 0xFFFFFFFFu;
+            rows[0][i] = start + (int)((hashed ? a ^ z0 : a + z0) & keep);
+            rows[1][i] = start + (int)((hashed ? a ^ z1 : a + z1) & keep);
+            rows[2][i] = start + (int)((hashed ? b ^ z0 : b + z0) & keep);
+            rows[3][i] = start + (int)((hashed ? b ^ z1 : b + z1) & keep);
+            rows[4][i] = start + (int)((hashed ? c ^ z0 : c + z0) & keep);
+            rows[5][i] = start + (int)((hashed ? c ^ z1 : c + z1) & keep);
+            rows[6][i] = start + (int)((hashed ? d ^ z0 : d + z0) & keep);
+            rows[7][i] = start + (int)((hashed ? d ^ z1 : d + z1) & keep);
+            // each weight (wx * wy) * wz, as the reference forms it
+            const float gx = 1.0f - fx, gy = 1.0f - fy, gz = 1.0f - fz;
+            const float w00 = gx * gy, w01 = gx * fy, w10 = fx * gy, w11 = fx * fy;
+            w[0][i] = w00 * gz;
+            w[1][i] = w00 * fz;
+            w[2][i] = w01 * gz;
+            w[3][i] = w01 * fz;
+            w[4][i] = w10 * gz;
+            w[5][i] = w10 * fz;
+            w[6][i] = w11 * gz;
+            w[7][i] = w11 * fz;
+        }
+"""
+
+_FORWARD_SNIPPET = _BLOCK + r"""
+const float* TABLE = (const float*)table.data;
+float* OUT = (float*)out.data;
+int rows[8][BLOCK];
+float w[8][BLOCK];
+for (int g = 0; g < G; ++g) {
+""" + _GAMMA + r"""
+    for (int l = 0; l < L; ++l) {
+""" + _CORNERS + r"""
+        for (int f = 0; f < fd; ++f) {
+            float* column = OUT + (long long)first * width + (long long)(g * L + l) * fd + f;
+            VDNIF_SIMD
+            for (int i = 0; i < n; ++i) {
+                float acc = TABLE[rows[0][i] * fd + f] * w[0][i];
+                acc = acc + TABLE[rows[1][i] * fd + f] * w[1][i];
+                acc = acc + TABLE[rows[2][i] * fd + f] * w[2][i];
+                acc = acc + TABLE[rows[3][i] * fd + f] * w[3][i];
+                acc = acc + TABLE[rows[4][i] * fd + f] * w[4][i];
+                acc = acc + TABLE[rows[5][i] * fd + f] * w[5][i];
+                acc = acc + TABLE[rows[6][i] * fd + f] * w[6][i];
+                acc = acc + TABLE[rows[7][i] * fd + f] * w[7][i];
+                column[i * width] = acc;
+            }
+        }
+    }
+}
+return 0;
+"""
+
+# The backward keeps the corners of up to ``PAIRS`` (gamma point, level) pairs of its block and
+# then scatters end point by end point, pair by pair, corner by corner: one end point's order
+# as a task of one end point would add them, so a table row's float32 additions come in the
+# same order whatever the blocks (and training is the same bit for bit at any block size)
+# wherever a point has at most ``PAIRS`` pairs (the paper's setting: 14). The scatter is not
+# vectorized: two end points of a block may share a corner.
+_BACKWARD_SNIPPET = _BLOCK + r"""
+#if defined(__CUDA_ARCH__)
+constexpr int PAIRS = 1;
+#else
+constexpr int PAIRS = %(pairs)d;
+#endif
+const float* GRAD_OUT = (const float*)grad_out.data;
+float* GRAD = (float*)grad_table.data;
+int kept_rows[PAIRS][8][BLOCK];
+float kept_w[PAIRS][8][BLOCK];
+int kept = 0;
+for (int g = 0; g < G; ++g) {
+""" + _GAMMA + r"""
+    for (int l = 0; l < L; ++l) {
+        auto& rows = kept_rows[kept];
+        auto& w = kept_w[kept];
+""" + _CORNERS + r"""
+        ++kept;
+        const int pair = g * L + l;
+        if (kept == PAIRS || pair == G * L - 1) {
+            for (int i = 0; i < n; ++i) {
+                const float* column = GRAD_OUT + (long long)(first + i) * width
+                                      + (long long)(pair + 1 - kept) * fd;
+                for (int q = 0; q < kept; ++q) {
+                    for (int f = 0; f < fd; ++f) {
+                        const float value = column[q * fd + f];
+                        for (int corner = 0; corner < 8; ++corner)
+                            wp::atomic_add(GRAD + kept_rows[q][corner][i] * fd + f,
+                                           value * kept_w[q][corner][i]);
+                    }
+                }
+            }
+            kept = 0;
+        }
+    }
+}
+return 0;
+"""
+
+@wp.func_native(_FORWARD_SNIPPET % {"cpu_block": CPU_BLOCK, "fields": LEVEL_FIELDS})
+def _encode_block(
+    task: int, count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
+    ends: int, bands: int, scale: float, dense: int, mask: wp.uint32,
+    levels: wp.array(dtype=wp.int32), table: wp.array(dtype=wp.float32), fd: int,
+    out: wp.array(dtype=wp.float32),
+) -> int: ...
 
 
-@wp.func
-def _unit(v: float):
-    """A coordinate as the grid reads it: NaN as 0, clamped to [0, 1]."""
-    if v != v:
-        v = 0.0
-    return wp.min(wp.max(v, 0.0), 1.0)
-
-
-@wp.func
-def _wave(v: wp.vec3d):
-    """A sinusoid's value as a gamma point: rounded to float32, then ``(v + 1) / 2`` in float32
-    as the reference computes it."""
-    return (wp.vec3(v) + wp.vec3(1.0)) * 0.5
-
-
-_Rows = wp.types.vector(length=8, dtype=wp.int32)
-_Weights = wp.types.vector(length=8, dtype=wp.float32)
-
-
-@wp.func
-def _corners(
-    px: float, py: float, pz: float, level: int, dense: int, mask: wp.uint32,
-    levels: wp.array(dtype=wp.int32),
-):
-    """Table rows of a point's 8 cell corners at one level, in corner order ``4i + 2j + k``
-    (vertex ``cell + (i, j, k)``), and its fractions within the cell; px, py, pz in [0,1]."""
-    res = float(levels[LEVEL_FIELDS * level])
-    last = res - 1.0
-    x = px * res
-    y = py * res
-    z = pz * res
-    cx = wp.min(wp.floor(x), last)
-    cy = wp.min(wp.floor(y), last)
-    cz = wp.min(wp.floor(z), last)
-    frac = wp.vec3(x - cx, y - cy, z - cz)
-    start = levels[LEVEL_FIELDS * level + 1]
-    sy = wp.uint32(levels[LEVEL_FIELDS * level + 2])
-    sz = wp.uint32(levels[LEVEL_FIELDS * level + 3])
-    x0 = wp.uint32(int(cx))
-    y0 = wp.uint32(int(cy)) * sy
-    z0 = wp.uint32(int(cz)) * sz
-    x1 = x0 + wp.uint32(1)
-    y1 = y0 + sy
-    z1 = z0 + sz
-    if level < dense:
-        # dense: x + y (res+1) + z (res+1)^2
-        a = x0 + y0
-        b = x0 + y1
-        c = x1 + y0
-        d = x1 + y1
-        return _Rows(
-            start + int(a + z0), start + int(a + z1), start + int(b + z0),
-            start + int(b + z1), start + int(c + z0), start + int(c + z1),
-            start + int(d + z0), start + int(d + z1),
-        ), frac
-    # hashed (instant-ngp): (x * 1 ^ y * 2654435761 ^ z * 805459861) mod 2^T in wrapping
-    # uint32 arithmetic; sy, sz hold the primes' bits
-    a = x0 ^ y0
-    b = x0 ^ y1
-    c = x1 ^ y0
-    d = x1 ^ y1
-    return _Rows(
-        start + int((a ^ z0) & mask), start + int((a ^ z1) & mask),
-        start + int((b ^ z0) & mask), start + int((b ^ z1) & mask),
-        start + int((c ^ z0) & mask), start + int((c ^ z1) & mask),
-        start + int((d ^ z0) & mask), start + int((d ^ z1) & mask),
-    ), frac
-
-
-@wp.func
-def _weights(frac: wp.vec3):
-    """Trilinear weights in corner order, each ``(wx * wy) * wz`` as the reference forms it."""
-    gx = 1.0 - frac[0]
-    gy = 1.0 - frac[1]
-    gz = 1.0 - frac[2]
-    w00 = gx * gy
-    w01 = gx * frac[1]
-    w10 = frac[0] * gy
-    w11 = frac[0] * frac[1]
-    return _Weights(
-        w00 * gz, w00 * frac[2], w01 * gz, w01 * frac[2],
-        w10 * gz, w10 * frac[2], w11 * gz, w11 * frac[2],
-    )
-
-
-@wp.func
-def _encode_point(
-    point: wp.vec3, column: int, dense: int, mask: wp.uint32,
-    levels: wp.array(dtype=wp.int32), table: wp.array(dtype=Any), chunks: int,
-    out: wp.array(dtype=Any),
-):
-    """Features of one gamma point at every level into ``out[column:]`` (vector units)."""
-    px = _unit(point[0])
-    py = _unit(point[1])
-    pz = _unit(point[2])
-    for level in range(levels.shape[0] // LEVEL_FIELDS):
-        rows, frac = _corners(px, py, pz, level, dense, mask, levels)
-        w = _weights(frac)
-        for j in range(chunks):
-            acc = table[(rows[0] * chunks + j) & NON_NEGATIVE] * w[0]
-            acc = acc + table[(rows[1] * chunks + j) & NON_NEGATIVE] * w[1]
-            acc = acc + table[(rows[2] * chunks + j) & NON_NEGATIVE] * w[2]
-            acc = acc + table[(rows[3] * chunks + j) & NON_NEGATIVE] * w[3]
-            acc = acc + table[(rows[4] * chunks + j) & NON_NEGATIVE] * w[4]
-            acc = acc + table[(rows[5] * chunks + j) & NON_NEGATIVE] * w[5]
-            acc = acc + table[(rows[6] * chunks + j) & NON_NEGATIVE] * w[6]
-            acc = acc + table[(rows[7] * chunks + j) & NON_NEGATIVE] * w[7]
-            out[(column + level * chunks + j) & NON_NEGATIVE] = acc
-    return 0
-
-
-@wp.func
-def _scatter_point(
-    point: wp.vec3, column: int, dense: int, mask: wp.uint32,
-    levels: wp.array(dtype=wp.int32), grad_out: wp.array(dtype=Any), chunks: int,
-    grad_table: wp.array(dtype=Any),
-):
-    """Adds ``weight * grad_out`` of one gamma point's features to its corners' rows."""
-    px = _unit(point[0])
-    py = _unit(point[1])
-    pz = _unit(point[2])
-    for level in range(levels.shape[0] // LEVEL_FIELDS):
-        rows, frac = _corners(px, py, pz, level, dense, mask, levels)
-        w = _weights(frac)
-        for j in range(chunks):
-            g = grad_out[(column + level * chunks + j) & NON_NEGATIVE]
-            for c in range(8):
-                wp.atomic_add(grad_table, (rows[c] * chunks + j) & NON_NEGATIVE, g * w[c])
-    return 0
-
-
-@wp.func
-def _first_band(p: wp.vec3, scale: float):
-    """sin and cos of band 0's angles ``x * s`` (formed in float32 as the reference forms
-    them), in float64."""
-    angle = wp.vec3d(p * scale)
-    return wp.vec3d(wp.sin(angle[0]), wp.sin(angle[1]), wp.sin(angle[2])), wp.vec3d(
-        wp.cos(angle[0]), wp.cos(angle[1]), wp.cos(angle[2]))
-
-
-@wp.func
-def _next_band(s: wp.vec3d, c: wp.vec3d):
-    """sin and cos of twice the angle: 2 s c and (c - s)(c + s)."""
-    return wp.cw_mul(s, c) * wp.float64(2.0), wp.cw_mul(c - s, c + s)
-
-
-# Gamma: band k's angle is x * (s 2^k), formed in float32 as the reference does, which is
-# exactly 2^k times band 0's float32 angle. Its sin and cos follow from band 0's by the
-# double-angle formulas in float64 (error ~2^k * 1e-16, far below float32's 6e-8), so each
-# rounds to the float32 sin/cos of the reference's angle: 6 library calls per end point
-# instead of 6F (1.1-1.25x the throughput at F = 3, measured on one CPU thread).
+@wp.func_native(_BACKWARD_SNIPPET % {"cpu_block": CPU_SCATTER_BLOCK, "fields": LEVEL_FIELDS,
+                                     "pairs": PAIRS})
+def _scatter_block(
+    task: int, count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
+    ends: int, bands: int, scale: float, dense: int, mask: wp.uint32,
+    levels: wp.array(dtype=wp.int32), grad_out: wp.array(dtype=wp.float32), fd: int,
+    grad_table: wp.array(dtype=wp.float32),
+) -> int: ...
 
 
 @wp.kernel(module=WARP_MODULE)
 def _encode(
-    p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int, bands: int,
-    scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
-    table: wp.array(dtype=Any), chunks: int, out: wp.array(dtype=Any),
+    count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int,
+    bands: int, scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
+    table: wp.array(dtype=wp.float32), fd: int, out: wp.array(dtype=wp.float32),
 ):
-    tid = wp.tid()
-    n = tid >> (ends - 1)
-    end = tid & (ends - 1)
-    p = p0[n]
-    if end == 1:
-        p = p1[n]
-    step = (levels.shape[0] // LEVEL_FIELDS) * chunks  # vectors per gamma point
-    column = (n * ends + end) * (1 + 2 * bands) * step
-    _encode_point(p, column, dense, mask, levels, table, chunks, out)
-    if bands > 0:
-        s, c = _first_band(p, scale)
-        for _k in range(bands):
-            column += step
-            _encode_point(_wave(s), column, dense, mask, levels, table, chunks, out)
-            column += step
-            _encode_point(_wave(c), column, dense, mask, levels, table, chunks, out)
-            s, c = _next_band(s, c)
+    _encode_block(wp.tid(), count, p0, p1, ends, bands, scale, dense, mask, levels, table, fd,
+                  out)
 
 
 @wp.kernel(module=WARP_MODULE)
 def _encode_backward(
-    p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int, bands: int,
-    scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
-    grad_out: wp.array(dtype=Any), chunks: int, grad_table: wp.array(dtype=Any),
+    count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int,
+    bands: int, scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
+    grad_out: wp.array(dtype=wp.float32), fd: int, grad_table: wp.array(dtype=wp.float32),
 ):
-    tid = wp.tid()
-    n = tid >> (ends - 1)
-    end = tid & (ends - 1)
-    p = p0[n]
-    if end == 1:
-        p = p1[n]
-    step = (levels.shape[0] // LEVEL_FIELDS) * chunks
-    column = (n * ends + end) * (1 + 2 * bands) * step
-    _scatter_point(p, column, dense, mask, levels, grad_out, chunks, grad_table)
-    if bands > 0:
-        s, c = _first_band(p, scale)
-        for _k in range(bands):
-            column += step
-            _scatter_point(_wave(s), column, dense, mask, levels, grad_out, chunks, grad_table)
-            column += step
-            _scatter_point(_wave(c), column, dense, mask, levels, grad_out, chunks, grad_table)
-            s, c = _next_band(s, c)
-
-
-_VECTORS = {width: wp.types.vector(length=width, dtype=wp.float32) for width in VECTOR_WIDTHS}
-# Every width's overload in the one module (a single compile), each launched as itself: no
-# argument-type inference per launch.
-_FORWARD = {
-    width: wp.overload(_encode, {"table": wp.array(dtype=vector), "out": wp.array(dtype=vector)})
-    for width, vector in _VECTORS.items()
-}
-_BACKWARD = {
-    width: wp.overload(_encode_backward, {"grad_out": wp.array(dtype=vector),
-                                          "grad_table": wp.array(dtype=vector)})
-    for width, vector in _VECTORS.items()
-}
-
-
-def vector_width(feature_dim: int) -> int:
-    """Floats per table access for a row of ``feature_dim`` floats."""
-    return next(width for width in VECTOR_WIDTHS if feature_dim % width == 0)
+    _scatter_block(wp.tid(), count, p0, p1, ends, bands, scale, dense, mask, levels, grad_out,
+                   fd, grad_table)
 
 
 class Encoding:
@@ -312,19 +320,25 @@ def _target(tensor: torch.Tensor) -> tuple[str, wp.Stream | None]:
     return device, launches.warp_stream(torch.cuda.current_stream(tensor.device))
 
 
+def _block(device: str, cpu_block: int) -> int:
+    """End points a task takes on ``device`` (its snippet's ``BLOCK``): 1 on CUDA."""
+    return cpu_block if str(device).startswith("cpu") else 1
+
+
 def _launches(enc: Encoding, p0: Float[torch.Tensor, "N 3"],
-              p1: Float[torch.Tensor, "N 3"] | None, ends: int, parts: int = 1
-              ) -> list[tuple[int, int, list[Any]]]:
+              p1: Float[torch.Tensor, "N 3"] | None, ends: int, block: int, parts: int = 1
+              ) -> list[tuple[int, int, int, list[Any]]]:
     """Slices ``(first, stop)`` of the points, at least ``parts`` of them (as even as may be)
-    and of at most ``MAX_LAUNCH_VECTORS`` output vectors each, with the launch arguments of
-    the slice."""
-    per_point = enc.width(ends) // vector_width(enc.feature_dim)
-    shared = [ends, enc.bands, float(enc.scale), enc.dense, wp.uint32(enc.mask),
+    and of at most ``MAX_LAUNCH_FLOATS`` output floats each, with each slice's task count
+    (tasks of ``block`` end points) and its launch arguments up to the levels."""
+    shared = [enc.bands, float(enc.scale), enc.dense, wp.uint32(enc.mask),
               wp.from_torch(enc.levels, requires_grad=False, return_ctype=True)]
-    return [(first, stop, [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
-             + shared)
-            for first, stop in launches.bounds(p0.shape[0], parts,
-                                               MAX_LAUNCH_VECTORS // per_point)]
+    slices = launches.bounds(p0.shape[0], parts, MAX_LAUNCH_FLOATS // enc.width(ends))
+    return [(first, stop, -(-(stop - first) * ends // block),
+             [(stop - first) * ends]
+             + [_vec3(p[first:stop]) for p in (p0, p0 if p1 is None else p1)]
+             + [ends] + shared)
+            for first, stop in slices]
 
 
 def _vec3(points: Float[torch.Tensor, "N 3"]):
@@ -332,11 +346,11 @@ def _vec3(points: Float[torch.Tensor, "N 3"]):
     return wp.from_torch(points, dtype=wp.vec3, requires_grad=False, return_ctype=True)
 
 
-def _vectors(t: torch.Tensor, width: int):
-    """A contiguous float32 tensor as a 1-D Warp array of ``width``-float vectors (through a
-    flat view: a size-1 dimension may carry any stride)."""
-    return wp.from_torch(t.view(-1).view(-1, width), dtype=_VECTORS[width],
-                         requires_grad=False, return_ctype=True)
+def _floats(t: torch.Tensor):
+    """A contiguous float32 tensor as a 1-D Warp float array (through a flat view: a size-1
+    dimension may carry any stride)."""
+    return wp.from_torch(t.view(-1), dtype=wp.float32, requires_grad=False,
+                         return_ctype=True)
 
 
 def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
@@ -347,14 +361,12 @@ def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch
     ends = 1 if p1 is None else 2
     out = torch.empty(p0.shape[0], enc.width(ends), dtype=torch.float32, device=p0.device)
     device, stream = _target(p0)
-    width = vector_width(enc.feature_dim)
-    rows = _vectors(table, width)
-    chunks = enc.feature_dim // width
+    rows = _floats(table)
     parts = launches.parts(device, p0.shape[0])
-    slices = _launches(enc, p0, p1, ends, parts)
-    launches.run(_FORWARD[width], device, stream, parts,
-                 [((stop - first) * ends, args + [rows, chunks, _vectors(out[first:stop], width)])
-                  for first, stop, args in slices])
+    slices = _launches(enc, p0, p1, ends, _block(device, CPU_BLOCK), parts)
+    launches.run(_encode, device, stream, parts,
+                 [(tasks, args + [rows, enc.feature_dim, _floats(out[first:stop])])
+                  for first, stop, tasks, args in slices])
     return out
 
 
@@ -368,15 +380,12 @@ def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
     sum's order then differs from one launch's, by float32 rounding."""
     ends = 1 if p1 is None else 2
     device, stream = _target(p0)
-    width = vector_width(enc.feature_dim)
     grad_out = grad_out.to(torch.float32).contiguous()
-    chunks = enc.feature_dim // width
     parts = launches.parts(device, p0.shape[0])
-    slices = _launches(enc, p0, p1, ends, parts)
+    slices = _launches(enc, p0, p1, ends, _block(device, CPU_SCATTER_BLOCK), parts)
     grads = torch.zeros(parts, rows, enc.feature_dim, dtype=torch.float32, device=p0.device)
-    launches.run(_BACKWARD[width], device, stream, parts,
-                 [((stop - first) * ends,
-                   args + [_vectors(grad_out[first:stop], width), chunks,
-                           _vectors(grads[i % parts], width)])
-                  for i, (first, stop, args) in enumerate(slices)])
+    launches.run(_encode_backward, device, stream, parts,
+                 [(tasks, args + [_floats(grad_out[first:stop]), enc.feature_dim,
+                                  _floats(grads[i % parts])])
+                  for i, (first, stop, tasks, args) in enumerate(slices)])
     return grads[0] if parts == 1 else grads.sum(0)
