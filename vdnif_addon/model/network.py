@@ -65,7 +65,10 @@ class IntersectionNetwork(nn.Module):
         layers: list[nn.Module] = []
         width_in = self.encoder.output_dim
         for _ in range(config.depth):
-            layers += [nn.Linear(width_in, config.width), nn.ReLU()]
+            # In place: nothing reads a layer's output but its ReLU, and a second tensor of a
+            # batch's activations, written to fresh pages, cost as much as the ReLU itself
+            # (the MLP at 16,384 rows runs 1.57x faster on one CPU thread; the same bits).
+            layers += [nn.Linear(width_in, config.width), nn.ReLU(inplace=True)]
             width_in = config.width
         output = nn.Linear(width_in, sum(self.mlp_heads.values()))
         if config.distance_mode != "fraction":
@@ -255,7 +258,7 @@ class PointField(nn.Module):
         layers: list[nn.Module] = []
         width_in = self.grid.output_dim
         for _ in range(hidden):
-            layers += [nn.Linear(width_in, width), nn.ReLU()]
+            layers += [nn.Linear(width_in, width), nn.ReLU(inplace=True)]  # as the trunk's
             width_in = width
         self.mlp = nn.Sequential(*layers, nn.Linear(width_in, 3))
 
