@@ -187,6 +187,29 @@ def test_cuda_runs_the_same_kernels():
     torch.testing.assert_close(cuda_gradient.cpu(), gradient, rtol=1e-4, atol=1e-4 * scale)
 
 
+def test_the_encoders_cuda_source_compiles_without_a_gpu(tmp_path):
+    """The encoder's body is C++ that only a GPU runs in its CUDA form (a block of one end
+    point, no vectorizing pragma): Warp's NVRTC compiles it to PTX for an old and a new GPU
+    here, so a CPU-only machine catches what would break the CUDA path."""
+    import warp as wp
+    from warp._src.context import get_module
+
+    from vdnif_addon.kernels import runtime
+
+    runtime.load(kernel.WARP_MODULE, "cpu")
+    module = get_module(kernel.WARP_MODULE)
+    try:
+        built = wp.compile_aot_module(module, arch=[75, 90], module_dir=tmp_path, use_ptx=True)
+    except RuntimeError as error:       # a Warp build without NVRTC
+        pytest.skip(f"no CUDA compiler in this Warp: {error}")
+    ptx = [path.read_text(errors="replace") for path in built]
+    assert len(ptx) == 2
+    for text in ptx:
+        assert "_encode_" in text and "_encode_backward_" in text
+    source = next(tmp_path.glob("*.cu")).read_text()
+    assert "constexpr int BLOCK = 1;" in source and "clang loop vectorize" in source
+
+
 def test_a_level_of_the_paper_setting_reads_the_hash_of_its_vertex():
     """Spot check of the hash against instant-ngp's formula written out in Python integers."""
     grid = HashGrid(2, 64, 2.0, 16, 3)
