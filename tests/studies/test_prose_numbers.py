@@ -178,6 +178,9 @@ def share_figure(d, scene, share, key, poses="development"):
 
 BF16 = "results/bfloat16.json"
 STAGES, NETBASE = "results/network-stages.json", "results/bench-network-baseline.json"
+SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
+                            "results/bench-network-blocks.json")
+RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -199,6 +202,17 @@ def netbase(d, commit, key):
     largest."""
     values = sorted(run[key] for run in d["runs"][commit])
     return [values[len(values) // 2], values[0], values[-1]]
+
+def stage_sum(d, mlp):
+    """ns of core time a segment: the encoder, the MLP at ``mlp``'s precision, the readout."""
+    return d["ns"]["encoder"] + d["ns"][mlp] + d["ns"]["readout"]
+
+
+def render_times(d, commit, path, samples, key):
+    """A figure of render-blocks.json's runs of one commit, path and AO sample count."""
+    return [run[key] for run in d["runs"][commit]
+            if run["path"] == path and run["ao_samples"] == samples]
+
 
 SHADED_DEV = "results/shaded-dev-meshes.json"
 STEPS = "results/text-steps.json"
@@ -761,38 +775,79 @@ CLAIMS = [
               for rate in ("false_negative_rate", "false_positive_rate")
               for key in ("now_min", "now_max", "before_min", "before_max")]),
     # ---- where the network's time goes
-    *(Claim(P, f"| {commit} | {{}} ({{}}-{{}}) | {{}} ({{}}-{{}}) |", NETBASE,
+    *(Claim(P, f"| {commit} | {{}} ({{}}-{{}}) | {{}} ({{}}-{{}}) |", NETBLOCKS,
             lambda d, commit=commit: [*netbase(d, commit, "infer_segments_per_s"),
                                       *netbase(d, commit, "train_samples_per_s")])
-      for commit in ("6246eb6", "dc87ca5")),
-    Claim(P, "the same code moves by up to {}x between runs", NETBASE, lambda d: [
-        max(v[2] / v[1] for v in (netbase(d, c, k) for c in d["runs"]
-                                   for k in ("infer_segments_per_s", "train_samples_per_s")))]),
-    Claim(P, "| encoder (28 lookups of 8 corners) | {} | {} ns a lookup, {} with a 6 kB table "
-          "that stays in the L1 cache: the reads of the 1.5 MB table are {} % of it", STAGES,
-          lambda d: [d["ns"]["encoder"], d["encoder_ns_per_lookup"],
-                     d["encoder_small_table_ns_per_lookup"], pct(d["table_read_share"])]),
-    Claim(P, "| MLP, float32 ({} multiply-adds) | {} | {} GFLOP/s, {} % of a 2048x2048 matrix "
-          "product's {} on the same thread |", STAGES, lambda d: [
-              d["mlp_multiply_adds"], d["ns"]["mlp"], d["mlp_gflops"]["float32"],
-              pct(d["mlp_share_of_gemm"]["float32"]), d["gemm_gflops"]["float32"]]),
-    Claim(P, "| MLP, bfloat16 | {} | {} GFLOP/s, {} % of the product's {} |", STAGES,
-          lambda d: [d["ns"]["mlp_bfloat16"], d["mlp_gflops"]["bfloat16"],
-                     pct(d["mlp_share_of_gemm"]["bfloat16"]), d["gemm_gflops"]["bfloat16"]]),
-    Claim(P, "| readout of the heads | {} |", STAGES, lambda d: [d["ns"]["readout"]]),
-    Claim(P, "| normal field, per point | {} | its 3-level grid ({} multiply-adds) |", STAGES,
-          lambda d: [d["ns"]["normal_field"], d["field_multiply_adds"]["normal"]]),
-    Claim(P, "| albedo field, per point | {} | its 2-level grid ({} multiply-adds) |", STAGES,
-          lambda d: [d["ns"]["albedo_field"], d["field_multiply_adds"]["albedo"]]),
-    Claim(P, "about {} ns of arithmetic a lookup (hashing eight corners, the trilinear weights, "
-          "three features) against {} ns for all eight corner reads", STAGES, lambda d: [
-              d["encoder_small_table_ns_per_lookup"],
-              d["encoder_ns_per_lookup"] - d["encoder_small_table_ns_per_lookup"]]),
-    Claim(P, "28 lookups cost {} us a segment on one core, {} us on two, which alone caps "
-          "inference at about {} M segments/s on both cores before the MLP ({} us in float32, "
-          "{} in bfloat16)", STAGES, lambda d: [
-              d["ns"]["encoder"] / 1e3, d["ns"]["encoder"] / 2e3, 2e3 / d["ns"]["encoder"],
-              d["ns"]["mlp"] / 1e3, d["ns"]["mlp_bfloat16"] / 1e3]),
+      for commit in ("6246eb6", "533de7d")),
+    Claim(P, "Inference is {}x 6246eb6's and training {}x", NETBLOCKS, lambda d: [
+        netbase(d, "533de7d", key)[0] / netbase(d, "6246eb6", key)[0]
+        for key in ("infer_segments_per_s", "train_samples_per_s")]),
+    Claim(P, "three runs each: `results/bench-network-baseline.json`) gave {} segments/s at "
+          "6246eb6 (its runs a minute apart differed by up to {}x)", NETBASE, lambda d: [
+              netbase(d, "6246eb6", "infer_segments_per_s")[0],
+              max(v[2] / v[1] for v in (netbase(d, c, k) for c in d["runs"]
+                                         for k in ("infer_segments_per_s",
+                                                   "train_samples_per_s")))]),
+    Claim(P, "| encoder (28 lookups of 8 corners) | {} | {} | {} ns a lookup, {} with a 6 kB "
+          "table that stays in the L1 cache: the reads of the 1.5 MB table are {} % of it",
+          (SCALAR_STAGES, STAGES), lambda d: [
+              d[SCALAR_STAGES]["ns"]["encoder"], d[STAGES]["ns"]["encoder"],
+              d[STAGES]["encoder_ns_per_lookup"], d[STAGES]["encoder_small_table_ns_per_lookup"],
+              pct(d[STAGES]["table_read_share"])]),
+    Claim(P, "| MLP, float32 ({} multiply-adds) | {} | {} | {} GFLOP/s, {} % of a 2048x2048 "
+          "matrix product's {} on the same thread |", (SCALAR_STAGES, STAGES), lambda d: [
+              d[STAGES]["mlp_multiply_adds"], d[SCALAR_STAGES]["ns"]["mlp"],
+              d[STAGES]["ns"]["mlp"], d[STAGES]["mlp_gflops"]["float32"],
+              pct(d[STAGES]["mlp_share_of_gemm"]["float32"]),
+              d[STAGES]["gemm_gflops"]["float32"]]),
+    Claim(P, "| MLP, bfloat16 | {} | {} | {} GFLOP/s, {} % of the product's {} |",
+          (SCALAR_STAGES, STAGES), lambda d: [
+              d[SCALAR_STAGES]["ns"]["mlp_bfloat16"], d[STAGES]["ns"]["mlp_bfloat16"],
+              d[STAGES]["mlp_gflops"]["bfloat16"], pct(d[STAGES]["mlp_share_of_gemm"]["bfloat16"]),
+              d[STAGES]["gemm_gflops"]["bfloat16"]]),
+    Claim(P, "| readout of the heads | {} | {} |", (SCALAR_STAGES, STAGES),
+          lambda d: [d[SCALAR_STAGES]["ns"]["readout"], d[STAGES]["ns"]["readout"]]),
+    Claim(P, "| normal field, per point | {} | {} | its 3-level grid ({} multiply-adds) |",
+          (SCALAR_STAGES, STAGES), lambda d: [d[SCALAR_STAGES]["ns"]["normal_field"],
+                                              d[STAGES]["ns"]["normal_field"],
+                                              d[STAGES]["field_multiply_adds"]["normal"]]),
+    Claim(P, "| albedo field, per point | {} | {} | its 2-level grid ({} multiply-adds) |",
+          (SCALAR_STAGES, STAGES), lambda d: [d[SCALAR_STAGES]["ns"]["albedo_field"],
+                                              d[STAGES]["ns"]["albedo_field"],
+                                              d[STAGES]["field_multiply_adds"]["albedo"]]),
+    Claim(P, "a lookup cost {} ns, hashing eight corners", SCALAR_STAGES,
+          lambda d: [d["encoder_ns_per_lookup"]]),
+    Claim(P, "vectorizes (AVX2 or AVX-512 gathers), {}x the scalar kernel's throughput",
+          (SCALAR_STAGES, STAGES),
+          lambda d: [d[SCALAR_STAGES]["ns"]["encoder"] / d[STAGES]["ns"]["encoder"]]),
+    Claim(P, "the encoder's {} ns a segment (gathers: 24 element loads a lookup) and the float32 "
+          "MLP's {} ns (small layers reach {} % of the thread's matrix rate) are {} us of core "
+          "time a segment, at most {} M segments/s on both cores", STAGES, lambda d: [
+              d["ns"]["encoder"], d["ns"]["mlp"], pct(d["mlp_share_of_gemm"]["float32"]),
+              stage_sum(d, "mlp") / 1e3, 2e3 / stage_sum(d, "mlp")]),
+    Claim(P, "3x 6246eb6's is {} M", NETBLOCKS,
+          lambda d: [3 * netbase(d, "6246eb6", "infer_segments_per_s")[0] / 1e6]),
+    Claim(P, "The MLP in bfloat16 ({} ns, `--precision bfloat16`) would put the bound at {} M",
+          STAGES, lambda d: [d["ns"]["mlp_bfloat16"], 2e3 / stage_sum(d, "mlp_bfloat16")]),
+    Claim(P, "the primary pass took {}-{} ms at e234503 and {}-{} ms now; secondary rays {}-{} ms "
+          "against {}-{} at one AO sample ({} rays) and {}-{} ms against {}-{} at 16 ({} rays)",
+          RENDER, lambda d: [
+              *span(render_times(d, "e234503", "network", 1, "primary_ms")
+                    + render_times(d, "e234503", "network", 16, "primary_ms")),
+              *span(render_times(d, "533de7d", "network", 1, "primary_ms")
+                    + render_times(d, "533de7d", "network", 16, "primary_ms")),
+              *span(render_times(d, "e234503", "network", 1, "secondary_ms")),
+              *span(render_times(d, "533de7d", "network", 1, "secondary_ms")),
+              render_times(d, "533de7d", "network", 1, "secondary_rays")[0],
+              *span(render_times(d, "e234503", "network", 16, "secondary_ms")),
+              *span(render_times(d, "533de7d", "network", 16, "secondary_ms")),
+              render_times(d, "533de7d", "network", 16, "secondary_rays")[0]]),
+    Claim(P, "Warp's refit BVH took {}-{} ms for the same primary rays", RENDER, lambda d: [
+        *span([t for c in d["runs"] for k in (1, 16)
+               for t in render_times(d, c, "Warp refit", k, "primary_ms")])]),
+    Claim(P, "{} s of training wall time at e234503, {} s now (the steps alone {} and {} s)",
+          TTC_BLOCKS, lambda d: [d["before"]["wall_s"], d["after"]["wall_s"],
+                                 d["before"]["train_s"], d["after"]["train_s"]]),
     # ---- the calibration rule
     Claim(R, "the least sum put seed 1's threshold at {}, where its development poses have {} % "
           "holes, over the clean rule, and seed 0's at {}, where it is clean there with extras "
