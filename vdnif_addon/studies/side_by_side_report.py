@@ -28,7 +28,7 @@ BUILD = {"bvhtree": "rebuild", "warp": "refit", "embree_refit": "refit",
 # The targets of the neural path, set for 2 CPU cores.
 TARGET_RAYS_PER_S = 0.8e6          # neural render, trained model, unseen poses, 256x256
 TARGET_NETWORK_SHARE = 0.8         # network's segments/s in the render / over one batch
-TARGET_WALK = 1.3                  # deformed walk / static DDA walk, rest pose
+TARGET_WALK = 1.5                  # deformed walk / static DDA walk, rest pose
 TARGET_WALK_NETWORK = 1.05         # the same with the network over every walked segment
 TARGET_PREPARE_S = 0.010           # per-pose preparation, set for the bunny at R 32
 TARGET_PREPARE_RATIO = 0.05        # per-pose preparation / BVHTree rebuild, set for 1 M tris
