@@ -66,7 +66,7 @@ def test_oracle_network_renders_the_embedded_reference():
     oracle = OracleNetwork(mesh, grid)
     # one segment per ray and wave: a ray is evaluated exactly up to its hit
     predicted, stats = render.neural_passes(oracle, grid, mesh.albedo_table(), cells,
-                                            origins, directions, schedule=(1,))
+                                            origins, directions, schedule=(1,), wave_floor=0)
     rest_caster = groundtruth.rest_surface(mesh, grid)
     reference, segments, _ = references.embedded_passes(cells, mesh, rest_caster,
                                                         origins, directions)
@@ -90,6 +90,28 @@ def test_oracle_network_renders_the_embedded_reference():
         np.testing.assert_array_equal(getattr(again, name), getattr(predicted, name))
     assert stats["segments"] <= more["segments"] < len(segments)
     assert more["waves"] < stats["waves"]
+
+
+def test_few_rays_walk_on_in_fewer_waves_to_the_same_passes():
+    """Where a wave's rays are so few that it would hold under ``wave_floor`` segments, each
+    walks more than the schedule's k: the passes are the same (a ray's passes depend only on
+    its own segments in walk order), in fewer waves, and no segment is walked twice."""
+    mesh, grid, bend = bent_ball()
+    cells = DeviceCells(grid, corners=bend)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.3, -1, 0.2]) /
+                                          np.linalg.norm([0.3, -1, 0.2]), 12, 10)
+    renders = {floor: render.neural_passes(OracleNetwork(mesh, grid), grid,
+                                           mesh.albedo_table(), cells, origins, directions,
+                                           schedule=(1,), wave_floor=floor)
+               for floor in (0, 120 * 3, render.WAVE_FLOOR)}
+    exact, exact_stats = renders[0]
+    assert exact.hit.sum() > 10 and exact_stats["waves"] > 4
+    for floor, (passes, stats) in renders.items():
+        for name in ("hit", "distance", "normal", "albedo", "material"):
+            np.testing.assert_array_equal(getattr(passes, name), getattr(exact, name))
+        assert stats["segments"] >= exact_stats["segments"]
+    assert renders[120 * 3][1]["waves"] < exact_stats["waves"]
+    assert renders[render.WAVE_FLOOR][1]["waves"] == 1
 
 
 class RandomNetwork:

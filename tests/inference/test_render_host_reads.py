@@ -62,7 +62,7 @@ def test_a_frames_host_reads_do_not_grow_with_its_waves():
                 with counting_host_reads() as reads:
                     _, stats = render.neural_passes(
                         network, grid, mesh.albedo_table(), cells, origins, directions,
-                        schedule=schedule, lanes=1, waves_per_read=per_read)
+                        schedule=schedule, lanes=1, waves_per_read=per_read, wave_floor=0)
                 waves = stats["waves"] if per_read == 1 else None
                 counted[side, schedule, per_read] = len(reads), waves
     for side in (6, 12):

@@ -70,6 +70,14 @@ if TYPE_CHECKING:
 # 44.7 k segments, this schedule 6 waves and 49.6 k (k = 2, 4, 8, 16: 4 waves, 56.4 k).
 WAVE_SEGMENTS = (1, 1, 2, 4, 8, 16)
 
+WAVE_FLOOR = 1024
+"""Segments a wave may hold at least: where few rays are left, each walks up to this share
+of them in the wave (more than the schedule's k), since the wave's fixed cost outweighs the
+network's on that many segments (about 0.7 ms on a CPU core). A secondary pass's walks past
+the surface a ray leaves are a few rays each (1-250 rays took 4-5 waves of about 1 ms): the
+bunny's secondary rays at 256x256 took 100.7-101.4 ms against 111.8-115.3 at one AO sample,
+461.5-463.9 against 475.5-478.1 at 16 (2-core Xeon); its primary pass is unchanged."""
+
 
 def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:
     """k of wave ``wave``: the schedule's entry, its last one beyond it."""
@@ -83,7 +91,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   lanes: int | None = None,
                   max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
                   max_distance: float | Float[np.ndarray, " N"] | None = None,
-                  waves_per_read: int = 1) -> tuple[Passes, dict[str, Any]]:
+                  waves_per_read: int = 1, wave_floor: int = WAVE_FLOOR
+                  ) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
 
@@ -97,7 +106,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     ``max_wave_segments`` segments, its lanes' share each.
     ``max_distance`` ends the walk (``traverse``): a hit beyond it in the cell that crosses it
     is still reported. ``waves_per_read`` is how many waves a lane renders between host
-    reads of its count (the module's docstring); the passes are the same at any value.
+    reads of its count (the module's docstring); the passes are the same at any value, and at
+    any ``wave_floor``, the segments a wave may hold at least where its rays are few
+    (``WAVE_FLOOR``; 0: the schedule's k alone).
     Running out of memory is a VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
@@ -122,7 +133,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
           threads.torch_threads_at_most(torch_threads)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
         waves = _Waves(network, grid, walk, schedule, albedo_table,
-                       max(1, max_wave_segments // lanes), waves_per_read)
+                       max(1, max_wave_segments // lanes), waves_per_read, wave_floor)
         share = max(1, threads.cores() // lanes)
         encoder = None if lanes == 1 else 1
         lane_stats = threads.at_once(lambda lane: _render_lane(waves, lane, share, encoder),
@@ -178,9 +189,10 @@ class _Waves:
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
-                 max_segments: int, per_read: int = 1) -> None:
+                 max_segments: int, per_read: int = 1, floor: int = WAVE_FLOOR) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
         self.device, self.max_segments, self.per_read = walk.device, max_segments, per_read
+        self.floor = floor
         self.totals = wp.zeros(1 + len(walk.lanes), dtype=wp.int32, device=self.device)
         self.passes = kernel.empty_passes(walk.rays, self.device)
         self.first = wp.full(walk.rays, int(kernel.NO_HIT), dtype=wp.int32, device=self.device)
@@ -194,11 +206,13 @@ class _Waves:
         self.inputs = [None] * len(walk.lanes)
 
     def advance(self, lane: int) -> int:
-        """Walks ``lane`` on by its next wave's k segments per ray, fewer where the wave would
+        """Walks ``lane`` on by its next wave's k segments per ray (more where its rays are
+        so few that the wave would hold under ``floor`` segments), fewer where the wave would
         pass ``max_segments``; returns how many segments it walked, read on the host, or
         between reads (``per_read`` > 1) the room it gave them (the rest empty)."""
         rays = self.walk.lanes[lane].count
-        per_wave = max(1, min(wave_segments(self.waves[lane], self.schedule),
+        per_wave = max(1, min(max(wave_segments(self.waves[lane], self.schedule),
+                                  self.floor // rays),
                               self.max_segments // rays))
         self.waves[lane] += 1
         need = min(rays * per_wave, self.max_segments)
