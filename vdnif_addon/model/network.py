@@ -196,7 +196,7 @@ class IntersectionNetwork(nn.Module):
                 parts.append(predictions(index, encode(index)))
         else:
             # Beside the MLP the encoder keeps to the cores torch's threads leave: split over
-            # every core it would take one from the MLP (35 against 37 ms for 65,536
+            # every core it would take one from the MLP (30 against 37 ms for 65,536
             # segments on 2 cores, torch on one thread).
             cores = threads.cores()
             spare = max(1, cores - torch.get_num_threads())
