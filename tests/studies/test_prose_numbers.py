@@ -842,6 +842,12 @@ CLAIMS = [
               *span(render_times(d, "e234503", "network", 16, "secondary_ms")),
               *span(render_times(d, "533de7d", "network", 16, "secondary_ms")),
               render_times(d, "533de7d", "network", 16, "secondary_rays")[0]]),
+    Claim(P, "the primary pass spent {} ms in its network at e234503 and {} ms now, and {} and {} "
+          "ms walking", RENDER, lambda d: [
+              d["lanes"][c]["1"][k] for k in ("network_ms", "walk_ms")
+              for c in ("e234503", "533de7d")]),
+    Claim(P, "the next gains are in the walk, which is still {}-{}x the static grid's", SIDE,
+          lambda d: span(r["ratios"]["walk_deformed_over_static"] for r in d["results"])),
     Claim(P, "Warp's refit BVH took {}-{} ms for the same primary rays", RENDER, lambda d: [
         *span([t for c in d["runs"] for k in (1, 16)
                for t in render_times(d, c, "Warp refit", k, "primary_ms")])]),
