@@ -31,6 +31,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tools")]
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
+from vdnif_addon.output_rule import unmarked  # noqa: E402
 
 LEVEL_FORMAT = "vdnif-dense-character-level"
 """A level's run file's format mark: the output rule lets ``train`` replace only its own."""
@@ -180,7 +181,7 @@ def main(argv):
     results, costs = time_levels(args.levels, args.out, args.poses, args.repeats, args.threads)
     data = crossover(results, sweep="character-")
     rows = [json.loads(_files(args.out, level)["row"].read_text()) for level in args.levels]
-    rows = [{key: value for key, value in row.items() if key != "format"} for row in rows]
+    rows = [unmarked(row) for row in rows]
     for row in rows:                     # the evaluated mesh's, as the timing read it
         row["triangles"] = next(r["triangles"] for r in results
                                 if r["scene"] == f"character-{row['level']}")

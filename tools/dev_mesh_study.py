@@ -47,6 +47,7 @@ from resolution_table import BATCH, EVALUATION, _cpu  # noqa: E402
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.inference.metrics import CLEAN_RATE  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
+from vdnif_addon.output_rule import unmarked  # noqa: E402
 
 MESHES_TOOL = ROOT / "tools" / "dev_meshes.py"
 BAND_TOOL = ROOT / "tools" / "terminator_band.py"
@@ -160,9 +161,8 @@ def shaded(keep, meshes, seed, json_path):
                             str(obj), "--rig", mesh_table()[mesh][0], *EVALUATION,
                             "--secondary", "--pose-set", "test", "--seed", "0", "--json",
                             str(band)], check=True, stdout=subprocess.DEVNULL)
-            figures = json.loads(band.read_text())      # without the band tool's own mark
-            rows.append({"mesh": mesh, "seed": seed,
-                         **{key: value for key, value in figures.items() if key != "format"}})
+            figures = unmarked(json.loads(band.read_text()))    # not the band tool's file
+            rows.append({"mesh": mesh, "seed": seed, **figures})
     write_json_atomic(json_path, rows, "--json", indent=1)
     return rows
 
@@ -188,7 +188,7 @@ def table(folder, json_path=None):
     rows = [json.loads(path.read_text()) for path in sorted(pathlib.Path(folder).glob("*.json"))]
     if not rows:
         raise VDNIFError(f"no run files (*.json) in '{folder}'")
-    rows = [{key: value for key, value in row.items() if key != "format"} for row in rows]
+    rows = [unmarked(row) for row in rows]
     order = list(mesh_table())
     rows.sort(key=lambda row: (order.index(row["mesh"]) if row["mesh"] in order else 99,
                                row["seed"]))

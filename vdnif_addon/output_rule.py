@@ -41,6 +41,8 @@ OUTPUT_MARK_TEXT = ("VDNIF wrote the files in this folder; it replaces them when
 DATASET_MANIFEST = "vdnif-dataset.manifest"
 """A dataset folder's manifest (``training.dataset``): a folder VDNIF made."""
 FOLDER_MARKS = (OUTPUT_MARK, DATASET_MANIFEST)
+MARK_KEY = "format"
+"""The key of a JSON object's mark, whose value names its kind (``vdnif-...``)."""
 REPORT_FORMAT = "vdnif-report"
 """The ``format`` key the batch commands' JSON reports carry: the JSON's own mark."""
 MARKDOWN_MARK = "<!-- written by VDNIF; each run rewrites this file whole -->"
@@ -169,7 +171,13 @@ def _text_mark(path: pathlib.Path, kind: str) -> bool:
         value = json.loads(text)
     except ValueError:
         return False
-    return isinstance(value, dict) and str(value.get("format", "")).startswith("vdnif-")
+    return isinstance(value, dict) and str(value.get(MARK_KEY, "")).startswith("vdnif-")
+
+
+def unmarked(value: dict) -> dict:
+    """A JSON object of VDNIF's without its mark: a row gathered into a file of another kind
+    (a list, which carries no mark), where the row's own mark would claim the wrong file."""
+    return {key: item for key, item in value.items() if key != MARK_KEY}
 
 
 def _png_mark(path: pathlib.Path) -> bool:
