@@ -74,9 +74,8 @@ WAVE_FLOOR = 1024
 """Segments a wave may hold at least: where few rays are left, each walks up to this share
 of them in the wave (more than the schedule's k), since the wave's fixed cost outweighs the
 network's on that many segments (about 0.7 ms on a CPU core). A secondary pass's walks past
-the surface a ray leaves are a few rays each (1-250 rays took 4-5 waves of about 1 ms): the
-bunny's secondary rays at 256x256 took 100.7-101.4 ms against 111.8-115.3 at one AO sample,
-461.5-463.9 against 475.5-478.1 at 16 (2-core Xeon); its primary pass is unchanged."""
+the surface a ray leaves are a few rays each, which the schedule alone walks in 4-5 waves; a
+primary pass's waves hold more than this, so it is unchanged."""
 
 
 def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:

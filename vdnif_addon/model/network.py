@@ -66,8 +66,7 @@ class IntersectionNetwork(nn.Module):
         width_in = self.encoder.output_dim
         for _ in range(config.depth):
             # In place: nothing reads a layer's output but its ReLU, and a second tensor of a
-            # batch's activations, written to fresh pages, cost as much as the ReLU itself
-            # (the MLP at 16,384 rows runs 1.57x faster on one CPU thread; the same bits).
+            # batch's activations, written to fresh pages, costs as much as the ReLU itself.
             layers += [nn.Linear(width_in, config.width), nn.ReLU(inplace=True)]
             width_in = config.width
         output = nn.Linear(width_in, sum(self.mlp_heads.values()))
@@ -196,8 +195,7 @@ class IntersectionNetwork(nn.Module):
                 parts.append(predictions(index, encode(index)))
         else:
             # Beside the MLP the encoder keeps to the cores torch's threads leave: split over
-            # every core it would take one from the MLP (30 against 37 ms for 65,536
-            # segments on 2 cores, torch on one thread).
+            # every core, it would take one from the MLP.
             cores = threads.cores()
             spare = max(1, cores - torch.get_num_threads())
 
