@@ -249,11 +249,12 @@ GROWTH = Setting(
     "growth", float, 2.0, "resolution growth factor b between levels", 1.0, 16.0,
     option=_network("--growth", "B"))
 LOG2_TABLE_SIZE = Setting(
-    "log2_table_size", int, 16, "hash table size 2^T per level", 1, limits.MAX_LOG2_TABLE_SIZE,
+    "log2_table_size", int, 16, "hash table size 2^T per level, at most (smaller where the "
+    "scene's voxels read fewer)", 1, limits.MAX_LOG2_TABLE_SIZE,
     option=_network("--log2-table-size", "T"),
     panel=(Panel("log2_table_size", "Table Size (log2)", "Entries of each hash-grid level as a "
-                 "power of two (16: 65,536): larger tables keep more detail in a larger "
-                 "model"),))
+                 "power of two (16: 65,536), at most: larger tables keep more detail in a "
+                 "larger model; a small or thin object's table holds only what it reads"),))
 FEATURE_DIM = Setting(
     "feature_dim", int, 3, "features per hash-grid entry Fd", 1, 64,
     option=_network("--feature-dim", "F"),
@@ -299,7 +300,8 @@ NORMAL_LEVELS = Setting(
     "normal_levels", int, 3, "the normal field's hash-grid levels", LEVELS.low, LEVELS.high,
     option=_network("--normal-levels", "L"))
 NORMAL_LOG2_TABLE_SIZE = Setting(
-    "normal_log2_table_size", int, 17, "the normal field's hash table size 2^T per level",
+    "normal_log2_table_size", int, 17, "the normal field's hash table size 2^T per level, at "
+    "most",
     LOG2_TABLE_SIZE.low, LOG2_TABLE_SIZE.high, option=_network("--normal-log2-table-size", "T"))
 
 # --------------------------------------------------------------------------- optimization

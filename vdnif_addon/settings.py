@@ -172,6 +172,11 @@ MAX_MATERIALS = 2**15
 """Material slots of a material head (``capture`` stores indices as int16)."""
 
 
+def level_resolutions(levels: int, base_resolution: int, growth: float) -> list[int]:
+    """Cells per axis of each hash-grid level, coarse to fine: ``floor(N_min * b**l)``."""
+    return [math.floor(base_resolution * growth**level) for level in range(levels)]
+
+
 def check_grid_settings(
     levels: int, base_resolution: int, growth: float, log2_table_size: int, feature_dim: int,
     prefix: str = "",
@@ -185,11 +190,11 @@ def check_grid_settings(
         check_int(named, value, *BOUNDS[name])
     check_number("growth", growth, *BOUNDS["growth"])
     grid = f"{prefix.removesuffix('_')} field's hash grid" if prefix else "hash grid"
-    finest = math.floor(base_resolution * growth ** (levels - 1))
+    resolutions = level_resolutions(levels, base_resolution, growth)
+    finest = resolutions[-1]
     if finest > MAX_GRID_RESOLUTION:
         raise VDNIFError(f"{grid} finest resolution {finest} exceeds "
                          f"{MAX_GRID_RESOLUTION} cells per axis")
-    resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
     floats = feature_dim * sum(min((res + 1) ** 3, 2**log2_table_size) for res in resolutions)
     if floats > limits.MAX_TABLE_FLOATS:
         raise VDNIFError(

@@ -463,6 +463,29 @@ def test_same_seed_gives_identical_weights():
     assert not all(torch.equal(first[key], other[key]) for key in first)
 
 
+def counted_header(occupied):
+    data = header_dict()
+    if occupied is None:
+        del data["grid"]["occupied_voxels"]
+    else:
+        data["grid"]["occupied_voxels"] = occupied
+    return DatasetHeader.from_dict(data, "test header")
+
+
+def test_training_sizes_the_tables_to_the_datasets_voxels():
+    """Two occupied voxels of the header's 8^3 grid: the small test grid's 2**12 rows become
+    2**10; a header without the count keeps the setting, and the model is built as its
+    config says."""
+    config = NetworkConfig(**SMALL)
+    steps = dict(steps=2, batch_size=64, log_interval=2, device="cpu")
+    sized = train(sphere_shards(), counted_header(2), TrainConfig(**steps), config)
+    assert sized.network_config.log2_table_size == 10
+    assert sized.network.encoder.grid.table.shape[0] == 2 * 2**10   # two hashed levels
+    kept = train(sphere_shards(), counted_header(None), TrainConfig(**steps), config)
+    assert kept.network_config.log2_table_size == 12
+    assert kept.network.encoder.grid.table.shape[0] == 2 * 2**12
+
+
 def test_non_finite_loss_raises_naming_the_step(monkeypatch):
     calls = []
 

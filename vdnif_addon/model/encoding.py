@@ -11,7 +11,6 @@ The table is row-major, ``(rows, Fd)``: a corner's features are one contiguous r
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -20,13 +19,34 @@ from torch import nn
 
 from ..errors import VDNIFError
 from ..kernels import encoder as kernel
-from ..settings import PE_SCALES, check_encoding_settings, check_grid_settings
+from ..settings import PE_SCALES, check_encoding_settings, check_grid_settings, level_resolutions
 
 if TYPE_CHECKING:
     from jaxtyping import Float
 
 HASH_PRIMES = (1, 2654435761, 805459861)
 """instant-ngp's per-axis hash primes (x, y, z)."""
+
+
+def readable_vertices(resolution: int, occupied_voxels: int, voxels_across: int) -> int:
+    """At most how many vertices of a level ``resolution`` cells across can be read at points
+    of ``occupied_voxels`` voxels, on a voxel grid ``voxels_across`` voxels across the unit
+    cube (``VoxelGrid.normalize``). A voxel spans ``s = resolution / voxels_across`` of the
+    level's cells along an axis; its points lie in at most ``floor(s) + 2`` of them, which
+    have at most ``floor(s) + 3`` vertices."""
+    per_axis = resolution // voxels_across + 3
+    return min((resolution + 1) ** 3, occupied_voxels * per_axis**3)
+
+
+def scene_log2_table_size(log2_table_size: int, levels: int, base_resolution: int,
+                          growth: float, occupied_voxels: int, voxels_across: int) -> int:
+    """The table size 2**T of a grid sized to its scene: the smallest power of two that holds
+    every vertex its finest level can read there (``readable_vertices``), at most the
+    setting's 2**``log2_table_size``. A scene that reads more vertices than that shares rows
+    as before; one that reads fewer would leave the rest of a full table unread."""
+    finest = level_resolutions(levels, base_resolution, growth)[-1]
+    vertices = readable_vertices(finest, occupied_voxels, voxels_across)
+    return max(1, min(log2_table_size, (vertices - 1).bit_length()))
 
 
 def full_precision(points: Float[torch.Tensor, "*batch"], name: str
@@ -115,7 +135,7 @@ class HashGrid(nn.Module):
         self.growth = growth
         self.log2_table_size = log2_table_size
         self.feature_dim = feature_dim
-        self.resolutions = [math.floor(base_resolution * growth**level) for level in range(levels)]
+        self.resolutions = level_resolutions(levels, base_resolution, growth)
         table_size = 2**log2_table_size
         hashed = [(res + 1) ** 3 > table_size for res in self.resolutions]
         self.dense_levels = hashed.count(False)  # resolutions grow: the dense levels lead

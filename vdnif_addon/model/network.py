@@ -6,6 +6,7 @@ consume; ``readout`` turns them into predictions in rest-space units.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
@@ -19,7 +20,7 @@ from torch import nn
 from .. import threads
 from ..errors import VDNIFError
 from ..settings import DEFAULT_PRECISION, NetworkConfig
-from .encoding import HashGrid, SegmentEncoder
+from .encoding import HashGrid, SegmentEncoder, scene_log2_table_size
 from .metadata import Thresholds
 
 if TYPE_CHECKING:
@@ -35,6 +36,22 @@ def hash_grid(config: NetworkConfig, levels: int | None = None,
                     config.growth,
                     config.log2_table_size if log2_table_size is None else log2_table_size,
                     config.feature_dim)
+
+
+def sized_to_scene(config: NetworkConfig, occupied_voxels: int, voxels_across: int
+                   ) -> NetworkConfig:
+    """``config`` with each grid's table (the encoder's and the albedo field's, the normal
+    field's) no larger than its finest level can use on a scene of ``occupied_voxels``
+    voxels, its grid ``voxels_across`` voxels across (``encoding.scene_log2_table_size``): a
+    thin or small object's model carries no rows it never reads. The table sizes are at most
+    the config's."""
+    def sized(levels: int, log2_table_size: int) -> int:
+        return scene_log2_table_size(log2_table_size, levels, config.base_resolution,
+                                     config.growth, occupied_voxels, voxels_across)
+
+    return dataclasses.replace(
+        config, log2_table_size=sized(config.levels, config.log2_table_size),
+        normal_log2_table_size=sized(config.normal_levels, config.normal_log2_table_size))
 
 
 class IntersectionNetwork(nn.Module):

@@ -28,7 +28,7 @@ from ..errors import VDNIFError
 from ..limits import GROUP_TIMEOUT_S
 from ..model.encoding import HashGrid
 from ..model.metadata import Thresholds, TrainingSummary
-from ..model.network import IntersectionNetwork
+from ..model.network import IntersectionNetwork, sized_to_scene
 from ..settings import OCCLUSION_THRESHOLD, NetworkConfig, TrainConfig
 from .data import Batches, Segments, split_data
 from .distributed import ProcessGroup, resolve_device
@@ -278,17 +278,18 @@ def train(
     """Train an ``IntersectionNetwork`` on ``segments`` (``training.data`` states the
     contract of ``segments`` and ``header``).
 
-    The heads follow ``header.heads``. Every ``log_interval`` steps (and at the end) the main
-    process calls ``progress`` with step, steps, mean task losses since the last call, total,
-    log-variances, samples/s, ETA seconds and validation metrics on a fixed subset of the
-    held-out poses; the stopping rule (``training.stopping``, ``config.stop_patience``)
-    may end training there, status "converged". ``cancel`` (e.g. a threading.Event): once
-    set, training stops before the next update (under ``torchrun``, before the update of the
-    step due to report next, where the processes agree on it) and returns the model as it
-    is, status "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each rank trains on
-    ``segments[rank::world]`` with gradients averaged by DistributedDataParallel; every rank
-    returns the same weights; a process waits ``group_timeout_s`` seconds at most for the
-    others (``distributed.ProcessGroup``).
+    The heads follow ``header.heads``, and the hash tables the scene's occupied voxels where
+    the header counts them (``network.sized_to_scene``). Every ``log_interval`` steps (and at
+    the end) the main process calls ``progress`` with step, steps, mean task losses since the
+    last call, total, log-variances, samples/s, ETA seconds and validation metrics on a fixed
+    subset of the held-out poses; the stopping rule (``training.stopping``,
+    ``config.stop_patience``) may end training there, status "converged". ``cancel`` (e.g. a
+    threading.Event): once set, training stops before the next update (under ``torchrun``,
+    before the update of the step due to report next, where the processes agree on it) and
+    returns the model as it is, status "cancelled". Under ``torchrun`` (WORLD_SIZE > 1) each
+    rank trains on ``segments[rank::world]`` with gradients averaged by
+    DistributedDataParallel; every rank returns the same weights; a process waits
+    ``group_timeout_s`` seconds at most for the others (``distributed.ProcessGroup``).
     """
     if not isinstance(header, DatasetHeader):
         raise VDNIFError("the dataset header must be a training.header.DatasetHeader, got "
@@ -296,6 +297,9 @@ def train(
     h = header.voxel_size
     heads = header.heads.network_heads()
     network_config = dataclasses.replace(network_config, heads=heads)
+    if header.grid.occupied_voxels is not None:
+        network_config = sized_to_scene(network_config, header.grid.occupied_voxels,
+                                        max(header.grid.dims))
     device = resolve_device(config.device)
     group = ProcessGroup.from_environment(device, group_timeout_s)
     view_from = header.rays_per_pose if header.view_rays else None
