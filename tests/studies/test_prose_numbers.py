@@ -1155,6 +1155,19 @@ def table_rows(text, header):
     return rows
 
 
+def bytes_row(d, scene):
+    """A scene's resolution, occupied voxels and the vertices its grids' finest levels read,
+    then before and after: the model's bytes and its two tables as 2^T (2 and T each), then
+    the bytes' ratio."""
+    before, after = ({row["scene"]: row for row in d[when]["rows"]}[scene]
+                     for when in ("before", "after"))
+    sizes = [[row["bytes"], 2, row["log2_table_size"], 2, row["normal_log2_table_size"]]
+             for row in (before, after)]
+    return [after["resolution"], after["occupied_voxels"], after["finest_reads"]["encoder"],
+            after["finest_reads"]["normal"], *sizes[0], *sizes[1],
+            after["bytes"] / before["bytes"]]
+
+
 def check_table(table, text, data):
     """What is wrong with ``table`` in the document ``text`` against ``data``."""
     if text.splitlines().count(table.header) != 1:
@@ -1464,6 +1477,9 @@ TABLES = [
               m["normal_error_deg"], m["albedo_psnr"], m["ao_mae"],
               *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
               m["shaded_psnr"]])(d["runs"]["/".join(row.split(", "))]["vs_true"])),
+    Table(P, "| scene | resolution | occupied voxels | read: encoder / normal | bytes before | "
+          "tables before | bytes after | tables after | after / before |", 1,
+          "results/model-bytes.json", bytes_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
