@@ -486,6 +486,34 @@ def test_training_sizes_the_tables_to_the_datasets_voxels():
     assert kept.network.encoder.grid.table.shape[0] == 2 * 2**12
 
 
+def test_training_steps_flush_denormals_and_leave_the_default_after(monkeypatch):
+    """Inside the steps a product below float32's smallest normal is zero; after training,
+    returned or raised, it is a denormal again."""
+    if not torch.set_flush_denormal(False):
+        pytest.skip("this CPU cannot flush denormals")
+
+    def tiny():
+        return float(torch.tensor(1e-30) * torch.tensor(1e-10))
+
+    assert tiny() != 0
+    seen = []
+    original = training.TrainingStep.__call__
+
+    def probed(self, batch, cancel=None):
+        seen.append(tiny())
+        if len(seen) == 5:
+            raise VDNIFError("stopped")
+        return original(self, batch, cancel)
+
+    monkeypatch.setattr(training.TrainingStep, "__call__", probed)
+    config = TrainConfig(steps=3, batch_size=64, log_interval=3, device="cpu")
+    train(sphere_shards(), header(), config, NetworkConfig(**SMALL))
+    assert seen == [0.0] * 3 and tiny() != 0
+    with pytest.raises(VDNIFError, match="stopped"):
+        train(sphere_shards(), header(), config, NetworkConfig(**SMALL))
+    assert seen == [0.0] * 5 and tiny() != 0
+
+
 def test_non_finite_loss_raises_naming_the_step(monkeypatch):
     calls = []
 
