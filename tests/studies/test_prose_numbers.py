@@ -1168,6 +1168,17 @@ def bytes_row(d, scene):
             after["bytes"] / before["bytes"]]
 
 
+def clean_time_row(d, scene):
+    """A scene's wall seconds before (median, range) and its steps, the same flushed, the
+    wall ratio, and the test poses' holes and extras (the same at both commits)."""
+    before, after = d["before"][scene], d["after"][scene]
+    assert before["test"] == after["test"]
+    walls = [[statistics.median(r["wall_s_runs"]), min(r["wall_s_runs"]),
+              max(r["wall_s_runs"]), r["train_s"]] for r in (before, after)]
+    return [*walls[0], *walls[1], before["wall_s"] / after["wall_s"],
+            *rates(after["test"], "false_negative_rate", "false_positive_rate")]
+
+
 def check_table(table, text, data):
     """What is wrong with ``table`` in the document ``text`` against ``data``."""
     if text.splitlines().count(table.header) != 1:
@@ -1477,6 +1488,9 @@ TABLES = [
               m["normal_error_deg"], m["albedo_psnr"], m["ao_mae"],
               *rates(m, "shadow_false_lit_rate", "shadow_false_shadow_rate"),
               m["shaded_psnr"]])(d["runs"]["/".join(row.split(", "))]["vs_true"])),
+    Table(P, "| scene | wall (s), before | steps (s), before | wall (s), denormals flushed | "
+          "steps (s), denormals flushed | wall, before / flushed | test: holes / extras |", 1,
+          "results/time-to-clean-scenes.json", clean_time_row),
     Table(P, "| scene | resolution | occupied voxels | read: encoder / normal | bytes before | "
           "tables before | bytes after | tables after | after / before |", 1,
           "results/model-bytes.json", bytes_row),
