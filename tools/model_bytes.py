@@ -5,9 +5,8 @@ pose), and reports each file's bytes, its occupied voxels, its tables' sizes (2^
 encoder's grid and of the normal field's) and how many vertices each grid's finest level can
 read in the occupied voxels, counted exactly on the rest mesh's grid (the tables hold
 2^T). The bytes depend only on the network's shape, so one training step is as good as a
-finished model for them. ``--batch`` runs another
-checkout's ``batch.py`` (the sizes before a change); ``--json`` is checked by the output rule
-before the first training.
+finished model for them. ``--batch`` runs another checkout's ``batch.py`` (the sizes before
+a change); ``--json`` is checked by the output rule before the first training.
 
     python tools/model_bytes.py --json out/model-bytes.json [--batch OTHER/vdnif_addon/batch.py]
 """
@@ -26,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 from vdnif_addon.blender.mesh_files import import_mesh  # noqa: E402
 from vdnif_addon.blender.read_mesh import read_rest_mesh  # noqa: E402
 from vdnif_addon.blender.scenes import demo_scene  # noqa: E402
+from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.geometry.voxels import build_grid  # noqa: E402
 from vdnif_addon.model.model_file import load_model  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
@@ -105,6 +105,8 @@ def main():
                         help="the batch.py that trains (default: this checkout's)")
     args = parser.parse_args()
     check_output_file(args.json, "--json", "json")        # the output rule, before the runs
+    if not args.batch.is_file():
+        raise VDNIFError(f"--batch '{args.batch}' is not a file")
     rows = []
     with tempfile.TemporaryDirectory() as scratch:
         rod = pathlib.Path(scratch) / "rod.obj"
@@ -119,7 +121,7 @@ def main():
             config = metadata.network_config
             grid = rest_grid(options, rod, metadata.grid.resolution)
             if len(grid.cells) != metadata.grid.occupied_voxels:
-                raise SystemExit(f"{name}: the rest grid has {len(grid.cells)} voxels, the "
+                raise VDNIFError(f"{name}: the rest grid has {len(grid.cells)} voxels, the "
                                  f"model {metadata.grid.occupied_voxels}")
             finest = {key: level_resolutions(levels, config.base_resolution, config.growth)[-1]
                       for key, levels in (("encoder", config.levels),
@@ -141,4 +143,7 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    from tool_exit import run_and_exit
+
+    run_and_exit(main, errors=(VDNIFError, subprocess.CalledProcessError),
+                 prefix="model_bytes: error: ")
