@@ -12,7 +12,7 @@ import torch
 from vdnif_addon.geometry.voxels import build_grid
 from vdnif_addon.model.encoding import HashGrid, readable_vertices, scene_log2_table_size
 from vdnif_addon.model.network import IntersectionNetwork, sized_to_scene
-from vdnif_addon.settings import NetworkConfig
+from vdnif_addon.settings import NetworkConfig, level_resolutions
 
 
 def overlapped_vertices(cells, resolution, across):
@@ -95,7 +95,7 @@ def test_a_thin_rod_gets_smaller_tables_and_a_thick_one_the_setting():
     # the smaller tables still hold every vertex the thin rod's voxels can read
     for levels, log2_size in ((small.levels, small.log2_table_size),
                               (small.normal_levels, small.normal_log2_table_size)):
-        finest = HashGrid(levels, config.base_resolution, config.growth).resolutions[-1]
+        finest = level_resolutions(levels, config.base_resolution, config.growth)[-1]
         assert len(overlapped_vertices(thin.cells, finest, int(thin.dims.max()))) <= 2**log2_size
     rows = {name: IntersectionNetwork(c).encoder.grid.table.shape[0]
             for name, c in (("full", config), ("sized", small))}

@@ -198,9 +198,9 @@ def flushed_denormals() -> Iterator[None]:
     float32's smallest normal (1.2e-38) as zero, and after it no longer (the default). Adam's
     first moments of the weights of ReLU units that stopped firing, and of table rows read
     rarely, decay by 0.9 a step into that range, and arithmetic on it takes the CPU's slow
-    path: on the arm the steps slowed from 35 to 87 ms over 3,000 (DESIGN section 8). The
-    updates they make are far below a weight's last bit. Torch's own threads beyond this
-    one keep the default."""
+    path, which slows the steps as training goes on (DESIGN section 8). The updates they
+    make are far below a weight's last bit. Torch's own threads beyond this one keep the
+    default."""
     torch.set_flush_denormal(True)
     try:
         yield
