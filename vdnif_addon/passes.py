@@ -23,6 +23,9 @@ class Passes:
     normal: Float[np.ndarray, "R 3"]     # float64 unit, deformed space
     albedo: Float[np.ndarray, "R 3"]     # float32
     material: Int[np.ndarray, " R"]       # int32: index into the mesh's used materials
+    cell: Int[np.ndarray, " R"] | None = None
+    """int32: the occupied cell the network placed the hit in, -1 for a miss; None from a
+    renderer that walks no cells (the references)."""
 
     @classmethod
     def empty(cls, rays: int) -> Passes:
@@ -33,9 +36,13 @@ class Passes:
 
     @classmethod
     def concatenate(cls, passes: Iterable[Passes]) -> Passes:
-        """The rays of ``passes`` one after the other."""
+        """The rays of ``passes`` one after the other (their cells where every one has
+        them)."""
+        passes = list(passes)
+        cells = [p.cell for p in passes]
         return cls(*(np.concatenate([getattr(p, name) for p in passes])
-                     for name in ("hit", "distance", "normal", "albedo", "material")))
+                     for name in ("hit", "distance", "normal", "albedo", "material")),
+                   cell=None if any(c is None for c in cells) else np.concatenate(cells))
 
     def with_slots(self, slots: Int[np.ndarray, " K"]) -> Passes:
         """A copy whose material pass holds the Blender material slot the user knows:
@@ -44,7 +51,7 @@ class Passes:
         slots = np.asarray(slots, np.int32)
         material = np.where(self.hit, slots[np.clip(self.material, 0, len(slots) - 1)], 0)
         return Passes(hit=self.hit, distance=self.distance, normal=self.normal,
-                      albedo=self.albedo, material=material.astype(np.int32))
+                      albedo=self.albedo, material=material.astype(np.int32), cell=self.cell)
 
 
 COMPOSITOR_PASSES = {"Combined": "RGBA", "Depth": "Z", "Normal": "XYZ", "DiffCol": "RGB",

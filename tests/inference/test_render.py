@@ -92,6 +92,30 @@ def test_oracle_network_renders_the_embedded_reference():
     assert more["waves"] < stats["waves"]
 
 
+def test_the_passes_name_the_cell_of_each_hit():
+    """A render's ``cell`` pass holds, for each hit, a cell of its ray's walk whose segment
+    holds the hit's distance, and -1 for each miss; a reference walks no cells (None)."""
+    mesh, grid, bend = bent_ball()
+    cells = DeviceCells(grid, corners=bend)
+    origins, directions = rays.orbit_rays(bend.min(0), bend.max(0), np.array([0.3, -1, 0.2]) /
+                                          np.linalg.norm([0.3, -1, 0.2]), 24, 20)
+    predicted, _ = render.neural_passes(OracleNetwork(mesh, grid), grid, mesh.albedo_table(),
+                                        cells, origins, directions)
+    segments = old_walk.traverse(old_walk.DeformedCells(grid, bend), cells, origins,
+                                 directions)
+    hit = predicted.hit
+    assert hit.sum() > 50 and (~hit).sum() > 50
+    np.testing.assert_array_equal(predicted.cell[~hit], -1)
+    ray = segments.ray
+    distance = predicted.distance[ray]
+    holds = (hit[ray] & (segments.cell == predicted.cell[ray])
+             & (segments.t0 <= distance + 1e-9) & (distance <= segments.t1 + 1e-9))
+    assert set(np.flatnonzero(hit)) == set(ray[holds])
+    reference = references.true_reference(mesh, groundtruth.rest_surface(mesh), origins,
+                                          directions)
+    assert reference.cell is None
+
+
 def test_few_rays_walk_on_in_fewer_waves_to_the_same_passes():
     """Where a wave's rays are so few that it would hold under ``wave_floor`` segments, each
     walks more than the schedule's k: the passes are the same (a ray's passes depend only on

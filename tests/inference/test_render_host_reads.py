@@ -72,8 +72,8 @@ def test_a_frames_host_reads_do_not_grow_with_its_waves():
         assert counted[side, (1,), 1][0] > counted[side, (16,), 1][0]
     constant = {reads for (_, _, per_read), (reads, _) in counted.items() if per_read == 12}
     assert len(constant) == 1, counted
-    # the lane's count once, then the frame's totals and its five passes
-    assert constant.pop() <= 7
+    # the lane's count once, then the frame's totals, its five passes and its hits' cells
+    assert constant.pop() <= 8
 
 
 @pytest.mark.parametrize("albedo", [False, True])

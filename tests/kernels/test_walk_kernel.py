@@ -360,3 +360,79 @@ def test_a_limited_walk_is_the_unlimited_walk_up_to_its_limit(blob):
     assert len(np.unique(cut.ray[cut.ray < 400])) > 150  # rays from inside walk
     for name in ("ray", "cell", "t0", "t1", "p0", "p1"):
         np.testing.assert_array_equal(getattr(cut, name), getattr(whole, name)[keep])
+
+
+def start_cells_of(segments, count):
+    """The cell each ray's walk holds its origin in (its segment cut at the origin), -1 for a
+    ray that starts outside the occupied cells."""
+    start = np.full(count, -1)
+    first = np.flatnonzero(segments.t0 == 0)
+    start[segments.ray[first]] = segments.cell[first]
+    return start
+
+
+def test_rays_given_their_start_cells_walk_as_without_them(blob):
+    """Rays from random points, at rest and bent, limited and not, given as start cells
+    their own, a face neighbour of their own (whose inside does not hold the origin: its
+    neighbours are tried), a cell far away and none: the segments of the walk without start
+    cells (the same rays and cells in order, end points within 1e-6 voxel)."""
+    rng = np.random.default_rng(11)
+    bent = blob.corner_positions() + 0.2 * blob.voxel_size * rng.normal(
+        size=blob.corners.shape)
+    for corners in (blob.corner_positions(), bent):
+        cells = DeviceCells(blob, corners=corners)
+        origins, directions = inside_rays(rng, blob, 800)
+        limits = np.where(rng.random(800) < 0.5, np.inf,
+                          rng.uniform(0.3, 3.0, 800) * blob.voxel_size)
+        plain = traverse.traverse(cells, origins, directions, max_distance=limits)
+        own = start_cells_of(plain, len(origins))
+        inside = own >= 0
+        assert inside.sum() > 50
+        neighbours = blob.neighbours[np.maximum(own, 0)]
+        pick = np.argmax(neighbours >= 0, axis=1)
+        neighbour = np.where(inside & (neighbours.max(1) >= 0),
+                             neighbours[np.arange(len(own)), pick], own)
+        assert (neighbour != own).sum() > 50
+        far = np.where(inside, (own + len(blob.cells) // 2) % len(blob.cells), 0)
+        for hints in (own, neighbour, far, np.full(len(origins), -1)):
+            got = traverse.traverse(cells, origins, directions, max_distance=limits,
+                                    start_cells=hints)
+            assert got.truncated == plain.truncated
+            np.testing.assert_array_equal(got.ray, plain.ray)
+            np.testing.assert_array_equal(got.cell, plain.cell)
+            for name in ("t0", "t1", "p0", "p1"):
+                np.testing.assert_allclose(getattr(got, name), getattr(plain, name), rtol=0,
+                                           atol=1e-6 * blob.voxel_size)
+
+
+def test_a_start_cell_spares_the_walk_behind_the_origin():
+    """Six cells in a row along x; a ray starts in the fifth. Without a start cell it is
+    walked from the row's entry, four cells behind its origin, and a budget of two cell
+    steps truncates it before its origin; given its cell, or the cell behind it, it starts
+    there and walks its two cells within that budget. A start cell whose inside and whose
+    neighbours' do not hold the origin is not taken."""
+    grid = grid_of([[i, 1, 1] for i in range(1, 7)], (8, 3, 3))
+    cells = DeviceCells(grid)
+    origins, directions = np.array([[5.5, 1.5, 1.5]]), np.array([[1.0, 0.0, 0.0]])
+    whole = traverse.traverse(cells, origins, directions)
+    np.testing.assert_array_equal(whole.cell, [4, 5])
+    for start in (-1, 0):
+        cut = traverse.traverse(cells, origins, directions, max_steps=2,
+                                start_cells=np.array([start]))
+        assert len(cut) == 0 and cut.truncated == 1
+    for start in (4, 3):
+        got = traverse.traverse(cells, origins, directions, max_steps=2,
+                                start_cells=np.array([start]))
+        assert got.truncated == 0
+        np.testing.assert_array_equal(got.cell, [4, 5])
+        np.testing.assert_allclose(np.c_[got.t0, got.t1], [[0.0, 0.5], [0.5, 1.5]],
+                                   atol=1e-12)
+        np.testing.assert_allclose(got.p0, [[5.5, 1.5, 1.5], [6.0, 1.5, 1.5]], atol=1e-12)
+
+
+@pytest.mark.parametrize("start_cells", [[0], [0, 1, 2], [-2, 0], [0, 6], [0.0, 1.0]])
+def test_start_cells_that_are_not_one_cell_per_ray_are_one_line(start_cells):
+    grid = grid_of([[i, 1, 1] for i in range(1, 7)], (8, 3, 3))
+    with pytest.raises(VDNIFError, match="start cells need one integer in -1..5 per ray"):
+        traverse.traverse(DeviceCells(grid), np.zeros((2, 3)), np.ones((2, 3)),
+                          start_cells=np.array(start_cells))

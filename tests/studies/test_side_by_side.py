@@ -580,7 +580,8 @@ def test_each_path_answers_its_secondary_rays_with_its_own_occluder(extension, m
     secondary = core("studies.side_by_side")
     passes = core("passes")
     monkeypatch.setattr(secondary, "neural_occluded", lambda *args, **kwargs: (
-        lambda origins, directions, reach, leaving: np.ones(len(origins), bool)))
+        lambda origins, directions, reach, leaving, start_cells=None: np.ones(len(origins),
+                                                                          bool)))
     vertices = np.array([[-10.0, -10.0, 0.0], [10.0, -10.0, 0.0], [0.0, 10.0, 0.0]])
     caster = types.SimpleNamespace(name="warp", vertices=vertices, cast=lambda o, d, reach: (
         np.full(len(o), -1), np.full(len(o), np.inf)))

@@ -377,6 +377,44 @@ def test_the_neural_path_from_a_camera_matches_the_exact_one(scene):
         assert metrics[name]["shadow_false_shadow_rate"] <= 0.02
 
 
+def test_the_networks_secondary_rays_start_in_its_hits_cells_to_the_same_passes(scene):
+    """A camera's oracle-network hits, bent, with the cells the render placed them in and
+    without: each secondary ray is given its hit's cell to start in (AO rays their pixel's
+    hit's, shadow rays too), and AO and shadow are the same."""
+    mesh, grid, _ = scene
+    bend = grid.corner_positions()
+    bend[:, 0] += 0.05 * bend[:, 2] ** 2
+    cells = DeviceCells(grid, corners=bend)
+    origins, directions = rays.look_at_rays(np.array([2.5, -3.0, 2.5]), np.zeros(3),
+                                            rays.DEFAULT_UP, 50, 24, 18)
+    network = OracleNetwork(mesh, grid)
+    predicted, _ = neural_passes(network, grid, mesh.albedo_table(), cells, origins,
+                                 directions)
+    assert predicted.hit.sum() > 200 and (predicted.cell[predicted.hit] >= 0).all()
+    settings = secondary.SecondarySettings(samples=4, light=secondary.Light(
+        direction=(-1.0, 0.5, 1.0), source="t"))
+    occluded = secondary.neural_occluded(network, grid, mesh.albedo_table(), cells,
+                                         secondary.network_offset(mesh.size, grid.voxel_size))
+    given = []
+
+    def recorded(origins, directions, max_distance, leaving, start_cells=None):
+        given.append(start_cells)
+        return occluded(origins, directions, max_distance, leaving, start_cells)
+
+    offset = SECONDARY_OFFSET * mesh.size
+    with_cells = secondary.secondary_passes(predicted, origins, directions, recorded,
+                                            mesh.size, settings, offset)
+    hit_cells = predicted.cell[predicted.hit]
+    np.testing.assert_array_equal(given[0], np.repeat(hit_cells, settings.samples))
+    np.testing.assert_array_equal(given[1], hit_cells[with_cells.facing[predicted.hit]])
+    without = secondary.secondary_passes(dataclasses.replace(predicted, cell=None), origins,
+                                         directions, recorded, mesh.size, settings, offset)
+    assert given[2] is None and given[3] is None
+    assert with_cells.ao[predicted.hit].min() < 0.9 and (~with_cells.lit[predicted.hit]).any()
+    for name in ("hit", "ao", "lit", "facing"):
+        np.testing.assert_array_equal(getattr(with_cells, name), getattr(without, name))
+
+
 def test_secondary_metrics_count_against_the_reference():
     # rays 0-2 are compared: 0 falsely shadowed (the prediction faces away from the light),
     # 1 agreed, 2 falsely lit (the reference faces away)

@@ -51,7 +51,7 @@ from ..memory import CPU_RENDER_ADVICE, RENDER_ADVICE, out_of_memory
 from ..passes import Passes
 
 if TYPE_CHECKING:
-    from jaxtyping import Float
+    from jaxtyping import Float, Int
 
     from ..geometry.voxels import VoxelGrid
     from ..geometry.walk_rules import Segments
@@ -90,7 +90,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   lanes: int | None = None,
                   max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
                   max_distance: float | Float[np.ndarray, " N"] | None = None,
-                  waves_per_read: int = 1, wave_floor: int = WAVE_FLOOR
+                  waves_per_read: int = 1, wave_floor: int = WAVE_FLOOR,
+                  start_cells: Int[np.ndarray, " N"] | None = None
                   ) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
@@ -107,7 +108,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     is still reported. ``waves_per_read`` is how many waves a lane renders between host
     reads of its count (the module's docstring); the passes are the same at any value, and at
     any ``wave_floor``, the segments a wave may hold at least where its rays are few
-    (``WAVE_FLOOR``; 0: the schedule's k alone).
+    (``WAVE_FLOOR``; 0: the schedule's k alone). ``start_cells`` (N,) names the cell each
+    ray is thought to start in (-1: none), as ``traverse`` takes them; the passes'
+    ``cell`` is the cell of each hit.
     Running out of memory is a VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
@@ -130,7 +133,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     torch_threads = max(1, min(threads.RENDER_TORCH_THREADS, threads.cores() // lanes))
     with (out_of_memory("rendering", RENDER_ADVICE, CPU_RENDER_ADVICE), _device_stream(device),
           threads.torch_threads_at_most(torch_threads)):
-        walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes)
+        walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes,
+                       start_cells=start_cells)
         waves = _Waves(network, grid, walk, schedule, albedo_table,
                        max(1, max_wave_segments // lanes), waves_per_read, wave_floor)
         share = max(1, threads.cores() // lanes)
@@ -150,7 +154,7 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
         passes = waves.passes
         result = Passes(hit=passes.hit.numpy().astype(bool), distance=passes.distance.numpy(),
                         normal=passes.normal.numpy(), albedo=passes.albedo.numpy(),
-                        material=passes.material.numpy())
+                        material=passes.material.numpy(), cell=passes.cell.numpy())
     return result, stats
 
 

@@ -56,11 +56,13 @@ if TYPE_CHECKING:
     from ..model.network import IntersectionNetwork
 
     Occluded = Callable[[Float[np.ndarray, "N 3"], Float[np.ndarray, "N 3"],
-                         Float[np.ndarray, " N"], Float[np.ndarray, "N 3"]],
+                         Float[np.ndarray, " N"], Float[np.ndarray, "N 3"],
+                         Int[np.ndarray, " N"] | None],
                         Bool[np.ndarray, " N"]]
     """Whether rays (origins, unit directions, max distances; local units) hit anything;
-    the last argument holds the unit normals (as their hits have them, unturned) of the
-    surfaces the rays leave."""
+    the fourth argument holds the unit normals (as their hits have them, unturned) of the
+    surfaces the rays leave, the last the cells of those hits where the primary render
+    walked cells (else None): a walk takes them as the cells its rays start in."""
 
 
 @dataclass(frozen=True)
@@ -155,7 +157,7 @@ def mesh_primary(vertices: Float[np.ndarray, "V 3"], triangles: Int[np.ndarray, 
 def exact_occluded(caster: Any) -> Occluded:
     """Occlusion by a caster with ``cast(origins, directions, max_distance) -> (index, t)``
     (``MeshCaster`` of the deformed mesh; ``BruteForceCaster`` in the tests)."""
-    def occluded(origins, directions, max_distance, leaving):
+    def occluded(origins, directions, max_distance, leaving, start_cells=None):
         return caster.cast(origins, directions, max_distance)[0] >= 0
     return occluded
 
@@ -168,8 +170,9 @@ def embedded_occluded(cells: DeviceCells, mesh: RestMesh, rest_caster: SurfaceCa
     from ..tracing.references import embedded_reference
     from ..tracing.traverse import traverse
 
-    def occluded(origins, directions, max_distance, leaving):
-        segments = traverse(cells, origins, directions, max_distance)
+    def occluded(origins, directions, max_distance, leaving, start_cells=None):
+        segments = traverse(cells, origins, directions, max_distance,
+                            start_cells=start_cells)
         targets = segment_targets(mesh, rest_caster, segments)
         passes = embedded_reference(cells, segments, targets, len(origins))
         return passes.hit & (passes.distance <= max_distance)
@@ -190,16 +193,18 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
     # torch and Warp: imported here, so that the panel reads this module without them
     from .neural_render import neural_passes
 
-    def occluded(origins, directions, max_distance, leaving):
+    def occluded(origins, directions, max_distance, leaving, start_cells=None):
         start = time.perf_counter()
         reach = np.broadcast_to(np.asarray(max_distance, np.float64), (len(origins),))
         walked, blocked = np.zeros(len(origins)), np.zeros(len(origins), bool)
         rows = np.arange(len(origins))
+        starts = start_cells
         for skip in range(SECONDARY_SELF_SKIPS + 1):
             left = reach[rows] - walked[rows]
             passes, _ = neural_passes(network, grid, albedo_table, cells,
                                       origins[rows] + walked[rows, None] * directions[rows],
-                                      directions[rows], device, max_distance=left)
+                                      directions[rows], device, max_distance=left,
+                                      start_cells=starts)
             blocked[rows] = passes.hit & (passes.distance <= left)
             own = blocked[rows] & (walked[rows] + passes.distance
                                    <= SECONDARY_SELF_REACH * offset)
@@ -208,6 +213,7 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
                 break
             walked[rows[own]] += passes.distance[own] + offset
             rows = rows[own]
+            starts = passes.cell[own]            # it goes on from just past that hit
         if stats is not None:
             stats["rays"] = stats.get("rays", 0) + len(origins)
             stats["seconds"] = stats.get("seconds", 0.0) + time.perf_counter() - start
@@ -218,9 +224,9 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
 def counted(occluded: Occluded, calls: list[int]) -> Occluded:
     """``occluded`` that appends the count of every batch of rays it answers to ``calls``
     (``secondary_passes`` asks for the AO rays first, then the shadow rays)."""
-    def counting(origins, directions, max_distance, leaving):
+    def counting(origins, directions, max_distance, leaving, start_cells=None):
         calls.append(len(origins))
-        return occluded(origins, directions, max_distance, leaving)
+        return occluded(origins, directions, max_distance, leaving, start_cells)
     return counting
 
 
@@ -293,6 +299,7 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
         offset = exact_offset(object_size)
     point, normal = secondary_starts(primary, origins, directions)
     leaving = normalize(primary.normal[primary.hit], normal)      # as the hits have them
+    hit_cells = None if primary.cell is None else primary.cell[primary.hit]
     rng = np.random.default_rng([settings.seed, rays])
     uniform = rng.random((rays, settings.samples, 2))[primary.hit].reshape(-1, 2)
     samples = np.repeat(normal, settings.samples, axis=0)
@@ -300,7 +307,8 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     start, along = leave_surface(np.repeat(point, settings.samples, axis=0), samples, sampled,
                                  offset)
     blocked = occluded(start, sampled, settings.distance * object_size - along,
-                       np.repeat(leaving, settings.samples, axis=0))
+                       np.repeat(leaving, settings.samples, axis=0),
+                       None if hit_cells is None else np.repeat(hit_cells, settings.samples))
     ao = np.zeros(rays, np.float32)
     ao[primary.hit] = 1.0 - blocked.reshape(-1, settings.samples).mean(1)
     towards, distance = settings.light.towards(point)
@@ -308,7 +316,8 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     start, along = leave_surface(point[facing], normal[facing], towards[facing], offset)
     lit_hits = facing.copy()
     lit_hits[facing] = ~occluded(start, towards[facing], distance[facing] - along,
-                                 leaving[facing])
+                                 leaving[facing],
+                                 None if hit_cells is None else hit_cells[facing])
     lit, faces = np.zeros(rays, bool), np.zeros(rays, bool)
     lit[primary.hit], faces[primary.hit] = lit_hits, facing
     return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit, facing=faces)

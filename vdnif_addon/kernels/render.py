@@ -44,6 +44,7 @@ class Passes:
     normal: wp.array(dtype=wp.vec3d)      # (R,) unit, deformed space
     albedo: wp.array(dtype=wp.vec3)       # (R,)
     material: wp.array(dtype=wp.int32)    # (R,)
+    cell: wp.array(dtype=wp.int32)        # (R,) the hit segment's cell, -1 for a miss
 
 
 @wp.struct
@@ -123,6 +124,7 @@ def write_hit(cells: CellArrays, passes: Passes, ray: wp.int32, cell: wp.int32,
     passes.normal[ray] = deformed_normal(cells, cell, point, rest_normal)
     passes.albedo[ray] = albedo
     passes.material[ray] = material
+    passes.cell[ray] = cell
 
 
 @wp.kernel(module=WARP_MODULE)
@@ -225,6 +227,7 @@ def clear_misses(passes: Passes):
         passes.normal[r] = wp.vec3d()
         passes.albedo[r] = wp.vec3()
         passes.material[r] = 0
+        passes.cell[r] = -1
 
 
 @wp.kernel(module=WARP_MODULE)
@@ -243,6 +246,7 @@ def empty_passes(rays: int, device: str) -> Passes:
     passes.normal = wp.zeros(rays, dtype=wp.vec3d, device=device)
     passes.albedo = wp.zeros(rays, dtype=wp.vec3, device=device)
     passes.material = wp.zeros(rays, dtype=wp.int32, device=device)
+    passes.cell = wp.full(rays, -1, dtype=wp.int32, device=device)
     return passes
 
 

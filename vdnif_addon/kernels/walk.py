@@ -15,6 +15,9 @@ kernel replaced (kept as the oracle in ``tests/oracles/walk.py``):
   a later seek, a leaving hit more than ``step`` beyond the seek start means the start is
   inside (a cell across an edge or corner of the cell left begins within ``step`` of the
   exit): the backward cast within ``2 step`` finds its entry, walked from there;
+- a ray given the cell it is thought to start in (``RayState.start``) whose origin lies
+  inside that cell or a face neighbour is walked from its entry into that cell, clipped at
+  its origin, without the casts (``start_inside``); otherwise it seeks as above;
 - in a cell: the exit is the nearest of the cell's face triangles (entry face skipped) that
   the ray crosses outward more than ``step`` beyond its entry, else the farthest one it
   touches; a zero-length pass counts, and after ``ZERO_PASS_LIMIT`` in a row, a lost walker
@@ -37,6 +40,7 @@ import numpy as np
 import warp as wp
 
 from .. import threads
+from ..errors import VDNIFError
 from ..geometry.walk_rules import SEEK_LIMIT, ZERO_PASS_LIMIT, step_budget
 from . import runtime
 from .cells import (
@@ -78,6 +82,56 @@ TRUNCATED = wp.constant(4)      # out of steps, or a seek given up
 
 SEEKS = wp.constant(SEEK_LIMIT)
 ZERO_PASSES = wp.constant(ZERO_PASS_LIMIT)
+
+@wp.func
+def entry_behind(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, cell: wp.int32):
+    """Where the ray entered ``cell`` if its origin lies inside it: (found, t <= 0, face
+    triangle 0..11, u, v). Inside: the ray leaves the cell by a face triangle ahead of its
+    origin, and enters it by one at or behind the origin after the last it leaves by there;
+    its entry is the first such (where a walk from behind, which exits at the first
+    crossing outward, enters it)."""
+    base = cell * 12
+    left_t = -INF
+    ahead = False
+    for k in range(12):
+        tri = cells.triangles[base + k]
+        tk, _u, _v, hit, outward = intersect(o, d, tri.a, tri.e1, tri.e2, tri.scale)
+        if hit and outward:
+            if tk > wp.float64(0.0):
+                ahead = True
+            elif tk > left_t:
+                left_t = tk
+    entry = wp.int32(-1)
+    entry_t = INF
+    entry_u = wp.float64(0.0)
+    entry_v = wp.float64(0.0)
+    if ahead:
+        for k in range(12):
+            tri = cells.triangles[base + k]
+            tk, u, v, hit, outward = intersect(o, d, tri.a, tri.e1, tri.e2, tri.scale)
+            if hit and not outward and tk <= wp.float64(0.0) and tk > left_t and tk < entry_t:
+                entry = k
+                entry_t = tk
+                entry_u = u
+                entry_v = v
+    return entry >= 0, entry_t, entry, entry_u, entry_v
+
+
+@wp.func
+def start_inside(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, hint: wp.int32):
+    """The cell among ``hint`` and its face neighbours whose inside holds the origin, with
+    the ray's entry into it (``entry_behind``): (cell or -1, t, face triangle, u, v)."""
+    found, t, k, u, v = entry_behind(cells, o, d, hint)
+    if found:
+        return hint, t, k, u, v
+    for face in range(6):
+        other = cells.neighbours[hint, face]
+        if other >= 0:
+            found, t, k, u, v = entry_behind(cells, o, d, other)
+            if found:
+                return other, t, k, u, v
+    return wp.int32(-1), wp.float64(0.0), wp.int32(0), wp.float64(0.0), wp.float64(0.0)
+
 
 @wp.func
 def seek_entry(cells: CellArrays, o: wp.vec3d, d: wp.vec3d, far: wp.float64, mode: wp.int32,
@@ -221,6 +275,7 @@ class RayState:
     p: wp.array(dtype=wp.vec3d)           # rest-space entry point (WALK)
     clip_from: wp.array(dtype=wp.float64)  # < 0: started inside, segments cut at 0
     behind_from: wp.array(dtype=wp.float64)  # seek start of the last entry found behind it
+    start: wp.array(dtype=wp.int32)       # (R,) the cell the origin is thought in, or -1
 
 
 @wp.kernel(module=WARP_MODULE)
@@ -247,6 +302,18 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
     behind_from = rays.behind_from[r]
     step = cells.step
     written = wp.int32(0)
+    if mode == SEEK_FIRST and far >= wp.float64(0.0):
+        hint = rays.start[r]
+        if hint >= 0:
+            inside, entry_t, k, u, v = start_inside(cells, o, d, hint)
+            if inside >= 0:
+                mode = WALK
+                cell = inside
+                entry_face = k // 2
+                t = entry_t
+                p = rest_point(cells, inside, k, u, v)
+                clip_from = entry_t
+                zero_passes = 0
     while mode < DONE:
         if mode != WALK:
             mode, t, cell, entry_face, p, clip_from, behind_from = seek_entry(
@@ -365,7 +432,8 @@ class RayWalk:
     def __init__(self, cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
                  directions: Float[np.ndarray, "N 3"],
                  max_distance: float | Float[np.ndarray, " N"] | None = None,
-                 max_steps: int | None = None, lanes: int = 1) -> None:
+                 max_steps: int | None = None, lanes: int = 1,
+                 start_cells: Int[np.ndarray, " N"] | None = None) -> None:
         runtime.load(WARP_MODULE, cells.device)
         origins = np.asarray(origins, np.float64)
         directions = np.asarray(directions, np.float64)
@@ -387,6 +455,9 @@ class RayWalk:
             setattr(state, name, wp.zeros(count, dtype=dtype, device=self.device))
         state.behind_from = wp.array(np.full(count, -np.inf), dtype=wp.float64,
                                      device=self.device)
+        start = np.full(count, -1, np.int32) if start_cells is None else _start_cells(
+            start_cells, count, cells.cell_count)
+        state.start = wp.array(start, dtype=wp.int32, device=self.device)
         self.state = state
         self.lanes = [Lane(np.arange(lane, count, lanes), self.device) for lane in range(lanes)]
 
@@ -441,16 +512,31 @@ class RayWalk:
         return int(counter.numpy()[0])
 
 
+def _start_cells(start_cells: Int[np.ndarray, " N"], rays: int, cell_count: int
+                 ) -> Int[np.ndarray, " N"]:
+    """``start_cells`` as int32, checked: one cell index (-1: none) per ray, each a cell of
+    the grid (the kernel reads the cell's faces and neighbours)."""
+    start = np.asarray(start_cells)
+    if (start.shape != (rays,) or not np.issubdtype(start.dtype, np.integer)
+            or (rays and (start.min() < -1 or start.max() >= cell_count))):
+        raise VDNIFError(f"start cells need one integer in -1..{cell_count - 1} per ray "
+                         f"({rays} rays), got {start.dtype} of shape {start.shape}"
+                         + (f" from {start.min()} to {start.max()}"
+                            if start.size and np.issubdtype(start.dtype, np.number) else ""))
+    return start.astype(np.int32)
+
+
 def walk_segments(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
                   directions: Float[np.ndarray, "N 3"],
                   max_distance: float | Float[np.ndarray, " N"] | None = None,
                   max_steps: int | None = None, capacity: int | None = None,
-                  lanes: int = 1) -> Segments:
+                  lanes: int = 1, start_cells: Int[np.ndarray, " N"] | None = None) -> Segments:
     """All Segments of the rays through ``cells`` (``traverse.traverse``), walked in
     ``lanes`` lanes at once, each on a thread of its own with a buffer of its own: the
     lanes hold disjoint rays and write disjoint memory (``kernels.launches``), and their
     segments, sorted by ray, are one lane's."""
-    walk = RayWalk(cells, origins, directions, max_distance, max_steps, lanes=lanes)
+    walk = RayWalk(cells, origins, directions, max_distance, max_steps, lanes=lanes,
+                   start_cells=start_cells)
     size = capacity or max(8 * walk.rays // lanes, 1024)
 
     def walk_lane(lane: int) -> list:

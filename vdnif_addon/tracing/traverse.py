@@ -23,7 +23,7 @@ from ..kernels.walk import walk_segments
 from ..threads import walk_lanes
 
 if TYPE_CHECKING:
-    from jaxtyping import Float
+    from jaxtyping import Float, Int
 
     from ..geometry.walk_rules import Segments
     from ..kernels.cells import DeviceCells
@@ -31,7 +31,8 @@ if TYPE_CHECKING:
 def traverse(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
              directions: Float[np.ndarray, "N 3"],
              max_distance: float | Float[np.ndarray, " N"] | None = None,
-             max_steps: int | None = None, lanes: int | None = None) -> Segments:
+             max_steps: int | None = None, lanes: int | None = None,
+             start_cells: Int[np.ndarray, " N"] | None = None) -> Segments:
     """Walks rays (N, 3) through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose to
     walk) and returns all their rest-space Segments, ordered by ray then distance.
 
@@ -41,8 +42,11 @@ def traverse(cells: DeviceCells, origins: Float[np.ndarray, "N 3"],
     ray's cell steps (default ``step_budget``); rays that hit a bound are counted in
     ``truncated``. ``lanes`` lanes of rays are walked at once, each on a thread of its own
     (default ``threads.walk_lanes``: one per core on the CPU); the Segments are the same in
-    any number.
+    any number. ``start_cells`` (N,) names the cell each ray is thought to start in (-1:
+    none): a ray whose origin lies inside that cell or a face neighbour is walked from
+    there without the entry casts (DESIGN section 5).
     """
     if lanes is None:
         lanes = walk_lanes(cells.device, len(origins))
-    return walk_segments(cells, origins, directions, max_distance, max_steps, lanes=lanes)
+    return walk_segments(cells, origins, directions, max_distance, max_steps, lanes=lanes,
+                         start_cells=start_cells)
