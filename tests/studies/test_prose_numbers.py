@@ -181,6 +181,7 @@ STAGES, NETBASE = "results/network-stages.json", "results/bench-network-baseline
 SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
                             "results/bench-network-blocks.json")
 RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
+STARTS = "results/render-start-cells.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -842,6 +843,33 @@ CLAIMS = [
               *span(render_times(d, "e234503", "network", 16, "secondary_ms")),
               *span(render_times(d, "533de7d", "network", 16, "secondary_ms")),
               render_times(d, "533de7d", "network", 16, "secondary_rays")[0]]),
+    Claim(P, "| eb4a52e | {}, {}, {} | {}, {}, {} |", STARTS, lambda d: [
+        *render_times(d, "eb4a52e", "network", 1, "secondary_ms"),
+        *render_times(d, "eb4a52e", "network", 16, "secondary_ms")]),
+    Claim(P, "| 4351804 | {}, {}, {} | {}, {}, {} |", STARTS, lambda d: [
+        *render_times(d, "4351804", "network", 1, "secondary_ms"),
+        *render_times(d, "4351804", "network", 16, "secondary_ms")]),
+    Claim(P, "secondary rays, 1 AO sample ({} rays), ms | 16 AO samples ({} rays)", STARTS,
+          lambda d: [render_times(d, c, "network", n, "secondary_rays")[0]
+                     for c, n in (("4351804", 1), ("4351804", 16))]),
+    Claim(P, "The medians are {}x faster at one AO sample and {}x at 16", STARTS, lambda d: [
+        statistics.median(render_times(d, "eb4a52e", "network", n, "secondary_ms"))
+        / statistics.median(render_times(d, "4351804", "network", n, "secondary_ms"))
+        for n in (1, 16)]),
+    Claim(P, "walked whole on one lane, took {} ms and now {} ms, the shadow rays {} and {} ms",
+          STARTS, lambda d: [d["walks"][k][m] for k in ("ao", "shadow")
+                             for m in ("walk_ms", "walk_ms_start_cells")]),
+    Claim(P, "Of the {} AO rays {} start in their hit's cell and {} in a face neighbour of it; "
+          "of the {} shadow rays {} and {}", STARTS, lambda d: [
+              d["walks"][k][m] for k in ("ao", "shadow")
+              for m in ("rays", "own_cell", "face_neighbour")]),
+    Claim(P, "timed alone, {}-{} ms at eb4a52e against {}-{} ms", STARTS, lambda d: [
+        *span(d["primary_alone"]["eb4a52e"]), *span(d["primary_alone"]["4351804"])]),
+    Claim(P, "the AO error against the true reference moves from {} to {}", STARTS, lambda d: [
+        d["evaluation"][c]["vs_true"]["ao_mae"] for c in ("eb4a52e", "4351804")]),
+    Claim(P, "stay as they were ({} % false lit, {} % false shadow)", STARTS, lambda d: [
+        100 * d["evaluation"]["4351804"]["vs_true"][k]
+        for k in ("shadow_false_lit_rate", "shadow_false_shadow_rate")]),
     Claim(P, "the primary pass spent {} ms in its network at e234503 and {} ms now, and {} and {} "
           "ms walking", RENDER, lambda d: [
               d["lanes"][c]["1"][k] for k in ("network_ms", "walk_ms")
