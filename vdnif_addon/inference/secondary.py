@@ -223,7 +223,7 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
 
 def counted(occluded: Occluded, calls: list[int]) -> Occluded:
     """``occluded`` that appends the count of every batch of rays it answers to ``calls``
-    (``secondary_passes`` asks for the AO rays first, then the shadow rays)."""
+    (``secondary_passes`` asks for its AO and shadow rays in one batch)."""
     def counting(origins, directions, max_distance, leaving, start_cells=None):
         calls.append(len(origins))
         return occluded(origins, directions, max_distance, leaving, start_cells)
@@ -304,20 +304,24 @@ def secondary_passes(primary: Passes, origins: Float[np.ndarray, "R 3"],
     uniform = rng.random((rays, settings.samples, 2))[primary.hit].reshape(-1, 2)
     samples = np.repeat(normal, settings.samples, axis=0)
     sampled = cosine_directions(samples, uniform)
-    start, along = leave_surface(np.repeat(point, settings.samples, axis=0), samples, sampled,
-                                 offset)
-    blocked = occluded(start, sampled, settings.distance * object_size - along,
-                       np.repeat(leaving, settings.samples, axis=0),
-                       None if hit_cells is None else np.repeat(hit_cells, settings.samples))
-    ao = np.zeros(rays, np.float32)
-    ao[primary.hit] = 1.0 - blocked.reshape(-1, settings.samples).mean(1)
+    ao_start, ao_along = leave_surface(np.repeat(point, settings.samples, axis=0), samples,
+                                       sampled, offset)
     towards, distance = settings.light.towards(point)
     facing = (normal * towards).sum(1) > 0
-    start, along = leave_surface(point[facing], normal[facing], towards[facing], offset)
+    shadow_start, shadow_along = leave_surface(point[facing], normal[facing], towards[facing],
+                                               offset)
+    # One batch, the AO rays then the shadow rays: a network answers them in one render.
+    blocked = occluded(
+        np.concatenate([ao_start, shadow_start]), np.concatenate([sampled, towards[facing]]),
+        np.concatenate([settings.distance * object_size - ao_along,
+                        distance[facing] - shadow_along]),
+        np.concatenate([np.repeat(leaving, settings.samples, axis=0), leaving[facing]]),
+        None if hit_cells is None else np.concatenate(
+            [np.repeat(hit_cells, settings.samples), hit_cells[facing]]))
+    ao = np.zeros(rays, np.float32)
+    ao[primary.hit] = 1.0 - blocked[:len(ao_start)].reshape(-1, settings.samples).mean(1)
     lit_hits = facing.copy()
-    lit_hits[facing] = ~occluded(start, towards[facing], distance[facing] - along,
-                                 leaving[facing],
-                                 None if hit_cells is None else hit_cells[facing])
+    lit_hits[facing] = ~blocked[len(ao_start):]
     lit, faces = np.zeros(rays, bool), np.zeros(rays, bool)
     lit[primary.hit], faces[primary.hit] = lit_hits, facing
     return SecondaryPasses(hit=primary.hit.copy(), ao=ao, lit=lit, facing=faces)

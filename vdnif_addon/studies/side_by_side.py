@@ -71,7 +71,6 @@ from ..errors import VDNIFError
 from ..inference.metrics import compare, speed_withheld
 from ..inference.neural_render import neural_passes, predict_segments
 from ..inference.secondary import (
-    counted,
     exact_occluded,
     mesh_primary,
     neural_occluded,
@@ -464,19 +463,17 @@ def secondary_record(baselines, casts, model, predicted, cells, grid, triangles,
     for samples in sample_counts(settings):
         at = dataclasses.replace(settings, samples=samples)
         for name, (prepare, offset) in paths.items():
-            calls = []
             sync()
             start = time.perf_counter()
             # A name of its own: the neural path's lambda reads ``network`` when called, so
             # rebinding that name here would hand it a baseline's occluder.
             primary, answers = prepare()
-            passes = secondary_passes(primary, *rays, counted(answers, calls),
-                                      object_size, at, offset)
+            passes = secondary_passes(primary, *rays, answers, object_size, at, offset)
             sync()
             seconds = time.perf_counter() - start
-            # secondary_passes asks for the AO rays first, then the shadow rays
-            ao_rays, shadow_rays = calls
+            # one AO ray per sample of each hit, one shadow ray from each hit facing the light
             hits = int(passes.hit.sum())
+            ao_rays, shadow_rays = hits * samples, int(passes.facing.sum())
             record.update({
                 key(name, samples, "s"): seconds, key(name, samples, "ao_rays"): ao_rays,
                 key(name, samples, "shadow_rays"): shadow_rays,
