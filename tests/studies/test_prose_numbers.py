@@ -181,7 +181,7 @@ STAGES, NETBASE = "results/network-stages.json", "results/bench-network-baseline
 SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
                             "results/bench-network-blocks.json")
 RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
-STARTS = "results/render-start-cells.json"
+STARTS, BATCH = "results/render-start-cells.json", "results/render-one-batch.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -870,6 +870,21 @@ CLAIMS = [
     Claim(P, "stay as they were ({} % false lit, {} % false shadow)", STARTS, lambda d: [
         100 * d["evaluation"]["4351804"]["vs_true"][k]
         for k in ("shadow_false_lit_rate", "shadow_false_shadow_rate")]),
+    *(Claim(P, f"| {commit} | {{}}, {{}}, {{}} | {{}}, {{}}, {{}} |", BATCH,
+            lambda d, commit=commit: [
+                *render_times(d, commit, "network", 1, "secondary_ms"),
+                *render_times(d, commit, "network", 16, "secondary_ms")])
+      for commit in ("e1bbeb8", "926fd95")),
+    Claim(P, "The medians are {}x faster at one AO sample, where the renders' fixed costs weigh "
+          "most, and {}x at 16", BATCH, lambda d: [
+              statistics.median(render_times(d, "e1bbeb8", "network", n, "secondary_ms"))
+              / statistics.median(render_times(d, "926fd95", "network", n, "secondary_ms"))
+              for n in (1, 16)]),
+    Claim(P, "At one AO sample the same code (e1bbeb8's is 4351804's) took {} ms here against {} "
+          "ms in the runs above", BATCH, lambda d: [
+              statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
+              statistics.median(render_times(json.loads((DOCS / STARTS).read_text()), "4351804",
+                                             "network", 1, "secondary_ms"))]),
     Claim(P, "the primary pass spent {} ms in its network at e234503 and {} ms now, and {} and {} "
           "ms walking", RENDER, lambda d: [
               d["lanes"][c]["1"][k] for k in ("network_ms", "walk_ms")
