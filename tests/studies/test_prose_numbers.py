@@ -182,6 +182,7 @@ SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
                             "results/bench-network-blocks.json")
 RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
 STARTS, BATCH = "results/render-start-cells.json", "results/render-one-batch.json"
+READ = "results/dataset-read.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -885,6 +886,9 @@ CLAIMS = [
               statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
               statistics.median(render_times(json.loads((DOCS / STARTS).read_text()), "4351804",
                                              "network", 1, "secondary_ms"))]),
+    *(Claim(P, f"| {scene} | {{}}, {{}}, {{}} | {{}}, {{}}, {{}} |", READ,
+            lambda d, scene=scene: d["read_s"]["52748aa"][scene] + d["read_s"]["c9ec05b"][scene])
+      for scene in ("arm", "lattice", "spot", "bunny")),
     Claim(P, "the primary pass spent {} ms in its network at e234503 and {} ms now, and {} and {} "
           "ms walking", RENDER, lambda d: [
               d["lanes"][c]["1"][k] for k in ("network_ms", "walk_ms")
