@@ -881,6 +881,12 @@ CLAIMS = [
               statistics.median(render_times(d, "e1bbeb8", "network", n, "secondary_ms"))
               / statistics.median(render_times(d, "926fd95", "network", n, "secondary_ms"))
               for n in (1, 16)]),
+    Claim(P, "true reference the arm's AO error goes from {} to {}, the lattice's from {} to {} "
+          "and spot's from {} to {}", STARTS, lambda d: [
+              d["scenes"][scene][when]["vs_true"]["ao_mae"] for scene in ("arm", "lattice", "spot")
+              for when in ("before", "after")]),
+    Claim(P, "on its pose 3, {} of {} AO rays walk other cells", STARTS, lambda d: [
+        d["spot_pose3"]["rays_walking_other_cells"], d["spot_pose3"]["ao_rays"]]),
     Claim(P, "At one AO sample the same code (e1bbeb8's is 4351804's) took {} ms here against {} "
           "ms in the runs above", BATCH, lambda d: [
               statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
