@@ -233,6 +233,12 @@ PARTS, EYES = "results/separate-parts.json", "riding parts weighted as the surfa
 BONE_HEAT_MONKEY = "monkey, eyes by bone heat"
 
 
+def warp_times(d, samples):
+    """The secondary milliseconds of Warp's refit path in every run of ``d``'s commits."""
+    return [run["secondary_ms"] for runs in d["runs"].values() for run in runs
+            if run["path"] == "Warp refit" and run["ao_samples"] == samples]
+
+
 def ablation_ratios(d, row):
     """Per ablation scene, ``row``'s distance MAE over proposed's (common pixels, true
     reference)."""
@@ -887,6 +893,21 @@ CLAIMS = [
               for when in ("before", "after")]),
     Claim(P, "on its pose 3, {} of {} AO rays walk other cells", STARTS, lambda d: [
         d["spot_pose3"]["rays_walking_other_cells"], d["spot_pose3"]["ao_rays"]]),
+    Claim(P, "the secondary rays took {}, {} and {} ms at one AO sample and now {}, {} and {} ms "
+          "({}x); at 16, {}, {} and {} ms and now {}, {} and {} ms ({}x)", BATCH, lambda d: [
+              value for n in (1, 16) for value in (
+                  *render_times(d["together"], "eb4a52e", "network", n, "secondary_ms"),
+                  *render_times(d["together"], "ae90795", "network", n, "secondary_ms"),
+                  statistics.median(render_times(d["together"], "eb4a52e", "network", n,
+                                                 "secondary_ms"))
+                  / statistics.median(render_times(d["together"], "ae90795", "network", n,
+                                                   "secondary_ms")))]),
+    Claim(P, "Warp's refit BVH cast the same pose's secondary rays in {}-{} ms and {}-{} ms in "
+          "these runs: the network's, at the medians, still take {} and {} times as long", BATCH,
+          lambda d: [*span(warp_times(d["together"], 1)), *span(warp_times(d["together"], 16)),
+                     *(statistics.median(render_times(d["together"], "ae90795", "network", n,
+                                                      "secondary_ms"))
+                       / statistics.median(warp_times(d["together"], n)) for n in (1, 16))]),
     Claim(P, "At one AO sample the same code (e1bbeb8's is 4351804's) took {} ms here against {} "
           "ms in the runs above", BATCH, lambda d: [
               statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
