@@ -7,13 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 from oracle_network import OracleNetwork
+from oracles import walk_past
 from oracles.geometry import BruteForceCaster
 
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.geometry import voxels
 from vdnif_addon.geometry.attributes import sample_surface
 from vdnif_addon.geometry.restmesh import Albedo, RestMesh
-from vdnif_addon.inference import secondary
+from vdnif_addon.inference import neural_render, secondary
 from vdnif_addon.inference.evaluation import compare_secondary_both
 from vdnif_addon.inference.metrics import compare_secondary
 from vdnif_addon.inference.neural_render import neural_passes
@@ -291,6 +292,60 @@ def test_the_network_walks_past_the_surface_it_leaves_and_not_past_an_occluder(s
     reach = np.full(24, 2 * offset)
     assert not paths["neural"](under, up, reach, up).any()
     assert paths["neural"](under, up, reach, np.tile([-1.0, 0.0, 0.0], (24, 1))).all()
+
+
+def test_walking_past_within_the_render_answers_as_a_render_per_skip(scene, monkeypatch):
+    """The network's rays that meet the surface they left from below start again within the
+    render's waves (``neural_render.WalkPast``): one render, and the same AO and shadow as the
+    loop of renders it replaced (``oracles/walk_past.py``), for hits 0.5 to 3.5 offsets below
+    the plane seen head-on and at 60 degrees (walked past: the loop takes a render more),
+    hits beside the box's wall (an occluder, not walked past: one render), and a bent camera
+    view's hits with their cells."""
+    mesh, grid, cells = scene
+    network = OracleNetwork(mesh, grid)
+    offset = secondary.network_offset(mesh.size, grid.voxel_size)
+    settings = secondary.SecondarySettings(
+        samples=16, light=secondary.Light(direction=(1.0, 0.0, 1.0), source="t"))
+    points = np.stack([np.linspace(1.0, 1.5, 24), np.linspace(-1.5, 1.5, 24), np.zeros(24)], 1)
+    gap = np.linspace(1.5, 2.5, 12) * offset
+    beside = np.stack([-BOX - gap, np.linspace(-0.4, 0.4, 12), np.zeros(12)], 1)
+    views = [tilted_hits(points, angle, np.linspace(0.5, 3.5, 24) * offset / np.cos(angle))
+             for angle in (0.0, np.pi / 3)] + [ground_hits(beside)]
+    renders = []
+    render = neural_render.neural_passes
+
+    def counted(*args, **kwargs):
+        renders.append(len(args[4]))
+        return render(*args, **kwargs)
+
+    monkeypatch.setattr(neural_render, "neural_passes", counted)
+    monkeypatch.setattr(walk_past, "neural_passes", counted)
+    occluded = secondary.neural_occluded(network, grid, mesh.albedo_table(), cells, offset)
+    loop = walk_past.neural_occluded(network, grid, mesh.albedo_table(), cells, offset)
+    loop_renders = []
+    for hits in views:
+        renders.clear()
+        got = secondary.secondary_passes(*hits, occluded, mesh.size, settings, offset)
+        assert len(renders) == 1
+        renders.clear()
+        expected = secondary.secondary_passes(*hits, loop, mesh.size, settings, offset)
+        loop_renders.append(len(renders))
+        for name in ("ao", "lit", "facing"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+    assert min(loop_renders[:2]) >= 2 and loop_renders[2] == 1      # walked past; not
+    bend = grid.corner_positions()
+    bend[:, 0] += 0.05 * bend[:, 2] ** 2
+    bent = DeviceCells(grid, corners=bend)
+    origins, directions = rays.look_at_rays(np.array([2.5, -3.0, 2.5]), np.zeros(3),
+                                            rays.DEFAULT_UP, 50, 24, 18)
+    predicted, _ = render(network, grid, mesh.albedo_table(), bent, origins, directions)
+    got, expected = (secondary.secondary_passes(
+        predicted, origins, directions, answer(network, grid, mesh.albedo_table(), bent, offset),
+        mesh.size, settings, offset) for answer in (secondary.neural_occluded,
+                                                    walk_past.neural_occluded))
+    assert (~got.lit[predicted.hit]).any() and got.ao[predicted.hit].min() < 0.9
+    for name in ("ao", "lit", "facing"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
 
 
 def test_a_secondary_ray_starts_the_offset_above_the_surface_along_itself():

@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -83,6 +84,21 @@ def wave_segments(wave: int, schedule: Sequence[int] = WAVE_SEGMENTS) -> int:
     return schedule[min(wave, len(schedule) - 1)]
 
 
+@dataclass(frozen=True)
+class WalkPast:
+    """Rays that leave a surface walk on past it where they meet it again from below (DESIGN
+    section 9): a ray's hit within its reach and within ``within`` local units of its origin
+    (what it walked past included), whose normal's dot product with its row of ``leaving``
+    (N, 3, the unit normals of the surfaces the rays leave) exceeds ``cosine``, starts the
+    ray again ``step`` past that hit, in the hit's cell, at most ``times`` times."""
+
+    leaving: Float[np.ndarray, "N 3"]
+    within: float
+    step: float
+    cosine: float
+    times: int
+
+
 def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   albedo_table: Float[np.ndarray, "M 3"], cells: DeviceCells,
                   origins: Float[np.ndarray, "N 3"], directions: Float[np.ndarray, "N 3"],
@@ -91,7 +107,8 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                   max_wave_segments: int = limits.MAX_WAVE_SEGMENTS,
                   max_distance: float | Float[np.ndarray, " N"] | None = None,
                   waves_per_read: int = 1, wave_floor: int = WAVE_FLOOR,
-                  start_cells: Int[np.ndarray, " N"] | None = None
+                  start_cells: Int[np.ndarray, " N"] | None = None,
+                  walk_past: WalkPast | None = None
                   ) -> tuple[Passes, dict[str, Any]]:
     """(Passes, stats) predicted by ``network`` for rays (N, 3) in the object's deformed
     space, walked through ``cells`` (a ``kernels.cells.DeviceCells`` in the pose).
@@ -110,7 +127,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
     any ``wave_floor``, the segments a wave may hold at least where its rays are few
     (``WAVE_FLOOR``; 0: the schedule's k alone). ``start_cells`` (N,) names the cell each
     ray is thought to start in (-1: none), as ``traverse`` takes them; the passes'
-    ``cell`` is the cell of each hit.
+    ``cell`` is the cell of each hit. With ``walk_past`` a ray that meets the surface it
+    left starts again past it, within the same waves: its distance then counts from where
+    it started again, ``stats["walked"]`` (N,) past its origin.
     Running out of memory is a VDNIFError saying what to lower.
     """
     weights = next(iter(network.parameters()), None)
@@ -135,8 +154,15 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
           threads.torch_threads_at_most(torch_threads)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes,
                        start_cells=start_cells)
+        reach = np.broadcast_to(np.asarray(np.inf if max_distance is None else max_distance,
+                                           np.float64), (rays,))
+        past = (kernel.walk_past(None, origins, directions, reach, 0.0, 0.0, 0.0, 0,
+                                 warp_device) if walk_past is None
+                else kernel.walk_past(walk_past.leaving, origins, directions, reach,
+                                      walk_past.within, walk_past.step, walk_past.cosine,
+                                      walk_past.times, warp_device))
         waves = _Waves(network, grid, walk, schedule, albedo_table,
-                       max(1, max_wave_segments // lanes), waves_per_read, wave_floor)
+                       max(1, max_wave_segments // lanes), waves_per_read, wave_floor, past)
         share = max(1, threads.cores() // lanes)
         encoder = None if lanes == 1 else 1
         lane_stats = threads.at_once(lambda lane: _render_lane(waves, lane, share, encoder),
@@ -151,6 +177,9 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
                       inputs=[walk.state, waves.passes, totals], device=warp_device)
         totals = totals.numpy()
         stats["truncated"], stats["segments"] = int(totals[0]), int(totals[1:].sum())
+        if walk_past is not None:
+            stats["walked"] = (past.walked.numpy() if walk_past.times and rays
+                               else np.zeros(rays))
         passes = waves.passes
         result = Passes(hit=passes.hit.numpy().astype(bool), distance=passes.distance.numpy(),
                         normal=passes.normal.numpy(), albedo=passes.albedo.numpy(),
@@ -192,8 +221,10 @@ class _Waves:
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
                  schedule: Sequence[int], albedo_table: Float[np.ndarray, "M 3"],
-                 max_segments: int, per_read: int = 1, floor: int = WAVE_FLOOR) -> None:
+                 max_segments: int, per_read: int, floor: int,
+                 past: kernel.WalkPast) -> None:
         self.network, self.grid, self.walk, self.schedule = network, grid, walk, schedule
+        self.past = past
         self.device, self.max_segments, self.per_read = walk.device, max_segments, per_read
         self.floor = floor
         self.totals = wp.zeros(1 + len(walk.lanes), dtype=wp.int32, device=self.device)
@@ -277,7 +308,7 @@ class _Waves:
                       inputs=[self.walk.cells.arrays, self.walk.state, rays.active,
                               rays.active_count, buffer, view, self.first, self.candidate,
                               self.placed,
-                              int(has_albedo), self.passes],
+                              int(has_albedo), self.passes, self.past],
                       device=self.device)
         self.walk.drop_finished(lane, read=self.per_read == 1)
 

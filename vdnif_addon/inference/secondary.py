@@ -188,32 +188,21 @@ def neural_occluded(network: IntersectionNetwork, grid: VoxelGrid,
     given) accumulates the rays and the seconds of its renders. A first hit within
     SECONDARY_SELF_REACH offsets whose normal lies within SECONDARY_SELF_COSINE of the left
     surface's is that surface, met from below where the network placed its hit under it:
-    the ray walks on from an offset past it (at most SECONDARY_SELF_SKIPS times). An
-    occluder met from outside faces the ray, and a crease's other side turns away."""
+    the ray walks on from an offset past it (at most SECONDARY_SELF_SKIPS times), started
+    again within the same render (``neural_render.WalkPast``). An occluder met from outside
+    faces the ray, and a crease's other side turns away."""
     # torch and Warp: imported here, so that the panel reads this module without them
-    from .neural_render import neural_passes
+    from .neural_render import WalkPast, neural_passes
 
     def occluded(origins, directions, max_distance, leaving, start_cells=None):
         start = time.perf_counter()
         reach = np.broadcast_to(np.asarray(max_distance, np.float64), (len(origins),))
-        walked, blocked = np.zeros(len(origins)), np.zeros(len(origins), bool)
-        rows = np.arange(len(origins))
-        starts = start_cells
-        for skip in range(SECONDARY_SELF_SKIPS + 1):
-            left = reach[rows] - walked[rows]
-            passes, _ = neural_passes(network, grid, albedo_table, cells,
-                                      origins[rows] + walked[rows, None] * directions[rows],
-                                      directions[rows], device, max_distance=left,
-                                      start_cells=starts)
-            blocked[rows] = passes.hit & (passes.distance <= left)
-            own = blocked[rows] & (walked[rows] + passes.distance
-                                   <= SECONDARY_SELF_REACH * offset)
-            own &= (passes.normal * leaving[rows]).sum(1) > SECONDARY_SELF_COSINE
-            if skip == SECONDARY_SELF_SKIPS or not own.any():
-                break
-            walked[rows[own]] += passes.distance[own] + offset
-            rows = rows[own]
-            starts = passes.cell[own]            # it goes on from just past that hit
+        past = WalkPast(leaving=leaving, within=SECONDARY_SELF_REACH * offset, step=offset,
+                        cosine=SECONDARY_SELF_COSINE, times=SECONDARY_SELF_SKIPS)
+        passes, render = neural_passes(network, grid, albedo_table, cells, origins, directions,
+                                       device, max_distance=reach, start_cells=start_cells,
+                                       walk_past=past)
+        blocked = passes.hit & (passes.distance <= reach - render["walked"])
         if stats is not None:
             stats["rays"] = stats.get("rays", 0) + len(origins)
             stats["seconds"] = stats.get("seconds", 0.0) + time.perf_counter() - start

@@ -19,9 +19,9 @@ import warp as wp
 
 from ..geometry.attributes import FALLBACK_NORMAL, SINGULAR_COFACTOR
 from . import runtime
-from .cells import CellArrays, cross, dot
+from .cells import INF, CellArrays, cross, dot
 from .segments import SegmentBuffer
-from .walk import DONE, TRUNCATED, RayState
+from .walk import DONE, SEEK_FIRST, TRUNCATED, RayState
 
 WARP_MODULE = runtime.warp_module(__name__)
 
@@ -58,6 +58,26 @@ class Prediction:
     material: wp.array(dtype=wp.int64)    # (S,)
     albedo: wp.array(dtype=wp.vec3)       # (S,) the albedo head, or empty
     table: wp.array(dtype=wp.vec3)        # (M,) albedo by material without an albedo head
+
+
+@wp.struct
+class WalkPast:
+    """How a render walks rays on past the surface they leave (DESIGN section 9): a ray's
+    hit within its reach, within ``within`` of where it started (walked past included), whose
+    normal's dot product with ``leaving`` exceeds ``cosine``, is that surface met from below:
+    the ray starts again ``step`` past it, in the hit's cell, at most ``times`` times (0:
+    never; the arrays are then empty)."""
+
+    leaving: wp.array(dtype=wp.vec3d)    # (R,) unit normals of the surfaces the rays leave
+    origin: wp.array(dtype=wp.vec3d)     # (R,) the rays' origins, as given
+    direction: wp.array(dtype=wp.vec3d)  # (R,) their directions, as given
+    reach: wp.array(dtype=wp.float64)    # (R,) their max distances from those origins
+    walked: wp.array(dtype=wp.float64)   # (R,) how far each started again past its origin
+    skips: wp.array(dtype=wp.int32)      # (R,) how many times
+    within: wp.float64
+    step: wp.float64
+    cosine: wp.float64
+    times: wp.int32
 
 
 @wp.func
@@ -176,15 +196,46 @@ def first_hits(out: SegmentBuffer, prediction: Prediction, first: wp.array(dtype
         wp.atomic_min(first, out.ray[s], s)
 
 
+@wp.func
+def walk_on_past(past: WalkPast, rays: RayState, passes: Passes,
+                 placed: wp.array(dtype=wp.int32), r: wp.int32):
+    """Ray ``r``, just made a hit: started again past it where ``past`` says the hit is the
+    surface the ray left, its walk and its passes as a fresh ray's (the host's numbers: the
+    start ``origin + walked direction``, the reach ``reach - walked``)."""
+    walked = past.walked[r]
+    distance = passes.distance[r]
+    if not (distance <= past.reach[r] - walked and walked + distance <= past.within
+            and dot(passes.normal[r], past.leaving[r]) > past.cosine):
+        return
+    walked = walked + (distance + past.step)
+    past.walked[r] = walked
+    past.skips[r] = past.skips[r] + 1
+    rays.origin[r] = past.origin[r] + past.direction[r] * walked
+    rays.far[r] = past.reach[r] - walked
+    rays.start[r] = passes.cell[r]
+    rays.mode[r] = SEEK_FIRST
+    rays.cell[r] = 0
+    rays.entry_face[r] = 0
+    rays.zero_passes[r] = 0
+    rays.steps[r] = 0
+    rays.t[r] = wp.float64(0.0)
+    rays.p[r] = wp.vec3d()
+    rays.clip_from[r] = wp.float64(0.0)
+    rays.behind_from[r] = -INF
+    passes.hit[r] = 0
+    placed[r] = 0
+
+
 @wp.kernel(module=WARP_MODULE)
 def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
             active_count: wp.array(dtype=wp.int32), out: SegmentBuffer,
             prediction: Prediction, first: wp.array(dtype=wp.int32),
             candidate: wp.array(dtype=wp.int32), placed: wp.array(dtype=wp.int32),
-            has_albedo: wp.int32, passes: Passes):
+            has_albedo: wp.int32, passes: Passes, past: WalkPast):
     """The hit is placed on a ray's first candidate segment, in this wave or an earlier one
     (``placed``), and made a hit, ending the walk, by its first segment above the occlusion
-    threshold (a candidate too, so never before the placed one)."""
+    threshold (a candidate too, so never before the placed one); a hit on the surface the
+    ray left starts it again past that surface (``WalkPast``)."""
     i = wp.tid()
     if i >= active_count[0]:
         return
@@ -208,6 +259,29 @@ def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
     if s != NO_HIT:
         passes.hit[r] = 1
         rays.mode[r] = DONE
+        if past.times > 0 and past.skips[r] < past.times:
+            walk_on_past(past, rays, passes, placed, r)
+
+
+def walk_past(leaving: Float[np.ndarray, "R 3"] | None, origins: Float[np.ndarray, "R 3"],
+              directions: Float[np.ndarray, "R 3"], reach: Float[np.ndarray, " R"],
+              within: float, step: float, cosine: float, times: int, device: str) -> WalkPast:
+    """A ``WalkPast`` on ``device`` for rays (R, 3) as given and their max distances (R,),
+    leaving surfaces of unit normals ``leaving`` (R, 3); None (or ``times`` 0): never."""
+    past = WalkPast()
+    count = 0 if leaving is None or times == 0 else len(origins)
+    for name, values, dtype in (("leaving", leaving, wp.vec3d), ("origin", origins, wp.vec3d),
+                                ("direction", directions, wp.vec3d),
+                                ("reach", reach, wp.float64)):
+        setattr(past, name, wp.array(np.asarray(values, np.float64)[:count], dtype=dtype,
+                                     device=device) if count
+                else wp.empty(0, dtype=dtype, device=device))
+    past.walked = wp.zeros(count, dtype=wp.float64, device=device)
+    past.skips = wp.zeros(count, dtype=wp.int32, device=device)
+    past.within, past.step, past.cosine = (wp.float64(within), wp.float64(step),
+                                           wp.float64(cosine))
+    past.times = wp.int32(times if count else 0)
+    return past
 
 
 @wp.kernel(module=WARP_MODULE)
