@@ -182,7 +182,7 @@ SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
                             "results/bench-network-blocks.json")
 RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
 STARTS, BATCH = "results/render-start-cells.json", "results/render-one-batch.json"
-READ = "results/dataset-read.json"
+READ, PAST = "results/dataset-read.json", "results/render-walk-past.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -908,6 +908,15 @@ CLAIMS = [
                      *(statistics.median(render_times(d["together"], "ae90795", "network", n,
                                                       "secondary_ms"))
                        / statistics.median(warp_times(d["together"], n)) for n in (1, 16))]),
+    *(Claim(P, f"| {commit} | {{}}, {{}}, {{}} | {{}}, {{}}, {{}} |", PAST,
+            lambda d, commit=commit: [
+                *render_times(d, commit, "network", 1, "secondary_ms"),
+                *render_times(d, commit, "network", 16, "secondary_ms")])
+      for commit in ("b3c0207", "dd31eff")),
+    Claim(P, "At the medians, {}x as fast at one AO sample and {}x at 16.", PAST, lambda d: [
+        statistics.median(render_times(d, "b3c0207", "network", n, "secondary_ms"))
+        / statistics.median(render_times(d, "dd31eff", "network", n, "secondary_ms"))
+        for n in (1, 16)]),
     Claim(P, "At one AO sample the same code (e1bbeb8's is 4351804's) took {} ms here against {} "
           "ms in the runs above", BATCH, lambda d: [
               statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
