@@ -917,6 +917,21 @@ CLAIMS = [
         statistics.median(render_times(d, "b3c0207", "network", n, "secondary_ms"))
         / statistics.median(render_times(d, "dd31eff", "network", n, "secondary_ms"))
         for n in (1, 16)]),
+    Claim(P, "at one AO sample the secondary rays went from {}, {} and {} ms to {}, {} and {} ms "
+          "({}x); at 16, from {}, {} and {} ms to {}, {} and {} ms ({}x)", PAST,
+          lambda d: [value for n in (1, 16) for value in (
+              *render_times(d["session"], "eb4a52e", "network", n, "secondary_ms"),
+              *render_times(d["session"], "76fc2d8", "network", n, "secondary_ms"),
+              statistics.median(render_times(d["session"], "eb4a52e", "network", n,
+                                             "secondary_ms"))
+              / statistics.median(render_times(d["session"], "76fc2d8", "network", n,
+                                               "secondary_ms")))]),
+    Claim(P, "Warp's refit BVH took {}-{} ms and {}-{} ms for the same pose's secondary rays in "
+          "these runs: at the medians the network's take {} and {} times as long", PAST,
+          lambda d: [*span(warp_times(d["session"], 1)), *span(warp_times(d["session"], 16)),
+                     *(statistics.median(render_times(d["session"], "76fc2d8", "network", n,
+                                                      "secondary_ms"))
+                       / statistics.median(warp_times(d["session"], n)) for n in (1, 16))]),
     Claim(P, "At one AO sample the same code (e1bbeb8's is 4351804's) took {} ms here against {} "
           "ms in the runs above", BATCH, lambda d: [
               statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
