@@ -239,6 +239,25 @@ def warp_times(d, samples):
             if run["path"] == "Warp refit" and run["ao_samples"] == samples]
 
 
+def runs_and_ratio(d, before, after):
+    """Per AO sample count (1, 16): the network's secondary milliseconds in ``d``'s runs of
+    ``before`` and of ``after``, then the ratio of their medians."""
+    values = []
+    for samples in (1, 16):
+        times = [render_times(d, commit, "network", samples, "secondary_ms")
+                 for commit in (before, after)]
+        values += [*times[0], *times[1], statistics.median(times[0]) / statistics.median(times[1])]
+    return values
+
+
+def against_warp(d, commit):
+    """Warp refit's secondary milliseconds' spans at 1 and 16 AO samples in ``d``'s runs, then
+    the network's medians at ``commit`` over Warp's."""
+    return [*span(warp_times(d, 1)), *span(warp_times(d, 16)),
+            *(statistics.median(render_times(d, commit, "network", n, "secondary_ms"))
+              / statistics.median(warp_times(d, n)) for n in (1, 16))]
+
+
 def ablation_ratios(d, row):
     """Per ablation scene, ``row``'s distance MAE over proposed's (common pixels, true
     reference)."""
@@ -894,20 +913,11 @@ CLAIMS = [
     Claim(P, "on its pose 3, {} of {} AO rays walk other cells", STARTS, lambda d: [
         d["spot_pose3"]["rays_walking_other_cells"], d["spot_pose3"]["ao_rays"]]),
     Claim(P, "the secondary rays took {}, {} and {} ms at one AO sample and now {}, {} and {} ms "
-          "({}x); at 16, {}, {} and {} ms and now {}, {} and {} ms ({}x)", BATCH, lambda d: [
-              value for n in (1, 16) for value in (
-                  *render_times(d["together"], "eb4a52e", "network", n, "secondary_ms"),
-                  *render_times(d["together"], "ae90795", "network", n, "secondary_ms"),
-                  statistics.median(render_times(d["together"], "eb4a52e", "network", n,
-                                                 "secondary_ms"))
-                  / statistics.median(render_times(d["together"], "ae90795", "network", n,
-                                                   "secondary_ms")))]),
+          "({}x); at 16, {}, {} and {} ms and now {}, {} and {} ms ({}x)", BATCH,
+          lambda d: runs_and_ratio(d["together"], "eb4a52e", "ae90795")),
     Claim(P, "Warp's refit BVH cast the same pose's secondary rays in {}-{} ms and {}-{} ms in "
           "these runs: the network's, at the medians, still take {} and {} times as long", BATCH,
-          lambda d: [*span(warp_times(d["together"], 1)), *span(warp_times(d["together"], 16)),
-                     *(statistics.median(render_times(d["together"], "ae90795", "network", n,
-                                                      "secondary_ms"))
-                       / statistics.median(warp_times(d["together"], n)) for n in (1, 16))]),
+          lambda d: against_warp(d["together"], "ae90795")),
     *(Claim(P, f"| {commit} | {{}}, {{}}, {{}} | {{}}, {{}}, {{}} |", PAST,
             lambda d, commit=commit: [
                 *render_times(d, commit, "network", 1, "secondary_ms"),
@@ -919,19 +929,10 @@ CLAIMS = [
         for n in (1, 16)]),
     Claim(P, "at one AO sample the secondary rays went from {}, {} and {} ms to {}, {} and {} ms "
           "({}x); at 16, from {}, {} and {} ms to {}, {} and {} ms ({}x)", PAST,
-          lambda d: [value for n in (1, 16) for value in (
-              *render_times(d["session"], "eb4a52e", "network", n, "secondary_ms"),
-              *render_times(d["session"], "76fc2d8", "network", n, "secondary_ms"),
-              statistics.median(render_times(d["session"], "eb4a52e", "network", n,
-                                             "secondary_ms"))
-              / statistics.median(render_times(d["session"], "76fc2d8", "network", n,
-                                               "secondary_ms")))]),
+          lambda d: runs_and_ratio(d["session"], "eb4a52e", "76fc2d8")),
     Claim(P, "Warp's refit BVH took {}-{} ms and {}-{} ms for the same pose's secondary rays in "
           "these runs: at the medians the network's take {} and {} times as long", PAST,
-          lambda d: [*span(warp_times(d["session"], 1)), *span(warp_times(d["session"], 16)),
-                     *(statistics.median(render_times(d["session"], "76fc2d8", "network", n,
-                                                      "secondary_ms"))
-                       / statistics.median(warp_times(d["session"], n)) for n in (1, 16))]),
+          lambda d: against_warp(d["session"], "76fc2d8")),
     Claim(P, "At one AO sample the same code (e1bbeb8's is 4351804's) took {} ms here against {} "
           "ms in the runs above", BATCH, lambda d: [
               statistics.median(render_times(d, "e1bbeb8", "network", 1, "secondary_ms")),
