@@ -154,13 +154,13 @@ def neural_passes(network: IntersectionNetwork, grid: VoxelGrid,
           threads.torch_threads_at_most(torch_threads)):
         walk = RayWalk(cells, origins, directions, max_distance, lanes=lanes,
                        start_cells=start_cells)
-        reach = np.broadcast_to(np.asarray(np.inf if max_distance is None else max_distance,
-                                           np.float64), (rays,))
-        past = (kernel.walk_past(None, origins, directions, reach, 0.0, 0.0, 0.0, 0,
-                                 warp_device) if walk_past is None
-                else kernel.walk_past(walk_past.leaving, origins, directions, reach,
-                                      walk_past.within, walk_past.step, walk_past.cosine,
-                                      walk_past.times, warp_device))
+        past = kernel.never_walk_past(str(warp_device)) if walk_past is None else (
+            kernel.walk_past(walk_past.leaving, origins, directions,
+                             np.broadcast_to(np.asarray(np.inf if max_distance is None
+                                                        else max_distance, np.float64),
+                                             (rays,)),
+                             walk_past.within, walk_past.step, walk_past.cosine,
+                             walk_past.times, warp_device))
         waves = _Waves(network, grid, walk, schedule, albedo_table,
                        max(1, max_wave_segments // lanes), waves_per_read, wave_floor, past)
         share = max(1, threads.cores() // lanes)

@@ -12,6 +12,7 @@ renderer (``inference/neural_render.py``) and the embedded reference
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -263,24 +264,38 @@ def resolve(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
             walk_on_past(past, rays, passes, placed, r)
 
 
-def walk_past(leaving: Float[np.ndarray, "R 3"] | None, origins: Float[np.ndarray, "R 3"],
+def walk_past(leaving: Float[np.ndarray, "R 3"], origins: Float[np.ndarray, "R 3"],
               directions: Float[np.ndarray, "R 3"], reach: Float[np.ndarray, " R"],
               within: float, step: float, cosine: float, times: int, device: str) -> WalkPast:
     """A ``WalkPast`` on ``device`` for rays (R, 3) as given and their max distances (R,),
-    leaving surfaces of unit normals ``leaving`` (R, 3); None (or ``times`` 0): never."""
+    leaving surfaces of unit normals ``leaving`` (R, 3) (``never_walk_past`` where no ray
+    may)."""
+    if times == 0 or len(origins) == 0:
+        return never_walk_past(device)
     past = WalkPast()
-    count = 0 if leaving is None or times == 0 else len(origins)
     for name, values, dtype in (("leaving", leaving, wp.vec3d), ("origin", origins, wp.vec3d),
                                 ("direction", directions, wp.vec3d),
                                 ("reach", reach, wp.float64)):
-        setattr(past, name, wp.array(np.asarray(values, np.float64)[:count], dtype=dtype,
-                                     device=device) if count
-                else wp.empty(0, dtype=dtype, device=device))
-    past.walked = wp.zeros(count, dtype=wp.float64, device=device)
-    past.skips = wp.zeros(count, dtype=wp.int32, device=device)
+        setattr(past, name, wp.array(np.asarray(values, np.float64), dtype=dtype,
+                                     device=device))
+    past.walked = wp.zeros(len(origins), dtype=wp.float64, device=device)
+    past.skips = wp.zeros(len(origins), dtype=wp.int32, device=device)
     past.within, past.step, past.cosine = (wp.float64(within), wp.float64(step),
                                            wp.float64(cosine))
-    past.times = wp.int32(times if count else 0)
+    past.times = wp.int32(times)
+    return past
+
+
+@functools.lru_cache(maxsize=None)
+def never_walk_past(device: str) -> WalkPast:
+    """The ``WalkPast`` of a render whose rays never walk past (``times`` 0, empty arrays):
+    one per device, never written, so a render does not allocate it again."""
+    past = WalkPast()
+    for name, dtype in (("leaving", wp.vec3d), ("origin", wp.vec3d), ("direction", wp.vec3d),
+                        ("reach", wp.float64), ("walked", wp.float64), ("skips", wp.int32)):
+        setattr(past, name, wp.empty(0, dtype=dtype, device=device))
+    past.within = past.step = past.cosine = wp.float64(0.0)
+    past.times = wp.int32(0)
     return past
 
 
