@@ -120,3 +120,51 @@ def test_load_all_loads_every_kernel_module_once_and_times_it(monkeypatch, capsy
     assert f"kernels ready for cpu in {seconds:.1f} s" in capsys.readouterr().err
     assert runtime.load_all("cpu") < 0.1 and len(loaded) == len(declared)
     assert capsys.readouterr().err == ""
+
+
+def test_every_kernel_module_compiles_without_contraction_or_adjoints():
+    """Every Warp module the core declares kernels in has ``KERNEL_OPTIONS``: the options
+    must reach the module the kernels are in, not the Python module that names it."""
+    import importlib
+    import pkgutil
+
+    import warp as wp
+
+    from vdnif_addon import kernels
+
+    options = {}
+    for info in pkgutil.iter_modules(kernels.__path__):
+        module = importlib.import_module(f"{kernels.__name__}.{info.name}")
+        for value in vars(module).values():
+            if isinstance(value, wp.Kernel) and value.func.__module__ == module.__name__:
+                options[value.module.name] = {key: value.module.options[key]
+                                              for key in runtime.KERNEL_OPTIONS}
+    assert len(options) >= 6
+    assert options == {name: runtime.KERNEL_OPTIONS for name in options}
+
+
+def test_a_kernel_module_keeps_multiply_and_add_apart_on_cuda(tmp_path):
+    """NVRTC contracts ``a * b + c`` into one fused multiply-add, which rounds once where
+    the numpy oracles round twice; a module named by ``warp_module`` keeps them apart. The
+    PTX for sm_90 of the same kernel in a module with Warp's defaults has the fused form,
+    so the check can fail. Needs Warp's NVRTC, not a GPU."""
+    import warp as wp
+
+    runtime.init()
+    ptx = {}
+    for name in (runtime.warp_module("probe_contraction"), "vdnif_test_probe_defaults"):
+        @wp.kernel(module=name)
+        def multiply_add(a: wp.array(dtype=wp.float64), b: wp.array(dtype=wp.float64),
+                         out: wp.array(dtype=wp.float64)):
+            i = wp.tid()
+            out[i] = a[i] * b[i] + out[i]
+
+        folder = tmp_path / name
+        try:
+            wp.compile_aot_module(name, arch=90, module_dir=folder, use_ptx=True)
+        except Exception as error:     # a Warp build without NVRTC
+            pytest.skip(f"no PTX from Warp here: {error}")
+        ptx[name] = "".join(path.read_text() for path in folder.glob("*.ptx"))
+    ours, defaults = ptx.values()
+    assert "fma.rn.f64" in defaults
+    assert "fma.rn.f64" not in ours and "mul.rn.f64" in ours

@@ -38,8 +38,6 @@ if TYPE_CHECKING:
 
     from ..geometry.voxels import VoxelGrid
 
-wp.set_module_options({"fuse_fp": False, "enable_backward": False})
-
 TOLERANCE = wp.constant(wp.float64(BARYCENTRIC_TOLERANCE))
 ONE_PLUS_TOLERANCE = wp.constant(wp.float64(1.0 + BARYCENTRIC_TOLERANCE))
 USABLE_DETERMINANT = wp.constant(wp.float64(1e-12))   # |det| > this * |e1| |e2|, as numpy

@@ -25,8 +25,6 @@ if TYPE_CHECKING:
 
     from ..geometry.walk_rules import Segments
 
-wp.set_module_options({"fuse_fp": False, "enable_backward": False})
-
 ENTER = wp.constant(0)
 WALK = wp.constant(2)
 DONE = wp.constant(3)

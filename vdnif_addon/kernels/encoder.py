@@ -48,10 +48,6 @@ WARP_MODULE = runtime.warp_module(__name__)
 if TYPE_CHECKING:
     from jaxtyping import Float, Int
 
-# No automatic adjoints (the backward is written by hand) and no contraction into fused
-# multiply-adds, which would round differently from the torch reference.
-wp.set_module_options({"enable_backward": False, "fuse_fp": False})
-
 LEVEL_FIELDS = 4
 """Per-level int32 parameters: resolution, first table row, y and z multipliers (bits)."""
 

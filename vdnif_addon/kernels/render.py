@@ -31,8 +31,6 @@ if TYPE_CHECKING:
 
     from .cells import DeviceCells
 
-wp.set_module_options({"fuse_fp": False, "enable_backward": False})
-
 NO_HIT = wp.constant(np.iinfo(np.int32).max)
 SINGULAR = wp.constant(wp.float64(SINGULAR_COFACTOR))
 FALLBACK = wp.constant(wp.vec3d(*FALLBACK_NORMAL))

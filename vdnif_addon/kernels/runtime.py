@@ -208,13 +208,26 @@ def device(torch_device: str | torch.device) -> str:
     return text
 
 
+KERNEL_OPTIONS = {"fuse_fp": False, "enable_backward": False}
+"""Warp's options for every kernel module of the package. No contraction into fused
+multiply-adds: the float64 arithmetic then rounds as the numpy and torch code the kernels
+replaced (the test oracles), and alike on the CPU and CUDA, where NVRTC would contract.
+No adjoints: nothing is differentiated through Warp (the encoder's gradient is a kernel of
+its own), and each kernel's generated adjoint would double the code to compile."""
+
+
 def warp_module(name: str) -> str:
     """The Warp module that the kernels of this package's module ``name`` (``__name__`` of
-    a module of ``kernels/``) are declared in. Warp names a module's cache folder after it,
-    so a name that followed the import path (``vdnif_addon.kernels.walk`` from the command
-    line, ``bl_ext.user_default.vdnif_addon.kernels.walk`` in Blender) would compile every
-    kernel again for each; this one depends only on the module's own name."""
-    return f"vdnif.kernels.{name.rpartition('.')[2]}"
+    a module of ``kernels/``) are declared in, with ``KERNEL_OPTIONS``. Warp names a
+    module's cache folder after it, so a name that followed the import path
+    (``vdnif_addon.kernels.walk`` from the command line,
+    ``bl_ext.user_default.vdnif_addon.kernels.walk`` in Blender) would compile every kernel
+    again for each; this one depends only on the module's own name. The options are set
+    here because ``wp.set_module_options`` without a module sets them on the caller's
+    Python module, which holds none of these kernels."""
+    module = f"vdnif.kernels.{name.rpartition('.')[2]}"
+    wp.set_module_options(KERNEL_OPTIONS, module=module)
+    return module
 
 
 def load(module: ModuleType | str, device_name: str) -> None:

@@ -24,8 +24,6 @@ if TYPE_CHECKING:
                   Float[np.ndarray, " S"], Float[np.ndarray, "S 3"], Float[np.ndarray, "S 3"]]
     """Host copies (ray, cell, t0, t1, p0, p1) of S segments of a SegmentBuffer."""
 
-wp.set_module_options({"enable_backward": False})
-
 
 @wp.struct
 class SegmentBuffer:

@@ -68,8 +68,6 @@ if TYPE_CHECKING:
     from ..geometry.walk_rules import Segments
     from .cells import DeviceCells
 
-wp.set_module_options({"fuse_fp": False, "enable_backward": False})
-
 UNLIMITED = np.iinfo(np.int32).max
 
 # The walker's modes and its steps as Warp functions: seeking the next entry into the
