@@ -23,6 +23,7 @@ CASES = [
     ("terminator_band", ["--model", "TMP/missing.vdnif", "--scene", "spot", "--secondary",
                          "--json", "FOREIGN"], "--json", "band.json"),
     ("network_stages", ["--segments", "0", "--json", "FOREIGN"], "--json", "stages.json"),
+    ("kernel_compile", ["--json", "FOREIGN"], "--json", "compile.json"),
     ("seed_spread_check", ["--before", "HEAD", "--now", "docs/results/no-such.json", "--json",
                            "FOREIGN"], "--json", "spread.json"),
     ("gpu_check", ["--benchmark", "FOREIGN"], "--benchmark", "benchmark.json"),
