@@ -26,6 +26,14 @@ from .metadata import Thresholds
 if TYPE_CHECKING:
     from jaxtyping import Bool, Float, Int64
 
+PREDICT_BATCH = {"cpu": 1 << 14, "cuda": 1 << 20}
+"""Segments ``predict`` evaluates at a time, by device type (the CPU's for any other): a
+bound on its memory, which grows by about 850 bytes a segment with the default network (its
+features and activations in float32, measured on the CPU at 2^20). On the CPU, 2^14 keep a
+batch's activations in the cache and let the next batch's encoder run beside this one's MLP.
+On CUDA a batch costs a dozen launches or more whatever its size, so a render's wave goes to
+the network whole up to 2^20 segments (under 1 GB; a 1920x1080 frame's first wave in 2)."""
+
 
 def hash_grid(config: NetworkConfig, levels: int | None = None,
               log2_table_size: int | None = None) -> HashGrid:
@@ -171,13 +179,14 @@ class IntersectionNetwork(nn.Module):
         p1: Float[torch.Tensor, "batch 3"],
         rest_len: Float[torch.Tensor, " batch"],
         voxel_size: float,
-        batch: int = 2**14,
+        batch: int | None = None,
         select_candidates: bool = True,
     ) -> dict[str, Float[torch.Tensor, "batch ..."] | Bool[torch.Tensor, " batch"]
               | Int64[torch.Tensor, " batch"]]:
         """Predictions for segments p0, p1 (N, 3) with rest lengths (N,): ``readout`` of
         ``forward`` at the model's ``thresholds``, its MLPs in its ``precision``, without
-        autograd, ``batch`` segments at a time to bound memory. The point fields
+        autograd, ``batch`` segments at a time to bound memory (by default the device's
+        ``PREDICT_BATCH``). The point fields
         (``point_fields``) are read at each candidate segment's predicted hit,
         ``p0 + fraction (p1 - p0)`` (their heads are 0 on the other segments), once every
         batch has its predictions; a field's normal is made unit as the head's is. Finding
@@ -189,6 +198,7 @@ class IntersectionNetwork(nn.Module):
         on the cores torch's threads leave, while this thread runs the MLP of batch k (torch's
         threads); only the worker launches kernels meanwhile.
         """
+        batch = batch or PREDICT_BATCH.get(p0.device.type, PREDICT_BATCH["cpu"])
         chunks = list(zip(p0.split(batch), p1.split(batch), rest_len.split(batch)))
         if not chunks:
             chunks = [(p0, p1, rest_len)]
