@@ -1278,6 +1278,20 @@ def clean_time_row(d, scene):
             *rates(after["test"], "false_negative_rate", "false_positive_rate")]
 
 
+def compile_row(d, module):
+    """A kernel-compile JSON's seconds of ``module`` before (the other checkout) and after
+    (this one): medians; for every module the span of the rounds' totals (one round: its
+    total)."""
+    if module != "every module (7)":
+        return [d["medians"][key][module] for key in ("other", "this")]
+    values = []
+    for key in ("other", "this"):
+        totals = [sum(row["seconds"] for row in run.values()) for run in d["runs"][key]]
+        assert len(run := d["runs"][key][0]) == 7, run
+        values += span(totals) if len(totals) > 1 else totals
+    return values
+
+
 def check_table(table, text, data):
     """What is wrong with ``table`` in the document ``text`` against ``data``."""
     if text.splitlines().count(table.header) != 1:
@@ -1593,6 +1607,10 @@ TABLES = [
     Table(P, "| scene | resolution | occupied voxels | read: encoder / normal | bytes before | "
           "tables before | bytes after | tables after | after / before |", 1,
           "results/model-bytes.json", bytes_row),
+    Table(P, "| module | CPU, before (5f8f92c) | CPU, after (ffcc5de) |", 1,
+          "results/kernel-compile-cpu.json", compile_row),
+    Table(P, "| module | sm_90 PTX, before (5f8f92c) | sm_90 PTX, after (ffcc5de) |", 1,
+          "results/kernel-compile-ptx.json", compile_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
