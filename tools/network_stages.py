@@ -31,7 +31,7 @@ from vdnif_addon import threads  # noqa: E402
 from vdnif_addon.errors import VDNIFError  # noqa: E402
 from vdnif_addon.kernels import runtime  # noqa: E402
 from vdnif_addon.model.encoding import HashGrid, SegmentEncoder  # noqa: E402
-from vdnif_addon.model.network import IntersectionNetwork, readout  # noqa: E402
+from vdnif_addon.model.network import PREDICT_BATCH, IntersectionNetwork, readout  # noqa: E402
 from vdnif_addon.model.provenance import stamp  # noqa: E402
 from vdnif_addon.safe_io import check_output_file, write_json_atomic  # noqa: E402
 from vdnif_addon.settings import Heads, NetworkConfig  # noqa: E402
@@ -60,7 +60,7 @@ def lookups(encoder: SegmentEncoder) -> int:
     return 2 * (1 + 2 * encoder.pe_bands) * encoder.grid.levels
 
 
-def measure(segments: int = 2**14, rounds: int = 7, seed: int = 0) -> dict:
+def measure(segments: int = PREDICT_BATCH["cpu"], rounds: int = 7, seed: int = 0) -> dict:
     """Every stage's median seconds over ``rounds`` alternating rounds, per segment (or per
     point, for the fields) in nanoseconds, with the arithmetic that bounds it."""
     if segments < 1 or rounds < 1:
@@ -156,7 +156,7 @@ def table(result: dict) -> str:
 
 def main(argv):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--segments", type=int, default=2**14,
+    parser.add_argument("--segments", type=int, default=PREDICT_BATCH["cpu"],
                         help="segments per stage call (predict's batch by default)")
     parser.add_argument("--rounds", type=int, default=7, help="alternating rounds; medians")
     parser.add_argument("--json", type=pathlib.Path, help="write the figures here")
