@@ -36,12 +36,15 @@ import warp as wp
 from vdnif_addon import kernels
 from vdnif_addon.kernels import runtime
 runtime.init()
+def older_checkouts_modules():    # runtime.kernel_modules came on 2026-12-01
+    names = [info.name for info in pkgutil.iter_modules(kernels.__path__)]
+    found = {short: getattr(importlib.import_module(f"vdnif_addon.kernels.{short}"),
+                            "WARP_MODULE", None) for short in names}
+    return {short: name for short, name in found.items() if name}
+modules = (runtime.kernel_modules() if hasattr(runtime, "kernel_modules")
+           else older_checkouts_modules())
 rows = {}
-for info in pkgutil.iter_modules(kernels.__path__):
-    name = getattr(importlib.import_module(f"vdnif_addon.kernels.{info.name}"),
-                   "WARP_MODULE", None)
-    if name is None:
-        continue
+for short, name in modules.items():
     options = {key: wp.get_module(name).options[key] for key in ("fuse_fp", "enable_backward")}
     folder = tempfile.mkdtemp()
     start = time.perf_counter()
@@ -54,7 +57,7 @@ for info in pkgutil.iter_modules(kernels.__path__):
     seconds = time.perf_counter() - start
     size = sum(os.path.getsize(os.path.join(path, file)) for path, _, files in os.walk(folder)
                for file in files if file.endswith(suffix) and name in path + file)
-    rows[info.name] = {"seconds": seconds, "bytes": size, **options}
+    rows[short] = {"seconds": seconds, "bytes": size, **options}
 print(json.dumps(rows))
 """
 

@@ -252,17 +252,26 @@ def load(module: ModuleType | str, device_name: str) -> None:
         _loaded.add(key)
 
 
+def kernel_modules() -> dict[str, str]:
+    """The Warp module (``WARP_MODULE``) of every module of this package that declares
+    kernels, by the module's own name (``walk``, ``render``, ...)."""
+    package = __name__.rpartition(".")[0]
+    found = {}
+    for info in pkgutil.iter_modules(sys.modules[package].__path__):
+        name = getattr(importlib.import_module(f"{package}.{info.name}"), "WARP_MODULE", None)
+        if name is not None:
+            found[info.name] = name
+    return found
+
+
 def load_all(device_name: str) -> float:
     """Compiles (first use on this machine) or loads every kernel module of the package for
     a device. What reports a speed calls it before its clock starts, so that a first run's
     compile is in no speed: the time is said apart, on stderr, when this call loaded any
     module. Returns the seconds."""
-    package = __name__.rpartition(".")[0]
     start, loaded = time.perf_counter(), len(_loaded)
-    for info in pkgutil.iter_modules(sys.modules[package].__path__):
-        name = getattr(importlib.import_module(f"{package}.{info.name}"), "WARP_MODULE", None)
-        if name is not None:
-            load(name, device_name)
+    for name in kernel_modules().values():
+        load(name, device_name)
     seconds = time.perf_counter() - start
     if len(_loaded) > loaded:
         print(f"vdnif: kernels ready for {device_name} in {seconds:.1f} s (compiled, or loaded "
