@@ -221,22 +221,23 @@ const float* GRAD_OUT = (const float*)grad_out.data;
 float* GRAD = (float*)grad_table.data;
 int kept_rows[PAIRS][8][BLOCK];
 float kept_w[PAIRS][8][BLOCK];
+int kept_pair[PAIRS];
 int kept = 0;
 for (int g = 0; g < G; ++g) {
 """ + _GAMMA + r"""
-    for (int l = 0; l < L; ++l) {
+    for (int l = level_first; l < level_stop; ++l) {
         auto& rows = kept_rows[kept];
         auto& w = kept_w[kept];
 """ + _CORNERS + r"""
+        kept_pair[kept] = g * L + l;
         ++kept;
-        const int pair = g * L + l;
-        if (kept == PAIRS || pair == G * L - 1) {
+        if (kept == PAIRS || (g == G - 1 && l == level_stop - 1)) {
             for (int i = 0; i < n; ++i) {
-                const float* column = GRAD_OUT + (long long)(first + i) * width
-                                      + (long long)(pair + 1 - kept) * fd;
+                const float* row = GRAD_OUT + (long long)(first + i) * width;
                 for (int q = 0; q < kept; ++q) {
+                    const float* column = row + (long long)kept_pair[q] * fd;
                     for (int f = 0; f < fd; ++f) {
-                        const float value = column[q * fd + f];
+                        const float value = column[f];
                         for (int corner = 0; corner < 8; ++corner)
                             wp::atomic_add(GRAD + kept_rows[q][corner][i] * fd + f,
                                            value * kept_w[q][corner][i]);
@@ -264,8 +265,8 @@ def _encode_block(
 def _scatter_block(
     task: int, count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
     ends: int, bands: int, scale: float, dense: int, mask: wp.uint32,
-    levels: wp.array(dtype=wp.int32), grad_out: wp.array(dtype=wp.float32), fd: int,
-    grad_table: wp.array(dtype=wp.float32),
+    levels: wp.array(dtype=wp.int32), level_first: int, level_stop: int,
+    grad_out: wp.array(dtype=wp.float32), fd: int, grad_table: wp.array(dtype=wp.float32),
 ) -> int: ...
 
 
@@ -283,10 +284,11 @@ def _encode(
 def _encode_backward(
     count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int,
     bands: int, scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
-    grad_out: wp.array(dtype=wp.float32), fd: int, grad_table: wp.array(dtype=wp.float32),
+    level_first: int, level_stop: int, grad_out: wp.array(dtype=wp.float32), fd: int,
+    grad_table: wp.array(dtype=wp.float32),
 ):
-    _scatter_block(wp.tid(), count, p0, p1, ends, bands, scale, dense, mask, levels, grad_out,
-                   fd, grad_table)
+    _scatter_block(wp.tid(), count, p0, p1, ends, bands, scale, dense, mask, levels,
+                   level_first, level_stop, grad_out, fd, grad_table)
 
 
 class Encoding:
@@ -373,17 +375,22 @@ def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
                     ) -> Float[torch.Tensor, "rows Fd"]:
     """d(sum grad_out * encode(...)) / d table: (rows, Fd) float32; grad_out (N, C).
 
-    Workers that run at once scatter into gradient tables of their own (a CPU launch's
-    atomic adds are plain adds, safe within one serial launch only), summed afterwards: the
-    sum's order then differs from one launch's, by float32 rounding."""
+    Workers that run at once scatter the levels of their own (a level's rows are its own,
+    and a CPU launch's atomic adds are plain adds, safe within one serial launch only), every
+    point each, into one table: a row's additions then come in one launch's order (where a
+    point has at most ``PAIRS`` pairs). A grid of one level takes one worker."""
     ends = 1 if p1 is None else 2
     device, stream = _target(p0)
     grad_out = grad_out.to(torch.float32).contiguous()
-    parts = launches.parts(device, p0.shape[0])
-    slices = _launches(enc, p0, p1, ends, _block(device, CPU_SCATTER_BLOCK), parts)
-    grads = torch.zeros(parts, rows, enc.feature_dim, dtype=torch.float32, device=p0.device)
-    launches.run(_encode_backward, device, stream, parts,
-                 [(tasks, args + [_floats(grad_out[first:stop]), enc.feature_dim,
-                                  _floats(grads[i % parts])])
-                  for i, (first, stop, tasks, args) in enumerate(slices)])
-    return grads[0] if parts == 1 else grads.sum(0)
+    count = enc.levels.shape[0] // LEVEL_FIELDS
+    levels = launches.bounds(count, min(launches.parts(device, p0.shape[0]), count))
+    slices = _launches(enc, p0, p1, ends, _block(device, CPU_SCATTER_BLOCK))
+    grads = torch.zeros(rows, enc.feature_dim, dtype=torch.float32, device=p0.device)
+    # job i runs on worker i % len(levels) (launches.run): each worker keeps its levels and
+    # takes the slices in order
+    launches.run(_encode_backward, device, stream, len(levels),
+                 [(tasks, args + [level_first, level_stop, _floats(grad_out[first:stop]),
+                                  enc.feature_dim, _floats(grads)])
+                  for first, stop, tasks, args in slices
+                  for level_first, level_stop in levels])
+    return grads
