@@ -1278,6 +1278,15 @@ def clean_time_row(d, scene):
             *rates(after["test"], "false_negative_rate", "false_positive_rate")]
 
 
+def level_split_row(d, commit):
+    """A commit's runs in time-to-clean-level-split.json: wall seconds, steps' seconds, then
+    the test poses' holes and extras (the same model each run)."""
+    runs = d["runs"][commit]
+    assert all(run["test"] == runs[0]["test"] for run in runs)
+    return [*(run["wall_s"] for run in runs), *(run["train_s"] for run in runs),
+            *rates(runs[0]["test"], "false_negative_rate", "false_positive_rate")]
+
+
 def compile_row(d, module):
     """A kernel-compile JSON's seconds of ``module`` before (the other checkout) and after
     (this one): medians; for every module the span of the rounds' totals (one round: its
@@ -1607,6 +1616,8 @@ TABLES = [
     Table(P, "| scene | resolution | occupied voxels | read: encoder / normal | bytes before | "
           "tables before | bytes after | tables after | after / before |", 1,
           "results/model-bytes.json", bytes_row),
+    Table(P, "| commit | wall (s), runs | steps (s), runs | test: holes / extras |", 1,
+          "results/time-to-clean-level-split.json", level_split_row),
     Table(P, "| module | CPU, before (5f8f92c) | CPU, after (ffcc5de) |", 1,
           "results/kernel-compile-cpu.json", compile_row),
     Table(P, "| module | sm_90 PTX, before (5f8f92c) | sm_90 PTX, after (ffcc5de) |", 1,
