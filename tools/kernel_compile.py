@@ -36,7 +36,7 @@ import warp as wp
 from vdnif_addon import kernels
 from vdnif_addon.kernels import runtime
 runtime.init()
-def older_checkouts_modules():    # runtime.kernel_modules came on 2026-12-01
+def older_checkouts_modules():    # a checkout from before runtime.kernel_modules
     names = [info.name for info in pkgutil.iter_modules(kernels.__path__)]
     found = {short: getattr(importlib.import_module(f"vdnif_addon.kernels.{short}"),
                             "WARP_MODULE", None) for short in names}

@@ -71,9 +71,8 @@ def test_the_kernel_cache_serves_every_import_path(tmp_path):
     assert first_module == second_module == "vdnif.kernels.cast"
 
 
-def test_every_kernel_lives_in_a_warp_module_named_apart_from_the_import_path():
-    """What the cache test checks for one module, for all of them: each kernel of the core
-    is declared in its module's fixed Warp module."""
+def declared_kernels():
+    """(Python module, Warp kernel) of every kernel declared in a module of kernels/."""
     import importlib
     import pkgutil
 
@@ -81,13 +80,19 @@ def test_every_kernel_lives_in_a_warp_module_named_apart_from_the_import_path():
 
     from vdnif_addon import kernels
 
-    found = {}
     for info in pkgutil.iter_modules(kernels.__path__):
         module = importlib.import_module(f"{kernels.__name__}.{info.name}")
         for value in vars(module).values():
             if isinstance(value, wp.Kernel) and value.func.__module__ == module.__name__:
-                found[module.__name__, value.key] = (value.module.name,
-                                                     runtime.warp_module(module.__name__))
+                yield module, value
+
+
+def test_every_kernel_lives_in_a_warp_module_named_apart_from_the_import_path():
+    """What the cache test checks for one module, for all of them: each kernel of the core
+    is declared in its module's fixed Warp module."""
+    found = {(module.__name__, kernel.key): (kernel.module.name,
+                                             runtime.warp_module(module.__name__))
+             for module, kernel in declared_kernels()}
     assert len(found) >= 20
     assert {key: names[0] for key, names in found.items()} == {
         key: names[1] for key, names in found.items()}
@@ -125,20 +130,9 @@ def test_load_all_loads_every_kernel_module_once_and_times_it(monkeypatch, capsy
 def test_every_kernel_module_compiles_without_contraction_or_adjoints():
     """Every Warp module the core declares kernels in has ``KERNEL_OPTIONS``: the options
     must reach the module the kernels are in, not the Python module that names it."""
-    import importlib
-    import pkgutil
-
-    import warp as wp
-
-    from vdnif_addon import kernels
-
-    options = {}
-    for info in pkgutil.iter_modules(kernels.__path__):
-        module = importlib.import_module(f"{kernels.__name__}.{info.name}")
-        for value in vars(module).values():
-            if isinstance(value, wp.Kernel) and value.func.__module__ == module.__name__:
-                options[value.module.name] = {key: value.module.options[key]
-                                              for key in runtime.KERNEL_OPTIONS}
+    options = {kernel.module.name: {key: kernel.module.options[key]
+                                    for key in runtime.KERNEL_OPTIONS}
+               for _, kernel in declared_kernels()}
     assert len(options) >= 6
     assert options == {name: runtime.KERNEL_OPTIONS for name in options}
 
