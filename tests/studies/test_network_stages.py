@@ -38,6 +38,28 @@ def test_a_short_run_times_every_stage():
     assert all(value > 0 for value in result["ns"].values())
     assert result["encoder_ns_per_lookup"] == pytest.approx(result["ns"]["encoder"] / 28)
     assert result["gemm_gflops"]["float32"] > 0 and result["table_read_share"] < 1
+    assert ("bfloat16" in result["gemm_gflops"]) is result["bfloat16_native"]
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_the_table_says_where_bfloat16_is_emulated(native):
+    """Without bfloat16 instructions the product refuses bfloat16: the table says the rate
+    is an emulation's, not a share of an emulated product's rate (which took a minute)."""
+    tool = load_tool(TOOL)
+    result = {"ns": {"encoder": 700.0, "mlp": 500.0, "mlp_bfloat16": 6700.0, "readout": 17.0,
+                     "normal_field": 536.0},
+              "gemm_gflops": {"float32": 89.0, **({"bfloat16": 0.3} if native else {})},
+              "mlp_gflops": {"float32": 55.0, "bfloat16": 4.1},
+              "mlp_share_of_gemm": {"float32": 55 / 89,
+                                    **({"bfloat16": 4.1 / 0.3} if native else {})},
+              "encoder_lookups": 28, "encoder_ns_per_lookup": 25.0,
+              "encoder_small_table_ns_per_lookup": 20.0, "table_read_share": 0.2,
+              "mlp_multiply_adds": 13696, "field_multiply_adds": {"normal": 768},
+              "bfloat16_native": native}
+    row = next(line for line in tool.table(result).splitlines() if "MLP, bfloat16" in line)
+    assert ("emulated" in row and "%" not in row and "4.1 GFLOP/s" in row) is not native
+    assert ("1367 %" in row) is native
+    assert "62 % of a 2048x2048 product's 89" in tool.table(result)
 
 
 def test_absurd_sizes_end_in_one_error_line():
