@@ -1287,6 +1287,32 @@ def level_split_row(d, commit):
             *rates(runs[0]["test"], "false_negative_rate", "false_positive_rate")]
 
 
+AVX2 = "results/network-avx2.json"
+
+
+def avx2_stage(d, stage):
+    """A stage's row of network-avx2.json's stages: ns a segment, then its bound's numbers."""
+    d = d["stages"]
+    ns, flops = d["ns"], d["mlp_gflops"]
+    return {"encoder": [ns["encoder"], d["encoder_ns_per_lookup"],
+                        d["encoder_small_table_ns_per_lookup"], 6, pct(d["table_read_share"])],
+            "MLP, float32": [ns["mlp"], flops["float32"], pct(d["mlp_share_of_gemm"]["float32"]),
+                             2048, 2048, d["gemm_gflops"]["float32"]],
+            "MLP, bfloat16, emulated": [ns["mlp_bfloat16"], flops["bfloat16"],
+                                        ns["mlp_bfloat16"] / ns["mlp"]],
+            "readout": [ns["readout"]]}[stage]
+
+
+def training_threads_row(d, count):
+    """network-avx2.json's arm trainings at ``count`` torch threads: wall seconds, steps'
+    seconds, then the test poses' holes and extras (the same model each run)."""
+    runs = [run for run in d["training_threads"]["runs"].values()
+            if run["torch_threads"] == int(count)]
+    assert all(run["test"] == runs[0]["test"] for run in runs)
+    return [*(run["wall_s"] for run in runs), *(run["train_s"] for run in runs),
+            *rates(runs[0]["test"], "false_negative_rate", "false_positive_rate")]
+
+
 def compile_row(d, module):
     """A kernel-compile JSON's seconds of ``module`` before (the other checkout) and after
     (this one): medians; for every module the span of the rounds' totals (one round: its
@@ -1622,6 +1648,12 @@ TABLES = [
           "results/kernel-compile-cpu.json", compile_row),
     Table(P, "| module | sm_90 PTX, before (5f8f92c) | sm_90 PTX, after (ffcc5de) |", 1,
           "results/kernel-compile-ptx.json", compile_row),
+    Table(P, "| commit | inference segments/s, AVX2 | training samples/s, AVX2 |", 1, AVX2,
+          lambda d, row: [*netbase(d["bench"], row.split(",")[0], "infer_segments_per_s"),
+                          *netbase(d["bench"], row.split(",")[0], "train_samples_per_s")]),
+    Table(P, "| stage | ns per segment, AVX2 | bound, AVX2 |", 1, AVX2, avx2_stage),
+    Table(P, "| torch threads in training | wall (s), runs | steps (s), runs | test: holes / "
+          "extras |", 1, AVX2, training_threads_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
