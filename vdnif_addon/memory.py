@@ -146,6 +146,21 @@ def available_bytes() -> int | None:
     return found
 
 
+DEVICE_ROWS_SHARE = 0.5
+"""The training rows live on the GPU where they take at most this share of its free memory
+when training starts: the rest holds the network, its optimizer state, the held-out rows and
+each step's activations."""
+
+
+def device_free_bytes(device: object) -> int | None:
+    """Free bytes of a CUDA ``device`` (a torch device), None for any other device."""
+    if getattr(device, "type", None) != "cuda":
+        return None
+    import torch
+
+    return int(torch.cuda.mem_get_info(device)[0])
+
+
 def gib(size: float) -> str:
     """``108 GiB``: a byte count in binary units, as the refusals word it."""
     for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):

@@ -103,6 +103,46 @@ def test_training_rows_stay_on_the_host_and_each_batch_moves_to_the_device():
         assert torch.equal(batch[key], value[index]), key
 
 
+@pytest.mark.parametrize("share, on_device", [(memory.DEVICE_ROWS_SHARE, True),
+                                             (1.01 * memory.DEVICE_ROWS_SHARE, False)])
+def test_training_rows_move_to_a_device_with_room_for_them(monkeypatch, share, on_device):
+    """Rows that take at most ``DEVICE_ROWS_SHARE`` of the device's free memory move there
+    (every field, none left in host memory) and each batch is gathered there; more stay in
+    host memory. A device whose free memory is not known ("meta", the CPU) keeps them on the
+    host (the test above)."""
+    config = TrainConfig(val_fraction=0.25, batch_size=64, val_segments=30, device="cpu")
+    heads = Heads(albedo=True, material_count=2)
+    host, _, _, _ = split_data(shards(), config, heads, torch.device("cpu"), ProcessGroup())
+    size = sum(value.numel() * value.element_size() for value in host.values())
+    monkeypatch.setattr(memory, "device_free_bytes",
+                        lambda device: size / share if device.type == "meta" else None)
+    rows, _, _, _ = split_data(shards(), config, heads, torch.device("meta"), ProcessGroup())
+    assert rows.keys() == host.keys()
+    assert {value.device.type for value in rows.values()} == {"meta" if on_device else "cpu"}
+    assert all(value.shape == host[key].shape and value.dtype == host[key].dtype
+               for key, value in rows.items())
+    batch = Batches(rows, 64, seed=3).next()
+    assert all(value.device.type == "meta" and value.shape[0] == 64
+               for value in batch.values())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_training_rows_on_the_gpu_give_the_host_generators_batches_cuda():
+    """On a GPU with room the rows live there, and each batch is the rows of the host
+    generator's draws, as in host memory."""
+    config = TrainConfig(val_fraction=0.25, batch_size=64, val_segments=30, device="cuda")
+    heads = Heads(albedo=True, material_count=2)
+    rows, _, _, _ = split_data(shards(), config, heads, torch.device("cuda"), ProcessGroup())
+    host, _, _, _ = split_data(shards(), config, heads, torch.device("cpu"), ProcessGroup())
+    assert {value.device.type for value in rows.values()} == {"cuda"}
+    batches, generator = Batches(rows, 64, seed=3), torch.Generator().manual_seed(3)
+    for _ in range(3):
+        index = torch.randint(host["p0"].shape[0], (64,), generator=generator)
+        batch = batches.next()
+        for key, value in host.items():
+            assert torch.equal(batch[key].cpu(), value[index]), key
+
+
 def test_batches_gathered_ahead_are_the_generators_draws_in_order():
     """The next batch's host rows are gathered on another thread while a step computes;
     batch after batch they are still the rows of the generator's draws, in order."""

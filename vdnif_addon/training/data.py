@@ -1,9 +1,12 @@
 """Training data: dataset shards -> validated tensors, this process's share of them, the
 held-out poses, and the random batches the loop draws.
 
-The training rows stay in host memory (a dataset may be many times a GPU's memory): each
-step's batch is gathered there and moved to the training device. The held-out rows, a
-``val_fraction`` of them that validation evaluates in chunks, live on the device.
+The training rows move to the training GPU where they take at most
+``memory.DEVICE_ROWS_SHARE`` of its free memory, and each step's batch is gathered there,
+with no copy from the host; elsewhere (a dataset may be many times a GPU's memory) they stay
+in host memory, and each step's batch is gathered there and moved to the training device.
+The held-out rows, a ``val_fraction`` of them that validation evaluates in chunks, live on
+the device.
 
 Data contract (the dataset module produces it): ``segments`` is a sequence of shards, each a
 mapping of equal-length numpy arrays: ``p0``, ``p1`` (S, 3) normalized rest coordinates;
@@ -22,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from .. import threads
+from .. import memory, threads
 from ..errors import VDNIFError
 from ..settings import Heads, TrainConfig
 from .distributed import ProcessGroup
@@ -173,9 +176,10 @@ def split_data(
     device: torch.device,
     group: ProcessGroup,
     view_from: int | None = None,
-) -> tuple[TrainingRows, Segments, Segments, list[int]]:
-    """(training rows in host memory, validation data on ``device``, the held-out
-    calibration view's rows on ``device``, held-out poses): this process's shards
+) -> tuple[TrainingRows | Segments, Segments, Segments, list[int]]:
+    """(training rows, on ``device`` where they fit (``_on_device_where_room``) and else in
+    host memory, validation data on ``device``, the held-out calibration view's rows on
+    ``device``, held-out poses): this process's shards
     (``segments[rank::world]``) loaded and split by the held-out poses, or, with one pose, by
     held-out rays (``held_out_rays``; no pose is then held out). Rows of rays numbered
     ``view_from`` and up are the calibration view's (``settings.CALIBRATION_VIEW_SHARE``):
@@ -220,7 +224,18 @@ def split_data(
             train_rows[key] = _column(arrays, key, kept)
         for shard in arrays:        # one field at a time: no second copy of the whole data
             del shard[key]
-    return train_rows, val_data, view_data, val_poses
+    return _on_device_where_room(train_rows), val_data, view_data, val_poses
+
+
+def _on_device_where_room(rows: TrainingRows) -> TrainingRows | Segments:
+    """``rows`` moved to their training device, one field at a time, where they take at most
+    ``memory.DEVICE_ROWS_SHARE`` of its free memory (``memory.device_free_bytes``); else as
+    they are, in host memory."""
+    free = memory.device_free_bytes(rows.device)
+    size = sum(value.numel() * value.element_size() for value in rows.values())
+    if free is None or size > memory.DEVICE_ROWS_SHARE * free:
+        return rows
+    return {key: rows.pop(key).to(rows.device) for key in list(rows)}
 
 
 class TrainingRows(dict):
