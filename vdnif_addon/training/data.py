@@ -2,9 +2,10 @@
 held-out poses, and the random batches the loop draws.
 
 The training rows move to the training GPU where they take at most
-``memory.DEVICE_ROWS_SHARE`` of its free memory, and each step's batch is gathered there,
-with no copy from the host; elsewhere (a dataset may be many times a GPU's memory) they stay
-in host memory, and each step's batch is gathered there and moved to the training device.
+``memory.DEVICE_ROWS_SHARE`` of its free memory, and each step's batch is gathered there
+(only its row indices go from the host); elsewhere (a dataset may be many times a GPU's
+memory) they stay in host memory, and each step's batch is gathered there and moved to the
+training device.
 The held-out rows, a ``val_fraction`` of them that validation evaluates in chunks, live on
 the device.
 
