@@ -18,12 +18,15 @@ devices): Warp's CPU back end runs a kernel task after task in scalar code, so a
 about 30 ns, three quarters of it arithmetic (hashing eight corners, the weights, the
 features). Within a block the lookups of one gamma point and level run as a loop over the
 block's end points that the compiler vectorizes (``#pragma clang loop vectorize
-(assume_safety)``: the table is read and the output written at indices the compiler cannot
-bound, which only this promise lets it vectorize; the rows read and written never overlap):
-hashing, weights and the corner reads (gathers) for several end points at once, 8 in the
-256-bit vectors clang picks on an AVX-512 Xeon; 2.4x the scalar kernel's throughput there.
-On CUDA the pragma is left out and a block is one end point. The scalar kernel is the test
-oracle (``tests/oracles/encoder_scalar.py``): features and table gradients equal its bits.
+(assume_safety)``, the promise that no two of its iterations touch the same memory):
+hashing and weights for several end points at once, 8 in the 256-bit vectors clang picks
+on an AVX-512 Xeon. The corners' rows are then read end point by end point, each row as one
+vector of up to 4 features (clang's vector extension) that its weight scales and the sum
+takes in; read across end points, a lookup's 24 floats took gathers, slower than these
+plain loads (``docs/performance.md``). The backward adds to a row's features the same way.
+On CUDA, whose compiler has no such vectors, the pragma is left out, a block is one end
+point and a row is read feature by feature. The scalar kernel is the test oracle
+(``tests/oracles/encoder_scalar.py``): features and table gradients equal its bits.
 
 Arithmetic follows the torch reference (``tests/oracles/encoding_torch.py``) operation by
 operation, in float32, without fused multiply-adds (module option ``fuse_fp`` off, which
@@ -176,7 +179,30 @@ _CORNERS = r"""
         }
 """
 
+# On the CPU a corner's row (its features f0 .. f0 + M - 1, M <= 4 a literal, so that the
+# loads are plain) times its weight, summed in corner order as the scalar kernel sums each
+# feature: lane f holds feature f0 + f's sum, and the unused lanes add zeros.
 _FORWARD_SNIPPET = _BLOCK + r"""
+#if !defined(__CUDA_ARCH__)
+typedef float FEATURES __attribute__((ext_vector_type(4)));
+#define VDNIF_ROW(c, M) {                                                                  \
+    const float* t = TABLE + rows[c][i] * fd + f0;                                      \
+    const FEATURES r = {t[0], M > 1 ? t[1] : 0.0f, M > 2 ? t[2] : 0.0f,                 \
+                        M > 3 ? t[3] : 0.0f};                                           \
+    acc = c == 0 ? r * w[c][i] : acc + r * w[c][i];                                     \
+}
+#define VDNIF_FEATURES(M)                                                                  \
+    for (int i = 0; i < n; ++i) {                                                       \
+        FEATURES acc;                                                                   \
+        VDNIF_ROW(0, M) VDNIF_ROW(1, M) VDNIF_ROW(2, M) VDNIF_ROW(3, M)                 \
+        VDNIF_ROW(4, M) VDNIF_ROW(5, M) VDNIF_ROW(6, M) VDNIF_ROW(7, M)                 \
+        float* o = chunk + i * width;                                                   \
+        o[0] = acc.x;                                                                   \
+        if (M > 1) o[1] = acc.y;                                                        \
+        if (M > 2) o[2] = acc.z;                                                        \
+        if (M > 3) o[3] = acc.w;                                                        \
+    }
+#endif
 const float* TABLE = (const float*)table.data;
 float* OUT = (float*)out.data;
 int rows[8][BLOCK];
@@ -185,9 +211,9 @@ for (int g = 0; g < G; ++g) {
 """ + _GAMMA + r"""
     for (int l = 0; l < L; ++l) {
 """ + _CORNERS + r"""
+#if defined(__CUDA_ARCH__)
         for (int f = 0; f < fd; ++f) {
             float* column = OUT + (long long)first * width + (long long)(g * L + l) * fd + f;
-            VDNIF_SIMD
             for (int i = 0; i < n; ++i) {
                 float acc = TABLE[rows[0][i] * fd + f] * w[0][i];
                 acc = acc + TABLE[rows[1][i] * fd + f] * w[1][i];
@@ -200,6 +226,17 @@ for (int g = 0; g < G; ++g) {
                 column[i * width] = acc;
             }
         }
+#else
+        for (int f0 = 0; f0 < fd; f0 += 4) {
+            float* chunk = OUT + (long long)first * width + (long long)(g * L + l) * fd + f0;
+            switch (fd - f0) {
+                case 1: VDNIF_FEATURES(1) break;
+                case 2: VDNIF_FEATURES(2) break;
+                case 3: VDNIF_FEATURES(3) break;
+                default: VDNIF_FEATURES(4) break;
+            }
+        }
+#endif
     }
 }
 return 0;
@@ -216,6 +253,22 @@ _BACKWARD_SNIPPET = _BLOCK + r"""
 constexpr int PAIRS = 1;
 #else
 constexpr int PAIRS = %(pairs)d;
+#endif
+#if !defined(__CUDA_ARCH__)
+// A corner's row gets features f0 .. f0 + M - 1 of the output gradient times its weight, in
+// corner order: each table value's additions come in the order of a feature-by-feature loop.
+#define VDNIF_SCATTER(M) {                                                                 \
+    const float v0 = column[f0], v1 = M > 1 ? column[f0 + 1] : 0.0f;                    \
+    const float v2 = M > 2 ? column[f0 + 2] : 0.0f, v3 = M > 3 ? column[f0 + 3] : 0.0f; \
+    for (int corner = 0; corner < 8; ++corner) {                                        \
+        float* t = GRAD + kept_rows[q][corner][i] * fd + f0;                            \
+        const float weight = kept_w[q][corner][i];                                      \
+        t[0] = t[0] + v0 * weight;                                                      \
+        if (M > 1) t[1] = t[1] + v1 * weight;                                           \
+        if (M > 2) t[2] = t[2] + v2 * weight;                                           \
+        if (M > 3) t[3] = t[3] + v3 * weight;                                           \
+    }                                                                                   \
+}
 #endif
 const float* GRAD_OUT = (const float*)grad_out.data;
 float* GRAD = (float*)grad_table.data;
@@ -236,12 +289,23 @@ for (int g = 0; g < G; ++g) {
                 const float* row = GRAD_OUT + (long long)(first + i) * width;
                 for (int q = 0; q < kept; ++q) {
                     const float* column = row + (long long)kept_pair[q] * fd;
+#if defined(__CUDA_ARCH__)
                     for (int f = 0; f < fd; ++f) {
                         const float value = column[f];
                         for (int corner = 0; corner < 8; ++corner)
                             wp::atomic_add(GRAD + kept_rows[q][corner][i] * fd + f,
                                            value * kept_w[q][corner][i]);
                     }
+#else
+                    for (int f0 = 0; f0 < fd; f0 += 4) {
+                        switch (fd - f0) {
+                            case 1: VDNIF_SCATTER(1) break;
+                            case 2: VDNIF_SCATTER(2) break;
+                            case 3: VDNIF_SCATTER(3) break;
+                            default: VDNIF_SCATTER(4) break;
+                        }
+                    }
+#endif
                 }
             }
             kept = 0;
