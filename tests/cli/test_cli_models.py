@@ -145,3 +145,26 @@ def test_bfloat16_runs_the_network_in_bfloat16_where_the_device_has_it(small_mod
     error = capsys.readouterr().err.strip()
     assert error.count("\n") == 0 and "has no bfloat16 instructions" in error
     assert not (tmp_path / "refused").exists()
+
+
+def test_the_default_precision_is_bfloat16_only_where_the_device_has_it(small_model, tmp_path,
+                                                                         monkeypatch):
+    """Without ``--precision`` (auto) the network runs in bfloat16 on a device with bfloat16
+    instructions and in float32 on one without (each made so here), and the report says which:
+    the same rows as the explicit choices give."""
+    import importlib
+
+    cli, model = small_model
+    runtime = importlib.import_module(f"{cli.__name__.rpartition('.')[0]}.kernels.runtime")
+    reports = {}
+    for native, chosen in ((True, ()), (False, ()), (True, ("--precision", "bfloat16")),
+                           (False, ("--precision", "float32"))):
+        monkeypatch.setattr(runtime, "bfloat16_native", lambda device, native=native: native)
+        path = tmp_path / f"{native}-{len(chosen)}.json"
+        assert cli.main(["evaluate", "--model", str(model), "--scene", "lattice", "--poses",
+                         "1", *VIEW, "--device", "cpu", *chosen, "--json", str(path)]) == 0
+        reports[native, bool(chosen)] = json.loads(path.read_text())
+    assert reports[True, False]["precision"] == "bfloat16"
+    assert reports[False, False]["precision"] == "float32"
+    for native in (True, False):
+        assert reports[native, False]["vs_true"] == reports[native, True]["vs_true"]

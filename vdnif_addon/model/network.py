@@ -19,7 +19,7 @@ from torch import nn
 
 from .. import threads
 from ..errors import VDNIFError
-from ..settings import DEFAULT_PRECISION, NetworkConfig
+from ..settings import NetworkConfig
 from .encoding import HashGrid, SegmentEncoder, scene_log2_table_size
 from .metadata import Thresholds
 
@@ -108,8 +108,10 @@ class IntersectionNetwork(nn.Module):
         # model file's metadata carries them and ``load_model`` hands them over; ``predict``
         # applies them.
         self.thresholds = Thresholds()
-        # Not saved either: how ``predict`` runs the MLPs, a render's setting (PRECISIONS).
-        self.precision = DEFAULT_PRECISION
+        # Not saved either: how ``predict`` runs the MLPs, "float32" or "bfloat16". A render
+        # sets it from its setting (``posed.render.render_precision``); training and its
+        # calibration keep float32.
+        self.precision = "float32"
 
     def forward(
         self, p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"],
