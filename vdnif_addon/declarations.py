@@ -363,7 +363,7 @@ PRECISION = Setting(
              Choice("bfloat16", "BFloat16", "Faster where the device has bfloat16 instructions "
                     "(an NVIDIA GPU, a CPU with AVX-512 BF16 or AMX), a little less exact; "
                     "refused elsewhere", number=1)),
-    option=Option("--precision", (*MODEL_COMMANDS, "side-by-side")),
+    option=Option("--precision", (*MODEL_COMMANDS, "side-by-side", "bench-network")),
     panel=(Panel("precision", "Precision", "The arithmetic of the network's layers when it "
                  "renders"),))
 IMAGE_WIDTH = Setting(

@@ -176,6 +176,29 @@ def test_benchmark_runs_on_tiny_sizes():
     )
 
 
+def test_auto_precision_is_bfloat16_only_where_the_device_has_it(monkeypatch):
+    """``resolve_precision``: auto is bfloat16 on a device with bfloat16 instructions and
+    float32 on one without (each made so here); an explicit choice is kept, bfloat16 refused
+    in one line where the device lacks it, and a word that is no precision refused. The
+    network benchmark times its inference at the resolved precision and says which."""
+    from vdnif_addon.kernels import runtime
+    from vdnif_addon.model.network import resolve_precision
+    from vdnif_addon.studies.network_bench import benchmark_network
+
+    cpu = torch.device("cpu")
+    for native, auto in ((True, "bfloat16"), (False, "float32")):
+        monkeypatch.setattr(runtime, "bfloat16_native", lambda device, native=native: native)
+        assert resolve_precision("auto", cpu) == auto
+        assert resolve_precision("float32", cpu) == "float32"
+        result = benchmark_network("cpu", segments=256, train_batch=128, repeats=1)
+        assert result["precision"] == auto
+    with pytest.raises(VDNIFError, match="^precision bfloat16: cpu has no bfloat16") as error:
+        resolve_precision("bfloat16", cpu)
+    assert "\n" not in str(error.value)
+    with pytest.raises(VDNIFError, match="precision 'half': choose one of auto, float32"):
+        resolve_precision("half", cpu)
+
+
 def test_one_thread_default_for_commands_worker_and_benchmark(monkeypatch):
     """Torch gets every core but the encoder's; the bench's --threads overrides it."""
     from vdnif_addon import threads

@@ -93,9 +93,11 @@ def cmd_bench_network(args):
     """Measure encoder+MLP inference segments/s and training samples/s (paper setting)."""
     from ..studies.network_bench import benchmark_network
 
-    result = benchmark_network(device=args.device, repeats=args.repeats)
+    result = benchmark_network(device=args.device, repeats=args.repeats,
+                               precision=args.precision)
     write_json(args.json, result)
-    print(f"network ({result['device']}, {result['threads']} torch threads): "
+    print(f"network ({result['device']}, {result['threads']} torch threads, MLPs in "
+          f"{result['precision']}): "
           f"{result['infer_segments_per_s']:,.0f} segments/s inference "
           f"({result['serial_segments_per_s']:,.0f} with the encoder and the MLP one after "
           f"the other: encoder {result['encode_fraction']:.0%}, MLP {result['mlp_fraction']:.0%}"
@@ -337,8 +339,10 @@ def add_commands(commands):
                                 description=cmd_bench_network.__doc__ + " JSON keys "
                                 "infer_segments_per_s, serial_segments_per_s, "
                                 "encode_segments_per_s, mlp_segments_per_s, encode_fraction, "
-                                "mlp_fraction, train_samples_per_s, threads.")
+                                "mlp_fraction, train_samples_per_s, threads, precision "
+                                "(inference's; training runs float32).")
     add_setting(bench, declared.DEVICE, "bench-network")
+    add_setting(bench, declared.PRECISION, "bench-network")
     bench.add_argument("--threads", type=int, metavar="N",
                        help="torch threads (default: the product's, vdnif_addon/threads.py)")
     bench.add_argument("--repeats", type=int, default=5, metavar="N",

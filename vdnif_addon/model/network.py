@@ -19,7 +19,8 @@ from torch import nn
 
 from .. import threads
 from ..errors import VDNIFError
-from ..settings import NetworkConfig
+from ..kernels import runtime
+from ..settings import PRECISIONS, NetworkConfig
 from .encoding import HashGrid, SegmentEncoder, scene_log2_table_size
 from .metadata import Thresholds
 
@@ -109,7 +110,7 @@ class IntersectionNetwork(nn.Module):
         # applies them.
         self.thresholds = Thresholds()
         # Not saved either: how ``predict`` runs the MLPs, "float32" or "bfloat16". A render
-        # sets it from its setting (``posed.render.render_precision``); training and its
+        # sets it from its setting (``resolve_precision``); training and its
         # calibration keep float32.
         self.precision = "float32"
 
@@ -212,7 +213,7 @@ class IntersectionNetwork(nn.Module):
 
         def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
                         ) -> dict[str, torch.Tensor]:
-            with self._arithmetic(features.device):
+            with self.mlp_arithmetic(features.device):
                 outputs = self.heads(features)
             return readout(outputs, mode, voxel_size, chunks[index][2], self.thresholds)
 
@@ -249,7 +250,7 @@ class IntersectionNetwork(nn.Module):
                 for start in range(0, len(p0), batch):
                     rows = slice(start, start + batch)
                     point = p0[rows] + fraction[rows] * (p1[rows] - p0[rows])
-                    with self._arithmetic(point.device):
+                    with self.mlp_arithmetic(point.device):
                         value = self.field_at(name, point)
                     if name == "normal":
                         value = F.normalize(value.float(), dim=1)
@@ -265,7 +266,7 @@ class IntersectionNetwork(nn.Module):
                 point = p0[rows] + result["fraction"][rows].to(p0.dtype).unsqueeze(1) * (
                     p1[rows] - p0[rows])
                 for name, answer in answers.items():
-                    with self._arithmetic(point.device):
+                    with self.mlp_arithmetic(point.device):
                         value = self.field_at(name, point)
                     if name == "normal":
                         value = F.normalize(value.float(), dim=1)
@@ -275,7 +276,7 @@ class IntersectionNetwork(nn.Module):
             result.update(answers)
         return result
 
-    def _arithmetic(self, device: torch.device) -> torch.autocast:
+    def mlp_arithmetic(self, device: torch.device) -> torch.autocast:
         """The MLPs' arithmetic in ``predict``: bfloat16 where ``precision`` says so (the
         hash grids keep float32 under autocast)."""
         return torch.autocast(device.type, dtype=torch.bfloat16,
@@ -301,6 +302,22 @@ class PointField(nn.Module):
 
     def forward(self, points: Float[torch.Tensor, "batch 3"]) -> Float[torch.Tensor, "batch 3"]:
         return self.mlp(self.grid(points)).float()
+
+
+def resolve_precision(precision: str, device: torch.device) -> str:
+    """The MLPs' arithmetic, "float32" or "bfloat16", that ``precision``
+    (``settings.PRECISIONS``) asks of ``device``: auto is bfloat16 where the device has
+    bfloat16 instructions and float32 elsewhere; bfloat16 on a device without them raises a
+    one-line VDNIFError (torch would emulate it, slower than float32)."""
+    if precision not in PRECISIONS:
+        raise VDNIFError(f"precision '{precision}': choose one of {', '.join(PRECISIONS)}")
+    if precision == "auto":
+        return "bfloat16" if runtime.bfloat16_native(device) else "float32"
+    if precision == "bfloat16" and not runtime.bfloat16_native(device):
+        raise VDNIFError(f"precision bfloat16: {device} has no bfloat16 instructions "
+                         "(CUDA, or a CPU with AVX-512 BF16 or AMX): it would run slower "
+                         "than float32")
+    return precision
 
 
 def readout(

@@ -30,7 +30,7 @@ from ..inference.shading import settings_lighting, shaded_views
 from ..kernels.cast import MeshCaster
 from ..passes import Passes, SecondaryPasses
 from ..pose_sets import pose_key
-from ..settings import DEFAULT_PRECISION, PRECISIONS, TERMINATOR_BAND
+from ..settings import DEFAULT_PRECISION, TERMINATOR_BAND
 from ..text import article
 from ..tracing.rays import camera_rays as pinhole_rays
 from ..tracing.rays import orbit_rays, orbit_viewpoints, transform_rays
@@ -62,37 +62,20 @@ class SceneModel:
         return model_offset(self.metadata, object_size, self.grid.voxel_size)
 
 
-def render_precision(precision, device) -> str:
-    """The MLPs' arithmetic that ``precision`` (``settings.PRECISIONS``) asks of torch device
-    ``device``: auto is bfloat16 where the device has bfloat16 instructions and float32
-    elsewhere; bfloat16 on a device without them raises a one-line VDNIFError (torch would
-    emulate it, slower than float32)."""
-    from ..kernels.runtime import bfloat16_native
-
-    if precision not in PRECISIONS:
-        raise VDNIFError(f"precision '{precision}': choose one of {', '.join(PRECISIONS)}")
-    if precision == "auto":
-        return "bfloat16" if bfloat16_native(device) else "float32"
-    if precision == "bfloat16" and not bfloat16_native(device):
-        raise VDNIFError(f"precision bfloat16: {device} has no bfloat16 instructions "
-                         "(CUDA, or a CPU with AVX-512 BF16 or AMX): it would run slower "
-                         "than float32")
-    return precision
-
-
 def load_scene_model(path, capture, device="auto", loaded=None, precision=DEFAULT_PRECISION):
     """Loads the model file ``path`` for ``capture``'s object (``loaded``: its
     ``model_file.load_model`` result when the caller read it already), its MLPs to run in
-    ``precision`` as ``render_precision`` resolves it for the device; a file that is corrupt,
-    of another format, or trained on another object or resolution, or bfloat16 on a device
-    without it, raises a one-line VDNIFError."""
+    ``precision`` as ``network.resolve_precision`` resolves it for the device; a file that
+    is corrupt, of another format, or trained on another object or resolution, or bfloat16
+    on a device without it, raises a one-line VDNIFError."""
     from ..model.model_file import load_model
+    from ..model.network import resolve_precision
     from ..training.distributed import resolve_device
 
     network, metadata = load_model(path) if loaded is None else loaded
     check_model_fits(path, metadata, capture.mesh, capture.grid)
     device = resolve_device(device)
-    network.precision = render_precision(precision, device)
+    network.precision = resolve_precision(precision, device)
     return SceneModel(network=network.to(device), metadata=metadata, grid=capture.grid,
                       path=str(path), device=device)
 

@@ -1,6 +1,7 @@
 """Throughput of the network alone (no traversal): inference segments/s and training samples/s.
 
-Run it as ``batch.py -- bench-network [--device cpu] [--threads N] [--repeats 5] [--json PATH]``.
+Run it as ``batch.py -- bench-network [--device cpu] [--precision P] [--threads N]
+[--repeats 5] [--json PATH]``.
 Every figure is a median over ``repeats`` timed runs after one warm-up run; the kernels are
 compiled or loaded before either, and that time is reported apart (``kernels_s``).
 """
@@ -15,8 +16,8 @@ from typing import Any
 import torch
 
 from ..kernels import runtime
-from ..model.network import IntersectionNetwork, readout
-from ..settings import Heads, NetworkConfig, TrainConfig
+from ..model.network import IntersectionNetwork, readout, resolve_precision
+from ..settings import DEFAULT_PRECISION, Heads, NetworkConfig, TrainConfig
 from ..training.distributed import resolve_device
 from ..training.losses import make_weighting
 from ..training.train import Objective, TrainingStep
@@ -48,8 +49,11 @@ def benchmark_network(
     train_batch: int = 2**14,
     repeats: int = 5,
     config: NetworkConfig = PAPER_CONFIG,
+    precision: str = DEFAULT_PRECISION,
 ) -> dict[str, Any]:
-    """Median timings of inference and of a training step on random segments.
+    """Median timings of inference and of a training step on random segments, inference's
+    MLPs in ``precision`` as a render resolves it on the device (``resolve_precision``; the
+    result's ``precision``), training's in float32.
 
     ``infer_segments_per_s``: ``IntersectionNetwork.predict`` on ``segments`` segments (the
     renderer's call: encoder, MLP, heads, readout; on the CPU the encoder of one batch runs
@@ -82,16 +86,20 @@ def benchmark_network(
     batch = {key: value.to(dev) for key, value in batch.items()}
 
     network.eval()
+    network.precision = resolve_precision(precision, dev)
     infer = _median_seconds(lambda: network.predict(p0, p1, rest_len, VOXEL_SIZE), dev, repeats)
     with torch.inference_mode():
         features = network.encoder(p0, p1)
         encode = _median_seconds(lambda: network.encoder(p0, p1), dev, repeats)
-        mlp = _median_seconds(
-            lambda: readout(network.heads(features), config.distance_mode, VOXEL_SIZE, rest_len),
-            dev,
-            repeats,
-        )
+        with network.mlp_arithmetic(dev):
+            mlp = _median_seconds(
+                lambda: readout(network.heads(features), config.distance_mode, VOXEL_SIZE,
+                                rest_len),
+                dev,
+                repeats,
+            )
     network.train()
+    network.precision = "float32"
 
     objective = Objective(
         network, make_weighting("uncertainty", list(network.head_sizes)), VOXEL_SIZE
@@ -101,6 +109,7 @@ def benchmark_network(
     return {
         "device": str(dev),
         "threads": torch.get_num_threads(),
+        "precision": resolve_precision(precision, dev),
         "config": config.to_dict(),
         "segments": segments,
         "train_batch": train_batch,
