@@ -6,8 +6,10 @@ against finite differences."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
+import warp as wp
 from oracles import encoder_scalar
 from oracles import encoding_torch as oracle
 
@@ -36,7 +38,8 @@ def points(resolution, count=300, seed=0):
         [
             [0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 1.0], [0.5, 1.0, 0.25],
             [-1e-3, 0.5, 1.0 + 1e-3], [1.5, -0.2, 0.3], [1.0 + 1e-7, 1.0, 1.0 - 1e-7],
-            [-7.0, 3.0, 40.0], [float("nan"), 0.5, 0.5], [0.3, float("inf"), float("-inf")],
+            [-7.0, 3.0, 40.0], [7e4, -2e5, 3e7], [float("nan"), 0.5, 0.5],
+            [0.3, float("inf"), float("-inf")],
             [float("nan")] * 3,
         ]
     )
@@ -104,6 +107,56 @@ def test_blocks_equal_the_scalar_kernel_bit_for_bit(
                        encoder_scalar.encode(enc, table, p0, None))
     assert torch.equal(kernel.encode_backward(enc, len(table), p0, p1, weights),
                        encoder_scalar.encode_backward(enc, len(table), p0, p1, weights))
+
+
+def band_values(sine, cosine, bands):
+    """Float32 sin and cos of bands 0 .. bands - 1 from band 0's float64 ones, by the double
+    angle formulas as the kernels form them: (bands, 2, N) float32."""
+    values = []
+    for _ in range(bands):
+        values.append(np.stack([sine, cosine]).astype(np.float32))
+        sine, cosine = (sine * cosine) * 2.0, (cosine - sine) * (cosine + sine)
+    return np.stack(values)
+
+
+def test_band_sincos_is_libms_to_a_unit_and_rounds_as_it_to_float32():
+    """The kernels' vectorized sin and cos of band 0 against numpy's (the C library's), on
+    the float32 angles the kernels form (``x * s``, s = 1 and pi) within its reach: within
+    one unit in the last place of float64, and every band's float32 value (F = 3, the
+    default) the same as from the library's, on 2^20 angles, multiples of pi/2 and its
+    edges included."""
+    snippet = kernel.BAND_SINCOS + r"""
+double sine, cosine;
+band_sincos(((const double*)angles.data)[i], sine, cosine);
+((double*)out.data)[2 * i] = sine;
+((double*)out.data)[2 * i + 1] = cosine;
+"""
+
+    @wp.func_native(snippet)
+    def band_sincos(i: int, angles: wp.array(dtype=wp.float64),
+                    out: wp.array(dtype=wp.float64)): ...
+
+    @wp.kernel(module="unique")
+    def sincos_kernel(angles: wp.array(dtype=wp.float64), out: wp.array(dtype=wp.float64)):
+        band_sincos(wp.tid(), angles, out)
+
+    generator = np.random.default_rng(7)
+    raw = np.concatenate([
+        generator.uniform(-0.5, 1.5, 2**19), generator.uniform(-2e4, 2e4, 2**18),
+        generator.uniform(-1.0, 1.0, 2**18) * 10.0 ** generator.uniform(-30, 0, 2**18),
+        np.arange(-64, 65) * (np.pi / 4), [0.0, -0.0, 65536.0 / np.pi, 65536.0],
+    ]).astype(np.float32)
+    angles = np.concatenate([(raw * np.float32(scale)).astype(np.float64)
+                             for scale in (1.0, np.pi)])
+    angles = angles[np.abs(angles) <= 65536.0]
+    out = wp.zeros(2 * len(angles), dtype=wp.float64, device="cpu")
+    wp.launch(sincos_kernel, dim=len(angles),
+              inputs=[wp.array(angles, dtype=wp.float64, device="cpu"), out], device="cpu")
+    sine, cosine = out.numpy().reshape(-1, 2).T
+    for value, exact in ((sine, np.sin(angles)), (cosine, np.cos(angles))):
+        assert np.all(np.abs(value - exact) <= np.spacing(np.abs(exact)))
+    assert np.array_equal(band_values(sine, cosine, 3),
+                          band_values(np.sin(angles), np.cos(angles), 3))
 
 
 def test_torch_float32_sin_moves_gamma_points_by_at_most_a_unit_in_the_last_place():

@@ -69,12 +69,52 @@ task's stack (34 kB at 16); 4 gave 0.64x the throughput of 16 and 64 0.77x (as a
 PAIRS = 32
 """(Gamma point, level) pairs whose corners a backward task keeps before it scatters."""
 
+# sin and cos of band 0's angle, a lambda that the gamma points' loop calls (in the test of
+# its roundings too).
+BAND_SINCOS = r"""
+// sin and cos of band 0's angle x, for |x| <= SINCOS_REACH: x less the nearest multiple of
+// pi/2 (Cody and Waite's reduction, pi/2 in three parts, n pi/2's first part exact), then
+// fdlibm's polynomials on [-pi/4, pi/4] and the quadrant. Within a unit in the last place of
+// libm's, so the bands' float32 values are libm's but where a value lies that close to a
+// float32 rounding boundary; unlike a libm call, the compiler vectorizes it. A larger or
+// non-finite angle takes libm's (the caller's loop).
+constexpr double SINCOS_REACH = 65536.0;
+auto band_sincos = [](double angle, double& sine, double& cosine) {
+    const double x = wp::abs(angle) <= SINCOS_REACH ? angle : 0.0;
+    const double fn = (double)(long long)(x * 6.36619772367581382433e-01
+                                          + (x < 0.0 ? -0.5 : 0.5));
+    const double t = x - fn * 1.57079632673412561417e+00;
+    double w = fn * 6.07710050630396597660e-11;
+    const double r = t - w;
+    w = fn * 2.02226624879595063154e-21 - ((t - r) - w);
+    const double y0 = r - w;
+    const double y1 = (r - y0) - w;
+    const double z = y0 * y0;
+    const double v = z * y0;
+    const double rs = 8.33333333332248946124e-03 + z * (-1.98412698298579493134e-04
+        + z * (2.75573137070700676789e-06 + z * (-2.50507602534068634195e-08
+        + z * 1.58969099521155010221e-10)));
+    const double ks = y0 - ((z * (0.5 * y1 - v * rs) - y1) - v * -1.66666666666666324348e-01);
+    const double rc = z * (4.16666666666666019037e-02 + z * (-1.38888888888741095749e-03
+        + z * (2.48015872894767294178e-05 + z * (-2.75573143513906633035e-07
+        + z * (2.08757232129817482790e-09 + z * -1.13596475577881948265e-11)))));
+    const double ay = wp::abs(y0);
+    // beyond 0.3 the sum is split at qx (few bits: 1 - qx is exact)
+    const double qx = ay > 0.78125 ? 0.28125 : (double)(float)(0.25 * ay);
+    const double kc = ay < 0.3 ? 1.0 - (0.5 * z - (z * rc - y0 * y1))
+                               : (1.0 - qx) - ((0.5 * z - qx) - (z * rc - y0 * y1));
+    const int quadrant = (int)((long long)fn & 3);
+    sine = quadrant == 0 ? ks : quadrant == 1 ? kc : quadrant == 2 ? -ks : -kc;
+    cosine = quadrant == 0 ? kc : quadrant == 1 ? -ks : quadrant == 2 ? -kc : ks;
+};
+"""
+
 # The C++ shared by the forward and the backward. A task's block: the end points' raw
 # coordinates ``raw``, band sines and cosines ``sn``/``cs`` in float64 (band k's from band
 # k - 1's by the double angle), the current gamma point ``pt`` clamped to [0, 1] (NaN as 0), and at
 # each level its 8 corners' table rows and trilinear weights, corner ``4i + 2j + k`` being
 # vertex ``cell + (i, j, k)``.
-_BLOCK = r"""
+_BLOCK = BAND_SINCOS + r"""
 #if defined(__CUDA_ARCH__)
 constexpr int BLOCK = 1;
 #define VDNIF_SIMD
@@ -106,10 +146,19 @@ _GAMMA = r"""
         if (g == 0) {
             for (int i = 0; i < n; ++i) pt[k][i] = raw[k][i];
         } else if (g == 1) {
+            VDNIF_SIMD
+            for (int i = 0; i < n; ++i) {
+                double sine, cosine;
+                band_sincos((double)(raw[k][i] * scale), sine, cosine);
+                sn[k][i] = sine;
+                cs[k][i] = cosine;
+            }
             for (int i = 0; i < n; ++i) {
                 const double angle = (double)(raw[k][i] * scale);
-                sn[k][i] = wp::sin(angle);
-                cs[k][i] = wp::cos(angle);
+                if (!(wp::abs(angle) <= SINCOS_REACH)) {
+                    sn[k][i] = wp::sin(angle);
+                    cs[k][i] = wp::cos(angle);
+                }
                 pt[k][i] = ((float)sn[k][i] + 1.0f) * 0.5f;
             }
         } else if (g & 1) {
