@@ -9,7 +9,7 @@ first of ``--repeats`` + 1 rounds a warm-up, medians printed.
     python tools/secondary_speed.py capture out/bunny-pose.npz -- --model out/bunny.vdnif \\
         --scene bunny --width 256 --height 256
     python tools/secondary_speed.py time out/bunny-pose.npz --model out/bunny.vdnif \\
-        --device cuda --repeats 5
+        --device cuda --repeats 5 [--precision float32]
 
 Warp's path refits a BVH of the pose's vertices, casts the primary rays and takes the hit
 triangle's geometric normal, as ``side-by-side``'s does; its clock, like the network's,
@@ -29,6 +29,7 @@ sys.path.insert(0, str(ROOT / "tools"))    # tool_exit, also when run by runpy
 import numpy as np  # noqa: E402
 
 from vdnif_addon.errors import VDNIFError  # noqa: E402
+from vdnif_addon.settings import DEFAULT_PRECISION, PRECISIONS  # noqa: E402
 
 POSE_KEYS = ("rest_vertices", "triangles", "resolution", "corners", "vertices", "origins",
              "directions", "object_size")
@@ -71,8 +72,9 @@ def read_pose(path):
         raise VDNIFError(f"{path} is not a readable pose file ({error})") from None
 
 
-def time_paths(path, model_path, device_name, repeats, samples):
-    """Prints each path's medians at each AO sample count."""
+def time_paths(path, model_path, device_name, repeats, samples, precision=DEFAULT_PRECISION):
+    """Prints each path's medians at each AO sample count, the network's MLPs in
+    ``precision`` as a render resolves it on the device."""
     import torch
 
     from vdnif_addon.geometry import voxels
@@ -90,6 +92,7 @@ def time_paths(path, model_path, device_name, repeats, samples):
     from vdnif_addon.kernels.cast import MeshCaster
     from vdnif_addon.kernels.cells import DeviceCells
     from vdnif_addon.model.model_file import load_model
+    from vdnif_addon.model.network import resolve_precision
     from vdnif_addon.training.distributed import resolve_device
 
     pose = read_pose(path)
@@ -99,6 +102,7 @@ def time_paths(path, model_path, device_name, repeats, samples):
     if not np.isclose(grid.voxel_size, metadata.grid.voxel_size, rtol=1e-6):
         raise VDNIFError(f"model {model_path} was not trained on the mesh of {path}")
     network = network.to(device)
+    network.precision = resolve_precision(precision, device)
     table = metadata.albedo_colors()
     origins, directions = pose["origins"], pose["directions"]
     size = float(pose["object_size"])
@@ -106,7 +110,8 @@ def time_paths(path, model_path, device_name, repeats, samples):
     where = str(device) if device.type == "cpu" else (
         f"{device} ({torch.cuda.get_device_name(device)})")
     print(f"{where}: kernels ready in {kernels_s:.1f} s, apart; torch on "
-          f"{torch.get_num_threads()} thread(s); {len(origins):,} primary rays")
+          f"{torch.get_num_threads()} thread(s); the MLPs in {network.precision}; "
+          f"{len(origins):,} primary rays")
 
     def sync():
         if device.type == "cuda":
@@ -167,13 +172,17 @@ def main():
     timed.add_argument("--repeats", type=int, default=5, help="timed rounds after a warm-up")
     timed.add_argument("--samples", type=int, nargs="+", default=[1, 16],
                        help="AO samples per pixel to time")
+    timed.add_argument("--precision", default=DEFAULT_PRECISION, choices=PRECISIONS,
+                       help="the MLPs' arithmetic, as a render resolves it on the device "
+                       f"(default: {DEFAULT_PRECISION})")
     args = parser.parse_args()
     if args.command == "capture":
         capture(args.out, [a for a in args.evaluate if a != "--"])
     else:
         if args.repeats < 1:
             raise VDNIFError(f"--repeats must be at least 1, got {args.repeats}")
-        time_paths(args.pose, args.model, args.device, args.repeats, args.samples)
+        time_paths(args.pose, args.model, args.device, args.repeats, args.samples,
+                   args.precision)
 
 
 if __name__ == "__main__":

@@ -363,6 +363,12 @@ def test_secondary_speed_tool_times_a_captured_pose_without_blender(quick_demo, 
                            "--device", "cpu", "--repeats", "1", "--samples", "2"],
                           capture_output=True, text=True, timeout=120, cwd=REPO)
     assert done.returncode == 0, done.stderr
+    import torch
+
+    from vdnif_addon.kernels.runtime import bfloat16_native
+
+    auto = "bfloat16" if bfloat16_native(torch.device("cpu")) else "float32"
+    assert f"the MLPs in {auto};" in done.stdout.splitlines()[0]
     for path in ("network", "Warp refit"):
         line = next(line for line in done.stdout.splitlines()
                     if line.startswith(f"{path}, 2 AO sample(s)"))
