@@ -319,9 +319,11 @@ def test_plots_and_the_performance_section(tiny, tmp_path):
 
 
 def test_the_machine_names_its_widest_vector_extensions():
-    """The report names AVX-512 (with BF16) or AVX2 from the CPU's flags."""
+    """The report names AVX-512 (with BF16 and AMX) or AVX2 from the CPU's flags."""
     widest = core("kernels.runtime").vector_extensions
     assert widest({"avx2", "avx512f", "avx512_bf16"}) == "AVX-512 with BF16"
+    assert (widest({"avx2", "avx512f", "avx512_bf16", "amx_bf16", "amx_tile"})
+            == "AVX-512 with BF16 and AMX")
     assert widest({"avx2", "avx512f"}) == "AVX-512"
     assert widest({"avx", "avx2", "fma"}) == "AVX2"
     assert widest({"sse4_2"}) == "no AVX2"

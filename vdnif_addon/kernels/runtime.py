@@ -77,9 +77,12 @@ def host_key() -> str:
 def vector_extensions(flags: set[str]) -> str:
     """The widest vector extensions among a CPU's ``/proc/cpuinfo`` flags: with AVX-512 (and
     bfloat16) the MLP's matrix products and Embree's casts run several times faster than with
-    AVX2, so two machines' timings compare only with these named."""
+    AVX2, and AMX's tiles multiply bfloat16 matrices faster again, so two machines' timings
+    compare only with these named."""
     if "avx512f" in flags:
-        return "AVX-512 with BF16" if "avx512_bf16" in flags else "AVX-512"
+        bf16 = [name for flag, name in (("avx512_bf16", "BF16"), ("amx_bf16", "AMX"))
+                if flag in flags]
+        return "AVX-512 with " + " and ".join(bf16) if bf16 else "AVX-512"
     return "AVX2" if "avx2" in flags else "no AVX2"
 
 
