@@ -318,7 +318,7 @@ def test_plots_and_the_performance_section(tiny, tmp_path):
         assert f"](side-by-side/{path.name})" in text
 
 
-def test_the_machine_names_its_widest_vector_extensions():
+def test_the_machine_names_its_widest_vector_extensions(extension):
     """The report names AVX-512 (with BF16 and AMX) or AVX2 from the CPU's flags."""
     widest = core("kernels.runtime").vector_extensions
     assert widest({"avx2", "avx512f", "avx512_bf16"}) == "AVX-512 with BF16"
