@@ -216,6 +216,47 @@ def render_times(d, commit, path, samples, key):
             if run["path"] == path and run["ao_samples"] == samples]
 
 
+AMX = "results/network-amx.json"
+AMX_LABELS = {"6246eb6, float32": "6246eb6", "2891dcc, float32": "2891dcc",
+              "29d2d20, bfloat16 (the default)": "29d2d20 (precision auto: bfloat16 here)",
+              "29d2d20, bfloat16": "29d2d20 (precision auto: bfloat16 here)",
+              "29d2d20, float32": "29d2d20 --precision float32"}
+AMX_STAGES = {"encoder (28 lookups of 8 corners)": "encoder", "MLP, float32": "mlp",
+              "MLP, bfloat16": "mlp_bfloat16", "readout of the heads": "readout",
+              "normal field, per point": "normal_field", "albedo field, per point": "albedo_field"}
+
+
+def amx_bench_row(d, row):
+    """network-amx.json's bench-network runs of a row's commit and precision: inference's
+    median, smallest and largest, then training's."""
+    runs = {"runs": d["bench"]["runs"]}
+    return [*netbase(runs, AMX_LABELS[row], "infer_segments_per_s"),
+            *netbase(runs, AMX_LABELS[row], "train_samples_per_s")]
+
+
+def amx_stage_row(d, stage):
+    """network-amx.json's stage ``stage``: ns in each run at 2891dcc, then at 29d2d20."""
+    return [run["ns"][AMX_STAGES[stage]] for commit in ("2891dcc", "29d2d20")
+            for run in d["stages"]["runs"][commit]]
+
+
+def amx_render_row(d, row):
+    """network-amx.json's renders of a row's commit and precision: the primary pass's median
+    and span, the secondary rays' median and span, Warp refit's primary median (ms)."""
+    runs = d["render"]["runs"][AMX_LABELS[row]]
+    primary = [run["network_primary_ms"] for run in runs]
+    secondary = [run["network_secondary_ms"] for run in runs]
+    return [statistics.median(primary), *span(primary), statistics.median(secondary),
+            *span(secondary), statistics.median(run["warp_refit_primary_ms"] for run in runs)]
+
+
+def amx_clean_row(d, commit):
+    """network-amx.json's arm trainings at ``commit``: as ``level_split_row``."""
+    run = d["time_to_clean"]["runs"][commit]
+    return [*run["wall_s_runs"], *run["train_s_runs"],
+            *rates(run["test"], "false_negative_rate", "false_positive_rate")]
+
+
 SHADED_DEV = "results/shaded-dev-meshes.json"
 STEPS = "results/text-steps.json"
 LEVELS = "results/text-levels.json"
@@ -854,7 +895,16 @@ CLAIMS = [
               stage_sum(d, "mlp") / 1e3, 2e3 / stage_sum(d, "mlp")]),
     Claim(P, "3x 6246eb6's is {} M", NETBLOCKS,
           lambda d: [3 * netbase(d, "6246eb6", "infer_segments_per_s")[0] / 1e6]),
-    Claim(P, "The MLP in bfloat16 ({} ns, `--precision bfloat16`) would put the bound at {} M",
+    Claim(P, "At the default precision inference is {}x 6246eb6's ({}x in float32) and "
+          "training {}x", AMX, lambda d: [
+              amx_bench_row(d, row)[index] / amx_bench_row(d, "6246eb6, float32")[index]
+              for row, index in (("29d2d20, bfloat16", 0), ("29d2d20, float32", 0),
+                                 ("29d2d20, bfloat16", 3))]),
+    Claim(P, "The primary pass is {}x 6246eb6's rays/s (the 3x target is far), its secondary "
+          "rays {}x", AMX, lambda d: [
+              amx_render_row(d, "6246eb6, float32")[index]
+              / amx_render_row(d, "29d2d20, bfloat16")[index] for index in (0, 3)]),
+    Claim(P, "The MLP in bfloat16 ({} ns) puts the bound at {} M",
           STAGES, lambda d: [d["ns"]["mlp_bfloat16"], 2e3 / stage_sum(d, "mlp_bfloat16")]),
     Claim(P, "the primary pass took {}-{} ms at e234503 and {}-{} ms now; secondary rays {}-{} ms "
           "against {}-{} at one AO sample ({} rays) and {}-{} ms against {}-{} at 16 ({} rays)",
@@ -1654,6 +1704,13 @@ TABLES = [
     Table(P, "| stage | ns per segment, AVX2 | bound, AVX2 |", 1, AVX2, avx2_stage),
     Table(P, "| torch threads in training | wall (s), runs | steps (s), runs | test: holes / "
           "extras |", 1, AVX2, training_threads_row),
+    Table(P, "| commit, inference precision | inference segments/s | training samples/s |", 1,
+          AMX, amx_bench_row),
+    Table(P, "| stage | 2891dcc | 29d2d20 |", 1, AMX, amx_stage_row),
+    Table(P, "| commit, precision | primary pass (ms) | secondary rays, 1 AO sample (ms) | Warp "
+          "refit's primary (ms) |", 1, AMX, amx_render_row),
+    Table(P, "| commit, arm | wall (s), runs | steps (s), runs | test: holes / extras |", 1, AMX,
+          amx_clean_row),
     Table(R, "| scene | dataset on disk: estimated / actual | dataset time (s): estimated / "
           "actual (ratio) | training time (s): estimated / actual (ratio) |", 1, ESTIMATE,
           estimate_row),
