@@ -207,6 +207,38 @@ def test_a_full_segment_buffer_resumes_where_it_stopped(blob):
             np.testing.assert_array_equal(getattr(got, name), getattr(whole, name))
 
 
+def test_a_full_wave_keeps_its_seek_for_the_drop(blob):
+    """A ray whose wave fills as it leaves the occupied set has not cast for its next entry
+    yet: it waits, a step past its last segment, for the drop after the network. There a
+    ray the network ended (as a hit does) leaves without a cast, and every other one seeks,
+    as the one-launch walk would."""
+    import warp as wp
+
+    from vdnif_addon.kernels.walk import DONE, SEEK
+
+    origins, directions = outside_rays(np.random.default_rng(14), 1000)
+    cells = DeviceCells(blob)
+    walk = RayWalk(cells, origins, directions)
+    buffer = segment_buffer(walk.count, cells.device)
+    written = walk.advance(buffer, per_wave=1)
+    mode, t = walk.state.mode.numpy().copy(), walk.state.t.numpy()
+    last_t1 = np.full(len(origins), np.nan)
+    last_t1[buffer.ray.numpy()[:written]] = buffer.t1.numpy()[:written]
+    paused = np.flatnonzero(mode == SEEK)
+    assert len(paused) > 20
+    np.testing.assert_allclose(t[paused], last_t1[paused] + cells.step, rtol=0, atol=1e-12)
+    ended = paused[::2]
+    mode[ended] = DONE
+    walk.state.mode = wp.array(mode, dtype=wp.int32, device=cells.device)
+    left = walk.drop_finished()
+    after = walk.state.mode.numpy()
+    assert not (after == SEEK).any()
+    assert (after[ended] == DONE).all()
+    np.testing.assert_array_equal(walk.state.t.numpy()[ended], t[ended])
+    assert left == int((after < DONE).sum()) > 0
+    assert (after[paused[1::2]] != SEEK).all()
+
+
 def test_segments_written_in_any_ray_order_come_out_ordered(blob):
     """As a CUDA launch writes them: rays interleaved, each ray's own segments in walk order,
     over two launches. Walk order decides ties in distance (zero-length pieces)."""

@@ -5,7 +5,8 @@ Every ray keeps its walker state on the device (``kernels.walk.RayWalk``). A wav
 unresolved ray on by at most k segments (one kernel launch), the network evaluates the wave's
 segments in one batch, and a kernel places each ray's hit on its first candidate segment and
 makes it a hit at its first confident one (``kernels/render.py``), ending its walk; finished
-rays leave the list on the device. Two counts per wave come back to the host, to size the
+rays leave the list on the device, and a walker paused before a seek makes it then, so that
+a ray that hit spares the cast. Two counts per wave come back to the host, to size the
 network batch and the next launch, and the network reads which segments are candidates
 (``predict``): on CUDA each read waits for the queued work. With ``waves_per_read`` N > 1
 the host reads one count every N waves instead: in between, each launch and the network
@@ -192,7 +193,8 @@ def _render_lane(waves: _Waves, lane: int, cores: int, encoder: int | None
     """Renders ``lane`` wave by wave (walk, network, resolve) until its rays are done, on
     this thread with ``cores`` cores of its own and its encoder split over ``encoder``
     threads (``threads.lane_cores``); returns its waves and the seconds it spent walking
-    and in the network (with the resolve). Its count is read every ``waves.per_read``
+    (with the drop of finished rays and their paused seeks) and in the network (with the
+    resolve). Its count is read every ``waves.per_read``
     waves."""
     stats = dict(waves=0, walk_s=0.0, network_s=0.0)
     rays = waves.walk.lanes[lane]
@@ -203,8 +205,10 @@ def _render_lane(waves: _Waves, lane: int, cores: int, encoder: int | None
                 count = waves.advance(lane)
                 walked = time.perf_counter()
                 waves.resolve(lane, count, waves.predict(lane, count))
-                stats["walk_s"] += walked - clock
-                stats["network_s"] += time.perf_counter() - walked
+                resolved = time.perf_counter()
+                waves.walk.drop_finished(lane, read=waves.per_read == 1)
+                stats["walk_s"] += walked - clock + time.perf_counter() - resolved
+                stats["network_s"] += resolved - walked
                 stats["waves"] += 1
                 if not rays.count:
                     break
@@ -216,7 +220,8 @@ def _render_lane(waves: _Waves, lane: int, cores: int, encoder: int | None
 class _Waves:
     """The three steps of a lane's wave: ``advance`` (Warp only: the walk kernel and the
     network inputs), ``predict`` of its segments in one batch (the network: the Warp encoder
-    and torch's MLP), ``resolve`` (Warp: hits placed and made, finished rays out). Different
+    and torch's MLP), ``resolve`` (Warp: hits placed and made); the lane's loop then drops
+    its finished rays (``RayWalk.drop_finished``, timed as walking). Different
     lanes' steps run at once."""
 
     def __init__(self, network: IntersectionNetwork, grid: VoxelGrid, walk: RayWalk,
@@ -291,7 +296,7 @@ class _Waves:
     def resolve(self, lane: int, count: int, prediction: Prediction | None) -> None:
         """Each ray's first candidate segment, unless one is placed already, into its passes,
         and a ray with a segment above the occlusion threshold made a hit (its walk ends
-        there); finished rays leave the lane."""
+        there)."""
         if count:
             tensors, has_albedo = prediction
             view = kernel.Prediction()
@@ -310,7 +315,6 @@ class _Waves:
                               self.placed,
                               int(has_albedo), self.passes, self.past],
                       device=self.device)
-        self.walk.drop_finished(lane, read=self.per_read == 1)
 
 
 

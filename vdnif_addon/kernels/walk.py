@@ -2,7 +2,8 @@
 
 Each ray keeps its walker state on the device between launches (``RayWalk``): seeking an
 entry into the occupied set, walking a cell, done, or truncated. A launch advances every
-listed ray until it is done, or has written ``per_wave`` segments, or the segment buffer is
+listed ray until it is done, or has written ``per_wave`` segments (it pauses before its next
+cell or seek, and ``RayWalk.drop_finished`` makes a paused seek), or the segment buffer is
 full; the renderer uses the first bound (a wave of at most k segments per ray), ``traverse``
 the last (it drains the buffer and goes on). The rules are those of the numpy walk this
 kernel replaced (kept as the oracle in ``tests/oracles/walk.py``):
@@ -313,6 +314,10 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
                 clip_from = entry_t
                 zero_passes = 0
     while mode < DONE:
+        if written >= per_wave:
+            # paused before a seek too: a wave's last segment often holds the ray's hit, and
+            # the drop after the network seeks only for the rays it did not end
+            break
         if mode != WALK:
             mode, t, cell, entry_face, p, clip_from, behind_from = seek_entry(
                 cells, o, d, far, mode, t, cell, entry_face, p, clip_from, behind_from)
@@ -322,7 +327,7 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
         if steps >= max_steps:
             mode = TRUNCATED
             break
-        if written >= per_wave or out.cursor[0] >= out.capacity:
+        if out.cursor[0] >= out.capacity:
             break                                          # paused until the next launch
         ahead, ahead_t, ahead_u, ahead_v, touch, touch_t, touch_u, touch_v = exit_crossings(
             cells, o, d, cell, entry_face, t)
@@ -390,14 +395,31 @@ def walk_rays(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32
 
 
 @wp.kernel(module=WARP_MODULE)
-def _still_walking(rays: RayState, active: wp.array(dtype=wp.int32),
+def _still_walking(cells: CellArrays, rays: RayState, active: wp.array(dtype=wp.int32),
                    active_count: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32),
                    cursor: wp.array(dtype=wp.int32)):
     i = wp.tid()
     if i >= active_count[0]:
         return
     r = active[i]
-    if rays.mode[r] < DONE:
+    mode = rays.mode[r]
+    if mode == SEEK:
+        # a walker paused before a seek (its wave was full) seeks now, after the wave's
+        # hits ended their rays: one that finds nothing leaves here, not a wave later
+        mode, t, cell, entry_face, p, clip_from, behind_from = seek_entry(
+            cells, rays.origin[r], rays.direction[r], rays.far[r], mode, rays.t[r],
+            rays.cell[r], rays.entry_face[r], rays.p[r], rays.clip_from[r],
+            rays.behind_from[r])
+        if mode == WALK:
+            rays.zero_passes[r] = 0
+        rays.mode[r] = mode
+        rays.t[r] = t
+        rays.cell[r] = cell
+        rays.entry_face[r] = entry_face
+        rays.p[r] = p
+        rays.clip_from[r] = clip_from
+        rays.behind_from[r] = behind_from
+    if mode < DONE:
         keep[wp.atomic_add(cursor, 0, 1)] = r
 
 
@@ -479,14 +501,16 @@ class RayWalk:
         return min(int(out.cursor.numpy()[0]), out.capacity)
 
     def drop_finished(self, lane: int = 0, read: bool = True) -> int:
-        """Keeps only the unfinished rays in ``lane``; returns their count, read on the host,
-        or with ``read`` False the host's bound on it (``Lane.count``, unchanged)."""
+        """Keeps only the unfinished rays in ``lane``, a ray paused before a seek seeking
+        first (``walk_rays`` pauses there once its wave is full, so that a hit in the wave
+        spares the cast); returns their count, read on the host, or with ``read`` False the
+        host's bound on it (``Lane.count``, unchanged)."""
         rays = self.lanes[lane]
         if rays.count:
             rays._cursor.zero_()
             wp.launch(_still_walking, dim=rays.count,
-                      inputs=[self.state, rays.active, rays.active_count, rays._spare,
-                              rays._cursor],
+                      inputs=[self.cells.arrays, self.state, rays.active, rays.active_count,
+                              rays._spare, rays._cursor],
                       device=self.device)
             rays.active, rays._spare = rays._spare, rays.active
             rays.active_count, rays._cursor = rays._cursor, rays.active_count
