@@ -355,17 +355,18 @@ DEVICE = Setting(
 PRECISION = Setting(
     # The hash grids and the readout stay float32 either way. A .blend stores the choice by
     # its number: float32 and bfloat16 keep theirs from before auto.
-    "precision", str, "auto", "the network MLPs' arithmetic: auto takes bfloat16 where the "
-    "device has it (CUDA, a CPU with AVX-512 BF16 or AMX), float32 elsewhere",
+    "precision", str, "auto", "the network MLPs' arithmetic in training and rendering: auto "
+    "takes bfloat16 where the device has it (CUDA, a CPU with AVX-512 BF16 or AMX), float32 "
+    "elsewhere",
     choices=(Choice("auto", "Auto", "BFloat16 where the device has bfloat16 instructions, "
                     "Float32 elsewhere", number=2),
              Choice("float32", "Float32", "Full precision", number=0),
              Choice("bfloat16", "BFloat16", "Faster where the device has bfloat16 instructions "
                     "(an NVIDIA GPU, a CPU with AVX-512 BF16 or AMX), a little less exact; "
                     "refused elsewhere", number=1)),
-    option=Option("--precision", (*MODEL_COMMANDS, "side-by-side", "bench-network")),
+    option=Option("--precision", ("train", *MODEL_COMMANDS, "side-by-side", "bench-network")),
     panel=(Panel("precision", "Precision", "The arithmetic of the network's layers when it "
-                 "renders"),))
+                 "trains and renders"),))
 IMAGE_WIDTH = Setting(
     "image_width", int, 128, "image width in pixels", 1, limits.MAX_IMAGE_SIDE,
     option=Option("--width", IMAGE_COMMANDS, "W", label="image width",

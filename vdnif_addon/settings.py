@@ -126,7 +126,7 @@ TERMINATOR_BAND = 0.175
 DEVICES, DEFAULT_DEVICE = declared.DEVICE.names, declared.DEVICE.default
 """Where the network runs: auto is CUDA where torch has it, else the CPU."""
 PRECISIONS, DEFAULT_PRECISION = declared.PRECISION.names, declared.PRECISION.default
-"""The arithmetic of a render's MLPs (``declarations.PRECISION``)."""
+"""The arithmetic of the MLPs in training and in a render (``declarations.PRECISION``)."""
 POSE_SOURCES = declared.POSE_SOURCE.names
 """Random bone rotations and lattice offsets, or frames of the scene's frame range."""
 DISTANCE_MODES = ("fraction", "log1p-fraction", "log-distance")
@@ -342,6 +342,8 @@ class TrainConfig:
     weighting_start: str = DEFAULT_WEIGHTING_START
     seed: int = declared.SEED.default
     device: str = DEFAULT_DEVICE
+    # The MLPs' arithmetic in a step, as a render's (``training.train.Objective``).
+    precision: str = DEFAULT_PRECISION
     val_fraction: float = 0.1
     val_segments: int = 2**16
     # Every log_interval steps a validation feeds the stopping rule (``training.stopping``);
@@ -367,6 +369,7 @@ class TrainConfig:
         check_choice("weighting", self.weighting, WEIGHTINGS)
         check_choice("weighting_start", self.weighting_start, WEIGHTING_STARTS)
         check_choice("device", self.device, DEVICES)
+        check_choice("precision", self.precision, PRECISIONS)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -51,9 +51,9 @@ def benchmark_network(
     config: NetworkConfig = PAPER_CONFIG,
     precision: str = DEFAULT_PRECISION,
 ) -> dict[str, Any]:
-    """Median timings of inference and of a training step on random segments, inference's
-    MLPs in ``precision`` as a render resolves it on the device (``resolve_precision``; the
-    result's ``precision``), training's in float32.
+    """Median timings of inference and of a training step on random segments, the MLPs of
+    both in ``precision`` as a render and training resolve it on the device
+    (``resolve_precision``; the result's ``precision``).
 
     ``infer_segments_per_s``: ``IntersectionNetwork.predict`` on ``segments`` segments (the
     renderer's call: encoder, MLP, heads, readout; on the CPU the encoder of one batch runs
@@ -102,8 +102,8 @@ def benchmark_network(
     network.precision = "float32"
 
     objective = Objective(
-        network, make_weighting("uncertainty", list(network.head_sizes)), VOXEL_SIZE
-    ).to(dev)
+        network, make_weighting("uncertainty", list(network.head_sizes)), VOXEL_SIZE,
+        precision=resolve_precision(precision, dev)).to(dev)
     step = TrainingStep(objective, TrainConfig(steps=repeats + 1, device=dev.type))
     train = _median_seconds(lambda: step(batch), dev, repeats)
     return {

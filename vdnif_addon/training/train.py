@@ -29,7 +29,7 @@ from ..errors import VDNIFError
 from ..limits import GROUP_TIMEOUT_S
 from ..model.encoding import HashGrid
 from ..model.metadata import Thresholds, TrainingSummary
-from ..model.network import IntersectionNetwork, sized_to_scene
+from ..model.network import IntersectionNetwork, resolve_precision, sized_to_scene
 from ..settings import OCCLUSION_THRESHOLD, NetworkConfig, TrainConfig
 from .data import Batches, Segments, split_data
 from .distributed import ProcessGroup, resolve_device
@@ -123,13 +123,23 @@ class Objective(nn.Module):
 
     The fields are read on the first ``field_rows`` rows of a batch ordered hits first (the
     module's ``field_rows``), not on every row: only the hits' losses read them, and a
-    batch's hit count is not known on the host without waiting for the device."""
+    batch's hit count is not known on the host without waiting for the device.
+
+    ``precision`` is the MLPs' arithmetic, "float32" or "bfloat16" (resolved:
+    ``model.network.resolve_precision``): in bfloat16 their layers multiply in it forward
+    and backward, while the hash grids, the losses, the weights, their gradients and Adam
+    stay float32."""
 
     def __init__(
         self, network: IntersectionNetwork, weighting: nn.Module, voxel_size: float,
         field_jitter: float = 0.0, seed: int = 0, field_rows: int | None = None,
+        precision: str = "float32",
     ) -> None:
         super().__init__()
+        if precision not in ("float32", "bfloat16"):
+            raise VDNIFError(f"the objective's MLPs run in float32 or bfloat16, not "
+                             f"'{precision}'")
+        self.precision = precision
         self.network = network
         self.weighting = weighting
         self.voxel_size = voxel_size
@@ -151,7 +161,10 @@ class Objective(nn.Module):
         rows = None
         if self.field_rows is not None and self.field_rows < len(at):
             rows = torch.argsort((~batch["hit"]).to(torch.int8), stable=True)[:self.field_rows]
-        outputs = self.network(batch["p0"], batch["p1"], at, rows)
+        # the network hands its heads and fields on in float32 (``heads``, ``PointField``)
+        with torch.autocast(at.device.type, dtype=torch.bfloat16,
+                            enabled=self.precision == "bfloat16"):
+            outputs = self.network(batch["p0"], batch["p1"], at, rows)
         losses = task_losses(outputs, batch, self.network.config.distance_mode, self.voxel_size)
         return self.weighting(losses), torch.stack(list(losses.values()))
 
@@ -360,7 +373,8 @@ def _train(
     weighting = make_weighting(config.weighting, list(network.head_sizes),
                                config.weighting_start)
     objective = Objective(network, weighting, h, config.field_jitter, config.seed + group.rank,
-                          field_rows(train_data["hit"], config.batch_size)).to(device)
+                          field_rows(train_data["hit"], config.batch_size),
+                          resolve_precision(config.precision, device)).to(device)
     model = (
         nn.parallel.DistributedDataParallel(objective, broadcast_buffers=False)
         if group.active
