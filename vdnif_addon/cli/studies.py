@@ -340,7 +340,7 @@ def add_commands(commands):
                                 "infer_segments_per_s, serial_segments_per_s, "
                                 "encode_segments_per_s, mlp_segments_per_s, encode_fraction, "
                                 "mlp_fraction, train_samples_per_s, threads, precision "
-                                "(inference's; training runs float32).")
+                                "(the MLPs', in inference and training).")
     add_setting(bench, declared.DEVICE, "bench-network")
     add_setting(bench, declared.PRECISION, "bench-network")
     bench.add_argument("--threads", type=int, metavar="N",
