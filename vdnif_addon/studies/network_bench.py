@@ -85,8 +85,9 @@ def benchmark_network(
     p0, p1, rest_len = p0.to(dev), p1.to(dev), rest_len.to(dev)
     batch = {key: value.to(dev) for key, value in batch.items()}
 
+    arithmetic = resolve_precision(precision, dev)
     network.eval()
-    network.precision = resolve_precision(precision, dev)
+    network.precision = arithmetic
     infer = _median_seconds(lambda: network.predict(p0, p1, rest_len, VOXEL_SIZE), dev, repeats)
     with torch.inference_mode():
         features = network.encoder(p0, p1)
@@ -103,13 +104,13 @@ def benchmark_network(
 
     objective = Objective(
         network, make_weighting("uncertainty", list(network.head_sizes)), VOXEL_SIZE,
-        precision=resolve_precision(precision, dev)).to(dev)
+        precision=arithmetic).to(dev)
     step = TrainingStep(objective, TrainConfig(steps=repeats + 1, device=dev.type))
     train = _median_seconds(lambda: step(batch), dev, repeats)
     return {
         "device": str(dev),
         "threads": torch.get_num_threads(),
-        "precision": resolve_precision(precision, dev),
+        "precision": arithmetic,
         "config": config.to_dict(),
         "segments": segments,
         "train_batch": train_batch,
