@@ -108,3 +108,22 @@ def test_a_hit_array_of_other_rows_than_the_hits_is_one_line(tmp_path):
 
 def test_every_pose_index_fits_the_stored_type():
     assert limits.MAX_POSES <= np.iinfo(packing.STORED_TYPES["pose"]).max
+
+
+def test_a_header_read_leaves_the_rows_to_the_training_that_refuses_them(tmp_path):
+    """``read_dataset(check_rows=False)`` (the header a training names its model by) reads
+    no row: a shard whose points lie far outside the grid gives its header and the headers'
+    segment count, while the full read, and the training that makes it, refuse it on one
+    line, before the model's folder exists."""
+    records = rows(materials=3)
+    records["p0"][5] = 3e38
+    write(tmp_path / "data", records, materials=3)
+    merged, _ = dataset.read_dataset(tmp_path / "data", check_rows=False)
+    assert merged.segments == len(records["pose"])
+    pattern = r"^dataset shard '.*' array 'p0' has points outside the grid"
+    with pytest.raises(VDNIFError, match=pattern):
+        dataset.read_dataset(tmp_path / "data")
+    from vdnif_addon.training.fit import fit_model
+    with pytest.raises(VDNIFError, match=pattern):
+        fit_model(tmp_path / "data", "proposed", tmp_path / "models" / "m.vdnif", {"steps": 2})
+    assert not (tmp_path / "models").exists()

@@ -207,11 +207,11 @@ def cmd_train(args):
     else:
         from ..training.dataset import read_dataset
 
-        header = read_dataset(args.data)[0].header
+        # the header alone: fit_model reads and checks the rows, once
+        header = read_dataset(args.data, check_rows=False)[0].header
         variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
         check_output_file(out, "model file", "model")   # before training, not after it
-        pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
         from ..training.fit import fit_model
 
         result, summary = fit_model(args.data, variant, out, network_overrides(args),

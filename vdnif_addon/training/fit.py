@@ -56,6 +56,8 @@ def fit_model(
         check_memory(f"training on the {data.segments:,} segments of '{data_dir}'",
                      TRAINING_MEMORY_COPIES * data.segments * ROW_BYTES,
                      "train on a smaller dataset (fewer poses or rays per pose)")
+        # the model's folder, once the rows are sound and before the training, not after it
+        pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
                        cancel=cancel, group_timeout_s=group_timeout_s)
     result.timings["read_s"] = read_s
