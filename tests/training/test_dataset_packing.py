@@ -110,20 +110,40 @@ def test_every_pose_index_fits_the_stored_type():
     assert limits.MAX_POSES <= np.iinfo(packing.STORED_TYPES["pose"]).max
 
 
-def test_a_header_read_leaves_the_rows_to_the_training_that_refuses_them(tmp_path):
-    """``read_dataset(check_rows=False)`` (the header a training names its model by) reads
-    no row: a shard whose points lie far outside the grid gives its header and the headers'
-    segment count, while the full read, and the training that makes it, refuse it on one
-    line, before the model's folder exists."""
+def test_a_deferred_row_check_refuses_a_shard_at_its_first_read(tmp_path):
+    """``read_dataset(defer_row_check=True)`` (the header a training names its model by, and
+    the training's own read) reads no row: a shard whose points lie far outside the grid
+    gives its header and the headers' segment count, and is refused on one line when any of
+    its arrays is first read, as the full read refuses it; the training that reads it
+    leaves no model folder behind."""
     records = rows(materials=3)
     records["p0"][5] = 3e38
     write(tmp_path / "data", records, materials=3)
-    merged, _ = dataset.read_dataset(tmp_path / "data", check_rows=False)
+    merged, [shard] = dataset.read_dataset(tmp_path / "data", defer_row_check=True)
     assert merged.segments == len(records["pose"])
     pattern = r"^dataset shard '.*' array 'p0' has points outside the grid"
+    with pytest.raises(VDNIFError, match=pattern):
+        shard["ray"]
     with pytest.raises(VDNIFError, match=pattern):
         dataset.read_dataset(tmp_path / "data")
     from vdnif_addon.training.fit import fit_model
     with pytest.raises(VDNIFError, match=pattern):
         fit_model(tmp_path / "data", "proposed", tmp_path / "models" / "m.vdnif", {"steps": 2})
     assert not (tmp_path / "models").exists()
+
+
+def test_a_deferred_check_hands_each_array_over_once_and_reads_it_again_after(tmp_path):
+    """The sound shard's arrays, checked at the first read, are the full read's; the one
+    given is let go (the reader holds the only copy), and a second read of it reads the file
+    again, to the same values."""
+    records = rows(materials=3)
+    write(tmp_path, records, materials=3)
+    _, [checked] = dataset.read_dataset(tmp_path)
+    _, [deferred] = dataset.read_dataset(tmp_path, defer_row_check=True)
+    first = {name: deferred[name] for name in dataset.ARRAYS}
+    assert not deferred._unread
+    for name in dataset.ARRAYS:
+        np.testing.assert_array_equal(first[name], checked[name], err_msg=name)
+        again = deferred[name]
+        assert again is not first[name]
+        np.testing.assert_array_equal(again, checked[name], err_msg=name)

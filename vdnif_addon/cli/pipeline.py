@@ -207,8 +207,8 @@ def cmd_train(args):
     else:
         from ..training.dataset import read_dataset
 
-        # the header alone: fit_model reads and checks the rows, once
-        header = read_dataset(args.data, check_rows=False)[0].header
+        # the header alone: fit_model reads and checks the rows
+        header = read_dataset(args.data, defer_row_check=True)[0].header
         variant = _variant(args, header.object, header.mode == "static")
         out = args.out or pathlib.Path(args.data) / f"{variant}.vdnif"
         check_output_file(out, "model file", "model")   # before training, not after it

@@ -15,7 +15,7 @@ import math
 import os
 import pathlib
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -197,15 +197,15 @@ class Dataset:
     segments: int
 
 
-def read_dataset(folder: str | os.PathLike, check_rows: bool = True
+def read_dataset(folder: str | os.PathLike, defer_row_check: bool = False
                  ) -> tuple[Dataset, list[Shard]]:
     """(dataset, shards): the shards' headers read together and one lazy mapping of arrays
     per shard. The shards must agree with each other and with the folder's manifest on the
     object, grid and seed, and their pose ranges must not overlap (a pose counted twice).
-    Their zip directories and array headers are checked, and with ``check_rows`` every
-    array's values too (``_check_shard``: a read of the whole dataset, seconds per
-    gigabyte); without it the segment count is the headers' and the rows are the caller's
-    to check (a caller that wants the header alone before ``fit.fit_model`` reads them)."""
+    Their zip directories and array headers are checked here, and every array's values
+    (``_check_shard``) here too, a read of the whole dataset (seconds per gigabyte), or with
+    ``defer_row_check`` when a shard's rows are first read (``RowsCheckedOnRead``): a
+    training then reads its rows once, and a caller that wants the header reads none."""
     folder = pathlib.Path(folder)
     if not folder.is_dir():
         raise VDNIFError(f"dataset folder '{folder}' does not exist")
@@ -241,9 +241,12 @@ def read_dataset(folder: str | os.PathLike, check_rows: bool = True
     _check_overlap(paths, headers)
     shards = []
     for path, header in zip(paths, headers):
-        shards.append(_open_shard(path.with_suffix(".npz"), header))
-        if check_rows:
-            _check_shard(path.with_suffix(".npz"), shards[-1], header)
+        shard = _open_shard(path.with_suffix(".npz"), header)
+        if defer_row_check:
+            shard = RowsCheckedOnRead(shard, path.with_suffix(".npz"), header)
+        else:
+            _check_shard(path.with_suffix(".npz"), shard, header)
+        shards.append(shard)
     merged = Dataset(header=headers[0], shards=tuple(path.stem for path in paths),
                      poses=tuple(pose for header in headers for pose in header.poses),
                      segments=sum(header.segments for header in headers))
@@ -379,13 +382,44 @@ def _first_line(exc: BaseException) -> str:
 _POINT_MARGIN = 0.01
 
 
-def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> None:
+class RowsCheckedOnRead(Mapping):
+    """A shard whose rows are checked (``_check_shard``) when any of its arrays is first
+    read: every array is read and checked then, before the first is given, and each is
+    handed over once, so that the reader holds the only copy (a later read of it reads the
+    file again)."""
+
+    def __init__(self, shard: Shard, path: pathlib.Path, header: DatasetHeader) -> None:
+        self.shard, self.path, self.header = shard, path, header
+        self._unread: dict[str, np.ndarray] | None = None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.shard)
+
+    def __len__(self) -> int:
+        return len(self.shard)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.shard
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if self._unread is None:
+            self._unread = _check_shard(self.path, self.shard, self.header, keep=True)
+        if name in self._unread:
+            return self._unread.pop(name)
+        return self.shard[name]
+
+
+def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader, keep: bool = False
+                 ) -> dict[str, np.ndarray]:
     """Every array of a shard read once and checked against ``ARRAYS`` and its header: kind
     of dtype, shape, length (the header's segment count), finite values, normalized points
     within the grid, 0/1 hits, fractions in [0, 1], poses of the header. A bad CRC or a
-    truncated member is reported here, not in the middle of training."""
+    truncated member is reported here, not in the middle of training. Returns the arrays
+    read with ``keep`` (those a packed shard makes from its header's table are not read),
+    else none: each array is let go once checked."""
     length = None
     kept = {}
+    read = {}
     for name, (dtype, trailing) in ARRAYS.items():
         if isinstance(shard, PackedShard) and name not in shard.stored:
             continue        # made from the header's albedo table and the stored materials
@@ -400,6 +434,8 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
         if array.ndim < 1 or array.shape[1:] != trailing:
             raise VDNIFError(f"dataset shard '{path}' array '{name}' has shape {array.shape}, "
                              f"expected (N, {', '.join(map(str, trailing))})".replace(", )", ")"))
+        if keep:
+            read[name] = array
         if name in ("p0", "p1", "rest_len", "seg_len", "t0", "hit", "normal"):
             kept[name] = array
         if length is None:
@@ -427,3 +463,4 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader) -> Non
         raise VDNIFError(f"dataset shard '{path}' has {length} rows, its header says "
                          f"{header.segments}")
     check_lengths(path, kept, header.grid.extent)
+    return read

@@ -49,15 +49,14 @@ def fit_model(
     chosen = variant_config(variant, **(overrides or {}))
     with out_of_memory("training", TRAINING_ADVICE, CPU_TRAINING_ADVICE):
         started = time.perf_counter()
-        data, shards = read_dataset(data_dir)
+        # the rows are checked as the training first reads them: one read of the dataset
+        data, shards = read_dataset(data_dir, defer_row_check=True)
         read_s = time.perf_counter() - started
         header = data.header
         # rows unpacked from the shards and their tensors, before any is read
         check_memory(f"training on the {data.segments:,} segments of '{data_dir}'",
                      TRAINING_MEMORY_COPIES * data.segments * ROW_BYTES,
                      "train on a smaller dataset (fewer poses or rays per pose)")
-        # the model's folder, once the rows are sound and before the training, not after it
-        pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
         result = train(shards, header, chosen.train, chosen.network, progress=progress,
                        cancel=cancel, group_timeout_s=group_timeout_s)
     result.timings["read_s"] = read_s
@@ -77,6 +76,9 @@ def fit_model(
                               poses=len(data.poses), segments=int(data.segments)),
         vdnif_version=__version__, corners_follow=header.corners_follow)
     started = time.perf_counter()
+    # the model's folder once there is a model: a training refused or cancelled leaves none
+    # (the caller checked that it can be made: ``safe_io.check_output_file``)
+    pathlib.Path(out).parent.mkdir(parents=True, exist_ok=True)
     save_model(out, result.network, metadata)
     result.timings["save_s"] = time.perf_counter() - started
     summary = {"variant": variant, "model": str(out), "model_bytes": model_bytes(out),
