@@ -183,6 +183,7 @@ SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
 RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
 STARTS, BATCH = "results/render-start-cells.json", "results/render-one-batch.json"
 READ, PAST = "results/dataset-read.json", "results/render-walk-past.json"
+READ_ONCE = "results/dataset-read-once.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -1142,6 +1143,19 @@ CLAIMS = [
     Claim(P, "and against Embree rebuilt up to {}-{} at 256x256", SIDE,
           lambda d: span(result(d, "suzanne-5", 256, t)["secondary"]["trade"][
               "embree_rebuild"]["samples"] for t in (1, 2))),
+    Claim(P, "took {} s ({}-{}) before and {} s ({}-{}) after", READ_ONCE, lambda d: [
+        value for commit in ("4f73e57", "0ebb909") for value in (
+            d["fixed_wall_median_s"][commit],
+            *span(run["wall_s"] for run in d["fixed_runs"][commit]))]),
+    Claim(P, "two runs each, alternating: {} and {} s at 4f73e57, {} and {} s at 0ebb909 (the "
+          "steps alone {} and {} s, {} and {} s), the same model (test holes {} %, extras {} %)",
+          READ_ONCE, lambda d: [
+              *(run["wall_s"] for commit in ("4f73e57", "0ebb909")
+                for run in d["time_to_clean"][commit]),
+              *(run["train_s"] for commit in ("4f73e57", "0ebb909")
+                for run in d["time_to_clean"][commit]),
+              100 * d["time_to_clean"]["0ebb909"][0]["test_holes"],
+              100 * d["time_to_clean"]["0ebb909"][0]["test_extras"]]),
 ]
 
 
