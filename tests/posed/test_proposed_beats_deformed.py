@@ -5,26 +5,34 @@ the common pixel set (DESIGN section 10), through the experiments' own code path
 The size (``SIZE``) is small enough for the suite (about 1 min on a loaded 2-core machine)
 and large enough that the baseline predicts hits. Both variants train at the recipe's rates
 and calibrate their thresholds on held-out poses (``val_fraction``), as every trained model
-does. The bounds come from the measured spread: with this size, seeds 0-4 (torch on one
-thread; ``python tests/posed/test_proposed_beats_deformed.py`` prints them) gave, against the true
-reference,
+does, with the MLPs in float32. The bounds come from the measured spread: with this size,
+seeds 0-4 (torch on one thread, a 2-core Zen 5 EPYC; ``python
+tests/posed/test_proposed_beats_deformed.py`` prints them) gave, against the true reference,
 
 | seed | common pixels | distance MAE ratio | normal error ratio | hit IoU deformed / proposed |
 | --- | --- | --- | --- | --- |
-| 0 | 459 | 0.236 | 0.330 | 0.812 / 0.960 |
-| 1 | 466 | 0.302 | 0.283 | 0.822 / 0.964 |
-| 2 | 450 | 0.281 | 0.277 | 0.806 / 0.960 |
-| 3 | 459 | 0.353 | 0.316 | 0.803 / 0.953 |
-| 4 | 456 | 0.224 | 0.259 | 0.816 / 0.958 |
+| 0 | 414 | 0.297 | 0.359 | 0.795 / 0.948 |
+| 1 | 445 | 0.255 | 0.287 | 0.818 / 0.956 |
+| 2 | 450 | 0.221 | 0.261 | 0.807 / 0.960 |
+| 3 | 453 | 0.372 | 0.338 | 0.813 / 0.953 |
+| 4 | 435 | 0.227 | 0.235 | 0.812 / 0.958 |
 
 (ratio: proposed / deformed on the common pixels). The test trains seed 0 and asks, against
-both references, for ratios at most ``MAX_RATIO`` (0.4: the worst seed's 0.353 with room for
+both references, for ratios at most ``MAX_RATIO`` (0.4: the worst seed's 0.372 with room for
 a platform's rounding, and still a cut of more than half), a hit IoU gain of at least
-``MIN_IOU_GAIN`` (0.1; the smallest measured is 0.142), fewer holes, and at least
-``MIN_COMMON_PIXELS`` common pixels (half the fewest measured, 450). With the normal read
-from a field at the hit (``normal_mode`` "hit", both variants) the baseline's hit IoU rose
-from 0.57-0.74 to 0.80-0.82 and proposed's stayed at 0.95-0.97, so the gain bound, 0.2 with
-the normal head, is lower.
+``MIN_IOU_GAIN`` (0.1; the smallest measured is 0.138), fewer holes, and at least
+``MIN_COMMON_PIXELS`` common pixels (about half the fewest measured, 414). With the normal
+read from a field at the hit (``normal_mode`` "hit", both variants) the baseline's hit IoU
+rose from 0.57-0.74 to 0.80-0.82 and proposed's stayed at 0.95-0.97, so the gain bound, 0.2
+with the normal head, is lower.
+
+Why float32: the default precision trains the MLPs in bfloat16 where the CPU has the
+instructions, and its rounding differs from one CPU's kernels to another's. On the same
+machine at the default precision (AVX-512 BF16, no AMX) the five seeds' ratios were
+0.245-0.327 for the distance and 0.258-0.404 for the normal, seed 0's normal the worst,
+against float32's 0.221-0.372 and 0.235-0.359: no worse on the whole, but seed 0 alone
+crosses the bound on one CPU and not on another. The quick test below trains at the default
+precision.
 """
 
 import sys
@@ -36,12 +44,14 @@ SIZE = dict(resolution=12, poses=8, rays_per_pose=4096, steps=2000, eval_poses=2
             height=48, seeds=(0,),
             # log_interval 500: four validations, too few for the stopping rule to end a
             # run early; the thresholds are calibrated on the held-out poses after training.
-            overrides=dict(batch_size=512, log2_table_size=12, width=32, log_interval=500))
+            overrides=dict(batch_size=512, log2_table_size=12, width=32, log_interval=500,
+                           precision="float32"))
 MAX_RATIO = {"distance_mae": 0.4, "normal_error_deg": 0.4}
 MIN_IOU_GAIN = 0.1
 MIN_COMMON_PIXELS = 225
-QUICK_SIZE = dict(SIZE, rays_per_pose=2048, steps=800,
-                  overrides=dict(SIZE["overrides"], log_interval=200))
+QUICK_SIZE = dict(SIZE, rays_per_pose=2048, steps=800,     # at the default precision
+                  overrides={**{key: value for key, value in SIZE["overrides"].items()
+                                if key != "precision"}, "log_interval": 200})
 QUICK_MIN_IOU_GAIN = 0.15
 QUICK_MIN_COMMON_PIXELS = 175
 
