@@ -183,7 +183,7 @@ SCALAR_STAGES, NETBLOCKS = ("results/network-stages-scalar.json",
 RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks.json"
 STARTS, BATCH = "results/render-start-cells.json", "results/render-one-batch.json"
 READ, PAST = "results/dataset-read.json", "results/render-walk-past.json"
-READ_ONCE = "results/dataset-read-once.json"
+READ_ONCE, ZEN5 = "results/dataset-read-once.json", "results/network-zen5.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -1143,6 +1143,10 @@ CLAIMS = [
     Claim(P, "and against Embree rebuilt up to {}-{} at 256x256", SIDE,
           lambda d: span(result(d, "suzanne-5", 256, t)["secondary"]["trade"][
               "embree_rebuild"]["samples"] for t in (1, 2))),
+    Claim(P, "On the EPYC inference is {}x 6246eb6's and training {}x at the default precision "
+          "({}x and {}x in float32)", ZEN5, lambda d: [
+              d["bench"]["runs"][run][key] for run in ("1a0305c", "1a0305c --precision float32")
+              for key in ("infer_ratio", "train_ratio")]),
     Claim(P, "took {} s ({}-{}) before and {} s ({}-{}) after", READ_ONCE, lambda d: [
         value for commit in ("4f73e57", "0ebb909") for value in (
             d["fixed_wall_median_s"][commit],
