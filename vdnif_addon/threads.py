@@ -114,6 +114,28 @@ def torch_threads_at_most(count: int) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
+_denormals = threading.local()
+
+
+def denormals_flushed() -> bool:
+    """Whether this thread's CPU float arithmetic flushes denormals (``flush_denormals``)."""
+    return getattr(_denormals, "flushed", False)
+
+
+def flush_denormals(flushed: bool) -> None:
+    """This thread's CPU float arithmetic reads and writes numbers below float32's smallest
+    normal as zero (``flushed``) or as they are (a thread's default), through
+    ``torch.set_flush_denormal``. ``launch_pool``'s workers take their caller's setting for
+    each split launch (``kernels.launches.run``): a launch then rounds alike on any number of
+    cores, and a training's encoder runs on its workers as its steps run, flushed. Imports
+    torch."""
+    if denormals_flushed() != flushed:
+        import torch
+
+        torch.set_flush_denormal(flushed)
+        _denormals.flushed = flushed
+
+
 _pool: dict[int, ThreadPoolExecutor] = {}
 _pool_lock = threading.Lock()
 _encoder = {"threads": None}

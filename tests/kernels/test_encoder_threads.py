@@ -3,6 +3,8 @@ features and the same table gradient as one serial launch, bit for bit (the back
 workers each scatter levels of their own), run after run, at sizes that split unevenly;
 both also against the torch oracle (``oracles.encoding_torch``)."""
 
+import contextlib
+
 import pytest
 import torch
 from oracles import encoding_torch as oracle
@@ -215,3 +217,32 @@ def test_at_once_runs_every_task_beside_the_others_and_raises_the_first_error():
     with pytest.raises(ValueError, match="lane 1 broke"):
         threads.at_once(failing, 3, "test-lane")
     assert sorted(ended) == [0, 2]
+
+
+def test_the_workers_flush_denormals_as_their_caller_does(encoder_threads):
+    """A table of denormal values, read on a thread that flushes denormals (a training's
+    steps: ``train.flushed_denormals``), gives zero features on one thread and the same bits
+    split over workers; on a thread that does not flush them, the same bits on both, not
+    zero. A worker that flushed for a training keeps no flush for a later caller."""
+    from vdnif_addon.training.train import flushed_denormals
+
+    if not torch.set_flush_denormal(False):
+        pytest.skip("this CPU cannot flush denormals")
+    torch.manual_seed(5)
+    encoder = SegmentEncoder(HashGrid(2, 16, 2.0, 9, 3), pe_bands=1)
+    with torch.no_grad():
+        encoder.grid.table.fill_(1e-39)                 # below float32's smallest normal
+    count = 4 * launches.MIN_SLICE_POINTS
+    p0, p1 = torch.rand(2, count, 3)
+    weights = torch.randn(count, encoder.output_dim)
+    results = {}
+    for flushed in (True, False, True, False):
+        with flushed_denormals() if flushed else contextlib.nullcontext():
+            for workers in (1, 2):
+                encoder_threads(workers)
+                results.setdefault((flushed, workers), []).append(
+                    features_and_gradient(encoder, p0, p1, weights)[0])
+    for flushed in (True, False):
+        for one, split in zip(results[flushed, 1], results[flushed, 2]):
+            assert torch.equal(one, split)
+        assert (torch.count_nonzero(results[flushed, 1][0]) == 0) == flushed

@@ -60,8 +60,12 @@ def run(kernel: Any, device: str, stream: wp.Stream | None, workers: int,
         jobs: list[tuple[int, list[Any]]]) -> None:
     """Launches ``kernel`` once per (dim, arguments) of ``jobs``. With ``workers`` > 1
     (the CPU only) job i runs on worker i % workers of ``threads.launch_pool(workers)``,
-    each worker's jobs in order, the workers at once (safe: see the module)."""
+    each worker's jobs in order, the workers at once (safe: see the module), each worker's
+    arithmetic flushing denormals as the caller's does (``threads.flush_denormals``)."""
+    flushed = threads.denormals_flushed()
+
     def in_order(share: list[tuple[int, list[Any]]]) -> None:
+        threads.flush_denormals(flushed)
         for dim, inputs in share:
             wp.launch(kernel, dim=dim, inputs=inputs, device=device, stream=stream)
 

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .. import threads
 from ..errors import VDNIFError
 from ..limits import GROUP_TIMEOUT_S
 from ..model.encoding import HashGrid
@@ -212,13 +213,14 @@ def flushed_denormals() -> Iterator[None]:
     first moments of the weights of ReLU units that stopped firing, and of table rows read
     rarely, decay by 0.9 a step into that range, and arithmetic on it takes the CPU's slow
     path, which slows the steps as training goes on (DESIGN section 8). The updates they
-    make are far below a weight's last bit. Torch's own threads beyond this one keep the
+    make are far below a weight's last bit. The encoder's workers take the setting from this
+    thread (``threads.flush_denormals``); torch's own threads beyond this one keep the
     default."""
-    torch.set_flush_denormal(True)
+    threads.flush_denormals(True)
     try:
         yield
     finally:
-        torch.set_flush_denormal(False)
+        threads.flush_denormals(False)
 
 
 class TrainingStep:
