@@ -133,13 +133,12 @@ def _column(arrays: list[dict[str, np.ndarray]], key: str,
     for shard, index, count in zip(arrays, rows, counts):
         source = torch.from_numpy(np.require(shard[key], requirements=("C", "W")))
         target = column[start : start + count]
-        if index is not None:
-            if source.dtype == dtype:
-                torch.index_select(source, 0, index, out=target)
-                start += count
-                continue
-            source = torch.index_select(source, 0, index)
-        target.copy_(source)
+        if index is None:
+            target.copy_(source)
+        elif source.dtype == dtype:
+            torch.index_select(source, 0, index, out=target)
+        else:                       # stored narrower (uint8 hits, int32 poses): convert
+            target.copy_(torch.index_select(source, 0, index))
         start += count
     return column
 
