@@ -109,6 +109,32 @@ def test_blocks_equal_the_scalar_kernel_bit_for_bit(
                        encoder_scalar.encode_backward(enc, len(table), p0, p1, weights))
 
 
+@pytest.mark.parametrize("levels, base, growth, log2_size, feature_dim, bands, form, dense",
+                         CONFIGS)
+def test_bfloat16_features_are_the_float32_ones_rounded_by_torch(
+    levels, base, growth, log2_size, feature_dim, bands, form, dense
+):
+    """Written in bfloat16, the features are torch's rounding of the float32 ones, and a
+    bfloat16 output gradient scatters as its float32 values do: NaN, infinite and outside
+    points, partial blocks and every chunk width included."""
+    encoder, _ = encoder_pair(levels, base, growth, log2_size, feature_dim, bands, form)
+    table = encoder.grid.table.detach()
+    enc = encoder.grid.encoding(encoder.pe_bands, encoder.pe_scale)
+    p0, p1 = points(base), points(base, seed=1)
+    weights = torch.randn(len(p0), encoder.output_dim).to(torch.bfloat16)
+    for second in (p1, None):
+        full = kernel.encode(enc, table, p0, second)
+        rounded = kernel.encode(enc, table, p0, second, torch.bfloat16)
+        assert rounded.dtype == torch.bfloat16
+        finite = full.isfinite()
+        assert torch.equal(rounded[finite], full[finite].to(torch.bfloat16))
+        assert torch.equal(rounded.isnan(), full.isnan())
+    assert torch.equal(kernel.encode_backward(enc, len(table), p0, p1, weights),
+                       kernel.encode_backward(enc, len(table), p0, p1, weights.float()))
+    with pytest.raises(ValueError, match="float32 or bfloat16 features"):
+        kernel.encode(enc, table, p0, p1, torch.float16)
+
+
 def band_values(sine, cosine, bands):
     """Float32 sin and cos of bands 0 .. bands - 1 from band 0's float64 ones, by the double
     angle formulas as the kernels form them: (bands, 2, N) float32."""

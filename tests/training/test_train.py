@@ -13,6 +13,8 @@ import torch.multiprocessing as mp
 from dataset_headers import header_dict
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.model import encoding
+from vdnif_addon.model.encoding import HashGrid
 from vdnif_addon.model.model_file import load_model
 from vdnif_addon.model.network import IntersectionNetwork, readout
 from vdnif_addon.model.variants import variant_config
@@ -320,6 +322,47 @@ def test_bfloat16_steps_multiply_the_mlps_in_it_and_keep_the_rest_float32():
                            precision="auto")
     with pytest.raises(VDNIFError, match="precision"):
         TrainConfig(precision="float16")
+
+
+def test_bfloat16_features_from_the_kernel_train_as_autocast_rounds_them(monkeypatch):
+    """In bfloat16 the grids hand their features on in it (``encoding.feature_dtype``) and
+    take their gradient as it comes: steps give the same weights bit for bit as float32
+    features that autocast rounds for the first layer, and their gradient converted back."""
+    torch.manual_seed(0)
+    network_config = NetworkConfig(**SMALL, normal_mode="hit", albedo_mode="hit",
+                                   heads=Heads(albedo=True))
+    n = 3000
+    hit = torch.rand(n) < 0.4
+    batch = {"p0": torch.rand(n, 3), "p1": torch.rand(n, 3), "hit": hit,
+             "hit_frac": torch.where(hit, torch.rand(n), 0.0),
+             "rest_len": 0.2 + torch.rand(n),
+             "normal": torch.nn.functional.normalize(torch.randn(n, 3), dim=1),
+             "albedo": torch.rand(n, 3), "material": torch.zeros(n, dtype=torch.int64)}
+
+    def trained(handed_on):
+        monkeypatch.setattr(encoding, "feature_dtype", handed_on)
+        torch.manual_seed(1)
+        network = IntersectionNetwork(network_config)
+        seen = []
+        hooks = [grid.register_forward_hook(lambda module, inputs, output:
+                                            seen.append(output.dtype))
+                 for grid in network.modules() if isinstance(grid, HashGrid)]
+        objective = training.Objective(network, make_weighting("uncertainty",
+                                                               list(network.head_sizes)),
+                                       0.5, precision="bfloat16")
+        step = training.TrainingStep(objective, TrainConfig(steps=4, log_interval=4))
+        for _ in range(4):
+            step(batch)
+        for hook in hooks:
+            hook.remove()
+        return set(seen), {name: p.detach().clone() for name, p in network.named_parameters()}
+
+    original = encoding.feature_dtype
+    grids_dtypes, weights = trained(original)
+    float_dtypes, expected = trained(lambda device: torch.float32)
+    assert grids_dtypes == {torch.bfloat16} and float_dtypes == {torch.float32}
+    for name, value in expected.items():
+        assert torch.equal(weights[name], value), name
 
 
 def test_the_fields_learn_at_jittered_hits_on_rows_that_cover_the_hits(monkeypatch):

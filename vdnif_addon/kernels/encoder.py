@@ -245,15 +245,21 @@ typedef float FEATURES __attribute__((ext_vector_type(4)));
         FEATURES acc;                                                                   \
         VDNIF_ROW(0, M) VDNIF_ROW(1, M) VDNIF_ROW(2, M) VDNIF_ROW(3, M)                 \
         VDNIF_ROW(4, M) VDNIF_ROW(5, M) VDNIF_ROW(6, M) VDNIF_ROW(7, M)                 \
-        float* o = chunk + i * width;                                                   \
-        o[0] = acc.x;                                                                   \
-        if (M > 1) o[1] = acc.y;                                                        \
-        if (M > 2) o[2] = acc.z;                                                        \
-        if (M > 3) o[3] = acc.w;                                                        \
+        const long long o = chunk + i * width;                                          \
+        VDNIF_PUT(o, acc.x);                                                            \
+        if (M > 1) VDNIF_PUT(o + 1, acc.y);                                             \
+        if (M > 2) VDNIF_PUT(o + 2, acc.z);                                             \
+        if (M > 3) VDNIF_PUT(o + 3, acc.w);                                             \
     }
 #endif
 const float* TABLE = (const float*)table.data;
+// the features in float32, or rounded to bfloat16 (to nearest, ties to even: as torch
+// rounds them for a layer that multiplies in bfloat16)
 float* OUT = (float*)out.data;
+wp::bfloat16* OUT16 = (wp::bfloat16*)out16.data;
+#define VDNIF_PUT(at, value) {                                                         \
+    if (bf16) OUT16[at] = wp::bfloat16(value); else OUT[at] = value;                    \
+}
 int rows[8][BLOCK];
 float w[8][BLOCK];
 for (int g = 0; g < G; ++g) {
@@ -262,7 +268,7 @@ for (int g = 0; g < G; ++g) {
 """ + _CORNERS + r"""
 #if defined(__CUDA_ARCH__)
         for (int f = 0; f < fd; ++f) {
-            float* column = OUT + (long long)first * width + (long long)(g * L + l) * fd + f;
+            const long long column = (long long)first * width + (long long)(g * L + l) * fd + f;
             for (int i = 0; i < n; ++i) {
                 float acc = TABLE[rows[0][i] * fd + f] * w[0][i];
                 acc = acc + TABLE[rows[1][i] * fd + f] * w[1][i];
@@ -272,12 +278,12 @@ for (int g = 0; g < G; ++g) {
                 acc = acc + TABLE[rows[5][i] * fd + f] * w[5][i];
                 acc = acc + TABLE[rows[6][i] * fd + f] * w[6][i];
                 acc = acc + TABLE[rows[7][i] * fd + f] * w[7][i];
-                column[i * width] = acc;
+                VDNIF_PUT(column + i * width, acc);
             }
         }
 #else
         for (int f0 = 0; f0 < fd; f0 += 4) {
-            float* chunk = OUT + (long long)first * width + (long long)(g * L + l) * fd + f0;
+            const long long chunk = (long long)first * width + (long long)(g * L + l) * fd + f0;
             switch (fd - f0) {
                 case 1: VDNIF_FEATURES(1) break;
                 case 2: VDNIF_FEATURES(2) break;
@@ -288,6 +294,7 @@ for (int g = 0; g < G; ++g) {
 #endif
     }
 }
+#undef VDNIF_PUT
 return 0;
 """
 
@@ -307,8 +314,10 @@ constexpr int PAIRS = %(pairs)d;
 // A corner's row gets features f0 .. f0 + M - 1 of the output gradient times its weight, in
 // corner order: each table value's additions come in the order of a feature-by-feature loop.
 #define VDNIF_SCATTER(M) {                                                                 \
-    const float v0 = column[f0], v1 = M > 1 ? column[f0 + 1] : 0.0f;                    \
-    const float v2 = M > 2 ? column[f0 + 2] : 0.0f, v3 = M > 3 ? column[f0 + 3] : 0.0f; \
+    const float v0 = VDNIF_GET(column + f0);                                            \
+    const float v1 = M > 1 ? VDNIF_GET(column + f0 + 1) : 0.0f;                         \
+    const float v2 = M > 2 ? VDNIF_GET(column + f0 + 2) : 0.0f;                         \
+    const float v3 = M > 3 ? VDNIF_GET(column + f0 + 3) : 0.0f;                         \
     for (int corner = 0; corner < 8; ++corner) {                                        \
         float* t = GRAD + kept_rows[q][corner][i] * fd + f0;                            \
         const float weight = kept_w[q][corner][i];                                      \
@@ -319,7 +328,10 @@ constexpr int PAIRS = %(pairs)d;
     }                                                                                   \
 }
 #endif
+// the output gradient in float32 or bfloat16 (each value exact in float32)
 const float* GRAD_OUT = (const float*)grad_out.data;
+const wp::bfloat16* GRAD_OUT16 = (const wp::bfloat16*)grad_out16.data;
+#define VDNIF_GET(at) (bf16 ? (float)GRAD_OUT16[at] : GRAD_OUT[at])
 float* GRAD = (float*)grad_table.data;
 int kept_rows[PAIRS][8][BLOCK];
 float kept_w[PAIRS][8][BLOCK];
@@ -335,12 +347,12 @@ for (int g = 0; g < G; ++g) {
         ++kept;
         if (kept == PAIRS || (g == G - 1 && l == level_stop - 1)) {
             for (int i = 0; i < n; ++i) {
-                const float* row = GRAD_OUT + (long long)(first + i) * width;
+                const long long row = (long long)(first + i) * width;
                 for (int q = 0; q < kept; ++q) {
-                    const float* column = row + (long long)kept_pair[q] * fd;
+                    const long long column = row + (long long)kept_pair[q] * fd;
 #if defined(__CUDA_ARCH__)
                     for (int f = 0; f < fd; ++f) {
-                        const float value = column[f];
+                        const float value = VDNIF_GET(column + f);
                         for (int corner = 0; corner < 8; ++corner)
                             wp::atomic_add(GRAD + kept_rows[q][corner][i] * fd + f,
                                            value * kept_w[q][corner][i]);
@@ -361,6 +373,7 @@ for (int g = 0; g < G; ++g) {
         }
     }
 }
+#undef VDNIF_GET
 return 0;
 """
 
@@ -369,7 +382,7 @@ def _encode_block(
     task: int, count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
     ends: int, bands: int, scale: float, dense: int, mask: wp.uint32,
     levels: wp.array(dtype=wp.int32), table: wp.array(dtype=wp.float32), fd: int,
-    out: wp.array(dtype=wp.float32),
+    out: wp.array(dtype=wp.float32), out16: wp.array(dtype=wp.bfloat16), bf16: int,
 ) -> int: ...
 
 
@@ -379,7 +392,8 @@ def _scatter_block(
     task: int, count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3),
     ends: int, bands: int, scale: float, dense: int, mask: wp.uint32,
     levels: wp.array(dtype=wp.int32), level_first: int, level_stop: int,
-    grad_out: wp.array(dtype=wp.float32), fd: int, grad_table: wp.array(dtype=wp.float32),
+    grad_out: wp.array(dtype=wp.float32), grad_out16: wp.array(dtype=wp.bfloat16), bf16: int,
+    fd: int, grad_table: wp.array(dtype=wp.float32),
 ) -> int: ...
 
 
@@ -388,20 +402,22 @@ def _encode(
     count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int,
     bands: int, scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
     table: wp.array(dtype=wp.float32), fd: int, out: wp.array(dtype=wp.float32),
+    out16: wp.array(dtype=wp.bfloat16), bf16: int,
 ):
     _encode_block(wp.tid(), count, p0, p1, ends, bands, scale, dense, mask, levels, table, fd,
-                  out)
+                  out, out16, bf16)
 
 
 @wp.kernel(module=WARP_MODULE)
 def _encode_backward(
     count: int, p0: wp.array(dtype=wp.vec3), p1: wp.array(dtype=wp.vec3), ends: int,
     bands: int, scale: float, dense: int, mask: wp.uint32, levels: wp.array(dtype=wp.int32),
-    level_first: int, level_stop: int, grad_out: wp.array(dtype=wp.float32), fd: int,
+    level_first: int, level_stop: int, grad_out: wp.array(dtype=wp.float32),
+    grad_out16: wp.array(dtype=wp.bfloat16), bf16: int, fd: int,
     grad_table: wp.array(dtype=wp.float32),
 ):
     _scatter_block(wp.tid(), count, p0, p1, ends, bands, scale, dense, mask, levels,
-                   level_first, level_stop, grad_out, fd, grad_table)
+                   level_first, level_stop, grad_out, grad_out16, bf16, fd, grad_table)
 
 
 class Encoding:
@@ -459,6 +475,10 @@ def _vec3(points: Float[torch.Tensor, "N 3"]):
     return wp.from_torch(points, dtype=wp.vec3, requires_grad=False, return_ctype=True)
 
 
+FEATURE_DTYPES = (torch.float32, torch.bfloat16)
+"""What the encoder writes its features in and reads their gradient from."""
+
+
 def _floats(t: torch.Tensor):
     """A contiguous float32 tensor as a 1-D Warp float array (through a flat view: a size-1
     dimension may carry any stride)."""
@@ -466,19 +486,36 @@ def _floats(t: torch.Tensor):
                          return_ctype=True)
 
 
+def _features(t: torch.Tensor) -> list[Any]:
+    """A contiguous float32 or bfloat16 tensor as the kernels' three arguments for it: the
+    float32 array, the bfloat16 array (one of the two empty) and whether it is bfloat16."""
+    half = t.dtype == torch.bfloat16
+    empty = t.new_empty(0, dtype=torch.float32 if half else torch.bfloat16)
+    float32, bfloat16 = (empty, t) if half else (t, empty)
+    return [_floats(float32),
+            wp.from_torch(bfloat16.view(-1), dtype=wp.bfloat16, requires_grad=False,
+                          return_ctype=True),
+            int(half)]
+
+
 def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
-           p1: Float[torch.Tensor, "N 3"] | None) -> Float[torch.Tensor, "N C"]:
+           p1: Float[torch.Tensor, "N 3"] | None, dtype: torch.dtype = torch.float32
+           ) -> Float[torch.Tensor, "N C"]:
     """Features (N, C) of points (``p1`` None: C = L*Fd, no gamma unless bands) or segments
     (C = 2*(1+2F)*L*Fd); table (rows, Fd) float32 contiguous, p0/p1 (N, 3) contiguous
-    float32, all on one device. Each output row is written by its own slice's launch."""
+    float32, all on one device. Computed in float32 and written in ``dtype``
+    (``FEATURE_DTYPES``: bfloat16 rounds them to nearest, ties to even, as torch's
+    conversion does). Each output row is written by its own slice's launch."""
+    if dtype not in FEATURE_DTYPES:
+        raise ValueError(f"the encoder writes float32 or bfloat16 features, not {dtype}")
     ends = 1 if p1 is None else 2
-    out = torch.empty(p0.shape[0], enc.width(ends), dtype=torch.float32, device=p0.device)
+    out = torch.empty(p0.shape[0], enc.width(ends), dtype=dtype, device=p0.device)
     device, stream = _target(p0)
     rows = _floats(table)
     parts = launches.parts(device, p0.shape[0])
     slices = _launches(enc, p0, p1, ends, _block(device, CPU_BLOCK), parts)
     launches.run(_encode, device, stream, parts,
-                 [(tasks, args + [rows, enc.feature_dim, _floats(out[first:stop])])
+                 [(tasks, args + [rows, enc.feature_dim] + _features(out[first:stop]))
                   for first, stop, tasks, args in slices])
     return out
 
@@ -486,7 +523,8 @@ def encode(enc: Encoding, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch
 def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
                     p1: Float[torch.Tensor, "N 3"] | None, grad_out: Float[torch.Tensor, "N C"]
                     ) -> Float[torch.Tensor, "rows Fd"]:
-    """d(sum grad_out * encode(...)) / d table: (rows, Fd) float32; grad_out (N, C).
+    """d(sum grad_out * encode(...)) / d table: (rows, Fd) float32; grad_out (N, C), read as
+    it is in float32 or bfloat16 (any other dtype converted to float32).
 
     Workers that run at once scatter the levels of their own (a level's rows are its own,
     and a CPU launch's atomic adds are plain adds, safe within one serial launch only), every
@@ -494,7 +532,9 @@ def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
     point has at most ``PAIRS`` pairs). A grid of one level takes one worker."""
     ends = 1 if p1 is None else 2
     device, stream = _target(p0)
-    grad_out = grad_out.to(torch.float32).contiguous()
+    if grad_out.dtype not in FEATURE_DTYPES:
+        grad_out = grad_out.to(torch.float32)
+    grad_out = grad_out.contiguous()
     count = enc.levels.shape[0] // LEVEL_FIELDS
     levels = launches.bounds(count, min(launches.parts(device, p0.shape[0]), count))
     slices = _launches(enc, p0, p1, ends, _block(device, CPU_SCATTER_BLOCK))
@@ -502,8 +542,8 @@ def encode_backward(enc: Encoding, rows: int, p0: Float[torch.Tensor, "N 3"],
     # job i runs on worker i % len(levels) (launches.run): each worker keeps its levels and
     # takes the slices in order
     launches.run(_encode_backward, device, stream, len(levels),
-                 [(tasks, args + [level_first, level_stop, _floats(grad_out[first:stop]),
-                                  enc.feature_dim, _floats(grads)])
+                 [(tasks, args + [level_first, level_stop] + _features(grad_out[first:stop])
+                   + [enc.feature_dim, _floats(grads)])
                   for first, stop, tasks, args in slices
                   for level_first, level_stop in levels])
     return grads

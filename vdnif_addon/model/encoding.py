@@ -71,39 +71,53 @@ def _points(points: Float[torch.Tensor, "N 3"], name: str) -> Float[torch.Tensor
     return full_precision(points, name).contiguous()
 
 
+def feature_dtype(device: torch.device) -> torch.dtype:
+    """The dtype the features are handed on in: bfloat16 under bfloat16 autocast on
+    ``device``'s type, whose layers read them rounded so (the kernel rounds them as torch's
+    conversion would, and reads their gradient as it comes, without two more passes over the
+    batch's features), else float32. The lookup itself stays float32."""
+    kind = device.type
+    if torch.is_autocast_enabled(kind) and torch.get_autocast_dtype(kind) == torch.bfloat16:
+        return torch.bfloat16
+    return torch.float32
+
+
 class _Encode(torch.autograd.Function):
-    """The kernel's features as a function of the table: (N, C); backward scatter-adds into
-    the table gradient (one kernel launch); positions get no gradient."""
+    """The kernel's features as a function of the table: (N, C) in ``dtype``; backward
+    scatter-adds into the table gradient (one kernel launch); positions get no gradient."""
 
     @staticmethod
     def forward(ctx: Any, table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
-                p1: Float[torch.Tensor, "N 3"] | None, encoding: kernel.Encoding
-                ) -> Float[torch.Tensor, "N C"]:
+                p1: Float[torch.Tensor, "N 3"] | None, encoding: kernel.Encoding,
+                dtype: torch.dtype) -> Float[torch.Tensor, "N C"]:
         ctx.save_for_backward(p0, p1)
         ctx.encoding, ctx.rows = encoding, table.shape[0]
-        return kernel.encode(encoding, table, p0, p1)
+        return kernel.encode(encoding, table, p0, p1, dtype)
 
     @staticmethod
     def backward(ctx: Any, grad: Float[torch.Tensor, "N C"]
-                 ) -> tuple[Float[torch.Tensor, "rows Fd"], None, None, None]:
+                 ) -> tuple[Float[torch.Tensor, "rows Fd"], None, None, None, None]:
         p0, p1 = ctx.saved_tensors
-        return kernel.encode_backward(ctx.encoding, ctx.rows, p0, p1, grad), None, None, None
+        return (kernel.encode_backward(ctx.encoding, ctx.rows, p0, p1, grad),
+                None, None, None, None)
 
 
 def _encode(table: Float[torch.Tensor, "rows Fd"], p0: Float[torch.Tensor, "N 3"],
             p1: Float[torch.Tensor, "N 3"] | None, encoding: kernel.Encoding
             ) -> Float[torch.Tensor, "N C"]:
-    """Through autograd when the table's gradient is wanted, else the bare launch. The
-    launch reads raw pointers past Warp's own device checks, so a table and points on two
-    devices are refused here (on a GPU they would be an illegal memory access)."""
+    """Through autograd when the table's gradient is wanted, else the bare launch, the
+    features in ``feature_dtype``. The launch reads raw pointers past Warp's own device
+    checks, so a table and points on two devices are refused here (on a GPU they would be an
+    illegal memory access)."""
     for points in (p0, p1):
         if points is not None and points.device != table.device:
             raise VDNIFError(f"the hash grid's table is on {table.device} but the points are "
                              f"on {points.device}: put the network and its inputs on one "
                              "device")
+    dtype = feature_dtype(table.device)
     if torch.is_grad_enabled() and table.requires_grad:
-        return _Encode.apply(table, p0, p1, encoding)
-    return kernel.encode(encoding, table.detach(), p0, p1)
+        return _Encode.apply(table, p0, p1, encoding, dtype)
+    return kernel.encode(encoding, table.detach(), p0, p1, dtype)
 
 
 class HashGrid(nn.Module):
@@ -173,7 +187,7 @@ class HashGrid(nn.Module):
 
     def forward(self, points: Float[torch.Tensor, "N 3"]) -> Float[torch.Tensor, "N L*Fd"]:
         """points: (N, 3) float32 or float64 in [0,1] (clamped) -> features (N, L*Fd),
-        level-major."""
+        level-major, float32 (bfloat16 under bfloat16 autocast: ``feature_dtype``)."""
         return _encode(self.table, _points(points, "hash grid points"), None, self.encoding())
 
 
@@ -197,7 +211,8 @@ class SegmentEncoder(nn.Module):
 
     def forward(self, p0: Float[torch.Tensor, "N 3"], p1: Float[torch.Tensor, "N 3"]
                 ) -> Float[torch.Tensor, "N 2*(1+2*F)*L*Fd"]:
-        """p0, p1: (N, 3) normalized rest coordinates -> (N, 2*(1+2F)*L*Fd) float32.
+        """p0, p1: (N, 3) normalized rest coordinates -> (N, 2*(1+2F)*L*Fd) float32
+        (bfloat16 under bfloat16 autocast: ``feature_dtype``).
 
         Feature order: end point, gamma point, level, feature. Positions stay float32 under
         autocast (``full_precision``); the features have no gradient to them.

@@ -208,7 +208,9 @@ class IntersectionNetwork(nn.Module):
         mode = self.config.distance_mode
 
         def encode(index: int) -> Float[torch.Tensor, "chunk features"]:
-            with torch.inference_mode():  # inference mode is per thread
+            # inference mode and autocast are per thread; under the MLPs' arithmetic the
+            # features come in the dtype their first layer reads
+            with torch.inference_mode(), self.mlp_arithmetic(chunks[index][0].device):
                 return self.encoder(chunks[index][0], chunks[index][1])
 
         def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
@@ -278,7 +280,8 @@ class IntersectionNetwork(nn.Module):
 
     def mlp_arithmetic(self, device: torch.device) -> torch.autocast:
         """The MLPs' arithmetic in ``predict``: bfloat16 where ``precision`` says so (the
-        hash grids keep float32 under autocast)."""
+        hash grids look up in float32 under autocast and hand their features on rounded to
+        bfloat16, as the first layer reads them: ``encoding.feature_dtype``)."""
         return torch.autocast(device.type, dtype=torch.bfloat16,
                               enabled=self.precision == "bfloat16")
 
