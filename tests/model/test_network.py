@@ -6,6 +6,7 @@ import torch
 from host_reads import counting_host_reads
 
 from vdnif_addon.errors import VDNIFError
+from vdnif_addon.model.activation import ReLU
 from vdnif_addon.model.metadata import Thresholds
 from vdnif_addon.model.network import IntersectionNetwork, readout
 from vdnif_addon.settings import DISTANCE_MODES, Heads, NetworkConfig
@@ -50,7 +51,7 @@ def test_paper_architecture():
         (64, 64),
         (64, 8),
     ]
-    assert sum(isinstance(layer, torch.nn.ReLU) for layer in network.mlp) == 3
+    assert sum(isinstance(layer, ReLU) for layer in network.mlp) == 3
 
 
 @pytest.mark.parametrize("mode", DISTANCE_MODES)

@@ -21,6 +21,7 @@ from .. import threads
 from ..errors import VDNIFError
 from ..kernels import runtime
 from ..settings import PRECISIONS, NetworkConfig
+from .activation import ReLU
 from .encoding import HashGrid, SegmentEncoder, scene_log2_table_size
 from .metadata import Thresholds
 
@@ -93,7 +94,7 @@ class IntersectionNetwork(nn.Module):
         for _ in range(config.depth):
             # In place: nothing reads a layer's output but its ReLU, and a second tensor of a
             # batch's activations, written to fresh pages, costs as much as the ReLU itself.
-            layers += [nn.Linear(width_in, config.width), nn.ReLU(inplace=True)]
+            layers += [nn.Linear(width_in, config.width), ReLU()]
             width_in = config.width
         output = nn.Linear(width_in, sum(self.mlp_heads.values()))
         if config.distance_mode != "fraction":
@@ -299,7 +300,7 @@ class PointField(nn.Module):
         layers: list[nn.Module] = []
         width_in = self.grid.output_dim
         for _ in range(hidden):
-            layers += [nn.Linear(width_in, width), nn.ReLU(inplace=True)]  # as the trunk's
+            layers += [nn.Linear(width_in, width), ReLU()]  # in place, as the trunk's
             width_in = width
         self.mlp = nn.Sequential(*layers, nn.Linear(width_in, 3))
 
