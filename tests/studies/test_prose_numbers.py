@@ -184,6 +184,7 @@ RENDER, TTC_BLOCKS = "results/render-blocks.json", "results/time-to-clean-blocks
 STARTS, BATCH = "results/render-start-cells.json", "results/render-one-batch.json"
 READ, PAST = "results/dataset-read.json", "results/render-walk-past.json"
 READ_ONCE, ZEN5 = "results/dataset-read-once.json", "results/network-zen5.json"
+FEATURES_RELU = "results/bfloat16-features-relu.json"
 WEIGHTS, TORN = "results/procedural-weights.json", ("slab", "horns", "text")
 BEFORE, AFTER = "bone heat alone", "every vertex weighted"
 
@@ -1160,9 +1161,31 @@ CLAIMS = [
                 for run in d["time_to_clean"][commit]),
               100 * d["time_to_clean"]["0ebb909"][0]["test_holes"],
               100 * d["time_to_clean"]["0ebb909"][0]["test_extras"]]),
+    *(Claim(P, f"| {label} | {{}} ({{}}-{{}}) | {{}} ({{}}-{{}}) | {{}}x / {{}}x |",
+            FEATURES_RELU, lambda d, commit=commit: [
+                *bench_spread(d["bench"]["runs"][commit], "infer"),
+                *bench_spread(d["bench"]["runs"][commit], "train"),
+                d["bench"]["runs"][commit]["infer_ratio"],
+                d["bench"]["runs"][commit]["train_ratio"]])
+      for label, commit in (("6246eb6, this session", "6246eb6"), ("976bd48", "976bd48"),
+                            ("85e3d20", "85e3d20"))),
+    Claim(P, "Inference gains {}x.", FEATURES_RELU, lambda d: [
+        d["bench"]["runs"]["85e3d20"]["infer_median"]
+        / d["bench"]["runs"]["976bd48"]["infer_median"]]),
+    Claim(P, "e0afadf took {} s on the arm, {} on the lattice, {} on spot and {} on the bunny, "
+          "one scene after another, and 85e3d20 then took {}, {}, {} and {}", FEATURES_RELU,
+          lambda d: [d["time_to_clean"][run][scene]["wall_s"]
+                     for run in ("e0afadf_first", "85e3d20_then")
+                     for scene in ("arm", "lattice", "spot", "bunny")]),
 ]
 
 
+
+
+def bench_spread(run, kind):
+    """A bench-network run's median of ``kind`` ("infer" or "train") and its rounds' range."""
+    rounds = run["infer_segments_per_s" if kind == "infer" else "train_samples_per_s"]
+    return [run[f"{kind}_median"], *span(rounds)]
 
 
 def read(source):
