@@ -3,12 +3,11 @@ a network's predictions and training steps with either."""
 
 import pytest
 import torch
+from test_train import bfloat16_steps, random_batch
 
 from vdnif_addon.model.activation import ReLU
 from vdnif_addon.model.network import IntersectionNetwork
-from vdnif_addon.settings import Heads, NetworkConfig, TrainConfig
-from vdnif_addon.training import train as training
-from vdnif_addon.training.losses import make_weighting
+from vdnif_addon.settings import Heads, NetworkConfig
 
 SPECIAL = [0.0, -0.0, float("inf"), -float("inf"), float("nan"), 1e-40, -1e-40, 3.0, -3.0,
            3e38, -3e38, 2.0**-133, -(2.0**-133)]
@@ -79,30 +78,15 @@ def test_bfloat16_predictions_and_steps_equal_those_with_torchs_relu():
     config = NetworkConfig(levels=2, base_resolution=16, log2_table_size=12, width=32,
                            depth=2, normal_mode="hit", albedo_mode="hit",
                            heads=Heads(albedo=True, material_count=2))
-    generator = torch.Generator().manual_seed(2)
-    n = 3000
-    hit = torch.rand(n, generator=generator) < 0.4
-    batch = {"p0": torch.rand(n, 3, generator=generator),
-             "p1": torch.rand(n, 3, generator=generator), "hit": hit,
-             "hit_frac": torch.where(hit, torch.rand(n, generator=generator), 0.0),
-             "rest_len": 0.2 + torch.rand(n, generator=generator),
-             "normal": torch.nn.functional.normalize(torch.randn(n, 3, generator=generator),
-                                                     dim=1),
-             "albedo": torch.rand(n, 3, generator=generator),
-             "material": torch.randint(2, (n,), generator=generator)}
+    torch.manual_seed(2)
+    batch = random_batch(3000, 0.4, materials=2)
     outcomes = []
     for swap in (False, True):
         torch.manual_seed(3)
         network = IntersectionNetwork(config)
         if swap:
             torch_relu(network)
-        objective = training.Objective(network, make_weighting("uncertainty",
-                                                               list(network.head_sizes)),
-                                       0.5, precision="bfloat16")
-        step = training.TrainingStep(objective, TrainConfig(steps=3, log_interval=3))
-        for _ in range(3):
-            step(batch)
-        network.eval()
+        bfloat16_steps(network, batch, 3).eval()
         network.precision = "bfloat16"
         predicted = network.predict(batch["p0"], batch["p1"], batch["rest_len"], 0.5)
         outcomes.append(({name: p.detach().clone() for name, p in network.named_parameters()},

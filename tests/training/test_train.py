@@ -274,6 +274,29 @@ def test_point_fields_learn_the_albedo_and_normal_of_the_hit_point():
     assert torch.rad2deg(torch.arccos(cos)).mean() < 5
 
 
+def random_batch(n, hit_share, materials=1):
+    """A training batch of ``n`` random rows, ``hit_share`` of them hits, drawn from torch's
+    generator."""
+    hit = torch.rand(n) < hit_share
+    return {"p0": torch.rand(n, 3), "p1": torch.rand(n, 3), "hit": hit,
+            "hit_frac": torch.where(hit, torch.rand(n), 0.0),
+            "rest_len": 0.2 + torch.rand(n),
+            "normal": torch.nn.functional.normalize(torch.randn(n, 3), dim=1),
+            "albedo": torch.rand(n, 3), "material": torch.randint(materials, (n,))}
+
+
+def bfloat16_steps(network, batch, steps):
+    """``network`` after ``steps`` training steps on ``batch`` with its MLPs in bfloat16
+    (uncertainty weighting, voxel size 0.5)."""
+    objective = training.Objective(network, make_weighting("uncertainty",
+                                                           list(network.head_sizes)),
+                                   0.5, precision="bfloat16")
+    step = training.TrainingStep(objective, TrainConfig(steps=steps, log_interval=steps))
+    for _ in range(steps):
+        step(batch)
+    return network
+
+
 def test_bfloat16_steps_multiply_the_mlps_in_it_and_keep_the_rest_float32():
     """An objective in bfloat16 runs every Linear layer (the trunk's and the fields') in
     bfloat16, forward and backward, while its losses, the weights' gradients and the hash
@@ -281,13 +304,7 @@ def test_bfloat16_steps_multiply_the_mlps_in_it_and_keep_the_rest_float32():
     gradients point as float32's do. A precision name neither knows is refused."""
     torch.manual_seed(0)
     network_config = NetworkConfig(**SMALL, normal_mode="hit", albedo_mode="hit")
-    n = 2000
-    hit = torch.rand(n) < 0.3
-    batch = {"p0": torch.rand(n, 3), "p1": torch.rand(n, 3), "hit": hit,
-             "hit_frac": torch.where(hit, torch.rand(n), 0.0),
-             "rest_len": 0.2 + torch.rand(n),
-             "normal": torch.nn.functional.normalize(torch.randn(n, 3), dim=1),
-             "albedo": torch.rand(n, 3), "material": torch.zeros(n, dtype=torch.int64)}
+    batch = random_batch(2000, 0.3)
     results = {}
     for precision in ("float32", "bfloat16"):
         torch.manual_seed(1)
@@ -331,13 +348,7 @@ def test_bfloat16_features_from_the_kernel_train_as_autocast_rounds_them(monkeyp
     torch.manual_seed(0)
     network_config = NetworkConfig(**SMALL, normal_mode="hit", albedo_mode="hit",
                                    heads=Heads(albedo=True))
-    n = 3000
-    hit = torch.rand(n) < 0.4
-    batch = {"p0": torch.rand(n, 3), "p1": torch.rand(n, 3), "hit": hit,
-             "hit_frac": torch.where(hit, torch.rand(n), 0.0),
-             "rest_len": 0.2 + torch.rand(n),
-             "normal": torch.nn.functional.normalize(torch.randn(n, 3), dim=1),
-             "albedo": torch.rand(n, 3), "material": torch.zeros(n, dtype=torch.int64)}
+    batch = random_batch(3000, 0.4)
 
     def trained(handed_on):
         monkeypatch.setattr(encoding, "feature_dtype", handed_on)
@@ -347,12 +358,7 @@ def test_bfloat16_features_from_the_kernel_train_as_autocast_rounds_them(monkeyp
         hooks = [grid.register_forward_hook(lambda module, inputs, output:
                                             seen.append(output.dtype))
                  for grid in network.modules() if isinstance(grid, HashGrid)]
-        objective = training.Objective(network, make_weighting("uncertainty",
-                                                               list(network.head_sizes)),
-                                       0.5, precision="bfloat16")
-        step = training.TrainingStep(objective, TrainConfig(steps=4, log_interval=4))
-        for _ in range(4):
-            step(batch)
+        bfloat16_steps(network, batch, 4)
         for hook in hooks:
             hook.remove()
         return set(seen), {name: p.detach().clone() for name, p in network.named_parameters()}
