@@ -7,7 +7,8 @@ set. Keeping the values above -128 and setting the others to 0 is then ReLU: neg
 float32 and back, and took 3 to 5 times as long as this integer threshold on a batch's
 activations (``docs/performance.md``); ReLU had cost about as much as the product before it.
 The result equals torch's bit for bit but for -0, which torch keeps and this makes +0 (the
-same number to every later operation but a sign test). Other dtypes and devices take
+same number to every later operation but a sign test), and for a NaN's bits (torch writes a
+NaN of its own, this keeps the one it was given). Other dtypes and devices take
 torch's ReLU (float32's integer threshold is no faster; on CUDA either is bound by memory).
 
 The backward is ReLU's own (``threshold_backward`` of the output, as torch's ReLU takes it).
