@@ -4,6 +4,7 @@ rounding is far below what the metrics resolve; read back as the rows in memory,
 version 1 shard (every array dense, float32) read as it is."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -130,6 +131,35 @@ def test_a_deferred_row_check_refuses_a_shard_at_its_first_read(tmp_path):
     with pytest.raises(VDNIFError, match=pattern):
         fit_model(tmp_path / "data", "proposed", tmp_path / "models" / "m.vdnif", {"steps": 2})
     assert not (tmp_path / "models").exists()
+
+
+@pytest.mark.parametrize("defects, first", [
+    ({"p1": "outside", "hit_frac": "outside"}, r"array 'p1' has points outside the grid"),
+    ({"hit_frac": "outside", "p0": "outside"}, r"array 'p0' has points outside the grid"),
+    ({"seg_len": "non-finite", "pose": "outside"}, r"array 'seg_len' has non-finite values"),
+    ({"pose": "outside", "hit_frac": "non-finite"}, r"array 'hit_frac' has non-finite"),
+])
+def test_a_shard_with_several_defects_is_refused_for_the_first_in_array_order(
+        tmp_path, defects, first):
+    """Arrays read and checked two at a time report the first defect in ``ARRAYS``' order,
+    as arrays read one at a time would, by either read; whichever defect a thread meets
+    first."""
+    records = rows(materials=3)
+    for name, defect in defects.items():
+        if defect == "non-finite":
+            records[name][7] = np.nan
+        elif name == "pose":
+            records[name][7] = 10_000
+        else:
+            records[name][7] = 3e38 if name in ("p0", "p1") else 2.0
+    write(tmp_path / "data", records, materials=3)
+    order = list(dataset.ARRAYS)
+    assert order.index(re.search(r"array '(\w+)'", first)[1]) == min(map(order.index, defects))
+    with pytest.raises(VDNIFError, match=f"^dataset shard '.*' {first}"):
+        dataset.read_dataset(tmp_path / "data")
+    _, [shard] = dataset.read_dataset(tmp_path / "data", defer_row_check=True)
+    with pytest.raises(VDNIFError, match=f"^dataset shard '.*' {first}"):
+        shard["p0"]
 
 
 def test_a_deferred_check_hands_each_array_over_once_and_reads_it_again_after(tmp_path):
