@@ -10,11 +10,12 @@ a descheduled thread, slowing inference and training many times (DESIGN section 
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import os
 import threading
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -164,6 +165,21 @@ def launch_pool(count: int | None = None) -> ThreadPoolExecutor:
         if count not in _pool:
             _pool[count] = ThreadPoolExecutor(count, thread_name_prefix="vdnif-launch")
         return _pool[count]
+
+
+def in_order(items: Sequence[Any], work: Callable[[Any], T], count: int, name: str
+             ) -> Iterator[T]:
+    """``work(item)`` of each item, yielded in order, at most ``count`` running at once on
+    threads of their own named ``name``: an error is raised where its item comes, and a
+    result is held only until it is taken (at most ``count`` results are alive)."""
+    with ThreadPoolExecutor(count, thread_name_prefix=name) as pool:
+        pending: collections.deque[Future[T]] = collections.deque()
+        for item in items:
+            pending.append(pool.submit(work, item))
+            if len(pending) == count:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 def at_once(work: Callable[[int], T], count: int, name: str) -> list[T]:

@@ -10,20 +10,18 @@ after checking every file is a regular one and every npz's sizes before reading 
 
 from __future__ import annotations
 
-import collections
 import json
 import math
 import os
 import pathlib
 import zipfile
-from collections.abc import Callable, Iterator, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .. import limits
+from .. import limits, threads
 from ..errors import VDNIFError
 from ..output_rule import DATASET_MANIFEST
 from ..safe_io import ZIP_ERRORS, open_regular, unpacked_size
@@ -383,20 +381,6 @@ READ_AT_ONCE = 2
 """Arrays of a shard that ``_check_shard`` reads and checks at once, each on a thread."""
 
 
-def _in_order(names: list[str], work: Callable[[str], Any]) -> Iterator[Any]:
-    """``work(name)`` of each name, in order, at most ``READ_AT_ONCE`` of them running at
-    once on threads of their own: an error is raised where its name comes, and a result is
-    held only until it is taken."""
-    with ThreadPoolExecutor(READ_AT_ONCE, thread_name_prefix="vdnif-read") as pool:
-        pending: collections.deque[Future] = collections.deque()
-        for name in names:
-            pending.append(pool.submit(work, name))
-            if len(pending) == READ_AT_ONCE:
-                yield pending.popleft().result()
-        while pending:
-            yield pending.popleft().result()
-
-
 def _read_array(path: pathlib.Path, shard: Shard, header: DatasetHeader, name: str
                 ) -> tuple[np.ndarray, str | None]:
     """Array ``name`` of a shard, read and its kind and shape checked (a VDNIFError where
@@ -484,8 +468,9 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader, keep: 
     length = None
     kept = {}
     read = {}
-    for name, (array, problem) in zip(names, _in_order(
-            names, lambda name: _read_array(path, shard, header, name))):
+    for name, (array, problem) in zip(names, threads.in_order(
+            names, lambda name: _read_array(path, shard, header, name), READ_AT_ONCE,
+            "vdnif-read")):
         if keep:
             read[name] = array
         if name in ("p0", "p1", "rest_len", "seg_len", "t0", "hit", "normal"):
