@@ -1169,6 +1169,12 @@ CLAIMS = [
                 d["bench"]["runs"][commit]["train_ratio"]])
       for label, commit in (("6246eb6, this session", "6246eb6"), ("976bd48", "976bd48"),
                             ("85e3d20", "85e3d20"))),
+    Claim(P, "92dd0fd took {} s (the split {} s) against e123002's {} s ({} s), and then {} s "
+          "({} s) against caa11c0's {} s ({} s)", FEATURES_RELU, lambda d: [
+              d["fixed_cost"][pair][median][commit]
+              for pair, commits in (("read_two_at_a_time", ("92dd0fd", "e123002")),
+                                    ("and_split_two_fields", ("92dd0fd", "caa11c0")))
+              for commit in commits for median in ("wall_median_s", "split_median_s")]),
     Claim(P, "Inference gains {}x.", FEATURES_RELU, lambda d: [
         d["bench"]["runs"]["85e3d20"]["infer_median"]
         / d["bench"]["runs"]["976bd48"]["infer_median"]]),
