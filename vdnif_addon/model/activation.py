@@ -4,8 +4,8 @@ A bfloat16 number read as an int16 is negative exactly when its sign bit is set:
 (-0) to -129 the negative numbers (-128 is -inf), from -127 to -1 the NaNs with the sign bit
 set. Keeping the values above -128 and setting the others to 0 is then ReLU: negatives and
 -inf become +0, positives, +0, +inf and every NaN stay. torch's ReLU on bfloat16 converts to
-float32 and back, and took 3 to 5 times as long as this integer threshold on a batch's
-activations (``docs/performance.md``); ReLU had cost about as much as the product before it.
+float32 and back, and took several times as long as this integer threshold on a batch's
+activations, about as long as the product before it (``docs/performance.md``).
 The result equals torch's bit for bit but for -0, which torch keeps and this makes +0 (the
 same number to every later operation but a sign test), and for a NaN's bits (torch writes a
 NaN of its own, this keeps the one it was given). Other dtypes and devices take

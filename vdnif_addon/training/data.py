@@ -233,6 +233,7 @@ def split_data(
     validated = [_chosen(mask & ~seen) for mask, seen in zip(held_out, view)]
     calibrating = [_chosen(mask & seen) for mask, seen in zip(held_out, view)]
     kept = [_chosen(mask) for mask in kept]
+
     def columns(key: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Field ``key``'s validation, calibration-view and training columns (the copies
         release the GIL: two fields are gathered at once, ``COLUMNS_AT_ONCE``)."""

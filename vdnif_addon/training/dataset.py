@@ -377,6 +377,38 @@ def _first_line(exc: BaseException) -> str:
     return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
+# The rows' plausible ranges: normalized points lie in the grid's unit box (a margin for
+# rounding at its walls), a hit's fraction along its segment in [0, 1].
+_POINT_MARGIN = 0.01
+
+
+class RowsCheckedOnRead(Mapping):
+    """A shard whose rows are checked (``_check_shard``) when any of its arrays is first
+    read: every array is read and checked then, before the first is given, and each is
+    handed over once, so that the reader holds the only copy (a later read of it reads the
+    file again)."""
+
+    def __init__(self, shard: Shard, path: pathlib.Path, header: DatasetHeader) -> None:
+        self.shard, self.path, self.header = shard, path, header
+        self._unread: dict[str, np.ndarray] | None = None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.shard)
+
+    def __len__(self) -> int:
+        return len(self.shard)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self.shard
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if self._unread is None:
+            self._unread = _check_shard(self.path, self.shard, self.header, keep=True)
+        if name in self._unread:
+            return self._unread.pop(name)
+        return self.shard[name]
+
+
 READ_AT_ONCE = 2
 """Arrays of a shard that ``_check_shard`` reads and checks at once, each on a thread."""
 
@@ -419,38 +451,6 @@ def _read_array(path: pathlib.Path, shard: Shard, header: DatasetHeader, name: s
     return array, None
 
 
-# The rows' plausible ranges: normalized points lie in the grid's unit box (a margin for
-# rounding at its walls), a hit's fraction along its segment in [0, 1].
-_POINT_MARGIN = 0.01
-
-
-class RowsCheckedOnRead(Mapping):
-    """A shard whose rows are checked (``_check_shard``) when any of its arrays is first
-    read: every array is read and checked then, before the first is given, and each is
-    handed over once, so that the reader holds the only copy (a later read of it reads the
-    file again)."""
-
-    def __init__(self, shard: Shard, path: pathlib.Path, header: DatasetHeader) -> None:
-        self.shard, self.path, self.header = shard, path, header
-        self._unread: dict[str, np.ndarray] | None = None
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self.shard)
-
-    def __len__(self) -> int:
-        return len(self.shard)
-
-    def __contains__(self, name: object) -> bool:
-        return name in self.shard
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        if self._unread is None:
-            self._unread = _check_shard(self.path, self.shard, self.header, keep=True)
-        if name in self._unread:
-            return self._unread.pop(name)
-        return self.shard[name]
-
-
 def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader, keep: bool = False
                  ) -> dict[str, np.ndarray]:
     """Every array of a shard read once and checked against ``ARRAYS`` and its header: kind
@@ -460,9 +460,9 @@ def _check_shard(path: pathlib.Path, shard: Shard, header: DatasetHeader, keep: 
     read with ``keep`` (those a packed shard makes from its header's table are not read),
     else none: each array is let go once checked.
 
-    Two arrays are read and checked at a time, each on a thread of its own (decompressing
-    and checking a shard's arrays releases the GIL, and took 2.3x as long on one thread);
-    the first problem in ``ARRAYS``' order is reported, as a read of one at a time would."""
+    Two arrays are read and checked at a time, each on a thread of its own (reading an
+    array's bytes, unpacking it and numpy's checks release the GIL, so the two overlap); the
+    first problem in ``ARRAYS``' order is reported, as a read of one at a time would."""
     names = [name for name in ARRAYS
              if not (isinstance(shard, PackedShard) and name not in shard.stored)]
     length = None
