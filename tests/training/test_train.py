@@ -417,6 +417,17 @@ def test_the_fields_learn_at_jittered_hits_on_rows_that_cover_the_hits(monkeypat
     torch.testing.assert_close(losses, torch.stack(list(expected.values())))
 
 
+@pytest.mark.parametrize("share", [0.0, 0.01, 0.3, 1.0])
+def test_hits_first_is_the_stable_sort_of_the_misses_flags(share):
+    """The fields' rows: every hit, then every miss, each in row order, as the stable sort
+    of the misses' flags orders them (the oracle)."""
+    generator = torch.Generator().manual_seed(7)
+    for n in (1, 2, 37, 16384):
+        hit = torch.rand(n, generator=generator) < share
+        expected = torch.argsort((~hit).to(torch.int8), stable=True)
+        assert torch.equal(training.hits_first(hit), expected)
+
+
 def _all_miss(shards):
     for shard in shards:
         shard["hit"][:] = 0
