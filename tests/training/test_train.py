@@ -1,3 +1,4 @@
+import contextlib
 import dataclasses
 import json
 import math
@@ -12,6 +13,7 @@ import torch
 import torch.multiprocessing as mp
 from dataset_headers import header_dict
 
+from vdnif_addon import threads
 from vdnif_addon.errors import VDNIFError
 from vdnif_addon.model import encoding
 from vdnif_addon.model.encoding import HashGrid
@@ -744,11 +746,57 @@ def test_two_cpu_processes_train_to_identical_weights(tmp_path):
     assert first["validation"] == second["validation"] and first["validation"]["segments"] > 0
 
 
-class _Logit(torch.nn.Module):
-    """Stands in for the network: occlusion logit 8 (x - 0.5) of p0's x."""
+@pytest.mark.parametrize("cores", [1, 2])
+def test_head_outputs_are_forward_chunk_by_chunk(monkeypatch, cores):
+    """The held-out pass (the encoder of a chunk beside the MLP of the one before, on two
+    cores; the fields after) gives ``forward``'s outputs of each chunk bit for bit, the
+    fields read at the reference's hits and 0 elsewhere."""
+    monkeypatch.setattr(threads, "cores", lambda: cores)
+    torch.manual_seed(6)
+    network = IntersectionNetwork(NetworkConfig(
+        **SMALL, heads=Heads(albedo=True, material_count=2), normal_mode="hit",
+        albedo_mode="hit")).eval()
+    with torch.no_grad():
+        for grid in network.modules():
+            if isinstance(grid, HashGrid):
+                grid.table.normal_()
+    n, chunk = 1000, 96
+    hit = torch.rand(n) < 0.3
+    data = {"p0": torch.rand(n, 3), "p1": torch.rand(n, 3), "hit": hit,
+            "hit_frac": torch.where(hit, torch.rand(n), 0.0)}
+    outputs = head_outputs(network, data, chunk)
+    with torch.no_grad():
+        parts = [network(data["p0"][rows], data["p1"][rows], data["hit_frac"][rows],
+                         data["hit"][rows].nonzero().squeeze(1))
+                 for rows in (slice(start, start + chunk) for start in range(0, n, chunk))]
+    assert set(outputs) == {"occlusion", "distance", "normal", "albedo", "material"}
+    for key, value in outputs.items():
+        assert torch.equal(value, torch.cat([part[key] for part in parts])), key
+    assert torch.equal(outputs["normal"][~hit], torch.zeros(int((~hit).sum()), 3))
+
+
+class _StandIn(torch.nn.Module):
+    """Stands in for the network in ``head_outputs``: its features are p0, its MLPs run in
+    float32, it has no point field, and ``heads`` answers."""
 
     def forward(self, p0, p1, hit_frac=None, hit=None):
-        return {"occlusion": 8.0 * (p0[:, 0] - 0.5)}
+        return self.heads(p0)
+
+    def encoded(self, pairs):
+        return (p0 for p0, _ in pairs)
+
+    def add_fields(self, outputs, p0, p1, hit_frac, rows=None):
+        pass
+
+    def mlp_arithmetic(self, device):
+        return contextlib.nullcontext()
+
+
+class _Logit(_StandIn):
+    """Occlusion logit 8 (x - 0.5) of p0's x."""
+
+    def heads(self, features):
+        return {"occlusion": 8.0 * (features[:, 0] - 0.5)}
 
 
 def test_threshold_calibration_minimizes_the_larger_of_holes_and_extras_by_brute_force():
@@ -816,17 +864,17 @@ def test_threshold_calibration_by_segments_minimizes_held_out_errors_by_brute_fo
     assert calibrate_threshold(head_outputs(_Logit(), empty), empty, by_ray=False) is None
 
 
-class _Table(torch.nn.Module):
-    """Stands in for the network: each segment's occlusion logit and log-distance output
-    read from p0's x (the row's index) in fixed tables; the distance table holds log1p(t/l)."""
+class _Table(_StandIn):
+    """Each segment's occlusion logit and log-distance output read from p0's x (the row's
+    index) in fixed tables; the distance table holds log1p(t/l)."""
 
     def __init__(self, logit, distance):
         super().__init__()
         self.logit, self.distance = logit, distance
         self.config = NetworkConfig(**SMALL, distance_mode="log1p-fraction")
 
-    def forward(self, p0, p1, hit_frac=None, hit=None):
-        row = p0[:, 0].long()
+    def heads(self, features):
+        row = features[:, 0].long()
         return {"occlusion": self.logit[row], "distance": self.distance[row],
                 "normal": torch.ones(len(row), 3)}
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
@@ -131,16 +131,26 @@ class IntersectionNetwork(nn.Module):
         absent without ``hit_frac``.
         """
         outputs = self.heads(self.encoder(p0, p1))
-        fields = self.point_fields()
-        if fields and hit_frac is not None:
-            if rows is None:
-                rows = torch.arange(len(p0), device=p0.device)
-            point = p0[rows] + hit_frac[rows].unsqueeze(1) * (p1[rows] - p0[rows])
-            for name in fields:
-                value = self.field_at(name, point)
-                outputs[name] = value.new_zeros(len(p0), value.shape[1]).index_copy(
-                    0, rows, value)
+        if hit_frac is not None:
+            self.add_fields(outputs, p0, p1, hit_frac, rows)
         return outputs
+
+    def add_fields(
+        self, outputs: dict[str, Float[torch.Tensor, "batch ..."]],
+        p0: Float[torch.Tensor, "batch 3"], p1: Float[torch.Tensor, "batch 3"],
+        hit_frac: Float[torch.Tensor, " batch"],
+        rows: Int64[torch.Tensor, " rows"] | None = None,
+    ) -> None:
+        """Adds to the head ``outputs`` of segments p0, p1 the heads that a field gives, at
+        the reference's hit ``hit_frac`` on the rows ``rows`` (``forward`` says how)."""
+        fields = self.point_fields()
+        if fields and rows is None:
+            rows = torch.arange(len(p0), device=p0.device)
+        if fields:
+            point = p0[rows] + hit_frac[rows].unsqueeze(1) * (p1[rows] - p0[rows])
+        for name in fields:
+            value = self.field_at(name, point)
+            outputs[name] = value.new_zeros(len(p0), value.shape[1]).index_copy(0, rows, value)
 
     def point_fields(self) -> dict[str, PointField]:
         """Heads that a field of the rest point gives at the hit (``albedo_mode``,
@@ -197,10 +207,7 @@ class IntersectionNetwork(nn.Module):
         the candidates reads the device on the host; with ``select_candidates`` False the
         fields are evaluated at every segment instead and kept at the candidates, no read.
 
-        On the CPU with more than one core (``threads.cores()``) the encoder of batch k+1
-        runs in a worker thread (one core: a Warp CPU launch is serial and releases the GIL),
-        on the cores torch's threads leave, while this thread runs the MLP of batch k (torch's
-        threads); only the worker launches kernels meanwhile.
+        On the CPU the encoder of batch k+1 runs beside the MLP of batch k (``encoded``).
         """
         batch = batch or PREDICT_BATCH.get(p0.device.type, PREDICT_BATCH["cpu"])
         chunks = list(zip(p0.split(batch), p1.split(batch), rest_len.split(batch)))
@@ -208,41 +215,14 @@ class IntersectionNetwork(nn.Module):
             chunks = [(p0, p1, rest_len)]
         mode = self.config.distance_mode
 
-        def encode(index: int) -> Float[torch.Tensor, "chunk features"]:
-            # inference mode and autocast are per thread; under the MLPs' arithmetic the
-            # features come in the dtype their first layer reads
-            with torch.inference_mode(), self.mlp_arithmetic(chunks[index][0].device):
-                return self.encoder(chunks[index][0], chunks[index][1])
-
         def predictions(index: int, features: Float[torch.Tensor, "chunk features"]
                         ) -> dict[str, torch.Tensor]:
             with self.mlp_arithmetic(features.device):
                 outputs = self.heads(features)
             return readout(outputs, mode, voxel_size, chunks[index][2], self.thresholds)
 
-        parts = []
-        if p0.device.type != "cpu" or len(chunks) == 1 or threads.cores() == 1:
-            # CUDA launches are asynchronous already: the stream overlaps them with the host;
-            # one core has nothing to run the encoder beside the MLP on.
-            for index in range(len(chunks)):
-                parts.append(predictions(index, encode(index)))
-        else:
-            # Beside the MLP the encoder keeps to the cores torch's threads leave: split over
-            # every core, it would take one from the MLP.
-            cores = threads.cores()
-            spare = max(1, cores - torch.get_num_threads())
-
-            def encode_beside(index: int) -> Float[torch.Tensor, "chunk features"]:
-                with threads.lane_cores(cores, spare):
-                    return encode(index)
-
-            with ThreadPoolExecutor(1, thread_name_prefix="vdnif-encoder") as worker:
-                pending = worker.submit(encode, 0)
-                for index in range(len(chunks)):
-                    features = pending.result()
-                    if index + 1 < len(chunks):
-                        pending = worker.submit(encode_beside, index + 1)
-                    parts.append(predictions(index, features))
+        parts = [predictions(index, features) for index, features in
+                 enumerate(self.encoded([(p0, p1) for p0, p1, _ in chunks]))]
         result = {key: torch.cat([part[key] for part in parts]) for key in parts[0]}
         fields = self.point_fields()
         if fields and not select_candidates:
@@ -278,6 +258,48 @@ class IntersectionNetwork(nn.Module):
                     answer.index_copy_(0, rows, value.to(answer.dtype))
             result.update(answers)
         return result
+
+    def encoded(self, pairs: Sequence[tuple[Float[torch.Tensor, "chunk 3"],
+                                            Float[torch.Tensor, "chunk 3"]]]
+                ) -> Iterator[Float[torch.Tensor, "chunk features"]]:
+        """The encoder's features of each (p0, p1) of ``pairs`` in turn, without autograd,
+        in the dtype the first layer reads under ``mlp_arithmetic``.
+
+        On the CPU with more than one core (``threads.cores()``) the encoder of pair k+1
+        runs in a worker thread (one core: a Warp CPU launch is serial and releases the GIL),
+        on the cores torch's threads leave, while the caller runs the MLP of pair k (torch's
+        threads); the caller launches no kernel meanwhile. A launch's features are the same
+        on any number of cores."""
+
+        def encode(index: int) -> Float[torch.Tensor, "chunk features"]:
+            # inference mode and autocast are per thread
+            p0, p1 = pairs[index]
+            with torch.inference_mode(), self.mlp_arithmetic(p0.device):
+                return self.encoder(p0, p1)
+
+        if not pairs or pairs[0][0].device.type != "cpu" or len(pairs) == 1 \
+                or threads.cores() == 1:
+            # CUDA launches are asynchronous already: the stream overlaps them with the host;
+            # one core has nothing to run the encoder beside the MLP on.
+            for index in range(len(pairs)):
+                yield encode(index)
+            return
+        # Beside the MLP the encoder keeps to the cores torch's threads leave: split over
+        # every core, it would take one from the MLP.
+        cores = threads.cores()
+        spare = max(1, cores - torch.get_num_threads())
+
+        def encode_beside(index: int) -> Float[torch.Tensor, "chunk features"]:
+            with threads.lane_cores(cores, spare):
+                return encode(index)
+
+        with ThreadPoolExecutor(1, thread_name_prefix="vdnif-encoder") as worker:
+            pending = worker.submit(encode, 0)
+            for index in range(len(pairs)):
+                features = pending.result()
+                if index + 1 < len(pairs):
+                    pending = worker.submit(encode_beside, index + 1)
+                yield features
 
     def mlp_arithmetic(self, device: torch.device) -> torch.autocast:
         """The MLPs' arithmetic in ``predict``: bfloat16 where ``precision`` says so (the

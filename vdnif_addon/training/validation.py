@@ -52,14 +52,21 @@ def head_outputs(
     network: IntersectionNetwork, data: Segments, batch: int = 2**16
 ) -> dict[str, Float[torch.Tensor, "segments ..."]]:
     """The network's head outputs over every row of ``data`` (a point field's at the
-    reference's hit), in chunks of ``batch`` rows: the one pass over the held-out poses that
-    both calibrations and the final validation read (each pass is seconds on a CPU)."""
+    reference's hit), its MLPs in its ``precision`` (float32 while it trains), in chunks of
+    ``batch`` rows: the one pass over the held-out poses that both calibrations and the final
+    validation read (each pass is seconds on a CPU)."""
+    chunks = [slice(start, start + batch) for start in range(0, data["p0"].shape[0], batch)]
+    # the encoder of a chunk runs beside the MLP of the one before (``encoded``), and the
+    # fields, whose grids launch kernels too, once that is done
+    pairs = [(data["p0"][rows], data["p1"][rows]) for rows in chunks]
     parts = []
-    for start in range(0, data["p0"].shape[0], batch):
-        rows = slice(start, start + batch)
+    for features in network.encoded(pairs):
+        with network.mlp_arithmetic(features.device):
+            parts.append(network.heads(features))
+    for part, rows in zip(parts, chunks):
         # the fields only where a loss or figure reads them: at the hits
-        hits = data["hit"][rows].nonzero().squeeze(1)
-        parts.append(network(data["p0"][rows], data["p1"][rows], data["hit_frac"][rows], hits))
+        network.add_fields(part, data["p0"][rows], data["p1"][rows], data["hit_frac"][rows],
+                           data["hit"][rows].nonzero().squeeze(1))
     return {key: torch.cat([part[key] for part in parts]) for key in parts[0]} if parts else {}
 
 
