@@ -278,6 +278,10 @@ def calibrate_candidate_threshold(
         ray, rays = _ray_index(data)
         reference = _first_per_ray(data["hit"], data["t0"].double() + data["hit_frac"].double()
                                    * data["seg_len"].double(), ray, rays)
+        # Every threshold tried reads only rows above the lowest one, in their order, so
+        # their first is a ray's first: they are taken once.
+        above = probability > thresholds[0]
+        probability, distance, ray = probability[above], distance[above], ray[above]
         confident = _first_per_ray(probability > occlusion, distance, ray, rays)
         both = ~(reference.isnan() | confident.isnan())
         for index, threshold in enumerate(thresholds):
